@@ -1,0 +1,15 @@
+"""dolfinode: variational (Galerkin) time integration of ODE systems declared in sympy.
+
+Public surface (see shared/API.md): ``ODE``, ``t``, ``solve``, ``Solution``, ``SolverError``.
+"""
+from dolfinode.errors import SolverError
+from dolfinode.methods import Method, make_method, parse_method
+from dolfinode.ode import ODE, t
+from dolfinode.parameters import DEFAULTS as default_parameters
+from dolfinode.solution import Solution
+from dolfinode.solve import solve
+
+__version__ = "0.1.0"
+
+__all__ = ["ODE", "Method", "Solution", "SolverError", "default_parameters", "make_method",
+           "parse_method", "solve", "t"]

@@ -1,0 +1,169 @@
+"""Galerkin time-stepping methods cG(q) and dG(q): their nodal weights and bases.
+
+On an element I = (t_{n-1}, t_n] of length k, with tau = (t - t_{n-1}) / k in [0, 1],
+the discrete solution U is the polynomial of degree q through its values xi_j at the
+method's nodes tau_j. Both methods reduce, after exact quadrature, to the stage form
+
+    xi_s = x0 + k * (b0_s f(x0, t_{n-1}) + sum_m A_sm f(xi_m, t_{n-1} + tau_m k)),
+
+over the stage nodes (the nodes that carry unknowns). The weights come from the
+Galerkin equations solved in 60-digit arithmetic (see ``galerkin_weights``).
+"""
+import re
+from dataclasses import dataclass
+from functools import lru_cache
+
+import mpmath as mp
+import numpy as np
+
+from dolfinode.methods.quadrature import _DPS, lobatto, radau
+
+_METHOD_PATTERN = re.compile(r"^\s*(m?)(cG|dG)\(\s*(\d+)\s*\)\s*$", re.IGNORECASE)
+
+
+@dataclass(frozen=True, eq=False)
+class Method:
+    """Tables of one Galerkin method (all arrays read-only float64).
+
+    Attributes
+    ----------
+    family : "cG" or "dG"
+    q : polynomial degree of the trial space
+    nodes : (q+1,) nodes on [0, 1]; Lobatto for cG (with 0 and 1), right Radau for dG (with 1)
+    quadrature_weights : (q+1,) weights of the quadrature rule on the nodes
+    stages : indices of the nodes that carry unknowns (1..q for cG, 0..q for dG)
+    A : (s, s) weights on the stage values of f
+    b0 : (s,) weights on f(x0) (zero for dG)
+    end_derivative : (q+1,) l_j'(1), so that k U'(t_n) = sum_j xi_j l_j'(1)
+    left_value : (q+1,) l_j(0), so that U(t_{n-1}^+) = sum_j xi_j l_j(0)
+    order : nodal order of convergence, 2q (cG) or 2q + 1 (dG)
+    residual_power : power p of k in the error indicator k^p |R| (q for cG, q + 1 for dG)
+    """
+
+    family: str
+    q: int
+    nodes: np.ndarray
+    quadrature_weights: np.ndarray
+    stages: np.ndarray
+    A: np.ndarray
+    b0: np.ndarray
+    end_derivative: np.ndarray
+    left_value: np.ndarray
+    barycentric_weights: np.ndarray
+
+    @property
+    def name(self):
+        return f"{self.family}({self.q})"
+
+    @property
+    def order(self):
+        return 2 * self.q if self.family == "cG" else 2 * self.q + 1
+
+    @property
+    def residual_power(self):
+        return self.q if self.family == "cG" else self.q + 1
+
+    @property
+    def num_stages(self):
+        return len(self.stages)
+
+    def basis(self, tau):
+        """Lagrange basis l_j(tau) on the nodes, shape (len(tau), q+1), by the barycentric formula."""
+        tau = np.atleast_1d(np.asarray(tau, dtype=float))
+        diff = tau[:, None] - self.nodes[None, :]
+        exact = diff == 0.0
+        diff[exact] = 1.0
+        terms = self.barycentric_weights / diff
+        values = terms / terms.sum(axis=1, keepdims=True)
+        hit = exact.any(axis=1)
+        values[hit] = exact[hit].astype(float)
+        return values
+
+    def __repr__(self):
+        return f"Method({self.name})"
+
+
+def _lagrange_coefficients(nodes):
+    """Monomial coefficients C[j, i] of the Lagrange basis l_j(tau) = sum_i C[j, i] tau^i."""
+    n = len(nodes)
+    V = mp.matrix(n, n)
+    for m in range(n):
+        for i in range(n):
+            V[m, i] = nodes[m] ** i
+    Vinv = mp.inverse(V)  # l_j has coefficients = column j of V^{-1}
+    return [[Vinv[i, j] for i in range(n)] for j in range(n)]
+
+
+def galerkin_weights(family, q):
+    """Stage weights (A, b0), end derivative and left values of cG(q) or dG(q), in mpmath.
+
+    cG(q): find U of degree q with U(0) = x0 such that for all v of degree q - 1,
+        int_0^1 U' v = k int_0^1 f(U) v      (Lobatto quadrature, q + 1 points).
+    dG(q): find U of degree q such that for all v of degree q,
+        (U(0^+) - x0) v(0) + int_0^1 U' v = k int_0^1 f(U) v   (Radau quadrature).
+    With monomial test functions v_i = tau^i this is M xi = c x0 + k B f, and since
+    constants are reproduced exactly, xi = x0 + k M^{-1} B f.
+    """
+    with mp.workdps(_DPS):
+        nodes, weights = lobatto(q + 1) if family == "cG" else radau(q + 1)
+        n = q + 1
+        C = _lagrange_coefficients(nodes)
+        stages = list(range(1, n)) if family == "cG" else list(range(n))
+        ntest = len(stages)
+        M = mp.matrix(ntest, ntest)
+        B = mp.matrix(ntest, n)
+        for i in range(ntest):
+            for col, j in enumerate(stages):
+                # int_0^1 l_j'(tau) tau^i dtau = sum_p C[j][p] p / (p + i)
+                integral = mp.fsum(C[j][p] * p / (p + i) for p in range(1, n))
+                jump = C[j][0] if (family == "dG" and i == 0) else 0  # l_j(0) v_i(0), v_i(0)=delta_i0
+                M[i, col] = integral + jump
+            for m in range(n):
+                B[i, m] = weights[m] * nodes[m] ** i
+        W = mp.inverse(M) * B
+        end_derivative = [mp.fsum(C[j][p] * p for p in range(1, n)) for j in range(n)]
+        left_value = [C[j][0] for j in range(n)]
+        bary = [1 / mp.fprod(nodes[j] - nodes[m] for m in range(n) if m != j) for j in range(n)]
+        return nodes, weights, stages, W, end_derivative, left_value, bary
+
+
+def _frozen(values):
+    array = np.array([float(v) for v in values], dtype=float)
+    array.setflags(write=False)
+    return array
+
+
+@lru_cache(maxsize=None)
+def make_method(family, q):
+    """The cG(q) (q >= 1) or dG(q) (q >= 0) method, built once and cached."""
+    if family not in ("cG", "dG"):
+        raise ValueError(f"unknown method family {family!r}: use 'cG' or 'dG'")
+    qmin = 1 if family == "cG" else 0
+    if not isinstance(q, (int, np.integer)) or q < qmin:
+        raise ValueError(f"{family}(q) needs an integer q >= {qmin}, got {q!r}")
+    nodes, weights, stages, W, dend, left, bary = galerkin_weights(family, int(q))
+    s = len(stages)
+    Wf = np.array([[float(W[i, m]) for m in range(q + 1)] for i in range(s)])
+    if family == "cG":
+        A, b0 = Wf[:, 1:], Wf[:, 0]
+    else:
+        A, b0 = Wf, np.zeros(s)
+    for array in (A, b0):
+        array.setflags(write=False)
+    stage_idx = np.array(stages, dtype=np.int64)
+    stage_idx.setflags(write=False)
+    return Method(family, int(q), _frozen(nodes), _frozen(weights), stage_idx, A, b0,
+                  _frozen(dend), _frozen(left), _frozen(bary))
+
+
+def parse_method(name):
+    """Split a method name such as "cG(2)", "dG(0)", "mcG(1)" into (multi_adaptive, Method)."""
+    if not isinstance(name, str):
+        raise TypeError(f"method must be a string such as 'cG(1)' or 'mdG(0)', got {name!r}")
+    match = _METHOD_PATTERN.match(name)
+    if not match:
+        raise ValueError(f"unknown method {name!r}: use 'cG(q)' (q >= 1), 'dG(q)' (q >= 0), "
+                         "or 'mcG(q)', 'mdG(q)' for individual time steps per component")
+    multi, family, q = match.groups()
+    family = "cG" if family.lower() == "cg" else "dG"
+    return bool(multi), make_method(family, int(q))

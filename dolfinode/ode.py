@@ -1,0 +1,238 @@
+"""Declaration of an ODE system u' = f(u, t) by symbolic sympy right-hand sides.
+
+The declaration holds no numerics: it validates and stores the states, the right-hand
+side expressions, the parameter values, the initial value and the time interval. Lowering
+to compiled kernels happens in :mod:`dolfinode.compile`.
+"""
+import difflib
+import math
+from collections.abc import Mapping
+
+import numpy as np
+import sympy as sp
+
+#: The time symbol usable in right-hand sides.
+t = sp.Symbol("t", real=True)
+
+_ALLOWED_FUNCTIONS = (
+    sp.exp, sp.log, sp.sin, sp.cos, sp.tan, sp.asin, sp.acos, sp.atan, sp.atan2, sp.sinh,
+    sp.cosh, sp.tanh, sp.asinh, sp.acosh, sp.atanh, sp.Abs, sp.sign, sp.Min, sp.Max,
+    sp.Piecewise, sp.Heaviside, sp.erf, sp.erfc, sp.floor, sp.ceiling, sp.sqrt,
+)
+
+
+def _suggest(name, candidates):
+    match = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.5)
+    return f"; did you mean {match[0]!r}?" if match else ""
+
+
+def _check_time(value, what):
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{what} must be a real number, got {value!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{what} must be finite, got {value}")
+    return value
+
+
+def _as_expression(expr, state):
+    try:
+        expr = sp.sympify(expr, strict=True)
+    except (sp.SympifyError, TypeError, AttributeError):
+        raise TypeError(f"the right-hand side of {state} is not a sympy expression: {expr!r}; "
+                        "build it from sympy symbols and numbers") from None
+    if not isinstance(expr, sp.Expr):
+        raise TypeError(f"the right-hand side of {state} must be a scalar sympy expression, "
+                        f"got {type(expr).__name__}: {expr}")
+    if expr.has(sp.I) or expr.has(sp.zoo) or expr.has(sp.nan) or expr.has(sp.oo):
+        raise ValueError(f"the right-hand side of {state} is not a finite real expression: {expr}")
+    for call in expr.atoms(sp.Function, sp.Derivative, sp.Integral):
+        if isinstance(call, (sp.Derivative, sp.Integral)) or not isinstance(call, _ALLOWED_FUNCTIONS):
+            raise ValueError(f"the right-hand side of {state} uses {call}, which cannot be "
+                             "compiled; use elementary functions of the states, parameters and dn.t")
+    return expr
+
+
+def _vector_by_state(values, states, what):
+    """Turn a dict by state symbol (or a sequence in component order) into a float vector."""
+    names = {s.name: s for s in states}
+    if isinstance(values, Mapping):
+        unknown = [k for k in values if k not in states]
+        if unknown:
+            key = unknown[0]
+            name = getattr(key, "name", str(key))
+            raise ValueError(f"{what} has a value for {key!r}, which is not a state"
+                             f"{_suggest(name, names)}; states are {', '.join(names)}")
+        missing = [s.name for s in states if s not in values]
+        if missing:
+            raise ValueError(f"{what} is missing values for {', '.join(missing)}")
+        vector = [values[s] for s in states]
+    else:
+        try:
+            vector = list(np.asarray(values, dtype=object).ravel()) if not np.isscalar(values) else None
+        except Exception:  # noqa: BLE001 - anything not array-like is reported below
+            vector = None
+        if vector is None or np.ndim(values) != 1:
+            raise TypeError(f"{what} must be a dict by state symbol or a sequence of "
+                            f"{len(states)} numbers, got {values!r}")
+        if len(vector) != len(states):
+            raise ValueError(f"{what} has {len(vector)} values but the system has "
+                             f"{len(states)} states ({', '.join(names)})")
+    try:
+        array = np.array([float(v) for v in vector], dtype=float)
+    except (TypeError, ValueError):
+        raise TypeError(f"{what} must hold real numbers, got {vector!r}") from None
+    bad = np.flatnonzero(~np.isfinite(array))
+    if bad.size:
+        raise ValueError(f"{what} is not finite for {states[bad[0]].name}: {array[bad[0]]}")
+    return array
+
+
+class ODE:
+    """An initial value problem u' = f(u, t) on (t0, T], u(t0) = u0, declared with sympy.
+
+    Parameters
+    ----------
+    rhs : dict
+        State symbol -> right-hand side expression; the key order is the component order.
+        A sequence of (symbol, expression) pairs is accepted too.
+    u0 : dict or sequence
+        Initial values, by state symbol or in component order.
+    T : float
+        Final time, T > t0.
+    params : dict, optional
+        Parameter symbol -> value, for every other symbol in the right-hand sides.
+    t0 : float, optional
+        Initial time (default 0).
+
+    Raises
+    ------
+    TypeError, ValueError
+        With a message naming the offending state, symbol or value.
+    """
+
+    def __init__(self, rhs, u0, T, params=None, t0=0.0):
+        pairs = list(rhs.items()) if isinstance(rhs, Mapping) else self._pairs(rhs)
+        if not pairs:
+            raise ValueError("an ODE needs at least one state")
+        states = []
+        for state, _ in pairs:
+            if not isinstance(state, sp.Symbol):
+                raise TypeError(f"states must be sympy Symbols, got {state!r} "
+                                f"({type(state).__name__})")
+            if state == t or state.name == t.name:
+                raise ValueError(f"{state} is the time symbol and cannot be a state")
+            if state.name in {s.name for s in states}:
+                raise ValueError(f"duplicate state {state.name!r}: every state needs its own name")
+            states.append(state)
+        self.states = tuple(states)
+        self.params = self._params(params)
+        self.rhs = tuple(_as_expression(expr, state) for state, expr in pairs)
+        self._check_symbols()
+        self.t0 = _check_time(t0, "t0")
+        self.T = _check_time(T, "T")
+        if not self.T > self.t0:
+            raise ValueError(f"the final time T = {self.T} must be larger than t0 = {self.t0}")
+        self.u0 = _vector_by_state(u0, self.states, "u0")
+
+    @staticmethod
+    def _pairs(rhs):
+        try:
+            pairs = [tuple(p) for p in rhs]
+        except TypeError:
+            raise TypeError("rhs must be a dict {state symbol: expression}, got "
+                            f"{type(rhs).__name__}") from None
+        if any(len(p) != 2 for p in pairs):
+            raise TypeError("rhs as a sequence must hold (state, expression) pairs")
+        return pairs
+
+    def _params(self, params):
+        params = {} if params is None else params
+        if not isinstance(params, Mapping):
+            raise TypeError(f"params must be a dict {{symbol: value}}, got {type(params).__name__}")
+        clean = {}
+        for symbol, value in params.items():
+            if not isinstance(symbol, sp.Symbol):
+                raise TypeError(f"parameter keys must be sympy Symbols, got {symbol!r}")
+            if symbol in self.states:
+                raise ValueError(f"{symbol} is both a state and a parameter")
+            if symbol == t:
+                raise ValueError("dn.t is the time and cannot be a parameter")
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise TypeError(f"parameter {symbol} must be a real number, got {value!r}") from None
+            if not math.isfinite(value):
+                raise ValueError(f"parameter {symbol} must be finite, got {value}")
+            clean[symbol] = value
+        return clean
+
+    def _check_symbols(self):
+        known = set(self.states) | set(self.params) | {t}
+        names = [s.name for s in known]
+        for state, expr in zip(self.states, self.rhs):
+            for symbol in sorted(expr.free_symbols - known, key=lambda s: s.name):
+                if symbol.name == t.name:
+                    hint = "; use dn.t for the time"
+                else:
+                    hint = _suggest(symbol.name, names) + (
+                        f" If {symbol.name} is a parameter, give its value in params=")
+                raise ValueError(f"unknown symbol {symbol.name!r} in the right-hand side of "
+                                 f"{state.name}{hint}")
+
+    @property
+    def N(self):
+        """Number of components."""
+        return len(self.states)
+
+    @property
+    def parameter_symbols(self):
+        return tuple(self.params)
+
+    @property
+    def parameter_values(self):
+        return np.array(list(self.params.values()), dtype=float)
+
+    def index(self, state):
+        """Component index of a state symbol (or of its name)."""
+        for i, s in enumerate(self.states):
+            if s == state or s.name == state:
+                return i
+        raise ValueError(f"{state!r} is not a state{_suggest(str(state), [s.name for s in self.states])}")
+
+    @classmethod
+    def second_order(cls, accelerations, x0, v0, T, params=None, t0=0.0, velocities=None):
+        """Declare x'' = a(x, x', t) as the first-order system (x, v)' = (v, a).
+
+        Components are all positions, then all velocities. Velocity symbols default to
+        ``Symbol(name + "_dot")``; pass ``velocities={x: xdot}`` to choose them (and use them
+        in the accelerations).
+        """
+        if not isinstance(accelerations, Mapping):
+            raise TypeError("accelerations must be a dict {position symbol: expression}")
+        positions = list(accelerations)
+        velocities = dict(velocities or {})
+        for x in velocities:
+            if x not in accelerations:
+                raise ValueError(f"velocities names {x!r}, which is not a position")
+        vel = [velocities.get(x, sp.Symbol(f"{getattr(x, 'name', x)}_dot")) for x in positions]
+        rhs = [(x, v) for x, v in zip(positions, vel)] + [(v, accelerations[x]) for x, v in zip(positions, vel)]
+        ode_positions = [x for x in positions]
+        u0_x = _vector_by_state(x0, tuple(ode_positions), "x0") if all(
+            isinstance(x, sp.Symbol) for x in positions) else x0
+        u0_v = _vector_by_state(v0, tuple(ode_positions), "v0") if all(
+            isinstance(x, sp.Symbol) for x in positions) else v0
+        ode = cls(rhs, u0=np.concatenate([u0_x, u0_v]), T=T, params=params, t0=t0)
+        ode.velocity_symbols = dict(zip(positions, vel))
+        return ode
+
+    def velocity(self, x):
+        """The velocity symbol of position x in a system built by :meth:`second_order`."""
+        try:
+            return self.velocity_symbols[x]
+        except (AttributeError, KeyError):
+            raise ValueError(f"{x!r} is not a position of a second-order system") from None
+
+    def __repr__(self):
+        return f"ODE(N={self.N}, t0={self.t0}, T={self.T}, params={len(self.params)})"

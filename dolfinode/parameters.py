@@ -1,0 +1,61 @@
+"""Solver parameters with DOLFIN's names, their defaults, and did-you-mean validation."""
+import difflib
+import math
+
+#: Every parameter ``solve`` accepts, with its default.
+DEFAULTS = {
+    "tolerance": 1e-6,             # rtol of the residual-based indicator (DOLFIN: TOL)
+    "absolute_tolerance": None,    # atol, scalar or per state; None: equal to tolerance
+    "initial_time_step": None,     # None: chosen from f(u0)
+    "maximum_time_step": None,     # None: T - t0
+    "fixed_time_step": False,      # True: uniform steps of initial_time_step, no adaptivity
+    "nonlinear_solver": "default",  # "default" | "fixed-point" | "newton"
+    "discrete_tolerance_factor": 1e-3,  # nonlinear tolerance relative to the indicator's
+    "maximum_iterations": 30,      # per nonlinear solve
+    "safety_factor": 0.9,
+    "number_of_samples": 101,      # output samples sol.t, sol.y
+    "progress": False,             # tqdm progress bar
+}
+
+NONLINEAR_SOLVERS = ("default", "fixed-point", "newton")
+
+
+def _positive(name, value, allow_none=True):
+    if value is None and allow_none:
+        return None
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a positive number, got {value!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive finite number, got {value}")
+    return value
+
+
+def check_parameters(given):
+    """Merge ``given`` into the defaults; unknown names raise with the closest valid name."""
+    for name in given:
+        if name not in DEFAULTS:
+            close = difflib.get_close_matches(name, DEFAULTS, n=1, cutoff=0.4)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise ValueError(f"unknown parameter {name!r}{hint} Valid parameters: "
+                             f"{', '.join(sorted(DEFAULTS))}")
+    params = dict(DEFAULTS, **given)
+    params["tolerance"] = _positive("tolerance", params["tolerance"], allow_none=False)
+    params["initial_time_step"] = _positive("initial_time_step", params["initial_time_step"])
+    params["maximum_time_step"] = _positive("maximum_time_step", params["maximum_time_step"])
+    params["discrete_tolerance_factor"] = _positive(
+        "discrete_tolerance_factor", params["discrete_tolerance_factor"], allow_none=False)
+    params["safety_factor"] = _positive("safety_factor", params["safety_factor"], allow_none=False)
+    if params["nonlinear_solver"] not in NONLINEAR_SOLVERS:
+        close = difflib.get_close_matches(str(params["nonlinear_solver"]), NONLINEAR_SOLVERS, n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise ValueError(f"unknown nonlinear_solver {params['nonlinear_solver']!r}{hint} "
+                         f"Choose one of {NONLINEAR_SOLVERS}")
+    for name in ("maximum_iterations", "number_of_samples"):
+        value = params[name]
+        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if params["fixed_time_step"] and params["initial_time_step"] is None:
+        raise ValueError("fixed_time_step=True needs the step: give initial_time_step=k")
+    return params

@@ -1,0 +1,1 @@
+"""Nonlinear solvers for the discrete equations on a time slab."""

@@ -1,0 +1,1 @@
+"""Time slabs: the compiled loops that build, solve and check one slab after another."""

@@ -1,0 +1,181 @@
+"""The mono-adaptive time-slab loop: cG(q) and dG(q) with one time step for all components.
+
+One compiled function advances the solution slab by slab (build, solve, check, accept or
+reject, as DOLFIN's TimeStepper) and stores every accepted element's nodal values; it returns
+when it reaches T, when its output buffer is full (the driver then calls it again, which is
+also where progress is reported), or when it cannot continue.
+"""
+import math
+
+import numpy as np
+from numba import njit, types
+
+from dolfinode.adaptivity import next_step
+from dolfinode.compile.signatures import JACOBIAN_TYPE, RHS_TYPE
+from dolfinode.solvers.slab import assemble_newton_matrix, factor, fixed_point, newton
+
+# Indices into the integer counters (kept across calls by the driver).
+STEPS, REJECTED, F_EVALUATIONS, JACOBIANS, FACTORIZATIONS, ITERATIONS, STORED, FAILED_SOLVES, \
+    STIFF = range(9)
+NUM_COUNTERS = 9
+# Indices into the float state.
+T_NOW, K_NEXT, EPS_PREV, HAVE_F0 = range(4)
+# Indices into the integer and float options.
+SOLVER, FIXED, MAX_ITER, IS_DG = range(4)
+RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, RESIDUAL_POWER, KMIN_REL = range(8)
+# Return codes.
+DONE, FULL, NONCONVERGENCE, BLOWUP, UNDERFLOW = range(5)
+# Solver modes.
+DEFAULT, FIXED_POINT, NEWTON = range(3)
+
+_f8 = types.float64[::1]
+_i8 = types.int64[::1]
+_SIGNATURE = types.int64(
+    RHS_TYPE, JACOBIAN_TYPE, _f8,            # f, J, p
+    _i8, _i8, _i8, types.int64, types.int64,  # indptr, indices, position, kl, ku
+    types.float64[:, ::1], _f8, _f8, _f8, _f8,  # A, b0, tau, end_derivative, left_value
+    _i8, _f8, _f8,                           # iopts, fopts, atol
+    _f8, _f8, _f8, _i8,                      # x, f0, state, counters
+    _f8, _f8, types.float64[:, :, ::1],      # out_t, out_k, out_X
+)
+
+
+@njit(_SIGNATURE, cache=True, error_model="numpy")
+def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_derivative,
+            left_value, iopts, fopts, atol, x, f0, state, counters, out_t, out_k, out_X):
+    """Advance (x, t) towards T, storing accepted elements in out_*; returns a status code."""
+    N = x.shape[0]
+    S = A.shape[0]
+    nodes = end_derivative.shape[0]
+    is_dg = iopts[IS_DG] == 1
+    fixed = iopts[FIXED] == 1
+    mode = iopts[SOLVER]
+    max_iter = iopts[MAX_ITER]
+    rtol, T, kmax, safety, dtol = fopts[RTOL], fopts[T_END], fopts[KMAX], fopts[SAFETY], fopts[DTOL]
+    order, rpow = fopts[ORDER], fopts[RESIDUAL_POWER]
+
+    X = np.empty(S * N)
+    F = np.empty(S * N)
+    G = np.empty(S * N)
+    tmp_in = np.empty(N)
+    tmp_out = np.empty(N)
+    fend = np.empty(N)
+    jdata = np.empty(indices.shape[0])
+    ab = np.zeros((S * N, 2 * kl * S + ku * S + 3 * (S - 1) + 1))
+    klS = kl * S + S - 1
+    kuS = ku * S + S - 1
+    ipiv = np.zeros(S * N, dtype=np.int64)
+    rhs_perm = np.empty(S * N)
+    counters[STORED] = 0
+
+    t = state[T_NOW]
+    k = state[K_NEXT]
+    if state[HAVE_F0] == 0.0:
+        f(x, t, p, f0)
+        counters[F_EVALUATIONS] += 1
+        state[HAVE_F0] = 1.0
+    capacity = out_t.shape[0]
+    while counters[STORED] < capacity:
+        if t >= T:
+            return DONE
+        remaining = T - t
+        if not fixed:
+            k = min(k, kmax)
+        if k >= remaining or (not fixed and 1.1 * k >= remaining):
+            k = remaining
+        kmin = fopts[KMIN_REL] * max(abs(t), abs(T) * 1e-6)
+        if k < kmin and k < remaining:
+            return UNDERFLOW
+        # predictor: explicit Euler to every stage
+        for s in range(S):
+            for i in range(N):
+                X[s * N + i] = x[i] + tau[s] * k * f0[i]
+        use_newton = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
+        iters = -1
+        if not use_newton:
+            iters = fixed_point(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter,
+                                X, F, G, tmp_in, tmp_out, counters)
+            if iters < 0 and mode == DEFAULT:
+                counters[STIFF] = 1  # fixed point failed: treat the problem as stiff from here on
+                use_newton = True
+                for s in range(S):
+                    for i in range(N):
+                        X[s * N + i] = x[i] + tau[s] * k * f0[i]
+        if use_newton:
+            jac(x, t, p, jdata)
+            counters[JACOBIANS] += 1
+            assemble_newton_matrix(jdata, indptr, indices, position, A, k, klS, kuS, ab)
+            if factor(ab, klS, kuS, ipiv, counters):
+                iters = newton(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F, G,
+                               tmp_in, tmp_out, ab, klS, kuS, ipiv, position, rhs_perm, counters)
+            else:
+                iters = -1
+        if iters < 0:
+            counters[FAILED_SOLVES] += 1
+            if fixed:
+                return NONCONVERGENCE
+            k *= 0.25
+            if k < kmin:
+                return NONCONVERGENCE
+            continue
+        # end-point value and residual
+        xend = X[(S - 1) * N:]
+        f(xend, t + k, p, fend)
+        counters[F_EVALUATIONS] += 1
+        eps = 0.0
+        blowup = False
+        kp = k ** rpow
+        for i in range(N):
+            if not (math.isfinite(xend[i]) and math.isfinite(fend[i])):
+                blowup = True
+                break
+            kdu = 0.0
+            u_left = 0.0
+            for j in range(nodes):
+                if is_dg:
+                    xi = X[j * N + i]
+                    u_left += left_value[j] * xi
+                else:
+                    xi = x[i] if j == 0 else X[(j - 1) * N + i]
+                kdu += end_derivative[j] * xi
+            r = abs(kdu / k - fend[i])
+            if is_dg:
+                r += abs(u_left - x[i]) / k
+            e = kp * r / (atol[i] + rtol * abs(xend[i]))
+            if e > eps:
+                eps = e
+        if blowup or not math.isfinite(eps):
+            if fixed:
+                return BLOWUP
+            k *= 0.25
+            counters[REJECTED] += 1
+            if k < kmin:
+                return BLOWUP
+            continue
+        if fixed or eps <= 1.0:
+            n = counters[STORED]
+            out_t[n] = t
+            out_k[n] = k
+            for j in range(nodes):
+                for i in range(N):
+                    if is_dg:
+                        out_X[n, j, i] = X[j * N + i]
+                    else:
+                        out_X[n, j, i] = x[i] if j == 0 else X[(j - 1) * N + i]
+            counters[STORED] += 1
+            counters[STEPS] += 1
+            t = t + k if k < remaining else T
+            for i in range(N):
+                x[i] = xend[i]
+                f0[i] = fend[i]
+            k_new = k if fixed else next_step(k, eps, state[EPS_PREV], order, safety, True)
+            state[EPS_PREV] = eps
+            k = k_new
+        else:
+            counters[REJECTED] += 1
+            k = next_step(k, eps, 1.0, order, safety, False)
+        state[T_NOW] = t
+        state[K_NEXT] = k
+    state[T_NOW] = t
+    state[K_NEXT] = k
+    return DONE if t >= T else FULL
