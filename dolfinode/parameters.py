@@ -13,6 +13,7 @@ DEFAULTS = {
     "discrete_tolerance_factor": 1e-3,  # nonlinear tolerance relative to the indicator's
     "maximum_iterations": 30,      # per nonlinear solve
     "safety_factor": 0.9,
+    "maximum_steps": 10_000_000,   # time slabs before giving up (SolverError)
     "number_of_samples": 101,      # output samples sol.t, sol.y
     "progress": False,             # tqdm progress bar
 }
@@ -52,7 +53,7 @@ def check_parameters(given):
         hint = f"; did you mean {close[0]!r}?" if close else ""
         raise ValueError(f"unknown nonlinear_solver {params['nonlinear_solver']!r}{hint} "
                          f"Choose one of {NONLINEAR_SOLVERS}")
-    for name in ("maximum_iterations", "number_of_samples"):
+    for name in ("maximum_iterations", "number_of_samples", "maximum_steps"):
         value = params[name]
         if not isinstance(value, int) or isinstance(value, bool) or value < 1:
             raise ValueError(f"{name} must be a positive integer, got {value!r}")

@@ -105,9 +105,10 @@ def solve(ode, method="cG(1)", **parameters):
     bar = _progress_bar(ode) if params["progress"] else None
     try:
         while True:
-            out_t = np.empty(capacity)
-            out_k = np.empty(capacity)
-            out_X = np.empty((capacity, nodes, ode.N))
+            size = min(capacity, params["maximum_steps"] - counters[mono.STEPS])
+            out_t = np.empty(size)
+            out_k = np.empty(size)
+            out_X = np.empty((size, nodes, ode.N))
             status = mono.advance(compiled.rhs, compiled.jacobian, compiled.p, compiled.indptr,
                                   compiled.indices, position, kl, ku, A, b0, tau, dend, lval,
                                   iopts, fopts, atol, x, f0, state, counters, out_t, out_k, out_X)
@@ -119,11 +120,14 @@ def solve(ode, method="cG(1)", **parameters):
                 bar.update(state[mono.T_NOW] - bar.n)
             if status != mono.FULL:
                 break
+            if counters[mono.STEPS] >= params["maximum_steps"]:
+                status = mono.STEP_LIMIT
+                break
     finally:
         if bar is not None:
             bar.close()
     if status != mono.DONE:
-        raise SolverError(_failure_message(status, state, fixed), t=float(state[mono.T_NOW]))
+        raise SolverError(_failure_message(status, state, fixed, x), t=float(state[mono.T_NOW]))
     solve_time = time.perf_counter() - start
     t_start = np.concatenate(chunks_t)
     k = np.concatenate(chunks_k)
@@ -146,20 +150,25 @@ def solve(ode, method="cG(1)", **parameters):
     return Solution(ode, m, t_start, k, values, stats, params["number_of_samples"])
 
 
-def _failure_message(status, state, fixed):
+def _failure_message(status, state, fixed, x):
     t, k = state[mono.T_NOW], state[mono.K_NEXT]
+    size = f"max |u| = {np.max(np.abs(x)):.3g} there"
+    if status == mono.STEP_LIMIT:
+        return (f"maximum_steps was reached at t = {t:.6g} ({size}); raise maximum_steps, loosen "
+                "the tolerance, or use a higher-order method")
     if status == mono.NONCONVERGENCE:
         if fixed:
             return (f"the nonlinear solver did not converge at t = {t:.6g} with the fixed time "
                     f"step {k:.3g}; use a smaller initial_time_step or nonlinear_solver='newton'")
         return (f"the nonlinear solver did not converge at t = {t:.6g}, even after reducing the "
                 f"time step to {k:.3g}; try nonlinear_solver='newton', a dG(q) method, or check "
-                "the right-hand side for a singularity near this time")
+                f"the right-hand side for a singularity near this time ({size})")
     if status == mono.BLOWUP:
         return (f"the solution is not finite or blows up near t = {t:.6g} (time step reduced to "
-                f"{k:.3g}); the exact solution may have a finite-time singularity there")
+                f"{k:.3g}; {size}): the exact solution may have a finite-time singularity there")
     return (f"the time step fell to {k:.3g} at t = {t:.6g}, below what double precision "
-            "resolves: the solution may blow up near this time, or the tolerance is too tight")
+            f"resolves ({size}): the solution may blow up near this time, or the tolerance is "
+            "too tight for double precision")
 
 
 def _progress_bar(ode):

@@ -72,11 +72,10 @@ class Method:
         tau = np.atleast_1d(np.asarray(tau, dtype=float))
         diff = tau[:, None] - self.nodes[None, :]
         exact = diff == 0.0
-        diff[exact] = 1.0
-        terms = self.barycentric_weights / diff
-        values = terms / terms.sum(axis=1, keepdims=True)
         hit = exact.any(axis=1)
-        values[hit] = exact[hit].astype(float)
+        values = exact.astype(float)
+        terms = self.barycentric_weights / diff[~hit]
+        values[~hit] = terms / terms.sum(axis=1, keepdims=True)
         return values
 
     def __repr__(self):

@@ -24,7 +24,7 @@ T_NOW, K_NEXT, EPS_PREV, HAVE_F0 = range(4)
 SOLVER, FIXED, MAX_ITER, IS_DG = range(4)
 RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, RESIDUAL_POWER, KMIN_REL = range(8)
 # Return codes.
-DONE, FULL, NONCONVERGENCE, BLOWUP, UNDERFLOW = range(5)
+DONE, FULL, NONCONVERGENCE, BLOWUP, UNDERFLOW, STEP_LIMIT = range(6)
 # Solver modes.
 DEFAULT, FIXED_POINT, NEWTON = range(3)
 
@@ -81,8 +81,8 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
         remaining = T - t
         if not fixed:
             k = min(k, kmax)
-        if k >= remaining or (not fixed and 1.1 * k >= remaining):
-            k = remaining
+        if k >= remaining * (1.0 - 1e-9) or (not fixed and 1.1 * k >= remaining):
+            k = remaining  # also absorbs the rounding of t0 + n k in fixed steps
         kmin = fopts[KMIN_REL] * max(abs(t), abs(T) * 1e-6)
         if k < kmin and k < remaining:
             return UNDERFLOW

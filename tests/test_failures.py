@@ -1,0 +1,47 @@
+"""A solve that cannot continue raises SolverError naming the time reached, quickly."""
+import time
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import dolfinode as dn
+
+u = sp.Symbol("u")
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "cG(2)", "dG(1)", "dG(2)"])
+def test_finite_time_blowup(method):
+    start = time.perf_counter()
+    with pytest.raises(dn.SolverError) as info:
+        dn.solve(dn.ODE({u: u**2}, u0=[1.0], T=2.0), method=method, tolerance=1e-6)
+    assert abs(info.value.t - 1.0) < 1e-3
+    assert "t = " in str(info.value)
+    assert time.perf_counter() - start < 30
+
+
+def test_fixed_step_through_singularity_reports_time():
+    with pytest.raises(dn.SolverError, match="initial_time_step") as info:
+        dn.solve(dn.ODE({u: u**2}, u0=[1.0], T=2.0), method="cG(1)", fixed_time_step=True,
+                 initial_time_step=0.1)
+    assert 0.5 < info.value.t <= 1.0
+
+
+def test_maximum_steps():
+    with pytest.raises(dn.SolverError, match="maximum_steps"):
+        dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), method="dG(0)", tolerance=1e-12,
+                 maximum_steps=100)
+
+
+def test_nonfinite_initial_rhs():
+    with pytest.raises(ValueError, match="not finite"):
+        dn.solve(dn.ODE({u: 1 / u}, u0=[0.0], T=1.0))
+
+
+def test_no_nan_in_returned_solution():
+    sol = dn.solve(dn.ODE({u: -u**3}, u0=[10.0], T=5.0), method="dG(1)", tolerance=1e-6)
+    assert np.all(np.isfinite(sol.values)) and np.all(np.isfinite(sol.y))
+
+
+def test_solver_error_is_runtime_error():
+    assert issubclass(dn.SolverError, RuntimeError)

@@ -1,0 +1,47 @@
+"""Solution: exact piecewise-polynomial evaluation, shapes and samples."""
+import numpy as np
+import pytest
+import sympy as sp
+
+import dolfinode as dn
+
+
+@pytest.mark.parametrize("method", ["cG(3)", "dG(3)", "dG(0)", "cG(1)"])
+def test_evaluates_exact_polynomials(method):
+    # u' = polynomial of degree q-1 (cG) / q (dG) in t: the Galerkin solution is exact
+    q = dn.parse_method(method)[1].q
+    u = sp.Symbol("u")
+    degree = q - 1 if method.startswith("cG") else q
+    ode = dn.ODE({u: dn.t**degree}, u0=[0.0], T=2.0)
+    sol = dn.solve(ode, method=method, fixed_time_step=True, initial_time_step=0.5)
+    times = np.linspace(0, 2, 37)
+    if method.startswith("dG"):
+        # dG(q) is exact at the nodes; between them it is the degree-q interpolant there
+        times = np.concatenate([sol.t_start + sol.k * tau for tau in sol.method.nodes])
+    assert np.allclose(sol(times)[0], times ** (degree + 1) / (degree + 1), atol=1e-13)
+
+
+def test_shapes_follow_scipy_convention():
+    u, v = sp.symbols("u v")
+    sol = dn.solve(dn.ODE({u: v, v: -u}, u0=[0, 1], T=1.0), number_of_samples=11)
+    assert sol(0.5).shape == (2,)
+    assert sol([0.1, 0.2, 0.3]).shape == (2, 3)
+    assert sol.t.shape == (11,) and sol.y.shape == (2, 11)
+    assert sol.t[0] == 0.0 and sol.t[-1] == 1.0
+    np.testing.assert_allclose(sol.y[:, 0], [0, 1])
+
+
+def test_values_at_element_ends_are_nodal_values():
+    u = sp.Symbol("u")
+    sol = dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), method="dG(2)", tolerance=1e-6)
+    ends = sol.t_start + sol.k
+    np.testing.assert_allclose(sol(ends)[0], sol.values[:, -1, 0], rtol=1e-14)
+
+
+def test_outside_interval_raises():
+    u = sp.Symbol("u")
+    sol = dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0))
+    with pytest.raises(ValueError, match="defined on"):
+        sol(1.5)
+    with pytest.raises(ValueError, match="defined on"):
+        sol(np.nan)

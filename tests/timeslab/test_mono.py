@@ -1,0 +1,126 @@
+"""Mono-adaptive cG(q)/dG(q): convergence orders, adaptivity and stiff problems."""
+import numpy as np
+import pytest
+import scipy.linalg as sl
+import sympy as sp
+
+import dolfinode as dn
+from dolfinode import problems
+
+# A weakly damped oscillator coupled to a decaying mode: errors accumulate over T = 20, so the
+# asymptotic regime is visible above rounding even for order 11.
+A_LINEAR = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.5], [0.0, -0.5, -0.1]])
+U0_LINEAR = np.array([1.0, 0.5, -0.2])
+# Per method: the largest step and how many halvings keep the error between ~1e-10 and 1e-1.
+STEPS = {"cG(1)": (0.25, 4), "cG(2)": (0.5, 4), "cG(3)": (1.0, 4), "cG(4)": (2.0, 3),
+         "cG(5)": (2.0, 2), "dG(0)": (1 / 64, 3), "dG(1)": (0.25, 4), "dG(2)": (0.5, 4),
+         "dG(3)": (1.0, 3), "dG(4)": (2.0, 2), "dG(5)": (2.0, 2)}
+
+
+@pytest.fixture(scope="module")
+def linear():
+    u = sp.symbols("u0:3")
+    rhs = {u[i]: sum(A_LINEAR[i, j] * u[j] for j in range(3)) for i in range(3)}
+    T = 20.0
+    return dn.ODE(rhs, u0=U0_LINEAR, T=T), sl.expm(A_LINEAR * T) @ U0_LINEAR
+
+
+def observed_order(ode, exact, method, ks):
+    """Least-squares slope of log(error) against log(k), errors above rounding level only."""
+    errors = np.array([np.abs(dn.solve(ode, method=method, fixed_time_step=True,
+                                       initial_time_step=k)(ode.T) - exact).max() for k in ks])
+    assert errors.min() > 1e-11, f"{method}: errors {errors} reach rounding level"
+    return np.polyfit(np.log(ks), np.log(errors), 1)[0]
+
+
+@pytest.mark.parametrize("method", STEPS)
+def test_nodal_convergence_order(linear, method):
+    """cG(q): nodal order 2q; dG(q): 2q + 1, against expm, with fixed uniform steps."""
+    ode, exact = linear
+    order = dn.parse_method(method)[1].order
+    k0, count = STEPS[method]
+    ks = [k0 / 2**j for j in range(count)]
+    assert abs(observed_order(ode, exact, method, ks) - order) < 0.3
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "cG(2)", "dG(1)", "dG(2)"])
+def test_error_decreases_with_tolerance_harmonic(method):
+    ode, exact = problems.harmonic(T=10.0)
+    errors = [np.abs(dn.solve(ode, method=method, tolerance=tol)(ode.T) - exact(ode.T)).max()
+              for tol in (1e-3, 1e-5, 1e-7, 1e-9)]
+    assert all(a > b for a, b in zip(errors, errors[1:])), errors
+    assert errors[-1] < 1e-6
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(2)", "cG(3)"])
+def test_error_decreases_with_tolerance_lorenz(method):
+    ode = problems.lorenz(T=5.0)
+    reference = dn.solve(ode, method="cG(5)", tolerance=1e-13)(5.0)
+    errors = [np.abs(dn.solve(ode, method=method, tolerance=tol)(5.0) - reference).max()
+              for tol in (1e-3, 1e-5, 1e-7, 1e-9)]
+    assert all(a > b for a, b in zip(errors, errors[1:])), errors
+
+
+def test_hires_five_significant_digits():
+    sol = dn.solve(problems.hires(), method="dG(2)", tolerance=1e-6)
+    assert problems.mescd(sol(sol.ode.T), problems.HIRES_REFERENCE) >= 5
+    assert sol.stats["newton"], "HIRES is stiff: the default solver should have switched to Newton"
+
+
+@pytest.mark.parametrize("method", ["dG(0)", "dG(1)", "cG(1)", "cG(2)"])
+def test_stiff_decay_switches_to_newton(method):
+    ode, exact = problems.stiff_decay(lam=1000.0, T=10.0)
+    sol = dn.solve(ode, method=method, tolerance=1e-5)
+    assert sol.stats["newton"]
+    times = np.array([0.001, 0.01, 1.0, 10.0])
+    assert np.abs(sol(times)[0] - exact(times)[0]).max() < 1e-3
+    # once the transient has decayed the step grows far beyond the explicit limit 2/1000
+    assert sol.k[-1] > 0.5
+
+
+def test_explicit_newton_matches_fixed_point():
+    ode = problems.lorenz(T=2.0)
+    a = dn.solve(ode, method="cG(2)", tolerance=1e-8, nonlinear_solver="fixed-point")
+    b = dn.solve(ode, method="cG(2)", tolerance=1e-8, nonlinear_solver="newton")
+    assert not a.stats["newton"] and b.stats["jacobian evaluations"] > 0
+    assert np.abs(a(2.0) - b(2.0)).max() < 1e-5
+
+
+def test_maximum_time_step_is_respected():
+    ode, _ = problems.harmonic(T=10.0)
+    sol = dn.solve(ode, method="cG(3)", tolerance=1e-3, maximum_time_step=0.1)
+    assert sol.k.max() <= 0.1 * (1 + 1e-12)
+
+
+def test_fixed_time_step_gives_uniform_partition():
+    ode, _ = problems.harmonic(T=1.0)
+    sol = dn.solve(ode, method="dG(1)", fixed_time_step=True, initial_time_step=0.1)
+    assert len(sol.k) == 10 and np.allclose(sol.k, 0.1)
+    assert sol.stats["rejected steps"] == 0
+
+
+def test_time_dependent_rhs_and_parameters():
+    u, a = sp.symbols("u a")
+    ode = dn.ODE({u: -a * u + dn.t}, u0=[1.0], T=3.0, params={a: 2.0})
+    sol = dn.solve(ode, method="cG(2)", tolerance=1e-9)
+    exact = 3.0 / 2 - 0.25 + 1.25 * np.exp(-6.0)  # u = t/a - 1/a^2 + (1 + 1/a^2) e^{-a t}
+    assert abs(sol(3.0)[0] - exact) < 1e-7
+
+
+def test_nonzero_initial_time():
+    u = sp.Symbol("u")
+    sol = dn.solve(dn.ODE({u: -u}, u0=[2.0], T=5.0, t0=3.0), method="dG(2)", tolerance=1e-9)
+    assert sol.t[0] == 3.0 and abs(sol(5.0)[0] - 2 * np.exp(-2.0)) < 1e-7
+
+
+def test_stats_are_counted():
+    sol = dn.solve(problems.hires(), method="dG(1)", tolerance=1e-4)
+    stats = sol.stats
+    for key in ("time slabs", "elements", "f evaluations", "jacobian evaluations",
+                "factorizations", "rejected steps", "nonlinear iterations", "compile time",
+                "solve time"):
+        assert key in stats
+    assert stats["elements"] == stats["time slabs"] * 8
+    assert stats["f evaluations"] >= stats["nonlinear iterations"]
+    assert stats["factorizations"] >= stats["jacobian evaluations"] > 0
+    assert stats["solve time"] > 0
