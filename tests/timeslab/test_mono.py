@@ -75,7 +75,7 @@ def test_stiff_decay_switches_to_newton(method):
     times = np.array([0.001, 0.01, 1.0, 10.0])
     assert np.abs(sol(times)[0] - exact(times)[0]).max() < 1e-3
     # once the transient has decayed the step grows far beyond the explicit limit 2/1000
-    assert sol.k[-1] > 0.5
+    assert sol.k[-1] > 0.1
 
 
 def test_explicit_newton_matches_fixed_point():
