@@ -15,13 +15,13 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-import dolfinode as dn  # noqa: E402
-from dolfinode import problems  # noqa: E402
+import dolfinode as dn
+from dolfinode import problems
 
-METHODS = [f"cG({q})" for q in range(1, 6)] + [f"dG({q})" for q in range(0, 6)]
+METHODS = [f"cG({q})" for q in range(1, 6)] + [f"dG({q})" for q in range(6)]
 
 
 def observed_orders(errors, floor):

@@ -17,7 +17,7 @@ t = sp.Symbol("t", real=True)
 _ALLOWED_FUNCTIONS = (
     sp.exp, sp.log, sp.sin, sp.cos, sp.tan, sp.asin, sp.acos, sp.atan, sp.atan2, sp.sinh,
     sp.cosh, sp.tanh, sp.asinh, sp.acosh, sp.atanh, sp.Abs, sp.sign, sp.Min, sp.Max,
-    sp.Piecewise, sp.Heaviside, sp.erf, sp.erfc, sp.floor, sp.ceiling, sp.sqrt,
+    sp.Piecewise, sp.Heaviside, sp.erf, sp.erfc, sp.floor, sp.ceiling,
 )
 
 
@@ -42,7 +42,7 @@ def _as_expression(expr, state):
     except (sp.SympifyError, TypeError, AttributeError):
         raise TypeError(f"the right-hand side of {state} is not a sympy expression: {expr!r}; "
                         "build it from sympy symbols and numbers") from None
-    if not isinstance(expr, sp.Expr):
+    if not isinstance(expr, sp.Expr) or isinstance(expr, sp.MatrixBase):
         raise TypeError(f"the right-hand side of {state} must be a scalar sympy expression, "
                         f"got {type(expr).__name__}: {expr}")
     if expr.has(sp.I) or expr.has(sp.zoo) or expr.has(sp.nan) or expr.has(sp.oo):

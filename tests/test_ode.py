@@ -10,7 +10,7 @@ u, v, w, k = sp.symbols("u v w k")
 
 def oscillator(**overrides):
     """u' = v, v' = -k u: the keyword arguments of a valid declaration, with overrides."""
-    kwargs = dict(rhs={u: v, v: -k * u}, u0={u: 1.0, v: 0.0}, T=1.0, params={k: 4.0})
+    kwargs = {"rhs": {u: v, v: -k * u}, "u0": {u: 1.0, v: 0.0}, "T": 1.0, "params": {k: 4.0}}
     kwargs.update(overrides)
     return kwargs
 
@@ -327,15 +327,9 @@ def test_infinite_expression_is_rejected():
         declare(rhs={u: sp.oo, v: -u})
 
 
-_ISINSTANCE_BUG = pytest.mark.xfail(
-    strict=True, reason="ode._ALLOWED_FUNCTIONS holds sp.sqrt, a Python function, not a class: "
-    "isinstance(call, _ALLOWED_FUNCTIONS) raises 'isinstance() arg 2 must be a type' for any "
-    "function that is not in the list before it")
-
-
 @pytest.mark.parametrize("make, shown", [
-    pytest.param(lambda: sp.Function("g")(u), "g(u)", marks=_ISINSTANCE_BUG, id="undefined"),
-    pytest.param(lambda: sp.gamma(u), "gamma(u)", marks=_ISINSTANCE_BUG, id="gamma"),
+    pytest.param(lambda: sp.Function("g")(u), "g(u)", id="undefined"),
+    pytest.param(lambda: sp.gamma(u), "gamma(u)", id="gamma"),
 ])
 def test_function_that_cannot_be_compiled_is_named(make, shown):
     with pytest.raises((ValueError, TypeError)) as info:
@@ -345,8 +339,6 @@ def test_function_that_cannot_be_compiled_is_named(make, shown):
     assert shown in message and "cannot be compiled" in message
 
 
-@pytest.mark.xfail(strict=True, reason="a sympy Matrix is an Expr, so _as_expression accepts it; "
-                   "lowering then fails in numba with NameError 'ImmutableDenseMatrix'")
 def test_matrix_is_not_a_scalar_expression():
     with pytest.raises(TypeError, match="right-hand side of u must be a scalar sympy expression"):
         declare(rhs={u: sp.Matrix([u, v]), v: -u})

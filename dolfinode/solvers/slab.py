@@ -21,8 +21,8 @@ from numba import njit
 
 from dolfinode.linalg.banded import band_lu, band_solve
 
-#: Scaled increments below this are rounding noise: the iteration has converged.
-ROUNDING_LEVEL = 1e-12
+#: An iteration that stops contracting with scaled increments below this has reached rounding.
+ROUNDING_LEVEL = 1e-10
 
 
 @njit(cache=True)
@@ -40,13 +40,13 @@ def scaled_norm(dx, x, atol, rtol):
 
 @njit(cache=True)
 def _converged(d, d_prev, it, dtol):
-    if d <= dtol or d <= ROUNDING_LEVEL:
+    if d <= dtol:
         return True
     if it >= 1 and d_prev > 0.0:
         theta = d / d_prev
         if theta < 1.0 and theta / (1.0 - theta) * d <= dtol:
             return True
-        if it >= 2 and theta >= 0.5 and d <= 100.0 * ROUNDING_LEVEL:
+        if it >= 2 and theta >= 0.5 and d <= ROUNDING_LEVEL:
             return True  # stagnation at rounding level
     return False
 

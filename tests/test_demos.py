@@ -1,0 +1,63 @@
+"""Run every demo in quick mode and check its plot and its key numbers."""
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+DEMOS = Path(__file__).parents[1] / "demos"
+
+
+def run_demo(name, tmp_path):
+    spec = importlib.util.spec_from_file_location(f"demo_{name}", DEMOS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    result = module.main(["--quick", "--output", str(tmp_path)])
+    assert Path(result["plot"]).parent == tmp_path
+    assert Path(result["plot"]).stat().st_size > 10_000
+    return result
+
+
+def test_harmonic_orders(tmp_path):
+    result = run_demo("harmonic", tmp_path)
+    assert set(result["orders"]) == {f"cG({q})" for q in range(1, 6)} | {
+        f"dG({q})" for q in range(6)}
+    for method, observed in result["orders"].items():
+        assert abs(observed - result["theory"][method]) < 0.3, (method, observed)
+    for method, errors in result["errors"].items():
+        assert errors[-1] < errors[0] / 5, method
+
+
+def test_lorenz(tmp_path):
+    result = run_demo("lorenz", tmp_path)
+    assert result["stats"]["time slabs"] > 100
+    assert np.all(np.isfinite(result["u(T)"]))
+    assert np.abs(result["u(T)"]).max() < 60  # stays on the attractor
+
+
+def test_stiff(tmp_path):
+    result = run_demo("stiff", tmp_path)
+    for method in ("dG(1)", "cG(1)"):
+        r = result[method]
+        assert r["newton"], method  # the default solver switched to Newton
+        assert r["nodal error"] < 1e-4, method
+        assert max(r["errors"].values()) < 1e-3, method
+        assert r["largest step"] > 0.02, method  # far beyond the explicit limit 2/1000
+
+
+def test_hires(tmp_path):
+    result = run_demo("hires", tmp_path)
+    assert result["mescd"] >= 5
+    assert result["stats"]["newton"]
+
+
+@pytest.mark.parametrize("name", ["harmonic", "lorenz", "stiff", "hires"])
+def test_demo_has_help(name, capsys):
+    spec = importlib.util.spec_from_file_location(f"demo_{name}", DEMOS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.__doc__.strip()
+    with pytest.raises(SystemExit) as exit_info:
+        module.main(["--help"])
+    assert exit_info.value.code == 0
+    assert "--quick" in capsys.readouterr().out

@@ -1,0 +1,196 @@
+"""Solver parameters and method names: defaults, did-you-mean errors and invalid values.
+
+Every error is raised by ``dn.solve`` before anything is compiled, so these tests are fast.
+"""
+import math
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import dolfinode as dn
+from dolfinode.parameters import DEFAULTS, check_parameters
+
+u = sp.Symbol("u")
+
+
+@pytest.fixture(scope="module")
+def ode():
+    return dn.ODE({u: -u}, u0=[1.0], T=1.0)
+
+
+def test_no_parameters_gives_the_defaults():
+    params = check_parameters({})
+    assert params == DEFAULTS
+    assert dn.default_parameters is DEFAULTS
+
+
+def test_given_parameters_override_defaults_and_are_normalised():
+    params = check_parameters({"tolerance": 1, "initial_time_step": 1e-3, "fixed_time_step": True,
+                               "nonlinear_solver": "newton", "maximum_iterations": 7})
+    assert params["tolerance"] == 1.0 and isinstance(params["tolerance"], float)
+    assert params["initial_time_step"] == 1e-3
+    assert params["nonlinear_solver"] == "newton"
+    assert params["maximum_iterations"] == 7
+    assert params["number_of_samples"] == DEFAULTS["number_of_samples"]
+
+
+def test_check_parameters_does_not_modify_the_defaults():
+    before = dict(DEFAULTS)
+    check_parameters({"tolerance": 0.5, "maximum_iterations": 3})
+    assert DEFAULTS == before
+
+
+# --- unknown names ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("typo, meant", [
+    ("tolerence", "tolerance"),
+    ("initial_timestep", "initial_time_step"),
+    ("maximum_timestep", "maximum_time_step"),
+    ("fixed_timestep", "fixed_time_step"),
+    ("max_iterations", "maximum_iterations"),
+    ("nonlinear_solve", "nonlinear_solver"),
+])
+def test_unknown_parameter_suggests_the_closest_name(ode, typo, meant):
+    with pytest.raises(ValueError) as info:
+        dn.solve(ode, **{typo: 1e-3})
+    message = str(info.value)
+    assert f"unknown parameter {typo!r}" in message
+    assert f"did you mean {meant!r}?" in message
+
+
+def test_unknown_parameter_without_a_close_name_lists_the_valid_ones(ode):
+    with pytest.raises(ValueError) as info:
+        dn.solve(ode, zzz=1)
+    message = str(info.value)
+    assert "unknown parameter 'zzz'" in message
+    assert "did you mean" not in message
+    for name in ("tolerance", "initial_time_step", "nonlinear_solver"):
+        assert name in message
+
+
+# --- invalid values -----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("value", [-1e-3, 0.0, math.nan, math.inf])
+def test_tolerance_must_be_positive_and_finite(ode, value):
+    message = f"tolerance must be a positive finite number, got {value}"
+    with pytest.raises(ValueError, match=message):
+        dn.solve(ode, tolerance=value)
+
+
+@pytest.mark.parametrize("value", ["small", None])
+def test_tolerance_must_be_a_number(ode, value):
+    with pytest.raises(TypeError, match="tolerance must be a positive number"):
+        dn.solve(ode, tolerance=value)
+
+
+@pytest.mark.parametrize("name", ["initial_time_step", "maximum_time_step", "safety_factor",
+                                  "discrete_tolerance_factor"])
+@pytest.mark.parametrize("value", [-1.0, 0.0, math.nan])
+def test_positive_parameters(ode, name, value):
+    with pytest.raises(ValueError, match=f"{name} must be a positive finite number"):
+        dn.solve(ode, **{name: value})
+
+
+@pytest.mark.parametrize("name", ["maximum_iterations", "number_of_samples", "maximum_steps"])
+@pytest.mark.parametrize("value", [0, -3, 2.5, True])
+def test_integer_parameters_must_be_positive_integers(ode, name, value):
+    with pytest.raises(ValueError, match=f"{name} must be a positive integer, got {value!r}"):
+        dn.solve(ode, **{name: value})
+
+
+@pytest.mark.parametrize("typo, meant", [("newtn", "newton"), ("fixedpoint", "fixed-point"),
+                                         ("fixed_point", "fixed-point")])
+def test_unknown_nonlinear_solver_suggests_the_closest(ode, typo, meant):
+    with pytest.raises(ValueError) as info:
+        dn.solve(ode, nonlinear_solver=typo)
+    message = str(info.value)
+    assert f"unknown nonlinear_solver {typo!r}" in message
+    assert f"did you mean {meant!r}?" in message
+    assert "'default', 'fixed-point', 'newton'" in message
+
+
+def test_fixed_time_step_needs_an_initial_time_step(ode):
+    with pytest.raises(ValueError, match="fixed_time_step=True needs the step: give initial_time"):
+        dn.solve(ode, fixed_time_step=True)
+
+
+@pytest.mark.parametrize("value", [-1.0, [1.0, 2.0]])
+def test_absolute_tolerance_is_checked(ode, value):
+    with pytest.raises(ValueError, match="absolute_tolerance"):
+        dn.solve(ode, absolute_tolerance=value)
+
+
+def test_solve_needs_an_ode():
+    with pytest.raises(TypeError, match="solve expects a dolfinode.ODE, got dict"):
+        dn.solve({u: -u})
+
+
+# --- method names -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name, multi, family, q", [
+    ("cG(1)", False, "cG", 1),
+    ("dG(0)", False, "dG", 0),
+    ("mcG(2)", True, "cG", 2),
+    ("mdG(3)", True, "dG", 3),
+    ("cG(10)", False, "cG", 10),
+    (" dG( 2 ) ", False, "dG", 2),
+])
+def test_parse_method(name, multi, family, q):
+    multi_adaptive, method = dn.parse_method(name)
+    assert multi_adaptive is multi
+    assert (method.family, method.q, method.name) == (family, q, f"{family}({q})")
+    assert method is dn.make_method(family, q)
+
+
+@pytest.mark.parametrize("name, canonical", [("cg(1)", "cG(1)"), ("DG(2)", "dG(2)"),
+                                             ("MCG(1)", "cG(1)"), ("mdg(0)", "dG(0)")])
+def test_method_names_are_case_insensitive(name, canonical):
+    multi_adaptive, method = dn.parse_method(name)
+    assert method.name == canonical
+    assert multi_adaptive is name.lower().startswith("m")
+
+
+def test_cg0_does_not_exist(ode):
+    with pytest.raises(ValueError, match=r"cG\(q\) needs an integer q >= 1, got 0"):
+        dn.solve(ode, method="cG(0)")
+
+
+@pytest.mark.parametrize("name", ["dG(-1)", "RK4", "cG", "cG(1.5)", "cG(1)x", "gG(1)", ""])
+def test_unknown_method_lists_the_valid_forms(ode, name):
+    with pytest.raises(ValueError) as info:
+        dn.solve(ode, method=name)
+    message = str(info.value)
+    assert f"unknown method {name!r}" in message
+    assert "'cG(q)' (q >= 1), 'dG(q)' (q >= 0)" in message
+
+
+@pytest.mark.parametrize("name", [1, None, ("cG", 1)])
+def test_method_must_be_a_string(name):
+    with pytest.raises(TypeError, match="method must be a string"):
+        dn.parse_method(name)
+
+
+@pytest.mark.parametrize("family, q", [("cG", 0), ("dG", -1), ("cG", 1.5), ("dG", "1")])
+def test_make_method_needs_a_valid_degree(family, q):
+    with pytest.raises(ValueError, match=r"needs an integer q >= [01]"):
+        dn.make_method(family, q)
+
+
+@pytest.mark.xfail(strict=True, reason="make_method is an lru_cache keyed by value: once "
+                   "make_method('cG', 1) exists, make_method('cG', 1.0) hits the cache (1.0 == 1) "
+                   "and skips the integer check, so whether a float degree is rejected depends on "
+                   "what was built before")
+@pytest.mark.parametrize("q", [1.0, np.float64(1)], ids=["float", "numpy-float"])
+def test_float_degree_is_rejected_even_when_the_integer_one_is_cached(q):
+    dn.make_method("cG", 1)
+    with pytest.raises(ValueError, match=r"needs an integer q >= 1"):
+        dn.make_method("cG", q)
+
+
+def test_make_method_needs_a_known_family():
+    with pytest.raises(ValueError, match="unknown method family 'RK'"):
+        dn.make_method("RK", 1)
