@@ -147,18 +147,43 @@ def make_problems(quick):
 # Running and timing
 # ----------------------------------------------------------------------------------------------
 
-def timed_repeats(call, quick):
-    """Median/min wall time of repeated calls (the caller has done the warm-up)."""
-    times, extra = [], []
-    while True:
-        start = time.perf_counter()
-        out = call()
-        times.append(time.perf_counter() - start)
-        extra.append(out)
-        n = len(times)
-        if quick or n >= MAX_REPEATS or (n >= MIN_REPEATS and sum(times) >= REPEAT_BUDGET):
+def time_interleaved(jobs, quick):
+    """Time every job (row, call) in rounds: each round makes one timed call of every job that
+    still needs one (at least MIN_REPEATS, then until REPEAT_BUDGET seconds or MAX_REPEATS).
+
+    Interleaving spreads bursts of load from other processes on the machine over many
+    configurations instead of letting one burst inflate all repeats of one configuration.
+    A call returns dolfinode's stats["solve time"] or None.
+    """
+    times = {id(row): [] for row, _ in jobs}
+    inner = {id(row): [] for row, _ in jobs}
+
+    def needs_more(row):
+        t = times[id(row)]
+        if quick:
+            return not t
+        return len(t) < MIN_REPEATS or (len(t) < MAX_REPEATS and sum(t) < REPEAT_BUDGET)
+
+    rounds = 1 if quick else MAX_REPEATS
+    for k in range(rounds):
+        pending = [(row, call) for row, call in jobs if needs_more(row)]
+        if not pending:
             break
-    return float(np.median(times)), float(np.min(times)), len(times), extra
+        start = time.perf_counter()
+        for row, call in pending:
+            t0 = time.perf_counter()
+            out = call()
+            times[id(row)].append(time.perf_counter() - t0)
+            if out is not None:
+                inner[id(row)].append(out)
+        print(f"timing round {k + 1}: {len(pending)} runs, {time.perf_counter() - start:.1f} s",
+              flush=True)
+    for row, _ in jobs:
+        t = times[id(row)]
+        row.update(time_median_s=float(np.median(t)), time_min_s=float(np.min(t)),
+                   repeats=len(t))
+        if inner[id(row)]:
+            row["dn_solve_time_s"] = float(np.median(inner[id(row)]))
 
 
 def errors(problem, y_final, y_samples):
@@ -177,7 +202,8 @@ def base_row(problem, solver, method, tol):
             "failed_nonlinear_solves": None, "nonlinear_iterations": None}
 
 
-def run_dolfinode(dn, problem, method, tol, quick):
+def run_dolfinode(dn, problem, method, tol):
+    """Untimed warm-up run: errors and counts. Returns (row, timed call or None)."""
     row = base_row(problem, "dolfinode", method, tol)
     ode = problem["ode"]
     try:
@@ -187,7 +213,7 @@ def run_dolfinode(dn, problem, method, tol, quick):
     except Exception as exc:   # SolverError or anything else: record, go on
         row["status"] = "failed"
         row["note"] = f"{type(exc).__name__}: {exc}"
-        return row
+        return row, None
     st = sol.stats
     row.update(errors(problem, sol(ode.T), sol(problem["t_eval"])))
     row.update(f_evals=st["f evaluations"], jacobians=st["jacobian evaluations"],
@@ -196,12 +222,7 @@ def run_dolfinode(dn, problem, method, tol, quick):
                nonlinear_iterations=st["nonlinear iterations"])
     if not st["newton"]:
         row["note"] = "fixed-point iteration (no Newton)"
-    del sol
-    med, best, n, stats = timed_repeats(
-        lambda: dn.solve(ode, method=method, tolerance=tol).stats["solve time"], quick)
-    row.update(time_median_s=med, time_min_s=best, repeats=n,
-               dn_solve_time_s=float(np.median(stats)))
-    return row
+    return row, lambda: dn.solve(ode, method=method, tolerance=tol).stats["solve time"]
 
 
 class _Timeout(Exception):
@@ -259,14 +280,15 @@ def _scipy_counts(method, problem, tol):
     return steps, rejected
 
 
-def run_scipy(problem, method, tol, quick, skip_reason=None):
+def run_scipy(problem, method, tol, skip_reason=None):
+    """Untimed warm-up run: errors and counts. Returns (row, timed call or None)."""
     from scipy.integrate import solve_ivp
 
     row = base_row(problem, "scipy", method, tol)
     if skip_reason:
         row["status"] = "skipped"
         row["note"] = skip_reason
-        return row
+        return row, None
     kwargs = {} if method == "DOP853" else {"jac": problem["jac"]}
     span, y0, t_eval = (0.0, problem["T"]), problem["y0"], problem["t_eval"]
 
@@ -289,15 +311,15 @@ def run_scipy(problem, method, tol, quick, skip_reason=None):
         row["status"] = "skipped"
         row["note"] = (f"over {limit:g} s (abandoned at t = {last[0]:.4g} of {problem['T']:g}; "
                        "explicit method on a stiff problem)")
-        return row
+        return row, None
     except Exception as exc:
         row["status"] = "failed"
         row["note"] = f"{type(exc).__name__}: {exc}"
-        return row
+        return row, None
     if not res.success:
         row["status"] = "failed"
         row["note"] = f"solve_ivp: {res.message} (t = {res.t[-1] if len(res.t) else 0:.4g})"
-        return row
+        return row, None
     if caught:
         row["note"] = "; ".join(sorted({str(w.message).split("\n")[0] for w in caught}))
     row.update(errors(problem, res.y[:, -1], res.y))
@@ -307,9 +329,11 @@ def run_scipy(problem, method, tol, quick, skip_reason=None):
     except Exception as exc:
         row["note"] = (row["note"] + "; " if row["note"] else "") + f"step count failed: {exc}"
     fun = problem["rhs"]
-    med, best, n, _ = timed_repeats(lambda: call(fun), quick)
-    row.update(time_median_s=med, time_min_s=best, repeats=n)
-    return row
+
+    def timed():
+        call(fun)
+
+    return row, timed
 
 
 def fmt_s(x):
@@ -318,15 +342,21 @@ def fmt_s(x):
     return f"{x * 1e3:.3g} ms" if x < 1 else f"{x:.3g} s"
 
 
-def progress(row):
+def progress(row, timed=False):
     head = f"[{row['problem']}] {row['solver']:9s} {row['method']:6s} tol={row['tolerance']:.0e}"
     if row["status"] != "ok":
         print(f"{head}: {row['status'].upper()} {row['note']}", flush=True)
         return
+    if timed:
+        inner = (f", dn solve time {fmt_s(row['dn_solve_time_s'])}"
+                 if row["dn_solve_time_s"] is not None else "")
+        print(f"{head}: {fmt_s(row['time_median_s']):>9s} median of {row['repeats']}"
+              f"{inner}", flush=True)
+        return
     acc = (f"mescd {row['mescd']:.2f}" if row["mescd"] is not None
            else f"err(T) {row['err_T']:.2e}")
-    print(f"{head}: {fmt_s(row['time_median_s']):>9s} (x{row['repeats']}), {acc}, "
-          f"L2 {row['err_L2']:.2e}, steps {row['steps']}, f {row['f_evals']}", flush=True)
+    print(f"{head}: first {fmt_s(row['first_call_s']):>9s}, {acc}, L2 {row['err_L2']:.2e}, "
+          f"steps {row['steps']}, f {row['f_evals']}", flush=True)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -341,10 +371,19 @@ def accuracy(row):
 
 
 def curve(rows, problem, solver, method, key="time_median_s"):
+    """(accuracy, log10 time) points of one solver's sweep, sorted by accuracy, reduced to its
+    Pareto front: a run is dropped when a more accurate run of the same solver was faster
+    (timing noise or a step-size controller that over-solves loose tolerances), so the time
+    to reach a level never decreases with the level."""
     pts = sorted((accuracy(r), math.log10(r[key])) for r in rows
                  if r["problem"] == problem and r["solver"] == solver and r["method"] == method
                  and r["status"] == "ok" and r[key])
-    return np.array(pts) if len(pts) >= 2 else None
+    front = []
+    for acc, logt in reversed(pts):   # most accurate first
+        if not front or logt < front[-1][1]:
+            front.append((acc, logt))
+    front.reverse()
+    return np.array(front) if front else None
 
 
 def time_at(c, level):
@@ -357,7 +396,7 @@ def time_at(c, level):
     if c is None or level > c[-1, 0]:
         return None
     if level < c[0, 0]:
-        return 10.0 ** float(c[:, 1].min()), True
+        return 10.0 ** float(c[0, 1]), True
     return 10.0 ** float(np.interp(level, c[:, 0], c[:, 1])), False
 
 
@@ -558,9 +597,10 @@ def write_markdown(path, meta, rows, problems, headline, compile_info, png_name)
            "`solve_ivp`; steps and rejected from a separate untimed run (rejected = step attempts "
            "- accepted steps, including Newton-failure retries; n/a for LSODA).",
            "* Equal-accuracy ratio: for each solver, log10(time) is interpolated linearly in "
-           "mescd (HIRES) or -log10 err(T) (harmonic) over its tolerance sweep (no "
-           "extrapolation beyond its most accurate run; below its least accurate run the fastest run's "
-           "time is used, marked *); 'best dolfinode' is the fastest of cG(1..3)/dG(1..3) at that "
+           "mescd (HIRES) or -log10 err(T) (harmonic) over its tolerance sweep, reduced to its Pareto "
+           "front (a run is dropped when a more accurate run of the same solver was faster), with "
+           "no extrapolation beyond its most accurate run; below its least accurate run the "
+           "fastest run's time is used, marked *; 'best dolfinode' is the fastest of cG(1..3)/dG(1..3) at that "
            "level, 'best scipy' the fastest of the four scipy methods. Ratio < 1: dolfinode "
            "faster.",
            "", "## dolfinode compile time (first call per problem)", "",
@@ -648,7 +688,7 @@ def main(argv=None):
         print(f"HIRES reference trajectory: Radau rtol={ref['rtol']:g} atol={ref['atol']:g}, "
               f"mescd {ref['mescd at T vs HIRES_REFERENCE']:.2f} vs the Test Set, "
               f"{ref['seconds']:.1f} s", flush=True)
-        rows, compile_info = [], {}
+        rows, jobs, compile_info = [], [], {}
         for problem in problems:
             # Cold first call: kernel compile time, reported separately from the timings.
             folder = cache_directory()
@@ -666,15 +706,24 @@ def main(argv=None):
                   flush=True)
             for method in DN_METHODS:
                 for tol in tolerances:
-                    rows.append(run_dolfinode(dn, problem, method, tol, args.quick))
-                    progress(rows[-1])
+                    row, call = run_dolfinode(dn, problem, method, tol)
+                    rows.append(row)
+                    jobs += [(row, call)] if call else []
+                    progress(row)
             for method in SCIPY_METHODS:
                 skip = None
                 for tol in tolerances:
-                    rows.append(run_scipy(problem, method, tol, args.quick, skip))
-                    progress(rows[-1])
-                    if rows[-1]["status"] == "skipped" and skip is None:
+                    row, call = run_scipy(problem, method, tol, skip)
+                    rows.append(row)
+                    jobs += [(row, call)] if call else []
+                    progress(row)
+                    if row["status"] == "skipped" and skip is None:
                         skip = f"over {DOP853_LIMIT:g} s at a looser tolerance"
+        print(f"timing {len(jobs)} runs in interleaved rounds (median of "
+              f"{'1' if args.quick else f'{MIN_REPEATS}-{MAX_REPEATS}'} per run)", flush=True)
+        time_interleaved(jobs, args.quick)
+        for row, _ in jobs:
+            progress(row, timed=True)
     finally:
         if fresh_cache:
             shutil.rmtree(fresh_cache, ignore_errors=True)

@@ -58,6 +58,7 @@ def _vector_by_state(values, states, what):
     """Turn a dict by state symbol (or a sequence in component order) into a float vector."""
     names = {s.name: s for s in states}
     if isinstance(values, Mapping):
+        values = {names.get(k, k) if isinstance(k, str) else k: v for k, v in values.items()}
         unknown = [k for k in values if k not in states]
         if unknown:
             key = unknown[0]
@@ -177,7 +178,7 @@ class ODE:
                     hint = "; use dn.t for the time"
                 else:
                     hint = _suggest(symbol.name, names) + (
-                        f" If {symbol.name} is a parameter, give its value in params=")
+                        f" (if {symbol.name} is a parameter, give its value in params=)")
                 raise ValueError(f"unknown symbol {symbol.name!r} in the right-hand side of "
                                  f"{state.name}{hint}")
 

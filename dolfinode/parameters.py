@@ -20,6 +20,15 @@ DEFAULTS = {
 
 NONLINEAR_SOLVERS = ("default", "fixed-point", "newton")
 
+#: DOLFIN parameter names of features that are not available yet, and the feature.
+PLANNED = {
+    "partitioning_threshold": "the multi-adaptive methods mcG(q)/mdG(q)",
+    "automatic_modeling": "automatic modeling",
+    "average_length": "automatic modeling",
+    "average_samples": "automatic modeling",
+    "average_tolerance": "automatic modeling",
+}
+
 
 def _positive(name, value, allow_none=True):
     if value is None and allow_none:
@@ -36,8 +45,12 @@ def _positive(name, value, allow_none=True):
 def check_parameters(given):
     """Merge ``given`` into the defaults; unknown names raise with the closest valid name."""
     for name in given:
+        if name in PLANNED:
+            raise NotImplementedError(f"{name} belongs to {PLANNED[name]}, which this version "
+                                      "of dolfinode does not provide yet")
         if name not in DEFAULTS:
-            close = difflib.get_close_matches(name, DEFAULTS, n=1, cutoff=0.4)
+            close = difflib.get_close_matches(name, list(DEFAULTS) + list(PLANNED), n=1,
+                                              cutoff=0.4)
             hint = f"; did you mean {close[0]!r}?" if close else ""
             raise ValueError(f"unknown parameter {name!r}{hint} Valid parameters: "
                              f"{', '.join(sorted(DEFAULTS))}")
@@ -48,6 +61,8 @@ def check_parameters(given):
     params["discrete_tolerance_factor"] = _positive(
         "discrete_tolerance_factor", params["discrete_tolerance_factor"], allow_none=False)
     params["safety_factor"] = _positive("safety_factor", params["safety_factor"], allow_none=False)
+    if isinstance(params["nonlinear_solver"], str):
+        params["nonlinear_solver"] = params["nonlinear_solver"].lower()
     if params["nonlinear_solver"] not in NONLINEAR_SOLVERS:
         close = difflib.get_close_matches(str(params["nonlinear_solver"]), NONLINEAR_SOLVERS, n=1)
         hint = f"; did you mean {close[0]!r}?" if close else ""

@@ -180,10 +180,6 @@ def test_make_method_needs_a_valid_degree(family, q):
         dn.make_method(family, q)
 
 
-@pytest.mark.xfail(strict=True, reason="make_method is an lru_cache keyed by value: once "
-                   "make_method('cG', 1) exists, make_method('cG', 1.0) hits the cache (1.0 == 1) "
-                   "and skips the integer check, so whether a float degree is rejected depends on "
-                   "what was built before")
 @pytest.mark.parametrize("q", [1.0, np.float64(1)], ids=["float", "numpy-float"])
 def test_float_degree_is_rejected_even_when_the_integer_one_is_cached(q):
     dn.make_method("cG", 1)
@@ -194,3 +190,16 @@ def test_float_degree_is_rejected_even_when_the_integer_one_is_cached(q):
 def test_make_method_needs_a_known_family():
     with pytest.raises(ValueError, match="unknown method family 'RK'"):
         dn.make_method("RK", 1)
+
+
+@pytest.mark.parametrize("name", ["partitioning_threshold", "automatic_modeling", "average_length"])
+def test_planned_dolfin_parameters_are_named_not_silently_ignored(name):
+    u = sp.Symbol("u")
+    with pytest.raises(NotImplementedError, match=name):
+        dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), **{name: 0.5})
+
+
+def test_nonlinear_solver_is_case_insensitive():
+    u = sp.Symbol("u")
+    sol = dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), nonlinear_solver="Newton")
+    assert sol.stats["newton"]

@@ -1,17 +1,21 @@
-"""On-disk cache of generated kernel modules, keyed by a hash of the expressions.
+"""On-disk cache of compiled kernel libraries, keyed by a hash of the expressions.
 
-Numba's own cache (``cache=True``) stores the machine code next to each module, so a
-second run with the same expressions neither generates nor compiles anything.
+A second run with the same expressions neither generates nor compiles anything. Files are
+written under temporary names and renamed, so an interrupted run never leaves a half-written
+source or library behind.
 """
+import ctypes
 import hashlib
-import importlib.util
 import os
+import shutil
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 #: Bump when the generated code changes meaning, so stale kernels are not reused.
-CODEGEN_VERSION = "1"
+CODEGEN_VERSION = "2"
+_FLAGS = ["-O2", "-fPIC", "-shared", "-fno-math-errno", "-std=c99"]
 
 
 def cache_directory():
@@ -24,42 +28,54 @@ def cache_directory():
 def signature(*parts):
     """Hash of the textual representation of the expressions (UFL-style form signature)."""
     h = hashlib.sha256(CODEGEN_VERSION.encode())
+    h.update(sys.platform.encode())
     for part in parts:
         h.update(b"\0")
         h.update(part.encode())
     return h.hexdigest()[:24]
 
 
-def load_module(key, make_source):
-    """Import the kernel module for ``key``, writing it with ``make_source()`` if absent.
+def c_compiler():
+    """The C compiler: $CC, else cc, gcc or clang on the PATH."""
+    for name in (os.environ.get("CC"), "cc", "gcc", "clang"):
+        if name and shutil.which(name):
+            return shutil.which(name)
+    raise RuntimeError("dolfinode compiles right-hand sides to C and found no C compiler: "
+                       "install gcc or clang (e.g. apt-get install gcc), or set CC")
 
-    Returns (module, was_cached). The file is written to a temporary name and renamed, so
-    an interrupted run never leaves a half-written module behind.
+
+def _write_atomic(path, write):
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def load_library(key, make_source):
+    """The shared library for ``key``, generated with ``make_source()`` and compiled if absent.
+
+    Returns (ctypes.CDLL, was_cached).
     """
     folder = cache_directory()
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"dn_{key}.py"
-    cached = path.exists()
+    library = folder / f"dn_{key}.so"
+    cached = library.exists()
     if not cached:
-        fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
-        try:
-            with os.fdopen(fd, "w") as handle:
-                handle.write(make_source())
-            os.replace(tmp, path)
-        except BaseException:
-            os.unlink(tmp)
-            raise
-    # Numba's cache rebuilds the kernels' environment by importing their module by name,
-    # so the module is registered under a top-level name before it executes.
-    name = f"dolfinode_kernel_{key}"
-    if name in sys.modules:
-        return sys.modules[name], True
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    try:
-        spec.loader.exec_module(module)
-    except BaseException:
-        del sys.modules[name]
-        raise
-    return module, cached
+        source = folder / f"dn_{key}.c"
+        if not source.exists():
+            text = make_source()
+            _write_atomic(source, lambda tmp: Path(tmp).write_text(text))
+
+        def build(tmp):
+            result = subprocess.run([c_compiler(), *_FLAGS, "-o", tmp, str(source), "-lm"],
+                                    capture_output=True, text=True)
+            if result.returncode != 0:
+                raise RuntimeError(f"compiling the kernels in {source} failed:\n{result.stderr}")
+
+        _write_atomic(library, build)
+    return ctypes.CDLL(str(library)), cached

@@ -4,7 +4,7 @@ The passes run in a fixed order:
 1. substitute states -> u[i], parameters -> p[j] (so kernels do not depend on names or values);
 2. read the dependency graph off each expression's free symbols (no probing);
 3. differentiate exactly with sympy, only on the dependency pattern (the sparse Jacobian);
-4. generate source with common-subexpression elimination and compile with numba, cached by hash.
+4. generate C with common-subexpression elimination and compile it, cached by hash.
 """
 import time
 from dataclasses import dataclass
@@ -13,8 +13,9 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
-from dolfinode.compile.cache import load_module, signature
+from dolfinode.compile.cache import load_library, signature
 from dolfinode.compile.codegen import kernel_source
+from dolfinode.compile.signatures import Kernel
 from dolfinode.ode import t as time_symbol
 
 
@@ -24,7 +25,7 @@ class CompiledODE:
 
     Attributes
     ----------
-    rhs, rhs_component, jacobian : numba functions (see ``compile.signatures``)
+    rhs, rhs_component, jacobian : :class:`~dolfinode.compile.signatures.Kernel`
     indptr, indices : int64 CSR pattern of df/du; row i lists the j that f_i depends on
     p : float64 parameter values in the order of ``ode.parameter_symbols``
     compile_time : seconds spent generating and compiling (or loading from cache)
@@ -32,9 +33,9 @@ class CompiledODE:
     """
 
     N: int
-    rhs: object
-    rhs_component: object
-    jacobian: object
+    rhs: Kernel
+    rhs_component: Kernel
+    jacobian: Kernel
     indptr: np.ndarray
     indices: np.ndarray
     p: np.ndarray
@@ -50,36 +51,56 @@ class CompiledODE:
         data = np.ones(self.nnz, dtype=bool)
         return sps.csr_matrix((data, self.indices, self.indptr), shape=(self.N, self.N))
 
+    def _vector(self, u):
+        u = np.ascontiguousarray(u, dtype=float)
+        if u.shape != (self.N,):
+            raise ValueError(f"u must have shape ({self.N},), got {u.shape}")
+        return u
+
     def f(self, u, t):
         """f(u, t) as a new array (convenience, not for hot loops)."""
+        u = self._vector(u)
         out = np.empty(self.N)
-        self.rhs(np.ascontiguousarray(u, dtype=float), float(t), self.p, out)
+        self.rhs(u.ctypes.data, float(t), self.p.ctypes.data, out.ctypes.data)
         return out
+
+    def f_component(self, i, u, t):
+        """f_i(u, t), at a cost proportional to the number of states f_i depends on."""
+        if not 0 <= i < self.N:
+            raise IndexError(f"component {i} out of range for N = {self.N}")
+        return self.rhs_component(int(i), self._vector(u).ctypes.data, float(t), self.p.ctypes.data)
 
     def jacobian_matrix(self, u, t):
         """df/du at (u, t) as a scipy CSR matrix."""
+        u = self._vector(u)
         data = np.empty(self.nnz)
-        self.jacobian(np.ascontiguousarray(u, dtype=float), float(t), self.p, data)
+        self.jacobian(u.ctypes.data, float(t), self.p.ctypes.data, data.ctypes.data)
         return sps.csr_matrix((data, self.indices.copy(), self.indptr.copy()), shape=(self.N, self.N))
 
 
-_cache = {}
+_loaded = {}
+
+
+def _derivative(expr, x):
+    """d expr / dx, with the derivatives of piecewise-constant functions (sign, Heaviside,
+    floor, ceiling) set to their value zero almost everywhere."""
+    d = sp.diff(expr, x)
+    if d.has(sp.DiracDelta, sp.Derivative):
+        d = d.replace(lambda e: isinstance(e, (sp.DiracDelta, sp.Derivative)), lambda e: sp.S.Zero)
+    return d
 
 
 def lower(ode):
-    """Compile ``ode`` to kernels (memoised per declaration and on disk by signature)."""
+    """Compile ``ode`` to kernels (memoised in the process, and on disk by signature)."""
     start = time.perf_counter()
-    u = sp.IndexedBase("u")
-    p = sp.IndexedBase("p")
-    subs = {s: u[i] for i, s in enumerate(ode.states)}
-    subs.update({s: p[j] for j, s in enumerate(ode.parameter_symbols)})
-    subs[time_symbol] = sp.Symbol("t")
+    # Real symbols named as the C array accesses they print as: real, so that sympy
+    # differentiates |u|, sign(u), ... as functions of a real variable.
+    u = [sp.Symbol(f"u[{i}]", real=True) for i in range(ode.N)]
+    subs = dict(zip(ode.states, u))
+    subs.update({s: sp.Symbol(f"p[{j}]", real=True) for j, s in enumerate(ode.parameter_symbols)})
+    subs[time_symbol] = sp.Symbol("t", real=True)
     rhs = [expr.xreplace(subs) for expr in ode.rhs]
     key = signature(*(sp.srepr(e) for e in rhs))
-    if key in _cache:
-        kernels, indptr, indices = _cache[key]
-        return CompiledODE(ode.N, kernels.rhs, kernels.rhs_component, kernels.jacobian,
-                           indptr, indices, ode.parameter_values, 0.0, True)
     index_of = {s: i for i, s in enumerate(ode.states)}
     rows = [sorted(index_of[s] for s in expr.free_symbols if s in index_of) for expr in ode.rhs]
     indptr = np.zeros(ode.N + 1, dtype=np.int64)
@@ -87,10 +108,14 @@ def lower(ode):
     indices = np.array([j for r in rows for j in r], dtype=np.int64)
 
     def source():
-        entries = [sp.diff(rhs[i], u[j]) for i, r in enumerate(rows) for j in r]
+        entries = [_derivative(rhs[i], u[j]) for i, r in enumerate(rows) for j in r]
         return kernel_source(rhs, entries)
 
-    kernels, cached = load_module(key, source)
-    _cache[key] = (kernels, indptr, indices)
-    return CompiledODE(ode.N, kernels.rhs, kernels.rhs_component, kernels.jacobian, indptr,
-                       indices, ode.parameter_values, time.perf_counter() - start, cached)
+    cached = key in _loaded
+    if not cached:
+        library, cached = load_library(key, source)
+        _loaded[key] = tuple(Kernel(library, name)
+                             for name in ("dn_rhs", "dn_rhs_component", "dn_jacobian"))
+    kernels = _loaded[key]
+    return CompiledODE(ode.N, *kernels, indptr, indices, ode.parameter_values,
+                       time.perf_counter() - start, cached)

@@ -1,16 +1,46 @@
-"""Numba signatures of the generated kernels: fixed, so that the time-stepping loops that
-call them through first-class function types compile once and are cached."""
+"""Signatures of the generated C kernels, as numba first-class function types.
+
+The time-stepping loops take the kernels as arguments of these fixed types, so they compile
+once (and are cached by numba) whatever the ODE; arrays are passed as data pointers.
+"""
+import ctypes
+
 from numba import types
 
-_vec = types.float64[::1]
-
 #: f(u, t, p, out): the full right-hand side, written into out.
-RHS = types.void(_vec, types.float64, _vec, _vec)
+RHS = types.void(types.voidptr, types.float64, types.voidptr, types.voidptr)
 #: f_i(i, u, t, p): one component of the right-hand side.
-COMPONENT = types.float64(types.int64, _vec, types.float64, _vec)
+COMPONENT = types.float64(types.int64, types.voidptr, types.float64, types.voidptr)
 #: J(u, t, p, data): the Jacobian df/du, its nonzero values in CSR order written into data.
-JACOBIAN = types.void(_vec, types.float64, _vec, _vec)
+JACOBIAN = RHS
 
 RHS_TYPE = types.FunctionType(RHS)
 COMPONENT_TYPE = types.FunctionType(COMPONENT)
 JACOBIAN_TYPE = types.FunctionType(JACOBIAN)
+
+_p = ctypes.c_void_p
+CTYPES = {
+    "dn_rhs": (None, [_p, ctypes.c_double, _p, _p]),
+    "dn_rhs_component": (ctypes.c_double, [ctypes.c_long, _p, ctypes.c_double, _p]),
+    "dn_jacobian": (None, [_p, ctypes.c_double, _p, _p]),
+}
+SIGNATURES = {"dn_rhs": RHS, "dn_rhs_component": COMPONENT, "dn_jacobian": JACOBIAN}
+
+
+class Kernel(types.WrapperAddressProtocol):
+    """A compiled C function, callable from Python (via ctypes) and from numba (by address)."""
+
+    def __init__(self, library, name):
+        self._library = library  # keeps the shared library loaded
+        self._function = getattr(library, name)
+        self._function.restype, self._function.argtypes = CTYPES[name]
+        self._signature = SIGNATURES[name]
+
+    def __wrapper_address__(self):
+        return ctypes.cast(self._function, ctypes.c_void_p).value
+
+    def signature(self):
+        return self._signature
+
+    def __call__(self, *args):
+        return self._function(*args)

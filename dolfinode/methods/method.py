@@ -132,15 +132,19 @@ def _frozen(values):
     return array
 
 
-@lru_cache(maxsize=None)
 def make_method(family, q):
     """The cG(q) (q >= 1) or dG(q) (q >= 0) method, built once and cached."""
     if family not in ("cG", "dG"):
         raise ValueError(f"unknown method family {family!r}: use 'cG' or 'dG'")
     qmin = 1 if family == "cG" else 0
-    if not isinstance(q, (int, np.integer)) or q < qmin:
+    if isinstance(q, bool) or not isinstance(q, (int, np.integer)) or q < qmin:
         raise ValueError(f"{family}(q) needs an integer q >= {qmin}, got {q!r}")
-    nodes, weights, stages, W, dend, left, bary = galerkin_weights(family, int(q))
+    return _make_method(family, int(q))
+
+
+@lru_cache(maxsize=None)
+def _make_method(family, q):
+    nodes, weights, stages, W, dend, left, bary = galerkin_weights(family, q)
     s = len(stages)
     Wf = np.array([[float(W[i, m]) for m in range(q + 1)] for i in range(s)])
     if family == "cG":
@@ -151,7 +155,7 @@ def make_method(family, q):
         array.setflags(write=False)
     stage_idx = np.array(stages, dtype=np.int64)
     stage_idx.setflags(write=False)
-    return Method(family, int(q), _frozen(nodes), _frozen(weights), stage_idx, A, b0,
+    return Method(family, q, _frozen(nodes), _frozen(weights), stage_idx, A, b0,
                   _frozen(dend), _frozen(left), _frozen(bary))
 
 

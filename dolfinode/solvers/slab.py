@@ -59,7 +59,7 @@ def stage_rhs(f, p, X, t, k, tau, F, tmp_in, tmp_out):
     for s in range(S):
         for i in range(N):
             tmp_in[i] = X[s * N + i]
-        f(tmp_in, t + tau[s] * k, p, tmp_out)
+        f(tmp_in.ctypes, t + tau[s] * k, p.ctypes, tmp_out.ctypes)
         for i in range(N):
             F[s * N + i] = tmp_out[i]
     return S

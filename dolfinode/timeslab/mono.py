@@ -71,7 +71,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
     t = state[T_NOW]
     k = state[K_NEXT]
     if state[HAVE_F0] == 0.0:
-        f(x, t, p, f0)
+        f(x.ctypes, t, p.ctypes, f0.ctypes)
         counters[F_EVALUATIONS] += 1
         state[HAVE_F0] = 1.0
     capacity = out_t.shape[0]
@@ -102,7 +102,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
                     for i in range(N):
                         X[s * N + i] = x[i] + tau[s] * k * f0[i]
         if use_newton:
-            jac(x, t, p, jdata)
+            jac(x.ctypes, t, p.ctypes, jdata.ctypes)
             counters[JACOBIANS] += 1
             assemble_newton_matrix(jdata, indptr, indices, position, A, k, klS, kuS, ab)
             if factor(ab, klS, kuS, ipiv, counters):
@@ -120,7 +120,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
             continue
         # end-point value and residual
         xend = X[(S - 1) * N:]
-        f(xend, t + k, p, fend)
+        f(xend.ctypes, t + k, p.ctypes, fend.ctypes)
         counters[F_EVALUATIONS] += 1
         eps = 0.0
         blowup = False
