@@ -5,7 +5,6 @@ import numpy as np
 
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
-from dolfinode.linalg import bandwidth_ordering
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
 from dolfinode.parameters import check_parameters
@@ -80,7 +79,7 @@ def solve(ode, method="cG(1)", **parameters):
     kmax = params["maximum_time_step"] or span
     fixed = bool(params["fixed_time_step"])
     k0 = params["initial_time_step"] or _initial_step(f0, x, atol, rtol, span)
-    order, position, kl, ku = bandwidth_ordering(compiled.indptr, compiled.indices, ode.N)
+    _, position, kl, ku = compiled.ordering
 
     iopts = np.array([("default", "fixed-point", "newton").index(params["nonlinear_solver"]),
                       int(fixed), params["maximum_iterations"], int(m.family == "dG")],

@@ -72,8 +72,8 @@ def load_library(key, make_source):
             _write_atomic(source, lambda tmp: Path(tmp).write_text(text))
 
         def build(tmp):
-            result = subprocess.run([c_compiler(), *_FLAGS, "-o", tmp, str(source), "-lm"],
-                                    capture_output=True, text=True)
+            command = [c_compiler(), *_FLAGS, "-o", tmp, str(source), "-lm"]
+            result = subprocess.run(command, check=False, capture_output=True, text=True)
             if result.returncode != 0:
                 raise RuntimeError(f"compiling the kernels in {source} failed:\n{result.stderr}")
 

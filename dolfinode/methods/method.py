@@ -11,7 +11,7 @@ Galerkin equations solved in 60-digit arithmetic (see ``galerkin_weights``).
 """
 import re
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import mpmath as mp
 import numpy as np
@@ -142,7 +142,7 @@ def make_method(family, q):
     return _make_method(family, int(q))
 
 
-@lru_cache(maxsize=None)
+@cache
 def _make_method(family, q):
     nodes, weights, stages, W, dend, left, bary = galerkin_weights(family, q)
     s = len(stages)

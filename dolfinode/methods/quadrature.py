@@ -4,7 +4,7 @@ The nodes are roots of Legendre polynomial combinations, found with mpmath at
 ``_DPS`` decimal digits, and the weights are integrals of the Lagrange basis,
 so every double returned is correctly rounded for q up to well beyond 10.
 """
-from functools import lru_cache
+from functools import cache
 
 import mpmath as mp
 
@@ -50,7 +50,7 @@ def _weights(nodes):
     return [w[m] for m in range(n)]
 
 
-@lru_cache(maxsize=None)
+@cache
 def lobatto(n):
     """Gauss-Lobatto rule with ``n >= 2`` points on [0, 1] (exact for degree 2n - 3).
 
@@ -69,7 +69,7 @@ def lobatto(n):
         return tuple(nodes), tuple(_weights(nodes))
 
 
-@lru_cache(maxsize=None)
+@cache
 def radau(n):
     """Right Gauss-Radau rule with ``n >= 1`` points on [0, 1] (exact for degree 2n - 2).
 

@@ -142,8 +142,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
             if is_dg:
                 r += abs(u_left - x[i]) / k
             e = kp * r / (atol[i] + rtol * abs(xend[i]))
-            if e > eps:
-                eps = e
+            eps = max(eps, e)
         if blowup or not math.isfinite(eps):
             if fixed:
                 return BLOWUP

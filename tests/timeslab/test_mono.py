@@ -1,4 +1,6 @@
 """Mono-adaptive cG(q)/dG(q): convergence orders, adaptivity and stiff problems."""
+import itertools
+
 import numpy as np
 import pytest
 import scipy.linalg as sl
@@ -48,7 +50,7 @@ def test_error_decreases_with_tolerance_harmonic(method):
     ode, exact = problems.harmonic(T=10.0)
     errors = [np.abs(dn.solve(ode, method=method, tolerance=tol)(ode.T) - exact(ode.T)).max()
               for tol in (1e-3, 1e-5, 1e-7, 1e-9)]
-    assert all(a > b for a, b in zip(errors, errors[1:])), errors
+    assert all(a > b for a, b in itertools.pairwise(errors)), errors
     assert errors[-1] < 1e-6
 
 
@@ -58,7 +60,7 @@ def test_error_decreases_with_tolerance_lorenz(method):
     reference = dn.solve(ode, method="cG(5)", tolerance=1e-13)(5.0)
     errors = [np.abs(dn.solve(ode, method=method, tolerance=tol)(5.0) - reference).max()
               for tol in (1e-3, 1e-5, 1e-7, 1e-9)]
-    assert all(a > b for a, b in zip(errors, errors[1:])), errors
+    assert all(a > b for a, b in itertools.pairwise(errors)), errors
 
 
 def test_hires_five_significant_digits():
