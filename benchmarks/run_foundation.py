@@ -400,9 +400,9 @@ def time_at(c, level):
     return 10.0 ** float(np.interp(level, c[:, 0], c[:, 1])), False
 
 
-def equal_accuracy(rows, problem, levels, key="time_median_s"):
+def equal_accuracy(rows, problem, levels, key="time_median_s", scipy_key="time_median_s"):
     dn_curves = {m: curve(rows, problem, "dolfinode", m, key) for m in DN_METHODS}
-    sp_curves = {m: curve(rows, problem, "scipy", m, "time_median_s") for m in SCIPY_METHODS}
+    sp_curves = {m: curve(rows, problem, "scipy", m, scipy_key) for m in SCIPY_METHODS}
     table = []
     for level in levels:
         dn_t = {m: time_at(c, level) for m, c in dn_curves.items()}
@@ -501,10 +501,11 @@ def plot(path, rows, problems):
         ax.grid(True, which="major", alpha=0.4)
         ax.grid(True, which="minor", alpha=0.12)
         ax.invert_xaxis()
-        ax.legend(fontsize=8, ncol=2, loc="upper left")
+    handles, labels = np.atleast_1d(axes)[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=5, fontsize=9, frameon=False)
     fig.suptitle("Work-precision: dolfinode cG(q)/dG(q) vs scipy solve_ivp "
                  "(right = more accurate, lower = faster)", fontsize=11)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.09, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -566,7 +567,7 @@ def headline_sentence(table, levels=(5, 6, 7, 8)):
 
 
 def write_markdown(path, meta, rows, problems, headline, compile_info, png_name):
-    out = [f"# Foundation work-precision benchmark", "",
+    out = ["# Foundation work-precision benchmark", "",
            f"Date: {meta['date']}  ", f"Machine: {meta['platform']}, {meta['cpu']}, "
            f"{meta['cpu_count']} CPUs  ",
            f"Versions: Python {meta['python']}, numpy {meta['numpy']}, scipy {meta['scipy']}, "
@@ -597,12 +598,12 @@ def write_markdown(path, meta, rows, problems, headline, compile_info, png_name)
            "`solve_ivp`; steps and rejected from a separate untimed run (rejected = step attempts "
            "- accepted steps, including Newton-failure retries; n/a for LSODA).",
            "* Equal-accuracy ratio: for each solver, log10(time) is interpolated linearly in "
-           "mescd (HIRES) or -log10 err(T) (harmonic) over its tolerance sweep, reduced to its Pareto "
-           "front (a run is dropped when a more accurate run of the same solver was faster), with "
-           "no extrapolation beyond its most accurate run; below its least accurate run the "
-           "fastest run's time is used, marked *; 'best dolfinode' is the fastest of cG(1..3)/dG(1..3) at that "
-           "level, 'best scipy' the fastest of the four scipy methods. Ratio < 1: dolfinode "
-           "faster.",
+           "mescd (HIRES) or -log10 err(T) (harmonic) over its tolerance sweep, reduced to its "
+           "Pareto front (a run is dropped when a more accurate run of the same solver was "
+           "faster), with no extrapolation beyond its most accurate run; below its least "
+           "accurate run the fastest run's time is used, marked *; 'best dolfinode' is the "
+           "fastest of cG(1..3)/dG(1..3) at that level, 'best scipy' the fastest of the four "
+           "scipy methods. Ratio < 1: dolfinode faster.",
            "", "## dolfinode compile time (first call per problem)", "",
            "| problem | first call wall | stats['compile time'] | kernel cache |",
            "|---|---|---|---|"]
@@ -616,19 +617,22 @@ def write_markdown(path, meta, rows, problems, headline, compile_info, png_name)
         digits = "mescd" if name == "HIRES" else "-log10 err(T)"
         out += [f"## {name}", "", f"### Equal accuracy ({digits})", "",
                 headline_table(headline[name], digits), "",
-                f"Same comparison with dolfinode's internal `stats['solve time']` (compiled "
+                "Same comparison with dolfinode's internal `stats['solve time']` (compiled "
                 "stepping loop only, without the Python work around it in `dn.solve`):", "",
                 headline_table(headline[name + " (solve time)"], digits), "",
+                "Same comparison with the fastest instead of the median repeat (both sides), "
+                "as a check on timing noise from other processes on the machine:", "",
+                headline_table(headline[name + " (min time)"], digits), "",
                 "### All runs", "", md_table(rows, name), ""]
     Path(path).write_text("\n".join(out))
 
 
 def readme_block(meta, headline, md_rel, png_rel):
     lines = [README_BEGIN,
-             f"Work-precision on HIRES and the harmonic oscillator against scipy's `solve_ivp` "
-             f"(Radau, BDF, LSODA, DOP853 with analytic Jacobians): "
-             f"`.venv/bin/python benchmarks/run_foundation.py` (`--quick` for a short run, "
-             f"`--update-readme` to regenerate this paragraph).", "",
+             "Work-precision on HIRES and the harmonic oscillator against scipy's `solve_ivp` "
+             "(Radau, BDF, LSODA, DOP853 with analytic Jacobians): "
+             "`.venv/bin/python benchmarks/run_foundation.py` (`--quick` for a short run, "
+             "`--update-readme` to regenerate this paragraph).", "",
              f"Measured {meta['date']} on this {meta['cpu_count']}-core machine"
              f"{' (quick run)' if meta['quick'] else ''}: {headline_sentence(headline['HIRES'])}."
              f" Full tables: [{md_rel}]({md_rel}); plot: [{png_rel}]({png_rel}).",
@@ -692,11 +696,11 @@ def main(argv=None):
         for problem in problems:
             # Cold first call: kernel compile time, reported separately from the timings.
             folder = cache_directory()
-            before = set(folder.glob("dn_*.py")) if folder.exists() else set()
+            before = set(folder.rglob("*")) if folder.exists() else set()
             start = time.perf_counter()
             sol = dn.solve(problem["ode"], method="cG(1)", tolerance=1e-3)
             first = time.perf_counter() - start
-            new = (set(folder.glob("dn_*.py")) - before) if folder.exists() else set()
+            new = (set(folder.rglob("*")) - before) if folder.exists() else set()
             compile_info[problem["name"]] = {
                 "first_call_s": first, "compile_time_s": sol.stats["compile time"],
                 "cache": "cold (kernels generated and compiled)" if new
@@ -734,6 +738,8 @@ def main(argv=None):
         levels = HEADLINE_LEVELS if name == "HIRES" else list(range(2, 13))
         headline[name] = equal_accuracy(rows, name, levels)
         headline[name + " (solve time)"] = equal_accuracy(rows, name, levels, "dn_solve_time_s")
+        headline[name + " (min time)"] = equal_accuracy(rows, name, levels, "time_min_s",
+                                                        "time_min_s")
 
     meta = machine_info()
     meta.update(quick=args.quick, tolerances=tolerances, import_seconds=import_seconds,
