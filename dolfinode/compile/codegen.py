@@ -77,36 +77,41 @@ def _vector_kernel(name, exprs, out):
     return lines
 
 
-def _component_kernel(exprs):
-    """``double dn_rhs_component(long i, ARGS)``: f_i by a jump table, O(size of f_i)."""
+def _row_kernel(name, rows):
+    """``void name(long i, ARGS, double *out)`` writing rows[i] into out, by a jump table.
+
+    The cost of a call is proportional to the size of row i, not to the number of rows.
+    """
     lines = []
-    chunks = _chunks(len(exprs))
+    chunks = _chunks(len(rows))
     for c, (lo, hi) in enumerate(chunks):
-        lines += [f"static double dn_rhs_component_{c}(long i, ARGS) {{", "    switch (i) {"]
+        lines += [f"static void {name}_{c}(long i, ARGS, double *restrict out) {{",
+                  "    switch (i) {"]
         for i in range(lo, hi):
-            body = _statements([exprs[i]], ["return"])
-            lines += [f"    case {i}: {{"] + ["    " + s.replace("return =", "return") for s in body]
-            lines += ["    }"]
-        lines += ["    default: return NAN;", "    }", "}", ""]
-    lines += ["double dn_rhs_component(long i, ARGS) {", f"    switch (i / {CHUNK}) {{"]
-    lines += [f"    case {c}: return dn_rhs_component_{c}(i, u, t, p);" for c in range(len(chunks))]
-    lines += ["    default: return NAN;", "    }", "}", ""]
+            body = _statements(rows[i], [f"out[{k}]" for k in range(len(rows[i]))])
+            lines += [f"    case {i}: {{"] + ["    " + line for line in body] + ["        return;", "    }"]
+        lines += ["    default: return;", "    }", "}", ""]
+    lines += [f"void {name}(long i, ARGS, double *restrict out) {{", f"    switch (i / {CHUNK}) {{"]
+    lines += [f"    case {c}: {name}_{c}(i, u, t, p, out); return;" for c in range(len(chunks))]
+    lines += ["    default: return;", "    }", "}", ""]
     return lines
 
 
-def kernel_source(rhs, jacobian_entries):
-    """C source defining ``dn_rhs``, ``dn_rhs_component`` and ``dn_jacobian``.
+def kernel_source(rhs, jacobian_rows):
+    """C source defining the kernels named in :mod:`dolfinode.compile.signatures`.
 
     Parameters
     ----------
     rhs : sequence of sympy expressions in the symbols u[i], p[j], t
-    jacobian_entries : the Jacobian's nonzero entries, in CSR order
+    jacobian_rows : for each component i, the nonzero entries of row i of df/du (CSR order)
     """
+    entries = [entry for row in jacobian_rows for entry in row]
     lines = [_PROLOGUE]
     lines += _vector_kernel("dn_rhs", list(rhs), "out")
-    lines += _component_kernel(list(rhs))
-    if jacobian_entries:
-        lines += _vector_kernel("dn_jacobian", list(jacobian_entries), "data")
+    lines += _row_kernel("dn_rhs_component", [[expr] for expr in rhs])
+    if entries:
+        lines += _vector_kernel("dn_jacobian", entries, "data")
     else:
         lines += ["void dn_jacobian(ARGS, double *restrict data) {}", ""]
+    lines += _row_kernel("dn_jacobian_row", list(jacobian_rows))
     return "\n".join(lines)

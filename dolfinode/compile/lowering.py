@@ -16,7 +16,7 @@ import sympy as sp
 
 from dolfinode.compile.cache import load_library, signature
 from dolfinode.compile.codegen import kernel_source
-from dolfinode.compile.signatures import Kernel
+from dolfinode.compile.signatures import KERNELS, Kernel
 from dolfinode.linalg import bandwidth_ordering
 from dolfinode.ode import t as time_symbol
 
@@ -27,7 +27,7 @@ class CompiledODE:
 
     Attributes
     ----------
-    rhs, rhs_component, jacobian : :class:`~dolfinode.compile.signatures.Kernel`
+    rhs, rhs_component, jacobian, jacobian_row : :class:`~dolfinode.compile.signatures.Kernel`
     indptr, indices : int64 CSR pattern of df/du; row i lists the j that f_i depends on
     p : float64 parameter values in the order of ``ode.parameter_symbols``
     compile_time : seconds spent generating and compiling (or loading from cache)
@@ -38,6 +38,7 @@ class CompiledODE:
     rhs: Kernel
     rhs_component: Kernel
     jacobian: Kernel
+    jacobian_row: Kernel
     indptr: np.ndarray
     indices: np.ndarray
     p: np.ndarray
@@ -75,7 +76,19 @@ class CompiledODE:
         """f_i(u, t), at a cost proportional to the number of states f_i depends on."""
         if not 0 <= i < self.N:
             raise IndexError(f"component {i} out of range for N = {self.N}")
-        return self.rhs_component(int(i), self._vector(u).ctypes.data, float(t), self.p.ctypes.data)
+        out = np.empty(1)
+        self.rhs_component(int(i), self._vector(u).ctypes.data, float(t), self.p.ctypes.data,
+                           out.ctypes.data)
+        return out[0]
+
+    def jacobian_row_values(self, i, u, t):
+        """Row i of df/du at (u, t): values at columns indices[indptr[i]:indptr[i + 1]]."""
+        if not 0 <= i < self.N:
+            raise IndexError(f"component {i} out of range for N = {self.N}")
+        out = np.empty(max(self.indptr[i + 1] - self.indptr[i], 1))
+        self.jacobian_row(int(i), self._vector(u).ctypes.data, float(t), self.p.ctypes.data,
+                          out.ctypes.data)
+        return out[:self.indptr[i + 1] - self.indptr[i]]
 
     def jacobian_matrix(self, u, t):
         """df/du at (u, t) as a scipy CSR matrix."""
@@ -117,14 +130,13 @@ def lower(ode):
     indices = np.array([j for r in rows for j in r], dtype=np.int64)
 
     def source():
-        entries = [_derivative(rhs[i], u[j]) for i, r in enumerate(rows) for j in r]
-        return kernel_source(rhs, entries)
+        jacobian_rows = [[_derivative(rhs[i], u[j]) for j in r] for i, r in enumerate(rows)]
+        return kernel_source(rhs, jacobian_rows)
 
     cached = key in _loaded
     if not cached:
         library, cached = load_library(key, source)
-        _loaded[key] = tuple(Kernel(library, name)
-                             for name in ("dn_rhs", "dn_rhs_component", "dn_jacobian"))
+        _loaded[key] = tuple(Kernel(library, name) for name in KERNELS)
     kernels = _loaded[key]
     ode._compiled = CompiledODE(ode.N, *kernels, indptr, indices, ode.parameter_values,
                                 time.perf_counter() - start, cached)

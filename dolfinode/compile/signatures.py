@@ -9,22 +9,26 @@ from numba import types
 
 #: f(u, t, p, out): the full right-hand side, written into out.
 RHS = types.void(types.voidptr, types.float64, types.voidptr, types.voidptr)
-#: f_i(i, u, t, p): one component of the right-hand side.
-COMPONENT = types.float64(types.int64, types.voidptr, types.float64, types.voidptr)
+#: f_i(i, u, t, p, out): one component of the right-hand side, written into out[0].
+COMPONENT = types.void(types.int64, types.voidptr, types.float64, types.voidptr, types.voidptr)
 #: J(u, t, p, data): the Jacobian df/du, its nonzero values in CSR order written into data.
 JACOBIAN = RHS
+#: J_i(i, u, t, p, out): row i of df/du, its nonzero values (CSR order) written into out.
+JACOBIAN_ROW = COMPONENT
 
 RHS_TYPE = types.FunctionType(RHS)
 COMPONENT_TYPE = types.FunctionType(COMPONENT)
 JACOBIAN_TYPE = types.FunctionType(JACOBIAN)
+JACOBIAN_ROW_TYPE = COMPONENT_TYPE
 
 _p = ctypes.c_void_p
-CTYPES = {
-    "dn_rhs": (None, [_p, ctypes.c_double, _p, _p]),
-    "dn_rhs_component": (ctypes.c_double, [ctypes.c_long, _p, ctypes.c_double, _p]),
-    "dn_jacobian": (None, [_p, ctypes.c_double, _p, _p]),
-}
-SIGNATURES = {"dn_rhs": RHS, "dn_rhs_component": COMPONENT, "dn_jacobian": JACOBIAN}
+_vector = (None, [_p, ctypes.c_double, _p, _p])
+_row = (None, [ctypes.c_long, _p, ctypes.c_double, _p, _p])
+CTYPES = {"dn_rhs": _vector, "dn_rhs_component": _row, "dn_jacobian": _vector,
+          "dn_jacobian_row": _row}
+SIGNATURES = {"dn_rhs": RHS, "dn_rhs_component": COMPONENT, "dn_jacobian": JACOBIAN,
+              "dn_jacobian_row": JACOBIAN_ROW}
+KERNELS = tuple(CTYPES)
 
 
 class Kernel(types.WrapperAddressProtocol):

@@ -341,3 +341,14 @@ def test_expected_values_in_the_cache_script():
     u, v, k = sp.symbols("u v k")
     ode = dn.ODE({u: v, v: -k * u * sp.sin(t)}, [1.0, 0.0], 1.0, params={k: 2.0})
     assert lower(ode).f([0.5, 2.0], 0.25)[1] == pytest.approx(-2.0 * 0.5 * np.sin(0.25), rel=1e-15)
+
+
+@pytest.mark.parametrize("make", SYSTEMS)
+def test_jacobian_rows_equal_the_full_jacobian(make):
+    ode = make()
+    compiled = lower(ode)
+    for x, time in random_points(2, ode.N, seed=5):
+        J = compiled.jacobian_matrix(x, time)
+        for i in range(ode.N):
+            np.testing.assert_allclose(compiled.jacobian_row_values(i, x, time),
+                                       J.data[J.indptr[i]:J.indptr[i + 1]], rtol=1e-14, atol=1e-15)
