@@ -558,12 +558,16 @@ def headline_sentence(table, levels=(5, 6, 7, 8)):
     sel = [e for e in table if e["level"] in levels] or table
     if not sel:
         return "no common accuracy level reached by dolfinode and scipy"
-    radau = ", ".join(f"{e['ratio_vs_radau']:.2g} at mescd {e['level']}" for e in sel
+
+    def ratio(x):
+        return f"{x:.2g} ({1 / x:.2g}x faster)" if x < 1 else f"{x:.2g} ({x:.2g}x slower)"
+
+    radau = ", ".join(f"{ratio(e['ratio_vs_radau'])} at mescd {e['level']}" for e in sel
                       if e["ratio_vs_radau"])
-    best = ", ".join(f"{e['ratio_vs_best_scipy']:.2g} ({e['scipy_best']}) at mescd {e['level']}"
-                     for e in sel)
-    return (f"HIRES, time of dolfinode's best method / time of scipy Radau at equal mescd: "
-            f"{radau}; / best scipy solver: {best} (below 1 = dolfinode faster)")
+    best = ", ".join(f"{ratio(e['ratio_vs_best_scipy'])} vs {e['scipy_best']} at mescd "
+                     f"{e['level']}" for e in sel)
+    return (f"on HIRES, time of dolfinode's best method / time of scipy Radau at equal mescd: "
+            f"{radau}; / time of the best scipy solver: {best}")
 
 
 def write_markdown(path, meta, rows, problems, headline, compile_info, png_name):
@@ -575,7 +579,8 @@ def write_markdown(path, meta, rows, problems, headline, compile_info, png_name)
            f"(git {meta['git_commit'] or '?'})  ",
            f"Command: `{meta['command']}` ({'quick' if meta['quick'] else 'full'} run, "
            f"{meta['total_seconds']:.0f} s in total)", "",
-           f"**Headline.** {headline_sentence(headline['HIRES'])}.", "",
+           f"**Headline.** {headline_sentence(headline['HIRES'])[0].upper()}"
+           f"{headline_sentence(headline['HIRES'])[1:]}.", "",
            f"![work-precision]({png_name})", "",
            "## How it is measured", "",
            "* Tolerances: dolfinode `tolerance` = rtol (absolute_tolerance = tolerance); scipy "
@@ -627,15 +632,19 @@ def write_markdown(path, meta, rows, problems, headline, compile_info, png_name)
     Path(path).write_text("\n".join(out))
 
 
-def readme_block(meta, headline, md_rel, png_rel):
+def readme_block(meta, headline, compile_info, md_rel, png_rel):
+    compile_s = compile_info.get("HIRES", {}).get("compile_time_s")
     lines = [README_BEGIN,
-             "Work-precision on HIRES and the harmonic oscillator against scipy's `solve_ivp` "
-             "(Radau, BDF, LSODA, DOP853 with analytic Jacobians): "
-             "`.venv/bin/python benchmarks/run_foundation.py` (`--quick` for a short run, "
-             "`--update-readme` to regenerate this paragraph).", "",
+             "Work-precision on HIRES and the harmonic oscillator, against scipy's `solve_ivp` "
+             "(Radau, BDF, LSODA, DOP853, with hand-written NumPy right-hand sides and analytic "
+             "Jacobians): `.venv/bin/python benchmarks/run_foundation.py` (`--quick` for a "
+             "short run, `--update-readme` to regenerate this paragraph). Results are written "
+             "to `doc/benchmarks/`.", "",
              f"Measured {meta['date']} on this {meta['cpu_count']}-core machine"
-             f"{' (quick run)' if meta['quick'] else ''}: {headline_sentence(headline['HIRES'])}."
-             f" Full tables: [{md_rel}]({md_rel}); plot: [{png_rel}]({png_rel}).",
+             f"{' (quick run)' if meta['quick'] else ''}, as the median wall time of the whole "
+             f"solve call: {headline_sentence(headline['HIRES'])}. dolfinode's one-off kernel "
+             f"compile for HIRES ({fmt_s(compile_s)}) is not included. "
+             f"Full tables: [{md_rel}]({md_rel}); plot: [{png_rel}]({png_rel}).",
              README_END]
     return "\n".join(lines)
 
@@ -763,7 +772,7 @@ def main(argv=None):
                 return str(p.relative_to(ROOT))
             except ValueError:
                 return str(p)
-        update_readme(readme_block(meta, headline, rel(out_dir / "foundation.md"),
+        update_readme(readme_block(meta, headline, compile_info, rel(out_dir / "foundation.md"),
                                    rel(out_dir / "foundation.png")))
     return 0
 

@@ -16,13 +16,14 @@ DEFAULTS = {
     "maximum_steps": 10_000_000,   # time slabs before giving up (SolverError)
     "number_of_samples": 101,      # output samples sol.t, sol.y
     "progress": False,             # tqdm progress bar
+    "partitioning_threshold": 0.5,  # mcG/mdG: components with k >= theta max k share a sub-slab
+    "interval_threshold": 0.9,     # mcG/mdG: a step >= beta times what is left is stretched to it
 }
 
 NONLINEAR_SOLVERS = ("default", "fixed-point", "newton")
 
 #: DOLFIN parameter names of features that are not available yet, and the feature.
 PLANNED = {
-    "partitioning_threshold": "the multi-adaptive methods mcG(q)/mdG(q)",
     "automatic_modeling": "automatic modeling",
     "average_length": "automatic modeling",
     "average_samples": "automatic modeling",
@@ -56,7 +57,13 @@ def check_parameters(given):
                              f"{', '.join(sorted(DEFAULTS))}")
     params = dict(DEFAULTS, **given)
     params["tolerance"] = _positive("tolerance", params["tolerance"], allow_none=False)
-    params["initial_time_step"] = _positive("initial_time_step", params["initial_time_step"])
+    if not isinstance(params["initial_time_step"], dict):  # per state: checked by solve
+        params["initial_time_step"] = _positive("initial_time_step", params["initial_time_step"])
+    for name in ("partitioning_threshold", "interval_threshold"):
+        value = _positive(name, params[name], allow_none=False)
+        if value > 1:
+            raise ValueError(f"{name} must lie in (0, 1], got {value}")
+        params[name] = value
     params["maximum_time_step"] = _positive("maximum_time_step", params["maximum_time_step"])
     params["discrete_tolerance_factor"] = _positive(
         "discrete_tolerance_factor", params["discrete_tolerance_factor"], allow_none=False)

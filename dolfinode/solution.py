@@ -1,14 +1,45 @@
 """The Galerkin solution: exact piecewise polynomials, dense evaluation and samples."""
 import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def _evaluate_components(ptr, t_start, t_end, values, nodes, bary, times, out):
+    """out[i, m] = U_i(times[m]) from component i's elements ptr[i]:ptr[i+1] (time-sorted)."""
+    for i in range(ptr.shape[0] - 1):
+        for m in range(times.shape[0]):
+            t = times[m]
+            lo, hi = ptr[i], ptr[i + 1] - 1
+            while lo < hi:  # first element ending at or after t
+                mid = (lo + hi) // 2
+                if t_end[mid] >= t:
+                    hi = mid
+                else:
+                    lo = mid + 1
+            tau = min(max((t - t_start[lo]) / (t_end[lo] - t_start[lo]), 0.0), 1.0)
+            num = 0.0
+            den = 0.0
+            hit = -1
+            for j in range(nodes.shape[0]):
+                d = tau - nodes[j]
+                if d == 0.0:
+                    hit = j
+                    break
+                w = bary[j] / d
+                num += w * values[lo, j]
+                den += w
+            out[i, m] = values[lo, hit] if hit >= 0 else num / den
 
 
 class Solution:
-    """Piecewise polynomial solution U of a Galerkin method on a partition of [t0, T].
+    """Piecewise polynomial solution U of a Galerkin method on [t0, T].
 
-    Element n covers [t_n, t_n + k_n]; its polynomial of degree q takes the values
+    Each element covers [t_n, t_n + k_n]; its polynomial of degree q takes the values
     ``values[n, j]`` at the method's nodes t_n + tau_j k_n and is evaluated exactly with the
     method's Lagrange basis. At an element boundary the value of the element to the left is
-    returned (for dG the left limit U(t_n^-)).
+    returned (for dG the left limit U(t_n^-)). Mono-adaptive solutions share one partition
+    (``values`` has shape (M, q+1, N)); multi-adaptive solutions give every component its own
+    (see :meth:`multi_adaptive`).
 
     Attributes
     ----------
@@ -24,9 +55,31 @@ class Solution:
         self.k = k
         self.values = values
         self.stats = stats
-        self._t_end = t_start + k
-        self.t = np.linspace(ode.t0, ode.T, number_of_samples)
+        self._component_ptr = None
+        self._sample(number_of_samples)
+
+    @classmethod
+    def multi_adaptive(cls, ode, method, comp, t_start, t_end, values, stats, number_of_samples):
+        """A solution whose component i has its own elements (comp == i), in any order."""
+        order = np.lexsort((t_start, comp))
+        self = cls.__new__(cls)
+        self.ode, self.method, self.stats = ode, method, stats
+        self.t_start = t_start[order]
+        self.k = t_end[order] - self.t_start
+        self.values = values[order]
+        self._component_ptr = np.searchsorted(comp[order], np.arange(ode.N + 1))
+        self._t_end = t_end[order]
+        self._sample(number_of_samples)
+        return self
+
+    def _sample(self, number_of_samples):
+        self.t = np.linspace(self.ode.t0, self.ode.T, number_of_samples)
         self.y = self(self.t)
+
+    @property
+    def multi(self):
+        """Whether every component has its own partition."""
+        return self._component_ptr is not None
 
     @property
     def states(self):
@@ -40,17 +93,32 @@ class Solution:
                            or times.max() > self.ode.T):
             raise ValueError(f"the solution is defined on [{self.ode.t0}, {self.ode.T}], "
                              f"got t outside it")
-        n = np.searchsorted(self._t_end, times, side="left")
-        n = np.minimum(n, len(self.k) - 1)
-        tau = np.clip((times - self.t_start[n]) / self.k[n], 0.0, 1.0)
-        basis = self.method.basis(tau)                      # (M, q+1)
-        out = np.einsum("mj,mjn->nm", basis, self.values[n])  # (N, M)
+        if self.multi:
+            out = np.empty((self.ode.N, times.size))
+            _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
+                                 self.method.nodes, self.method.barycentric_weights, times, out)
+        else:
+            t_end = self.t_start + self.k
+            n = np.minimum(np.searchsorted(t_end, times, side="left"), len(self.k) - 1)
+            tau = np.clip((times - self.t_start[n]) / self.k[n], 0.0, 1.0)
+            out = np.einsum("mj,mjn->nm", self.method.basis(tau), self.values[n])
+        # U(t0) is the initial value (for dG the element polynomial starts after the jump)
+        out[:, times == self.ode.t0] = self.ode.u0[:, None]
         return out[:, 0] if scalar else out
 
-    def time_steps(self):
-        """Element start times and lengths (t_n, k_n) of the shared partition."""
-        return self.t_start.copy(), self.k.copy()
+    def time_steps(self, component=None):
+        """Element start times and lengths (t_n, k_n): of the shared partition, or of one
+        component (index or state symbol) of a multi-adaptive solution."""
+        if not self.multi:
+            return self.t_start.copy(), self.k.copy()
+        if component is None:
+            raise ValueError("a multi-adaptive solution has one partition per component: "
+                             "give the component (index or state)")
+        i = component if isinstance(component, (int, np.integer)) else self.ode.index(component)
+        span = slice(self._component_ptr[i], self._component_ptr[i + 1])
+        return self.t_start[span].copy(), self.k[span].copy()
 
     def __repr__(self):
-        return (f"Solution({self.method.name}, N={self.ode.N}, elements={len(self.k)}, "
+        kind = "multi-adaptive" if self.multi else "mono-adaptive"
+        return (f"Solution({self.method.name}, {kind}, N={self.ode.N}, elements={len(self.k)}, "
                 f"t=[{self.ode.t0}, {self.ode.T}])")

@@ -9,10 +9,11 @@ from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
 from dolfinode.parameters import check_parameters
 from dolfinode.solution import Solution
-from dolfinode.timeslab import mono
+from dolfinode.timeslab import mono, multi
 
 #: Relative size (times |t|) below which a time step cannot be resolved in double precision.
 _KMIN_RELATIVE = 1e-14
+_STATUS_STEP_LIMIT = -1
 
 
 def _absolute_tolerance(ode, value, rtol):
@@ -36,6 +37,22 @@ def _initial_step(f0, u0, atol, rtol, span):
     return min(k0, span)
 
 
+def _initial_steps(ode, given, f0, atol, rtol, multi_adaptive):
+    """The first step: a number, or per state (dict/sequence) for multi-adaptive methods."""
+    span = ode.T - ode.t0
+    if given is None:
+        return np.full(ode.N, _initial_step(f0, ode.u0, atol, rtol, span))
+    if np.isscalar(given):
+        return np.full(ode.N, float(given))
+    if not multi_adaptive:
+        raise ValueError("initial_time_step per state needs a multi-adaptive method "
+                         "(mcG(q) or mdG(q)); cG/dG share one step")
+    steps = _vector_by_state(given, ode.states, "initial_time_step")
+    if np.any(steps <= 0):
+        raise ValueError(f"initial_time_step must be positive, got {given!r}")
+    return steps
+
+
 def solve(ode, method="cG(1)", **parameters):
     """Solve the ODE with a Galerkin method.
 
@@ -43,7 +60,8 @@ def solve(ode, method="cG(1)", **parameters):
     ----------
     ode : ODE
     method : str
-        "cG(q)" (q >= 1) or "dG(q)" (q >= 0), one time step shared by all components.
+        "cG(q)" (q >= 1) or "dG(q)" (q >= 0): one time step shared by all components;
+        "mcG(q)" or "mdG(q)": individual time steps per component (multi-adaptive).
     **parameters
         See :data:`dolfinode.parameters.DEFAULTS` (DOLFIN's names).
 
@@ -62,97 +80,162 @@ def solve(ode, method="cG(1)", **parameters):
         raise TypeError(f"solve expects a dolfinode.ODE, got {type(ode).__name__}")
     params = check_parameters(parameters)
     multi_adaptive, m = parse_method(method)
-    if multi_adaptive:
-        raise NotImplementedError(f"{method}: the multi-adaptive solver is not available yet; "
-                                  f"use {m.name} (one time step for all components)")
     compiled = lower(ode)
     start = time.perf_counter()
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
-    span = ode.T - ode.t0
     x = ode.u0.copy()
     f0 = compiled.f(x, ode.t0)
     if not np.all(np.isfinite(f0)):
         bad = ode.states[int(np.flatnonzero(~np.isfinite(f0))[0])]
         raise ValueError(f"f(u0, t0) is not finite in the right-hand side of {bad}: check u0 "
                          "and the parameters")
-    kmax = params["maximum_time_step"] or span
+    steps = _initial_steps(ode, params["initial_time_step"], f0, atol, rtol, multi_adaptive)
     fixed = bool(params["fixed_time_step"])
-    k0 = params["initial_time_step"] or _initial_step(f0, x, atol, rtol, span)
-    _, position, kl, ku = compiled.ordering
-
+    if fixed:  # no error control: iterate to rounding level, relative to the solution size
+        atol, rtol, dtol = np.ones(ode.N), 1.0, 1e-15
+    else:
+        dtol = params["discrete_tolerance_factor"]
     iopts = np.array([("default", "fixed-point", "newton").index(params["nonlinear_solver"]),
                       int(fixed), params["maximum_iterations"], int(m.family == "dG")],
                      dtype=np.int64)
-    fopts = np.array([rtol, ode.T, kmax, params["safety_factor"],
-                      params["discrete_tolerance_factor"], m.order, m.residual_power,
-                      _KMIN_RELATIVE])
-    if fixed:  # no error control: iterate to rounding level, relative to the solution size
-        atol = np.ones(ode.N)
-        fopts[mono.RTOL] = 1.0
-        fopts[mono.DTOL] = 1e-15
-    state = np.array([ode.t0, k0, 1.0, 1.0])
-    counters = np.zeros(mono.NUM_COUNTERS, dtype=np.int64)
-    tau = m.nodes[m.stages].copy()
-    A = np.array(m.A)
-    b0, dend, lval = m.b0.copy(), m.end_derivative.copy(), m.left_value.copy()
-    nodes = m.q + 1
-    capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
-    if params["progress"]:
-        capacity = min(capacity, 500)
-    chunks_t, chunks_k, chunks_X = [], [], []
-    bar = _progress_bar(ode) if params["progress"] else None
-    try:
-        while True:
-            size = min(capacity, params["maximum_steps"] - counters[mono.STEPS])
-            out_t = np.empty(size)
-            out_k = np.empty(size)
-            out_X = np.empty((size, nodes, ode.N))
-            status = mono.advance(compiled.rhs, compiled.jacobian, compiled.p, compiled.indptr,
-                                  compiled.indices, position, kl, ku, A, b0, tau, dend, lval,
-                                  iopts, fopts, atol, x, f0, state, counters, out_t, out_k, out_X)
-            n = counters[mono.STORED]
-            chunks_t.append(out_t[:n])
-            chunks_k.append(out_k[:n])
-            chunks_X.append(out_X[:n])
-            if bar is not None:
-                bar.update(state[mono.T_NOW] - bar.n)
-            if status != mono.FULL:
-                break
-            if counters[mono.STEPS] >= params["maximum_steps"]:
-                status = mono.STEP_LIMIT
-                break
-    finally:
-        if bar is not None:
-            bar.close()
+    fopts = [rtol, ode.T, params["maximum_time_step"] or ode.T - ode.t0,
+             params["safety_factor"], dtol, m.order, m.residual_power]
+    run = _run_multi if multi_adaptive else _run_mono
+    status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
+                                                   x, f0, steps)
     if status != mono.DONE:
-        raise SolverError(_failure_message(status, state, fixed, x), t=float(state[mono.T_NOW]))
-    solve_time = time.perf_counter() - start
-    t_start = np.concatenate(chunks_t)
-    k = np.concatenate(chunks_k)
-    values = np.concatenate(chunks_X)
-    stats = {
-        "method": m.name,
-        "time slabs": int(counters[mono.STEPS]),
-        "elements": int(counters[mono.STEPS]) * ode.N,
+        raise SolverError(_failure_message(status, state, fixed, x), t=float(state[0]))
+    stats.update({
+        "method": ("m" if multi_adaptive else "") + m.name,
         "rejected steps": int(counters[mono.REJECTED]),
         "f evaluations": int(counters[mono.F_EVALUATIONS]),
         "jacobian evaluations": int(counters[mono.JACOBIANS]),
-        "factorizations": int(counters[mono.FACTORIZATIONS]),
         "nonlinear iterations": int(counters[mono.ITERATIONS]),
         "failed nonlinear solves": int(counters[mono.FAILED_SOLVES]),
         "newton": bool(counters[mono.STIFF]) or params["nonlinear_solver"] == "newton",
-        "bandwidth": (kl, ku),
         "compile time": compiled.compile_time,
-        "solve time": solve_time,
-    }
-    return Solution(ode, m, t_start, k, values, stats, params["number_of_samples"])
+        "solve time": time.perf_counter() - start,
+    })
+    if multi_adaptive:
+        return Solution.multi_adaptive(ode, m, *elements, stats, params["number_of_samples"])
+    return Solution(ode, m, *elements, stats, params["number_of_samples"])
+
+
+def _integrate(advance, make_buffers, capacity, counters, slabs, params, state, bar):
+    """Call a compiled time-slab loop until it reaches T, collecting its stored elements.
+
+    The loop returns FULL when its output buffers are full (so results arrive in chunks, and
+    progress can be shown); a FULL with nothing stored means one slab needs larger buffers.
+    """
+    chunks = []
+    while True:
+        buffers = make_buffers(capacity)
+        status = advance(*buffers)
+        n = counters[mono.STORED]
+        chunks.append([b[:n] for b in buffers])
+        if bar is not None:
+            bar.update(state[0] - bar.n)
+        if status != mono.FULL:
+            break
+        if n == 0:
+            capacity *= 2
+        if counters[slabs] >= params["maximum_steps"]:
+            status = _STATUS_STEP_LIMIT
+            break
+    return status, [np.concatenate(parts) for parts in zip(*chunks)]
+
+
+def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
+    _, position, kl, ku = compiled.ordering
+    fopts = np.array(fopts + [_KMIN_RELATIVE])
+    state = np.array([ode.t0, steps[0], 1.0, 1.0])
+    counters = np.zeros(mono.NUM_COUNTERS, dtype=np.int64)
+    tau = m.nodes[m.stages].copy()
+    A, b0 = np.array(m.A), m.b0.copy()
+    dend, lval = m.end_derivative.copy(), m.left_value.copy()
+    nodes = m.q + 1
+
+    def buffers(capacity):
+        size = min(capacity, params["maximum_steps"] - counters[mono.STEPS])
+        return np.empty(size), np.empty(size), np.empty((size, nodes, ode.N))
+
+    def advance(out_t, out_k, out_X):
+        return mono.advance(compiled.rhs, compiled.jacobian, compiled.p, compiled.indptr,
+                            compiled.indices, position, kl, ku, A, b0, tau, dend, lval, iopts,
+                            fopts, atol, x, f0, state, counters, out_t, out_k, out_X)
+
+    capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
+    with _progress(ode, params) as bar:
+        status, elements = _integrate(advance, buffers, capacity, counters, mono.STEPS, params,
+                                      state, bar)
+    stats = {"time slabs": int(counters[mono.STEPS]),
+             "elements": int(counters[mono.STEPS]) * ode.N,
+             "factorizations": int(counters[mono.FACTORIZATIONS]),
+             "bandwidth": (kl, ku)}
+    return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, stats
+
+
+def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
+    fopts = np.array(fopts + [params["partitioning_threshold"], params["interval_threshold"]])
+    state = np.array([ode.t0, 0.0])
+    counters = np.zeros(multi.NUM_COUNTERS, dtype=np.int64)
+    diagonal = np.full(ode.N, -1, dtype=np.int64)
+    for i in range(ode.N):
+        row = compiled.indices[compiled.indptr[i]:compiled.indptr[i + 1]]
+        hit = np.flatnonzero(row == i)
+        diagonal[i] = hit[0] if hit.size else -1
+    A, b0 = np.array(m.A), m.b0.copy()
+    nodes, bary = m.nodes.copy(), m.barycentric_weights.copy()
+    dend, lval = m.end_derivative.copy(), m.left_value.copy()
+    kdes = steps.copy()
+
+    def buffers(capacity):
+        return (np.empty(capacity, dtype=np.int64), np.empty(capacity), np.empty(capacity),
+                np.empty((capacity, m.q + 1)))
+
+    def advance(out_comp, out_a, out_b, out_values):
+        return multi.advance(compiled.rhs_component, compiled.jacobian_row, compiled.p,
+                             compiled.indptr, compiled.indices, diagonal, A, b0, nodes, bary, dend,
+                             lval, iopts, fopts, atol, x, kdes, state, counters, out_comp, out_a,
+                             out_b, out_values)
+
+    capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 22 // (m.q + 1))))
+    with _progress(ode, params) as bar:
+        status, elements = _integrate(advance, buffers, capacity, counters, multi.SLABS, params,
+                                      state, bar)
+    per_component = np.bincount(elements[0], minlength=ode.N)
+    total = int(counters[multi.ELEMENTS])
+    stats = {"time slabs": int(counters[multi.SLABS]),
+             "sub-slabs": int(counters[multi.SUBSLABS]),
+             "elements": total,
+             "elements per component": per_component,
+             "efficiency index": float(state[multi.MONO_ELEMENTS]) / max(total, 1)}
+    return status, counters, np.array([state[0], np.min(kdes)]), elements, stats
+
+
+class _NoProgress:
+    def __enter__(self):
+        return None
+
+    def __exit__(self, *exc):
+        return False
+
+
+def _progress(ode, params):
+    """A tqdm bar over [t0, T] when ``progress=True``."""
+    if not params["progress"]:
+        return _NoProgress()
+    from tqdm.auto import tqdm
+
+    return tqdm(total=ode.T - ode.t0, unit="t", desc="dolfinode",
+                bar_format="{l_bar}{bar}| t={n:.4g}/{total:.4g} [{elapsed}<{remaining}]")
 
 
 def _failure_message(status, state, fixed, x):
-    t, k = state[mono.T_NOW], state[mono.K_NEXT]
+    t, k = state
     size = f"max |u| = {np.max(np.abs(x)):.3g} there"
-    if status == mono.STEP_LIMIT:
+    if status == _STATUS_STEP_LIMIT:
         return (f"maximum_steps was reached at t = {t:.6g} ({size}); raise maximum_steps, loosen "
                 "the tolerance, or use a higher-order method")
     if status == mono.NONCONVERGENCE:
@@ -168,10 +251,3 @@ def _failure_message(status, state, fixed, x):
     return (f"the time step fell to {k:.3g} at t = {t:.6g}, below what double precision "
             f"resolves ({size}): the solution may blow up near this time, or the tolerance is "
             "too tight for double precision")
-
-
-def _progress_bar(ode):
-    from tqdm.auto import tqdm
-
-    return tqdm(total=ode.T - ode.t0, unit="t", desc="dolfinode",
-                bar_format="{l_bar}{bar}| t={n:.4g}/{total:.4g} [{elapsed}<{remaining}]")

@@ -192,7 +192,7 @@ def test_make_method_needs_a_known_family():
         dn.make_method("RK", 1)
 
 
-@pytest.mark.parametrize("name", ["partitioning_threshold", "automatic_modeling", "average_length"])
+@pytest.mark.parametrize("name", ["automatic_modeling", "average_length", "average_tolerance"])
 def test_planned_dolfin_parameters_are_named_not_silently_ignored(name):
     u = sp.Symbol("u")
     with pytest.raises(NotImplementedError, match=name):

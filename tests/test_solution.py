@@ -45,3 +45,10 @@ def test_outside_interval_raises():
         sol(1.5)
     with pytest.raises(ValueError, match="defined on"):
         sol(np.nan)
+
+
+@pytest.mark.parametrize("method", ["dG(0)", "dG(2)", "cG(2)"])
+def test_initial_time_gives_initial_value(method):
+    u = sp.Symbol("u")
+    sol = dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), method=method, tolerance=1e-3)
+    assert sol(0.0)[0] == 1.0 and sol.y[0, 0] == 1.0

@@ -1,0 +1,425 @@
+"""Multi-adaptive time slabs: mcG(q) and mdG(q) with individual time steps per component.
+
+A time slab [a, b] is built recursively from the components' desired steps k_i (DOLFIN's
+``createTimeSlab``, Logg's MAG papers): the remaining components whose k_i >= theta max k_i
+form a group that takes one element of the group's smallest step K (stretched to the end of
+the enclosing interval when K >= beta times its length, so slabs end synchronised); the other
+components fill [a, a + K] with sub-slabs built the same way. Elements live in flat arrays
+(component, interval, previous element, nodal values), in creation order.
+
+The discrete equations of every element, xi_s = x_left + k (b0_s f_i(t_0) + sum_m A_sm f_i(t_m)),
+are solved by Gauss-Seidel sweeps over the elements in creation order; f_i at a node t_m reads
+each dependency j from its own element polynomial covering t_m (exact evaluation, whether that
+element is larger, equal or smaller). When plain sweeps do not converge the problem is treated
+as stiff and each element update becomes one Newton step in its own stage values, with the
+exact diagonal df_i/du_i from the sympy Jacobian (DOLFIN's diagonal damping, made exact).
+
+After a slab, every element's residual gives an indicator as in :mod:`dolfinode.adaptivity`;
+the slab is accepted when all are <= 1, and each component gets its own next step.
+"""
+import math
+
+import numpy as np
+from numba import njit, types
+
+from dolfinode.compile.signatures import COMPONENT_TYPE
+from dolfinode.timeslab.mono import (BLOWUP, DEFAULT, DONE, FULL, NEWTON, NONCONVERGENCE,
+                                     UNDERFLOW)
+
+# Indices into the integer counters (kept across calls by the driver).
+SLABS, REJECTED, F_EVALUATIONS, JACOBIANS, ELEMENTS, ITERATIONS, STORED, FAILED_SOLVES, STIFF, \
+    SUBSLABS = range(10)
+NUM_COUNTERS = 10
+# Indices into the float state: current time, and the elements a mono-adaptive method with
+# each slab's smallest step would have needed (for the multi-adaptive efficiency index).
+T_NOW, MONO_ELEMENTS = range(2)
+# Integer and float options.
+SOLVER, FIXED, MAX_ITER, IS_DG = range(4)
+RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, RESIDUAL_POWER, THETA, BETA = range(9)
+_KMIN_RELATIVE = 1e-14
+
+
+@njit(cache=True)
+def _grow_float(array, size):
+    if size <= array.shape[0]:
+        return array
+    bigger = np.empty((max(size, 2 * array.shape[0]),) + array.shape[1:])
+    bigger[:array.shape[0]] = array
+    return bigger
+
+
+@njit(cache=True)
+def _grow_int(array, size):
+    if size <= array.shape[0]:
+        return array
+    bigger = np.empty(max(size, 2 * array.shape[0]), dtype=np.int64)
+    bigger[:array.shape[0]] = array
+    return bigger
+
+
+@njit(cache=True)
+def _partition(perm, offset, kdes, theta):
+    """Move the components of perm[offset:] with k >= theta max k to the front; return the
+    group's end and its smallest step (DOLFIN's ``Partition::update``)."""
+    n = perm.shape[0]
+    kmax = 0.0
+    for r in range(offset, n):
+        kmax = max(kmax, kdes[perm[r]])
+    pivot = theta * kmax
+    end = offset
+    for r in range(offset, n):
+        if kdes[perm[r]] >= pivot:
+            tmp = perm[end]
+            perm[end] = perm[r]
+            perm[r] = tmp
+            end += 1
+    K = math.inf
+    for r in range(offset, end):
+        K = min(K, kdes[perm[r]])
+    return end, K
+
+
+@njit(cache=True)
+def build_slab(a, T, kdes, theta, beta, comp, ea, eb):
+    """Build the time slab starting at a; returns (b, number of elements, number of sub-slabs,
+    comp, ea, eb) with the element arrays grown as needed."""
+    n = kdes.shape[0]
+    perm = np.arange(n)
+    # frame stack: (end of its interval b1, end of its group, current time t)
+    fb = np.empty(64)
+    fend = np.empty(64, dtype=np.int64)
+    ft = np.empty(64)
+    ne = 0
+    nsub = 0
+    depth = 0
+    offset, lo, hi = 0, a, T
+    while True:
+        # create a sub-slab on [lo, hi] for the components perm[offset:]
+        end, K = _partition(perm, offset, kdes, theta)
+        b1 = lo + K if K < beta * (hi - lo) else hi
+        comp = _grow_int(comp, ne + end - offset)
+        ea = _grow_float(ea, ne + end - offset)
+        eb = _grow_float(eb, ne + end - offset)
+        for r in range(offset, end):
+            comp[ne] = perm[r]
+            ea[ne] = lo
+            eb[ne] = b1
+            ne += 1
+        nsub += 1
+        if depth == fb.shape[0]:
+            fb = _grow_float(fb, 2 * depth)
+            fend = _grow_int(fend, 2 * depth)
+            ft = _grow_float(ft, 2 * depth)
+        fb[depth], fend[depth], ft[depth] = b1, end, lo
+        depth += 1
+        # find the innermost frame with components left to fill, popping finished frames
+        while depth > 0:
+            f = depth - 1
+            if ft[f] < fb[f] and fend[f] < n:
+                break
+            depth -= 1
+            if depth > 0:
+                ft[depth - 1] = fb[f]
+        if depth == 0:
+            return fb[0], ne, nsub, comp, ea, eb
+        f = depth - 1
+        offset, lo, hi = fend[f], ft[f], fb[f]
+
+
+@njit(cache=True)
+def _component_elements(comp, ne, n):
+    """CSR (ptr, elements) of each component's elements in creation (= time) order, and each
+    element's predecessor of the same component (-1 at the slab start)."""
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    for e in range(ne):
+        ptr[comp[e] + 1] += 1
+    for i in range(n):
+        ptr[i + 1] += ptr[i]
+    fill = ptr[:-1].copy()
+    elements = np.empty(ne, dtype=np.int64)
+    prev = np.empty(ne, dtype=np.int64)
+    for e in range(ne):
+        c = fill[comp[e]]
+        elements[c] = e
+        prev[e] = elements[c - 1] if c > ptr[comp[e]] else -1
+        fill[comp[e]] += 1
+    return ptr, elements, prev
+
+
+@njit(cache=True)
+def _evaluate(values, e, tau, nodes, bary):
+    """The element polynomial of e at tau in [0, 1] (barycentric Lagrange formula)."""
+    num = 0.0
+    den = 0.0
+    for j in range(nodes.shape[0]):
+        d = tau - nodes[j]
+        if d == 0.0:
+            return values[e, j]
+        w = bary[j] / d
+        num += w * values[e, j]
+        den += w
+    return num / den
+
+
+@njit(cache=True)
+def _value_at(j, t, a, x0, cptr, celems, ea, eb, values, nodes, bary):
+    """u_j(t) inside the slab [a, ...]: x0 at the slab start, else from j's covering element."""
+    lo = cptr[j]
+    hi = cptr[j + 1] - 1
+    if t <= a:
+        return x0[j]
+    # first element of j with end >= t
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if eb[celems[mid]] >= t:
+            hi = mid
+        else:
+            lo = mid + 1
+    e = celems[lo]
+    tau = (t - ea[e]) / (eb[e] - ea[e])
+    return _evaluate(values, e, min(max(tau, 0.0), 1.0), nodes, bary)
+
+
+@njit(cache=True)
+def _node_rhs(fi, p, i, e, m, t, a, x0, indptr, indices, cptr, celems, ea, eb, values, nodes,
+              bary, uw, out):
+    """f_i at node m of element e (component i), dependencies read from their elements."""
+    for nz in range(indptr[i], indptr[i + 1]):
+        j = indices[nz]
+        if j == i:
+            uw[j] = values[e, m]
+        else:
+            uw[j] = _value_at(j, t, a, x0, cptr, celems, ea, eb, values, nodes, bary)
+    fi(i, uw.ctypes, t, p.ctypes, out.ctypes)
+    return out[0]
+
+
+@njit(cache=True)
+def _solve_small(M, r):
+    """Solve the small dense system M x = r in place (Gaussian elimination, partial pivoting)."""
+    n = r.shape[0]
+    for c in range(n):
+        piv = c
+        for row in range(c + 1, n):
+            if abs(M[row, c]) > abs(M[piv, c]):
+                piv = row
+        if M[piv, c] == 0.0:
+            return False
+        if piv != c:
+            for col in range(n):
+                tmp = M[c, col]
+                M[c, col] = M[piv, col]
+                M[piv, col] = tmp
+            tmp = r[c]
+            r[c] = r[piv]
+            r[piv] = tmp
+        for row in range(c + 1, n):
+            factor = M[row, c] / M[c, c]
+            for col in range(c, n):
+                M[row, col] -= factor * M[c, col]
+            r[row] -= factor * r[c]
+    for c in range(n - 1, -1, -1):
+        acc = r[c]
+        for col in range(c + 1, n):
+            acc -= M[c, col] * r[col]
+        r[c] = acc / M[c, c]
+    return True
+
+
+_f8 = types.float64[::1]
+_i8 = types.int64[::1]
+_SIGNATURE = types.int64(
+    COMPONENT_TYPE, COMPONENT_TYPE, _f8,           # f_i, J_i, p
+    _i8, _i8, _i8,                                 # indptr, indices, diagonal position in row
+    types.float64[:, ::1], _f8, _f8, _f8, _f8, _f8,  # A, b0, nodes, bary, end_deriv, left
+    _i8, _f8, _f8,                                 # iopts, fopts, atol
+    _f8, _f8, _f8, _i8,                            # x, kdes, state, counters
+    _i8, _f8, _f8, types.float64[:, ::1],          # out_comp, out_a, out_b, out_values
+)
+
+
+@njit(_SIGNATURE, cache=True, error_model="numpy")
+def advance(fi, ji, p, indptr, indices, diag, A, b0, nodes, bary, end_derivative, left_value,
+            iopts, fopts, atol, x, kdes, state, counters, out_comp, out_a, out_b, out_values):
+    """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status."""
+    N = x.shape[0]
+    S = A.shape[0]
+    nn = nodes.shape[0]
+    first_stage = nn - S  # 1 for cG (node 0 is the left value), 0 for dG
+    is_dg = iopts[IS_DG] == 1
+    fixed = iopts[FIXED] == 1
+    mode = iopts[SOLVER]
+    max_iter = iopts[MAX_ITER]
+    rtol, T, kmax, safety, dtol = fopts[RTOL], fopts[T_END], fopts[KMAX], fopts[SAFETY], fopts[DTOL]
+    order, rpow, theta, beta = fopts[ORDER], fopts[RESIDUAL_POWER], fopts[THETA], fopts[BETA]
+
+    comp = np.empty(4 * N, dtype=np.int64)
+    ea = np.empty(4 * N)
+    eb = np.empty(4 * N)
+    values = np.empty((4 * N, nn))
+    F = np.empty(nn)
+    M = np.empty((S, S))
+    r = np.empty(S)
+    uw = x.copy()
+    out = np.empty(1)
+    jrow = np.empty(max(1, indices.shape[0]))
+    emax = np.empty(N)
+    kact = np.empty(N)
+    counters[STORED] = 0
+    capacity = out_a.shape[0]
+    t = state[T_NOW]
+    while True:
+        if t >= T:
+            return DONE
+        for i in range(N):
+            if not fixed:
+                kdes[i] = min(kdes[i], kmax)
+        b, ne, nsub, comp, ea, eb = build_slab(t, T, kdes, theta, beta, comp, ea, eb)
+        if ne > capacity - counters[STORED]:
+            return FULL  # with nothing stored: the driver grows the buffers
+        if b - t < _KMIN_RELATIVE * max(abs(t), abs(T) * 1e-6) and b < T:
+            return UNDERFLOW
+        if values.shape[0] < ne:
+            values = np.empty((max(ne, 2 * values.shape[0]), nn))
+        cptr, celems, prev = _component_elements(comp, ne, N)
+        # initial guess: constant continuation of each component's left value
+        for e in range(ne):
+            for m in range(nn):
+                values[e, m] = x[comp[e]]
+        stiff = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
+        converged = False
+        d_prev = math.inf
+        growth = 0
+        for it in range(max_iter):
+            d = 0.0
+            for e in range(ne):
+                i = comp[e]
+                k = eb[e] - ea[e]
+                # left value: the previous element's end value (or the slab's initial value)
+                xl = x[i] if prev[e] < 0 else values[prev[e], nn - 1]
+                if first_stage == 1:
+                    values[e, 0] = xl
+                for m in range(nn):
+                    F[m] = _node_rhs(fi, p, i, e, m, ea[e] + nodes[m] * k, t, x, indptr, indices,
+                                     cptr, celems, ea, eb, values, nodes, bary, uw, out)
+                counters[F_EVALUATIONS] += nn
+                for s in range(S):
+                    acc = b0[s] * F[0]
+                    for m in range(S):
+                        acc += A[s, m] * F[first_stage + m]
+                    r[s] = xl + k * acc - values[e, first_stage + s]
+                if stiff and diag[i] >= 0:
+                    # one Newton step in the element's own stages: (I - k A diag(J_ii)) dx = r
+                    for s in range(S):
+                        tm = ea[e] + nodes[first_stage + s] * k
+                        for nz in range(indptr[i], indptr[i + 1]):
+                            j = indices[nz]
+                            uw[j] = values[e, first_stage + s] if j == i else _value_at(
+                                j, tm, t, x, cptr, celems, ea, eb, values, nodes, bary)
+                        ji(i, uw.ctypes, tm, p.ctypes, jrow.ctypes)
+                        jii = jrow[diag[i]]
+                        for row in range(S):
+                            M[row, s] = (1.0 if row == s else 0.0) - k * A[row, s] * jii
+                    counters[JACOBIANS] += S
+                    if not _solve_small(M, r):
+                        return NONCONVERGENCE
+                for s in range(S):
+                    values[e, first_stage + s] += r[s]
+                    scaled = abs(r[s]) / (atol[i] + rtol * abs(values[e, first_stage + s]))
+                    if not scaled <= d:
+                        d = scaled if math.isfinite(scaled) else math.inf
+            counters[ITERATIONS] += 1
+            if d <= dtol or (it >= 2 and d >= 0.5 * d_prev and d <= 1e-10):
+                converged = True
+                break
+            if not math.isfinite(d):
+                break
+            growth = growth + 1 if d >= d_prev else 0
+            if growth >= 2:
+                break
+            d_prev = d
+        if not converged:
+            counters[FAILED_SOLVES] += 1
+            if mode == DEFAULT and counters[STIFF] == 0:
+                counters[STIFF] = 1  # Gauss-Seidel failed: treat the problem as stiff from here on
+                continue
+            if fixed:
+                return NONCONVERGENCE
+            for i in range(N):
+                kdes[i] *= 0.25
+            if (b - t) * 0.25 < _KMIN_RELATIVE * max(abs(t), abs(T) * 1e-6):
+                return NONCONVERGENCE
+            continue
+        # residual-based indicator of every element, per component maximum
+        for i in range(N):
+            emax[i] = 0.0
+            kact[i] = 0.0
+        blowup = False
+        for e in range(ne):
+            i = comp[e]
+            k = eb[e] - ea[e]
+            fend = _node_rhs(fi, p, i, e, nn - 1, eb[e], t, x, indptr, indices, cptr, celems, ea,
+                             eb, values, nodes, bary, uw, out)
+            counters[F_EVALUATIONS] += 1
+            kdu = 0.0
+            ul = 0.0
+            for j in range(nn):
+                kdu += end_derivative[j] * values[e, j]
+                ul += left_value[j] * values[e, j]
+            res = abs(kdu / k - fend)
+            if is_dg:
+                xl = x[i] if prev[e] < 0 else values[prev[e], nn - 1]
+                res += abs(ul - xl) / k
+            uend = values[e, nn - 1]
+            if not (math.isfinite(uend) and math.isfinite(res)):
+                blowup = True
+            ind = k ** rpow * res / (atol[i] + rtol * abs(uend))
+            emax[i] = max(emax[i], ind)
+            kact[i] = max(kact[i], k)
+        if blowup:
+            if fixed:
+                return BLOWUP
+            for i in range(N):
+                kdes[i] *= 0.25
+            counters[REJECTED] += 1
+            if (b - t) * 0.25 < _KMIN_RELATIVE * max(abs(t), abs(T) * 1e-6):
+                return BLOWUP
+            continue
+        accept = True
+        if not fixed:
+            for i in range(N):
+                if emax[i] > 1.0:
+                    accept = False
+            for i in range(N):
+                factor = safety * max(emax[i], 1e-10) ** (-1.0 / order)
+                knew = kact[i] * min(5.0, max(0.2, factor))
+                if accept:
+                    knew = 2.0 * kdes[i] * knew / (kdes[i] + knew)  # harmonic-mean regulator
+                elif emax[i] > 1.0:
+                    knew = min(knew, 0.9 * kact[i])
+                else:
+                    knew = kdes[i]
+                kdes[i] = min(knew, kmax)
+        if not accept:
+            counters[REJECTED] += 1
+            continue
+        # store the slab's elements and move to its end
+        n0 = counters[STORED]
+        for e in range(ne):
+            out_comp[n0 + e] = comp[e]
+            out_a[n0 + e] = ea[e]
+            out_b[n0 + e] = eb[e]
+            for m in range(nn):
+                out_values[n0 + e, m] = values[e, m]
+        counters[STORED] += ne
+        counters[ELEMENTS] += ne
+        kmin = math.inf
+        for e in range(ne):
+            kmin = min(kmin, eb[e] - ea[e])
+        state[MONO_ELEMENTS] += (b - t) / kmin * N
+        counters[SLABS] += 1
+        counters[SUBSLABS] += nsub
+        for i in range(N):
+            x[i] = values[celems[cptr[i + 1] - 1], nn - 1]
+        t = b
+        state[T_NOW] = t
