@@ -185,9 +185,8 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
         row = compiled.indices[compiled.indptr[i]:compiled.indptr[i + 1]]
         hit = np.flatnonzero(row == i)
         diagonal[i] = hit[0] if hit.size else -1
-    A, b0 = np.array(m.A), m.b0.copy()
-    nodes, bary = m.nodes.copy(), m.barycentric_weights.copy()
-    dend, lval = m.end_derivative.copy(), m.left_value.copy()
+    Minv, nodes, qweights = np.array(m.moment_inverse), m.nodes.copy(), m.quadrature_weights.copy()
+    bary, dend, lval = m.barycentric_weights.copy(), m.end_derivative.copy(), m.left_value.copy()
     kdes = steps.copy()
 
     def buffers(capacity):
@@ -196,9 +195,9 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
 
     def advance(out_comp, out_a, out_b, out_values):
         return multi.advance(compiled.rhs_component, compiled.jacobian_row, compiled.p,
-                             compiled.indptr, compiled.indices, diagonal, A, b0, nodes, bary, dend,
-                             lval, iopts, fopts, atol, x, kdes, state, counters, out_comp, out_a,
-                             out_b, out_values)
+                             compiled.indptr, compiled.indices, diagonal, Minv, nodes, qweights,
+                             bary, dend, lval, iopts, fopts, atol, x, kdes, state, counters,
+                             out_comp, out_a, out_b, out_values)
 
     capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 22 // (m.q + 1))))
     with _progress(ode, params) as bar:

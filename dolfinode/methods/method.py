@@ -36,6 +36,8 @@ class Method:
     b0 : (s,) weights on f(x0) (zero for dG)
     end_derivative : (q+1,) l_j'(1), so that k U'(t_n) = sum_j xi_j l_j'(1)
     left_value : (q+1,) l_j(0), so that U(t_{n-1}^+) = sum_j xi_j l_j(0)
+    moment_inverse : (s, s) M^{-1}: xi_stages = x0 + k M^{-1} m with the moments
+        m_l = int_0^1 f(U(tau), tau) tau^l dtau (l = 0..s-1), for quadrature of one's choice
     order : nodal order of convergence, 2q (cG) or 2q + 1 (dG)
     residual_power : power p of k in the error indicator k^p |R| (q for cG, q + 1 for dG)
     """
@@ -50,6 +52,7 @@ class Method:
     end_derivative: np.ndarray
     left_value: np.ndarray
     barycentric_weights: np.ndarray
+    moment_inverse: np.ndarray
 
     @property
     def name(self):
@@ -119,11 +122,12 @@ def galerkin_weights(family, q):
                 M[i, col] = integral + jump
             for m in range(n):
                 B[i, m] = weights[m] * nodes[m] ** i
-        W = mp.inverse(M) * B
+        Minv = mp.inverse(M)
+        W = Minv * B
         end_derivative = [mp.fsum(C[j][p] * p for p in range(1, n)) for j in range(n)]
         left_value = [C[j][0] for j in range(n)]
         bary = [1 / mp.fprod(nodes[j] - nodes[m] for m in range(n) if m != j) for j in range(n)]
-        return nodes, weights, stages, W, end_derivative, left_value, bary
+        return nodes, weights, stages, W, end_derivative, left_value, bary, Minv
 
 
 def _frozen(values):
@@ -144,19 +148,20 @@ def make_method(family, q):
 
 @cache
 def _make_method(family, q):
-    nodes, weights, stages, W, dend, left, bary = galerkin_weights(family, q)
+    nodes, weights, stages, W, dend, left, bary, Minv = galerkin_weights(family, q)
     s = len(stages)
     Wf = np.array([[float(W[i, m]) for m in range(q + 1)] for i in range(s)])
     if family == "cG":
         A, b0 = Wf[:, 1:], Wf[:, 0]
     else:
         A, b0 = Wf, np.zeros(s)
-    for array in (A, b0):
+    moment_inverse = np.array([[float(Minv[i, j]) for j in range(s)] for i in range(s)])
+    for array in (A, b0, moment_inverse):
         array.setflags(write=False)
     stage_idx = np.array(stages, dtype=np.int64)
     stage_idx.setflags(write=False)
     return Method(family, q, _frozen(nodes), _frozen(weights), stage_idx, A, b0,
-                  _frozen(dend), _frozen(left), _frozen(bary))
+                  _frozen(dend), _frozen(left), _frozen(bary), moment_inverse)
 
 
 def parse_method(name):

@@ -7,10 +7,13 @@ the enclosing interval when K >= beta times its length, so slabs end synchronise
 components fill [a, a + K] with sub-slabs built the same way. Elements live in flat arrays
 (component, interval, previous element, nodal values), in creation order.
 
-The discrete equations of every element, xi_s = x_left + k (b0_s f_i(t_0) + sum_m A_sm f_i(t_m)),
-are solved by Gauss-Seidel sweeps over the elements in creation order; f_i at a node t_m reads
-each dependency j from its own element polynomial covering t_m (exact evaluation, whether that
-element is larger, equal or smaller). When plain sweeps do not converge the problem is treated
+The Galerkin equations of every element, xi = x_left + k M^{-1} m with the moments
+m_l = int f_i(U) tau^l, are solved by Gauss-Seidel sweeps over the elements in creation order.
+The moments are integrated exactly (for linear f) by the method's quadrature on every interval
+between the element ends of the dependencies, each dependency read from its own element
+polynomial (interpolated from larger elements, the exact small elements inside a larger one):
+sampling a large element only at its own nodes would alias the fast forcing of small ones and
+lose the 2q / 2q + 1 nodal order. When plain sweeps do not converge the problem is treated
 as stiff and each element update becomes one Newton step in its own stage values, with the
 exact diagonal df_i/du_i from the sympy Jacobian (DOLFIN's diagonal damping, made exact).
 
@@ -195,6 +198,107 @@ def _node_rhs(fi, p, i, e, m, t, a, x0, indptr, indices, cptr, celems, ea, eb, v
 
 
 @njit(cache=True)
+def subintervals(ne, comp, indptr, indices, cptr, celems, ea, eb):
+    """For every element, the breakpoints (its ends and the element ends of its dependencies
+    inside it) that split it into intervals where the integrand is one polynomial; CSR."""
+    ptr = np.zeros(ne + 1, dtype=np.int64)
+    points = np.empty(2 * ne)
+    buf = np.empty(16)
+    for e in range(ne):
+        i = comp[e]
+        a, b = ea[e], eb[e]
+        count = 0
+        for nz in range(indptr[i], indptr[i + 1]):
+            j = indices[nz]
+            if j == i:
+                continue
+            for c in range(cptr[j], cptr[j + 1]):
+                tb = eb[celems[c]]
+                if a < tb < b:
+                    if count == buf.shape[0]:
+                        buf = _grow_float(buf, 2 * count)
+                    buf[count] = tb
+                    count += 1
+        inner = np.unique(buf[:count])
+        need = ptr[e] + inner.shape[0] + 2
+        points = _grow_float(points, need)
+        points[ptr[e]] = a
+        n = 1
+        for tb in inner:
+            if tb - points[ptr[e] + n - 1] > 1e-12 * (b - a) and b - tb > 1e-12 * (b - a):
+                points[ptr[e] + n] = tb
+                n += 1
+        points[ptr[e] + n] = b
+        ptr[e + 1] = ptr[e] + n + 1
+    return ptr, points
+
+
+@njit(cache=True)
+def _basis(tau, nodes, bary, lam):
+    """Lagrange basis values l_j(tau) into lam."""
+    hit = -1
+    den = 0.0
+    for j in range(nodes.shape[0]):
+        d = tau - nodes[j]
+        if d == 0.0:
+            hit = j
+            break
+        lam[j] = bary[j] / d
+        den += lam[j]
+    for j in range(nodes.shape[0]):
+        if hit >= 0:
+            lam[j] = 1.0 if j == hit else 0.0
+        else:
+            lam[j] /= den
+
+
+@njit(cache=True)
+def _moments(fi, ji, p, i, e, slab_start, x0, indptr, indices, diag, cptr, celems, ea, eb,
+             values, nodes, bary, qweights, sptr, spts, stiff, first_stage, uw, out, jrow, lam,
+             mom, dmom):
+    """Moments m_l = int_0^1 f_i(U(tau)) tau^l dtau of element e by quadrature on every
+    interval between breakpoints (exact for linear f), and with ``stiff`` their derivatives
+    dmom[l, s] with respect to the element's own stage values. Returns the f evaluations."""
+    S = mom.shape[0]
+    nn = nodes.shape[0]
+    k = eb[e] - ea[e]
+    mom[:] = 0.0
+    if stiff:
+        dmom[:, :] = 0.0
+    evaluations = 0
+    for sub in range(sptr[e], sptr[e + 1] - 1):
+        s0 = spts[sub]
+        h = spts[sub + 1] - s0
+        for m in range(nn):
+            tq = s0 + nodes[m] * h
+            tau = min(max((tq - ea[e]) / k, 0.0), 1.0)
+            _basis(tau, nodes, bary, lam)
+            own = 0.0
+            for n in range(nn):
+                own += lam[n] * values[e, n]
+            for nz in range(indptr[i], indptr[i + 1]):
+                j = indices[nz]
+                uw[j] = own if j == i else _value_at(j, tq, slab_start, x0, cptr, celems, ea, eb,
+                                                     values, nodes, bary)
+            fi(i, uw.ctypes, tq, p.ctypes, out.ctypes)
+            evaluations += 1
+            w = qweights[m] * h / k
+            power = 1.0
+            for lm in range(S):
+                mom[lm] += w * power * out[0]
+                power *= tau
+            if stiff and diag[i] >= 0:
+                ji(i, uw.ctypes, tq, p.ctypes, jrow.ctypes)
+                jii = jrow[diag[i]]
+                power = 1.0
+                for lm in range(S):
+                    for s in range(S):
+                        dmom[lm, s] += w * power * jii * lam[first_stage + s]
+                    power *= tau
+    return evaluations
+
+
+@njit(cache=True)
 def _solve_small(M, r):
     """Solve the small dense system M x = r in place (Gaussian elimination, partial pivoting)."""
     n = r.shape[0]
@@ -231,7 +335,8 @@ _i8 = types.int64[::1]
 _SIGNATURE = types.int64(
     COMPONENT_TYPE, COMPONENT_TYPE, _f8,           # f_i, J_i, p
     _i8, _i8, _i8,                                 # indptr, indices, diagonal position in row
-    types.float64[:, ::1], _f8, _f8, _f8, _f8, _f8,  # A, b0, nodes, bary, end_deriv, left
+    types.float64[:, ::1], _f8, _f8, _f8,          # M^{-1}, nodes, quadrature weights, bary
+    _f8, _f8,                                      # end_derivative, left_value
     _i8, _f8, _f8,                                 # iopts, fopts, atol
     _f8, _f8, _f8, _i8,                            # x, kdes, state, counters
     _i8, _f8, _f8, types.float64[:, ::1],          # out_comp, out_a, out_b, out_values
@@ -239,11 +344,12 @@ _SIGNATURE = types.int64(
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
-def advance(fi, ji, p, indptr, indices, diag, A, b0, nodes, bary, end_derivative, left_value,
-            iopts, fopts, atol, x, kdes, state, counters, out_comp, out_a, out_b, out_values):
+def advance(fi, ji, p, indptr, indices, diag, Minv, nodes, qweights, bary, end_derivative,
+            left_value, iopts, fopts, atol, x, kdes, state, counters, out_comp, out_a, out_b,
+            out_values):
     """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status."""
     N = x.shape[0]
-    S = A.shape[0]
+    S = Minv.shape[0]
     nn = nodes.shape[0]
     first_stage = nn - S  # 1 for cG (node 0 is the left value), 0 for dG
     is_dg = iopts[IS_DG] == 1
@@ -257,7 +363,9 @@ def advance(fi, ji, p, indptr, indices, diag, A, b0, nodes, bary, end_derivative
     ea = np.empty(4 * N)
     eb = np.empty(4 * N)
     values = np.empty((4 * N, nn))
-    F = np.empty(nn)
+    mom = np.empty(S)
+    dmom = np.empty((S, S))
+    lam = np.empty(nn)
     M = np.empty((S, S))
     r = np.empty(S)
     uw = x.copy()
@@ -282,6 +390,7 @@ def advance(fi, ji, p, indptr, indices, diag, A, b0, nodes, bary, end_derivative
         if values.shape[0] < ne:
             values = np.empty((max(ne, 2 * values.shape[0]), nn))
         cptr, celems, prev = _component_elements(comp, ne, N)
+        sptr, spts = subintervals(ne, comp, indptr, indices, cptr, celems, ea, eb)
         # initial guess: constant continuation of each component's left value
         for e in range(ne):
             for m in range(nn):
@@ -299,28 +408,25 @@ def advance(fi, ji, p, indptr, indices, diag, A, b0, nodes, bary, end_derivative
                 xl = x[i] if prev[e] < 0 else values[prev[e], nn - 1]
                 if first_stage == 1:
                     values[e, 0] = xl
-                for m in range(nn):
-                    F[m] = _node_rhs(fi, p, i, e, m, ea[e] + nodes[m] * k, t, x, indptr, indices,
-                                     cptr, celems, ea, eb, values, nodes, bary, uw, out)
-                counters[F_EVALUATIONS] += nn
+                counters[F_EVALUATIONS] += _moments(
+                    fi, ji, p, i, e, t, x, indptr, indices, diag, cptr, celems, ea, eb, values,
+                    nodes, bary, qweights, sptr, spts, stiff, first_stage, uw, out, jrow, lam,
+                    mom, dmom)
+                # stage equations xi = x_left + k M^{-1} m(xi): residual r, and with stiffness
+                # one Newton step (I - k M^{-1} dm/dxi) dxi = r in the element's own stages
                 for s in range(S):
-                    acc = b0[s] * F[0]
-                    for m in range(S):
-                        acc += A[s, m] * F[first_stage + m]
+                    acc = 0.0
+                    for lm in range(S):
+                        acc += Minv[s, lm] * mom[lm]
                     r[s] = xl + k * acc - values[e, first_stage + s]
                 if stiff and diag[i] >= 0:
-                    # one Newton step in the element's own stages: (I - k A diag(J_ii)) dx = r
-                    for s in range(S):
-                        tm = ea[e] + nodes[first_stage + s] * k
-                        for nz in range(indptr[i], indptr[i + 1]):
-                            j = indices[nz]
-                            uw[j] = values[e, first_stage + s] if j == i else _value_at(
-                                j, tm, t, x, cptr, celems, ea, eb, values, nodes, bary)
-                        ji(i, uw.ctypes, tm, p.ctypes, jrow.ctypes)
-                        jii = jrow[diag[i]]
-                        for row in range(S):
-                            M[row, s] = (1.0 if row == s else 0.0) - k * A[row, s] * jii
-                    counters[JACOBIANS] += S
+                    for row in range(S):
+                        for col in range(S):
+                            acc = 0.0
+                            for lm in range(S):
+                                acc += Minv[row, lm] * dmom[lm, col]
+                            M[row, col] = (1.0 if row == col else 0.0) - k * acc
+                    counters[JACOBIANS] += 1
                     if not _solve_small(M, r):
                         return NONCONVERGENCE
                 for s in range(S):
