@@ -26,8 +26,7 @@ import numpy as np
 from numba import njit, types
 
 from dolfinode.compile.signatures import COMPONENT_TYPE
-from dolfinode.timeslab.mono import (BLOWUP, DEFAULT, DONE, FULL, NEWTON, NONCONVERGENCE,
-                                     UNDERFLOW)
+from dolfinode.timeslab.mono import BLOWUP, DEFAULT, DONE, FULL, NEWTON, NONCONVERGENCE, UNDERFLOW
 
 # Indices into the integer counters (kept across calls by the driver).
 SLABS, REJECTED, F_EVALUATIONS, JACOBIANS, ELEMENTS, ITERATIONS, STORED, FAILED_SOLVES, STIFF, \
@@ -83,9 +82,12 @@ def _partition(perm, offset, kdes, theta):
 
 
 @njit(cache=True)
-def build_slab(a, T, kdes, theta, beta, comp, ea, eb):
+def build_slab(a, T, kdes, theta, beta, comp, ea, eb, windows):
     """Build the time slab starting at a; returns (b, number of elements, number of sub-slabs,
-    comp, ea, eb) with the element arrays grown as needed."""
+    number of windows, comp, ea, eb, windows), the arrays grown as needed.
+
+    Elements come in creation order (depth first), so the sub-slabs nested in each sub-slab of
+    the top level form a contiguous range, a *window*, starting at ``windows[w]``."""
     n = kdes.shape[0]
     perm = np.arange(n)
     # frame stack: (end of its interval b1, end of its group, current time t)
@@ -94,12 +96,17 @@ def build_slab(a, T, kdes, theta, beta, comp, ea, eb):
     ft = np.empty(64)
     ne = 0
     nsub = 0
+    nwin = 0
     depth = 0
     offset, lo, hi = 0, a, T
     while True:
         # create a sub-slab on [lo, hi] for the components perm[offset:]
         end, K = _partition(perm, offset, kdes, theta)
         b1 = lo + K if K < beta * (hi - lo) else hi
+        if depth == 1:
+            windows = _grow_int(windows, nwin + 1)
+            windows[nwin] = ne
+            nwin += 1
         comp = _grow_int(comp, ne + end - offset)
         ea = _grow_float(ea, ne + end - offset)
         eb = _grow_float(eb, ne + end - offset)
@@ -124,7 +131,7 @@ def build_slab(a, T, kdes, theta, beta, comp, ea, eb):
             if depth > 0:
                 ft[depth - 1] = fb[f]
         if depth == 0:
-            return fb[0], ne, nsub, comp, ea, eb
+            return fb[0], ne, nsub, nwin, comp, ea, eb, windows
         f = depth - 1
         offset, lo, hi = fend[f], ft[f], fb[f]
 
@@ -330,6 +337,49 @@ def _solve_small(M, r):
     return True
 
 
+@njit(cache=True)
+def _sweep(lo, hi, fi, ji, p, t, x, indptr, indices, diag, comp, prev, cptr, celems, ea, eb,
+           values, nodes, bary, qweights, Minv, sptr, spts, stiff, atol, rtol, uw, out, jrow,
+           lam, mom, dmom, M, r, counters):
+    """One Gauss-Seidel sweep over elements lo..hi-1: each element's stage values from
+    xi = x_left + k M^{-1} m(xi), with stiffness by one Newton step in its own stages
+    (I - k M^{-1} dm/dxi) dxi = r. Returns the largest scaled increment (inf on failure)."""
+    S = Minv.shape[0]
+    nn = nodes.shape[0]
+    first_stage = nn - S  # 1 for cG (node 0 is the left value), 0 for dG
+    d = 0.0
+    for e in range(lo, hi):
+        i = comp[e]
+        k = eb[e] - ea[e]
+        xl = x[i] if prev[e] < 0 else values[prev[e], nn - 1]  # the left value
+        if first_stage == 1:
+            values[e, 0] = xl
+        counters[F_EVALUATIONS] += _moments(
+            fi, ji, p, i, e, t, x, indptr, indices, diag, cptr, celems, ea, eb, values, nodes,
+            bary, qweights, sptr, spts, stiff, first_stage, uw, out, jrow, lam, mom, dmom)
+        for s in range(S):
+            acc = 0.0
+            for lm in range(S):
+                acc += Minv[s, lm] * mom[lm]
+            r[s] = xl + k * acc - values[e, first_stage + s]
+        if stiff and diag[i] >= 0:
+            for row in range(S):
+                for col in range(S):
+                    acc = 0.0
+                    for lm in range(S):
+                        acc += Minv[row, lm] * dmom[lm, col]
+                    M[row, col] = (1.0 if row == col else 0.0) - k * acc
+            counters[JACOBIANS] += 1
+            if not _solve_small(M, r):
+                return math.inf
+        for s in range(S):
+            values[e, first_stage + s] += r[s]
+            scaled = abs(r[s]) / (atol[i] + rtol * abs(values[e, first_stage + s]))
+            if not scaled <= d:
+                d = scaled if math.isfinite(scaled) else math.inf
+    return d
+
+
 _f8 = types.float64[::1]
 _i8 = types.int64[::1]
 _SIGNATURE = types.int64(
@@ -351,7 +401,6 @@ def advance(fi, ji, p, indptr, indices, diag, Minv, nodes, qweights, bary, end_d
     N = x.shape[0]
     S = Minv.shape[0]
     nn = nodes.shape[0]
-    first_stage = nn - S  # 1 for cG (node 0 is the left value), 0 for dG
     is_dg = iopts[IS_DG] == 1
     fixed = iopts[FIXED] == 1
     mode = iopts[SOLVER]
@@ -362,6 +411,7 @@ def advance(fi, ji, p, indptr, indices, diag, Minv, nodes, qweights, bary, end_d
     comp = np.empty(4 * N, dtype=np.int64)
     ea = np.empty(4 * N)
     eb = np.empty(4 * N)
+    windows = np.empty(16, dtype=np.int64)
     values = np.empty((4 * N, nn))
     mom = np.empty(S)
     dmom = np.empty((S, S))
@@ -382,7 +432,8 @@ def advance(fi, ji, p, indptr, indices, diag, Minv, nodes, qweights, bary, end_d
         for i in range(N):
             if not fixed:
                 kdes[i] = min(kdes[i], kmax)
-        b, ne, nsub, comp, ea, eb = build_slab(t, T, kdes, theta, beta, comp, ea, eb)
+        b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, theta, beta, comp, ea,
+                                                              eb, windows)
         if ne > capacity - counters[STORED]:
             return FULL  # with nothing stored: the driver grows the buffers
         if b - t < _KMIN_RELATIVE * max(abs(t), abs(T) * 1e-6) and b < T:
@@ -396,44 +447,29 @@ def advance(fi, ji, p, indptr, indices, diag, Minv, nodes, qweights, bary, end_d
             for m in range(nn):
                 values[e, m] = x[comp[e]]
         stiff = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
+        nroot = windows[0] if nwin > 0 else ne
         converged = False
         d_prev = math.inf
         growth = 0
         for it in range(max_iter):
-            d = 0.0
-            for e in range(ne):
-                i = comp[e]
-                k = eb[e] - ea[e]
-                # left value: the previous element's end value (or the slab's initial value)
-                xl = x[i] if prev[e] < 0 else values[prev[e], nn - 1]
-                if first_stage == 1:
-                    values[e, 0] = xl
-                counters[F_EVALUATIONS] += _moments(
-                    fi, ji, p, i, e, t, x, indptr, indices, diag, cptr, celems, ea, eb, values,
-                    nodes, bary, qweights, sptr, spts, stiff, first_stage, uw, out, jrow, lam,
-                    mom, dmom)
-                # stage equations xi = x_left + k M^{-1} m(xi): residual r, and with stiffness
-                # one Newton step (I - k M^{-1} dm/dxi) dxi = r in the element's own stages
-                for s in range(S):
-                    acc = 0.0
-                    for lm in range(S):
-                        acc += Minv[s, lm] * mom[lm]
-                    r[s] = xl + k * acc - values[e, first_stage + s]
-                if stiff and diag[i] >= 0:
-                    for row in range(S):
-                        for col in range(S):
-                            acc = 0.0
-                            for lm in range(S):
-                                acc += Minv[row, lm] * dmom[lm, col]
-                            M[row, col] = (1.0 if row == col else 0.0) - k * acc
-                    counters[JACOBIANS] += 1
-                    if not _solve_small(M, r):
-                        return NONCONVERGENCE
-                for s in range(S):
-                    values[e, first_stage + s] += r[s]
-                    scaled = abs(r[s]) / (atol[i] + rtol * abs(values[e, first_stage + s]))
-                    if not scaled <= d:
-                        d = scaled if math.isfinite(scaled) else math.inf
+            # the top-level elements once, then every window iterated to convergence in turn:
+            # the fast components advance window by window as in single-rate time stepping
+            d = _sweep(0, nroot, fi, ji, p, t, x, indptr, indices, diag, comp, prev, cptr, celems,
+                       ea, eb, values, nodes, bary, qweights, Minv, sptr, spts, stiff, atol, rtol,
+                       uw, out, jrow, lam, mom, dmom, M, r, counters)
+            for w in range(nwin):
+                hi = windows[w + 1] if w + 1 < nwin else ne
+                for local in range(max_iter):
+                    dl = _sweep(windows[w], hi, fi, ji, p, t, x, indptr, indices, diag, comp,
+                                prev, cptr, celems, ea, eb, values, nodes, bary, qweights, Minv,
+                                sptr, spts, stiff, atol, rtol, uw, out, jrow, lam, mom, dmom, M,
+                                r, counters)
+                    if local == 0:
+                        d = max(d, dl)
+                    if dl <= dtol or not math.isfinite(dl):
+                        break
+                if not dl <= dtol:
+                    d = math.inf
             counters[ITERATIONS] += 1
             if d <= dtol or (it >= 2 and d >= 0.5 * d_prev and d <= 1e-10):
                 converged = True
@@ -441,7 +477,7 @@ def advance(fi, ji, p, indptr, indices, diag, Minv, nodes, qweights, bary, end_d
             if not math.isfinite(d):
                 break
             growth = growth + 1 if d >= d_prev else 0
-            if growth >= 2:
+            if growth >= 3:
                 break
             d_prev = d
         if not converged:
@@ -451,8 +487,9 @@ def advance(fi, ji, p, indptr, indices, diag, Minv, nodes, qweights, bary, end_d
                 continue
             if fixed:
                 return NONCONVERGENCE
+            # a shorter slab: only the steps longer than a quarter of it change
             for i in range(N):
-                kdes[i] *= 0.25
+                kdes[i] = min(kdes[i], 0.25 * (b - t))
             if (b - t) * 0.25 < _KMIN_RELATIVE * max(abs(t), abs(T) * 1e-6):
                 return NONCONVERGENCE
             continue
@@ -506,6 +543,15 @@ def advance(fi, ji, p, indptr, indices, diag, Minv, nodes, qweights, bary, end_d
                 else:
                     knew = kdes[i]
                 kdes[i] = min(knew, kmax)
+            # propagate small steps along strong dependencies: when f_i reacts to u_j within
+            # one step of i (|df_i/du_j| k_i > 1), u_j must be resolved on i's scale. This is
+            # DOLFIN's "poor man's dual weighting", restricted to the couplings that matter.
+            for i in range(N):
+                ji(i, x.ctypes, t, p.ctypes, jrow.ctypes)
+                for nz in range(indptr[i], indptr[i + 1]):
+                    j = indices[nz]
+                    if j != i and abs(jrow[nz - indptr[i]]) * kdes[i] > 1.0:
+                        kdes[j] = min(kdes[j], kdes[i])
         if not accept:
             counters[REJECTED] += 1
             continue
