@@ -466,9 +466,11 @@ def advance(fi, ji, p, indptr, indices, diag, Minv, nodes, qweights, bary, end_d
                                 r, counters)
                     if local == 0:
                         d = max(d, dl)
-                    if dl <= dtol or not math.isfinite(dl):
+                    # converge windows well below dtol, so that what the next global
+                    # iteration measures is the top level's influence, not leftover error
+                    if dl <= 0.1 * dtol or not math.isfinite(dl):
                         break
-                if not dl <= dtol:
+                if not dl <= 0.1 * dtol:
                     d = math.inf
             counters[ITERATIONS] += 1
             if d <= dtol or (it >= 2 and d >= 0.5 * d_prev and d <= 1e-10):
