@@ -180,12 +180,10 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     fopts = np.array(fopts + [params["partitioning_threshold"], params["interval_threshold"]])
     state = np.array([ode.t0, 0.0])
     counters = np.zeros(multi.NUM_COUNTERS, dtype=np.int64)
-    diagonal = np.full(ode.N, -1, dtype=np.int64)
-    for i in range(ode.N):
-        row = compiled.indices[compiled.indptr[i]:compiled.indptr[i + 1]]
-        hit = np.flatnonzero(row == i)
-        diagonal[i] = hit[0] if hit.size else -1
-    Minv, nodes, qweights = np.array(m.moment_inverse), m.nodes.copy(), m.quadrature_weights.copy()
+    _, position, kl, ku = compiled.ordering
+    iopts = np.concatenate([iopts, [kl, ku]])
+    Minv, A = np.array(m.moment_inverse), np.array(m.A)
+    nodes, qweights = m.nodes.copy(), m.quadrature_weights.copy()
     bary, dend, lval = m.barycentric_weights.copy(), m.end_derivative.copy(), m.left_value.copy()
     kdes = steps.copy()
 
@@ -195,9 +193,9 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
 
     def advance(out_comp, out_a, out_b, out_values):
         return multi.advance(compiled.rhs_component, compiled.jacobian_row, compiled.p,
-                             compiled.indptr, compiled.indices, diagonal, Minv, nodes, qweights,
-                             bary, dend, lval, iopts, fopts, atol, x, kdes, state, counters,
-                             out_comp, out_a, out_b, out_values)
+                             compiled.indptr, compiled.indices, position, Minv, A, nodes,
+                             qweights, bary, dend, lval, iopts, fopts, atol, x, kdes, state,
+                             counters, out_comp, out_a, out_b, out_values)
 
     capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 22 // (m.q + 1))))
     with _progress(ode, params) as bar:
@@ -209,6 +207,7 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
              "sub-slabs": int(counters[multi.SUBSLABS]),
              "elements": total,
              "elements per component": per_component,
+             "factorizations": int(counters[multi.FACTORIZATIONS]),
              "efficiency index": float(state[multi.MONO_ELEMENTS]) / max(total, 1)}
     return status, counters, np.array([state[0], np.min(kdes)]), elements, stats
 

@@ -13,9 +13,9 @@ The moments are integrated exactly (for linear f) by the method's quadrature on 
 between the element ends of the dependencies, each dependency read from its own element
 polynomial (interpolated from larger elements, the exact small elements inside a larger one):
 sampling a large element only at its own nodes would alias the fast forcing of small ones and
-lose the 2q / 2q + 1 nodal order. When plain sweeps do not converge the problem is treated
-as stiff and each element update becomes one Newton step in its own stage values, with the
-exact diagonal df_i/du_i from the sympy Jacobian (DOLFIN's diagonal damping, made exact).
+lose the 2q / 2q + 1 nodal order. When plain sweeps do not converge the problem is treated as
+stiff, and the elements of each sub-slab (one interval, several components) are updated
+together by a simplified Newton step with the sparse sympy Jacobian restricted to them.
 
 After a slab, every element's residual gives an indicator as in :mod:`dolfinode.adaptivity`;
 the slab is accepted when all are <= 1, and each component gets its own next step.
@@ -26,17 +26,18 @@ import numpy as np
 from numba import njit, types
 
 from dolfinode.compile.signatures import COMPONENT_TYPE
+from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.timeslab.mono import BLOWUP, DEFAULT, DONE, FULL, NEWTON, NONCONVERGENCE, UNDERFLOW
 
 # Indices into the integer counters (kept across calls by the driver).
 SLABS, REJECTED, F_EVALUATIONS, JACOBIANS, ELEMENTS, ITERATIONS, STORED, FAILED_SOLVES, STIFF, \
-    SUBSLABS = range(10)
-NUM_COUNTERS = 10
+    SUBSLABS, FACTORIZATIONS = range(11)
+NUM_COUNTERS = 11
 # Indices into the float state: current time, and the elements a mono-adaptive method with
 # each slab's smallest step would have needed (for the multi-adaptive efficiency index).
 T_NOW, MONO_ELEMENTS = range(2)
 # Integer and float options.
-SOLVER, FIXED, MAX_ITER, IS_DG = range(4)
+SOLVER, FIXED, MAX_ITER, IS_DG, BAND_LOWER, BAND_UPPER = range(6)
 RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, RESIDUAL_POWER, THETA, BETA = range(9)
 _KMIN_RELATIVE = 1e-14
 
@@ -260,18 +261,14 @@ def _basis(tau, nodes, bary, lam):
 
 
 @njit(cache=True)
-def _moments(fi, ji, p, i, e, slab_start, x0, indptr, indices, diag, cptr, celems, ea, eb,
-             values, nodes, bary, qweights, sptr, spts, stiff, first_stage, uw, out, jrow, lam,
-             mom, dmom):
+def _moments(fi, p, i, e, slab_start, x0, indptr, indices, cptr, celems, ea, eb, values, nodes,
+             bary, qweights, sptr, spts, uw, out, lam, mom):
     """Moments m_l = int_0^1 f_i(U(tau)) tau^l dtau of element e by quadrature on every
-    interval between breakpoints (exact for linear f), and with ``stiff`` their derivatives
-    dmom[l, s] with respect to the element's own stage values. Returns the f evaluations."""
+    interval between breakpoints (exact for linear f). Returns the f evaluations."""
     S = mom.shape[0]
     nn = nodes.shape[0]
     k = eb[e] - ea[e]
     mom[:] = 0.0
-    if stiff:
-        dmom[:, :] = 0.0
     evaluations = 0
     for sub in range(sptr[e], sptr[e + 1] - 1):
         s0 = spts[sub]
@@ -294,89 +291,141 @@ def _moments(fi, ji, p, i, e, slab_start, x0, indptr, indices, diag, cptr, celem
             for lm in range(S):
                 mom[lm] += w * power * out[0]
                 power *= tau
-            if stiff and diag[i] >= 0:
-                ji(i, uw.ctypes, tq, p.ctypes, jrow.ctypes)
-                jii = jrow[diag[i]]
-                power = 1.0
-                for lm in range(S):
-                    for s in range(S):
-                        dmom[lm, s] += w * power * jii * lam[first_stage + s]
-                    power *= tau
     return evaluations
 
 
 @njit(cache=True)
-def _solve_small(M, r):
-    """Solve the small dense system M x = r in place (Gaussian elimination, partial pivoting)."""
-    n = r.shape[0]
-    for c in range(n):
-        piv = c
-        for row in range(c + 1, n):
-            if abs(M[row, c]) > abs(M[piv, c]):
-                piv = row
-        if M[piv, c] == 0.0:
-            return False
-        if piv != c:
-            for col in range(n):
-                tmp = M[c, col]
-                M[c, col] = M[piv, col]
-                M[piv, col] = tmp
-            tmp = r[c]
-            r[c] = r[piv]
-            r[piv] = tmp
-        for row in range(c + 1, n):
-            factor = M[row, c] / M[c, c]
-            for col in range(c, n):
-                M[row, col] -= factor * M[c, col]
-            r[row] -= factor * r[c]
-    for c in range(n - 1, -1, -1):
-        acc = r[c]
-        for col in range(c + 1, n):
-            acc -= M[c, col] * r[col]
-        r[c] = acc / M[c, c]
-    return True
+def _group_newton(e0, e1, fi, ji, p, t, x, indptr, indices, position, comp, prev, cptr, celems,
+                  ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, atol, rtol, uw, out,
+                  jrow, lam, mom, local, order, ab_ws, rhs, ipiv, counters):
+    """One simplified Newton step for the elements e0..e1-1 of one sub-slab (same interval):
+    (I - k A (x) J_gg) dX = r, with r the exact Galerkin residuals and J_gg the sparse Jacobian
+    restricted to the group's components at the sub-slab start, in band storage (components
+    in the global bandwidth ordering). Returns the largest scaled increment (inf on failure)."""
+    S = Minv.shape[0]
+    nn = nodes.shape[0]
+    first_stage = nn - S
+    n = e1 - e0
+    k = eb[e0] - ea[e0]
+    ta = ea[e0]
+    # the group's components in bandwidth order: local[i] = their row block
+    for r_ in range(n):
+        order[r_] = comp[e0 + r_]
+    for a_ in range(1, n):  # insertion sort by global position (groups are small or sorted)
+        c = order[a_]
+        b_ = a_ - 1
+        while b_ >= 0 and position[order[b_]] > position[c]:
+            order[b_ + 1] = order[b_]
+            b_ -= 1
+        order[b_ + 1] = c
+    for r_ in range(n):
+        local[order[r_]] = r_
+    kl = 0
+    ku = 0
+    for e in range(e0, e1):
+        i = comp[e]
+        for nz in range(indptr[i], indptr[i + 1]):
+            j = indices[nz]
+            if local[j] >= 0:
+                kl = max(kl, local[i] - local[j])
+                ku = max(ku, local[j] - local[i])
+    klS = kl * S + S - 1
+    kuS = ku * S + S - 1
+    kv = klS + kuS
+    ab = ab_ws[:n * S, :2 * klS + kuS + 1]  # the workspace fits: local bands <= global ones
+    ab[:, :] = 0.0
+    for e in range(e0, e1):
+        i = comp[e]
+        xl = x[i] if prev[e] < 0 else values[prev[e], nn - 1]
+        if first_stage == 1:
+            values[e, 0] = xl
+        counters[F_EVALUATIONS] += _moments(fi, p, i, e, t, x, indptr, indices, cptr, celems, ea,
+                                            eb, values, nodes, bary, qweights, sptr, spts, uw,
+                                            out, lam, mom)
+        row = local[i] * S
+        for s_ in range(S):
+            acc = 0.0
+            for lm in range(S):
+                acc += Minv[s_, lm] * mom[lm]
+            rhs[row + s_] = xl + k * acc - values[e, first_stage + s_]
+        # row i of df/du at the sub-slab start, restricted to the group
+        for nz in range(indptr[i], indptr[i + 1]):
+            j = indices[nz]
+            uw[j] = xl if j == i else _value_at(j, ta, t, x, cptr, celems, ea, eb, values, nodes,
+                                                bary)
+        ji(i, uw.ctypes, ta, p.ctypes, jrow.ctypes)
+        counters[JACOBIANS] += 1
+        for nz in range(indptr[i], indptr[i + 1]):
+            j = indices[nz]
+            if local[j] < 0:
+                continue
+            col = local[j] * S
+            value = -k * jrow[nz - indptr[i]]
+            for s_ in range(S):
+                for m_ in range(S):
+                    ab[col + m_, kv + row + s_ - col - m_] += value * A[s_, m_]
+    for r_ in range(n * S):
+        ab[r_, kv] += 1.0
+    counters[FACTORIZATIONS] += 1
+    d = math.inf
+    if band_lu(ab, klS, kuS, ipiv) == 0:
+        band_solve(ab, klS, kuS, ipiv, rhs)
+        d = 0.0
+        for e in range(e0, e1):
+            i = comp[e]
+            for s_ in range(S):
+                delta = rhs[local[i] * S + s_]
+                values[e, first_stage + s_] += delta
+                scaled = abs(delta) / (atol[i] + rtol * abs(values[e, first_stage + s_]))
+                if not scaled <= d:
+                    d = scaled if math.isfinite(scaled) else math.inf
+    for r_ in range(n):
+        local[order[r_]] = -1
+    return d
 
 
 @njit(cache=True)
-def _sweep(lo, hi, fi, ji, p, t, x, indptr, indices, diag, comp, prev, cptr, celems, ea, eb,
-           values, nodes, bary, qweights, Minv, sptr, spts, stiff, atol, rtol, uw, out, jrow,
-           lam, mom, dmom, M, r, counters):
-    """One Gauss-Seidel sweep over elements lo..hi-1: each element's stage values from
-    xi = x_left + k M^{-1} m(xi), with stiffness by one Newton step in its own stages
-    (I - k M^{-1} dm/dxi) dxi = r. Returns the largest scaled increment (inf on failure)."""
+def _sweep(lo, hi, fi, ji, p, t, x, indptr, indices, position, comp, prev, cptr, celems, ea, eb,
+           values, nodes, bary, qweights, Minv, A, sptr, spts, stiff, atol, rtol, uw, out, jrow,
+           lam, mom, local, order, ab_ws, rhs, ipiv, counters):
+    """One Gauss-Seidel sweep over elements lo..hi-1: each element's stage values from the
+    fixed point xi = x_left + k M^{-1} m(xi) or, when stiff, each sub-slab's elements together
+    by a simplified Newton step (see ``_group_newton``). Returns the largest scaled increment
+    (inf on failure)."""
     S = Minv.shape[0]
     nn = nodes.shape[0]
     first_stage = nn - S  # 1 for cG (node 0 is the left value), 0 for dG
     d = 0.0
-    for e in range(lo, hi):
+    e = lo
+    while e < hi:
+        if stiff:
+            e1 = e + 1
+            while e1 < hi and ea[e1] == ea[e] and eb[e1] == eb[e]:
+                e1 += 1
+            d = max(d, _group_newton(e, e1, fi, ji, p, t, x, indptr, indices, position, comp,
+                                     prev, cptr, celems, ea, eb, values, nodes, bary, qweights,
+                                     Minv, A, sptr, spts, atol, rtol, uw, out, jrow, lam, mom,
+                                     local, order, ab_ws, rhs, ipiv, counters))
+            e = e1
+            continue
         i = comp[e]
         k = eb[e] - ea[e]
         xl = x[i] if prev[e] < 0 else values[prev[e], nn - 1]  # the left value
         if first_stage == 1:
             values[e, 0] = xl
-        counters[F_EVALUATIONS] += _moments(
-            fi, ji, p, i, e, t, x, indptr, indices, diag, cptr, celems, ea, eb, values, nodes,
-            bary, qweights, sptr, spts, stiff, first_stage, uw, out, jrow, lam, mom, dmom)
+        counters[F_EVALUATIONS] += _moments(fi, p, i, e, t, x, indptr, indices, cptr, celems, ea,
+                                            eb, values, nodes, bary, qweights, sptr, spts, uw,
+                                            out, lam, mom)
         for s in range(S):
             acc = 0.0
             for lm in range(S):
                 acc += Minv[s, lm] * mom[lm]
-            r[s] = xl + k * acc - values[e, first_stage + s]
-        if stiff and diag[i] >= 0:
-            for row in range(S):
-                for col in range(S):
-                    acc = 0.0
-                    for lm in range(S):
-                        acc += Minv[row, lm] * dmom[lm, col]
-                    M[row, col] = (1.0 if row == col else 0.0) - k * acc
-            counters[JACOBIANS] += 1
-            if not _solve_small(M, r):
-                return math.inf
-        for s in range(S):
-            values[e, first_stage + s] += r[s]
-            scaled = abs(r[s]) / (atol[i] + rtol * abs(values[e, first_stage + s]))
+            delta = xl + k * acc - values[e, first_stage + s]
+            values[e, first_stage + s] += delta
+            scaled = abs(delta) / (atol[i] + rtol * abs(values[e, first_stage + s]))
             if not scaled <= d:
                 d = scaled if math.isfinite(scaled) else math.inf
+        e += 1
     return d
 
 
@@ -384,8 +433,9 @@ _f8 = types.float64[::1]
 _i8 = types.int64[::1]
 _SIGNATURE = types.int64(
     COMPONENT_TYPE, COMPONENT_TYPE, _f8,           # f_i, J_i, p
-    _i8, _i8, _i8,                                 # indptr, indices, diagonal position in row
-    types.float64[:, ::1], _f8, _f8, _f8,          # M^{-1}, nodes, quadrature weights, bary
+    _i8, _i8, _i8,                                 # indptr, indices, bandwidth position
+    types.float64[:, ::1], types.float64[:, ::1],  # M^{-1}, A
+    _f8, _f8, _f8,                                 # nodes, quadrature weights, bary
     _f8, _f8,                                      # end_derivative, left_value
     _i8, _f8, _f8,                                 # iopts, fopts, atol
     _f8, _f8, _f8, _i8,                            # x, kdes, state, counters
@@ -394,7 +444,7 @@ _SIGNATURE = types.int64(
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
-def advance(fi, ji, p, indptr, indices, diag, Minv, nodes, qweights, bary, end_derivative,
+def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary, end_derivative,
             left_value, iopts, fopts, atol, x, kdes, state, counters, out_comp, out_a, out_b,
             out_values):
     """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status."""
@@ -414,10 +464,14 @@ def advance(fi, ji, p, indptr, indices, diag, Minv, nodes, qweights, bary, end_d
     windows = np.empty(16, dtype=np.int64)
     values = np.empty((4 * N, nn))
     mom = np.empty(S)
-    dmom = np.empty((S, S))
     lam = np.empty(nn)
-    M = np.empty((S, S))
-    r = np.empty(S)
+    local = np.full(N, -1, dtype=np.int64)
+    group_order = np.empty(N, dtype=np.int64)
+    # Newton workspace for sub-slab groups, grown to the largest group (band: the global one)
+    band_width = 2 * (iopts[BAND_LOWER] + 1) * S + (iopts[BAND_UPPER] + 1) * S
+    ab_ws = np.zeros((S, band_width))
+    newton_rhs = np.empty(S)
+    newton_ipiv = np.empty(S, dtype=np.int64)
     uw = x.copy()
     out = np.empty(1)
     jrow = np.empty(max(1, indices.shape[0]))
@@ -442,6 +496,15 @@ def advance(fi, ji, p, indptr, indices, diag, Minv, nodes, qweights, bary, end_d
             values = np.empty((max(ne, 2 * values.shape[0]), nn))
         cptr, celems, prev = _component_elements(comp, ne, N)
         sptr, spts = subintervals(ne, comp, indptr, indices, cptr, celems, ea, eb)
+        largest = 1
+        run = 1
+        for e in range(1, ne):
+            run = run + 1 if ea[e] == ea[e - 1] and eb[e] == eb[e - 1] else 1
+            largest = max(largest, run)
+        if largest * S > ab_ws.shape[0]:
+            ab_ws = np.zeros((largest * S, band_width))
+            newton_rhs = np.empty(largest * S)
+            newton_ipiv = np.empty(largest * S, dtype=np.int64)
         # initial guess: constant continuation of each component's left value
         for e in range(ne):
             for m in range(nn):
@@ -454,17 +517,19 @@ def advance(fi, ji, p, indptr, indices, diag, Minv, nodes, qweights, bary, end_d
         for it in range(max_iter):
             # the top-level elements once, then every window iterated to convergence in turn:
             # the fast components advance window by window as in single-rate time stepping
-            d = _sweep(0, nroot, fi, ji, p, t, x, indptr, indices, diag, comp, prev, cptr, celems,
-                       ea, eb, values, nodes, bary, qweights, Minv, sptr, spts, stiff, atol, rtol,
-                       uw, out, jrow, lam, mom, dmom, M, r, counters)
+            d = _sweep(0, nroot, fi, ji, p, t, x, indptr, indices, position, comp, prev, cptr,
+                       celems, ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, stiff,
+                       atol, rtol, uw, out, jrow, lam, mom, local, group_order, ab_ws,
+                       newton_rhs, newton_ipiv, counters)
             for w in range(nwin):
                 hi = windows[w + 1] if w + 1 < nwin else ne
-                for local in range(max_iter):
-                    dl = _sweep(windows[w], hi, fi, ji, p, t, x, indptr, indices, diag, comp,
-                                prev, cptr, celems, ea, eb, values, nodes, bary, qweights, Minv,
-                                sptr, spts, stiff, atol, rtol, uw, out, jrow, lam, mom, dmom, M,
-                                r, counters)
-                    if local == 0:
+                for sweeps in range(max_iter):
+                    dl = _sweep(windows[w], hi, fi, ji, p, t, x, indptr, indices, position,
+                                comp, prev, cptr, celems, ea, eb, values, nodes, bary, qweights,
+                                Minv, A, sptr, spts, stiff, atol, rtol, uw, out, jrow, lam, mom,
+                                local, group_order, ab_ws, newton_rhs, newton_ipiv,
+                                counters)
+                    if sweeps == 0:
                         d = max(d, dl)
                     # converge windows well below dtol, so that what the next global
                     # iteration measures is the top level's influence, not leftover error
