@@ -87,3 +87,31 @@ def test_slab_structure():
         mine = np.flatnonzero(comp[:ne] == i)
         assert ea[mine[0]] == 0.0 and eb[mine[-1]] == pytest.approx(0.1)
         np.testing.assert_allclose(ea[mine[1:]], eb[mine[:-1]])
+
+
+@pytest.mark.parametrize("method", ["mcG(1)", "mcG(2)", "mdG(1)"])
+def test_newton_matches_fixed_point(method):
+    ode = problems.lorenz(T=1.0)
+    a = dn.solve(ode, method=method, tolerance=1e-8, nonlinear_solver="fixed-point")
+    b = dn.solve(ode, method=method, tolerance=1e-8, nonlinear_solver="newton")
+    assert not a.stats["newton"] and b.stats["factorizations"] > 0
+    assert np.abs(a(1.0) - b(1.0)).max() < 1e-6
+
+
+@pytest.mark.parametrize("method", ["mdG(1)", "mcG(1)", "mdG(2)"])
+def test_stiff_hires(method):
+    sol = dn.solve(problems.hires(), method=method, tolerance=1e-6)
+    assert problems.mescd(sol(sol.ode.T), problems.HIRES_REFERENCE) >= 5
+    assert sol.stats["newton"]
+
+
+@pytest.mark.parametrize("method", ["mdG(1)", "mcG(1)"])
+def test_stiff_decay(method):
+    ode, exact = problems.stiff_decay(lam=1000.0, T=10.0)
+    sol = dn.solve(ode, method=method, tolerance=1e-5)
+    start, k = sol.time_steps(0)
+    ends = start + k  # the nodal values are superconvergent; between nodes dG(1) is 2nd order
+    assert np.abs(sol(ends)[0] - exact(ends)[0]).max() < 1e-4
+    times = np.array([0.001, 0.01, 1.0, 10.0])
+    assert np.abs(sol(times)[0] - exact(times)[0]).max() < 1e-2
+    assert k.max() > 0.1  # far beyond the explicit stability limit 2/1000
