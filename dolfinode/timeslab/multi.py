@@ -220,13 +220,21 @@ def subintervals(ne, comp, indptr, indices, cptr, celems, ea, eb):
             j = indices[nz]
             if j == i:
                 continue
-            for c in range(cptr[j], cptr[j + 1]):
+            lo, hi = cptr[j], cptr[j + 1]
+            while lo < hi:  # first element of j ending after a
+                mid = (lo + hi) // 2
+                if eb[celems[mid]] > a:
+                    hi = mid
+                else:
+                    lo = mid + 1
+            for c in range(lo, cptr[j + 1]):
                 tb = eb[celems[c]]
-                if a < tb < b:
-                    if count == buf.shape[0]:
-                        buf = _grow_float(buf, 2 * count)
-                    buf[count] = tb
-                    count += 1
+                if tb >= b:
+                    break
+                if count == buf.shape[0]:
+                    buf = _grow_float(buf, 2 * count)
+                buf[count] = tb
+                count += 1
         inner = np.unique(buf[:count])
         need = ptr[e] + inner.shape[0] + 2
         points = _grow_float(points, need)
