@@ -59,8 +59,8 @@ def test_adaptive_harmonic_meets_tolerance():
 
 
 def test_slow_component_takes_fewer_steps():
-    """Two weakly coupled oscillators, frequencies 1 and 1000 (measured: 80x fewer elements
-    for the slow one with mcG(2) at tolerance 1e-6; the issue's target is 100x)."""
+    """Two weakly coupled oscillators, frequencies 1 and 1000: at least 100x fewer elements
+    for the slow component (measured 336x with mcG(2), tolerance 1e-6, T = 1)."""
     x1, v1, x2, v2 = sp.symbols("x1 v1 x2 v2")
     eps, w = 1e-3, 1000.0
     ode = dn.ODE({x1: v1, v1: -x1 + eps * (x2 - x1), x2: v2, v2: -w**2 * x2 + eps * (x1 - x2)},
@@ -68,7 +68,7 @@ def test_slow_component_takes_fewer_steps():
     sol = dn.solve(ode, method="mcG(2)", tolerance=1e-6)
     reference = dn.solve(ode, method="cG(4)", tolerance=1e-12)
     counts = sol.stats["elements per component"]
-    assert counts[2] > 50 * counts[0]
+    assert counts[2] >= 100 * counts[0]
     assert np.abs(sol(1.0)[:2] - reference(1.0)[:2]).max() < 1e-6
     t, k = sol.time_steps(x1)
     assert np.isclose(t[0], 0.0) and np.isclose(t[-1] + k[-1], 1.0) and np.all(k > 0)
