@@ -57,3 +57,51 @@ def mescd(y, reference, atol_over_rtol=1.0):
     min_i -log10(|y_i - ref_i| / (atol/rtol + |ref_i|))."""
     err = np.abs(np.asarray(y) - reference) / (atol_over_rtol + np.abs(reference))
     return float(-np.log10(max(err.max(), 1e-300)))
+
+
+def _linear(A, u0, T, b=None, name="u"):
+    """u' = A u (+ b) declared symbolically, with the exact solution by the matrix exponential."""
+    import scipy.linalg as sl
+
+    A = np.asarray(A, dtype=float)
+    n = len(A)
+    u = sp.symbols(f"{name}0:{n}")
+    b = np.zeros(n) if b is None else np.asarray(b, dtype=float)
+    rhs = {u[i]: sum(A[i, j] * u[j] for j in range(n) if A[i, j]) + b[i] for i in range(n)}
+    u0 = np.asarray(u0, dtype=float)
+    shift = np.linalg.solve(A, b)  # u = e^{At}(u0 + A^{-1} b) - A^{-1} b
+
+    def exact(t):
+        return sl.expm(A * t) @ (u0 + shift) - shift
+
+    return ODE(rhs, u0=u0, T=T), exact
+
+
+def stiff_suite():
+    """DOLFIN's stiff test problems (demo "stiff"; Logg, Multi-adaptive time integration, 2004),
+    as (name, ode, exact or None). Problem 5 (Chemical Akzo Nobel, relaxed) is left out: its
+    equations are not available here."""
+    suite = []
+    ode, exact = stiff_decay(1000.0, 10.0)
+    suite.append(("1 decay", ode, exact))
+    suite.append(("2 diagonal", *_linear(np.diag([-100.0, -1000.0]), [1.0, 1.0], 10.0)))
+    suite.append(("3 non-normal", *_linear([[-1000.0, 10000.0], [0.0, -100.0]], [1.0, 1.0], 1.0)))
+    suite.append(("3b critically damped", *_linear([[0.0, 1.0], [-1e4, -200.0]], [1.0, 1.0], 1.0)))
+    suite.append(("4 HIRES", hires(), None))
+    x, y = sp.symbols("x y")
+    suite.append(("6 van der Pol", ODE({x: y, y: 10.0 * (1 - x**2) * y - x}, u0=[2.0, 0.0],
+                                       T=100.0), None))
+    n = 101
+    h = 1.0 / (n + 1)
+    L = (np.diag(-2.0 * np.ones(n)) + np.diag(np.ones(n - 1), 1) + np.diag(np.ones(n - 1), -1))
+    source = np.zeros(n)
+    source[n // 2] = 100.0
+    suite.append(("7 heat", *_linear(L / h**2, np.zeros(n), 1.0, b=source)))
+    y1, y2, y3 = sp.symbols("y1:4")
+    suite.append(("8 Robertson", ODE({y1: -0.04 * y1 + 1e4 * y2 * y3,
+                                      y2: 0.04 * y1 - 1e4 * y2 * y3 - 3e7 * y2**2,
+                                      y3: 3e7 * y2**2}, u0=[1.0, 0.0, 0.0], T=0.3), None))
+    u1, u2, u3 = sp.symbols("u1:4")
+    suite.append(("9 mixed", ODE({u1: u2, u2: -(1 - u3) * u1, u3: -1000.0 * (u1**2 + u2**2) * u3},
+                                 u0=[0.0, 1.0, 1.0], T=30.0), None))
+    return suite
