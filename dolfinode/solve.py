@@ -9,7 +9,7 @@ from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
 from dolfinode.parameters import check_parameters
 from dolfinode.solution import Solution
-from dolfinode.timeslab import mono, multi
+from dolfinode.timeslab import mono
 
 #: Relative size (times |t|) below which a time step cannot be resolved in double precision.
 _KMIN_RELATIVE = 1e-14
@@ -177,6 +177,9 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
 
 
 def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
+    # imported on first use: compiling its loop (once per installation) takes ~30 s
+    from dolfinode.timeslab import multi
+
     fopts = np.array(fopts + [params["partitioning_threshold"], params["interval_threshold"]])
     state = np.array([ode.t0, 0.0])
     counters = np.zeros(multi.NUM_COUNTERS, dtype=np.int64)
