@@ -475,6 +475,9 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     lam = np.empty(nn)
     local = np.full(N, -1, dtype=np.int64)
     group_order = np.empty(N, dtype=np.int64)
+    last_a = np.zeros(N)  # each component's last element of the previous slab
+    last_b = np.zeros(N)
+    last_values = np.empty((N, nn))
     # Newton workspace for sub-slab groups, grown to the largest group (band: the global one)
     band_width = 2 * (iopts[BAND_LOWER] + 1) * S + (iopts[BAND_UPPER] + 1) * S
     ab_ws = np.zeros((S, band_width))
@@ -513,22 +516,26 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             ab_ws = np.zeros((largest * S, band_width))
             newton_rhs = np.empty(largest * S)
             newton_ipiv = np.empty(largest * S, dtype=np.int64)
-        # initial guess: constant continuation of each component's left value
+        # initial guess: the top-level elements continue each component's last polynomial of
+        # the previous slab (smooth, slow components), the windows start constant (they are
+        # solved forward in time)
         for e in range(ne):
+            i = comp[e]
             for m in range(nn):
-                values[e, m] = x[comp[e]]
+                values[e, m] = x[i]
+                if e < (windows[0] if nwin > 0 else ne) and last_b[i] > last_a[i]:
+                    tau = (ea[e] + nodes[m] * (eb[e] - ea[e]) - last_a[i]) / (last_b[i] - last_a[i])
+                    if tau <= 3.0:  # extrapolate at most two element lengths ahead
+                        values[e, m] = _evaluate(last_values, i, tau, nodes, bary)
         stiff = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         nroot = windows[0] if nwin > 0 else ne
         converged = False
         d_prev = math.inf
         growth = 0
         for it in range(max_iter):
-            # the top-level elements once, then every window iterated to convergence in turn:
-            # the fast components advance window by window as in single-rate time stepping
-            d = _sweep(0, nroot, fi, ji, p, t, x, indptr, indices, position, comp, prev, cptr,
-                       celems, ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, stiff,
-                       atol, rtol, uw, out, jrow, lam, mom, local, group_order, ab_ws,
-                       newton_rhs, newton_ipiv, counters)
+            # every window iterated to convergence in turn (the fast components advance window
+            # by window as in single-rate time stepping), then the top-level elements once
+            d = 0.0
             for w in range(nwin):
                 hi = windows[w + 1] if w + 1 < nwin else ne
                 for sweeps in range(max_iter):
@@ -545,6 +552,10 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                         break
                 if not dl <= 0.1 * dtol:
                     d = math.inf
+            d = max(d, _sweep(0, nroot, fi, ji, p, t, x, indptr, indices, position, comp, prev,
+                              cptr, celems, ea, eb, values, nodes, bary, qweights, Minv, A, sptr,
+                              spts, stiff, atol, rtol, uw, out, jrow, lam, mom, local,
+                              group_order, ab_ws, newton_rhs, newton_ipiv, counters))
             counters[ITERATIONS] += 1
             if d <= dtol or (it >= 2 and d >= 0.5 * d_prev and d <= 1e-10):
                 converged = True
@@ -647,6 +658,10 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         counters[SLABS] += 1
         counters[SUBSLABS] += nsub
         for i in range(N):
-            x[i] = values[celems[cptr[i + 1] - 1], nn - 1]
+            last = celems[cptr[i + 1] - 1]
+            x[i] = values[last, nn - 1]
+            last_a[i], last_b[i] = ea[last], eb[last]
+            for m in range(nn):
+                last_values[i, m] = values[last, m]
         t = b
         state[T_NOW] = t
