@@ -16,7 +16,6 @@ Both return the number of iterations, or -1 if the iteration diverged or did not
 """
 import math
 
-import numpy as np
 from numba import njit
 
 from dolfinode.linalg.banded import band_lu, band_solve
@@ -155,8 +154,3 @@ def factor(ab, kl, ku, ipiv, counters):
     """LU-factor the Newton matrix; returns True on success."""
     counters[4] += 1
     return band_lu(ab, kl, ku, ipiv) == 0
-
-
-def newton_workspace(n_unknowns, kl, ku):
-    """Band storage and pivots for a Newton matrix with n_unknowns rows."""
-    return np.zeros((n_unknowns, 2 * kl + ku + 1)), np.zeros(n_unknowns, dtype=np.int64)
