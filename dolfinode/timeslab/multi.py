@@ -1,13 +1,6 @@
 """Multi-adaptive time slabs: mcG(q) and mdG(q) with individual time steps per component.
 
-A time slab [a, b] is built recursively from the components' desired steps k_i (DOLFIN's
-``createTimeSlab``, Logg's MAG papers): the remaining components whose k_i >= theta max k_i
-form a group that takes one element of the group's smallest step K (stretched to the end of
-the enclosing interval when K >= beta times its length, so slabs end synchronised); the other
-components fill [a, a + K] with sub-slabs built the same way. Elements live in flat arrays
-(component, interval, previous element, nodal values), in creation order.
-
-The Galerkin equations of every element, xi = x_left + k M^{-1} m with the moments
+Slabs are built by :mod:`dolfinode.timeslab.partition`. The Galerkin equations of every element, xi = x_left + k M^{-1} m with the moments
 m_l = int f_i(U) tau^l, are solved by Gauss-Seidel sweeps over the elements in creation order.
 The moments are integrated exactly (for linear f) by the method's quadrature on every interval
 between the element ends of the dependencies, each dependency read from its own element
@@ -18,7 +11,8 @@ stiff, and the elements of each sub-slab (one interval, several components) are 
 together by a simplified Newton step with the sparse sympy Jacobian restricted to them.
 
 After a slab, every element's residual gives an indicator as in :mod:`dolfinode.adaptivity`;
-the slab is accepted when all are <= 1, and each component gets its own next step.
+the slab is accepted when all are <= ACCEPTANCE_MARGIN, and each component gets its own next
+step.
 """
 import math
 
@@ -28,6 +22,7 @@ from numba import njit, types
 from dolfinode.compile.signatures import COMPONENT_TYPE
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.timeslab.mono import BLOWUP, DEFAULT, DONE, FULL, NEWTON, NONCONVERGENCE, UNDERFLOW
+from dolfinode.timeslab.partition import build_slab, component_elements, subintervals
 
 # Indices into the integer counters (kept across calls by the driver).
 SLABS, REJECTED, F_EVALUATIONS, JACOBIANS, ELEMENTS, ITERATIONS, STORED, FAILED_SOLVES, STIFF, \
@@ -43,121 +38,6 @@ _KMIN_RELATIVE = 1e-14
 #: A slab holds many elements of a fast component and one indicator above the margin rejects
 #: them all; steps are still chosen for indicators of 1 (DOLFIN G1 accepted up to 2 TOL too).
 ACCEPTANCE_MARGIN = 2.0
-
-
-@njit(cache=True)
-def _grow_float(array, size):
-    if size <= array.shape[0]:
-        return array
-    bigger = np.empty((max(size, 2 * array.shape[0]),) + array.shape[1:])
-    bigger[:array.shape[0]] = array
-    return bigger
-
-
-@njit(cache=True)
-def _grow_int(array, size):
-    if size <= array.shape[0]:
-        return array
-    bigger = np.empty(max(size, 2 * array.shape[0]), dtype=np.int64)
-    bigger[:array.shape[0]] = array
-    return bigger
-
-
-@njit(cache=True)
-def _partition(perm, offset, kdes, theta):
-    """Move the components of perm[offset:] with k >= theta max k to the front; return the
-    group's end and its smallest step (DOLFIN's ``Partition::update``)."""
-    n = perm.shape[0]
-    kmax = 0.0
-    for r in range(offset, n):
-        kmax = max(kmax, kdes[perm[r]])
-    pivot = theta * kmax
-    end = offset
-    for r in range(offset, n):
-        if kdes[perm[r]] >= pivot:
-            tmp = perm[end]
-            perm[end] = perm[r]
-            perm[r] = tmp
-            end += 1
-    K = math.inf
-    for r in range(offset, end):
-        K = min(K, kdes[perm[r]])
-    return end, K
-
-
-@njit(cache=True)
-def build_slab(a, T, kdes, theta, beta, comp, ea, eb, windows):
-    """Build the time slab starting at a; returns (b, number of elements, number of sub-slabs,
-    number of windows, comp, ea, eb, windows), the arrays grown as needed.
-
-    Elements come in creation order (depth first), so the sub-slabs nested in each sub-slab of
-    the top level form a contiguous range, a *window*, starting at ``windows[w]``."""
-    n = kdes.shape[0]
-    perm = np.arange(n)
-    # frame stack: (end of its interval b1, end of its group, current time t)
-    fb = np.empty(64)
-    fend = np.empty(64, dtype=np.int64)
-    ft = np.empty(64)
-    ne = 0
-    nsub = 0
-    nwin = 0
-    depth = 0
-    offset, lo, hi = 0, a, T
-    while True:
-        # create a sub-slab on [lo, hi] for the components perm[offset:]
-        end, K = _partition(perm, offset, kdes, theta)
-        b1 = lo + K if K < beta * (hi - lo) else hi
-        if depth == 1:
-            windows = _grow_int(windows, nwin + 1)
-            windows[nwin] = ne
-            nwin += 1
-        comp = _grow_int(comp, ne + end - offset)
-        ea = _grow_float(ea, ne + end - offset)
-        eb = _grow_float(eb, ne + end - offset)
-        for r in range(offset, end):
-            comp[ne] = perm[r]
-            ea[ne] = lo
-            eb[ne] = b1
-            ne += 1
-        nsub += 1
-        if depth == fb.shape[0]:
-            fb = _grow_float(fb, 2 * depth)
-            fend = _grow_int(fend, 2 * depth)
-            ft = _grow_float(ft, 2 * depth)
-        fb[depth], fend[depth], ft[depth] = b1, end, lo
-        depth += 1
-        # find the innermost frame with components left to fill, popping finished frames
-        while depth > 0:
-            f = depth - 1
-            if ft[f] < fb[f] and fend[f] < n:
-                break
-            depth -= 1
-            if depth > 0:
-                ft[depth - 1] = fb[f]
-        if depth == 0:
-            return fb[0], ne, nsub, nwin, comp, ea, eb, windows
-        f = depth - 1
-        offset, lo, hi = fend[f], ft[f], fb[f]
-
-
-@njit(cache=True)
-def _component_elements(comp, ne, n):
-    """CSR (ptr, elements) of each component's elements in creation (= time) order, and each
-    element's predecessor of the same component (-1 at the slab start)."""
-    ptr = np.zeros(n + 1, dtype=np.int64)
-    for e in range(ne):
-        ptr[comp[e] + 1] += 1
-    for i in range(n):
-        ptr[i + 1] += ptr[i]
-    fill = ptr[:-1].copy()
-    elements = np.empty(ne, dtype=np.int64)
-    prev = np.empty(ne, dtype=np.int64)
-    for e in range(ne):
-        c = fill[comp[e]]
-        elements[c] = e
-        prev[e] = elements[c - 1] if c > ptr[comp[e]] else -1
-        fill[comp[e]] += 1
-    return ptr, elements, prev
 
 
 @njit(cache=True)
@@ -206,50 +86,6 @@ def _node_rhs(fi, p, i, e, m, t, a, x0, indptr, indices, cptr, celems, ea, eb, v
             uw[j] = _value_at(j, t, a, x0, cptr, celems, ea, eb, values, nodes, bary)
     fi(i, uw.ctypes, t, p.ctypes, out.ctypes)
     return out[0]
-
-
-@njit(cache=True)
-def subintervals(ne, comp, indptr, indices, cptr, celems, ea, eb):
-    """For every element, the breakpoints (its ends and the element ends of its dependencies
-    inside it) that split it into intervals where the integrand is one polynomial; CSR."""
-    ptr = np.zeros(ne + 1, dtype=np.int64)
-    points = np.empty(2 * ne)
-    buf = np.empty(16)
-    for e in range(ne):
-        i = comp[e]
-        a, b = ea[e], eb[e]
-        count = 0
-        for nz in range(indptr[i], indptr[i + 1]):
-            j = indices[nz]
-            if j == i:
-                continue
-            lo, hi = cptr[j], cptr[j + 1]
-            while lo < hi:  # first element of j ending after a
-                mid = (lo + hi) // 2
-                if eb[celems[mid]] > a:
-                    hi = mid
-                else:
-                    lo = mid + 1
-            for c in range(lo, cptr[j + 1]):
-                tb = eb[celems[c]]
-                if tb >= b:
-                    break
-                if count == buf.shape[0]:
-                    buf = _grow_float(buf, 2 * count)
-                buf[count] = tb
-                count += 1
-        inner = np.unique(buf[:count])
-        need = ptr[e] + inner.shape[0] + 2
-        points = _grow_float(points, need)
-        points[ptr[e]] = a
-        n = 1
-        for tb in inner:
-            if tb - points[ptr[e] + n - 1] > 1e-12 * (b - a) and b - tb > 1e-12 * (b - a):
-                points[ptr[e] + n] = tb
-                n += 1
-        points[ptr[e] + n] = b
-        ptr[e + 1] = ptr[e] + n + 1
-    return ptr, points
 
 
 @njit(cache=True)
@@ -508,7 +344,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             return UNDERFLOW
         if values.shape[0] < ne:
             values = np.empty((max(ne, 2 * values.shape[0]), nn))
-        cptr, celems, prev = _component_elements(comp, ne, N)
+        cptr, celems, prev = component_elements(comp, ne, N)
         sptr, spts = subintervals(ne, comp, indptr, indices, cptr, celems, ea, eb)
         largest = 1
         run = 1

@@ -6,7 +6,6 @@ import sympy as sp
 
 import dolfinode as dn
 from dolfinode import problems
-from dolfinode.timeslab.multi import build_slab
 
 A4 = np.array([[0.0, 1.0, 0.0, 0.0], [-1.0, 0.0, 0.3, 0.0], [0.0, -0.3, -0.1, 0.5],
                [0.0, 0.0, -0.5, 0.0]])
@@ -72,21 +71,6 @@ def test_slow_component_takes_fewer_steps():
     assert np.abs(sol(1.0)[:2] - reference(1.0)[:2]).max() < 1e-6
     t, k = sol.time_steps(x1)
     assert np.isclose(t[0], 0.0) and np.isclose(t[-1] + k[-1], 1.0) and np.all(k > 0)
-
-
-def test_slab_structure():
-    """Recursive construction: groups by threshold, slab ends synchronised."""
-    kdes = np.array([0.1, 0.05, 0.1, 0.0125])
-    comp, ea, eb = np.empty(1, np.int64), np.empty(1), np.empty(1)
-    b, ne, _, _, comp, ea, eb, _ = build_slab(0.0, 10.0, kdes, 0.99, 0.9, comp, ea,
-                                                          eb, np.empty(1, np.int64))
-    assert b == pytest.approx(0.1)
-    counts = np.bincount(comp[:ne], minlength=4)
-    np.testing.assert_array_equal(counts, [1, 2, 1, 8])
-    for i in range(4):
-        mine = np.flatnonzero(comp[:ne] == i)
-        assert ea[mine[0]] == 0.0 and eb[mine[-1]] == pytest.approx(0.1)
-        np.testing.assert_allclose(ea[mine[1:]], eb[mine[:-1]])
 
 
 @pytest.mark.parametrize("method", ["mcG(1)", "mcG(2)", "mdG(1)"])

@@ -1,0 +1,172 @@
+"""Construction of multi-adaptive time slabs in flat arrays.
+
+A time slab [a, b] is built recursively from the components' desired steps k_i (DOLFIN's
+``createTimeSlab`` and ``Partition``): the remaining components whose k_i >= theta max k_i
+form a group that takes one element of the group's smallest step K (stretched to the end of
+the enclosing interval when K >= beta times its length, so slabs end synchronised); the other
+components fill [a, a + K] with sub-slabs built the same way. Elements live in flat arrays
+(component, interval), in creation order, with per-component index arrays.
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def grow_float(array, size):
+    if size <= array.shape[0]:
+        return array
+    bigger = np.empty((max(size, 2 * array.shape[0]),) + array.shape[1:])
+    bigger[:array.shape[0]] = array
+    return bigger
+
+
+@njit(cache=True)
+def grow_int(array, size):
+    if size <= array.shape[0]:
+        return array
+    bigger = np.empty(max(size, 2 * array.shape[0]), dtype=np.int64)
+    bigger[:array.shape[0]] = array
+    return bigger
+
+
+@njit(cache=True)
+def _partition(perm, offset, kdes, theta):
+    """Move the components of perm[offset:] with k >= theta max k to the front; return the
+    group's end and its smallest step (DOLFIN's ``Partition::update``)."""
+    n = perm.shape[0]
+    kmax = 0.0
+    for r in range(offset, n):
+        kmax = max(kmax, kdes[perm[r]])
+    pivot = theta * kmax
+    end = offset
+    for r in range(offset, n):
+        if kdes[perm[r]] >= pivot:
+            tmp = perm[end]
+            perm[end] = perm[r]
+            perm[r] = tmp
+            end += 1
+    K = math.inf
+    for r in range(offset, end):
+        K = min(K, kdes[perm[r]])
+    return end, K
+
+
+@njit(cache=True)
+def build_slab(a, T, kdes, theta, beta, comp, ea, eb, windows):
+    """Build the time slab starting at a; returns (b, number of elements, number of sub-slabs,
+    number of windows, comp, ea, eb, windows), the arrays grown as needed.
+
+    Elements come in creation order (depth first), so the sub-slabs nested in each sub-slab of
+    the top level form a contiguous range, a *window*, starting at ``windows[w]``."""
+    n = kdes.shape[0]
+    perm = np.arange(n)
+    # frame stack: (end of its interval b1, end of its group, current time t)
+    fb = np.empty(64)
+    fend = np.empty(64, dtype=np.int64)
+    ft = np.empty(64)
+    ne = 0
+    nsub = 0
+    nwin = 0
+    depth = 0
+    offset, lo, hi = 0, a, T
+    while True:
+        # create a sub-slab on [lo, hi] for the components perm[offset:]
+        end, K = _partition(perm, offset, kdes, theta)
+        b1 = lo + K if K < beta * (hi - lo) else hi
+        if depth == 1:
+            windows = grow_int(windows, nwin + 1)
+            windows[nwin] = ne
+            nwin += 1
+        comp = grow_int(comp, ne + end - offset)
+        ea = grow_float(ea, ne + end - offset)
+        eb = grow_float(eb, ne + end - offset)
+        for r in range(offset, end):
+            comp[ne] = perm[r]
+            ea[ne] = lo
+            eb[ne] = b1
+            ne += 1
+        nsub += 1
+        if depth == fb.shape[0]:
+            fb = grow_float(fb, 2 * depth)
+            fend = grow_int(fend, 2 * depth)
+            ft = grow_float(ft, 2 * depth)
+        fb[depth], fend[depth], ft[depth] = b1, end, lo
+        depth += 1
+        # find the innermost frame with components left to fill, popping finished frames
+        while depth > 0:
+            f = depth - 1
+            if ft[f] < fb[f] and fend[f] < n:
+                break
+            depth -= 1
+            if depth > 0:
+                ft[depth - 1] = fb[f]
+        if depth == 0:
+            return fb[0], ne, nsub, nwin, comp, ea, eb, windows
+        f = depth - 1
+        offset, lo, hi = fend[f], ft[f], fb[f]
+
+
+@njit(cache=True)
+def component_elements(comp, ne, n):
+    """CSR (ptr, elements) of each component's elements in creation (= time) order, and each
+    element's predecessor of the same component (-1 at the slab start)."""
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    for e in range(ne):
+        ptr[comp[e] + 1] += 1
+    for i in range(n):
+        ptr[i + 1] += ptr[i]
+    fill = ptr[:-1].copy()
+    elements = np.empty(ne, dtype=np.int64)
+    prev = np.empty(ne, dtype=np.int64)
+    for e in range(ne):
+        c = fill[comp[e]]
+        elements[c] = e
+        prev[e] = elements[c - 1] if c > ptr[comp[e]] else -1
+        fill[comp[e]] += 1
+    return ptr, elements, prev
+
+
+@njit(cache=True)
+def subintervals(ne, comp, indptr, indices, cptr, celems, ea, eb):
+    """For every element, the breakpoints (its ends and the element ends of its dependencies
+    inside it) that split it into intervals where the integrand is one polynomial; CSR."""
+    ptr = np.zeros(ne + 1, dtype=np.int64)
+    points = np.empty(2 * ne)
+    buf = np.empty(16)
+    for e in range(ne):
+        i = comp[e]
+        a, b = ea[e], eb[e]
+        count = 0
+        for nz in range(indptr[i], indptr[i + 1]):
+            j = indices[nz]
+            if j == i:
+                continue
+            lo, hi = cptr[j], cptr[j + 1]
+            while lo < hi:  # first element of j ending after a
+                mid = (lo + hi) // 2
+                if eb[celems[mid]] > a:
+                    hi = mid
+                else:
+                    lo = mid + 1
+            for c in range(lo, cptr[j + 1]):
+                tb = eb[celems[c]]
+                if tb >= b:
+                    break
+                if count == buf.shape[0]:
+                    buf = grow_float(buf, 2 * count)
+                buf[count] = tb
+                count += 1
+        inner = np.unique(buf[:count])
+        need = ptr[e] + inner.shape[0] + 2
+        points = grow_float(points, need)
+        points[ptr[e]] = a
+        n = 1
+        for tb in inner:
+            if tb - points[ptr[e] + n - 1] > 1e-12 * (b - a) and b - tb > 1e-12 * (b - a):
+                points[ptr[e] + n] = tb
+                n += 1
+        points[ptr[e] + n] = b
+        ptr[e + 1] = ptr[e] + n + 1
+    return ptr, points
