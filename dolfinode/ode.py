@@ -212,19 +212,19 @@ class ODE:
         """
         if not isinstance(accelerations, Mapping):
             raise TypeError("accelerations must be a dict {position symbol: expression}")
-        positions = list(accelerations)
+        positions = tuple(accelerations)
+        for x in positions:
+            if not isinstance(x, sp.Symbol):
+                raise TypeError(f"states must be sympy Symbols, got {x!r} ({type(x).__name__})")
         velocities = dict(velocities or {})
         for x in velocities:
             if x not in accelerations:
                 raise ValueError(f"velocities names {x!r}, which is not a position")
-        vel = [velocities.get(x, sp.Symbol(f"{getattr(x, 'name', x)}_dot")) for x in positions]
-        rhs = [(x, v) for x, v in zip(positions, vel)] + [(v, accelerations[x]) for x, v in zip(positions, vel)]
-        ode_positions = [x for x in positions]
-        u0_x = _vector_by_state(x0, tuple(ode_positions), "x0") if all(
-            isinstance(x, sp.Symbol) for x in positions) else x0
-        u0_v = _vector_by_state(v0, tuple(ode_positions), "v0") if all(
-            isinstance(x, sp.Symbol) for x in positions) else v0
-        ode = cls(rhs, u0=np.concatenate([u0_x, u0_v]), T=T, params=params, t0=t0)
+        vel = [velocities.get(x, sp.Symbol(f"{x.name}_dot")) for x in positions]
+        rhs = list(zip(positions, vel)) + [(v, accelerations[x]) for x, v in zip(positions, vel)]
+        u0 = np.concatenate([_vector_by_state(x0, positions, "x0"),
+                             _vector_by_state(v0, positions, "v0")])
+        ode = cls(rhs, u0=u0, T=T, params=params, t0=t0)
         ode.velocity_symbols = dict(zip(positions, vel))
         return ode
 

@@ -3,11 +3,12 @@ import time
 
 import numpy as np
 
+from dolfinode import timeslab as ts
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
-from dolfinode.parameters import check_parameters
+from dolfinode.parameters import NONLINEAR_SOLVERS, check_parameters
 from dolfinode.solution import Solution
 from dolfinode.timeslab import mono
 
@@ -96,7 +97,7 @@ def solve(ode, method="cG(1)", **parameters):
         atol, rtol, dtol = np.ones(ode.N), 1.0, 1e-15
     else:
         dtol = params["discrete_tolerance_factor"]
-    iopts = np.array([("default", "fixed-point", "newton").index(params["nonlinear_solver"]),
+    iopts = np.array([NONLINEAR_SOLVERS.index(params["nonlinear_solver"]),
                       int(fixed), params["maximum_iterations"], int(m.family == "dG")],
                      dtype=np.int64)
     fopts = [rtol, ode.T, params["maximum_time_step"] or ode.T - ode.t0,
@@ -104,16 +105,16 @@ def solve(ode, method="cG(1)", **parameters):
     run = _run_multi if multi_adaptive else _run_mono
     status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
                                                    x, f0, steps)
-    if status != mono.DONE:
+    if status != ts.DONE:
         raise SolverError(_failure_message(status, state, fixed, x), t=float(state[0]))
     stats.update({
         "method": ("m" if multi_adaptive else "") + m.name,
-        "rejected steps": int(counters[mono.REJECTED]),
-        "f evaluations": int(counters[mono.F_EVALUATIONS]),
-        "jacobian evaluations": int(counters[mono.JACOBIANS]),
-        "nonlinear iterations": int(counters[mono.ITERATIONS]),
-        "failed nonlinear solves": int(counters[mono.FAILED_SOLVES]),
-        "newton": bool(counters[mono.STIFF]) or params["nonlinear_solver"] == "newton",
+        "rejected steps": int(counters[ts.REJECTED]),
+        "f evaluations": int(counters[ts.F_EVALUATIONS]),
+        "jacobian evaluations": int(counters[ts.JACOBIANS]),
+        "nonlinear iterations": int(counters[ts.ITERATIONS]),
+        "failed nonlinear solves": int(counters[ts.FAILED_SOLVES]),
+        "newton": bool(counters[ts.STIFF]) or params["nonlinear_solver"] == "newton",
         "compile time": compiled.compile_time,
         "solve time": time.perf_counter() - start,
     })
@@ -122,7 +123,7 @@ def solve(ode, method="cG(1)", **parameters):
     return Solution(ode, m, *elements, stats, params["number_of_samples"])
 
 
-def _integrate(advance, make_buffers, capacity, counters, slabs, params, state, bar):
+def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
     """Call a compiled time-slab loop until it reaches T, collecting its stored elements.
 
     The loop returns FULL when its output buffers are full (so results arrive in chunks, and
@@ -132,15 +133,15 @@ def _integrate(advance, make_buffers, capacity, counters, slabs, params, state, 
     while True:
         buffers = make_buffers(capacity)
         status = advance(*buffers)
-        n = counters[mono.STORED]
+        n = counters[ts.STORED]
         chunks.append([b[:n] for b in buffers])
         if bar is not None:
             bar.update(state[0] - bar.n)
-        if status != mono.FULL:
+        if status != ts.FULL:
             break
         if n == 0:
             capacity *= 2
-        if counters[slabs] >= params["maximum_steps"]:
+        if counters[ts.SLABS] >= params["maximum_steps"]:
             status = _STATUS_STEP_LIMIT
             break
     return status, [np.concatenate(parts) for parts in zip(*chunks)]
@@ -150,14 +151,14 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     _, position, kl, ku = compiled.ordering
     fopts = np.array(fopts + [_KMIN_RELATIVE])
     state = np.array([ode.t0, steps[0], 1.0, 1.0])
-    counters = np.zeros(mono.NUM_COUNTERS, dtype=np.int64)
+    counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     tau = m.nodes[m.stages].copy()
     A, b0 = np.array(m.A), m.b0.copy()
     dend, lval = m.end_derivative.copy(), m.left_value.copy()
     nodes = m.q + 1
 
     def buffers(capacity):
-        size = min(capacity, params["maximum_steps"] - counters[mono.STEPS])
+        size = min(capacity, params["maximum_steps"] - counters[ts.SLABS])
         return np.empty(size), np.empty(size), np.empty((size, nodes, ode.N))
 
     def advance(out_t, out_k, out_X):
@@ -167,11 +168,11 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
 
     capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
     with _progress(ode, params) as bar:
-        status, elements = _integrate(advance, buffers, capacity, counters, mono.STEPS, params,
+        status, elements = _integrate(advance, buffers, capacity, counters, params,
                                       state, bar)
-    stats = {"time slabs": int(counters[mono.STEPS]),
-             "elements": int(counters[mono.STEPS]) * ode.N,
-             "factorizations": int(counters[mono.FACTORIZATIONS]),
+    stats = {"time slabs": int(counters[ts.SLABS]),
+             "elements": int(counters[ts.SLABS]) * ode.N,
+             "factorizations": int(counters[ts.FACTORIZATIONS]),
              "bandwidth": (kl, ku)}
     return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, stats
 
@@ -182,7 +183,7 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
 
     fopts = np.array(fopts + [params["partitioning_threshold"], params["interval_threshold"]])
     state = np.array([ode.t0, 0.0])
-    counters = np.zeros(multi.NUM_COUNTERS, dtype=np.int64)
+    counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     _, position, kl, ku = compiled.ordering
     iopts = np.concatenate([iopts, [kl, ku]])
     Minv, A = np.array(m.moment_inverse), np.array(m.A)
@@ -202,15 +203,15 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
 
     capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 22 // (m.q + 1))))
     with _progress(ode, params) as bar:
-        status, elements = _integrate(advance, buffers, capacity, counters, multi.SLABS, params,
+        status, elements = _integrate(advance, buffers, capacity, counters, params,
                                       state, bar)
     per_component = np.bincount(elements[0], minlength=ode.N)
-    total = int(counters[multi.ELEMENTS])
-    stats = {"time slabs": int(counters[multi.SLABS]),
-             "sub-slabs": int(counters[multi.SUBSLABS]),
+    total = int(counters[ts.ELEMENTS])
+    stats = {"time slabs": int(counters[ts.SLABS]),
+             "sub-slabs": int(counters[ts.SUBSLABS]),
              "elements": total,
              "elements per component": per_component,
-             "factorizations": int(counters[multi.FACTORIZATIONS]),
+             "factorizations": int(counters[ts.FACTORIZATIONS]),
              "efficiency index": float(state[multi.MONO_ELEMENTS]) / max(total, 1)}
     return status, counters, np.array([state[0], np.min(kdes)]), elements, stats
 
@@ -239,14 +240,14 @@ def _failure_message(status, state, fixed, x):
     if status == _STATUS_STEP_LIMIT:
         return (f"maximum_steps was reached at t = {t:.6g} ({size}); raise maximum_steps, loosen "
                 "the tolerance, or use a higher-order method")
-    if status == mono.NONCONVERGENCE:
+    if status == ts.NONCONVERGENCE:
         if fixed:
             return (f"the nonlinear solver did not converge at t = {t:.6g} with the fixed time "
                     f"step {k:.3g}; use a smaller initial_time_step or nonlinear_solver='newton'")
         return (f"the nonlinear solver did not converge at t = {t:.6g}, even after reducing the "
                 f"time step to {k:.3g}; try nonlinear_solver='newton', a dG(q) method, or check "
                 f"the right-hand side for a singularity near this time ({size})")
-    if status == mono.BLOWUP:
+    if status == ts.BLOWUP:
         return (f"the solution is not finite or blows up near t = {t:.6g} (time step reduced to "
                 f"{k:.3g}; {size}): the exact solution may have a finite-time singularity there")
     return (f"the time step fell to {k:.3g} at t = {t:.6g}, below what double precision "

@@ -19,6 +19,7 @@ import math
 from numba import njit
 
 from dolfinode.linalg.banded import band_lu, band_solve
+from dolfinode.timeslab import F_EVALUATIONS, FACTORIZATIONS, ITERATIONS
 
 #: An iteration that stops contracting with scaled increments below this has reached rounding.
 ROUNDING_LEVEL = 1e-10
@@ -83,11 +84,11 @@ def fixed_point(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F
     """Fixed-point iteration X <- x0 + k (b0 f0 + A F(X)) on the stages (in place in X)."""
     d_prev = 0.0
     for it in range(max_iter):
-        counters[2] += stage_rhs(f, p, X, t, k, tau, F, tmp_in, tmp_out)
+        counters[F_EVALUATIONS] += stage_rhs(f, p, X, t, k, tau, F, tmp_in, tmp_out)
         _residual(x0, f0, X, F, A, b0, k, G)
         for idx in range(X.shape[0]):
             X[idx] -= G[idx]
-        counters[5] += 1
+        counters[ITERATIONS] += 1
         d = scaled_norm(G, X, atol, rtol)
         if not math.isfinite(d):
             return -1
@@ -127,7 +128,7 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F, G,
     N = x0.shape[0]
     d_prev = 0.0
     for it in range(max_iter):
-        counters[2] += stage_rhs(f, p, X, t, k, tau, F, tmp_in, tmp_out)
+        counters[F_EVALUATIONS] += stage_rhs(f, p, X, t, k, tau, F, tmp_in, tmp_out)
         _residual(x0, f0, X, F, A, b0, k, G)
         for s in range(S):
             for i in range(N):
@@ -137,7 +138,7 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F, G,
             for i in range(N):
                 G[s * N + i] = rhs_perm[position[i] * S + s]
                 X[s * N + i] += G[s * N + i]
-        counters[5] += 1
+        counters[ITERATIONS] += 1
         d = scaled_norm(G, X, atol, rtol)
         if not math.isfinite(d):
             return -1
@@ -152,5 +153,5 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F, G,
 @njit(cache=True)
 def factor(ab, kl, ku, ipiv, counters):
     """LU-factor the Newton matrix; returns True on success."""
-    counters[4] += 1
+    counters[FACTORIZATIONS] += 1
     return band_lu(ab, kl, ku, ipiv) == 0

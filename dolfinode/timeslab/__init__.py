@@ -1,1 +1,14 @@
-"""Time slabs: the compiled loops that build, solve and check one slab after another."""
+"""Time slabs: the compiled loops that build, solve and check one slab after another.
+
+The constants below are shared by the mono- and multi-adaptive loops, the nonlinear solvers
+and the driver, so every counter and status code has one index.
+"""
+
+# Indices into the integer counters (kept across calls by the driver).
+SLABS, REJECTED, F_EVALUATIONS, JACOBIANS, FACTORIZATIONS, ITERATIONS, STORED, FAILED_SOLVES, \
+    STIFF, ELEMENTS, SUBSLABS = range(11)
+NUM_COUNTERS = 11
+# Return codes of the loops.
+DONE, FULL, NONCONVERGENCE, BLOWUP, UNDERFLOW = range(5)
+# Nonlinear solver modes, in the order of parameters.NONLINEAR_SOLVERS.
+DEFAULT, FIXED_POINT, NEWTON = range(3)

@@ -13,20 +13,28 @@ from numba import njit, types
 from dolfinode.adaptivity import next_step
 from dolfinode.compile.signatures import JACOBIAN_TYPE, RHS_TYPE
 from dolfinode.solvers.slab import assemble_newton_matrix, factor, fixed_point, newton
+from dolfinode.timeslab import (
+    BLOWUP,
+    DEFAULT,
+    DONE,
+    F_EVALUATIONS,
+    FAILED_SOLVES,
+    FULL,
+    JACOBIANS,
+    NEWTON,
+    NONCONVERGENCE,
+    REJECTED,
+    SLABS,
+    STIFF,
+    STORED,
+    UNDERFLOW,
+)
 
-# Indices into the integer counters (kept across calls by the driver).
-STEPS, REJECTED, F_EVALUATIONS, JACOBIANS, FACTORIZATIONS, ITERATIONS, STORED, FAILED_SOLVES, \
-    STIFF = range(9)
-NUM_COUNTERS = 9
 # Indices into the float state.
 T_NOW, K_NEXT, EPS_PREV, HAVE_F0 = range(4)
 # Indices into the integer and float options.
 SOLVER, FIXED, MAX_ITER, IS_DG = range(4)
 RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, RESIDUAL_POWER, KMIN_REL = range(8)
-# Return codes.
-DONE, FULL, NONCONVERGENCE, BLOWUP, UNDERFLOW = range(5)
-# Solver modes.
-DEFAULT, FIXED_POINT, NEWTON = range(3)
 
 _f8 = types.float64[::1]
 _i8 = types.int64[::1]
@@ -162,7 +170,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
                     else:
                         out_X[n, j, i] = x[i] if j == 0 else X[(j - 1) * N + i]
             counters[STORED] += 1
-            counters[STEPS] += 1
+            counters[SLABS] += 1
             t = t + k if k < remaining else T
             for i in range(N):
                 x[i] = xend[i]

@@ -21,13 +21,28 @@ from numba import njit, types
 
 from dolfinode.compile.signatures import COMPONENT_TYPE
 from dolfinode.linalg.banded import band_lu, band_solve
-from dolfinode.timeslab.mono import BLOWUP, DEFAULT, DONE, FULL, NEWTON, NONCONVERGENCE, UNDERFLOW
+from dolfinode.timeslab import (
+    BLOWUP,
+    DEFAULT,
+    DONE,
+    ELEMENTS,
+    F_EVALUATIONS,
+    FACTORIZATIONS,
+    FAILED_SOLVES,
+    FULL,
+    ITERATIONS,
+    JACOBIANS,
+    NEWTON,
+    NONCONVERGENCE,
+    REJECTED,
+    SLABS,
+    STIFF,
+    STORED,
+    SUBSLABS,
+    UNDERFLOW,
+)
 from dolfinode.timeslab.partition import build_slab, component_elements, subintervals
 
-# Indices into the integer counters (kept across calls by the driver).
-SLABS, REJECTED, F_EVALUATIONS, JACOBIANS, ELEMENTS, ITERATIONS, STORED, FAILED_SOLVES, STIFF, \
-    SUBSLABS, FACTORIZATIONS = range(11)
-NUM_COUNTERS = 11
 # Indices into the float state: current time, and the elements a mono-adaptive method with
 # each slab's smallest step would have needed (for the multi-adaptive efficiency index).
 T_NOW, MONO_ELEMENTS = range(2)
