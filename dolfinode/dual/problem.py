@@ -60,6 +60,16 @@ def locate(ptr, t_end, grid):
 
 
 @njit(cache=True)
+def jacobian_transpose(jac, p, indptr, indices, u, t, jdata, out):
+    """out = J(u, t)^T as a dense matrix, from the generated CSR Jacobian kernel."""
+    jac(u.ctypes, t, p.ctypes, jdata.ctypes)
+    out[:, :] = 0.0
+    for row in range(indptr.shape[0] - 1):
+        for n in range(indptr[row], indptr[row + 1]):
+            out[indices[n], row] = jdata[n]
+
+
+@njit(cache=True)
 def _backward_cg(jac, p, indptr, indices, grid, elements, t_start, t_end, coef, A, b0, nodes,
                  source, psi, phi):
     """cG(r) for y' = J(U(T - s))^T y + source in s = T - t, interval by interval from T.
@@ -85,11 +95,7 @@ def _backward_cg(jac, p, indptr, indices, grid, elements, t_start, t_end, coef, 
         for j in range(R):  # backward node j is forward node R - 1 - j
             t = grid[l + 1] - nodes[j] * h
             evaluate_primal(coef, t_start, t_end, elements[l], t, u)
-            jac(u.ctypes, t, p.ctypes, jdata.ctypes)
-            JT[j, :, :] = 0.0
-            for row in range(N):
-                for n in range(indptr[row], indptr[row + 1]):
-                    JT[j, indices[n], row] = jdata[n]
+            jacobian_transpose(jac, p, indptr, indices, u, t, jdata, JT[j])
         system[:, :] = 0.0
         for s in range(r):
             for i in range(N):
