@@ -13,11 +13,14 @@ for test functions pi phi_i that are polynomials of degree q - 1 (cG) or q (dG) 
 pi is the L2 projection on the element. Hence the estimate and the bound
 
     value = sum_{i,n} eta_in,                 eta_in = int R_i phi_i + [U_i] phi_i,
-    |value| <= bound = sum_{i,n} ( int |R_i| |phi_i - pi phi_i| + |[U_i]| |(phi_i - pi phi_i)(t^+)| )
-                      + |sum_{i,n} ( int R_i pi phi_i + [U_i] pi phi_i(t^+) )|,
+    |value| <= sum_{i,n} ( int |R_i| |phi_i - pi phi_i| + |[U_i]| |(phi_i - pi phi_i)(t^+)| )
+               + |sum_{i,n} ( int R_i pi phi_i + [U_i] pi phi_i(t^+) )|,
 
 where the last term (the orthogonality defect) is zero up to the primal's quadrature and
-nonlinear-solver tolerance. The stability factors are S0 = int ||phi|| dt and
+nonlinear-solver tolerance. ``bound`` adds to this the difference between the values computed
+with the dual of degree r and r - 1, which covers the dual's discretisation error; it does not
+cover the error of linearising at U instead of the mean value over [U, u], which is of second
+order in the error. The stability factors are S0 = int ||phi|| dt and
 S1 = int ||phi'|| dt (Euclidean norm). All integrals use Gauss quadrature on the union grid, on
 whose intervals every component of U and of phi is a polynomial.
 """
@@ -55,6 +58,9 @@ class ErrorEstimate:
         Share of each component in ``bound`` (without the orthogonality defect).
     orthogonality_defect : float
         |sum (R, pi phi) + [U] pi phi|: zero for an exact Galerkin solution.
+    dual_error : float
+        |value - value with the dual of one degree lower|: a (pessimistic) measure of the dual's
+        discretisation error in ``value``.
     stability_factors : dict
         "S0" = int ||phi|| dt and "S1" = int ||phi'|| dt.
     dual : DualSolution
@@ -67,6 +73,7 @@ class ErrorEstimate:
     contributions: np.ndarray
     bound_contributions: np.ndarray
     orthogonality_defect: float
+    dual_error: float
     stability_factors: dict
     dual: DualSolution
     states: tuple
@@ -156,8 +163,9 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None):
         The output M(u): see :class:`dolfinode.Goal`. A dict by state symbol or name or a
         vector psi gives the final-time output (psi, u(T)).
     dual_degree : int, optional
-        r of the cG(r) dual scheme on the union grid; default q + 2 (at least 2), so that the
-        dual's discretisation error is small against phi - pi phi.
+        r >= 2 of the cG(r) dual scheme on the union grid; default max(q + 2, 2), so that the
+        dual's discretisation error is small against phi - pi phi. A second dual of degree
+        r - 1 measures that error (``dual_error``).
     quadrature_points : int, optional
         Gauss points per union-grid interval; default q + r + 2.
 
@@ -175,18 +183,32 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None):
     ode, method = sol.ode, sol.method
     final, integral = resolve(goal, ode)
     q = method.q
-    r = _positive_int(dual_degree, "dual_degree", max(q + 2, 2))
+    r = _positive_int(dual_degree, "dual_degree", max(q + 2, 2), minimum=2)
     gauss = _positive_int(quadrature_points, "quadrature_points", q + r + 2)
     dual, primal = solve_dual(sol, final, integral, r)
+    parts = _error_representation(sol, primal, dual, gauss)
+    coarse, _ = solve_dual(sol, final, integral, r - 1, primal)
+    dual_error = abs(parts["value"] - _error_representation(sol, primal, coarse, gauss)["value"])
+    return ErrorEstimate(value=parts["value"],
+                         bound=float(parts["bound_contributions"].sum() + parts["defect"]
+                                     + dual_error),
+                         contributions=parts["contributions"],
+                         bound_contributions=parts["bound_contributions"],
+                         orthogonality_defect=parts["defect"], dual_error=dual_error,
+                         stability_factors=parts["stability_factors"], dual=dual,
+                         states=ode.states)
+
+
+def _error_representation(sol, primal, dual, gauss):
+    """The sums of the module docstring for one dual solution, per element and component."""
     x, w = np.polynomial.legendre.leggauss(gauss)
     x, w = 0.5 * (x + 1.0), 0.5 * w
-    d = q - 1 if method.family == "cG" else q
+    d = sol.method.q - 1 if sol.method.family == "cG" else sol.method.q
     E = len(primal.t_start)
     phi_start, r_phi, abs_weighted = np.zeros(E), np.zeros(E), np.zeros(E)
-    phi_moments, r_moments = np.zeros((E, max(d + 1, 1))), np.zeros((E, max(d + 1, 1)))
+    phi_moments, r_moments, projection = np.zeros((3, E, d + 1))
     norms = np.zeros(2)
-    compiled = lower(ode)
-    projection = np.zeros((E, d + 1))
+    compiled = lower(sol.ode)
 
     def integrate(first_pass):
         _weighted_residuals(compiled.rhs, compiled.p, primal.grid, primal.elements,
@@ -195,24 +217,18 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None):
                             abs_weighted, norms)
 
     integrate(True)
-    k = primal.t_end - primal.t_start
     degrees = np.arange(d + 1)
-    projection[:] = (2 * degrees + 1) * phi_moments[:, :d + 1] / k[:, None]
+    projection[:] = (2 * degrees + 1) * phi_moments / (primal.t_end - primal.t_start)[:, None]
     integrate(False)
-    jump = _jumps(primal, ode.u0)
+    jump = _jumps(primal, sol.ode.u0)
     pi_start = projection @ (-1.0) ** degrees  # P_m(-1) = (-1)^m
     eta = r_phi + jump * phi_start
-    defect = float(np.sum(np.sum(r_moments[:, :d + 1] * projection, axis=1) + jump * pi_start))
+    defect = float(np.sum(np.sum(r_moments * projection, axis=1) + jump * pi_start))
     local = abs_weighted + np.abs(jump) * np.abs(phi_start - pi_start)
     starts = primal.ptr[:-1]
-    contributions = np.add.reduceat(eta, starts)
-    bound_contributions = np.add.reduceat(local, starts)
-    return ErrorEstimate(value=float(eta.sum()),
-                         bound=float(bound_contributions.sum() + abs(defect)),
-                         contributions=contributions, bound_contributions=bound_contributions,
-                         orthogonality_defect=abs(defect),
-                         stability_factors={"S0": float(norms[0]), "S1": float(norms[1])},
-                         dual=dual, states=ode.states)
+    return {"value": float(eta.sum()), "contributions": np.add.reduceat(eta, starts),
+            "bound_contributions": np.add.reduceat(local, starts), "defect": abs(defect),
+            "stability_factors": {"S0": float(norms[0]), "S1": float(norms[1])}}
 
 
 def _jumps(primal, u0):
@@ -225,9 +241,9 @@ def _jumps(primal, u0):
     return start - before
 
 
-def _positive_int(value, name, default):
+def _positive_int(value, name, default, minimum=1):
     if value is None:
         return default
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
     return int(value)
