@@ -18,13 +18,13 @@ import time
 import warnings
 
 import numpy as np
-import sympy as sp
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
 
-import dolfinode as dn  # noqa: E402
-from test_dual import _driven, cases  # noqa: E402  (the test problems, one definition)
+from test_dual import _driven, cases
+
+import dolfinode as dn
 
 OUT = pathlib.Path(__file__).resolve().parents[1] / "doc" / "benchmarks"
 METHODS = ["cG(1)", "cG(2)", "dG(1)", "dG(2)", "mcG(1)", "mcG(2)", "mdG(1)", "mdG(2)"]
@@ -122,19 +122,19 @@ def main():
     g = "{:.3g}"
     text = [
         "# Dual-based error estimates", "",
-        f"Measured {time.strftime('%Y-%m-%d')} with `benchmarks/run_dual.py` on the machine of "
-        "this run (2 cores, shared). Goal: M(u) = u_1(T).", "",
-        f"**Effectivity** est.value / true error over {len(effect)} runs: min {effs.min():.3f}, "
+        (f"Measured {time.strftime('%Y-%m-%d')} with `benchmarks/run_dual.py` on the machine of "
+        "this run (2 cores, shared). Goal: M(u) = u_1(T)."), "",
+        (f"**Effectivity** est.value / true error over {len(effect)} runs: min {effs.min():.3f}, "
         f"median {np.median(effs):.3f}, max {effs.max():.3f}; bound / |error| >= "
-        f"{bounds.min():.3f} (never below 1 means the bound held).", "",
+        f"{bounds.min():.3f} (never below 1 means the bound held)."), "",
         _table(effect, {"tolerance": "{:.0e}", "error": "{:.2e}", "estimate": "{:.2e}",
                         "effectivity": "{:.3f}", "bound/error": "{:.2f}", "S0": g, "S1": g,
                         "estimate time [s]": "{:.3f}", "solve time [s]": "{:.3f}"}),
         "", "## Goal-oriented versus plain adaptivity at equal goal error", "",
-        "Plain: the loosest tolerance (halving from 1000 x the goal tolerance) whose goal error "
+        ("Plain: the loosest tolerance (halving from 1000 x the goal tolerance) whose goal error "
         "is at most the goal-oriented run's; its time is that one solve (the search for the "
         "tolerance, which a user would have to do by hand, is not counted). Goal time includes "
-        "every primal and dual solve of the loop.", "",
+        "every primal and dual solve of the loop."), "",
         _table(versus, {"goal tolerance": "{:.0e}", "goal error": "{:.2e}",
                         "goal time [s]": "{:.3f}", "plain tolerance": "{:.2e}",
                         "plain error": "{:.2e}", "plain time [s]": "{:.3f}"}),

@@ -33,7 +33,6 @@ from dolfinode.compile import lower
 from dolfinode.dual.goal import resolve
 from dolfinode.dual.problem import (
     DualSolution,
-    PrimalPolynomials,
     evaluate_primal,
     horner,
     horner_derivative,
