@@ -1,7 +1,9 @@
 """dolfinode: variational (Galerkin) time integration of ODE systems declared in sympy.
 
-Public surface (see shared/API.md): ``ODE``, ``t``, ``solve``, ``Solution``, ``SolverError``.
+Public surface (see shared/API.md): ``ODE``, ``t``, ``solve``, ``Solution``, ``SolverError``,
+``estimate_error``, ``Goal``, ``ErrorEstimate``.
 """
+from dolfinode.dual import ErrorEstimate, Goal, estimate_error
 from dolfinode.errors import SolverError
 from dolfinode.methods import Method, make_method, parse_method
 from dolfinode.ode import ODE, t
@@ -11,5 +13,5 @@ from dolfinode.solve import solve
 
 __version__ = "0.1.0"
 
-__all__ = ["ODE", "Method", "Solution", "SolverError", "default_parameters", "make_method",
-           "parse_method", "solve", "t"]
+__all__ = ["ODE", "ErrorEstimate", "Goal", "Method", "Solution", "SolverError",
+           "default_parameters", "estimate_error", "make_method", "parse_method", "solve", "t"]
