@@ -61,6 +61,9 @@ _KMIN_RELATIVE = 1e-14
 #: A slab holds many elements of a fast component and one indicator above the margin rejects
 #: them all; steps are still chosen for indicators of 1 (DOLFIN G1 accepted up to 2 TOL too).
 ACCEPTANCE_MARGIN = 2.0
+#: Sub-slabs coupled more strongly than this on their step are solved by Newton together.
+COUPLING_LIMIT = 0.5
+_DEBUG = True
 
 
 @njit(cache=True, inline="always")
@@ -284,14 +287,17 @@ def _group_newton(e0, e1, fi, ji, p, t, x, indptr, indices, position, comp, prev
 @njit(cache=True)
 def _sweep(lo, hi, predict, fi, ji, p, t, x, indptr, indices, position, comp, prev, cptr,
            celems, ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, dptr, dcur,
-           jdiag, stiff, atol, rtol, uw, out, jrow, cur, mom, D, delta, local, order, ab_ws,
-           rhs, ipiv, counters):
-    """One Gauss-Seidel sweep over elements lo..hi-1: each element's stage values xi from the
-    fixed point xi = x_left + k M^{-1} m(xi), damped by the element's own Newton matrix,
-    xi <- xi + (I - k J_ii A)^{-1} (x_left + k M^{-1} m(xi) - xi), or, when stiff, each
-    sub-slab's elements together by a simplified Newton step (see ``_group_newton``). With
-    ``predict``, an element first continues its predecessor's polynomial. Returns the largest
-    scaled increment (inf on failure)."""
+           jdiag, coupling, stiff, atol, rtol, uw, out, jrow, cur, mom, D, delta, local, order,
+           ab_ws, rhs, ipiv, counters):
+    """One Gauss-Seidel sweep over elements lo..hi-1, sub-slab by sub-slab (elements on one
+    interval). Each element's stage values xi from the fixed point
+    xi = x_left + k M^{-1} m(xi), damped by the element's own Newton matrix,
+    xi <- xi + (I - k J_ii A)^{-1} (x_left + k M^{-1} m(xi) - xi); a sub-slab whose
+    components are strongly coupled on its step (k sum_j!=i |J_ij| > COUPLING_LIMIT, where
+    Gauss-Seidel would crawl, as for diffusion on long steps), or every sub-slab when the
+    problem is stiff, is updated together by a simplified Newton step (``_group_newton``).
+    With ``predict``, an element first continues its predecessor's polynomial. Returns the
+    largest scaled increment (inf on failure)."""
     S = Minv.shape[0]
     nn = nodes.shape[0]
     first_stage = nn - S  # 1 for cG (node 0 is the left value), 0 for dG
@@ -299,9 +305,8 @@ def _sweep(lo, hi, predict, fi, ji, p, t, x, indptr, indices, position, comp, pr
     e = lo
     while e < hi:
         e1 = e + 1
-        if stiff:
-            while e1 < hi and ea[e1] == ea[e] and eb[e1] == eb[e]:
-                e1 += 1
+        while e1 < hi and ea[e1] == ea[e] and eb[e1] == eb[e]:
+            e1 += 1
         if predict:
             for ep in range(e, e1):
                 pe = prev[ep]
@@ -310,41 +315,48 @@ def _sweep(lo, hi, predict, fi, ji, p, t, x, indptr, indices, position, comp, pr
                 for m in range(nn):
                     tau = (ea[ep] + nodes[m] * (eb[ep] - ea[ep]) - ea[pe]) / (eb[pe] - ea[pe])
                     values[ep, m] = _evaluate(values, pe, min(tau, 3.0), nodes, bary)
-        if stiff:
+        k = eb[e] - ea[e]
+        together = stiff
+        if not stiff and e1 - e > 1:
+            for ep in range(e, e1):
+                if k * coupling[comp[ep]] > COUPLING_LIMIT:
+                    together = True
+                    break
+        if together:
             d = max(d, _group_newton(e, e1, fi, ji, p, t, x, indptr, indices, position, comp,
                                      prev, cptr, celems, ea, eb, values, nodes, bary, qweights,
                                      Minv, A, sptr, spts, dptr, dcur, atol, rtol, uw, out, jrow,
                                      cur, mom, local, order, ab_ws, rhs, ipiv, counters))
             e = e1
             continue
-        i = comp[e]
-        k = eb[e] - ea[e]
-        xl = x[i] if prev[e] < 0 else values[prev[e], nn - 1]  # the left value
-        if first_stage == 1:
-            values[e, 0] = xl
-        counters[F_EVALUATIONS] += _moments(fi, p, i, e, t, x, indptr, indices, cptr, celems, ea,
-                                            eb, values, nodes, bary, qweights, sptr, spts, dptr,
-                                            dcur, cur, uw, out, mom)
-        for s in range(S):
-            acc = 0.0
-            for lm in range(S):
-                acc += Minv[s, lm] * mom[lm]
-            delta[s] = xl + k * acc - values[e, first_stage + s]
-        if abs(k * jdiag[i]) > 1e-3:
-            _damping(k, jdiag[i], A, D)
+        for ep in range(e, e1):
+            i = comp[ep]
+            xl = x[i] if prev[ep] < 0 else values[prev[ep], nn - 1]  # the left value
+            if first_stage == 1:
+                values[ep, 0] = xl
+            counters[F_EVALUATIONS] += _moments(fi, p, i, ep, t, x, indptr, indices, cptr,
+                                                celems, ea, eb, values, nodes, bary, qweights,
+                                                sptr, spts, dptr, dcur, cur, uw, out, mom)
             for s in range(S):
                 acc = 0.0
-                for c in range(S):
-                    acc += D[s, c] * delta[c]
-                mom[s] = acc
+                for lm in range(S):
+                    acc += Minv[s, lm] * mom[lm]
+                delta[s] = xl + k * acc - values[ep, first_stage + s]
+            if abs(k * jdiag[i]) > 1e-3:
+                _damping(k, jdiag[i], A, D)
+                for s in range(S):
+                    acc = 0.0
+                    for c in range(S):
+                        acc += D[s, c] * delta[c]
+                    mom[s] = acc
+                for s in range(S):
+                    delta[s] = mom[s]
             for s in range(S):
-                delta[s] = mom[s]
-        for s in range(S):
-            values[e, first_stage + s] += delta[s]
-            scaled = abs(delta[s]) / (atol[i] + rtol * abs(values[e, first_stage + s]))
-            if not scaled <= d:
-                d = scaled if math.isfinite(scaled) else math.inf
-        e += 1
+                values[ep, first_stage + s] += delta[s]
+                scaled = abs(delta[s]) / (atol[i] + rtol * abs(values[ep, first_stage + s]))
+                if not scaled <= d:
+                    d = scaled if math.isfinite(scaled) else math.inf
+        e = e1
     return d
 
 
@@ -376,6 +388,25 @@ def _windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol
         if K * moved > dtol * (atol[i] + rtol * abs(x[i])):
             return False
     return True
+
+
+@njit(cache=True)
+def _slab_limit(kslab, kmax, K, converged, iterations, nwin, nroot, ne):
+    """The next slab length limit. A slab with windows is a waveform-relaxation window: each
+    global iteration sweeps its W = ne - nroot window elements and R = nroot top-level
+    elements, and a longer slab needs more iterations. Modelling one more iteration per
+    doubling of K, the cost per unit time its (W + R) / K falls when K doubles if
+    R (its - 1) > 2 W, and when K halves if R (its - 2) < W: few components on the top level
+    (fine structure everywhere) favour short slabs, many slow components long ones."""
+    if not converged:
+        return 0.5 * K
+    W = ne - nroot
+    R = nroot
+    if nwin == 0 or iterations <= 1 or R * (iterations - 1) > 2 * W:
+        return min(kmax, 2.0 * K)
+    if iterations >= 3 and R * (iterations - 2) < W:
+        return 0.5 * K
+    return max(kslab, K)
 
 
 _f8 = types.float64[::1]
@@ -434,6 +465,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     jrow = np.empty(max(1, indices.shape[0]))
     jacobian = np.empty(max(1, indices.shape[0]))  # df/du at the slab start (CSR values)
     jdiag = np.zeros(N)
+    coupling = np.zeros(N)  # sum_j!=i |J_ij|
     jacobian_time = math.nan
     kslab = kmax  # slab length limit, adapted to the Gauss-Seidel iterations a slab needs
     emax = np.empty(N)
@@ -453,17 +485,20 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             for i in range(N):
                 ji(i, x.ctypes, t, p.ctypes, jrow.ctypes)
                 jdiag[i] = 0.0
+                coupling[i] = 0.0
                 for nz in range(indptr[i], indptr[i + 1]):
                     jacobian[nz] = jrow[nz - indptr[i]]
                     if indices[nz] == i:
                         jdiag[i] = jrow[nz - indptr[i]]
+                    else:
+                        coupling[i] += abs(jrow[nz - indptr[i]])
             counters[JACOBIANS] += N
             jacobian_time = t
         for i in range(N):
             if not fixed:
-                kdes[i] = min(kdes[i], kslab)
-        b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, theta, beta, comp, ea,
-                                                              eb, windows)
+                kdes[i] = min(kdes[i], kmax)
+        b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, theta, beta, kslab, comp,
+                                                              ea, eb, windows)
         if ne > capacity - counters[STORED]:
             return FULL  # with nothing stored: the driver grows the buffers
         if b - t < _KMIN_RELATIVE * max(abs(t), abs(T) * 1e-6) and b < T:
@@ -511,7 +546,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                     dl = _sweep(windows[w], hi, predict, fi, ji, p, t, x, indptr,
                                 indices, position, comp, prev, cptr, celems, ea, eb, values,
                                 nodes, bary, qweights, Minv, A, sptr, spts, dptr, dcur, jdiag,
-                                stiff, atol, rtol, uw, out, jrow, cur, mom, D, delta, local,
+                                coupling, stiff, atol, rtol, uw, out, jrow, cur, mom, D, delta, local,
                                 group_order, ab_ws, newton_rhs, newton_ipiv, counters)
                     if sweeps == 0:
                         d = max(d, dl)
@@ -530,7 +565,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             for sweeps in range(max_iter):
                 dl = _sweep(0, nroot, False, fi, ji, p, t, x, indptr, indices, position, comp,
                             prev, cptr, celems, ea, eb, values, nodes, bary, qweights, Minv, A,
-                            sptr, spts, dptr, dcur, jdiag, stiff, atol, rtol, uw, out, jrow, cur,
+                            sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw, out, jrow, cur,
                             mom, D, delta, local, group_order, ab_ws, newton_rhs, newton_ipiv,
                             counters)
                 if sweeps == 0:
@@ -559,14 +594,10 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             d_prev = d
         if converged and mode == DEFAULT and it >= 7:
             counters[STIFF] = 1  # Gauss-Seidel converges too slowly: Newton from here on
+        if _DEBUG:
+            print("slab", t, b - t, "ne", ne, "nroot", nroot, "nwin", nwin, "it", it + 1, "conv", converged, "d", d, "stiff", stiff)
         if not fixed:
-            # a slab with windows is one waveform-relaxation window: the longer it is, the
-            # more global iterations its couplings need, each a sweep over every element;
-            # keep it where two or three suffice
-            if converged and (it <= 1 or nwin == 0):
-                kslab = min(kmax, 2.0 * (b - t))
-            elif it >= 3 or not converged:
-                kslab = 0.5 * (b - t)
+            kslab = _slab_limit(kslab, kmax, b - t, converged, it + 1, nwin, nroot, ne)
         if not converged:
             counters[FAILED_SOLVES] += 1
             if mode == DEFAULT and counters[STIFF] == 0:
@@ -640,6 +671,9 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                         kdes[j] = min(kdes[j], kdes[i])
         if not accept:
             counters[REJECTED] += 1
+            # a rejection discards the whole slab: the steps chosen at its start no longer
+            # fit its end (a front arrives), so try a shorter one
+            kslab = min(kslab, 0.5 * (b - t))
             continue
         # store the slab's elements and move to its end
         n0 = counters[STORED]

@@ -54,9 +54,9 @@ def _partition(perm, offset, kdes, theta):
 
 
 @njit(cache=True)
-def build_slab(a, T, kdes, theta, beta, comp, ea, eb, windows):
-    """Build the time slab starting at a; returns (b, number of elements, number of sub-slabs,
-    number of windows, comp, ea, eb, windows), the arrays grown as needed.
+def build_slab(a, T, kdes, theta, beta, kslab, comp, ea, eb, windows):
+    """Build the time slab starting at a, at most kslab long; returns (b, number of elements,
+    number of sub-slabs, number of windows, comp, ea, eb, windows), the arrays grown as needed.
 
     Elements come in creation order (depth first), so the sub-slabs nested in each sub-slab of
     the top level form a contiguous range, a *window*, starting at ``windows[w]``."""
@@ -74,6 +74,8 @@ def build_slab(a, T, kdes, theta, beta, comp, ea, eb, windows):
     while True:
         # create a sub-slab on [lo, hi] for the components perm[offset:]
         end, K = _partition(perm, offset, kdes, theta)
+        if depth == 0:
+            K = min(K, kslab)
         b1 = lo + K if K < beta * (hi - lo) else hi
         if depth == 1:
             windows = grow_int(windows, nwin + 1)
