@@ -235,5 +235,12 @@ class ODE:
         except (AttributeError, KeyError):
             raise ValueError(f"{x!r} is not a position of a second-order system") from None
 
+    def __getstate__(self):
+        # compiled kernels (ctypes) do not pickle: a receiving process compiles its own,
+        # from its disk cache when it has one
+        state = self.__dict__.copy()
+        state.pop("_compiled", None)
+        return state
+
     def __repr__(self):
         return f"ODE(N={self.N}, t0={self.t0}, T={self.T}, params={len(self.params)})"
