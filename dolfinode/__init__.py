@@ -8,9 +8,10 @@ from dolfinode.ode import ODE, t
 from dolfinode.parameters import DEFAULTS as default_parameters
 from dolfinode.solution import Solution
 from dolfinode.solve import solve
-from dolfinode.systems import Template, TemplateODE
+from dolfinode import systems
+from dolfinode.systems import ParticleSystem, Template, TemplateODE
 
 __version__ = "0.1.0"
 
 __all__ = ["ODE", "Method", "Solution", "SolverError", "default_parameters", "make_method",
-           "parse_method", "solve", "t", "Template", "TemplateODE"]
+           "parse_method", "solve", "t", "ParticleSystem", "Template", "TemplateODE", "systems"]
