@@ -2,16 +2,18 @@
 
 Public surface (see shared/API.md): ``ODE``, ``t``, ``solve``, ``Solution``, ``SolverError``.
 """
+from dolfinode.ensemble import solve_ensemble, vary
 from dolfinode.errors import SolverError
 from dolfinode.methods import Method, make_method, parse_method
 from dolfinode.ode import ODE, t
 from dolfinode.parameters import DEFAULTS as default_parameters
 from dolfinode.solution import Solution
 from dolfinode.solve import solve
-from dolfinode import systems
+from dolfinode import systems  # noqa: E402 - after solve, as the package's own modules
 from dolfinode.systems import ParticleSystem, Template, TemplateODE
 
 __version__ = "0.1.0"
 
 __all__ = ["ODE", "Method", "Solution", "SolverError", "default_parameters", "make_method",
-           "parse_method", "solve", "t", "ParticleSystem", "Template", "TemplateODE", "systems"]
+           "parse_method", "solve", "t",
+           "ParticleSystem", "Template", "TemplateODE", "solve_ensemble", "systems", "vary"]

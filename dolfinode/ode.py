@@ -135,7 +135,11 @@ class ODE:
         self.T = _check_time(T, "T")
         if not self.T > self.t0:
             raise ValueError(f"the final time T = {self.T} must be larger than t0 = {self.t0}")
-        self.u0 = _vector_by_state(u0, self.states, "u0")
+        self.u0 = self._initial_vector(u0)
+
+    def _initial_vector(self, u0):
+        """u0 as a validated float vector in component order (dict by state or sequence)."""
+        return _vector_by_state(u0, self.states, "u0")
 
     @staticmethod
     def _pairs(rhs):

@@ -17,7 +17,7 @@ from functools import cached_property
 import numpy as np
 import sympy as sp
 
-from dolfinode.ode import ODE, _as_expression, _check_time, _suggest, _vector_by_state, t
+from dolfinode.ode import ODE, _as_expression, _check_time, _suggest, t
 
 
 def _symbols(values, what):
@@ -208,12 +208,11 @@ class TemplateODE(ODE):
         self.T = _check_time(T, "T")
         if not self.T > self.t0:
             raise ValueError(f"the final time T = {self.T} must be larger than t0 = {self.t0}")
-        if isinstance(u0, Mapping):
-            self.u0 = _vector_by_state(u0, self.states, "u0")
-        else:
-            self.u0 = self._initial_vector(u0)
+        self.u0 = self._initial_vector(u0)
 
     def _initial_vector(self, u0):
+        if isinstance(u0, Mapping):
+            return super()._initial_vector(u0)
         try:
             array = np.array(u0, dtype=float)
         except (TypeError, ValueError):
