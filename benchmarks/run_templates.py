@@ -61,10 +61,20 @@ def one_size(p):
     start = time.perf_counter()
     lower(again)
     cached_lower = time.perf_counter() - start
-    record = dict(p=p, N=ode.N, springs=ode.templates[1].cells, nnz=int(compiled.nnz),
-                  build_s=build, lower_s=first_lower, library_from_disk=bool(cached_library),
-                  lower_cached_s=cached_lower)
+    record = {"p": p, "N": ode.N, "springs": ode.templates[1].cells, "nnz": int(compiled.nnz),
+                  "build_s": build, "lower_s": first_lower, "library_from_disk": bool(cached_library),
+                  "lower_cached_s": cached_lower}
+    _, _, kl, ku = compiled.ordering
     for method in ("cG(1)", "dG(1)"):
+        S = 1 if method.startswith("cG") else 2
+        # timeslab/mono.py allocates the banded Newton matrix (S N rows, 2 kl S + ku S + ...
+        # columns) even for fixed-point iteration; skip sizes where it would exceed 2 GB
+        band_gb = S * ode.N * (2 * kl * S + ku * S + 3 * (S - 1) + 1) * 8 / 2**30
+        record[f"newton_band_GB_{method}"] = band_gb
+        if band_gb > 2:
+            for name in ("solve", "slabs", "us_per_component_element"):
+                record[f"{name}_{method}" + ("_s" if name == "solve" else "")] = float("nan")
+            continue
         start = time.perf_counter()
         sol = dn.solve(ode, method, fixed_time_step=True, initial_time_step=K,
                        nonlinear_solver="fixed-point", number_of_samples=2)
@@ -91,8 +101,8 @@ def codegen(p, expressions):
     declare = time.perf_counter() - start
     start = time.perf_counter()
     lower(ode)
-    print(json.dumps(dict(p=p, N=ode.N, expressions=expressions, declare_s=declare,
-                          lower_s=time.perf_counter() - start)))
+    print(json.dumps({"p": p, "N": ode.N, "expressions": expressions, "declare_s": declare,
+                          "lower_s": time.perf_counter() - start}))
 
 
 def run(arguments, cache):
@@ -171,17 +181,20 @@ def write(folder, scale, gen):
              "## Scale: build, lower, solve, memory", "",
              f"Solve: mono-adaptive, fixed-point iteration, {STEPS} fixed steps k = {K} (T = {STEPS * K:g}); "
              "automatic modeling is not on this branch, so this is the cost per element, "
-             "not the demo's T = 10.", "",
+             "not the demo's T = 10. nan: not run, because `timeslab/mono.py` allocates the "
+             "banded Newton matrix (last column) even for fixed-point iteration; it dominates "
+             "the memory columns from p = 50 on.", "",
              "| p | N | springs | nnz(J) | build s | lower s (first) | lower s (cached) | "
              "cG(1) s | cG(1) us/comp-elem | dG(1) s | dG(1) us/comp-elem | tracemalloc MB | "
-             "max RSS MB |", "|" + "---|" * 13]
+             "max RSS MB | Newton band GB cG/dG |", "|" + "---|" * 14]
     for r in scale:
         first = f"{r['lower_s']:.2f}" + ("" if r["library_from_disk"] else " (gcc, cold)")
+        band = f"{r['newton_band_GB_cG(1)']:.1f} / {r['newton_band_GB_dG(1)']:.1f}"
         lines.append(f"| {r['p']} | {r['N']} | {r['springs']} | {r['nnz']} | {r['build_s']:.2f} | "
                      f"{first} | {r['lower_cached_s']:.2f} | {r['solve_cG(1)_s']:.2f} | "
                      f"{r['us_per_component_element_cG(1)']:.3f} | {r['solve_dG(1)_s']:.2f} | "
                      f"{r['us_per_component_element_dG(1)']:.3f} | "
-                     f"{r['tracemalloc_peak_MB']:.0f} | {r['maxrss_MB']:.0f} |")
+                     f"{r['tracemalloc_peak_MB']:.0f} | {r['maxrss_MB']:.0f} | {band} |")
     lines += ["", "## Code generation: template versus per-expression", "",
               "Empty kernel cache per run; declare = building the ODE (sympy expressions for "
               "the per-expression lattice), lower = pattern + C generation + gcc.", "",

@@ -87,7 +87,7 @@ def test_lattice_reproduces_the_per_expression_lattice(p):
 
 def test_lattice_solution_equals_per_expression_solution():
     built, reference = dn.systems.lattice(3, m=1e-2), dolfin_lattice(3, m=1e-2)
-    kwargs = dict(tolerance=1e-6, number_of_samples=3)
+    kwargs = {"tolerance": 1e-6, "number_of_samples": 3}
     for ode in (built, reference):
         ode.T = 0.05
     sb, sr = dn.solve(built, "cG(1)", **kwargs), dn.solve(reference, "cG(1)", **kwargs)

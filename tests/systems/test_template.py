@@ -93,7 +93,7 @@ def test_expand_gives_the_per_expression_system():
 @pytest.mark.parametrize("method", ["cG(1)", "dG(1)", "mcG(1)", "mdG(1)"])
 def test_solutions_equal_per_expression(method):
     template, expressions = pair()
-    kwargs = dict(tolerance=1e-6, number_of_samples=5)
+    kwargs = {"tolerance": 1e-6, "number_of_samples": 5}
     st, se = dn.solve(template, method, **kwargs), dn.solve(expressions, method, **kwargs)
     assert st.stats["time slabs"] == se.stats["time slabs"]
     np.testing.assert_allclose(st.y, se.y, rtol=1e-10, atol=1e-12)
@@ -144,25 +144,25 @@ def test_pickles_without_kernels_and_recompiles():
 
 
 def _spring(**changes):
-    arguments = dict(slots=(a, b, va, vb), terms={va: k * (b - a)}, indices=[[0, 1, 2, 3]],
-                     params=(k,), values=[[1.0]])
+    arguments = {"slots": (a, b, va, vb), "terms": {va: k * (b - a)}, "indices": [[0, 1, 2, 3]],
+                     "params": (k,), "values": [[1.0]]}
     arguments.update(changes)
     return dn.Template(**arguments)
 
 
 @pytest.mark.parametrize("changes, error, match", [
-    (dict(slots=(a, "b", va, vb)), TypeError, "sympy Symbols"),
-    (dict(slots=(a, a, va, vb)), ValueError, "duplicate symbol 'a'"),
-    (dict(slots=()), ValueError, "at least one slot"),
-    (dict(terms={sp.Symbol("vc"): k}), ValueError, "not on a slot"),
-    (dict(terms={}), TypeError, "non-empty dict"),
-    (dict(terms={va: sp.Matrix([a])}), TypeError, "scalar sympy expression"),
-    (dict(indices=[[0, 1, 2]]), ValueError, r"shape \(cells, 4\)"),
-    (dict(indices=[[0.0, 1.0, 2.0, 3.0]]), TypeError, "integers"),
-    (dict(values=[[1.0, 2.0]]), ValueError, r"shape \(1, 1\)"),
-    (dict(values=[[np.nan]]), ValueError, "not finite for k of cell 0"),
-    (dict(values=None), ValueError, "need values="),
-    (dict(params=(a,)), ValueError, "both slots and parameters"),
+    ({"slots": (a, "b", va, vb)}, TypeError, "sympy Symbols"),
+    ({"slots": (a, a, va, vb)}, ValueError, "duplicate symbol 'a'"),
+    ({"slots": ()}, ValueError, "at least one slot"),
+    ({"terms": {sp.Symbol("vc"): k}}, ValueError, "not on a slot"),
+    ({"terms": {}}, TypeError, "non-empty dict"),
+    ({"terms": {va: sp.Matrix([a])}}, TypeError, "scalar sympy expression"),
+    ({"indices": [[0, 1, 2]]}, ValueError, r"shape \(cells, 4\)"),
+    ({"indices": [[0.0, 1.0, 2.0, 3.0]]}, TypeError, "integers"),
+    ({"values": [[1.0, 2.0]]}, ValueError, r"shape \(1, 1\)"),
+    ({"values": [[np.nan]]}, ValueError, "not finite for k of cell 0"),
+    ({"values": None}, ValueError, "need values="),
+    ({"params": (a,)}, ValueError, "both slots and parameters"),
 ])
 def test_bad_templates_are_rejected(changes, error, match):
     with pytest.raises(error, match=match):
