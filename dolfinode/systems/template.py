@@ -172,8 +172,9 @@ class TemplateODE(ODE):
         Global parameter symbol -> value, shared by all cells.
     t0 : float, optional
     names : sequence of str, optional
-        State names in component order (default ``u_0, u_1, ...``). States are sympy
-        symbols created on first use of :attr:`states`.
+        State names in component order (default ``u_0, u_1, ...``); a list or tuple is
+        checked for duplicates, a lazy ``Sequence`` (as :class:`StateNames`) is trusted.
+        States are sympy symbols created on first use of :attr:`states`.
 
     Raises
     ------
@@ -192,7 +193,9 @@ class TemplateODE(ODE):
             if isinstance(u0, Mapping):
                 raise ValueError("with u0 given as a dict, pass names= to fix the components")
             names = StateNames(np.size(u0))
-        elif not isinstance(names, StateNames):
+        elif isinstance(names, (list, tuple)) or not isinstance(names, Sequence):
+            # a lazy Sequence (StateNames, ParticleNames) is trusted to be unique: checking
+            # it would build the N strings it exists to avoid
             names = tuple(str(n) for n in names)
             if len(set(names)) != len(names):
                 raise ValueError("duplicate state names: every state needs its own name")
