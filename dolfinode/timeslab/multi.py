@@ -63,7 +63,7 @@ _KMIN_RELATIVE = 1e-14
 ACCEPTANCE_MARGIN = 2.0
 #: Sub-slabs coupled more strongly than this on their step are solved by Newton together.
 COUPLING_LIMIT = 0.5
-_DEBUG = True
+_DEBUG = False
 
 
 @njit(cache=True, inline="always")
