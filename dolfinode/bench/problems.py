@@ -315,6 +315,13 @@ def arenstorf(periods=1):
                    description="restricted three-body orbit, one period (nonstiff)")
 
 
+def harmonic_problem(T=100.0):
+    """The harmonic oscillator of :func:`harmonic` on [0, T] (exact solution)."""
+    ode, exact = harmonic(T)
+    return Problem("harmonic", ode, stiff=False, final=exact(T), exact=exact,
+                   reference="exact (sin t, cos t)", description=f"u'' = -u, T = {T:g}")
+
+
 def lorenz_problem(T=5.0):
     """Lorenz system on [0, T]: chaotic, so errors grow like e^{0.9 t}; the reference is a
     tight scipy DOP853 solve (reported with the results)."""
@@ -414,6 +421,7 @@ PROBLEMS = {
     "VDPOLM": vdpolm,
     "POLLU": pollu,
     "Arenstorf": arenstorf,
+    "harmonic": harmonic_problem,
     "Lorenz": lorenz_problem,
     "reaction": reaction_front,
     "chain": mass_spring_chain,

@@ -31,12 +31,19 @@ def fmt_s(x):
     return f"{x * 1e3:.3g} ms" if x < 1 else f"{x:.3g} s"
 
 
+def accuracy(row):
+    """Digits of a run: its mescd, or -log10 of its error at T when it has no mescd."""
+    if row.get("mescd") is not None:
+        return row["mescd"]
+    return -math.log10(max(row["err_T"], 1e-300))
+
+
 def curve(rows, problem, method, key="time_median_s"):
-    """(mescd, log10 time) of one method's sweep on one problem, as its Pareto front sorted by
-    accuracy; None when it has no successful run."""
-    pts = sorted((r["mescd"], math.log10(r[key])) for r in rows
+    """(digits, log10 time) of one method's sweep on one problem (digits: :func:`accuracy`),
+    as its Pareto front sorted by accuracy; None when it has no successful run."""
+    pts = sorted((accuracy(r), math.log10(r[key])) for r in rows
                  if r["problem"] == problem and r["method"] == method and r["status"] == "ok"
-                 and r[key] and math.isfinite(r["mescd"]))
+                 and r[key] and math.isfinite(accuracy(r)))
     front = []
     for acc, logt in reversed(pts):
         if not front or logt < front[-1][1]:
