@@ -33,6 +33,9 @@ def add_arguments(parser):
                              "(about a minute)")
     parser.add_argument("--repeats", type=int, default=None,
                         help="timed repeats per run, median (default 3; --quick: 1)")
+    parser.add_argument("--time-limit", type=float, default=None,
+                        help="seconds after which a scipy run is abandoned (default 20; "
+                             "--quick: 3)")
     parser.add_argument("--output", default="doc/benchmarks", help="output folder")
     parser.add_argument("--name", default="suite", help="file stem of the outputs")
     parser.add_argument("--update-readme", metavar="README", default=None,
@@ -51,6 +54,10 @@ def run(args, command="dolfinode bench"):
         raise ValueError(f"tolerances must be positive, got {tolerances}")
     repeats = args.repeats or (QUICK["repeats"] if args.quick else 3)
     options = ({k: QUICK[k] for k in ("time_limit", "maximum_steps")} if args.quick else {})
+    if args.time_limit is not None:
+        if not args.time_limit > 0:
+            raise ValueError(f"--time-limit must be positive, got {args.time_limit}")
+        options["time_limit"] = args.time_limit
     rows, cases = run_suite(problems, list(methods), list(tolerances), repeats=repeats,
                             progress=not args.no_progress, **options)
     meta = report.machine_info()
