@@ -23,9 +23,10 @@ def main(argv=None):
             print(f"{name:<{width}}  {value!r}")
     elif args.command == "bench":
         try:
-            bench.run(args)
+            planned = bench.plan(args)
         except ValueError as exc:
             parser.error(str(exc))
+        bench.run(args, planned)
     return 0
 
 

@@ -4,7 +4,7 @@ from pathlib import Path
 
 from dolfinode.bench import report
 from dolfinode.bench.problems import PROBLEMS, QUICK_PROBLEMS, get_problem
-from dolfinode.bench.runner import SCIPY_METHODS, run_suite
+from dolfinode.bench.runner import SCIPY_METHODS, check_methods, run_suite
 
 DN_METHODS = ("cG(1)", "cG(2)", "cG(3)", "dG(1)", "dG(2)", "dG(3)")
 FULL_TOLERANCES = tuple(10.0 ** -e for e in range(3, 11))
@@ -43,26 +43,45 @@ def add_arguments(parser):
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def run(args, command="dolfinode bench"):
-    """Run the suite as the parsed arguments say; returns the headline dict."""
-    start = time.perf_counter()
+def plan(args):
+    """The problems, methods, tolerances and runner options the arguments ask for.
+
+    Raises
+    ------
+    ValueError
+        For an unknown problem or method, or a non-positive number.
+    """
     names = args.problems or (QUICK_PROBLEMS if args.quick else list(PROBLEMS))
     problems = [get_problem(n) for n in names]
-    methods = args.methods or (QUICK["methods"] if args.quick else DN_METHODS + SCIPY_METHODS)
-    tolerances = args.tolerances or (QUICK["tolerances"] if args.quick else FULL_TOLERANCES)
-    if any(not tol > 0 for tol in tolerances):
+    methods = list(args.methods or (QUICK["methods"] if args.quick
+                                    else DN_METHODS + SCIPY_METHODS))
+    check_methods(methods)
+    tolerances = list(args.tolerances or (QUICK["tolerances"] if args.quick
+                                          else FULL_TOLERANCES))
+    if not tolerances or any(not tol > 0 for tol in tolerances):
         raise ValueError(f"tolerances must be positive, got {tolerances}")
-    repeats = args.repeats or (QUICK["repeats"] if args.quick else 3)
-    options = ({k: QUICK[k] for k in ("time_limit", "maximum_steps")} if args.quick else {})
+    options = {"repeats": args.repeats or (QUICK["repeats"] if args.quick else 3)}
+    if options["repeats"] < 1:
+        raise ValueError(f"--repeats must be at least 1, got {args.repeats}")
+    if args.quick:
+        options.update({k: QUICK[k] for k in ("time_limit", "maximum_steps")})
     if args.time_limit is not None:
         if not args.time_limit > 0:
             raise ValueError(f"--time-limit must be positive, got {args.time_limit}")
         options["time_limit"] = args.time_limit
-    rows, cases = run_suite(problems, list(methods), list(tolerances), repeats=repeats,
-                            progress=not args.no_progress, **options)
+    return problems, methods, tolerances, options
+
+
+def run(args, planned, command="dolfinode bench"):
+    """Run the suite as planned by :func:`plan`; returns the headline dict."""
+    start = time.perf_counter()
+    problems, methods, tolerances, options = planned
+    repeats = options["repeats"]
+    rows, cases = run_suite(problems, methods, tolerances, progress=not args.no_progress,
+                            **options)
     meta = report.machine_info()
     meta.update(command=command, quick=bool(args.quick), tolerances=list(tolerances),
-                repeats=repeats, methods=list(methods),
+                repeats=repeats, methods=methods,
                 total_seconds=time.perf_counter() - start)
     out = Path(args.output)
     heads = report.write_outputs(out, args.name, meta, rows, cases)

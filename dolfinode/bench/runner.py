@@ -19,7 +19,7 @@ import warnings
 
 import numpy as np
 
-from dolfinode.bench.numpy_functions import numpy_functions
+from dolfinode.bench.numpy_functions import SPARSE_FROM, numpy_functions
 from dolfinode.bench.problems import mescd
 
 #: The scipy solvers the runner knows.
@@ -32,6 +32,15 @@ N_EVAL = 100
 ROW_FIELDS = ("problem", "solver", "method", "tolerance", "atol", "status", "note",
               "time_median_s", "time_min_s", "repeats", "first_call_s", "dn_solve_time_s", "mescd", "err_T",
               "err_L2", "f_evals", "jacobians", "factorizations", "steps", "rejected")
+
+
+def check_methods(methods):
+    """Raise ValueError for a name that is neither a scipy solver nor a dolfinode method."""
+    import dolfinode as dn
+
+    for m in methods:
+        if not is_scipy(m):
+            dn.parse_method(m)
 
 
 def is_scipy(method):
@@ -160,7 +169,11 @@ def run_dolfinode(case, method, tol, maximum_steps):
 def _scipy_solve(case, method, tol, fun, **extra):
     from scipy.integrate import solve_ivp
 
-    kwargs = {"jac": case.jac} if method in IMPLICIT else {}
+    kwargs = {}
+    if method == "LSODA" and case.ode.N > SPARSE_FROM:   # LSODA takes dense (or banded) only
+        kwargs["jac"] = lambda s, y: case.jac(s, y).toarray()
+    elif method in IMPLICIT:
+        kwargs["jac"] = case.jac
     atol = tol * case.problem.atol_ratio
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -212,6 +225,9 @@ def run_scipy(case, method, tol, time_limit):
     except RunTimeout:
         row.update(status="skipped", note=f"over {time_limit:g} s (abandoned at t = "
                                           f"{last[0]:.4g} of {case.ode.T:g})")
+        return row, None
+    except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
+        row.update(status="failed", note=f"{type(exc).__name__}: {exc}")   # scipy raised
         return row, None
     if not res.success:
         row.update(status="failed", note=f"solve_ivp: {res.message}")
@@ -300,11 +316,7 @@ def run_suite(problems, methods, tolerances, *, repeats=3, budget=2.0, time_limi
         raise ValueError("run_suite needs at least one problem, one method and one tolerance")
     if repeats < 1:
         raise ValueError(f"repeats must be at least 1, got {repeats}")
-    import dolfinode as dn
-
-    for m in methods:
-        if not is_scipy(m):
-            dn.parse_method(m)   # raises with a clear message for a bad name
+    check_methods(methods)
     tolerances = sorted(tolerances, reverse=True)
     total = len(problems) * len(methods) * len(tolerances)
     bar = tqdm(total=total * (1 + repeats), desc="bench", unit="run", disable=not progress)

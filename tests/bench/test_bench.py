@@ -100,6 +100,14 @@ def test_runner_records_failures_and_skips_tighter_tolerances():
     assert status[("RK45", 1e-3)] == "failed"
 
 
+def test_large_systems_get_sparse_jacobians_and_lsoda_a_dense_one():
+    p = P.reaction_front(n=50, T=0.002)
+    rows, _ = run_suite([p], ["LSODA", "Radau", "dG(2)"], [1e-4], repeats=1, progress=False)
+    for r in rows:
+        assert r["status"] == "ok", r["note"]
+        assert r["mescd"] > 3
+
+
 def test_bad_runner_input_is_rejected():
     with pytest.raises(ValueError, match="at least one"):
         run_suite([], ["dG(1)"], [1e-3], progress=False)
@@ -145,3 +153,9 @@ def test_cli_bench_rejects_bad_input(capsys):
     with pytest.raises(SystemExit):
         main(["bench", "--problems", "nonsense", "--no-progress"])
     assert "unknown benchmark problem" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["bench", "--methods", "Radau,eG(1)", "--no-progress"])
+    assert "eG(1)" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["bench", "--tolerances", "1e-4,-1", "--no-progress"])
+    assert "positive" in capsys.readouterr().err
