@@ -14,7 +14,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from dolfinode.cli import main  # noqa: E402
+from dolfinode.cli import main
 
 PRESET = ["--problems", "HIRES,harmonic",
           "--methods", "cG(1),cG(2),cG(3),dG(1),dG(2),dG(3),Radau,BDF,LSODA,DOP853",

@@ -57,8 +57,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-from dolfinode.bench import report  # noqa: E402  (shared: equal accuracy, machine, formatting)
-from dolfinode.bench.runner import RunTimeout, time_interleaved, with_deadline  # noqa: E402
+from dolfinode.bench import report
+from dolfinode.bench.runner import RunTimeout, time_interleaved, with_deadline
+
 MULTI = ["mcG(1)", "mcG(2)", "mdG(1)", "mdG(2)"]
 MONO = ["cG(1)", "cG(2)", "dG(1)", "dG(2)"]
 COUNTERPART = {"mcG(1)": "cG(1)", "mcG(2)": "cG(2)", "mdG(1)": "dG(1)", "mdG(2)": "dG(2)"}
@@ -881,7 +882,7 @@ def main(argv=None):
     from dolfinode.compile.cache import cache_directory
     import_seconds = time.perf_counter() - start
     start = time.perf_counter()
-    from dolfinode.timeslab import multi  # noqa: F401  (numba loop: cache load or JIT)
+    from dolfinode.timeslab import multi
     multi_import_seconds = time.perf_counter() - start
     print(f"import dolfinode: {import_seconds:.2f} s, multi-adaptive loop: "
           f"{multi_import_seconds:.2f} s; kernel cache {cache_directory()}"

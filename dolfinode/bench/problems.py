@@ -10,13 +10,13 @@ The functions :func:`harmonic`, :func:`lorenz`, :func:`stiff_decay`, :func:`hire
 :func:`stiff_suite` return plain ``ODE`` objects (and exact solutions) as they always did; they
 are re-exported by :mod:`dolfinode.problems` for the demos and tests.
 """
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Optional
 
 import numpy as np
 import sympy as sp
 
-from dolfinode.ode import ODE, t
+from dolfinode.ode import ODE
 
 
 @dataclass
@@ -47,7 +47,7 @@ class Problem:
     ode: ODE
     stiff: bool
     final: np.ndarray
-    exact: Optional[Callable] = None
+    exact: Callable | None = None
     atol_ratio: float = 1.0
     reference: str = ""
     description: str = ""

@@ -117,7 +117,7 @@ def machine_info(root=None):
     root = root or Path(dolfinode.__file__).resolve().parent.parent
     try:
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root,
-                                capture_output=True, text=True, timeout=10).stdout.strip()
+                                capture_output=True, text=True, timeout=10, check=False).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         commit = ""
     return {"date": datetime.date.today().isoformat(), "platform": platform.platform(),
@@ -155,8 +155,8 @@ def plot(path, rows, problems):
 
     methods = list(dict.fromkeys((r["solver"], r["method"]) for r in rows))
     colors = plt.get_cmap("tab20").colors
-    style = {sm: dict(color=colors[i % 20], marker="o" if sm[0] == "dolfinode" else "s",
-                      linestyle="-" if sm[0] == "dolfinode" else "--")
+    style = {sm: {"color": colors[i % 20], "marker": "o" if sm[0] == "dolfinode" else "s",
+                      "linestyle": "-" if sm[0] == "dolfinode" else "--"}
              for i, sm in enumerate(methods)}
     ncol = min(3, len(problems))
     nrow = math.ceil(len(problems) / ncol)
@@ -175,7 +175,7 @@ def plot(path, rows, problems):
         ax.invert_xaxis()
     for ax in axes.ravel()[len(problems):]:
         ax.set_visible(False)
-    handles, labels = {}, {}
+    handles, _labels = {}, {}
     for ax in axes.ravel():
         for h, lab in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(lab, h)
@@ -194,8 +194,8 @@ def _ratio_text(x):
 
 def summary_table(heads):
     """One line per problem: the ratio at the tightest level both reached, and the target."""
-    lines = ["| problem | stiff | mescd | best dolfinode | time | best scipy | time | "
-             "dolfinode / scipy | target (>= 6 digits) |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = [("| problem | stiff | mescd | best dolfinode | time | best scipy | time | "
+             "dolfinode / scipy | target (>= 6 digits) |"), "|---|---|---|---|---|---|---|---|---|"]
     for name, h in heads.items():
         if not h["table"]:
             lines.append(f"| {name} | {'yes' if h['stiff'] else 'no'} | no common level | "
@@ -248,35 +248,35 @@ def runs_table(rows, problem):
 def write_markdown(path, meta, rows, cases, heads, png_name, title="Benchmark suite"):
     out = [f"# {title}", "", f"Date: {meta['date']}  ",
            f"Machine: {meta['platform']}, {meta['cpu']}, {meta['cpu_count']} CPUs  ",
-           f"Versions: Python {meta['python']}, numpy {meta['numpy']}, scipy {meta['scipy']}, "
+           (f"Versions: Python {meta['python']}, numpy {meta['numpy']}, scipy {meta['scipy']}, "
            f"numba {meta['numba']}, sympy {meta['sympy']}, dolfinode {meta['dolfinode']} "
-           f"(git {meta['git_commit'] or '?'})  ",
+           f"(git {meta['git_commit'] or '?'})  "),
            f"Command: `{meta['command']}` ({meta['total_seconds']:.0f} s)  ",
-           f"Tolerances: {', '.join(f'{x:g}' for x in meta['tolerances'])}; "
-           f"{meta['repeats']} timed repeats (median)", "",
+           (f"Tolerances: {', '.join(f'{x:g}' for x in meta['tolerances'])}; "
+           f"{meta['repeats']} timed repeats (median)"), "",
            "## Equal accuracy, at the tightest level both sides reached", "",
            summary_table(heads), "",
-           "Ratio = time of dolfinode's fastest method / time of scipy's fastest solver at the "
+           ("Ratio = time of dolfinode's fastest method / time of scipy's fastest solver at the "
            "same mescd (< 1: dolfinode faster). * = that solver's loosest run was already more "
            "accurate; its fastest time is used. Target: faster than every scipy solver at every "
-           f"level >= {TARGET_LEVEL} reached by both.", "",
+           f"level >= {TARGET_LEVEL} reached by both."), "",
            f"![work-precision]({png_name})", "",
            "## How it is measured", "",
-           "* Tolerances: dolfinode `tolerance` = rtol, `absolute_tolerance` = atol; scipy "
-           "`solve_ivp(rtol=rtol, atol=atol)`; atol = rtol x the problem's atol/rtol.",
-           "* scipy gets NumPy right-hand sides and exact Jacobians lambdified from the same "
-           "sympy declaration (sparse CSC above 40 components).",
-           "* Time: wall time of the whole `dn.solve` / `solve_ivp` call (scipy with `t_eval` "
+           ("* Tolerances: dolfinode `tolerance` = rtol, `absolute_tolerance` = atol; scipy "
+           "`solve_ivp(rtol=rtol, atol=atol)`; atol = rtol x the problem's atol/rtol."),
+           ("* scipy gets NumPy right-hand sides and exact Jacobians lambdified from the same "
+           "sympy declaration (sparse CSC above 40 components)."),
+           ("* Time: wall time of the whole `dn.solve` / `solve_ivp` call (scipy with `t_eval` "
            "at 100 points), median of repeats in interleaved rounds after one untimed run; "
-           "dolfinode's kernel compile is excluded (table below).",
-           "* mescd = min_i -log10(|y_i(T) - ref_i| / (atol/rtol + |ref_i|)) (Test Set); "
-           "L2 = RMS error over 100 equispaced points and all components.",
-           "* Counts: dolfinode `sol.stats` (steps = time slabs); scipy nfev/njev/nlu, steps "
-           "and rejected attempts from an instrumented run (n/a for LSODA).",
-           "* A method that fails or exceeds the time limit at one tolerance is skipped at the "
-           "tighter ones.", "", "## Problems", "",
-           "| problem | N | stiff | description | reference at T | reference trajectory | "
-           "atol/rtol | first dn.solve | compile |", "|---|---|---|---|---|---|---|---|---|"]
+           "dolfinode's kernel compile is excluded (table below)."),
+           ("* mescd = min_i -log10(|y_i(T) - ref_i| / (atol/rtol + |ref_i|)) (Test Set); "
+           "L2 = RMS error over 100 equispaced points and all components."),
+           ("* Counts: dolfinode `sol.stats` (steps = time slabs); scipy nfev/njev/nlu, steps "
+           "and rejected attempts from an instrumented run (n/a for LSODA)."),
+           ("* A method that fails or exceeds the time limit at one tolerance is skipped at the "
+           "tighter ones."), "", "## Problems", "",
+           ("| problem | N | stiff | description | reference at T | reference trajectory | "
+           "atol/rtol | first dn.solve | compile |"), "|---|---|---|---|---|---|---|---|---|"]
     for c in cases:
         p = c.problem
         out.append(f"| {p.name} | {c.ode.N} | {'yes' if p.stiff else 'no'} | {p.description} | "
@@ -304,18 +304,18 @@ def readme_paragraph(meta, heads, md_rel, png_rel):
     met = [n for n in stiff if heads[n]["target_met"]]
     return "\n".join([
         README_BEGIN,
-        "**Benchmark suite.** `dolfinode bench` (or `python benchmarks/run_suite.py`; `--quick` "
+        ("**Benchmark suite.** `dolfinode bench` (or `python benchmarks/run_suite.py`; `--quick` "
         "for about a minute) runs the problem set of `dolfinode.bench` with dolfinode's methods "
-        "and scipy's solvers and writes tables and work-precision plots to `doc/benchmarks/`.",
+        "and scipy's solvers and writes tables and work-precision plots to `doc/benchmarks/`."),
         "",
-        f"Measured {meta['date']} on a {meta['cpu_count']}-core machine shared with other jobs "
+        (f"Measured {meta['date']} on a {meta['cpu_count']}-core machine shared with other jobs "
         f"({'quick run, ' if meta.get('quick') else ''}tolerances "
         f"{', '.join(f'{x:g}' for x in meta['tolerances'])}). Time of dolfinode's fastest "
         "method / time of scipy's fastest solver at equal accuracy (mescd at T), at the "
         f"tightest level both reached: {'; '.join(parts)}. Target (faster than every scipy "
         f"solver at >= {TARGET_LEVEL} digits on every stiff problem): met on "
         f"{', '.join(met) or 'none'} of {', '.join(stiff)}. Kernel compile times are not "
-        f"included. Tables: [{md_rel}]({md_rel}); plot: [{png_rel}]({png_rel}).",
+        f"included. Tables: [{md_rel}]({md_rel}); plot: [{png_rel}]({png_rel})."),
         README_END])
 
 

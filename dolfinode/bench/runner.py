@@ -149,8 +149,8 @@ def run_dolfinode(case, method, tol, maximum_steps):
     import dolfinode as dn
 
     row = _row(case, method, tol)
-    options = dict(method=method, tolerance=tol, absolute_tolerance=row["atol"],
-                   maximum_steps=maximum_steps)
+    options = {"method": method, "tolerance": tol, "absolute_tolerance": row["atol"],
+                   "maximum_steps": maximum_steps}
     try:
         start = time.perf_counter()
         sol = dn.solve(case.ode, **options)
