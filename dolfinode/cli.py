@@ -4,6 +4,7 @@
 (see :mod:`dolfinode.bench`).
 """
 import argparse
+import sys
 
 from dolfinode.parameters import DEFAULTS
 
@@ -26,7 +27,8 @@ def main(argv=None):
             planned = bench.plan(args)
         except ValueError as exc:
             parser.error(str(exc))
-        bench.run(args, planned)
+        given = sys.argv[1:] if argv is None else argv
+        bench.run(args, planned, command="dolfinode " + " ".join(given))
     return 0
 
 

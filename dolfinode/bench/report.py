@@ -192,23 +192,38 @@ def _ratio_text(x):
     return f"{1 / x:.3g}x faster" if x < 1 else f"{x:.3g}x slower"
 
 
+def _compared(h):
+    """The equal-accuracy entries a problem's headline rests on: levels >= TARGET_LEVEL when
+    both sides reached one, else all common levels."""
+    tight = [e for e in h["table"] if e["level"] >= TARGET_LEVEL]
+    return tight or h["table"]
+
+
+def _verdict(h):
+    if not h["levels_compared"]:
+        return f"no level >= {TARGET_LEVEL} reached by both"
+    return "met" if h["target_met"] else "not met"
+
+
 def summary_table(heads):
-    """One line per problem: the ratio at the tightest level both reached, and the target."""
-    lines = [("| problem | stiff | mescd | best dolfinode | time | best scipy | time | "
-             "dolfinode / scipy | target (>= 6 digits) |"), "|---|---|---|---|---|---|---|---|---|"]
+    """One line per problem: the slowest and the fastest ratio over the compared levels."""
+    lines = [("| problem | stiff | mescd levels | dolfinode / scipy: worst (level, methods) | "
+             "best (level, methods) | target (>= 6 digits) |"), "|---|---|---|---|---|---|"]
     for name, h in heads.items():
-        if not h["table"]:
+        entries = _compared(h)
+        if not entries:
             lines.append(f"| {name} | {'yes' if h['stiff'] else 'no'} | no common level | "
-                         "| | | | | |")
+                         "| | |")
             continue
-        e = h["table"][-1]
-        target = ("met" if h["target_met"] else "not met") if h["levels_compared"] else \
-            "no level >= 6 reached by both"
-        lines.append(
-            f"| {name} | {'yes' if h['stiff'] else 'no'} | {e['level']} | {e['dolfinode_best']} | "
-            f"{fmt_s(e['dolfinode_time_s'])}{' *' if e['dolfinode_clamped'] else ''} | "
-            f"{e['scipy_best']} | {fmt_s(e['scipy_time_s'])}{' *' if e['scipy_clamped'] else ''}"
-            f" | {e['ratio']:.3g} ({_ratio_text(e['ratio'])}) | {target} |")
+        worst = max(entries, key=lambda e: e["ratio"])
+        best = min(entries, key=lambda e: e["ratio"])
+
+        def cell(e):
+            return (f"{e['ratio']:.3g} ({_ratio_text(e['ratio'])}; {e['level']}, "
+                    f"{e['dolfinode_best']} vs {e['scipy_best']})")
+
+        lines.append(f"| {name} | {'yes' if h['stiff'] else 'no'} | {entries[0]['level']}-"
+                     f"{entries[-1]['level']} | {cell(worst)} | {cell(best)} | {_verdict(h)} |")
     return "\n".join(lines)
 
 
@@ -291,17 +306,22 @@ def write_markdown(path, meta, rows, cases, heads, png_name, title="Benchmark su
 
 
 def readme_paragraph(meta, heads, md_rel, png_rel):
-    """The README's headline: ratios per problem at the tightest common accuracy."""
+    """The README's headline: per problem, the range of dolfinode / scipy time ratios at equal
+    accuracy, and whether the target is met on the stiff problems."""
     parts = []
     for name, h in heads.items():
-        if h["table"]:
-            e = h["table"][-1]
-            parts.append(f"{name} {e['ratio']:.2g} ({_ratio_text(e['ratio'])}, "
-                         f"{e['dolfinode_best']} vs {e['scipy_best']} at mescd {e['level']})")
-        else:
+        entries = _compared(h)
+        if not entries:
             parts.append(f"{name}: no common accuracy level")
+            continue
+        ratios = [e["ratio"] for e in entries]
+        lo, hi = min(ratios), max(ratios)
+        span = f"{lo:.2g}" if f"{lo:.2g}" == f"{hi:.2g}" else f"{lo:.2g}-{hi:.2g}"
+        parts.append(f"{name} {span} (mescd {entries[0]['level']}-{entries[-1]['level']})")
     stiff = [n for n, h in heads.items() if h["stiff"]]
     met = [n for n in stiff if heads[n]["target_met"]]
+    missed = [f"{n} ({'slower at some level' if heads[n]['levels_compared'] else _verdict(heads[n])})"
+              for n in stiff if not heads[n]["target_met"]]
     return "\n".join([
         README_BEGIN,
         ("**Benchmark suite.** `dolfinode bench` (or `python benchmarks/run_suite.py`; `--quick` "
@@ -310,12 +330,13 @@ def readme_paragraph(meta, heads, md_rel, png_rel):
         "",
         (f"Measured {meta['date']} on a {meta['cpu_count']}-core machine shared with other jobs "
         f"({'quick run, ' if meta.get('quick') else ''}tolerances "
-        f"{', '.join(f'{x:g}' for x in meta['tolerances'])}). Time of dolfinode's fastest "
-        "method / time of scipy's fastest solver at equal accuracy (mescd at T), at the "
-        f"tightest level both reached: {'; '.join(parts)}. Target (faster than every scipy "
-        f"solver at >= {TARGET_LEVEL} digits on every stiff problem): met on "
-        f"{', '.join(met) or 'none'} of {', '.join(stiff)}. Kernel compile times are not "
-        f"included. Tables: [{md_rel}]({md_rel}); plot: [{png_rel}]({png_rel})."),
+        f"{', '.join(f'{x:g}' for x in meta['tolerances'])}; `{meta['command']}`). Time of "
+        "dolfinode's fastest method / time of scipy's fastest solver at equal accuracy (mescd "
+        f"at T; < 1: dolfinode faster), over the levels >= {TARGET_LEVEL} both reached (all "
+        f"common levels where there are none): {'; '.join(parts)}. Target (faster than every "
+        f"scipy solver at >= {TARGET_LEVEL} digits on every stiff problem): met on "
+        f"{', '.join(met) or 'none'}; not met on {', '.join(missed) or 'none'}. Kernel compile "
+        f"times are not included. Tables: [{md_rel}]({md_rel}); plot: [{png_rel}]({png_rel})."),
         README_END])
 
 

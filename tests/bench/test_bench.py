@@ -130,6 +130,32 @@ def test_equal_accuracy_interpolates_on_the_pareto_front():
     assert table[6]["scipy_time_s"] == pytest.approx(1.0)   # (5.5, 2 s) is off the front
 
 
+def test_headline_verdicts():
+    def entry(level, ratio):
+        return {"level": level, "ratio": ratio, "dolfinode_best": "dG(2)", "scipy_best": "Radau",
+                "dolfinode_time_s": ratio, "scipy_time_s": 1.0, "dolfinode_clamped": False,
+                "scipy_clamped": False}
+
+    rows = []
+    for solver, method, pts in (("dolfinode", "dG(2)", [(5.0, 0.1), (8.0, 0.4)]),
+                                ("scipy", "Radau", [(5.0, 1.0), (8.0, 0.2)])):
+        rows += [{"problem": "p", "solver": solver, "method": method, "status": "ok",
+                  "mescd": d, "time_median_s": s} for d, s in pts]
+    problem = P.Problem("p", _tiny().ode, stiff=True, final=np.zeros(1))
+    heads = report.headline(rows, [problem])
+    assert heads["p"]["levels_compared"] == [6, 7, 8] and not heads["p"]["target_met"]
+    heads["q"] = {"stiff": True, "table": [entry(4, 0.5)], "target_met": False,
+                  "levels_compared": []}
+    heads["r"] = {"stiff": True, "table": [entry(6, 0.5), entry(7, 0.25)], "target_met": True,
+                  "levels_compared": [6, 7]}
+    text = report.readme_paragraph({"date": "d", "cpu_count": 2, "tolerances": [1e-4],
+                                    "command": "c"}, heads, "m", "p")
+    assert "met on r; not met on p (slower at some level), q (no level >= 6" in text
+    assert "r 0.25-0.5 (mescd 6-7)" in text
+    table = report.summary_table(heads)
+    assert "| r | yes | 6-7 | 0.5 (2x faster; 6, dG(2) vs Radau)" in table
+
+
 def test_cli_bench_writes_every_output(tmp_path, capsys, monkeypatch):
     from dolfinode.bench import problems
 
