@@ -11,7 +11,7 @@ The functions :func:`harmonic`, :func:`lorenz`, :func:`stiff_decay`, :func:`hire
 are re-exported by :mod:`dolfinode.problems` for the demos and tests.
 """
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import sympy as sp
@@ -30,8 +30,10 @@ class Problem:
     ode : ODE
     stiff : bool
         Whether the problem is stiff (explicit methods are not expected to finish).
-    final : ndarray, shape (N,)
-        Reference solution at T (exact, or published with ~15 correct digits).
+    final : ndarray, shape (N,), or None
+        Reference solution at T (exact, or published with ~15 correct digits); None when
+        there is none, in which case the runner takes the last point of its reference
+        trajectory.
     exact : callable or None
         Closed-form solution t -> (N,) or (N, M); None when only ``final`` is known, in which
         case the runner computes a reference trajectory with a tight scipy solve.
@@ -51,7 +53,6 @@ class Problem:
     atol_ratio: float = 1.0
     reference: str = ""
     description: str = ""
-    extra: dict = field(default_factory=dict)
 
     @property
     def T(self):
@@ -218,11 +219,11 @@ def rober(T=1e11):
 def vdpol(eps=1e-6):
     """VDPOL (van der Pol in the Test Set's scaling): y1' = y2, y2' = ((1 - y1^2) y2 - y1)/eps,
     y(0) = (2, 0), T = 2, eps = 1e-6."""
+    if eps != 1e-6:
+        raise ValueError("the VDPOL reference is published for eps = 1e-6 only")
     y1, y2, e = sp.symbols("y1 y2 epsilon")
     ode = ODE({y1: y2, y2: ((1 - y1**2) * y2 - y1) / e}, u0=[2.0, 0.0], T=2.0,
               params={e: eps})
-    if eps != 1e-6:
-        raise ValueError("the VDPOL reference is published for eps = 1e-6 only")
     return Problem("VDPOL", ode, stiff=True,
                    final=np.array([0.1706167732170483e1, -0.8928097010247975e0]),
                    reference=f"{TEST_SET}, vdpol.f (RADAU, extended precision)",
@@ -409,7 +410,7 @@ def seed_model(kappa=1e4, T=10.0):
                          -w * np.sin(w * s)])
 
     return Problem(f"seed k={kappa:g}", ode, stiff=False, final=exact(T), exact=exact,
-                   reference="closed form", extra={"kappa": kappa},
+                   reference="closed form",
                    description=f"automatic-modeling seed problem, kappa = {kappa:g}, T = {T:g}")
 
 

@@ -60,6 +60,20 @@ def test_published_references_agree_with_a_tight_scipy_solve():
         np.testing.assert_allclose(p.exact(0.0), p.ode.u0, atol=1e-12)
 
 
+def test_problem_without_published_value_gets_a_reference_trajectory():
+    from dolfinode.bench.runner import Case
+
+    p = P.lorenz_problem(T=1.0)
+    assert p.final is None
+    case = Case(p)
+    assert "DOP853" in case.reference_note and case.ref_y.shape == (3, 100)
+    np.testing.assert_array_equal(p.final, case.ref_y[:, -1])
+    np.testing.assert_allclose(case.ref_y[:, 0], p.ode.u0)
+    score = case.score(p.final + 1e-6, case.ref_y + 1e-6)
+    assert score["err_T"] == pytest.approx(1e-6, rel=1e-6)
+    assert score["err_L2"] == pytest.approx(1e-6, rel=1e-6)
+
+
 def test_unknown_problem_suggests_a_name():
     with pytest.raises(ValueError, match="did you mean 'ROBER'"):
         P.get_problem("ROBBER")
