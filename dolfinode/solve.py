@@ -162,7 +162,7 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
 
 def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     _, position, kl, ku = compiled.ordering
-    fopts = np.array(fopts + [_KMIN_RELATIVE])
+    fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0])
     state = np.array([ode.t0, steps[0], 1.0, 1.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     tau = m.nodes[m.stages].copy()
