@@ -12,7 +12,7 @@ from dolfinode import problems
 from dolfinode.compile import lower
 from dolfinode.dual import adaptivity
 from dolfinode.dual.problem import jacobian_transpose
-from dolfinode.problems import linear
+from dolfinode.bench.problems import linear
 
 RNG = np.random.default_rng(1)
 _B = RNG.normal(size=(10, 10))
