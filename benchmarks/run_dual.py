@@ -20,11 +20,15 @@ import warnings
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
-
-from test_dual import _driven, cases
 
 import dolfinode as dn
+from dolfinode.compile import lower
+from dolfinode.problems import (
+    driven_oscillator,
+    estimate_suite,
+    mass_spring_chain,
+    reaction_diffusion_front,
+)
 
 OUT = pathlib.Path(__file__).resolve().parents[1] / "doc" / "benchmarks"
 METHODS = ["cG(1)", "cG(2)", "dG(1)", "dG(2)", "mcG(1)", "mcG(2)", "mdG(1)", "mdG(2)"]
@@ -58,7 +62,7 @@ def effectivity(problems, quick):
 
 
 def goal_versus_plain(problems, quick):
-    ode, exact = _driven()
+    ode, exact = driven_oscillator()
     runs = [("driven oscillator", ode, np.atleast_1d(exact(ode.T)), m, tol)
             for m in ("mcG(2)", "mdG(1)", "cG(2)") for tol in (1e-5, 1e-7)]
     runs += [(name, *problems[name], m, tol) for name, m, tol in
@@ -95,6 +99,51 @@ def goal_versus_plain(problems, quick):
     return rows
 
 
+def _middle_mass(N):
+    """The chain of N // 2 masses, and its goal: the middle mass's position at T."""
+    ode = mass_spring_chain(N // 2)[0]
+    goal = np.zeros(ode.N)
+    goal[ode.N // 4] = 1.0
+    return ode, goal
+
+
+def _front_mean(N):
+    """The Fisher front on N points, and its goal: the mean of u at T (the front position)."""
+    ode = reaction_diffusion_front(N)
+    return ode, np.full(ode.N, 1.0 / ode.N)
+
+
+#: (name, (ode, goal) by N, method, tolerance) of the scaling runs.
+SCALING = [("mass-spring chain", _middle_mass, "cG(2)", 1e-6),
+           ("mass-spring chain", _middle_mass, "mcG(2)", 1e-6),
+           ("reaction-diffusion front", _front_mean, "cG(2)", 1e-5)]
+
+
+def scaling(sizes, limit):
+    """Time of ``estimate_error`` (and of the primal solve) against the number of components
+    N; a problem stops growing once one estimate takes longer than ``limit`` seconds."""
+    rows = []
+    for name, make, method, tolerance in SCALING:
+        ode, goal = make(10)
+        dn.estimate_error(dn.solve(ode, method=method, tolerance=tolerance), goal)  # compile
+        for N in sizes:
+            ode, goal = make(N)
+            sol = dn.solve(ode, method=method, tolerance=tolerance)
+            start = time.perf_counter()
+            est = dn.estimate_error(sol, goal)
+            elapsed = time.perf_counter() - start
+            rows.append({"problem": name, "method": method, "tolerance": tolerance,
+                         "N": ode.N, "bandwidth": sum(lower(ode).ordering[2:]),
+                         "elements": int(sol.stats["elements"]),
+                         "union intervals": len(est.dual.grid) - 1,
+                         "solve time [s]": sol.stats["solve time"],
+                         "estimate time [s]": elapsed, "estimate": est.value})
+            print(rows[-1], flush=True)
+            if elapsed > limit:
+                break
+    return rows
+
+
 def _table(rows, formats):
     keys = list(rows[0])
     lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
@@ -107,7 +156,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a few cases only")
     args = parser.parse_args()
-    problems = cases.__wrapped__()
+    problems = estimate_suite()
     effect = effectivity(problems, args.quick)
     versus = goal_versus_plain(problems, args.quick)
     OUT.mkdir(parents=True, exist_ok=True)
