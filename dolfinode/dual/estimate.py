@@ -182,6 +182,9 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None):
     ------
     TypeError, ValueError
         For a solution that is not a :class:`~dolfinode.Solution` or an invalid goal.
+    SolverError
+        If the dual's stage matrix is singular on an interval (h J with an eigenvalue that
+        cG(r) cannot step over).
     """
     if not isinstance(sol, Solution):
         raise TypeError(f"estimate_error expects a dolfinode Solution, got {type(sol).__name__}")

@@ -9,12 +9,16 @@ with J = df/du the Jacobian generated from sympy and evaluated at the Galerkin s
 (the mean value of the seed paper, "Error analysis", taken at U). In the reversed time
 s = T - t this is the forward linear problem y' = J^T y + grad g, solved with the
 continuous Galerkin method cG(r) of :mod:`dolfinode.methods` on every interval of the union
-of all components' element partitions, where U is a polynomial in every component.
+of all components' element partitions, where U is a polynomial in every component. The
+linear stage system of an interval has the sparsity of J^T; it is solved by the banded LU of
+:mod:`dolfinode.linalg.banded` in the Jacobian's bandwidth ordering, so that a chain-like
+coupling costs O(N) per interval.
 """
 import numpy as np
 from numba import njit
 
 from dolfinode.compile import lower
+from dolfinode.errors import SolverError
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.methods import make_method
 
@@ -115,6 +119,7 @@ def _backward_cg(jac, p, indptr, indices, position, kl, ku, grid, ptr, t_start, 
     LU costs O(r N (r (kl + ku + 2))^2) per interval instead of O((r N)^3) densely.
     phi[l, j] receives the values at the forward nodes t_l + tau_j h (tau_j symmetric); the
     primal elements are tracked by one cursor per component (memory O(N)).
+    Returns -1, or the interval l whose stage matrix is singular.
     """
     L, N = grid.shape[0] - 1, psi.shape[0]
     r, R = A.shape[0], nodes.shape[0]
@@ -144,13 +149,14 @@ def _backward_cg(jac, p, indptr, indices, position, kl, ku, grid, ptr, t_start, 
                 stages[position[i] * r + s] = value
         assemble_dual_matrix(jdata, indptr, indices, position, A, h, low, up, ab)
         if band_lu(ab, low, up, ipiv) != 0:
-            raise ZeroDivisionError("singular dual stage matrix: the step is too large for J")
+            return l
         band_solve(ab, low, up, ipiv, stages)
         phi[l, R - 1, :] = y
         for s in range(r):
             for i in range(N):
                 phi[l, R - 2 - s, i] = stages[position[i] * r + s]
         y = phi[l, 0].copy()
+    return -1
 
 
 def monomial_coefficients(nodes):
@@ -230,6 +236,11 @@ def solve_dual(sol, final, integral, degree, primal=None):
     Returns
     -------
     DualSolution, PrimalPolynomials
+
+    Raises
+    ------
+    SolverError
+        If the stage matrix of an interval is singular.
     """
     ode = sol.ode
     primal = primal or PrimalPolynomials(sol)
@@ -247,8 +258,12 @@ def solve_dual(sol, final, integral, degree, primal=None):
         weights = integral.at(sol(times), times)
         source = np.ascontiguousarray(weights.T.reshape(len(grid) - 1, degree + 1, ode.N))
     phi = np.empty((len(grid) - 1, degree + 1, ode.N))
-    _backward_cg(compiled.jacobian, compiled.p, compiled.indptr, compiled.indices, position, kl,
-                 ku, grid, primal.ptr, primal.t_start, primal.t_end, primal.coef, np.array(m.A),
-                 m.b0.copy(), m.nodes.copy(), source, psi, phi)
+    failed = _backward_cg(compiled.jacobian, compiled.p, compiled.indptr, compiled.indices,
+                          position, kl, ku, grid, primal.ptr, primal.t_start, primal.t_end,
+                          primal.coef, np.array(m.A), m.b0.copy(), m.nodes.copy(), source, psi,
+                          phi)
+    if failed >= 0:
+        raise SolverError(f"the dual's stage matrix is singular on [{grid[failed]:.6g}, "
+                          f"{grid[failed + 1]:.6g}]: I - h A (x) J^T has a zero pivot")
     coef = np.einsum("ljn,jc->lcn", phi, monomial_coefficients(m.nodes))
     return DualSolution(grid, coef), primal
