@@ -223,7 +223,8 @@ def write(folder, scale, gen):
         "", "## Code generation: template versus per-expression", "",
         ("Empty kernel cache per run; declare = building the ODE (sympy expressions for the "
         "per-expression lattice), lower = pattern + C generation + gcc. The per-expression "
-        "series stops after the first size above 60 s."), "",
+        "series stops after the first size above 60 s. CPU times exclude gcc (a child "
+         "process)."), "",
         "| p | N | kind | declare s (wall / CPU) | lower s (wall / CPU) |",
         "|---|---|---|---|---|"]
     for r in gen:
