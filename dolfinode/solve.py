@@ -69,6 +69,8 @@ def solve(ode, method="cG(1)", **parameters):
     Returns
     -------
     Solution
+        With ``automatic_modeling=True`` also ``sol.model``, the
+        :class:`~dolfinode.modeling.ReducedModel` (see :mod:`dolfinode.modeling`).
 
     Raises
     ------
@@ -81,6 +83,10 @@ def solve(ode, method="cG(1)", **parameters):
         raise TypeError(f"solve expects a dolfinode.ODE, got {type(ode).__name__}")
     params = check_parameters(parameters)
     multi_adaptive, m = parse_method(method)
+    if params["automatic_modeling"]:
+        from dolfinode.modeling import solve_with_modeling
+
+        return solve_with_modeling(ode, method, params, solve)
     compiled = lower(ode)
     start = time.perf_counter()
     rtol = params["tolerance"]
