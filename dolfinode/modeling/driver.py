@@ -110,7 +110,7 @@ def solve_with_modeling(ode, method, params, solve):
         # control point at t_now: full model from t_now - tau, perturbed by the fast fluctuation
         u_start = model.state(segment(t_now - tau)) + np.where(model.active, 0.0, fluctuation)
         window, averages = resolve(u_start, t_now)
-        defect = model.defect(compiled, u, t_now, averages)
+        defect = model.defect(compiled, averages)
         scale = np.max(np.abs(np.where(model.active, averages.g_bar, 0.0)))
         relative = np.max(np.abs(defect)) / scale if scale > 0 else np.inf
         rebuild = params["rebuild_model"] and relative > params["model_tolerance"]

@@ -45,8 +45,13 @@ class ControlPoint:
     """A check of the reduced model against the full model resolved around ``time``.
 
     ``defect`` is the l2 norm over the active components of
-    f(U(t), t) + g~ - avg f(u) = g~ - g-bar (with g-bar measured relative to the reduced
-    state U), the integrand of the modeling-error term of the error representation.
+
+        f(u-bar_A, U_I, t) + g~ - avg f(u)  =  g~ - g-bar,
+
+    the reduced right-hand side at the window average (active components A) and the model's
+    frozen values (inactive components I) against the average of the full one: the integrand
+    of the modeling-error term of the error representation. ``relative_defect`` is its max
+    norm over max |g-bar|.
     """
 
     time: float
@@ -122,9 +127,9 @@ class ReducedModel:
         params.update({g: float(v) for g, v in zip(self._symbols, self._g)})
         return ODE(rhs, u0=self.state(u0), T=T, t0=t0, params=params)
 
-    def defect(self, compiled, u, t, averages):
-        """g~ - g-bar on the active components at the reduced state u (zero elsewhere)."""
-        reduced_rhs = compiled.f(self.state(u), t) + self._g
+    def defect(self, compiled, averages):
+        """g~ - g-bar on the active components (zero elsewhere), see :class:`ControlPoint`."""
+        reduced_rhs = compiled.f(self.state(averages.u_bar), averages.center) + self._g
         return np.where(self._active, reduced_rhs - averages.f_bar, 0.0)
 
     @property
