@@ -1,6 +1,7 @@
 """Particle trajectories as an XDMF time series that ParaView opens.
 
-The mesh holds one vertex cell per mass and one line cell per spring; every time step stores
+The mesh points are the masses and its line cells the springs (ParaView's "Points"
+representation shows the masses); every time step stores
 the displacement from the initial positions as the point field ``displacement`` (ParaView:
 "Warp By Vector" shows the motion) and the current positions as ``position``. The data are
 inline XML (no HDF5 dependency). The file is written to a temporary name in the target
@@ -44,7 +45,8 @@ def write_trajectory(filename, points, springs, times, positions):
     if springs.size and (springs.min() < 0 or springs.max() >= n):
         raise ValueError(f"springs must join masses 0..{n - 1}")
     pad = np.zeros((n, 3 - dim))
-    cells = [("vertex", np.arange(n).reshape(-1, 1)), ("line", springs)]
+    # one block of line cells: meshio 5.3 mis-writes mixed topologies (vertex + line)
+    cells = [("line", springs)]
     filename.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(suffix=".xdmf", dir=filename.parent)
     os.close(fd)
