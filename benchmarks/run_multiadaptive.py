@@ -31,7 +31,7 @@ the compiled loops and predict the cost of the full run by extrapolating the cos
 between the last two probes; a run predicted to take more than RUN_LIMIT seconds (or,
 mono-adaptive, more than maximum_steps slabs) is skipped. The full run then gives errors and
 counts; if it took less than SINGLE_RUN seconds it is timed again, 3 to 7 times in interleaved
-rounds (median; run_foundation.time_interleaved), otherwise that single run is the timing.
+rounds (median; dolfinode.bench.runner.time_interleaved), otherwise that single run is the timing.
 The time is the wall time of the dn.solve / solve_ivp call; kernel compile time is measured
 on the first (cold) call per problem and reported separately. scipy runs are abandoned after
 2 x RUN_LIMIT seconds, and a method abandoned at a looser tolerance is not tried at tighter
@@ -55,10 +55,11 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import run_foundation as rf  # noqa: E402  (shared helpers: timing, machine info, formatting)
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+from dolfinode.bench import report
+from dolfinode.bench.runner import RunTimeout, time_interleaved, with_deadline
 
-ROOT = rf.ROOT
 MULTI = ["mcG(1)", "mcG(2)", "mdG(1)", "mdG(2)"]
 MONO = ["cG(1)", "cG(2)", "dG(1)", "dG(2)"]
 COUNTERPART = {"mcG(1)": "cG(1)", "mcG(2)": "cG(2)", "mdG(1)": "dG(1)", "mdG(2)": "dG(2)"}
@@ -393,11 +394,11 @@ def run_scipy(problem, method, tol, limit, skip_reason=None):
         return res, caught
 
     def solve_span(frac):
-        fun, _ = rf._with_deadline(problem["rhs"], probe_deadline(frac, limit))
+        fun, _ = with_deadline(problem["rhs"], probe_deadline(frac, limit))
         start = time.perf_counter()
         try:
             call(fun, t0 + frac * (T - t0))
-        except rf._Timeout:
+        except RunTimeout:
             return None
         return time.perf_counter() - start
 
@@ -408,12 +409,12 @@ def run_scipy(problem, method, tol, limit, skip_reason=None):
         return row, None
     if not go:
         return row, None
-    fun, last = rf._with_deadline(problem["rhs"], 2 * limit)
+    fun, last = with_deadline(problem["rhs"], 2 * limit)
     try:
         start = time.perf_counter()
         res, caught = call(fun)
         row["first_call_s"] = time.perf_counter() - start
-    except rf._Timeout:
+    except RunTimeout:
         row.update(status="skipped", note=f"over {2 * limit:g} s (abandoned at t = "
                    f"{last[0]:.4g} of {T:g})")
         return row, None
@@ -449,16 +450,16 @@ def progress(row, timed=False):
         print(f"{head}: {row['status'].upper()} {row['note']}", flush=True)
         return
     if timed:
-        print(f"{head}: {rf.fmt_s(row['time_median_s']):>9s} median of {row['repeats']}",
+        print(f"{head}: {report.fmt_s(row['time_median_s']):>9s} median of {row['repeats']}",
               flush=True)
         return
     extra = ""
     if row["efficiency_index"] is not None:
         extra = (f", efficiency index {row['efficiency_index']:.2f}, elements per component "
                  f"{row['elements_min']}..{row['elements_max']}")
-    probe_s = (f" (probes {rf.fmt_s(row['probe_s'])}, predicted "
-               f"{rf.fmt_s(row['predicted_s'])})" if row["probe_s"] is not None else "")
-    print(f"{head}: {rf.fmt_s(row['first_call_s']):>9s}{probe_s}, error {row['err_T']:.2e}, "
+    probe_s = (f" (probes {report.fmt_s(row['probe_s'])}, predicted "
+               f"{report.fmt_s(row['predicted_s'])})" if row["probe_s"] is not None else "")
+    print(f"{head}: {report.fmt_s(row['first_call_s']):>9s}{probe_s}, error {row['err_T']:.2e}, "
           f"elements {row['elements']}, f evals {row['f_evals']}{extra}", flush=True)
 
 
@@ -480,13 +481,13 @@ def ok(rows, problem, solver=None, method=None):
 
 def best_at(rows, problem, solver, methods, error):
     """(method, time, clamped) of the fastest of `methods` reaching `error`, with log10(time)
-    interpolated in -log10(error) over each method's Pareto front (run_foundation's rule), or
+    interpolated in -log10(error) over each method's Pareto front (dolfinode.bench.report's rule), or
     None when none reaches it."""
     level = -math.log10(max(error, 1e-300))
     best = None
     for m in methods:
-        c = rf.curve(rows, problem, solver, m)
-        hit = rf.time_at(c, level)
+        c = report.curve(rows, problem, m)
+        hit = report.time_at(c, level)
         if hit is not None and (best is None or hit[0] < best[1]):
             best = (m, hit[0], hit[1])
     return best
@@ -545,7 +546,7 @@ def summary_line(problem, entries):
     for e in entries:
         if e["tolerance"] is not None:
             parts.append(f"{e['multi']}/{e['mono']} {x_text(e['time_ratio'])} "
-                         f"({rf.fmt_s(e['multi_time_s'])} vs {rf.fmt_s(e['mono_time_s'])} at "
+                         f"({report.fmt_s(e['multi_time_s'])} vs {report.fmt_s(e['mono_time_s'])} at "
                          f"tolerance {e['tolerance']:.0e})")
         else:
             parts.append(f"{e['multi']}/{e['mono']}: no common tolerance")
@@ -604,8 +605,8 @@ def summary_table(problems, heads):
         for e in heads[p["name"]]:
             pair = f"{e['multi']} / {e['mono']}"
             if e["tolerance"] is not None:
-                cells = [f"{e['tolerance']:.0e}", rf.fmt_s(e["multi_time_s"]),
-                         rf.fmt_s(e["mono_time_s"]), f"**{x_text(e['time_ratio'])}**",
+                cells = [f"{e['tolerance']:.0e}", report.fmt_s(e["multi_time_s"]),
+                         report.fmt_s(e["mono_time_s"]), f"**{x_text(e['time_ratio'])}**",
                          f"{e['multi_error']:.1e}, {e['mono_error']:.1e}"]
             else:
                 cells = ["-", "-", "-", "-", "-"]
@@ -716,7 +717,7 @@ def md_table(rows, problem):
             if r["solver"] == "dolfinode" and r["elements_fast_mean"]:
                 ratio = f"{r['elements_slow_mean']:.4g} : {r['elements_fast_mean']:.4g}"
             cells = [r["solver"], r["method"], f"{r['tolerance']:.0e}",
-                     rf.fmt_s(r["time_median_s"]), str(r["repeats"]),
+                     report.fmt_s(r["time_median_s"]), str(r["repeats"]),
                      f"{r['err_T']:.2e}" + (" (damped)" if damped(problem, r) else ""),
                      f"{r['err_all']:.2e}",
                      n(r["elements"]), n(r["time_slabs"]), n(r["f_evals"]),
@@ -734,12 +735,12 @@ def headline_table(entries):
              "error | multi / scipy |", "|" + "---|" * 15]
 
     def t(x, clamped):
-        return rf.fmt_s(x) + (" *" if clamped else "")
+        return report.fmt_s(x) + (" *" if clamped else "")
 
     for e in entries:
         if e["tolerance"] is not None:
-            cells = [e["multi"], e["mono"], f"{e['tolerance']:.0e}", rf.fmt_s(e["multi_time_s"]),
-                     rf.fmt_s(e["mono_time_s"]), f"{e['time_ratio']:.3g}",
+            cells = [e["multi"], e["mono"], f"{e['tolerance']:.0e}", report.fmt_s(e["multi_time_s"]),
+                     report.fmt_s(e["mono_time_s"]), f"{e['time_ratio']:.3g}",
                      f"{e['multi_error']:.2e}", f"{e['mono_error']:.2e}",
                      f"{e['element_ratio']:.3g}",
                      f"{e['multi_ns_per_element']:,.0f} : {e['mono_ns_per_element']:,.0f}"]
@@ -750,7 +751,7 @@ def headline_table(entries):
             cells += ["no run", "-", "-", "-", "-"]
         else:
             cells.append(f"{e['eq_tolerance']:.0e}, {e['eq_error']:.2e}, "
-                         f"{rf.fmt_s(e['eq_multi_time_s'])}")
+                         f"{report.fmt_s(e['eq_multi_time_s'])}")
             if e.get("mono_eq_ratio"):
                 cells += [t(e["mono_eq_time_s"], e["mono_eq_clamped"]),
                           f"{e['mono_eq_ratio']:.3g}"]
@@ -830,7 +831,7 @@ def write_markdown(path, meta, rows, problems, heads, compile_info, notes, png_n
            "ones); and at equal error: the multi-adaptive method's most accurate run against "
            "its mono-adaptive counterpart and the fastest scipy method, with log10(time) "
            "interpolated in -log10(error) over that method's tolerance sweep "
-           "(run_foundation.py's rule; * = its loosest run was already more accurate, its "
+           "(dolfinode.bench.report's rule; * = its loosest run was already more accurate, its "
            "time is used).", "",
            "## References", ""]
     for p in problems:
@@ -838,14 +839,14 @@ def write_markdown(path, meta, rows, problems, heads, compile_info, notes, png_n
             f"{k} = {v:.3g}" if isinstance(v, float) else f"{k}: {v}"
             for k, v in p["reference"].items()))
     out += ["", "## One-off costs (not in the timings)", "",
-            f"* `import dolfinode`: {rf.fmt_s(meta['import_seconds'])}; loading (or, after a "
+            f"* `import dolfinode`: {report.fmt_s(meta['import_seconds'])}; loading (or, after a "
             "change, JIT-compiling) the multi-adaptive loop, `from dolfinode.timeslab import "
-            f"multi`: {rf.fmt_s(meta['multi_import_seconds'])}.", "",
+            f"multi`: {report.fmt_s(meta['multi_import_seconds'])}.", "",
             "| problem | N | first call wall | stats['compile time'] | kernel cache |",
             "|---|---|---|---|---|"]
     for name, c in compile_info.items():
-        out.append(f"| {name} | {c['N']} | {rf.fmt_s(c['first_call_s'])} | "
-                   f"{rf.fmt_s(c['compile_time_s'])} | {c['cache']} |")
+        out.append(f"| {name} | {c['N']} | {report.fmt_s(c['first_call_s'])} | "
+                   f"{report.fmt_s(c['compile_time_s'])} | {c['cache']} |")
     for p in problems:
         out += ["", f"## {p['name']}", "", "### Multi vs mono (tightest common tolerance) and "
                 "vs scipy", "", headline_table(heads[p["name"]]), "", "### All runs", "",
@@ -881,7 +882,7 @@ def main(argv=None):
     from dolfinode.compile.cache import cache_directory
     import_seconds = time.perf_counter() - start
     start = time.perf_counter()
-    from dolfinode.timeslab import multi  # noqa: F401  (numba loop: cache load or JIT)
+    from dolfinode.timeslab import multi
     multi_import_seconds = time.perf_counter() - start
     print(f"import dolfinode: {import_seconds:.2f} s, multi-adaptive loop: "
           f"{multi_import_seconds:.2f} s; kernel cache {cache_directory()}"
@@ -928,7 +929,7 @@ def main(argv=None):
                         skip = f"over {limit:g} s at a looser tolerance"
         print(f"re-timing {len(jobs)} runs under {SINGLE_RUN:g} s in interleaved rounds "
               f"({'1 round' if args.quick else 'median of 3-7'})", flush=True)
-        rf.time_interleaved(jobs, args.quick)
+        time_interleaved(jobs, 1 if args.quick else 5, 0.5)
         for row, _ in jobs:
             progress(row, timed=True)
     finally:
@@ -942,7 +943,7 @@ def main(argv=None):
     notes = [notes_for(p, heads[p["name"]], rows) for p in problems]
     notes = [n for n in notes if n]
 
-    meta = rf.machine_info()
+    meta = report.machine_info()
     meta.update(quick=args.quick, run_limit_s=limit, import_seconds=import_seconds,
                 multi_import_seconds=multi_import_seconds,
                 command="python benchmarks/run_multiadaptive.py" +

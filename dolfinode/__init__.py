@@ -1,15 +1,23 @@
 """dolfinode: variational (Galerkin) time integration of ODE systems declared in sympy.
 
-Public surface (see shared/API.md): ``ODE``, ``t``, ``solve``, ``Solution``, ``SolverError``.
+Public surface (see shared/API.md): ``ODE``, ``t``, ``solve``, ``Solution``, ``SolverError``,
+``estimate_error``, ``Goal``, ``ErrorEstimate``; structured systems ``Template``,
+``TemplateODE``, ``ParticleSystem`` (``dolfinode.systems``); ensembles ``solve_ensemble``,
+``vary``.
 """
+from dolfinode.dual import ErrorEstimate, Goal, estimate_error
+from dolfinode.ensemble import solve_ensemble, vary
 from dolfinode.errors import SolverError
 from dolfinode.methods import Method, make_method, parse_method
 from dolfinode.ode import ODE, t
 from dolfinode.parameters import DEFAULTS as default_parameters
 from dolfinode.solution import Solution
 from dolfinode.solve import solve
+from dolfinode import systems  # noqa: E402 - after solve, as the package's own modules
+from dolfinode.systems import ParticleSystem, Template, TemplateODE
 
 __version__ = "0.1.0"
 
-__all__ = ["ODE", "Method", "Solution", "SolverError", "default_parameters", "make_method",
-           "parse_method", "solve", "t"]
+__all__ = ["ODE", "ErrorEstimate", "Goal", "Method", "ParticleSystem", "Solution",
+           "SolverError", "Template", "TemplateODE", "default_parameters", "estimate_error",
+           "make_method", "parse_method", "solve", "solve_ensemble", "systems", "t", "vary"]

@@ -135,7 +135,11 @@ class ODE:
         self.T = _check_time(T, "T")
         if not self.T > self.t0:
             raise ValueError(f"the final time T = {self.T} must be larger than t0 = {self.t0}")
-        self.u0 = _vector_by_state(u0, self.states, "u0")
+        self.u0 = self._initial_vector(u0)
+
+    def _initial_vector(self, u0):
+        """u0 as a validated float vector in component order (dict by state or sequence)."""
+        return _vector_by_state(u0, self.states, "u0")
 
     @staticmethod
     def _pairs(rhs):
@@ -234,6 +238,13 @@ class ODE:
             return self.velocity_symbols[x]
         except (AttributeError, KeyError):
             raise ValueError(f"{x!r} is not a position of a second-order system") from None
+
+    def __getstate__(self):
+        # compiled kernels (ctypes) do not pickle: a receiving process compiles its own,
+        # from its disk cache when it has one
+        state = self.__dict__.copy()
+        state.pop("_compiled", None)
+        return state
 
     def __repr__(self):
         return f"ODE(N={self.N}, t0={self.t0}, T={self.T}, params={len(self.params)})"

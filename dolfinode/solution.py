@@ -122,6 +122,25 @@ class Solution:
         span = slice(self._component_ptr[i], self._component_ptr[i + 1])
         return self.t_start[span].copy(), self.k[span].copy()
 
+    def elements(self):
+        """Every component's elements in one layout for mono- and multi-adaptive solutions.
+
+        Returns
+        -------
+        ptr : (N + 1,) int64; component i owns elements ptr[i]:ptr[i + 1], sorted in time
+        t_start, t_end : (E,) element end points; consecutive elements of a component share
+            their end point exactly
+        values : (E, q + 1) nodal values at t_start + tau_j (t_end - t_start)
+        """
+        if self.multi:
+            return (self._component_ptr.copy(), self.t_start.copy(), self._t_end.copy(),
+                    self.values.copy())
+        M, N = len(self.k), self.ode.N
+        t_end = np.append(self.t_start[1:], self.t_start[-1] + self.k[-1])
+        ptr = np.arange(N + 1, dtype=np.int64) * M
+        values = np.ascontiguousarray(self.values.transpose(2, 0, 1)).reshape(N * M, -1)
+        return ptr, np.tile(self.t_start, N), np.tile(t_end, N), values
+
     def __repr__(self):
         kind = "multi-adaptive" if self.multi else "mono-adaptive"
         return (f"Solution({self.method.name}, {kind}, N={self.ode.N}, elements={len(self.k)}, "

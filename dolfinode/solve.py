@@ -54,7 +54,7 @@ def _initial_steps(ode, given, f0, atol, rtol, multi_adaptive):
     return steps
 
 
-def solve(ode, method="cG(1)", **parameters):
+def solve(ode, method="cG(1)", goal=None, **parameters):
     """Solve the ODE with a Galerkin method.
 
     Parameters
@@ -63,6 +63,11 @@ def solve(ode, method="cG(1)", **parameters):
     method : str
         "cG(q)" (q >= 1) or "dG(q)" (q >= 0): one time step shared by all components;
         "mcG(q)" or "mdG(q)": individual time steps per component (multi-adaptive).
+    goal : optional
+        An output of the solution (see :class:`dolfinode.Goal`): then ``tolerance`` bounds the
+        estimated error in that output, and primal and dual problems are solved in turn until
+        it is met (:func:`dolfinode.dual.adaptivity.solve_for_goal`); the solution carries
+        ``sol.error_estimate``.
     **parameters
         See :data:`dolfinode.parameters.DEFAULTS` (DOLFIN's names).
 
@@ -82,6 +87,11 @@ def solve(ode, method="cG(1)", **parameters):
     if not isinstance(ode, ODE):
         raise TypeError(f"solve expects a dolfinode.ODE, got {type(ode).__name__}")
     params = check_parameters(parameters)
+    if goal is not None:
+        from dolfinode.dual.adaptivity import solve_for_goal
+
+        others = {name: value for name, value in parameters.items() if name != "tolerance"}
+        return solve_for_goal(solve, ode, method, goal, params["tolerance"], others)
     multi_adaptive, m = parse_method(method)
     if params["automatic_modeling"]:
         from dolfinode.modeling import solve_with_modeling
@@ -125,8 +135,11 @@ def solve(ode, method="cG(1)", **parameters):
         "solve time": time.perf_counter() - start,
     })
     if multi_adaptive:
-        return Solution.multi_adaptive(ode, m, *elements, stats, params["number_of_samples"])
-    return Solution(ode, m, *elements, stats, params["number_of_samples"])
+        sol = Solution.multi_adaptive(ode, m, *elements, stats, params["number_of_samples"])
+    else:
+        sol = Solution(ode, m, *elements, stats, params["number_of_samples"])
+    sol.parameters = params
+    return sol
 
 
 def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
@@ -155,7 +168,7 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
 
 def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     _, position, kl, ku = compiled.ordering
-    fopts = np.array(fopts + [_KMIN_RELATIVE])
+    fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0])
     state = np.array([ode.t0, steps[0], 1.0, 1.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     tau = m.nodes[m.stages].copy()

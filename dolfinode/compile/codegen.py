@@ -50,13 +50,13 @@ def _print(expr):
     return _KernelPrinter().doprint(expr)
 
 
-def _statements(exprs, targets):
-    """C statements ``target = expr;`` after common-subexpression elimination."""
+def _statements(exprs, targets, assign="="):
+    """C statements ``target = expr;`` (or ``+=`` ...) after common-subexpression elimination."""
     if len(exprs) == 1 and sp.count_ops(exprs[0]) < 16:
-        return [f"    {targets[0]} = {_print(exprs[0])};"]  # too small for CSE to pay
+        return [f"    {targets[0]} {assign} {_print(exprs[0])};"]  # too small for CSE to pay
     replacements, reduced = sp.cse(list(exprs), symbols=sp.numbered_symbols("c"), optimizations=None)
     lines = [f"    const double {sym} = {_print(value)};" for sym, value in replacements]
-    lines += [f"    {target} = {_print(value)};" for target, value in zip(targets, reduced)]
+    lines += [f"    {target} {assign} {_print(value)};" for target, value in zip(targets, reduced)]
     return lines
 
 

@@ -29,9 +29,12 @@ class CompiledODE:
     ----------
     rhs, rhs_component, jacobian, jacobian_row : :class:`~dolfinode.compile.signatures.Kernel`
     indptr, indices : int64 CSR pattern of df/du; row i lists the j that f_i depends on
-    p : float64 parameter values in the order of ``ode.parameter_symbols``
+    p : float64 parameter values in the order of ``ode.parameter_symbols`` (for a
+        TemplateODE followed by the header that locates its arrays, see
+        :mod:`dolfinode.compile.template`)
     compile_time : seconds spent generating and compiling (or loading from cache)
     cached : whether the kernels came from the disk cache
+    data : arrays the kernels read through ``p`` (kept alive with the kernels)
     """
 
     N: int
@@ -44,6 +47,7 @@ class CompiledODE:
     p: np.ndarray
     compile_time: float
     cached: bool
+    data: tuple = ()
 
     @property
     def nnz(self):
@@ -115,6 +119,24 @@ def lower(ode):
     if getattr(ode, "_compiled", None) is not None:
         return replace(ode._compiled, compile_time=0.0, cached=True)
     start = time.perf_counter()
+    if hasattr(ode, "templates"):
+        from dolfinode.compile.template import lower_template  # imports this module
+        key, source, indptr, indices, p, data = lower_template(ode)
+    else:
+        key, source, indptr, indices = _lower_expressions(ode)
+        p, data = ode.parameter_values, ()
+    cached = key in _loaded
+    if not cached:
+        library, cached = load_library(key, source)
+        _loaded[key] = tuple(Kernel(library, name) for name in KERNELS)
+    kernels = _loaded[key]
+    ode._compiled = CompiledODE(ode.N, *kernels, indptr, indices, p,
+                                time.perf_counter() - start, cached, data)
+    return ode._compiled
+
+
+def _lower_expressions(ode):
+    """Signature, source maker and CSR pattern of an ODE of per-component expressions."""
     # Real symbols named as the C array accesses they print as: real, so that sympy
     # differentiates |u|, sign(u), ... as functions of a real variable.
     u = [sp.Symbol(f"u[{i}]", real=True) for i in range(ode.N)]
@@ -133,11 +155,4 @@ def lower(ode):
         jacobian_rows = [[_derivative(rhs[i], u[j]) for j in r] for i, r in enumerate(rows)]
         return kernel_source(rhs, jacobian_rows)
 
-    cached = key in _loaded
-    if not cached:
-        library, cached = load_library(key, source)
-        _loaded[key] = tuple(Kernel(library, name) for name in KERNELS)
-    kernels = _loaded[key]
-    ode._compiled = CompiledODE(ode.N, *kernels, indptr, indices, ode.parameter_values,
-                                time.perf_counter() - start, cached)
-    return ode._compiled
+    return key, source, indptr, indices

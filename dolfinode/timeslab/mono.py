@@ -34,7 +34,9 @@ from dolfinode.timeslab import (
 T_NOW, K_NEXT, EPS_PREV, HAVE_F0 = range(4)
 # Indices into the integer and float options.
 SOLVER, FIXED, MAX_ITER, IS_DG = range(4)
-RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, RESIDUAL_POWER, KMIN_REL = range(8)
+RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, RESIDUAL_POWER, KMIN_REL, SPAN = range(9)
+#: Relative size of the smallest increment an iteration still resolves (about 50 ulp).
+ROUNDING = 1e-14
 
 _f8 = types.float64[::1]
 _i8 = types.int64[::1]
@@ -94,6 +96,13 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
         kmin = fopts[KMIN_REL] * max(abs(t), abs(T) * 1e-6)
         if k < kmin and k < remaining:
             return UNDERFLOW
+        # Each slab's discrete (iteration) error adds up over the (T - t0)/k slabs, and for
+        # oscillations it does so with one sign (a systematic energy drift), so the stopping
+        # tolerance is dtol x k/(T - t0): the sum stays below dtol x tolerance. It is not
+        # taken below the rounding level ROUNDING/rtol of the scaled norm (nor above dtol).
+        dtol_k = dtol
+        if not fixed:
+            dtol_k = max(dtol * min(1.0, k / fopts[SPAN]), min(dtol, ROUNDING / rtol))
         # predictor: explicit Euler to every stage
         for s in range(S):
             for i in range(N):
@@ -101,7 +110,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
         use_newton = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         iters = -1
         if not use_newton:
-            iters = fixed_point(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter,
+            iters = fixed_point(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter,
                                 X, F, G, tmp_in, tmp_out, counters)
             if iters < 0 and mode == DEFAULT:
                 counters[STIFF] = 1  # fixed point failed: treat the problem as stiff from here on
@@ -114,8 +123,9 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
             counters[JACOBIANS] += 1
             assemble_newton_matrix(jdata, indptr, indices, position, A, k, klS, kuS, ab)
             if factor(ab, klS, kuS, ipiv, counters):
-                iters = newton(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F, G,
-                               tmp_in, tmp_out, ab, klS, kuS, ipiv, position, rhs_perm, counters)
+                iters = newton(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter, X, F,
+                               G, tmp_in, tmp_out, ab, klS, kuS, ipiv, position, rhs_perm,
+                               counters)
             else:
                 iters = -1
         if iters < 0:

@@ -1,14 +1,22 @@
 """Multi-adaptive time slabs: mcG(q) and mdG(q) with individual time steps per component.
 
-Slabs are built by :mod:`dolfinode.timeslab.partition`. The Galerkin equations of every element, xi = x_left + k M^{-1} m with the moments
-m_l = int f_i(U) tau^l, are solved by Gauss-Seidel sweeps over the elements in creation order.
-The moments are integrated exactly (for linear f) by the method's quadrature on every interval
-between the element ends of the dependencies, each dependency read from its own element
-polynomial (interpolated from larger elements, the exact small elements inside a larger one):
-sampling a large element only at its own nodes would alias the fast forcing of small ones and
-lose the 2q / 2q + 1 nodal order. When plain sweeps do not converge the problem is treated as
-stiff, and the elements of each sub-slab (one interval, several components) are updated
-together by a simplified Newton step with the sparse sympy Jacobian restricted to them.
+Slabs are built by :mod:`dolfinode.timeslab.partition`. The Galerkin equations of every
+element, xi = x_left + k M^{-1} m with the moments m_l = int f_i(U) tau^l, are solved by
+Gauss-Seidel sweeps, each element update damped by its own Newton matrix
+(I - k J_ii A)^{-1} so that components stiff on their own step converge. The moments are
+integrated exactly (for linear f) by the method's quadrature on every interval between the
+element ends of the dependencies, each dependency read from its own element polynomial
+(interpolated from larger elements, the exact small elements inside a larger one) through
+cursors that walk its elements in time order: sampling a large element only at its own nodes
+would alias the fast forcing of small ones and lose the 2q / 2q + 1 nodal order.
+
+A slab is solved window by window (the sub-slabs nested in each top-level sub-slab, in time
+order), then the top level, each to convergence; the global iteration stops when the
+windows' response to the top level's change is below the discrete tolerance. The slab length
+adapts to the number of global iterations. When Gauss-Seidel fails or converges too slowly
+the problem is treated as stiff, and the elements of each sub-slab (one interval, several
+components) are updated together by a simplified Newton step with the sparse sympy Jacobian
+restricted to them.
 
 After a slab, every element's residual gives an indicator as in :mod:`dolfinode.adaptivity`;
 the slab is accepted when all are <= ACCEPTANCE_MARGIN, and each component gets its own next
@@ -41,7 +49,7 @@ from dolfinode.timeslab import (
     SUBSLABS,
     UNDERFLOW,
 )
-from dolfinode.timeslab.partition import build_slab, component_elements, subintervals
+from dolfinode.timeslab.partition import build_slab, component_elements, dependency_structure
 
 # Indices into the float state: current time, and the elements a mono-adaptive method with
 # each slab's smallest step would have needed (for the multi-adaptive efficiency index).
@@ -53,9 +61,12 @@ _KMIN_RELATIVE = 1e-14
 #: A slab holds many elements of a fast component and one indicator above the margin rejects
 #: them all; steps are still chosen for indicators of 1 (DOLFIN G1 accepted up to 2 TOL too).
 ACCEPTANCE_MARGIN = 2.0
+#: Sub-slabs coupled more strongly than this on their step are solved by Newton together.
+COUPLING_LIMIT = 0.5
+_DEBUG = False
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _evaluate(values, e, tau, nodes, bary):
     """The element polynomial of e at tau in [0, 1] (barycentric Lagrange formula)."""
     num = 0.0
@@ -70,96 +81,124 @@ def _evaluate(values, e, tau, nodes, bary):
     return num / den
 
 
-@njit(cache=True)
-def _value_at(j, t, a, x0, cptr, celems, ea, eb, values, nodes, bary):
-    """u_j(t) inside the slab [a, ...]: x0 at the slab start, else from j's covering element."""
-    lo = cptr[j]
-    hi = cptr[j + 1] - 1
-    if t <= a:
-        return x0[j]
-    # first element of j with end >= t
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if eb[celems[mid]] >= t:
-            hi = mid
-        else:
-            lo = mid + 1
-    e = celems[lo]
-    tau = (t - ea[e]) / (eb[e] - ea[e])
-    return _evaluate(values, e, min(max(tau, 0.0), 1.0), nodes, bary)
+@njit(cache=True, inline="always")
+def _covering(c, t, last, celems, eb):
+    """Advance the cursor c (a position in a component's element list, ending at last) to the
+    first element ending at or after t."""
+    while c < last and eb[celems[c]] < t:
+        c += 1
+    return c
 
 
-@njit(cache=True)
-def _node_rhs(fi, p, i, e, m, t, a, x0, indptr, indices, cptr, celems, ea, eb, values, nodes,
-              bary, uw, out):
-    """f_i at node m of element e (component i), dependencies read from their elements."""
-    for nz in range(indptr[i], indptr[i + 1]):
-        j = indices[nz]
+@njit(cache=True, inline="always")
+def _read_dependencies(i, e, s0, s1, m, t, slab_start, x0, indptr, indices, cptr, celems, ea,
+                       eb, values, nodes, bary, cur, own, uw):
+    """Fill uw[j] = U_j(t) for the dependencies j of f_i at a point t of the interval
+    [s0, s1] of element e, on which every dependency is one polynomial (cursors in cur).
+    Node m of the interval when m >= 0: an element that is exactly the interval is read at
+    its node without evaluation."""
+    row0 = indptr[i]
+    mid = 0.5 * (s0 + s1)
+    for r in range(indptr[i + 1] - row0):
+        j = indices[row0 + r]
         if j == i:
-            uw[j] = values[e, m]
+            uw[j] = own
+            continue
+        if mid <= slab_start:  # only at a point evaluation at the slab start
+            uw[j] = x0[j]
+            continue
+        c = _covering(cur[r], mid, cptr[j + 1] - 1, celems, eb)
+        cur[r] = c
+        ej = celems[c]
+        if m >= 0 and ea[ej] == s0 and eb[ej] == s1:
+            uw[j] = values[ej, m]
         else:
-            uw[j] = _value_at(j, t, a, x0, cptr, celems, ea, eb, values, nodes, bary)
-    fi(i, uw.ctypes, t, p.ctypes, out.ctypes)
+            tau = (t - ea[ej]) / (eb[ej] - ea[ej])
+            uw[j] = _evaluate(values, ej, min(max(tau, 0.0), 1.0), nodes, bary)
+
+
+@njit(cache=True, inline="always")
+def _start_cursors(i, e, indptr, dptr, dcur, cur):
+    for r in range(indptr[i + 1] - indptr[i]):
+        cur[r] = dcur[dptr[e] + r]
+
+
+@njit(cache=True, inline="always")
+def _end_rhs(fi, p, i, e, slab_start, x0, indptr, indices, cptr, celems, ea, eb, values, nodes,
+             bary, sptr, spts, dptr, dcur, cur, uw, out):
+    """f_i at the end of element e (component i), dependencies read from their elements."""
+    nn = nodes.shape[0]
+    _start_cursors(i, e, indptr, dptr, dcur, cur)
+    _read_dependencies(i, e, spts[sptr[e + 1] - 2], eb[e], nn - 1, eb[e], slab_start, x0,
+                       indptr, indices, cptr, celems, ea, eb, values, nodes, bary, cur,
+                       values[e, nn - 1], uw)
+    fi(i, uw.ctypes, eb[e], p.ctypes, out.ctypes)
     return out[0]
 
 
-@njit(cache=True)
-def _basis(tau, nodes, bary, lam):
-    """Lagrange basis values l_j(tau) into lam."""
-    hit = -1
-    den = 0.0
-    for j in range(nodes.shape[0]):
-        d = tau - nodes[j]
-        if d == 0.0:
-            hit = j
-            break
-        lam[j] = bary[j] / d
-        den += lam[j]
-    for j in range(nodes.shape[0]):
-        if hit >= 0:
-            lam[j] = 1.0 if j == hit else 0.0
-        else:
-            lam[j] /= den
-
-
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _moments(fi, p, i, e, slab_start, x0, indptr, indices, cptr, celems, ea, eb, values, nodes,
-             bary, qweights, sptr, spts, uw, out, lam, mom):
+             bary, qweights, sptr, spts, dptr, dcur, cur, uw, out, mom):
     """Moments m_l = int_0^1 f_i(U(tau)) tau^l dtau of element e by quadrature on every
     interval between breakpoints (exact for linear f). Returns the f evaluations."""
     S = mom.shape[0]
     nn = nodes.shape[0]
     k = eb[e] - ea[e]
     mom[:] = 0.0
-    evaluations = 0
+    _start_cursors(i, e, indptr, dptr, dcur, cur)
+    whole = sptr[e + 1] - sptr[e] == 2  # no dependency breaks inside e
     for sub in range(sptr[e], sptr[e + 1] - 1):
         s0 = spts[sub]
-        h = spts[sub + 1] - s0
+        s1 = spts[sub + 1]
+        h = s1 - s0
         for m in range(nn):
             tq = s0 + nodes[m] * h
-            tau = min(max((tq - ea[e]) / k, 0.0), 1.0)
-            _basis(tau, nodes, bary, lam)
-            own = 0.0
-            for n in range(nn):
-                own += lam[n] * values[e, n]
-            for nz in range(indptr[i], indptr[i + 1]):
-                j = indices[nz]
-                uw[j] = own if j == i else _value_at(j, tq, slab_start, x0, cptr, celems, ea, eb,
-                                                     values, nodes, bary)
+            if whole:
+                tau = nodes[m]
+                own = values[e, m]
+            else:
+                tau = min(max((tq - ea[e]) / k, 0.0), 1.0)
+                own = _evaluate(values, e, tau, nodes, bary)
+            _read_dependencies(i, e, s0, s1, m, tq, slab_start, x0, indptr, indices, cptr,
+                               celems, ea, eb, values, nodes, bary, cur, own, uw)
             fi(i, uw.ctypes, tq, p.ctypes, out.ctypes)
-            evaluations += 1
             w = qweights[m] * h / k
             power = 1.0
             for lm in range(S):
                 mom[lm] += w * power * out[0]
                 power *= tau
-    return evaluations
+    return (sptr[e + 1] - sptr[e] - 1) * nn
+
+
+@njit(cache=True, inline="always")
+def _damping(k, jii, A, D):
+    """D = (I - k J_ii A)^{-1}: the element's own (diagonal) Newton matrix, which turns the
+    Gauss-Seidel update into a local Newton step for components stiff on their own step."""
+    S = A.shape[0]
+    for r in range(S):
+        for c in range(S):
+            D[r, c] = (1.0 if r == c else 0.0) - k * jii * A[r, c]
+    if S == 1:
+        D[0, 0] = 1.0 / D[0, 0]
+        return
+    # Gauss-Jordan in place (small, diagonally dominant for k J_ii <= 0)
+    for c in range(S):
+        piv = D[c, c]
+        D[c, c] = 1.0
+        for cc in range(S):
+            D[c, cc] /= piv
+        for r in range(S):
+            if r != c:
+                factor = D[r, c]
+                D[r, c] = 0.0
+                for cc in range(S):
+                    D[r, cc] -= factor * D[c, cc]
 
 
 @njit(cache=True)
 def _group_newton(e0, e1, fi, ji, p, t, x, indptr, indices, position, comp, prev, cptr, celems,
-                  ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, atol, rtol, uw, out,
-                  jrow, lam, mom, local, order, ab_ws, rhs, ipiv, counters):
+                  ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, dptr, dcur, atol,
+                  rtol, uw, out, jrow, cur, mom, local, order, ab_ws, rhs, ipiv, counters):
     """One simplified Newton step for the elements e0..e1-1 of one sub-slab (same interval):
     (I - k A (x) J_gg) dX = r, with r the exact Galerkin residuals and J_gg the sparse Jacobian
     restricted to the group's components at the sub-slab start, in band storage (components
@@ -202,8 +241,8 @@ def _group_newton(e0, e1, fi, ji, p, t, x, indptr, indices, position, comp, prev
         if first_stage == 1:
             values[e, 0] = xl
         counters[F_EVALUATIONS] += _moments(fi, p, i, e, t, x, indptr, indices, cptr, celems, ea,
-                                            eb, values, nodes, bary, qweights, sptr, spts, uw,
-                                            out, lam, mom)
+                                            eb, values, nodes, bary, qweights, sptr, spts, dptr,
+                                            dcur, cur, uw, out, mom)
         row = local[i] * S
         for s_ in range(S):
             acc = 0.0
@@ -211,10 +250,9 @@ def _group_newton(e0, e1, fi, ji, p, t, x, indptr, indices, position, comp, prev
                 acc += Minv[s_, lm] * mom[lm]
             rhs[row + s_] = xl + k * acc - values[e, first_stage + s_]
         # row i of df/du at the sub-slab start, restricted to the group
-        for nz in range(indptr[i], indptr[i + 1]):
-            j = indices[nz]
-            uw[j] = xl if j == i else _value_at(j, ta, t, x, cptr, celems, ea, eb, values, nodes,
-                                                bary)
+        _start_cursors(i, e, indptr, dptr, dcur, cur)
+        _read_dependencies(i, e, ta, ta, -1, ta, t, x, indptr, indices, cptr, celems, ea, eb,
+                           values, nodes, bary, cur, xl, uw)
         ji(i, uw.ctypes, ta, p.ctypes, jrow.ctypes)
         counters[JACOBIANS] += 1
         for nz in range(indptr[i], indptr[i + 1]):
@@ -247,48 +285,128 @@ def _group_newton(e0, e1, fi, ji, p, t, x, indptr, indices, position, comp, prev
 
 
 @njit(cache=True)
-def _sweep(lo, hi, fi, ji, p, t, x, indptr, indices, position, comp, prev, cptr, celems, ea, eb,
-           values, nodes, bary, qweights, Minv, A, sptr, spts, stiff, atol, rtol, uw, out, jrow,
-           lam, mom, local, order, ab_ws, rhs, ipiv, counters):
-    """One Gauss-Seidel sweep over elements lo..hi-1: each element's stage values from the
-    fixed point xi = x_left + k M^{-1} m(xi) or, when stiff, each sub-slab's elements together
-    by a simplified Newton step (see ``_group_newton``). Returns the largest scaled increment
-    (inf on failure)."""
+def _sweep(lo, hi, predict, fi, ji, p, t, x, indptr, indices, position, comp, prev, cptr,
+           celems, ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, dptr, dcur,
+           jdiag, coupling, stiff, atol, rtol, uw, out, jrow, cur, mom, D, delta, local, order,
+           ab_ws, rhs, ipiv, counters):
+    """One Gauss-Seidel sweep over elements lo..hi-1, sub-slab by sub-slab (elements on one
+    interval). Each element's stage values xi from the fixed point
+    xi = x_left + k M^{-1} m(xi), damped by the element's own Newton matrix,
+    xi <- xi + (I - k J_ii A)^{-1} (x_left + k M^{-1} m(xi) - xi); a sub-slab whose
+    components are strongly coupled on its step (k sum_j!=i |J_ij| > COUPLING_LIMIT, where
+    Gauss-Seidel would crawl, as for diffusion on long steps), or every sub-slab when the
+    problem is stiff, is updated together by a simplified Newton step (``_group_newton``).
+    With ``predict``, an element first continues its predecessor's polynomial. Returns the
+    largest scaled increment (inf on failure)."""
     S = Minv.shape[0]
     nn = nodes.shape[0]
     first_stage = nn - S  # 1 for cG (node 0 is the left value), 0 for dG
     d = 0.0
     e = lo
     while e < hi:
-        if stiff:
-            e1 = e + 1
-            while e1 < hi and ea[e1] == ea[e] and eb[e1] == eb[e]:
-                e1 += 1
+        e1 = e + 1
+        while e1 < hi and ea[e1] == ea[e] and eb[e1] == eb[e]:
+            e1 += 1
+        if predict:
+            for ep in range(e, e1):
+                pe = prev[ep]
+                if pe < 0:
+                    continue
+                for m in range(nn):
+                    tau = (ea[ep] + nodes[m] * (eb[ep] - ea[ep]) - ea[pe]) / (eb[pe] - ea[pe])
+                    values[ep, m] = _evaluate(values, pe, min(tau, 3.0), nodes, bary)
+        k = eb[e] - ea[e]
+        together = stiff
+        if not stiff and e1 - e > 1:
+            for ep in range(e, e1):
+                if k * coupling[comp[ep]] > COUPLING_LIMIT:
+                    together = True
+                    break
+        if together:
             d = max(d, _group_newton(e, e1, fi, ji, p, t, x, indptr, indices, position, comp,
                                      prev, cptr, celems, ea, eb, values, nodes, bary, qweights,
-                                     Minv, A, sptr, spts, atol, rtol, uw, out, jrow, lam, mom,
-                                     local, order, ab_ws, rhs, ipiv, counters))
+                                     Minv, A, sptr, spts, dptr, dcur, atol, rtol, uw, out, jrow,
+                                     cur, mom, local, order, ab_ws, rhs, ipiv, counters))
             e = e1
             continue
-        i = comp[e]
-        k = eb[e] - ea[e]
-        xl = x[i] if prev[e] < 0 else values[prev[e], nn - 1]  # the left value
-        if first_stage == 1:
-            values[e, 0] = xl
-        counters[F_EVALUATIONS] += _moments(fi, p, i, e, t, x, indptr, indices, cptr, celems, ea,
-                                            eb, values, nodes, bary, qweights, sptr, spts, uw,
-                                            out, lam, mom)
-        for s in range(S):
-            acc = 0.0
-            for lm in range(S):
-                acc += Minv[s, lm] * mom[lm]
-            delta = xl + k * acc - values[e, first_stage + s]
-            values[e, first_stage + s] += delta
-            scaled = abs(delta) / (atol[i] + rtol * abs(values[e, first_stage + s]))
-            if not scaled <= d:
-                d = scaled if math.isfinite(scaled) else math.inf
-        e += 1
+        for ep in range(e, e1):
+            i = comp[ep]
+            xl = x[i] if prev[ep] < 0 else values[prev[ep], nn - 1]  # the left value
+            if first_stage == 1:
+                values[ep, 0] = xl
+            counters[F_EVALUATIONS] += _moments(fi, p, i, ep, t, x, indptr, indices, cptr,
+                                                celems, ea, eb, values, nodes, bary, qweights,
+                                                sptr, spts, dptr, dcur, cur, uw, out, mom)
+            for s in range(S):
+                acc = 0.0
+                for lm in range(S):
+                    acc += Minv[s, lm] * mom[lm]
+                delta[s] = xl + k * acc - values[ep, first_stage + s]
+            if abs(k * jdiag[i]) > 1e-3:
+                _damping(k, jdiag[i], A, D)
+                for s in range(S):
+                    acc = 0.0
+                    for c in range(S):
+                        acc += D[s, c] * delta[c]
+                    mom[s] = acc
+                for s in range(S):
+                    delta[s] = mom[s]
+            for s in range(S):
+                values[ep, first_stage + s] += delta[s]
+                scaled = abs(delta[s]) / (atol[i] + rtol * abs(values[ep, first_stage + s]))
+                if not scaled <= d:
+                    d = scaled if math.isfinite(scaled) else math.inf
+        e = e1
     return d
+
+
+@njit(cache=True)
+def _windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol, rtol, x, K,
+                     dtol, change, mark):
+    """Whether the windows, converged against the top-level values before its last sweeps,
+    stay within dtol of what the changed top level implies: a change du_j of a top-level
+    component moves a window component u_i by at most about K sum_j |df_i/du_j| du_j over a
+    slab of length K (Jacobian at the slab start). Saves the confirming sweeps over every
+    window when the couplings are weak or the prediction of the top level was good."""
+    N = x.shape[0]
+    for i in range(N):
+        mark[i] = 0
+    for e in range(nroot):
+        j = comp[e]
+        mark[j] = 1
+        change[j] = 0.0
+        for m in range(values.shape[1]):
+            change[j] = max(change[j], abs(values[e, m] - saved[e, m]))
+    for i in range(N):
+        if mark[i] == 1:
+            continue
+        moved = 0.0
+        for nz in range(indptr[i], indptr[i + 1]):
+            j = indices[nz]
+            if mark[j] == 1:
+                moved += abs(jacobian[nz]) * change[j]
+        if K * moved > dtol * (atol[i] + rtol * abs(x[i])):
+            return False
+    return True
+
+
+@njit(cache=True)
+def _slab_limit(kslab, kmax, K, converged, iterations, nwin, nroot, ne):
+    """The next slab length limit. A slab with windows is a waveform-relaxation window: each
+    global iteration sweeps its W = ne - nroot window elements and R = nroot top-level
+    elements, and a longer slab needs more iterations. Modelling one more iteration per
+    doubling of K, the cost per unit time its (W + R) / K falls when K doubles if
+    R (its - 1) > 2 W, and when K halves if R (its - 2) < W: few components on the top level
+    (fine structure everywhere) favour short slabs, many slow components long ones."""
+    if not converged:
+        return 0.5 * K
+    W = ne - nroot
+    R = nroot
+    if nwin == 0 or iterations <= 1 or R * (iterations - 1) > 2 * W:
+        return min(kmax, 2.0 * K)
+    if iterations >= 3 and R * (iterations - 2) < W:
+        return 0.5 * K
+    return max(kslab, K)
 
 
 _f8 = types.float64[::1]
@@ -326,7 +444,12 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     windows = np.empty(16, dtype=np.int64)
     values = np.empty((4 * N, nn))
     mom = np.empty(S)
-    lam = np.empty(nn)
+    delta = np.empty(S)
+    D = np.empty((S, S))
+    degree = 1
+    for i in range(N):
+        degree = max(degree, indptr[i + 1] - indptr[i])
+    cur = np.empty(degree, dtype=np.int64)
     local = np.full(N, -1, dtype=np.int64)
     group_order = np.empty(N, dtype=np.int64)
     last_a = np.zeros(N)  # each component's last element of the previous slab
@@ -340,19 +463,42 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     uw = x.copy()
     out = np.empty(1)
     jrow = np.empty(max(1, indices.shape[0]))
+    jacobian = np.empty(max(1, indices.shape[0]))  # df/du at the slab start (CSR values)
+    jdiag = np.zeros(N)
+    coupling = np.zeros(N)  # sum_j!=i |J_ij|
+    jacobian_time = math.nan
+    kslab = kmax  # slab length limit, adapted to the Gauss-Seidel iterations a slab needs
     emax = np.empty(N)
     kact = np.empty(N)
+    saved = np.empty((N, nn))  # the top level's values before its sweeps
+    top_change = np.zeros(N)
+    mark = np.zeros(N, dtype=np.int64)
     counters[STORED] = 0
     capacity = out_a.shape[0]
     t = state[T_NOW]
     while True:
         if t >= T:
             return DONE
+        if t != jacobian_time:
+            # the Jacobian at the slab start: its diagonal damps the element updates, its
+            # couplings propagate small steps
+            for i in range(N):
+                ji(i, x.ctypes, t, p.ctypes, jrow.ctypes)
+                jdiag[i] = 0.0
+                coupling[i] = 0.0
+                for nz in range(indptr[i], indptr[i + 1]):
+                    jacobian[nz] = jrow[nz - indptr[i]]
+                    if indices[nz] == i:
+                        jdiag[i] = jrow[nz - indptr[i]]
+                    else:
+                        coupling[i] += abs(jrow[nz - indptr[i]])
+            counters[JACOBIANS] += N
+            jacobian_time = t
         for i in range(N):
             if not fixed:
                 kdes[i] = min(kdes[i], kmax)
-        b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, theta, beta, comp, ea,
-                                                              eb, windows)
+        b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, theta, beta, kslab, comp,
+                                                              ea, eb, windows)
         if ne > capacity - counters[STORED]:
             return FULL  # with nothing stored: the driver grows the buffers
         if b - t < _KMIN_RELATIVE * max(abs(t), abs(T) * 1e-6) and b < T:
@@ -360,7 +506,8 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         if values.shape[0] < ne:
             values = np.empty((max(ne, 2 * values.shape[0]), nn))
         cptr, celems, prev = component_elements(comp, ne, N)
-        sptr, spts = subintervals(ne, comp, indptr, indices, cptr, celems, ea, eb)
+        sptr, spts, dptr, dcur = dependency_structure(ne, comp, indptr, indices, cptr, celems,
+                                                      ea, eb)
         largest = 1
         run = 1
         for e in range(1, ne):
@@ -370,34 +517,37 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             ab_ws = np.zeros((largest * S, band_width))
             newton_rhs = np.empty(largest * S)
             newton_ipiv = np.empty(largest * S, dtype=np.int64)
-        # initial guess: the top-level elements continue each component's last polynomial of
-        # the previous slab (smooth, slow components), the windows start constant (they are
-        # solved forward in time)
+        # initial guess: each component's first element continues its last polynomial of the
+        # previous slab (at most two element lengths ahead); later elements continue their
+        # predecessor when the sweep reaches them
         for e in range(ne):
             i = comp[e]
             for m in range(nn):
                 values[e, m] = x[i]
-                if e < (windows[0] if nwin > 0 else ne) and last_b[i] > last_a[i]:
+                if prev[e] < 0 and last_b[i] > last_a[i]:
                     tau = (ea[e] + nodes[m] * (eb[e] - ea[e]) - last_a[i]) / (last_b[i] - last_a[i])
-                    if tau <= 3.0:  # extrapolate at most two element lengths ahead
+                    if tau <= 3.0:
                         values[e, m] = _evaluate(last_values, i, tau, nodes, bary)
         stiff = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         nroot = windows[0] if nwin > 0 else ne
+        if saved.shape[0] < nroot:
+            saved = np.empty((max(nroot, 2 * saved.shape[0]), nn))
         converged = False
         d_prev = math.inf
         growth = 0
         for it in range(max_iter):
             # every window iterated to convergence in turn (the fast components advance window
-            # by window as in single-rate time stepping), then the top-level elements once
+            # by window as in single-rate time stepping), then the top-level elements
             d = 0.0
             for w in range(nwin):
                 hi = windows[w + 1] if w + 1 < nwin else ne
                 for sweeps in range(max_iter):
-                    dl = _sweep(windows[w], hi, fi, ji, p, t, x, indptr, indices, position,
-                                comp, prev, cptr, celems, ea, eb, values, nodes, bary, qweights,
-                                Minv, A, sptr, spts, stiff, atol, rtol, uw, out, jrow, lam, mom,
-                                local, group_order, ab_ws, newton_rhs, newton_ipiv,
-                                counters)
+                    predict = it == 0 and sweeps == 0
+                    dl = _sweep(windows[w], hi, predict, fi, ji, p, t, x, indptr,
+                                indices, position, comp, prev, cptr, celems, ea, eb, values,
+                                nodes, bary, qweights, Minv, A, sptr, spts, dptr, dcur, jdiag,
+                                coupling, stiff, atol, rtol, uw, out, jrow, cur, mom, D, delta, local,
+                                group_order, ab_ws, newton_rhs, newton_ipiv, counters)
                     if sweeps == 0:
                         d = max(d, dl)
                     # converge windows well below dtol, so that what the next global
@@ -406,12 +556,34 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                         break
                 if not dl <= 0.1 * dtol:
                     d = math.inf
-            d = max(d, _sweep(0, nroot, fi, ji, p, t, x, indptr, indices, position, comp, prev,
-                              cptr, celems, ea, eb, values, nodes, bary, qweights, Minv, A, sptr,
-                              spts, stiff, atol, rtol, uw, out, jrow, lam, mom, local,
-                              group_order, ab_ws, newton_rhs, newton_ipiv, counters))
+            # the top level too: one sweep would leave the slow components' own coupling
+            # to the next global iteration, which costs a sweep over every window
+            resolved = math.isfinite(d)  # every window converged
+            for e in range(nroot):
+                for m in range(nn):
+                    saved[e, m] = values[e, m]
+            for sweeps in range(max_iter):
+                dl = _sweep(0, nroot, False, fi, ji, p, t, x, indptr, indices, position, comp,
+                            prev, cptr, celems, ea, eb, values, nodes, bary, qweights, Minv, A,
+                            sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw, out, jrow, cur,
+                            mom, D, delta, local, group_order, ab_ws, newton_rhs, newton_ipiv,
+                            counters)
+                if sweeps == 0:
+                    d = max(d, dl)
+                if dl <= 0.1 * dtol or not math.isfinite(dl) or nwin == 0:
+                    break
+            if not dl <= 0.1 * dtol and nwin > 0:
+                d = math.inf
             counters[ITERATIONS] += 1
-            if d <= dtol or (it >= 2 and d >= 0.5 * d_prev and d <= 1e-10):
+            # the distance to the fixed point is about d / (1 - rho) for the contraction
+            # rho = d / d_prev: slowly contracting sweeps must get further below dtol
+            rho = min(d / d_prev, 0.99) if it > 0 else 0.0
+            if d <= dtol * (1.0 - rho) or (it >= 2 and d >= 0.5 * d_prev and d <= 1e-10):
+                converged = True
+                break
+            if nwin > 0 and resolved and math.isfinite(d) and _windows_settled(
+                    nroot, comp, values, saved, indptr, indices, jacobian, atol, rtol, x,
+                    b - t, dtol, top_change, mark):
                 converged = True
                 break
             if not math.isfinite(d):
@@ -420,6 +592,12 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             if growth >= 3:
                 break
             d_prev = d
+        if converged and mode == DEFAULT and it >= 7:
+            counters[STIFF] = 1  # Gauss-Seidel converges too slowly: Newton from here on
+        if _DEBUG:
+            print("slab", t, b - t, "ne", ne, "nroot", nroot, "nwin", nwin, "it", it + 1, "conv", converged, "d", d, "stiff", stiff)
+        if not fixed:
+            kslab = _slab_limit(kslab, kmax, b - t, converged, it + 1, nwin, nroot, ne)
         if not converged:
             counters[FAILED_SOLVES] += 1
             if mode == DEFAULT and counters[STIFF] == 0:
@@ -441,8 +619,8 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         for e in range(ne):
             i = comp[e]
             k = eb[e] - ea[e]
-            fend = _node_rhs(fi, p, i, e, nn - 1, eb[e], t, x, indptr, indices, cptr, celems, ea,
-                             eb, values, nodes, bary, uw, out)
+            fend = _end_rhs(fi, p, i, e, t, x, indptr, indices, cptr, celems, ea, eb, values,
+                            nodes, bary, sptr, spts, dptr, dcur, cur, uw, out)
             counters[F_EVALUATIONS] += 1
             kdu = 0.0
             ul = 0.0
@@ -487,13 +665,15 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             # one step of i (|df_i/du_j| k_i > 1), u_j must be resolved on i's scale. This is
             # DOLFIN's "poor man's dual weighting", restricted to the couplings that matter.
             for i in range(N):
-                ji(i, x.ctypes, t, p.ctypes, jrow.ctypes)
                 for nz in range(indptr[i], indptr[i + 1]):
                     j = indices[nz]
-                    if j != i and abs(jrow[nz - indptr[i]]) * kdes[i] > 1.0:
+                    if j != i and abs(jacobian[nz]) * kdes[i] > 1.0:
                         kdes[j] = min(kdes[j], kdes[i])
         if not accept:
             counters[REJECTED] += 1
+            # a rejection discards the whole slab: the steps chosen at its start no longer
+            # fit its end (a front arrives), so try a shorter one
+            kslab = min(kslab, 0.5 * (b - t))
             continue
         # store the slab's elements and move to its end
         n0 = counters[STORED]

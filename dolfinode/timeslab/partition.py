@@ -54,9 +54,9 @@ def _partition(perm, offset, kdes, theta):
 
 
 @njit(cache=True)
-def build_slab(a, T, kdes, theta, beta, comp, ea, eb, windows):
-    """Build the time slab starting at a; returns (b, number of elements, number of sub-slabs,
-    number of windows, comp, ea, eb, windows), the arrays grown as needed.
+def build_slab(a, T, kdes, theta, beta, kslab, comp, ea, eb, windows):
+    """Build the time slab starting at a, at most kslab long; returns (b, number of elements,
+    number of sub-slabs, number of windows, comp, ea, eb, windows), the arrays grown as needed.
 
     Elements come in creation order (depth first), so the sub-slabs nested in each sub-slab of
     the top level form a contiguous range, a *window*, starting at ``windows[w]``."""
@@ -74,6 +74,8 @@ def build_slab(a, T, kdes, theta, beta, comp, ea, eb, windows):
     while True:
         # create a sub-slab on [lo, hi] for the components perm[offset:]
         end, K = _partition(perm, offset, kdes, theta)
+        if depth == 0:
+            K = min(K, kslab)
         b1 = lo + K if K < beta * (hi - lo) else hi
         if depth == 1:
             windows = grow_int(windows, nwin + 1)
@@ -129,11 +131,34 @@ def component_elements(comp, ne, n):
 
 
 @njit(cache=True)
-def subintervals(ne, comp, indptr, indices, cptr, celems, ea, eb):
-    """For every element, the breakpoints (its ends and the element ends of its dependencies
-    inside it) that split it into intervals where the integrand is one polynomial; CSR."""
-    ptr = np.zeros(ne + 1, dtype=np.int64)
-    points = np.empty(2 * ne)
+def _sort(buf, count):
+    """Sort buf[:count] in place (insertion sort: the lists are short and nearly sorted)."""
+    if count > 64:
+        buf[:count] = np.sort(buf[:count])
+        return
+    for r in range(1, count):
+        v = buf[r]
+        s = r - 1
+        while s >= 0 and buf[s] > v:
+            buf[s + 1] = buf[s]
+            s -= 1
+        buf[s + 1] = v
+
+
+@njit(cache=True)
+def dependency_structure(ne, comp, indptr, indices, cptr, celems, ea, eb):
+    """Per element e of component i: the breakpoints that split it into intervals where the
+    integrand f_i(U) is one polynomial (its ends and the element ends of its dependencies
+    inside it), as CSR (sptr, spts); and for every dependency j of i (the nonzeros of row i,
+    at dptr[e] + nz - indptr[i]) the position in ``celems`` of j's first element ending
+    after the start of e, a cursor from which dependency values are read in time order."""
+    sptr = np.zeros(ne + 1, dtype=np.int64)
+    spts = np.empty(2 * ne + 16)
+    dptr = np.zeros(ne + 1, dtype=np.int64)
+    for e in range(ne):
+        i = comp[e]
+        dptr[e + 1] = dptr[e] + indptr[i + 1] - indptr[i]
+    dcur = np.empty(dptr[ne], dtype=np.int64)
     buf = np.empty(16)
     for e in range(ne):
         i = comp[e]
@@ -141,15 +166,16 @@ def subintervals(ne, comp, indptr, indices, cptr, celems, ea, eb):
         count = 0
         for nz in range(indptr[i], indptr[i + 1]):
             j = indices[nz]
-            if j == i:
-                continue
-            lo, hi = cptr[j], cptr[j + 1]
+            lo, hi = cptr[j], cptr[j + 1] - 1
             while lo < hi:  # first element of j ending after a
                 mid = (lo + hi) // 2
                 if eb[celems[mid]] > a:
                     hi = mid
                 else:
                     lo = mid + 1
+            dcur[dptr[e] + nz - indptr[i]] = lo
+            if j == i:
+                continue
             for c in range(lo, cptr[j + 1]):
                 tb = eb[celems[c]]
                 if tb >= b:
@@ -158,15 +184,16 @@ def subintervals(ne, comp, indptr, indices, cptr, celems, ea, eb):
                     buf = grow_float(buf, 2 * count)
                 buf[count] = tb
                 count += 1
-        inner = np.unique(buf[:count])
-        need = ptr[e] + inner.shape[0] + 2
-        points = grow_float(points, need)
-        points[ptr[e]] = a
+        _sort(buf, count)
+        spts = grow_float(spts, sptr[e] + count + 2)
+        base = sptr[e]
+        spts[base] = a
         n = 1
-        for tb in inner:
-            if tb - points[ptr[e] + n - 1] > 1e-12 * (b - a) and b - tb > 1e-12 * (b - a):
-                points[ptr[e] + n] = tb
+        for r in range(count):
+            tb = buf[r]
+            if tb - spts[base + n - 1] > 1e-12 * (b - a) and b - tb > 1e-12 * (b - a):
+                spts[base + n] = tb
                 n += 1
-        points[ptr[e] + n] = b
-        ptr[e + 1] = ptr[e] + n + 1
-    return ptr, points
+        spts[base + n] = b
+        sptr[e + 1] = base + n + 1
+    return sptr, spts, dptr, dcur

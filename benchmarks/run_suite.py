@@ -1,0 +1,21 @@
+"""The benchmark suite: every problem of dolfinode.bench, dolfinode cG(1..3)/dG(1..3) against
+scipy RK45, DOP853, Radau, BDF and LSODA; writes doc/benchmarks/suite.{csv,json,png,md} and
+the README's benchmark-suite paragraph. Same as ``dolfinode bench`` with those two defaults;
+any of its options may follow (``--quick``, ``--problems``, ``--methods``, ``--tolerances``).
+
+Usage::
+
+    .venv/bin/python benchmarks/run_suite.py            # full run
+    .venv/bin/python benchmarks/run_suite.py --quick    # about a minute
+"""
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from dolfinode.cli import main
+
+if __name__ == "__main__":
+    sys.exit(main(["bench", "--output", str(ROOT / "doc" / "benchmarks"),
+                   "--update-readme", str(ROOT / "README.md"), *sys.argv[1:]]))

@@ -1,0 +1,1 @@
+"""The benchmark suite: problem set, runner, scoring and reports (``dolfinode bench``)."""

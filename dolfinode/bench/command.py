@@ -1,0 +1,101 @@
+"""``dolfinode bench``: run the suite and write its tables and plots."""
+import time
+from pathlib import Path
+
+from dolfinode.bench import report
+from dolfinode.bench.problems import PROBLEMS, QUICK_PROBLEMS, get_problem
+from dolfinode.bench.runner import SCIPY_METHODS, check_methods, run_suite
+
+DN_METHODS = ("cG(1)", "cG(2)", "cG(3)", "dG(1)", "dG(2)", "dG(3)")
+FULL_TOLERANCES = tuple(10.0 ** -e for e in range(3, 11))
+QUICK = {"methods": ("cG(2)", "dG(2)", "dG(3)", "DOP853", "Radau", "BDF", "LSODA"),
+         "tolerances": (1e-4, 1e-7), "repeats": 1, "time_limit": 3.0,
+         "maximum_steps": 200_000}
+
+
+def _list(text):
+    return [s.strip() for s in text.split(",") if s.strip()]
+
+
+def add_arguments(parser):
+    parser.add_argument("--problems", type=_list, default=None,
+                        help=f"comma-separated problem names (default: all of {', '.join(PROBLEMS)}"
+                             f"; --quick: {', '.join(QUICK_PROBLEMS)})")
+    parser.add_argument("--methods", type=_list, default=None,
+                        help="comma-separated dolfinode methods and scipy solvers "
+                             f"({', '.join(SCIPY_METHODS)}); default: "
+                             f"{', '.join(DN_METHODS + SCIPY_METHODS)}")
+    parser.add_argument("--tolerances", type=lambda s: [float(x) for x in _list(s)],
+                        default=None, help="comma-separated relative tolerances "
+                                           "(default 1e-3, ..., 1e-10; --quick: 1e-4, 1e-7)")
+    parser.add_argument("--quick", action="store_true",
+                        help="four problems, seven methods, two tolerances, one timed repeat "
+                             "(about a minute)")
+    parser.add_argument("--repeats", type=int, default=None,
+                        help="timed repeats per run, median (default 3; --quick: 1)")
+    parser.add_argument("--time-limit", type=float, default=None,
+                        help="seconds after which a scipy run is abandoned (default 20; "
+                             "--quick: 3)")
+    parser.add_argument("--output", default="doc/benchmarks", help="output folder")
+    parser.add_argument("--name", default="suite", help="file stem of the outputs")
+    parser.add_argument("--update-readme", metavar="README", default=None,
+                        help="rewrite the benchmark-suite section of this README.md")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def plan(args):
+    """The problems, methods, tolerances and runner options the arguments ask for.
+
+    Raises
+    ------
+    ValueError
+        For an unknown problem or method, or a non-positive number.
+    """
+    names = args.problems or (QUICK_PROBLEMS if args.quick else list(PROBLEMS))
+    problems = [get_problem(n) for n in names]
+    methods = list(args.methods or (QUICK["methods"] if args.quick
+                                    else DN_METHODS + SCIPY_METHODS))
+    check_methods(methods)
+    tolerances = list(args.tolerances or (QUICK["tolerances"] if args.quick
+                                          else FULL_TOLERANCES))
+    if not tolerances or any(not tol > 0 for tol in tolerances):
+        raise ValueError(f"tolerances must be positive, got {tolerances}")
+    options = {"repeats": args.repeats or (QUICK["repeats"] if args.quick else 3)}
+    if options["repeats"] < 1:
+        raise ValueError(f"--repeats must be at least 1, got {args.repeats}")
+    if args.quick:
+        options.update({k: QUICK[k] for k in ("time_limit", "maximum_steps")})
+    if args.time_limit is not None:
+        if not args.time_limit > 0:
+            raise ValueError(f"--time-limit must be positive, got {args.time_limit}")
+        options["time_limit"] = args.time_limit
+    return problems, methods, tolerances, options
+
+
+def run(args, planned, command="dolfinode bench"):
+    """Run the suite as planned by :func:`plan`; returns the headline dict."""
+    start = time.perf_counter()
+    problems, methods, tolerances, options = planned
+    repeats = options["repeats"]
+    rows, cases = run_suite(problems, methods, tolerances, progress=not args.no_progress,
+                            **options)
+    meta = report.machine_info()
+    meta.update(command=command, quick=bool(args.quick), tolerances=list(tolerances),
+                repeats=repeats, methods=methods,
+                total_seconds=time.perf_counter() - start)
+    out = Path(args.output)
+    heads = report.write_outputs(out, args.name, meta, rows, cases)
+    print(report.summary_table(heads))
+    print(f"wrote {out}/{args.name}.{{csv,json,png,md}} in {meta['total_seconds']:.0f} s")
+    if args.update_readme:
+        readme = Path(args.update_readme)
+
+        def rel(p):
+            try:
+                return str(p.resolve().relative_to(readme.resolve().parent))
+            except ValueError:
+                return str(p)
+
+        report.update_readme(readme, report.readme_paragraph(
+            meta, heads, rel(out / f"{args.name}.md"), rel(out / f"{args.name}.png")))
+    return heads

@@ -1,0 +1,363 @@
+"""Tolerance sweeps of dolfinode methods and scipy solvers, scored and timed in one process.
+
+For every problem, method and tolerance one untimed run gives the errors and counts; then all
+runs are re-timed in interleaved rounds (one call of every run per round), so that a burst of
+load from other processes spreads over many runs instead of inflating one; the time of a run is
+the median of its repeats. dolfinode's kernel compile is measured once per problem, on the
+first call, and reported on its own (it is not part of any timing).
+
+Scores (Test Set and SciMLBenchmarks conventions):
+
+* mescd = min_i -log10(|y_i(T) - ref_i| / (atol/rtol + |ref_i|)), against the problem's
+  published or exact value at T;
+* L2 = root mean square of y - y_ref over 100 equispaced points and all components, against
+  the exact solution or a tight scipy reference trajectory.
+"""
+import math
+import time
+import warnings
+
+import numpy as np
+
+from dolfinode.bench.numpy_functions import SPARSE_FROM, numpy_functions
+from dolfinode.bench.problems import mescd
+
+#: The scipy solvers the runner knows.
+SCIPY_METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA")
+#: Solvers that use a Jacobian.
+IMPLICIT = ("Radau", "BDF", "LSODA")
+#: Points of the L2 error.
+N_EVAL = 100
+
+ROW_FIELDS = ("problem", "solver", "method", "tolerance", "atol", "status", "note",
+              "time_median_s", "time_min_s", "repeats", "first_call_s", "dn_solve_time_s", "mescd", "err_T",
+              "err_L2", "f_evals", "jacobians", "factorizations", "steps", "rejected")
+
+
+def check_methods(methods):
+    """Raise ValueError for a name that is neither a scipy solver nor a dolfinode method."""
+    import dolfinode as dn
+
+    for m in methods:
+        if not is_scipy(m):
+            dn.parse_method(m)
+
+
+def is_scipy(method):
+    """Whether ``method`` names a scipy solver (else a dolfinode method)."""
+    return method in SCIPY_METHODS
+
+
+class RunTimeout(Exception):
+    """A scipy run passed its time limit."""
+
+
+def with_deadline(fun, seconds):
+    """fun wrapped to raise RunTimeout once ``seconds`` have passed; also records the last t."""
+    deadline = time.perf_counter() + seconds
+    last = [0.0]
+
+    def wrapped(s, y):
+        last[0] = s
+        if time.perf_counter() > deadline:
+            raise RunTimeout(s)
+        return fun(s, y)
+
+    return wrapped, last
+
+
+class Case:
+    """A problem prepared for the runner: scipy functions, the reference trajectory, scoring.
+
+    Parameters
+    ----------
+    problem : Problem
+    """
+
+    def __init__(self, problem):
+        self.problem = problem
+        self.ode = problem.ode
+        self.fun, self.jac = numpy_functions(problem.ode)
+        self.t_eval = np.linspace(self.ode.t0, self.ode.T, N_EVAL)
+        start = time.perf_counter()
+        if problem.exact is not None:
+            self.ref_y = np.asarray(problem.exact(self.t_eval), dtype=float)
+            self.reference_note = problem.reference
+        else:
+            self.ref_y, self.reference_note = self._reference_trajectory()
+        if problem.final is None:
+            problem.final = self.ref_y[:, -1].copy()
+        self.ref_y[:, -1] = problem.final
+        self.reference_seconds = time.perf_counter() - start
+        self.compile = None
+
+    def _reference_trajectory(self):
+        """The solution at the 100 points from scipy at a tight tolerance (Radau for stiff
+        problems, DOP853 otherwise)."""
+        from scipy.integrate import solve_ivp
+
+        p = self.problem
+        method, rtol = ("Radau", 1e-11) if p.stiff else ("DOP853", 1e-13)
+        atol = rtol * p.atol_ratio * 1e-2
+        kwargs = {"jac": self.jac} if method == "Radau" else {}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = solve_ivp(self.fun, (self.ode.t0, self.ode.T), self.ode.u0, method=method,
+                            rtol=rtol, atol=atol, t_eval=self.t_eval, **kwargs)
+        if not res.success:
+            raise RuntimeError(f"{p.name}: reference trajectory failed: {res.message}")
+        note = f"scipy {method}, rtol = {rtol:g}, atol = {atol:g}"
+        if p.final is not None:
+            note += f" (mescd {mescd(res.y[:, -1], p.final, p.atol_ratio):.1f} at T)"
+        return res.y.copy(), note
+
+    def score(self, y_final, y_samples):
+        """mescd at T, max error at T and L2 error over the 100 points."""
+        p = self.problem
+        y_final = np.asarray(y_final, dtype=float)
+        return {"mescd": mescd(y_final, p.final, p.atol_ratio),
+                "err_T": float(np.max(np.abs(y_final - p.final))),
+                "err_L2": float(np.sqrt(np.mean((np.asarray(y_samples) - self.ref_y) ** 2)))}
+
+
+def _row(case, method, tol):
+    row = dict.fromkeys(ROW_FIELDS)
+    row.update(problem=case.problem.name, solver="scipy" if is_scipy(method) else "dolfinode",
+               method=method, tolerance=tol, atol=tol * case.problem.atol_ratio, status="ok",
+               note="", repeats=0)
+    return row
+
+
+def first_call(case):
+    """The first dn.solve of a problem (dG(1), tolerance 1e-2): kernel generation and C compile
+    or a load from the disk cache. Its times are stored in ``case.compile``."""
+    import dolfinode as dn
+
+    start = time.perf_counter()
+    try:
+        sol = dn.solve(case.ode, method="dG(1)", tolerance=1e-2, maximum_steps=1000)
+        compile_s = sol.stats["compile time"]
+    except dn.SolverError:
+        compile_s = float("nan")
+    case.compile = {"N": case.ode.N, "first_call_s": time.perf_counter() - start,
+                    "compile_time_s": compile_s}
+    return case.compile
+
+
+def run_dolfinode(case, method, tol, maximum_steps):
+    """One untimed dolfinode run: errors and counts. Returns (row, timed call or None)."""
+    import dolfinode as dn
+
+    row = _row(case, method, tol)
+    options = {"method": method, "tolerance": tol, "absolute_tolerance": row["atol"],
+                   "maximum_steps": maximum_steps}
+    try:
+        start = time.perf_counter()
+        sol = dn.solve(case.ode, **options)
+        row["first_call_s"] = time.perf_counter() - start
+    except (dn.SolverError, ValueError) as exc:
+        row.update(status="failed", note=f"{type(exc).__name__}: {exc}")
+        return row, None
+    st = sol.stats
+    row.update(case.score(sol(case.ode.T), sol(case.t_eval)))
+    row.update(f_evals=st["f evaluations"], jacobians=st["jacobian evaluations"],
+               factorizations=st["factorizations"], steps=st["time slabs"],
+               rejected=st["rejected steps"])
+    return row, lambda: dn.solve(case.ode, **options).stats["solve time"]
+
+
+def _scipy_solve(case, method, tol, fun, **extra):
+    from scipy.integrate import solve_ivp
+
+    kwargs = {}
+    if method == "LSODA" and case.ode.N > SPARSE_FROM:   # LSODA takes dense (or banded) only
+        kwargs["jac"] = lambda s, y: case.jac(s, y).toarray()
+    elif method in IMPLICIT:
+        kwargs["jac"] = case.jac
+    atol = tol * case.problem.atol_ratio
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = solve_ivp(fun, (case.ode.t0, case.ode.T), case.ode.u0, method=method, rtol=tol,
+                        atol=atol, **kwargs, **extra)
+    return res, caught
+
+
+def _scipy_counts(case, method, tol):
+    """Accepted steps and rejected step attempts from one untimed instrumented run.
+
+    solve_ivp reports neither: accepted steps are len(res.t) - 1 without t_eval; attempts are
+    calls of the per-attempt routine (Radau: collocation solve, BDF: BDF system solve, RK:
+    rk_step), so 'rejected' includes Newton-failure retries. LSODA does not expose them.
+    """
+    from scipy.integrate._ivp import bdf, radau, rk
+
+    target = {"Radau": (radau, "solve_collocation_system"), "BDF": (bdf, "solve_bdf_system"),
+              "DOP853": (rk, "rk_step"), "RK45": (rk, "rk_step")}.get(method)
+    if target is None or not hasattr(*target):
+        res, _ = _scipy_solve(case, method, tol, case.fun)
+        return len(res.t) - 1, None
+    module, name = target
+    original = getattr(module, name)
+    calls = [0]
+
+    def counting(*args, **kwargs):
+        calls[0] += 1
+        return original(*args, **kwargs)
+
+    setattr(module, name, counting)
+    try:
+        res, _ = _scipy_solve(case, method, tol, case.fun)
+    finally:
+        setattr(module, name, original)
+    steps = len(res.t) - 1
+    return steps, calls[0] - steps
+
+
+def run_scipy(case, method, tol, time_limit):
+    """One untimed scipy run (abandoned after ``time_limit`` s): errors and counts.
+    Returns (row, timed call or None)."""
+    row = _row(case, method, tol)
+    fun, last = with_deadline(case.fun, time_limit)
+    try:
+        start = time.perf_counter()
+        res, caught = _scipy_solve(case, method, tol, fun, t_eval=case.t_eval)
+        row["first_call_s"] = time.perf_counter() - start
+    except RunTimeout:
+        row.update(status="skipped", note=f"over {time_limit:g} s (abandoned at t = "
+                                          f"{last[0]:.4g} of {case.ode.T:g})")
+        return row, None
+    except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
+        row.update(status="failed", note=f"{type(exc).__name__}: {exc}")   # scipy raised
+        return row, None
+    if not res.success:
+        row.update(status="failed", note=f"solve_ivp: {res.message}")
+        return row, None
+    if caught:
+        row["note"] = "; ".join(sorted({str(w.message).split("\n")[0] for w in caught}))
+    y = res.y
+    if y.shape[1] != N_EVAL or not np.all(np.isfinite(y)):
+        row.update(status="failed", note="solve_ivp returned a non-finite solution")
+        return row, None
+    row.update(case.score(y[:, -1], y))
+    row.update(f_evals=int(res.nfev), jacobians=int(res.njev), factorizations=int(res.nlu))
+    row["steps"], row["rejected"] = _scipy_counts(case, method, tol)
+    def timed():
+        _scipy_solve(case, method, tol, case.fun, t_eval=case.t_eval)
+
+    return row, timed
+
+
+def time_interleaved(jobs, repeats, budget, bar=None):
+    """Time every (row, call) in rounds of one call each: ``repeats`` calls, fewer once a
+    run's calls add up to ``budget`` seconds (at least one); stores the median and the minimum
+    in the row. A call may return dolfinode's ``stats["solve time"]`` (the compiled loop
+    alone), whose median goes to ``dn_solve_time_s``."""
+    times = {id(row): [row["first_call_s"]] for row, _ in jobs}
+    inner = {id(row): [] for row, _ in jobs}
+    for _ in range(repeats):
+        for row, call in jobs:
+            spent = times[id(row)]
+            if len(spent) > repeats or (len(spent) > 1 and sum(spent) > budget):
+                if bar is not None:
+                    bar.update(1)
+                continue
+            start = time.perf_counter()
+            out = call()
+            spent.append(time.perf_counter() - start)
+            if isinstance(out, float):
+                inner[id(row)].append(out)
+            if bar is not None:
+                bar.update(1)
+    for row, _ in jobs:
+        spent = times[id(row)]
+        timed = spent[1:] or spent   # the first call warms caches; it counts only when alone
+        row.update(time_median_s=float(np.median(timed)), time_min_s=float(np.min(timed)),
+                   repeats=len(timed))
+        if inner[id(row)]:
+            row["dn_solve_time_s"] = float(np.median(inner[id(row)]))
+
+
+def run_suite(problems, methods, tolerances, *, repeats=3, budget=2.0, time_limit=20.0,
+              maximum_steps=1_000_000, progress=True):
+    """Sweep every method over the tolerances on every problem, score and time the runs.
+
+    Parameters
+    ----------
+    problems : list of Problem
+    methods : list of str
+        dolfinode methods ("cG(2)", "mdG(1)", ...) and scipy solvers (:data:`SCIPY_METHODS`).
+    tolerances : list of float
+        Relative tolerances; the absolute tolerance is ``problem.atol_ratio`` times each.
+    repeats : int
+        Timed calls per run (median); a run stops repeating once its timed calls add up to
+        ``budget`` seconds.
+    budget : float
+    time_limit : float
+        Seconds after which a scipy run is abandoned (explicit methods on stiff problems).
+    maximum_steps : int
+        dolfinode's ``maximum_steps`` (time slabs) for every run.
+    progress : bool
+        Show a tqdm progress bar.
+
+    Returns
+    -------
+    rows : list of dict
+        One per (problem, method, tolerance), keys :data:`ROW_FIELDS`.
+    cases : list of Case
+        The problems with their reference trajectories and compile times.
+
+    Notes
+    -----
+    Once a method fails or is abandoned at one tolerance, its tighter tolerances are skipped.
+    """
+    from tqdm.auto import tqdm
+
+    if not problems or not methods or not tolerances:
+        raise ValueError("run_suite needs at least one problem, one method and one tolerance")
+    if repeats < 1:
+        raise ValueError(f"repeats must be at least 1, got {repeats}")
+    check_methods(methods)
+    tolerances = sorted(tolerances, reverse=True)
+    total = len(problems) * len(methods) * len(tolerances)
+    bar = tqdm(total=total * (1 + repeats), desc="bench", unit="run", disable=not progress)
+    rows, jobs, cases = [], [], []
+    try:
+        for problem in problems:
+            bar.set_postfix_str(f"{problem.name}: reference")
+            case = Case(problem)
+            first_call(case)
+            cases.append(case)
+            for method in methods:
+                bar.set_postfix_str(f"{problem.name} {method}")
+                given_up = None
+                for tol in tolerances:
+                    if given_up:
+                        row = _row(case, method, tol)
+                        row.update(status="skipped", note=given_up)
+                        call = None
+                    elif is_scipy(method):
+                        row, call = run_scipy(case, method, tol, time_limit)
+                    else:
+                        row, call = run_dolfinode(case, method, tol, maximum_steps)
+                    if row["status"] != "ok" and not given_up:
+                        given_up = f"{row['status']} at tolerance {tol:g}"
+                    rows.append(row)
+                    if call is not None:
+                        jobs.append((row, call))
+                    else:
+                        bar.update(repeats)
+                    bar.update(1)
+        bar.set_postfix_str("timing")
+        time_interleaved(jobs, repeats, budget, bar)
+    finally:
+        bar.close()
+    return rows, cases
+
+
+def accuracy_levels(rows):
+    """Integer mescd levels reached by at least one run."""
+    vals = [r["mescd"] for r in rows if r["status"] == "ok" and r["mescd"] is not None
+            and math.isfinite(r["mescd"])]
+    if not vals:
+        return []
+    return list(range(max(1, math.floor(min(vals))), math.floor(max(vals)) + 1))

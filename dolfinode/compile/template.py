@@ -1,0 +1,204 @@
+"""Lowering of a :class:`~dolfinode.systems.template.TemplateODE` to the standard kernels.
+
+The kernels have the signatures of :mod:`dolfinode.compile.signatures`, so every solver
+loop uses them unchanged. The passes, in order:
+
+1. substitute slots -> U[k], per-cell parameters -> P[k], global parameters -> p[j];
+2. differentiate each term exactly with sympy on its own slots (the local Jacobians);
+3. generate C once per set of template expressions: loops over cells that gather U from
+   u, evaluate the terms (with common subexpressions shared inside a cell) and scatter-add
+   into f or into the Jacobian's CSR values; compiled and cached by a signature that does
+   not involve N or the arrays;
+4. in numpy, from the index arrays: the global CSR pattern of df/du, the CSR position of
+   every local Jacobian entry, and the incidence component -> (cell, term) used by f_i and
+   row i of the Jacobian, which therefore touch only the cells of component i.
+
+The arrays reach the kernels through ``p``: after the global parameter values p[0..G)
+comes a header of int64 words (N, nnz, the address of indptr, then per template: cells
+and the addresses of its index, value, incidence and position arrays), read in C as a
+struct. The :class:`~dolfinode.compile.lowering.CompiledODE` keeps the arrays alive.
+Contributions to one component are summed in the same order (template, cell, term) by the
+full and the single-component kernels, so f_i equals f[i] bit for bit.
+"""
+import numpy as np
+import sympy as sp
+
+from dolfinode.compile.cache import signature
+from dolfinode.compile.codegen import _PROLOGUE, _statements
+from dolfinode.compile.lowering import _derivative
+from dolfinode.ode import t as time_symbol
+
+_STRUCTS = """\
+#include <stdint.h>
+typedef struct {
+    int64_t cells;
+    const int64_t *index;     /* cells x slots: the global component of each slot */
+    const double *values;     /* cells x parameters */
+    const int64_t *first;     /* N + 1: incidence of component i in first[i]..first[i+1] */
+    const int64_t *incidence; /* cell * terms + term, sorted by the term's component */
+    const int64_t *position;  /* cells x entries: CSR position of each local Jacobian entry */
+} dn_cells;
+typedef struct {
+    int64_t n, nnz;
+    const int64_t *indptr;
+    dn_cells cells[%d];
+} dn_system;
+#define SYSTEM ((const dn_system *)(p + %d))
+"""
+
+
+class _LocalTemplate:
+    """One template with C-named symbols: terms on target slots and their local Jacobian."""
+
+    def __init__(self, template, global_subs):
+        subs = dict(global_subs)
+        subs.update({s: sp.Symbol(f"U[{k}]", real=True) for k, s in enumerate(template.slots)})
+        subs.update({s: sp.Symbol(f"P[{k}]", real=True) for k, s in enumerate(template.params)})
+        self.slots, self.params = len(template.slots), len(template.params)
+        self.targets = [template.slots.index(s) for s, _ in template.terms]
+        self.exprs = [expr.xreplace(subs) for _, expr in template.terms]
+        local = [subs[s] for s in template.slots]
+        # deps[m]: the slots term m depends on; derivative entries are numbered term by term
+        self.deps = [sorted(k for k, s in enumerate(local) if s in expr.free_symbols)
+                     for expr in self.exprs]
+        self.offsets = np.concatenate([[0], np.cumsum([len(d) for d in self.deps])]).astype(int)
+        self._local = local
+
+    @property
+    def entries(self):
+        return int(self.offsets[-1])
+
+    def key(self):
+        return "|".join([str(self.slots), str(self.params), str(self.targets)]
+                        + [sp.srepr(e) for e in self.exprs])
+
+    def derivatives(self, m):
+        return [_derivative(self.exprs[m], self._local[r]) for r in self.deps[m]]
+
+    def rows_and_columns(self, index):
+        """Global (row, column) of every local Jacobian entry, shape (cells, entries) each."""
+        rows = np.repeat(self.targets, [len(d) for d in self.deps])
+        columns = np.array([r for d in self.deps for r in d], dtype=np.int64)
+        return index[:, rows], index[:, columns]
+
+
+def _gather(slots_used):
+    return [f"        U[{k}] = u[I[{k}]];" for k in sorted(slots_used)]
+
+
+def _used_slots(exprs):
+    return {int(s.name[2:-1]) for e in exprs for s in e.free_symbols if s.name.startswith("U[")}
+
+
+def _cell_loop(number, local, body, used):
+    """A loop over the cells of template ``number`` running ``body`` (C lines) per cell."""
+    return [f"    {{ const dn_cells *c = &SYSTEM->cells[{number}];",
+            "      for (int64_t e = 0; e < c->cells; ++e) {",
+            f"        const int64_t *I = c->index + e * {local.slots};",
+            f"        const double *P = c->values + e * {local.params}; (void)P;",
+            f"        const int64_t *J = c->position + e * {local.entries}; (void)J;",
+            f"        double U[{local.slots}];"] + _gather(used) + \
+        ["    " + line for line in body] + ["      }", "    }"]
+
+
+def _incidence_loop(number, local, cases):
+    """A loop over the (cell, term) pairs of component i in template ``number``; ``cases[m]``
+    are the C lines for term m."""
+    lines = [f"    {{ const dn_cells *c = &SYSTEM->cells[{number}];",
+             "      for (int64_t k = c->first[i]; k < c->first[i + 1]; ++k) {",
+             f"        const int64_t e = c->incidence[k] / {len(local.exprs)};",
+             f"        const int64_t *I = c->index + e * {local.slots};",
+             f"        const double *P = c->values + e * {local.params}; (void)P;",
+             f"        const int64_t *J = c->position + e * {local.entries}; (void)J;",
+             f"        double U[{local.slots}];",
+             f"        switch (c->incidence[k] % {len(local.exprs)}) {{"]
+    for m, (used, body) in enumerate(cases):
+        lines += [f"        case {m}: {{"] + _gather(used) + ["    " + line for line in body]
+        lines += ["            break;", "        }"]
+    return lines + ["        }", "      }", "    }"]
+
+
+def template_source(locals_, parameters):
+    """C source of the four kernels of :mod:`dolfinode.compile.signatures` for templates."""
+    lines = [_PROLOGUE, _STRUCTS % (len(locals_), parameters)]
+    # f: zero, then every template scatters its terms
+    lines += ["void dn_rhs(ARGS, double *restrict out) {",
+              "    for (int64_t i = 0; i < SYSTEM->n; ++i) out[i] = 0.0;"]
+    for n, local in enumerate(locals_):
+        body = _statements(local.exprs, [f"out[I[{s}]]" for s in local.targets], "+=")
+        lines += _cell_loop(n, local, body, _used_slots(local.exprs))
+    lines += ["}", ""]
+    # f_i: the terms of the cells incident to i
+    lines += ["void dn_rhs_component(long i, ARGS, double *restrict out) {", "    double f = 0.0;"]
+    for n, local in enumerate(locals_):
+        cases = [(_used_slots([e]), _statements([e], ["f"], "+=")) for e in local.exprs]
+        lines += _incidence_loop(n, local, cases)
+    lines += ["    out[0] = f;", "}", ""]
+    # df/du: zero, then every local Jacobian entry added at its CSR position
+    derivatives = [[local.derivatives(m) for m in range(len(local.exprs))] for local in locals_]
+    lines += ["void dn_jacobian(ARGS, double *restrict data) {",
+              "    for (int64_t k = 0; k < SYSTEM->nnz; ++k) data[k] = 0.0;"]
+    for n, local in enumerate(locals_):
+        flat = [d for term in derivatives[n] for d in term]
+        body = _statements(flat, [f"data[J[{k}]]" for k in range(len(flat))], "+=") if flat else []
+        lines += _cell_loop(n, local, body, _used_slots(flat))
+    lines += ["}", ""]
+    # row i of df/du: the local Jacobian rows of the terms incident to i
+    lines += ["void dn_jacobian_row(long i, ARGS, double *restrict out) {",
+              "    const int64_t start = SYSTEM->indptr[i];",
+              "    for (int64_t k = start; k < SYSTEM->indptr[i + 1]; ++k) out[k - start] = 0.0;"]
+    for n, local in enumerate(locals_):
+        cases = []
+        for m, ds in enumerate(derivatives[n]):
+            targets = [f"out[J[{local.offsets[m] + r}] - start]" for r in range(len(ds))]
+            cases.append((_used_slots(ds), _statements(ds, targets, "+=") if ds else []))
+        lines += _incidence_loop(n, local, cases)
+    lines += ["}", ""]
+    return "\n".join(lines)
+
+
+def _pattern(ode, locals_):
+    """CSR pattern (indptr, indices) of df/du and the CSR position of every local entry."""
+    n = ode.N
+    pairs = [local.rows_and_columns(template.indices)
+             for local, template in zip(locals_, ode.templates)]
+    keys = [rows * n + columns for rows, columns in pairs]  # row-major order = CSR order
+    unique = np.unique(np.concatenate([k.ravel() for k in keys])) if keys else np.zeros(0, np.int64)
+    indices = (unique % n).astype(np.int64)
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(unique // n, minlength=n), out=indptr[1:])
+    positions = [np.ascontiguousarray(np.searchsorted(unique, k), dtype=np.int64) for k in keys]
+    return indptr, indices, positions
+
+
+def _incidence(template, local, n):
+    """first (N + 1) and incidence: the (cell * terms + term) codes grouped by component."""
+    components = template.indices[:, local.targets].ravel()  # code = flat position
+    incidence = np.argsort(components, kind="stable").astype(np.int64)
+    first = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(components, minlength=n), out=first[1:])
+    return first, incidence
+
+
+def lower_template(ode):
+    """Signature, source maker, CSR pattern and kernel data of a TemplateODE.
+
+    Returns (key, source, indptr, indices, p, keep): ``source()`` generates the C code,
+    ``p`` holds the parameter values and the header, ``keep`` the arrays it points to.
+    """
+    global_subs = {s: sp.Symbol(f"p[{j}]", real=True) for j, s in enumerate(ode.parameter_symbols)}
+    global_subs[time_symbol] = sp.Symbol("t", real=True)
+    locals_ = [_LocalTemplate(template, global_subs) for template in ode.templates]
+    key = signature("template", str(len(ode.params)), *(local.key() for local in locals_))
+    indptr, indices, positions = _pattern(ode, locals_)
+    header = [ode.N, len(indices), indptr.ctypes.data]
+    keep = [indptr, indices]
+    for template, local, position in zip(ode.templates, locals_, positions):
+        first, incidence = _incidence(template, local, ode.N)
+        arrays = [template.indices, template.values, first, incidence, position]
+        keep += arrays
+        header += [template.cells] + [a.ctypes.data for a in arrays]
+    p = np.zeros(len(ode.params) + len(header))
+    p[:len(ode.params)] = ode.parameter_values
+    p[len(ode.params):].view(np.int64)[:] = header
+    return key, lambda: template_source(locals_, len(ode.params)), indptr, indices, p, tuple(keep)

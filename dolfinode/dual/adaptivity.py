@@ -1,0 +1,102 @@
+"""Goal-oriented adaptivity: primal -> dual -> per-component tolerances -> primal.
+
+The residual-based step control of :mod:`dolfinode.adaptivity` keeps every component's
+indicator k^p |R_i| below its absolute tolerance atol_i, which makes its share b_i of the
+error bound (see :mod:`dolfinode.dual.estimate`) proportional to atol_i. After each primal
+solve the shares are equidistributed towards a target below the tolerance:
+
+    atol_i <- atol_i * clamp(theta * TOL * gamma / (N b_i), 1/F, F),
+    gamma = sum_i b_i / |value|,
+
+where gamma >= 1 accounts for the cancellation between the local contributions, theta = 0.5
+is the safety margin and F = 100 limits the change per iteration. The loop stops when the
+estimate is below TOL and no tolerance would grow by more than ``_BALANCED`` (the error is
+balanced between the components), and returns the cheapest solution (fewest elements) whose
+estimate met TOL. A component whose residual
+does not reach the goal (b_i = 0) has its tolerance raised by F each iteration, up to
+``_LOOSEST`` times its size, and takes correspondingly large steps with mcG(q)/mdG(q).
+"""
+import warnings
+
+import numpy as np
+
+from dolfinode.dual.estimate import estimate_error
+
+#: Fraction of the tolerance the next iteration aims at.
+_THETA = 0.5
+#: Largest change of a component's tolerance per iteration.
+_FACTOR = 100.0
+#: Largest absolute tolerance relative to max(1, max |U_i|).
+_LOOSEST = 1e-2
+#: Once the tolerance is met, iterate on only while some tolerance would grow more than this.
+_BALANCED = 10.0
+#: Primal/dual iterations before giving up.
+MAXIMUM_ITERATIONS = 8
+
+
+def solve_for_goal(solve, ode, method, goal, tolerance, parameters):
+    """Iterate primal and dual solves until |M(U) - M(u)| is estimated below ``tolerance``.
+
+    Parameters
+    ----------
+    solve : the primal driver :func:`dolfinode.solve` (called without a goal)
+    ode, method : as for :func:`dolfinode.solve`
+    goal : any goal form of :class:`dolfinode.Goal`
+    tolerance : float
+        Requested bound on the estimated error in the goal.
+    parameters : dict
+        Further primal parameters; ``absolute_tolerance`` is the starting tolerance per state
+        (default ``tolerance``).
+
+    Returns
+    -------
+    Solution
+        The cheapest primal solution that met the tolerance (else the last one), with ``sol.error_estimate`` (an
+        :class:`~dolfinode.dual.ErrorEstimate`) and ``sol.stats["goal iterations"]``,
+        ``sol.stats["goal history"]`` (estimate, bound and elements per iteration) and
+        ``sol.stats["goal tolerance reached"]``. A :class:`RuntimeWarning` says when the
+        tolerance was not reached within ``MAXIMUM_ITERATIONS``.
+    """
+    parameters = dict(parameters)
+    start = parameters.pop("absolute_tolerance", None)
+    atol = np.full(ode.N, tolerance) if start is None else np.broadcast_to(
+        np.asarray(start, dtype=float), (ode.N,)).copy()
+    history = []
+    best = None
+    for iteration in range(1, MAXIMUM_ITERATIONS + 1):
+        # rtol far below every atol: the dual weights alone set each component's tolerance
+        sol = solve(ode, method, tolerance=1e-3 * atol.min(), absolute_tolerance=atol,
+                    **parameters)
+        est = estimate_error(sol, goal)
+        sol.error_estimate = est
+        history.append({"value": est.value, "bound": est.bound,
+                        "elements": int(sol.stats["elements"]),
+                        "absolute_tolerance": atol.copy()})
+        met = abs(est.value) <= tolerance
+        if met and (best is None or sol.stats["elements"] < best.stats["elements"]):
+            best = sol
+        new = _update_tolerances(atol, est, tolerance, np.abs(sol.y).max(axis=1))
+        if met and np.all(new <= _BALANCED * atol):
+            break
+        atol = new
+    reached = best is not None
+    if not reached:
+        best = sol
+        warnings.warn(f"goal-oriented adaptivity stopped after {MAXIMUM_ITERATIONS} iterations "
+                      f"with the estimated goal error {abs(est.value):.3g} above the tolerance "
+                      f"{tolerance:.3g}; use a higher-order method or a looser tolerance",
+                      RuntimeWarning, stacklevel=3)
+    best.stats.update({"goal iterations": iteration, "goal history": history,
+                       "goal tolerance reached": reached})
+    return best
+
+
+def _update_tolerances(atol, est, tolerance, size):
+    shares = est.bound_contributions
+    total = shares.sum()
+    gamma = total / max(abs(est.value), 1e-300) if total > 0 else 1.0
+    target = _THETA * tolerance * gamma / len(atol)
+    with np.errstate(divide="ignore"):
+        factor = np.where(shares > 0, target / shares, _FACTOR)
+    atol = atol * np.clip(factor, 1.0 / _FACTOR, _FACTOR)
+    return np.minimum(atol, _LOOSEST * np.maximum(size, 1.0))

@@ -1,0 +1,248 @@
+"""A posteriori error estimate of a goal: the error representation with the dual weights.
+
+With e = U - u, the dual phi of :mod:`dolfinode.dual.problem` and integration by parts over
+every component's own elements I_in = (t_{i,n-1}, t_{i,n}] (Eriksson, Estep, Hansbo, Johnson;
+the seed paper, "Error analysis"),
+
+    M(U) - M(u) ~ (e(T), psi) + int (e, grad g) dt
+               = sum_i sum_n [ int_{I_in} R_i(U, t) phi_i dt + [U_i]_{n-1} phi_i(t_{i,n-1}) ],
+
+with the residual R_i = U_i' - f_i(U, t) and the jumps [U_i]_{n-1} = U_i(t_{n-1}^+) -
+U_i(t_{n-1}^-) (zero for cG; U(t0^-) = u0). Galerkin orthogonality makes the same sum vanish
+for test functions pi phi_i that are polynomials of degree q - 1 (cG) or q (dG) on each element;
+pi is the L2 projection on the element. Hence the estimate and the bound
+
+    value = sum_{i,n} eta_in,                 eta_in = int R_i phi_i + [U_i] phi_i,
+    |value| <= sum_{i,n} ( int |R_i| |phi_i - pi phi_i| + |[U_i]| |(phi_i - pi phi_i)(t^+)| )
+               + |sum_{i,n} ( int R_i pi phi_i + [U_i] pi phi_i(t^+) )|,
+
+where the last term (the orthogonality defect) is zero up to the primal's quadrature and
+nonlinear-solver tolerance. ``bound`` adds to this the difference between the values computed
+with the dual of degree r and r - 1, which covers the dual's discretisation error; it does not
+cover the error of linearising at U instead of the mean value over [U, u], which is of second
+order in the error. The stability factors are S0 = int ||phi|| dt and
+S1 = int ||phi'|| dt (Euclidean norm). All integrals use Gauss quadrature on the union grid, on
+whose intervals every component of U and of phi is a polynomial.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from dolfinode.compile import lower
+from dolfinode.dual.goal import resolve
+from dolfinode.dual.problem import (
+    DualSolution,
+    evaluate_primal,
+    horner,
+    horner_derivative,
+    solve_dual,
+)
+from dolfinode.solution import Solution
+
+
+@dataclass
+class ErrorEstimate:
+    """The estimated error of a goal M and what it is made of.
+
+    Attributes
+    ----------
+    value : float
+        Estimate of M(U) - M(u) (for a linear final-time goal, (psi, U(T) - u(T))).
+    bound : float
+        Upper bound of |value| from |R| |phi - pi phi| (see the module docstring).
+    contributions : ndarray (N,)
+        Share of each component (state order) in ``value``: sum over its elements of eta_in.
+    bound_contributions : ndarray (N,)
+        Share of each component in ``bound`` (without the orthogonality defect).
+    orthogonality_defect : float
+        |sum (R, pi phi) + [U] pi phi|: zero for an exact Galerkin solution.
+    dual_error : float
+        |value - value with the dual of one degree lower|: a (pessimistic) measure of the dual's
+        discretisation error in ``value``.
+    stability_factors : dict
+        "S0" = int ||phi|| dt and "S1" = int ||phi'|| dt.
+    dual : DualSolution
+        phi, callable.
+    states : tuple of the state symbols, in the order of ``contributions``
+    """
+
+    value: float
+    bound: float
+    contributions: np.ndarray
+    bound_contributions: np.ndarray
+    orthogonality_defect: float
+    dual_error: float
+    stability_factors: dict
+    dual: DualSolution
+    states: tuple
+
+    def contribution(self, state):
+        """Share of one state (symbol or name) in ``value``."""
+        names = [s.name for s in self.states]
+        key = state if isinstance(state, str) else getattr(state, "name", None)
+        if key not in names:
+            raise ValueError(f"{state!r} is not a state; states are {', '.join(names)}")
+        return float(self.contributions[names.index(key)])
+
+
+@njit(cache=True)
+def _legendre(x, degree, out):
+    """out[m] = P_m(x), m = 0..degree (three-term recurrence)."""
+    out[0] = 1.0
+    if degree >= 1:
+        out[1] = x
+    for m in range(1, degree):
+        out[m + 1] = ((2 * m + 1) * x * out[m] - m * out[m - 1]) / (m + 1)
+
+
+@njit(cache=True)
+def _weighted_residuals(rhs, p, grid, elements, t_start, t_end, coef, phi, x, w, projection,
+                        first_pass, phi_start, r_phi, phi_moments, r_moments, abs_weighted,
+                        norms):
+    """Gauss quadrature of the residual R = U' - f(U, t) against the dual, interval by interval.
+
+    First pass: r_phi[e] = int R phi, phi_moments[e, m] = int phi P_m, r_moments[e, m] =
+    int R P_m (P_m: Legendre on element e), phi_start[e] = phi at the element's start, and
+    norms = (S0, S1). Second pass (with the projections pi phi known):
+    abs_weighted[e] = int |R| |phi - pi phi|.
+    """
+    L, N = grid.shape[0] - 1, elements.shape[1]
+    d = projection.shape[1] - 1
+    u = np.empty(N)
+    f = np.empty(N)
+    P = np.empty(d + 1)
+    for l in range(L):
+        h = grid[l + 1] - grid[l]
+        if first_pass:
+            for i in range(N):
+                e = elements[l, i]
+                if l == 0 or elements[l - 1, i] != e:
+                    phi_start[e] = horner(phi[l, :, i], (t_start[e] - grid[l]) / h)
+        for g in range(x.shape[0]):
+            t = grid[l] + x[g] * h
+            wh = w[g] * h
+            evaluate_primal(coef, t_start, t_end, elements[l], t, u)
+            rhs(u.ctypes, t, p.ctypes, f.ctypes)
+            size0 = 0.0
+            size1 = 0.0
+            for i in range(N):
+                e = elements[l, i]
+                k = t_end[e] - t_start[e]
+                tau = (t - t_start[e]) / k
+                residual = horner_derivative(coef[e], tau) / k - f[i]
+                weight = horner(phi[l, :, i], x[g])
+                _legendre(2.0 * tau - 1.0, d, P)
+                if first_pass:
+                    r_phi[e] += wh * residual * weight
+                    for m in range(d + 1):
+                        phi_moments[e, m] += wh * weight * P[m]
+                        r_moments[e, m] += wh * residual * P[m]
+                    size0 += weight * weight
+                    slope = horner_derivative(phi[l, :, i], x[g]) / h
+                    size1 += slope * slope
+                else:
+                    interpolant = 0.0
+                    for m in range(d + 1):
+                        interpolant += projection[e, m] * P[m]
+                    abs_weighted[e] += wh * abs(residual) * abs(weight - interpolant)
+            if first_pass:
+                norms[0] += wh * np.sqrt(size0)
+                norms[1] += wh * np.sqrt(size1)
+
+
+def estimate_error(sol, goal, dual_degree=None, quadrature_points=None):
+    """A posteriori estimate of the error in a goal, from the dual problem.
+
+    Parameters
+    ----------
+    sol : Solution
+        A mono- or multi-adaptive Galerkin solution from :func:`dolfinode.solve`.
+    goal : dict, sequence, sympy expression, ("integral", psi) or Goal
+        The output M(u): see :class:`dolfinode.Goal`. A dict by state symbol or name or a
+        vector psi gives the final-time output (psi, u(T)).
+    dual_degree : int, optional
+        r >= 2 of the cG(r) dual scheme on the union grid; default max(q + 2, 2), so that the
+        dual's discretisation error is small against phi - pi phi. A second dual of degree
+        r - 1 measures that error (``dual_error``).
+    quadrature_points : int, optional
+        Gauss points per union-grid interval; default q + r + 2.
+
+    Returns
+    -------
+    ErrorEstimate
+
+    Raises
+    ------
+    TypeError, ValueError
+        For a solution that is not a :class:`~dolfinode.Solution` or an invalid goal.
+    """
+    if not isinstance(sol, Solution):
+        raise TypeError(f"estimate_error expects a dolfinode Solution, got {type(sol).__name__}")
+    ode, method = sol.ode, sol.method
+    final, integral = resolve(goal, ode)
+    q = method.q
+    r = _positive_int(dual_degree, "dual_degree", max(q + 2, 2), minimum=2)
+    gauss = _positive_int(quadrature_points, "quadrature_points", q + r + 2)
+    dual, primal = solve_dual(sol, final, integral, r)
+    parts = _error_representation(sol, primal, dual, gauss)
+    coarse, _ = solve_dual(sol, final, integral, r - 1, primal)
+    dual_error = abs(parts["value"] - _error_representation(sol, primal, coarse, gauss)["value"])
+    return ErrorEstimate(value=parts["value"],
+                         bound=float(parts["bound_contributions"].sum() + parts["defect"]
+                                     + dual_error),
+                         contributions=parts["contributions"],
+                         bound_contributions=parts["bound_contributions"],
+                         orthogonality_defect=parts["defect"], dual_error=dual_error,
+                         stability_factors=parts["stability_factors"], dual=dual,
+                         states=ode.states)
+
+
+def _error_representation(sol, primal, dual, gauss):
+    """The sums of the module docstring for one dual solution, per element and component."""
+    x, w = np.polynomial.legendre.leggauss(gauss)
+    x, w = 0.5 * (x + 1.0), 0.5 * w
+    d = sol.method.q - 1 if sol.method.family == "cG" else sol.method.q
+    E = len(primal.t_start)
+    phi_start, r_phi, abs_weighted = np.zeros(E), np.zeros(E), np.zeros(E)
+    phi_moments, r_moments, projection = np.zeros((3, E, d + 1))
+    norms = np.zeros(2)
+    compiled = lower(sol.ode)
+
+    def integrate(first_pass):
+        _weighted_residuals(compiled.rhs, compiled.p, primal.grid, primal.elements,
+                            primal.t_start, primal.t_end, primal.coef, dual.coef, x, w,
+                            projection, first_pass, phi_start, r_phi, phi_moments, r_moments,
+                            abs_weighted, norms)
+
+    integrate(True)
+    degrees = np.arange(d + 1)
+    projection[:] = (2 * degrees + 1) * phi_moments / (primal.t_end - primal.t_start)[:, None]
+    integrate(False)
+    jump = _jumps(primal, sol.ode.u0)
+    pi_start = projection @ (-1.0) ** degrees  # P_m(-1) = (-1)^m
+    eta = r_phi + jump * phi_start
+    defect = float(np.sum(np.sum(r_moments * projection, axis=1) + jump * pi_start))
+    local = abs_weighted + np.abs(jump) * np.abs(phi_start - pi_start)
+    starts = primal.ptr[:-1]
+    return {"value": float(eta.sum()), "contributions": np.add.reduceat(eta, starts),
+            "bound_contributions": np.add.reduceat(local, starts), "defect": abs(defect),
+            "stability_factors": {"S0": float(norms[0]), "S1": float(norms[1])}}
+
+
+def _jumps(primal, u0):
+    """[U_i] at the start of every element: U(t^+) - U(t^-), with U(t0^-) = u0."""
+    start = primal.coef[:, 0]
+    end = primal.coef.sum(axis=1)
+    before = np.empty_like(start)
+    before[1:] = end[:-1]
+    before[primal.ptr[:-1]] = u0
+    return start - before
+
+
+def _positive_int(value, name, default, minimum=1):
+    if value is None:
+        return default
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)

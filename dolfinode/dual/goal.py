@@ -1,0 +1,149 @@
+"""Goals: the output quantity whose error the dual problem measures.
+
+A goal is the functional
+
+    M(u) = G(u(T)) + int_{t0}^{T} g(u(t), t) dt,
+
+linear (G(u) = (psi_T, u), g(u, t) = (psi_I, u)) or a sympy expression of the states, which the
+dual problem linearises at the computed solution U: its data are the gradients
+psi = grad G(U(T)) (final value of the dual) and grad g(U(t), t) (source of the dual).
+"""
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import sympy as sp
+
+from dolfinode.ode import t as time_symbol
+
+
+class Goal:
+    """The output M(u) = G(u(T)) + int_{t0}^{T} g(u(t), t) dt whose error is estimated.
+
+    Parameters
+    ----------
+    final : dict, sequence, sympy expression or None
+        G: a dict by state symbol or name (missing states weigh 0) or a sequence of N weights
+        for the linear output (psi_T, u(T)); or a sympy expression of the states (and the ODE's
+        parameters) such as a distance between two masses.
+    integral : same forms, or None
+        g: the integrand of the time-integrated output; an expression may also contain ``dn.t``.
+
+    Notes
+    -----
+    ``dn.estimate_error`` and ``dn.solve(..., goal=...)`` also accept the short forms: a dict,
+    sequence or expression alone (a final-time goal) and the pair ``("integral", psi)``.
+    """
+
+    def __init__(self, final=None, integral=None):
+        if final is None and integral is None:
+            raise ValueError("a Goal needs final=..., integral=..., or both")
+        self.final = final
+        self.integral = integral
+
+    @classmethod
+    def parse(cls, goal):
+        """Turn any accepted goal form into a :class:`Goal`."""
+        if isinstance(goal, Goal):
+            return goal
+        if isinstance(goal, tuple) and len(goal) == 2 and isinstance(goal[0], str):
+            kind, psi = goal
+            if kind.lower() == "integral":
+                return cls(integral=psi)
+            if kind.lower() == "final":
+                return cls(final=psi)
+            raise ValueError(f"unknown goal kind {kind!r}: use ('final', psi) or "
+                             "('integral', psi)")
+        if goal is None:
+            raise TypeError("goal is None: give a dict by state, a vector, a sympy expression "
+                            "of the states, ('integral', psi) or a dn.Goal")
+        return cls(final=goal)
+
+    def __repr__(self):
+        return f"Goal(final={self.final!r}, integral={self.integral!r})"
+
+
+class _Functional:
+    """One part (G or g) of a goal, resolved for an ODE: a constant weight vector or the
+    gradient of an expression, evaluated on arrays of states."""
+
+    def __init__(self, spec, ode, what, allow_time):
+        self.N = ode.N
+        self.weights = None
+        self.gradient = None
+        if isinstance(spec, sp.Basic):
+            self._expression(spec, ode, what, allow_time)
+        else:
+            self.weights = _weights(spec, ode, what)
+
+    def _expression(self, expr, ode, what, allow_time):
+        if not isinstance(expr, sp.Expr):
+            raise TypeError(f"the {what} goal must be a scalar sympy expression, got {expr!r}")
+        expr = expr.subs(dict(zip(ode.parameter_symbols, ode.parameter_values)))
+        allowed = set(ode.states) | ({time_symbol} if allow_time else set())
+        stray = sorted(str(s) for s in expr.free_symbols - allowed)
+        if stray:
+            extra = " and dn.t" if allow_time else ""
+            raise ValueError(f"the {what} goal uses {', '.join(stray)}, which are not states of "
+                             f"the ODE; use the states {', '.join(map(str, ode.states))}{extra}")
+        grad = [sp.diff(expr, s) for s in ode.states]
+        if all(g == 0 for g in grad):
+            raise ValueError(f"the {what} goal {expr} does not depend on the states")
+        function = sp.lambdify((list(ode.states), time_symbol), grad, modules="numpy")
+
+        def gradient(U, times):
+            columns = function(list(U), times)
+            return np.array([np.broadcast_to(np.asarray(c, dtype=float), times.shape)
+                             for c in columns])
+
+        self.gradient = gradient
+
+    def at(self, U, times):
+        """Weights (N, M) at the states U (N, M) and times (M,)."""
+        if self.weights is not None:
+            return np.repeat(self.weights[:, None], len(times), axis=1)
+        values = self.gradient(U, times)
+        if not np.all(np.isfinite(values)):
+            raise ValueError("the goal's gradient is not finite at the computed solution")
+        return values
+
+
+def _weights(spec, ode, what):
+    if isinstance(spec, Mapping):
+        names = {s.name: s for s in ode.states}
+        psi = np.zeros(ode.N)
+        for key, value in spec.items():
+            state = names.get(key) if isinstance(key, str) else key
+            if state not in ode.states:
+                raise ValueError(f"the {what} goal names {key!r}, which is not a state; states "
+                                 f"are {', '.join(names)}")
+            psi[ode.index(state)] = _number(value, what)
+    elif isinstance(spec, (Sequence, np.ndarray)) and not isinstance(spec, str):
+        if np.ndim(spec) != 1 or len(spec) != ode.N:
+            raise ValueError(f"the {what} goal vector must have {ode.N} entries (one per state), "
+                             f"got shape {np.shape(spec)}")
+        psi = np.array([_number(v, what) for v in spec])
+    else:
+        raise TypeError(f"the {what} goal must be a dict by state, a sequence of {ode.N} "
+                        f"numbers or a sympy expression of the states, got {spec!r}")
+    if not np.any(psi):
+        raise ValueError(f"the {what} goal weighs every state by zero")
+    return psi
+
+
+def _number(value, what):
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"the {what} goal weights must be numbers, got {value!r}") from None
+    if not np.isfinite(value):
+        raise ValueError(f"the {what} goal weights must be finite, got {value}")
+    return value
+
+
+def resolve(goal, ode):
+    """(final, integral): the parts of ``goal`` as :class:`_Functional` (or None)."""
+    goal = Goal.parse(goal)
+    final = None if goal.final is None else _Functional(goal.final, ode, "final", False)
+    integral = (None if goal.integral is None
+                else _Functional(goal.integral, ode, "integral", True))
+    return final, integral

@@ -1,0 +1,146 @@
+"""Ensembles: one declaration solved for many parameter values or initial values.
+
+Each variation is solved independently, u_k' = f(u_k, t; p_k), u_k(t0) = u0_k, through
+any :class:`concurrent.futures.Executor` or a ``dask.distributed.Client`` (both offer
+``submit(fn, *args)`` returning futures with ``result()``). What travels to a worker is the
+declaration (sympy expressions or templates and arrays), never compiled kernels: the worker
+lowers it once and then finds the kernels in its own disk cache (``DOLFINODE_CACHE_DIR``),
+so on a cluster every node compiles each distinct system at most once.
+"""
+import copy
+import difflib
+from collections.abc import Mapping, Sequence
+
+import sympy as sp
+
+from dolfinode.methods import parse_method
+from dolfinode.ode import ODE, _check_time
+from dolfinode.parameters import check_parameters
+
+#: Keys of a variation besides parameter symbols.
+_FIELDS = ("u0", "T", "t0")
+
+
+def vary(ode, variation):
+    """A copy of ``ode`` with some parameter values, the initial value or the time interval
+    replaced, validated like the original declaration.
+
+    Parameters
+    ----------
+    ode : ODE or TemplateODE
+    variation : dict
+        Keys: parameter symbols (or their names) -> new values; ``"u0"`` -> initial values
+        (dict by state or sequence); ``"T"``, ``"t0"`` -> times.
+
+    Raises
+    ------
+    TypeError, ValueError
+        For keys that are neither parameters nor fields (with the closest name), and values
+        the declaration would reject.
+    """
+    if not isinstance(variation, Mapping):
+        raise TypeError(f"a variation must be a dict {{parameter or 'u0'/'T'/'t0': value}}, got "
+                        f"{type(variation).__name__}: {variation!r}")
+    by_name = {s.name: s for s in ode.params}
+    params = dict(ode.params)
+    new = copy.copy(ode)
+    new.__dict__.pop("_compiled", None)
+    for key, value in variation.items():
+        if key in _FIELDS:
+            continue
+        symbol = by_name.get(key.name if isinstance(key, sp.Symbol) else key)
+        if symbol is None or (isinstance(key, sp.Symbol) and key != symbol):
+            name = getattr(key, "name", str(key))
+            match = difflib.get_close_matches(name, [*by_name, *_FIELDS], n=1, cutoff=0.5)
+            hint = f"; did you mean {match[0]!r}?" if match else ""
+            raise ValueError(f"variation key {key!r} is neither a parameter of the ODE nor one of "
+                             f"{', '.join(_FIELDS)}{hint}")
+        params[symbol] = value
+    new.params = ode._params(params)
+    if "u0" in variation:
+        new.u0 = ode._initial_vector(variation["u0"])
+    new.t0 = _check_time(variation.get("t0", ode.t0), "t0")
+    new.T = _check_time(variation.get("T", ode.T), "T")
+    if not new.T > new.t0:
+        raise ValueError(f"the final time T = {new.T} must be larger than t0 = {new.t0}")
+    return new
+
+
+def _solve_variation(ode, method, parameters, reduce):
+    """Runs on a worker: solve one variation and optionally reduce its solution."""
+    from dolfinode.solve import solve
+    solution = solve(ode, method, **parameters)
+    return solution if reduce is None else reduce(solution)
+
+
+def solve_ensemble(ode, variations, executor=None, reduce=None, progress=False,
+                   method="cG(1)", **parameters):
+    """Solve ``ode`` once per variation, in parallel through ``executor``.
+
+    Parameters
+    ----------
+    ode : ODE or TemplateODE
+        The base declaration.
+    variations : sequence of dict
+        One dict per run, see :func:`vary`; e.g. ``[{k: 1.0}, {k: 2.0, "u0": [0, 1]}]``.
+    executor : concurrent.futures.Executor or dask.distributed.Client, optional
+        Where the runs go (default: one after another in this process). With a process pool
+        or a cluster, ``reduce`` must be picklable (a module-level function, not a lambda).
+        For a cluster: ``Client("tcp://scheduler:8786")``.
+    reduce : callable, optional
+        Solution -> value computed where the run happened (only the value comes back),
+        e.g. ``lambda sol: sol(sol.ode.T)`` in process.
+    progress : bool
+        Show a tqdm bar over the runs.
+    method, **parameters
+        As for :func:`dolfinode.solve`; checked before any run starts.
+
+    Returns
+    -------
+    list
+        Solutions (or reduced values), in the order of ``variations``.
+
+    Raises
+    ------
+    TypeError, ValueError
+        For bad variations or parameters, before anything runs. An error in a run is
+        raised again here, with a note naming the variation.
+    """
+    if isinstance(variations, (Mapping, str)) or not isinstance(variations, Sequence):
+        raise TypeError("variations must be a sequence (list) of dicts, one per run, got "
+                        f"{type(variations).__name__}")
+    if not isinstance(ode, ODE):
+        raise TypeError(f"solve_ensemble expects a dolfinode.ODE, got {type(ode).__name__}")
+    if reduce is not None and not callable(reduce):
+        raise TypeError(f"reduce must be a function of the solution, got {reduce!r}")
+    parse_method(method)
+    check_parameters(parameters)
+    runs = [vary(ode, variation) for variation in variations]
+    if executor is None:
+        return _collect(runs, progress, lambda run: _solve_variation(run, method, parameters, reduce))
+    futures = [executor.submit(_solve_variation, run, method, parameters, reduce) for run in runs]
+    return _collect(futures, progress, lambda future: future.result())
+
+
+def _collect(items, progress, result):
+    """``result(item)`` for every item in order, with a progress bar; a failure names its
+    variation."""
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        bar = tqdm(total=len(items), unit="run", desc="ensemble")
+    out = []
+    try:
+        for number, item in enumerate(items):
+            try:
+                out.append(result(item))
+            except Exception as error:
+                if hasattr(error, "add_note"):  # Python >= 3.11
+                    error.add_note(f"(in variation {number} of solve_ensemble)")
+                raise
+            if bar is not None:
+                bar.update()
+    finally:
+        if bar is not None:
+            bar.close()
+    return out

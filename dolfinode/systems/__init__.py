@@ -1,0 +1,5 @@
+"""Builders for structured systems: templates over index arrays, particle systems."""
+from dolfinode.systems.particles import ParticleSystem, lattice
+from dolfinode.systems.template import StateNames, Template, TemplateODE
+
+__all__ = ["ParticleSystem", "StateNames", "Template", "TemplateODE", "lattice"]

@@ -1,0 +1,201 @@
+"""The benchmark library: problems, scipy functions, scoring, runner, outputs and the CLI."""
+import json
+
+import numpy as np
+import pytest
+import sympy as sp
+from scipy.integrate import solve_ivp
+
+import dolfinode as dn
+from dolfinode.bench import problems as P
+from dolfinode.bench import report
+from dolfinode.bench.numpy_functions import numpy_functions
+from dolfinode.bench.runner import ROW_FIELDS, run_suite
+from dolfinode.cli import main
+
+
+def test_mescd_counts_digits():
+    ref = np.array([1.0, 1e-3])
+    assert P.mescd(ref + [1e-6, 0.0], ref) == pytest.approx(-np.log10(1e-6 / 2))
+    # with atol/rtol = 1e-4 the small component's error weighs 1 / (1e-4 + 1e-3)
+    assert P.mescd(ref + [0.0, 1e-9], ref, 1e-4) == pytest.approx(-np.log10(1e-9 / 1.1e-3))
+    assert P.mescd([np.nan, 1e-3], ref) == -np.inf
+    with pytest.raises(ValueError, match="shapes"):
+        P.mescd([1.0], ref)
+
+
+@pytest.mark.parametrize("name", ["HIRES", "VDPOLM", "Arenstorf", "chain"])
+def test_numpy_functions_match_the_declaration(name):
+    """f and J lambdified for scipy agree with dolfinode's compiled kernel and with a central
+    difference of f (POLLU's rate constants up to 4e11 defeat a finite difference)."""
+    from dolfinode.compile import lower
+
+    p = P.get_problem(name)
+    fun, jac = numpy_functions(p.ode)
+    y = p.ode.u0 + 0.01 * np.random.default_rng(0).random(p.ode.N)
+    np.testing.assert_allclose(fun(0.3, y), lower(p.ode).f(y.copy(), 0.3), rtol=1e-12,
+                               atol=1e-12)
+    J = jac(0.3, y)
+    J = J.toarray() if hasattr(J, "toarray") else J
+    h = 1e-7
+    for j in range(min(p.ode.N, 6)):
+        e = np.zeros(p.ode.N)
+        e[j] = h * max(1.0, abs(y[j]))
+        fd = (fun(0.3, y + e) - fun(0.3, y - e)) / (2 * e[j])
+        np.testing.assert_allclose(J[:, j], fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max() + 1e-9)
+
+
+def test_published_references_agree_with_a_tight_scipy_solve():
+    """The Test Set values typed in for HIRES and POLLU are the solution (scipy Radau at
+    rtol 1e-10 reproduces them to 8+ digits), and the closed forms solve their ODEs."""
+    for p in (P.hires_problem(), P.pollu()):
+        fun, jac = numpy_functions(p.ode)
+        res = solve_ivp(fun, (0, p.T), p.ode.u0, method="Radau", rtol=1e-10, atol=1e-12,
+                        jac=jac)
+        assert P.mescd(res.y[:, -1], p.final) > 8
+    for p in (P.seed_model(1e2, T=2.0), P.mass_spring_chain(n=6, T=2.0)):
+        fun, _ = numpy_functions(p.ode)
+        res = solve_ivp(fun, (0, p.T), p.ode.u0, method="DOP853", rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(res.y[:, -1], p.final, atol=1e-8)
+        np.testing.assert_allclose(p.exact(0.0), p.ode.u0, atol=1e-12)
+
+
+def test_problem_without_published_value_gets_a_reference_trajectory():
+    from dolfinode.bench.runner import Case
+
+    p = P.lorenz_problem(T=1.0)
+    assert p.final is None
+    case = Case(p)
+    assert "DOP853" in case.reference_note and case.ref_y.shape == (3, 100)
+    np.testing.assert_array_equal(p.final, case.ref_y[:, -1])
+    np.testing.assert_allclose(case.ref_y[:, 0], p.ode.u0)
+    score = case.score(p.final + 1e-6, case.ref_y + 1e-6)
+    assert score["err_T"] == pytest.approx(1e-6, rel=1e-6)
+    assert score["err_L2"] == pytest.approx(1e-6, rel=1e-6)
+
+
+def test_unknown_problem_suggests_a_name():
+    with pytest.raises(ValueError, match="did you mean 'ROBER'"):
+        P.get_problem("ROBBER")
+
+
+def _tiny():
+    u, lam = sp.symbols("u lam")
+    ode = dn.ODE({u: -lam * u}, u0=[1.0], T=1.0, params={lam: 2.0})
+    return P.Problem("decay", ode, stiff=False, final=np.array([np.exp(-2.0)]),
+                     exact=lambda s: np.atleast_2d(np.exp(-2.0 * np.asarray(s))),
+                     reference="exact")
+
+
+def test_runner_on_a_tiny_problem():
+    rows, cases = run_suite([_tiny()], ["dG(1)", "cG(2)", "Radau", "RK45"], [1e-3, 1e-6],
+                            repeats=2, progress=False)
+    assert len(rows) == 8 and all(set(r) == set(ROW_FIELDS) for r in rows)
+    for r in rows:
+        assert r["status"] == "ok", r["note"]
+        assert r["time_median_s"] > 0 and r["repeats"] == 2 and r["steps"] > 0
+        # measured error agrees with the score: mescd from |y(T) - exp(-2)|
+        assert r["mescd"] == pytest.approx(-np.log10(r["err_T"] / (1 + np.exp(-2))))
+    for method in ("dG(1)", "cG(2)", "Radau", "RK45"):
+        loose, tight = [r for r in rows if r["method"] == method]
+        assert tight["mescd"] > loose["mescd"] + 1, method
+        assert tight["err_L2"] < loose["err_L2"]
+    assert cases[0].compile["first_call_s"] > 0
+
+
+def test_runner_records_failures_and_skips_tighter_tolerances():
+    u = sp.Symbol("u")
+    blowup = P.Problem("blowup", dn.ODE({u: u**2}, u0=[1.0], T=2.0), stiff=False,
+                       final=np.array([1.0]), reference="none (blows up at t = 1)")
+    blowup.exact = lambda s: np.ones((1, np.size(s)))
+    rows, _ = run_suite([blowup], ["dG(1)", "RK45"], [1e-3, 1e-5], repeats=1, progress=False)
+    status = {(r["method"], r["tolerance"]): r["status"] for r in rows}
+    assert status[("dG(1)", 1e-3)] == "failed" and status[("dG(1)", 1e-5)] == "skipped"
+    assert status[("RK45", 1e-3)] == "failed"
+
+
+def test_large_systems_get_sparse_jacobians_and_lsoda_a_dense_one():
+    p = P.reaction_front(n=50, T=0.002)
+    rows, _ = run_suite([p], ["LSODA", "Radau", "dG(2)"], [1e-4], repeats=1, progress=False)
+    for r in rows:
+        assert r["status"] == "ok", r["note"]
+        assert r["mescd"] > 3
+
+
+def test_bad_runner_input_is_rejected():
+    with pytest.raises(ValueError, match="at least one"):
+        run_suite([], ["dG(1)"], [1e-3], progress=False)
+    with pytest.raises(ValueError):
+        run_suite([_tiny()], ["xG(1)"], [1e-3], progress=False)
+
+
+def test_equal_accuracy_interpolates_on_the_pareto_front():
+    rows = []
+    for method, solver, pts in (("A", "dolfinode", [(3.0, 1e-3), (5.0, 1e-2), (7.0, 1e-1)]),
+                                ("B", "scipy", [(4.0, 1e-2), (6.0, 1.0), (5.5, 2.0)])):
+        for digits, seconds in pts:
+            rows.append({"problem": "p", "solver": solver, "method": method, "status": "ok",
+                         "mescd": digits, "time_median_s": seconds})
+    table = {e["level"]: e for e in report.equal_accuracy(rows, "p")}
+    assert sorted(table) == [3, 4, 5, 6]
+    assert table[4]["dolfinode_time_s"] == pytest.approx(10 ** -2.5)
+    assert table[4]["scipy_time_s"] == pytest.approx(1e-2) and not table[4]["scipy_clamped"]
+    assert table[3]["scipy_clamped"]          # below B's loosest run
+    assert table[6]["scipy_time_s"] == pytest.approx(1.0)   # (5.5, 2 s) is off the front
+
+
+def test_headline_verdicts():
+    def entry(level, ratio):
+        return {"level": level, "ratio": ratio, "dolfinode_best": "dG(2)", "scipy_best": "Radau",
+                "dolfinode_time_s": ratio, "scipy_time_s": 1.0, "dolfinode_clamped": False,
+                "scipy_clamped": False}
+
+    rows = []
+    for solver, method, pts in (("dolfinode", "dG(2)", [(5.0, 0.1), (8.0, 0.4)]),
+                                ("scipy", "Radau", [(5.0, 1.0), (8.0, 0.2)])):
+        rows += [{"problem": "p", "solver": solver, "method": method, "status": "ok",
+                  "mescd": d, "time_median_s": s} for d, s in pts]
+    problem = P.Problem("p", _tiny().ode, stiff=True, final=np.zeros(1))
+    heads = report.headline(rows, [problem])
+    assert heads["p"]["levels_compared"] == [6, 7, 8] and not heads["p"]["target_met"]
+    heads["q"] = {"stiff": True, "table": [entry(4, 0.5)], "target_met": False,
+                  "levels_compared": []}
+    heads["r"] = {"stiff": True, "table": [entry(6, 0.5), entry(7, 0.25)], "target_met": True,
+                  "levels_compared": [6, 7]}
+    text = report.readme_paragraph({"date": "d", "cpu_count": 2, "tolerances": [1e-4],
+                                    "command": "c"}, heads, "m", "p")
+    assert "met on r; not met on p (slower at some level), q (no level >= 6" in text
+    assert "r 0.25-0.5 (mescd 6-7)" in text
+    table = report.summary_table(heads)
+    assert "| r | yes | 6-7 | 0.5 (2x faster; 6, dG(2) vs Radau)" in table
+
+
+def test_cli_bench_writes_every_output(tmp_path, capsys, monkeypatch):
+    from dolfinode.bench import problems
+
+    monkeypatch.setitem(problems.PROBLEMS, "decay", _tiny)
+    readme = tmp_path / "README.md"
+    readme.write_text("# x\n\n## Benchmarks\n\n## Documentation\n")
+    assert main(["bench", "--problems", "decay", "--methods", "dG(1),LSODA", "--tolerances",
+                 "1e-3,1e-5", "--repeats", "1", "--output", str(tmp_path), "--no-progress",
+                 "--update-readme", str(readme)]) == 0
+    for ext in ("csv", "json", "png", "md"):
+        assert (tmp_path / f"suite.{ext}").stat().st_size > 0
+    record = json.loads((tmp_path / "suite.json").read_text())
+    assert len(record["runs"]) == 4 and "decay" in record["headline"]
+    text = readme.read_text()
+    assert report.README_BEGIN in text and "decay" in text
+    assert text.index(report.README_END) < text.index("## Documentation")
+    assert "decay" in capsys.readouterr().out
+
+
+def test_cli_bench_rejects_bad_input(capsys):
+    with pytest.raises(SystemExit):
+        main(["bench", "--problems", "nonsense", "--no-progress"])
+    assert "unknown benchmark problem" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["bench", "--methods", "Radau,eG(1)", "--no-progress"])
+    assert "eG(1)" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["bench", "--tolerances", "1e-4,-1", "--no-progress"])
+    assert "positive" in capsys.readouterr().err

@@ -1,0 +1,255 @@
+"""The dual problem, error estimates of goals and goal-oriented adaptivity (dolfinode.dual)."""
+import warnings
+
+import numpy as np
+import pytest
+import scipy.linalg as sl
+import sympy as sp
+from scipy.integrate import solve_ivp
+
+import dolfinode as dn
+from dolfinode import problems
+from dolfinode.compile import lower
+from dolfinode.dual import adaptivity
+from dolfinode.dual.problem import jacobian_transpose
+from dolfinode.problems import _linear
+
+RNG = np.random.default_rng(1)
+_B = RNG.normal(size=(10, 10))
+#: A random stable 10 x 10 matrix (spectral abscissa -0.5) and initial value.
+A10 = _B - (np.abs(np.linalg.eigvals(_B).real).max() + 0.5) * np.eye(10)
+U10 = RNG.normal(size=10)
+#: A non-normal 2 x 2 matrix: transient growth by a factor ~5 before decay.
+A_NON_NORMAL = np.array([[-1.0, 20.0], [0.0, -2.0]])
+
+
+def _van_der_pol(T=10.0, mu=10.0):
+    x, y = sp.symbols("x y")
+    return dn.ODE({x: y, y: mu * (1 - x**2) * y - x}, u0=[2.0, 0.0], T=T)
+
+
+def _reference(ode):
+    """u(T) by scipy's DOP853 with rtol 1e-13 on the compiled right-hand side (for van der Pol
+    with mu = 10 on [0, 10] it agrees with Radau at rtol 1e-13 to 1e-8, 50 times faster)."""
+    compiled = lower(ode)
+    sol = solve_ivp(lambda t, u: compiled.f(u, t), (ode.t0, ode.T), ode.u0, method="DOP853",
+                    rtol=1e-13, atol=1e-14)
+    return sol.y[:, -1]
+
+
+@pytest.fixture(scope="module")
+def cases():
+    """name -> (ode, u(T)): exact by expm for the linear ones, scipy for Lorenz and van der Pol."""
+    out = {}
+    ode, exact = problems.stiff_decay(lam=1.0, T=5.0)
+    out["decay"] = (ode, exact(ode.T))
+    ode, exact = problems.harmonic(T=10.0)
+    out["harmonic"] = (ode, exact(ode.T))
+    ode, exact = _linear(A_NON_NORMAL, [1.0, 1.0], 3.0)
+    out["non-normal"] = (ode, exact(ode.T))
+    ode, exact = _linear(A10, U10, 2.0)
+    out["random 10"] = (ode, exact(ode.T))
+    ode = problems.lorenz(T=5.0)
+    out["lorenz"] = (ode, _reference(ode))
+    ode = _van_der_pol()
+    out["van der pol"] = (ode, _reference(ode))
+    return out
+
+
+@pytest.mark.parametrize("make", [problems.lorenz, _van_der_pol,
+                                  lambda: _linear(A10, U10, 1.0)[0]])
+def test_adjoint_identity_of_generated_jacobian(make):
+    """<J v, w> = <v, J^T w>, and J v is the derivative of the compiled f along v."""
+    ode = make()
+    compiled = lower(ode)
+    JT = np.empty((ode.N, ode.N))
+    for _ in range(3):
+        u, v, w = RNG.normal(size=(3, ode.N))
+        t = RNG.uniform(0, 1)
+        jacobian_transpose(compiled.jacobian, compiled.p, compiled.indptr, compiled.indices, u,
+                           t, np.empty(max(compiled.nnz, 1)), JT)
+        Jv = compiled.jacobian_matrix(u, t) @ v
+        assert np.dot(Jv, w) == pytest.approx(np.dot(v, JT @ w), rel=1e-13, abs=1e-13)
+        eps = 1e-6
+        difference = (compiled.f(u + eps * v, t) - compiled.f(u - eps * v, t)) / (2 * eps)
+        np.testing.assert_allclose(Jv, difference, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "dG(2)", "mcG(2)", "mdG(1)"])
+def test_dual_of_linear_system_is_the_matrix_exponential(method):
+    """phi(t) = exp(A^T (T - t)) psi for u' = A u."""
+    ode, _ = _linear(A_NON_NORMAL, [1.0, 1.0], 3.0)
+    sol = dn.solve(ode, method=method, tolerance=1e-5)
+    psi = np.array([0.3, -1.0])
+    est = dn.estimate_error(sol, psi)
+    times = np.linspace(0.0, ode.T, 23)
+    exact = np.array([sl.expm(A_NON_NORMAL.T * (ode.T - s)) @ psi for s in times]).T
+    np.testing.assert_allclose(est.dual(times), exact, rtol=0, atol=1e-6 * np.abs(exact).max())
+    slope = np.array([-A_NON_NORMAL.T @ est.dual(s) for s in times]).T
+    np.testing.assert_allclose(est.dual.derivative(times), slope, atol=1e-5 * np.abs(slope).max())
+
+
+#: (method, tolerances): cG(1)/mcG(1) need many elements at 1e-6, so they stop at 1e-5.
+EFFECTIVITY_RUNS = [(m, tol) for m in ("cG(2)", "dG(1)", "dG(2)", "mcG(2)", "mdG(1)", "mdG(2)")
+                    for tol in (1e-4, 1e-6)]
+EFFECTIVITY_RUNS += [(m, tol) for m in ("cG(1)", "mcG(1)") for tol in (1e-4, 1e-5)]
+
+
+@pytest.mark.parametrize("method,tolerance", EFFECTIVITY_RUNS)
+def test_effectivity_and_bound(cases, method, tolerance):
+    """est.value / (U_1(T) - u_1(T)) in [0.5, 2] and est.bound >= |error| on all problems
+    (measured: 0.97-1.06 except Lorenz mdG(2) at 1e-4, 0.67, by linearisation at U)."""
+    report = []
+    for name, (ode, reference) in cases.items():
+        sol = dn.solve(ode, method=method, tolerance=tolerance)
+        psi = np.zeros(ode.N)
+        psi[0] = 1.0
+        est = dn.estimate_error(sol, psi)
+        error = sol(ode.T)[0] - reference[0]
+        report.append((name, est.value / error, est.bound / abs(error)))
+        assert 0.5 <= est.value / error <= 2.0, report
+        assert est.bound >= abs(error), report
+
+
+def test_contributions_add_up_and_are_named(cases):
+    ode, _ = cases["random 10"]
+    sol = dn.solve(ode, method="mcG(2)", tolerance=1e-5)
+    est = dn.estimate_error(sol, {"u3": 1.0, ode.states[7]: -2.0})
+    assert est.contributions.shape == (10,)
+    assert est.contributions.sum() == pytest.approx(est.value, rel=1e-12)
+    assert est.contribution("u3") == est.contributions[3]
+    assert est.contribution(ode.states[7]) == est.contributions[7]
+    assert (est.bound_contributions.sum() + est.orthogonality_defect + est.dual_error
+            == pytest.approx(est.bound))
+    with pytest.raises(ValueError, match="not a state"):
+        est.contribution("w")
+
+
+def _integral_of_solution(sol, component):
+    """int_{t0}^{T} U_i dt, exactly (Gauss quadrature on the element polynomials)."""
+    ptr, t_start, t_end, values = sol.elements()
+    x, w = np.polynomial.legendre.leggauss(sol.method.q + 1)
+    tau = 0.5 * (x + 1)
+    span = slice(ptr[component], ptr[component + 1])
+    at_points = values[span] @ sol.method.basis(tau).T
+    return float(np.sum((t_end[span] - t_start[span]) * (at_points @ (0.5 * w))))
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(1)", "mdG(2)"])
+def test_time_integrated_goal(method):
+    """M(u) = int_0^T u dt for the harmonic oscillator (exact 1 - cos T)."""
+    ode, _ = problems.harmonic(T=10.0)
+    sol = dn.solve(ode, method=method, tolerance=1e-5)
+    est = dn.estimate_error(sol, ("integral", {"u": 1.0}))
+    error = _integral_of_solution(sol, 0) - (1 - np.cos(ode.T))
+    assert 0.5 <= est.value / error <= 2.0
+    assert est.bound >= abs(error)
+    both = dn.estimate_error(sol, dn.Goal(final={"u": 1.0}, integral={"u": 1.0}))
+    final = dn.estimate_error(sol, {"u": 1.0})
+    assert both.value == pytest.approx(est.value + final.value, rel=1e-9)
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "dG(2)", "mcG(2)"])
+def test_nonlinear_goal_is_linearised(method):
+    """G(u(T)) = sqrt(u^2 + v^2) of the harmonic oscillator (exactly 1): the estimate of the
+    linearised output error matches G(U(T)) - 1."""
+    ode, _ = problems.harmonic(T=10.0)
+    u, v = ode.states
+    sol = dn.solve(ode, method=method, tolerance=1e-6)
+    est = dn.estimate_error(sol, sp.sqrt(u**2 + v**2))
+    error = np.hypot(*sol(ode.T)) - 1.0
+    assert 0.5 <= est.value / error <= 2.0
+
+
+def test_bad_goals_are_explained():
+    ode, _ = problems.harmonic(T=1.0)
+    sol = dn.solve(ode, method="cG(1)", tolerance=1e-3)
+    w = sp.Symbol("w")
+    with pytest.raises(ValueError, match="not a state"):
+        dn.estimate_error(sol, {"w": 1.0})
+    with pytest.raises(ValueError, match="2 entries"):
+        dn.estimate_error(sol, [1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="zero"):
+        dn.estimate_error(sol, {"u": 0.0})
+    with pytest.raises(ValueError, match="not states"):
+        dn.estimate_error(sol, w * ode.states[0])
+    with pytest.raises(ValueError, match="does not depend"):
+        dn.estimate_error(sol, sp.Integer(3))
+    with pytest.raises(ValueError, match="unknown goal kind"):
+        dn.estimate_error(sol, ("average", {"u": 1.0}))
+    with pytest.raises(ValueError, match="finite"):
+        dn.estimate_error(sol, [np.nan, 1.0])
+    with pytest.raises(TypeError, match="dict by state"):
+        dn.estimate_error(sol, "u")
+    with pytest.raises(TypeError, match="Solution"):
+        dn.estimate_error(ode, {"u": 1.0})
+    with pytest.raises(ValueError, match="dual_degree"):
+        dn.estimate_error(sol, {"u": 1.0}, dual_degree=1)
+    with pytest.raises(ValueError, match="needs final"):
+        dn.Goal()
+
+
+def test_lorenz_stability_factors_grow_exponentially():
+    """log S1(T) grows linearly in T (measured rate ~0.7 on [5, 30], near the largest Lyapunov
+    exponent 0.91; Kehlet and Logg, Quantifying the computability of the Lorenz system)."""
+    ends = np.array([5.0, 10.0, 15.0, 20.0, 25.0, 30.0])
+    factors = []
+    for T in ends:
+        sol = dn.solve(problems.lorenz(T=T), method="cG(2)", tolerance=1e-7)
+        factors.append(dn.estimate_error(sol, [1.0, 0.0, 0.0]).stability_factors)
+    S1 = np.array([s["S1"] for s in factors])
+    rate, _ = np.polyfit(ends, np.log(S1), 1)
+    assert 0.4 < rate < 1.2, S1
+    assert np.corrcoef(ends, np.log(S1))[0, 1] > 0.95, S1
+    assert all(s["S0"] > 0 for s in factors)
+
+
+def _driven():
+    """a' = -a/2 (the goal), and a stiff oscillator (b, c) driven by a that does not act back."""
+    a, b, c = sp.symbols("a b c")
+    ode = dn.ODE({a: -0.5 * a, b: c, c: -400 * b + a}, u0=[1.0, 1.0, 0.0], T=4.0)
+    return ode, lambda T: np.exp(-0.5 * T)
+
+
+GOAL_SWEEP = [("harmonic", "cG(2)", 1e-4), ("harmonic", "dG(1)", 1e-6),
+              ("harmonic", "mcG(2)", 1e-5), ("non-normal", "cG(1)", 1e-4),
+              ("non-normal", "mdG(1)", 1e-6), ("random 10", "mdG(2)", 1e-6),
+              ("random 10", "cG(2)", 1e-7), ("lorenz", "cG(2)", 1e-4),
+              ("lorenz", "dG(2)", 1e-3), ("van der pol", "mcG(2)", 1e-5)]
+
+
+def test_goal_oriented_runs_meet_the_tolerance(cases):
+    """At least 9 of 10 runs have |U_1(T) - u_1(T)| <= TOL (measured: 10 of 10)."""
+    met = []
+    for name, method, tolerance in GOAL_SWEEP:
+        ode, reference = cases[name]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            sol = dn.solve(ode, method=method, goal={ode.states[0]: 1.0}, tolerance=tolerance)
+        error = abs(sol(ode.T)[0] - reference[0])
+        met.append(error <= tolerance)
+        assert sol.error_estimate.value == pytest.approx(sol(ode.T)[0] - reference[0], rel=0.5)
+    assert sum(met) >= 9, list(zip(GOAL_SWEEP, met))
+
+
+@pytest.mark.parametrize("method", ["mcG(2)", "mdG(1)"])
+def test_components_outside_the_goal_take_large_steps(method):
+    ode, exact = _driven()
+    plain = dn.solve(ode, method=method, tolerance=1e-6)
+    sol = dn.solve(ode, method=method, goal={"a": 1.0}, tolerance=1e-6)
+    assert abs(sol(ode.T)[0] - exact(ode.T)) <= 1e-6
+    assert sol.stats["goal tolerance reached"]
+    goal_counts = sol.stats["elements per component"]
+    plain_counts = plain.stats["elements per component"]
+    assert np.all(goal_counts[1:] < 0.25 * plain_counts[1:]), (goal_counts, plain_counts)
+    assert np.sum(np.abs(sol.error_estimate.contributions[1:])) == 0.0
+
+
+def test_goal_not_reached_warns(monkeypatch):
+    monkeypatch.setattr(adaptivity, "MAXIMUM_ITERATIONS", 1)
+    ode, _ = problems.harmonic(T=10.0)
+    with pytest.warns(RuntimeWarning, match="above the tolerance"):
+        sol = dn.solve(ode, method="cG(2)", goal={"u": 1.0}, tolerance=1e-6,
+                       absolute_tolerance=1e-2)
+    assert not sol.stats["goal tolerance reached"]
+    assert abs(sol.error_estimate.value) > 1e-6

@@ -1,0 +1,106 @@
+"""Ensembles: serial, thread pool and a dask LocalCluster give the same results as separate
+solves; reduced values; bad variations fail before anything runs."""
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import dolfinode as dn
+
+u, v, k = sp.symbols("u v k")
+
+
+def oscillator():
+    return dn.ODE({u: v, v: -k * u}, u0=[1.0, 0.0], T=1.0, params={k: 4.0})
+
+
+def final_value(solution):  # module level: picklable for process pools and clusters
+    return solution(solution.ode.T)
+
+
+VARIATIONS = [{k: 1.0}, {"k": 9.0, "u0": [0.5, 1.0]}, {"T": 2.0}, {k: 2.0, "u0": {u: 0.0, v: 1.0}}]
+
+
+def expected_final_values():
+    return [final_value(dn.solve(dn.vary(oscillator(), var), "cG(2)", tolerance=1e-8))
+            for var in VARIATIONS]
+
+
+def test_serial_ensemble_equals_separate_solves_and_exact_solution():
+    values = dn.solve_ensemble(oscillator(), VARIATIONS, reduce=final_value, method="cG(2)",
+                               tolerance=1e-8)
+    np.testing.assert_array_equal(values, expected_final_values())
+    w = 1.0  # first variation: u = cos(t)
+    np.testing.assert_allclose(values[0], [np.cos(w), -np.sin(w)], atol=1e-6)
+
+
+def test_solutions_come_back_in_order_with_their_variation():
+    solutions = dn.solve_ensemble(oscillator(), VARIATIONS, method="cG(2)", tolerance=1e-8)
+    assert [s.ode.T for s in solutions] == [1.0, 1.0, 2.0, 1.0]
+    assert [s.ode.params[k] for s in solutions] == [1.0, 9.0, 4.0, 2.0]
+    np.testing.assert_array_equal(solutions[1].ode.u0, [0.5, 1.0])
+
+
+def test_thread_pool_equals_serial():
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        values = dn.solve_ensemble(oscillator(), VARIATIONS, executor=pool, reduce=final_value,
+                                   method="cG(2)", tolerance=1e-8, progress=True)
+    np.testing.assert_array_equal(values, expected_final_values())
+
+
+def test_dask_local_cluster_equals_serial():
+    distributed = pytest.importorskip("distributed")
+    chain = dn.systems.lattice(2, m=1.0)  # a template system travels as its declaration
+    variations = [{"T": 0.5}, {"T": 1.0}, {"u0": chain.u0 * 1.01}]
+    serial = dn.solve_ensemble(chain, variations, reduce=final_value, tolerance=1e-6)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        remote = dn.solve_ensemble(chain, variations, executor=client, reduce=final_value,
+                                   tolerance=1e-6)
+        solutions = dn.solve_ensemble(oscillator(), VARIATIONS[:2], executor=client,
+                                      method="cG(2)", tolerance=1e-8)
+    np.testing.assert_array_equal(remote, serial)
+    np.testing.assert_array_equal([final_value(s) for s in solutions], expected_final_values()[:2])
+
+
+@pytest.mark.parametrize("variations, error, match", [
+    ({k: 1.0}, TypeError, "sequence"),
+    ([{k: 1.0}, [1.0]], TypeError, "must be a dict"),
+    ([{sp.Symbol("kk"): 1.0}], ValueError, "neither a parameter .* did you mean 'k'"),
+    ([{"u1": [0.0, 1.0]}], ValueError, "did you mean 'u0'"),
+    ([{k: "stiff"}], TypeError, "must be a real number"),
+    ([{"u0": [1.0]}], ValueError, "has 1 values but the system has 2"),
+    ([{"T": -1.0}], ValueError, "larger than t0"),
+])
+def test_bad_variations_fail_before_running(variations, error, match):
+    with pytest.raises(error, match=match):
+        dn.solve_ensemble(oscillator(), variations)
+
+
+def test_bad_arguments_fail_before_running():
+    with pytest.raises(ValueError, match="tolerance"):
+        dn.solve_ensemble(oscillator(), [{}], tolerence=1e-3)
+    with pytest.raises(TypeError, match="reduce"):
+        dn.solve_ensemble(oscillator(), [{}], reduce=3)
+    with pytest.raises(TypeError, match="dolfinode.ODE"):
+        dn.solve_ensemble("ode", [{}])
+
+
+def test_a_failing_run_names_its_variation():
+    x = sp.Symbol("x")
+    blowup = dn.ODE({x: x**2}, u0=[1.0], T=0.5)
+    with pytest.raises(dn.SolverError) as info:
+        dn.solve_ensemble(blowup, [{}, {"T": 2.0}])
+    assert "variation 1" in "".join(getattr(info.value, "__notes__", []))
+
+
+def test_runs_and_solutions_pickle_for_process_pools_and_clusters():
+    import pickle
+    run = dn.vary(dn.systems.lattice(2, m=1.0), {"T": 0.2})
+    solution = dn.solve(run, tolerance=1e-6)
+    back = pickle.loads(pickle.dumps(solution))
+    np.testing.assert_array_equal(back(0.1), solution(0.1))
+    np.testing.assert_array_equal(dn.solve(pickle.loads(pickle.dumps(run)), tolerance=1e-6).y,
+                                  solution.y)
