@@ -5,8 +5,8 @@ The pipeline (Jansson, Johnson & Logg 2005, sections 3-7, made automatic and che
 1. resolve the full model on [t0, t0 + 2 tau]; average it around t_c = t0 + tau;
 2. inactivate the components whose average does not move (drift < average_tolerance) and
    build the reduced model f~ = f + g~ with g~ = g-bar;
-3. solve the reduced model from u-bar(t_c); its solution is the output from t0 + 2 tau on
-   (the resolved full solution before);
+3. solve the reduced model from u-bar(t_c); its solution is the output on (t_c, T] (the
+   resolved full solution on [t0, t_c]);
 4. at ``control_points`` equispaced times t_k, restart the full model at t_k - tau from the
    reduced state plus the fast fluctuation measured when the model was built (a
    perturbation of the size of the fast oscillation), average it around t_k, record the defect g~ - g-bar, and rebuild the
@@ -78,30 +78,37 @@ def solve_with_modeling(ode, method, params, solve):
 
         The window is solved in the local time t - (center - tau): in absolute time, steps
         of the fast scale would lose their last digits to the rounding of t + k (at t = 90,
-        steps of 3e-11 are represented to 5e-4 only)."""
-        local = ODE(local_rhs, u0=u, t0=0.0, T=2 * tau,
-                    params={**ode.params, shift: center - tau})
-        window = run(local, maximum_time_step=min(window_step, 2 * tau))
+        steps of 3e-11 are represented to 5e-4 only). It is solved as two halves that meet
+        at the centre, so that the first half is the output before the reduced solution
+        takes over there. Returns the averages and the first half (in local time)."""
+        local_params = {**ode.params, shift: center - tau}
+        local = ODE(local_rhs, u0=u, t0=0.0, T=2 * tau, params=local_params)
+        step = {"maximum_time_step": min(window_step, tau)}
+        before = run(ODE(local_rhs, u0=u, t0=0.0, T=tau, params=local_params), **step)
+        after = run(ODE(local_rhs, u0=before(tau), t0=tau, T=2 * tau, params=local_params),
+                    initial_time_step=float(before.time_steps(0)[1][-1] if before.multi
+                                            else before.k[-1]), **step)
+        window = _concatenate(local, [before, after], 2)
+        window.stats = {"elements": before.stats["elements"] + after.stats["elements"]}
         averages = average_window(window, lower(local), tau, tau, params["average_samples"])
         averages.center = center
-        return window, averages
+        return before, window, averages
 
-    first, averages = resolve(ode.u0, ode.t0 + tau)
+    first, window, averages = resolve(ode.u0, ode.t0 + tau)
     model.build(averages, averages.drift < params["average_tolerance"], averages.center)
     fluctuation = averages.fluctuation
     first.t_start = first.t_start + ode.t0  # from the window's local time
     if first.multi:
         first._t_end = first._t_end + ode.t0
     pieces = [first]
-    # the reduced solution starts at t_c = t0 + tau; it is output from t0 + 2 tau on
+    # the reduced solution starts at t_c = t0 + tau from u-bar(t_c): the output is the full
+    # solution on [t0, t_c] and the reduced one on (t_c, T] (left-continuous, as for dG)
     step = {}
     u, t_now = averages.u_bar, averages.center
-    for t_next in [ode.t0 + 2 * tau] + [ode.t0 + 2 * tau + k * spacing
-                                         for k in range(1, n_control + 2)]:
-        t_next = min(t_next, ode.T)
+    checks = [ode.t0 + 2 * tau + k * spacing for k in range(1, n_control + 1)]
+    for t_next in [ode.t0 + 2 * tau] + checks + [ode.T]:
         segment = run(model.declaration(u, t_now, t_next), **step)
-        if t_now > ode.t0 + tau:
-            pieces.append(segment)
+        pieces.append(segment)
         u, t_now = segment(t_next), t_next
         step = {"initial_time_step": float(segment.time_steps(0)[1][-1] if segment.multi
                                            else segment.k[-1])}
@@ -109,7 +116,7 @@ def solve_with_modeling(ode, method, params, solve):
             continue
         # control point at t_now: full model from t_now - tau, perturbed by the fast fluctuation
         u_start = model.state(segment(t_now - tau)) + np.where(model.active, 0.0, fluctuation)
-        window, averages = resolve(u_start, t_now)
+        _, window, averages = resolve(u_start, t_now)
         defect = model.defect(compiled, averages)
         scale = np.max(np.abs(np.where(model.active, averages.g_bar, 0.0)))
         relative = np.max(np.abs(defect)) / scale if scale > 0 else np.inf
