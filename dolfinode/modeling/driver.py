@@ -105,6 +105,7 @@ def solve_with_modeling(ode, method, params, solve):
     # solution on [t0, t_c] and the reduced one on (t_c, T] (left-continuous, as for dG)
     step = {}
     u, t_now = averages.u_bar, averages.center
+    reduced_start = (u, t_now)
     checks = [ode.t0 + 2 * tau + k * spacing for k in range(1, n_control + 1)]
     for t_next in [ode.t0 + 2 * tau] + checks + [ode.T]:
         segment = run(model.declaration(u, t_now, t_next), **step)
@@ -122,7 +123,9 @@ def solve_with_modeling(ode, method, params, solve):
         relative = np.max(np.abs(defect)) / scale if scale > 0 else np.inf
         rebuild = params["rebuild_model"] and relative > params["model_tolerance"]
         if rebuild:
-            model.build(averages, averages.drift < params["average_tolerance"], t_now)
+            # g~ is refitted; the inactive set stays that of the first build, so that the
+            # reduced problem (and its dual) is one ODE on (t_c, T]
+            model.build(averages, ~model.active, t_now)
             u = np.where(model.active, u, averages.u_bar)
             # chained only through rebuilds, so that the energy errors of the resolved
             # windows do not accumulate over the checks of one model
@@ -130,6 +133,7 @@ def solve_with_modeling(ode, method, params, solve):
         model.control_points.append(ControlPoint(t_now, float(np.linalg.norm(defect)),
                                                  float(relative), bool(rebuild),
                                                  int(window.stats["elements"])))
+    model.reduced = _concatenate(model.declaration(*reduced_start, ode.T), pieces[1:], 2)
     sol = _concatenate(ode, pieces, params["number_of_samples"])
     sol.stats = _total_stats(runs, model, time.perf_counter() - start)
     sol.model = model

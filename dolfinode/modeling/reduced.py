@@ -62,6 +62,25 @@ class ControlPoint:
 
 
 @dataclass
+class ModelingError:
+    """The modeling-error estimate of :meth:`ReducedModel.modeling_error`.
+
+    Attributes
+    ----------
+    bound : S0 * largest_defect, the bound of the modeling error in the goal
+    S0 : int ||phi||_l2 dt of the reduced model's dual problem
+    largest_defect : max over the control points of ||g~ - g-bar||_l2
+    discretization : the dual estimate of the reduced solution's own discretisation error in
+        the goal (against the exact reduced solution u~)
+    """
+
+    bound: float
+    S0: float
+    largest_defect: float
+    discretization: float
+
+
+@dataclass
 class ReducedModel:
     """The automatically built reduced model and its history (``sol.model``).
 
@@ -73,6 +92,8 @@ class ReducedModel:
     inactive : tuple of the inactivated states
     built : times at which the model was built (the first is t0 + tau)
     control_points : list of :class:`ControlPoint`
+    reduced : the reduced solution on (t_c, T] (a :class:`~dolfinode.Solution` of the
+        reduced ODE; set by the solver)
     """
 
     ode: ODE
@@ -81,6 +102,7 @@ class ReducedModel:
     inactive: tuple = ()
     built: list = field(default_factory=list)
     control_points: list = field(default_factory=list)
+    reduced: object = None
 
     def __post_init__(self):
         taken = {s.name for s in self.ode.states} | {s.name for s in self.ode.params}
@@ -137,10 +159,45 @@ class ReducedModel:
         """max over the control points of ||g~ - g-bar||_l2 (0 without control points)."""
         return max((c.defect for c in self.control_points), default=0.0)
 
-    def modeling_error(self, S0):
-        """The modeling-error bound  S0 * max_[0,T] ||g~ - g-bar||_l2  of the paper's error
-        estimate, with the stability factor S0 = int_0^T ||phi|| dt of the dual problem."""
-        return float(S0) * self.largest_defect
+    def modeling_error(self, goal=None):
+        """The modeling-error bound of the paper's error estimate for a goal.
+
+        The error of the reduced solution U in the average u-bar, measured by a goal M, has
+        the modeling term  int (phi, g~ - g-bar) dt, hence (the seed paper, "Error analysis")
+
+            |M(U) - M(u-bar)| <= S1 max ||k R~(U)||  +  S0 max_[t_c, T] ||g~ - g-bar||_l2,
+
+        with S0 = int_{t_c}^T ||phi||_l2 dt of the dual problem of the reduced model,
+        -phi' = (df~/du)^T phi, linearised at U (its discretisation part is
+        ``discretization``, from :func:`dolfinode.estimate_error`, with the residual taken
+        against the model as last built). max ||g~ - g-bar|| is the largest defect found at
+        the control points.
+
+        Parameters
+        ----------
+        goal : any goal form of :func:`dolfinode.estimate_error`, optional
+            Default: the final-time output (psi, u(T)) with psi_i = 1 on every active
+            component (inactive components are frozen averages, not outputs of the model).
+
+        Returns
+        -------
+        ModelingError
+        """
+        if self.reduced is None:
+            raise ValueError("the reduced model has not been solved yet: modeling_error is "
+                             "available on sol.model after dn.solve(..., "
+                             "automatic_modeling=True)")
+        if not self.control_points:
+            raise ValueError("no control points: max |g~ - g-bar| is unknown; solve with "
+                             "control_points >= 1")
+        from dolfinode.dual import estimate_error
+
+        estimate = estimate_error(self.reduced,
+                                  self._active.astype(float) if goal is None else goal)
+        S0 = estimate.stability_factors["S0"]
+        return ModelingError(bound=S0 * self.largest_defect, S0=S0,
+                             largest_defect=self.largest_defect,
+                             discretization=estimate.value)
 
     def __repr__(self):
         return (f"ReducedModel(tau={self.average_length:.3g}, inactive={len(self.inactive)}, "

@@ -87,8 +87,24 @@ def test_control_points_must_fit():
                  control_points=5)
 
 
-def test_modeling_error_estimate_scales_the_largest_defect():
-    sol = dn.solve(simple_model(1e12), average_length=1e-4, **SETTINGS)
+def test_modeling_error_from_the_dual_of_the_reduced_problem():
+    """Reduced model u1'' = -u1 + g~ (u2 frozen): for the goal u1(T) the dual is a rotation
+    in (u1, u1'), ||phi|| = 1, so S0 = T - t_c; for psi = 1 on both active components,
+    ||phi|| = sqrt(2)."""
+    tau = 1e-4
+    ode = simple_model(1e12)
+    sol = dn.solve(ode, average_length=tau, **SETTINGS)
     largest = max(c.defect for c in sol.model.control_points)
     assert sol.model.largest_defect == largest > 0
-    assert sol.model.modeling_error(3.0) == pytest.approx(3 * largest)
+    estimate = sol.model.modeling_error({ode.states[0]: 1.0})
+    assert estimate.S0 == pytest.approx(100 - tau, rel=1e-3)
+    assert estimate.bound == pytest.approx(estimate.S0 * largest)
+    assert abs(estimate.discretization) < 1e-3
+    default = sol.model.modeling_error()
+    assert default.S0 == pytest.approx(np.sqrt(2) * (100 - tau), rel=1e-3)
+
+
+def test_modeling_error_needs_control_points():
+    sol = dn.solve(simple_model(1e12), average_length=1e-4, control_points=0, **SETTINGS)
+    with pytest.raises(ValueError, match="control_points"):
+        sol.model.modeling_error()
