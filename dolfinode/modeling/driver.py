@@ -3,7 +3,8 @@
 The pipeline (Jansson, Johnson & Logg 2005, sections 3-7, made automatic and checked):
 
 1. resolve the full model on [t0, t0 + 2 tau]; average it around t_c = t0 + tau;
-2. inactivate the components whose average does not move (drift < average_tolerance) and
+2. inactivate the fast components (omega_i tau >= 2 pi, omega_i^2 = |(J^2)_ii|) whose average
+   does not move (drift < average_tolerance), and
    build the reduced model f~ = f + g~ with g~ = g-bar;
 3. solve the reduced model from u-bar(t_c); its solution is the output on (t_c, T] (the
    resolved full solution on [t0, t_c]);
@@ -20,7 +21,7 @@ import sympy as sp
 from dolfinode.compile import lower
 from dolfinode.modeling.averaging import average_window
 from dolfinode.modeling.reduced import AVERAGE_PERIODS, ControlPoint, ReducedModel, \
-    fast_time_scale
+    component_frequencies, fast_time_scale
 from dolfinode.ode import ODE, t
 from dolfinode.solution import Solution
 
@@ -95,7 +96,12 @@ def solve_with_modeling(ode, method, params, solve):
         return before, window, averages
 
     first, window, averages = resolve(ode.u0, ode.t0 + tau)
-    model.build(averages, averages.drift < params["average_tolerance"], averages.center)
+    # inactivated: the fast components (at least one period 2 pi / omega_i in the averaging
+    # length tau) whose average does not move; a slow component whose average happens to be
+    # constant over the window (a mass at rest by symmetry) stays active
+    fast = component_frequencies(compiled, ode.u0, ode.t0) * tau >= 2 * np.pi
+    model.build(averages, fast & (averages.drift < params["average_tolerance"]),
+                averages.center)
     fluctuation = averages.fluctuation
     first.t_start = first.t_start + ode.t0  # from the window's local time
     if first.multi:

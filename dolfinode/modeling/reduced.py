@@ -40,6 +40,18 @@ def fast_time_scale(compiled, u, t):
     return 1.0 / radius if radius > 0 else np.inf
 
 
+def component_frequencies(compiled, u, t):
+    """omega_i = sqrt(|(J^2)_ii|), J = df/du at (u, t): the time scale 1/omega_i on which
+    component i moves by itself.
+
+    For a second-order system x' = v, v' = a(x), J^2 = diag(da/dx, da/dx), so omega_i^2 is
+    the stiffness over the mass acting on the coordinate (and on its velocity); for
+    u' = -lambda u, omega = |lambda|. (J^2)_ii = sum_k J_ik J_ki.
+    """
+    J = compiled.jacobian_matrix(u, t)
+    return np.sqrt(np.abs(np.asarray(J.multiply(J.T).sum(axis=1)).ravel()))
+
+
 @dataclass
 class ControlPoint:
     """A check of the reduced model against the full model resolved around ``time``.
