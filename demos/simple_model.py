@@ -69,6 +69,10 @@ def main(argv=None):
           f"defect |g~ - g-bar| = {sol.model.largest_defect:.2e}")
     print(f"  {sol.stats['elements']} elements, {sol.stats['time slabs']} time slabs, "
           f"{wall:.2f} s")
+    estimate = sol.model.modeling_error({sol.ode.states[0]: 1.0})
+    print(f"  goal u1(T): modeling error <= S0 max |g~ - g-bar| = {estimate.S0:.4g} x "
+          f"{estimate.largest_defect:.2e} = {estimate.bound:.2e}; discretisation error "
+          f"estimate {estimate.discretization:.2e}")
 
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6.5))
     values = sol(t)
@@ -90,7 +94,8 @@ def main(argv=None):
     fig.savefig(plot, dpi=110)
     plt.close(fig)
     print(f"plot: {plot}")
-    return {"g1": g1, "error": error, "solution": sol, "wall time": wall, "plot": plot}
+    return {"g1": g1, "error": error, "solution": sol, "wall time": wall, "plot": plot,
+            "modeling error": estimate}
 
 
 if __name__ == "__main__":
