@@ -1,4 +1,5 @@
 """The driver: ``solve(ode, method, **parameters) -> Solution``."""
+import os
 import time
 
 import numpy as np
@@ -15,6 +16,42 @@ from dolfinode.timeslab import mono
 #: Relative size (times |t|) below which a time step cannot be resolved in double precision.
 _KMIN_RELATIVE = 1e-14
 _STATUS_STEP_LIMIT = -1
+#: Fraction of the available memory the banded Newton matrix of a mono-adaptive slab may take.
+_NEWTON_MEMORY_FRACTION = 0.5
+
+
+def _available_memory():
+    """Bytes of memory available to this process (MemAvailable on Linux, else physical memory)."""
+    try:
+        with open("/proc/meminfo") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def newton_memory(N, kl, ku, stages):
+    """Bytes of the banded Newton matrix (and its pivots) of a mono-adaptive time slab.
+
+    Parameters
+    ----------
+    N : int
+        Number of components.
+    kl, ku : int
+        Lower and upper bandwidth of the Jacobian after reordering (``lower(ode).ordering``).
+    stages : int
+        Stages of the method: q for cG(q), q + 1 for dG(q).
+
+    Returns
+    -------
+    int
+        ``8 S N (2 kl S + ku S + 3 (S - 1) + 1) + 8 S N``; allocated only when the solve
+        uses Newton's method (``nonlinear_solver="newton"``, or the default once fixed-point
+        iteration fails).
+    """
+    return 8 * stages * N * (mono.newton_band_columns(kl, ku, stages) + 1)
 
 
 def _absolute_tolerance(ode, value, rtol):
@@ -173,6 +210,10 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     tau = m.nodes[m.stages].copy()
     A, b0 = np.array(m.A), m.b0.copy()
+    band_bytes = newton_memory(ode.N, kl, ku, A.shape[0])
+    available = _available_memory()
+    fits = band_bytes <= _NEWTON_MEMORY_FRACTION * available
+    iopts = np.concatenate([iopts, [int(fits)]])
     dend, lval = m.end_derivative.copy(), m.left_value.copy()
     nodes = m.q + 1
 
@@ -189,6 +230,15 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     with _progress(ode, params) as bar:
         status, elements = _integrate(advance, buffers, capacity, counters, params,
                                       state, bar)
+    if status == ts.NEWTON_MEMORY:
+        why = ("was not selected" if params["nonlinear_solver"] == "newton" else "failed")
+        raise SolverError(
+            f"{m.name} needs Newton's method at t = {state[mono.T_NOW]:.6g} (fixed-point "
+            f"iteration {why}), but its banded Newton matrix ({A.shape[0] * ode.N} unknowns, "
+            f"bandwidth {kl} + {ku} after reordering) takes {band_bytes / 2**30:.3g} GB, more "
+            f"than {_NEWTON_MEMORY_FRACTION:g} x the {available / 2**30:.3g} GB available. "
+            "Use smaller steps with fixed_time_step=True and nonlinear_solver='fixed-point', "
+            "or a smaller system", t=float(state[mono.T_NOW]))
     stats = {"time slabs": int(counters[ts.SLABS]),
              "elements": int(counters[ts.SLABS]) * ode.N,
              "factorizations": int(counters[ts.FACTORIZATIONS]),

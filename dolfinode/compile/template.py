@@ -163,7 +163,9 @@ def _pattern(ode, locals_):
     pairs = [local.rows_and_columns(template.indices)
              for local, template in zip(locals_, ode.templates)]
     keys = [rows * n + columns for rows, columns in pairs]  # row-major order = CSR order
-    unique = np.unique(np.concatenate([k.ravel() for k in keys])) if keys else np.zeros(0, np.int64)
+    # sort + mask: np.unique (numpy 2's hash table, then a sort) took 9 of 12 s at N = 3 10^5
+    unique = np.sort(np.concatenate([k.ravel() for k in keys])) if keys else np.zeros(0, np.int64)
+    unique = unique[np.concatenate([[True], unique[1:] != unique[:-1]])] if unique.size else unique
     indices = (unique % n).astype(np.int64)
     indptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(np.bincount(unique // n, minlength=n), out=indptr[1:])

@@ -33,6 +33,7 @@ from dolfinode.compile import lower
 from dolfinode.dual.goal import resolve
 from dolfinode.dual.problem import (
     DualSolution,
+    advance_forward,
     evaluate_primal,
     horner,
     horner_derivative,
@@ -97,7 +98,7 @@ def _legendre(x, degree, out):
 
 
 @njit(cache=True)
-def _weighted_residuals(rhs, p, grid, elements, t_start, t_end, coef, phi, x, w, projection,
+def _weighted_residuals(rhs, p, grid, ptr, t_start, t_end, coef, phi, x, w, projection,
                         first_pass, phi_start, r_phi, phi_moments, r_moments, abs_weighted,
                         norms):
     """Gauss quadrature of the residual R = U' - f(U, t) against the dual, interval by interval.
@@ -105,29 +106,34 @@ def _weighted_residuals(rhs, p, grid, elements, t_start, t_end, coef, phi, x, w,
     First pass: r_phi[e] = int R phi, phi_moments[e, m] = int phi P_m, r_moments[e, m] =
     int R P_m (P_m: Legendre on element e), phi_start[e] = phi at the element's start, and
     norms = (S0, S1). Second pass (with the projections pi phi known):
-    abs_weighted[e] = int |R| |phi - pi phi|.
+    abs_weighted[e] = int |R| |phi - pi phi|. The primal elements are tracked by one cursor
+    per component (memory O(N)).
     """
-    L, N = grid.shape[0] - 1, elements.shape[1]
+    L, N = grid.shape[0] - 1, ptr.shape[0] - 1
     d = projection.shape[1] - 1
     u = np.empty(N)
     f = np.empty(N)
     P = np.empty(d + 1)
+    current = ptr[:-1].copy()
+    previous = current.copy()
     for l in range(L):
         h = grid[l + 1] - grid[l]
+        previous[:] = current
+        advance_forward(ptr, t_end, grid[l], grid[l + 1], current)
         if first_pass:
             for i in range(N):
-                e = elements[l, i]
-                if l == 0 or elements[l - 1, i] != e:
+                e = current[i]
+                if l == 0 or e != previous[i]:
                     phi_start[e] = horner(phi[l, :, i], (t_start[e] - grid[l]) / h)
         for g in range(x.shape[0]):
             t = grid[l] + x[g] * h
             wh = w[g] * h
-            evaluate_primal(coef, t_start, t_end, elements[l], t, u)
+            evaluate_primal(coef, t_start, t_end, current, t, u)
             rhs(u.ctypes, t, p.ctypes, f.ctypes)
             size0 = 0.0
             size1 = 0.0
             for i in range(N):
-                e = elements[l, i]
+                e = current[i]
                 k = t_end[e] - t_start[e]
                 tau = (t - t_start[e]) / k
                 residual = horner_derivative(coef[e], tau) / k - f[i]
@@ -176,6 +182,9 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None):
     ------
     TypeError, ValueError
         For a solution that is not a :class:`~dolfinode.Solution` or an invalid goal.
+    SolverError
+        If the dual's stage matrix is singular on an interval (h J with an eigenvalue that
+        cG(r) cannot step over).
     """
     if not isinstance(sol, Solution):
         raise TypeError(f"estimate_error expects a dolfinode Solution, got {type(sol).__name__}")
@@ -210,7 +219,7 @@ def _error_representation(sol, primal, dual, gauss):
     compiled = lower(sol.ode)
 
     def integrate(first_pass):
-        _weighted_residuals(compiled.rhs, compiled.p, primal.grid, primal.elements,
+        _weighted_residuals(compiled.rhs, compiled.p, primal.grid, primal.ptr,
                             primal.t_start, primal.t_end, primal.coef, dual.coef, x, w,
                             projection, first_pass, phi_start, r_phi, phi_moments, r_moments,
                             abs_weighted, norms)

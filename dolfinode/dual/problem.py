@@ -9,12 +9,17 @@ with J = df/du the Jacobian generated from sympy and evaluated at the Galerkin s
 (the mean value of the seed paper, "Error analysis", taken at U). In the reversed time
 s = T - t this is the forward linear problem y' = J^T y + grad g, solved with the
 continuous Galerkin method cG(r) of :mod:`dolfinode.methods` on every interval of the union
-of all components' element partitions, where U is a polynomial in every component.
+of all components' element partitions, where U is a polynomial in every component. The
+linear stage system of an interval has the sparsity of J^T; it is solved by the banded LU of
+:mod:`dolfinode.linalg.banded` in the Jacobian's bandwidth ordering, so that a chain-like
+coupling costs O(N) per interval.
 """
 import numpy as np
 from numba import njit
 
 from dolfinode.compile import lower
+from dolfinode.errors import SolverError
+from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.methods import make_method
 
 
@@ -37,82 +42,121 @@ def horner_derivative(c, x):
 
 
 @njit(cache=True)
-def evaluate_primal(coef, t_start, t_end, elements, t, out):
-    """out[i] = U_i(t) on the element elements[i] of component i."""
+def evaluate_primal(coef, t_start, t_end, current, t, out):
+    """out[i] = U_i(t) on the element current[i] of component i."""
     for i in range(out.shape[0]):
-        e = elements[i]
+        e = current[i]
         out[i] = horner(coef[e], (t - t_start[e]) / (t_end[e] - t_start[e]))
 
 
 @njit(cache=True)
-def locate(ptr, t_end, grid):
-    """elements[l, i]: the element of component i that contains the interval l of the grid."""
-    L, N = grid.shape[0] - 1, ptr.shape[0] - 1
-    elements = np.empty((L, N), dtype=np.int64)
-    for i in range(N):
-        e = ptr[i]
-        for l in range(L):
-            middle = 0.5 * (grid[l] + grid[l + 1])
-            while e < ptr[i + 1] - 1 and t_end[e] <= middle:
-                e += 1
-            elements[l, i] = e
-    return elements
+def advance_forward(ptr, t_end, a, b, current):
+    """Move current[i] forward to the element of component i that contains (a, b)."""
+    middle = 0.5 * (a + b)
+    for i in range(current.shape[0]):
+        e = current[i]
+        while e < ptr[i + 1] - 1 and t_end[e] <= middle:
+            e += 1
+        current[i] = e
 
 
 @njit(cache=True)
-def jacobian_transpose(jac, p, indptr, indices, u, t, jdata, out):
-    """out = J(u, t)^T as a dense matrix, from the generated CSR Jacobian kernel."""
-    jac(u.ctypes, t, p.ctypes, jdata.ctypes)
-    out[:, :] = 0.0
-    for row in range(indptr.shape[0] - 1):
-        for n in range(indptr[row], indptr[row + 1]):
-            out[indices[n], row] = jdata[n]
+def advance_backward(ptr, t_start, a, b, current):
+    """Move current[i] backward to the element of component i that contains (a, b)."""
+    middle = 0.5 * (a + b)
+    for i in range(current.shape[0]):
+        e = current[i]
+        while e > ptr[i] and t_start[e] >= middle:
+            e -= 1
+        current[i] = e
 
 
 @njit(cache=True)
-def _backward_cg(jac, p, indptr, indices, grid, elements, t_start, t_end, coef, A, b0, nodes,
-                 source, psi, phi):
+def add_transpose_product(indptr, indices, jdata, y, scale, out):
+    """out += scale J^T y for J in CSR form (values ``jdata`` of the generated Jacobian)."""
+    for c in range(indptr.shape[0] - 1):
+        for nz in range(indptr[c], indptr[c + 1]):
+            out[indices[nz]] += scale * jdata[nz] * y[c]
+
+
+@njit(cache=True)
+def assemble_dual_matrix(jdata, indptr, indices, position, A, h, kl, ku, ab):
+    """Band storage of I - h (A (x) I) diag(J_m^T), the stage matrix of one dual interval.
+
+    Unknown (stage s, component i) sits at row position[i] r + s; the block (s, m) is
+    -h A_sm J_m^T with J_m = jdata[m + 1] (CSR values of J at stage node m). An entry
+    J_m[c, i] of the Jacobian lands in row (s, i), column (m, c); kl, ku are the band widths
+    of the stage matrix (see :func:`_backward_cg`).
+    """
+    r = A.shape[0]
+    kv = kl + ku
+    ab[:, :] = 0.0
+    for c in range(indptr.shape[0] - 1):
+        column = position[c] * r
+        for nz in range(indptr[c], indptr[c + 1]):
+            row = position[indices[nz]] * r
+            for m in range(r):
+                value = -h * jdata[m + 1, nz]
+                for s in range(r):
+                    ab[column + m, kv + row + s - column - m] += value * A[s, m]
+    for n in range(ab.shape[0]):
+        ab[n, kv] += 1.0
+
+
+@njit(cache=True)
+def _backward_cg(jac, p, indptr, indices, position, kl, ku, grid, ptr, t_start, t_end, coef, A,
+                 b0, nodes, source, psi, phi):
     """cG(r) for y' = J(U(T - s))^T y + source in s = T - t, interval by interval from T.
 
     The stage form of cG(r) with its Lobatto quadrature (see :mod:`dolfinode.methods.method`),
 
         xi_s = y_0 + h (b0_s F_0 + sum_m A_sm F_m),   F_m = J_m^T xi_m + source_m,
 
-    is linear in the stages; each interval solves this (r N) x (r N) system densely.
-    phi[l, j] receives the values at the forward nodes t_l + tau_j h (tau_j symmetric).
+    is linear in the stages: (I - h (A (x) I) diag(J_m^T)) xi = y_0 + h b0 (J_0^T y_0 +
+    source_0) + h (A (x) I) source. With the components in the bandwidth ordering
+    ``position`` (lower/upper Jacobian band widths kl, ku) and the r stages of a component
+    adjacent, the matrix has r (ku + 1) - 1 sub- and r (kl + 1) - 1 super-diagonals; the banded
+    LU costs O(r N (r (kl + ku + 2))^2) per interval instead of O((r N)^3) densely.
+    phi[l, j] receives the values at the forward nodes t_l + tau_j h (tau_j symmetric); the
+    primal elements are tracked by one cursor per component (memory O(N)).
+    Returns -1, or the interval l whose stage matrix is singular.
     """
     L, N = grid.shape[0] - 1, psi.shape[0]
     r, R = A.shape[0], nodes.shape[0]
+    low, up = r * (ku + 1) - 1, r * (kl + 1) - 1
     u = np.empty(N)
-    jdata = np.empty(max(indices.shape[0], 1))
-    JT = np.zeros((R, N, N))
-    system = np.empty((r * N, r * N))
-    rhs = np.empty(r * N)
+    jdata = np.empty((R, max(indices.shape[0], 1)))
+    ab = np.empty((r * N, 2 * low + up + 1))
+    ipiv = np.empty(r * N, dtype=np.int64)
+    stages = np.empty(r * N)
+    current = ptr[1:] - 1
     y = psi.copy()
     for l in range(L - 1, -1, -1):
         h = grid[l + 1] - grid[l]
         g = source[l if source.shape[0] > 1 else 0]
+        advance_backward(ptr, t_start, grid[l], grid[l + 1], current)
         for j in range(R):  # backward node j is forward node R - 1 - j
             t = grid[l + 1] - nodes[j] * h
-            evaluate_primal(coef, t_start, t_end, elements[l], t, u)
-            jacobian_transpose(jac, p, indptr, indices, u, t, jdata, JT[j])
-        system[:, :] = 0.0
+            evaluate_primal(coef, t_start, t_end, current, t, u)
+            jac(u.ctypes, t, p.ctypes, jdata[j].ctypes)
+        slope = h * g[R - 1]  # h (J_0^T y_0 + source_0)
+        add_transpose_product(indptr, indices, jdata[0], y, h, slope)
         for s in range(r):
             for i in range(N):
-                value = y[i] + h * b0[s] * g[R - 1, i]
-                for c in range(N):
-                    value += h * b0[s] * JT[0, i, c] * y[c]
+                value = y[i] + b0[s] * slope[i]
                 for m in range(r):
                     value += h * A[s, m] * g[R - 2 - m, i]
-                    for c in range(N):
-                        system[s * N + i, m * N + c] -= h * A[s, m] * JT[m + 1, i, c]
-                system[s * N + i, s * N + i] += 1.0
-                rhs[s * N + i] = value
-        stages = np.linalg.solve(system, rhs)
+                stages[position[i] * r + s] = value
+        assemble_dual_matrix(jdata, indptr, indices, position, A, h, low, up, ab)
+        if band_lu(ab, low, up, ipiv) != 0:
+            return l
+        band_solve(ab, low, up, ipiv, stages)
         phi[l, R - 1, :] = y
         for s in range(r):
-            phi[l, R - 2 - s, :] = stages[s * N:(s + 1) * N]
-        y = stages[(r - 1) * N:].copy()
+            for i in range(N):
+                phi[l, R - 2 - s, i] = stages[position[i] * r + s]
+        y = phi[l, 0].copy()
+    return -1
 
 
 def monomial_coefficients(nodes):
@@ -134,7 +178,6 @@ class PrimalPolynomials:
         keep = np.diff(points, prepend=-np.inf) > 1e-13 * (sol.ode.T - sol.ode.t0)
         self.grid = points[keep]
         self.grid[-1] = sol.ode.T
-        self.elements = locate(ptr, t_end, self.grid)
 
 
 class DualSolution:
@@ -193,10 +236,16 @@ def solve_dual(sol, final, integral, degree, primal=None):
     Returns
     -------
     DualSolution, PrimalPolynomials
+
+    Raises
+    ------
+    SolverError
+        If the stage matrix of an interval is singular.
     """
     ode = sol.ode
     primal = primal or PrimalPolynomials(sol)
     compiled = lower(ode)
+    _, position, kl, ku = compiled.ordering
     m = make_method("cG", degree)
     grid = primal.grid
     psi = np.zeros(ode.N)
@@ -209,8 +258,12 @@ def solve_dual(sol, final, integral, degree, primal=None):
         weights = integral.at(sol(times), times)
         source = np.ascontiguousarray(weights.T.reshape(len(grid) - 1, degree + 1, ode.N))
     phi = np.empty((len(grid) - 1, degree + 1, ode.N))
-    _backward_cg(compiled.jacobian, compiled.p, compiled.indptr, compiled.indices, grid,
-                 primal.elements, primal.t_start, primal.t_end, primal.coef, np.array(m.A),
-                 m.b0.copy(), m.nodes.copy(), source, psi, phi)
+    failed = _backward_cg(compiled.jacobian, compiled.p, compiled.indptr, compiled.indices,
+                          position, kl, ku, grid, primal.ptr, primal.t_start, primal.t_end,
+                          primal.coef, np.array(m.A), m.b0.copy(), m.nodes.copy(), source, psi,
+                          phi)
+    if failed >= 0:
+        raise SolverError(f"the dual's stage matrix is singular on [{grid[failed]:.6g}, "
+                          f"{grid[failed + 1]:.6g}]: I - h A (x) J^T has a zero pivot")
     coef = np.einsum("ljn,jc->lcn", phi, monomial_coefficients(m.nodes))
     return DualSolution(grid, coef), primal

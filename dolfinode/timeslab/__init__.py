@@ -8,7 +8,7 @@ and the driver, so every counter and status code has one index.
 SLABS, REJECTED, F_EVALUATIONS, JACOBIANS, FACTORIZATIONS, ITERATIONS, STORED, FAILED_SOLVES, \
     STIFF, ELEMENTS, SUBSLABS = range(11)
 NUM_COUNTERS = 11
-# Return codes of the loops.
-DONE, FULL, NONCONVERGENCE, BLOWUP, UNDERFLOW = range(5)
+# Return codes of the loops (NEWTON_MEMORY: mono only, Newton needed but its matrix is too big).
+DONE, FULL, NONCONVERGENCE, BLOWUP, UNDERFLOW, NEWTON_MEMORY = range(6)
 # Nonlinear solver modes, in the order of parameters.NONLINEAR_SOLVERS.
 DEFAULT, FIXED_POINT, NEWTON = range(3)

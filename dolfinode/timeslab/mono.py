@@ -22,6 +22,7 @@ from dolfinode.timeslab import (
     FULL,
     JACOBIANS,
     NEWTON,
+    NEWTON_MEMORY,
     NONCONVERGENCE,
     REJECTED,
     SLABS,
@@ -32,8 +33,9 @@ from dolfinode.timeslab import (
 
 # Indices into the float state.
 T_NOW, K_NEXT, EPS_PREV, HAVE_F0 = range(4)
-# Indices into the integer and float options.
-SOLVER, FIXED, MAX_ITER, IS_DG = range(4)
+# Indices into the integer and float options (NEWTON_FITS: 1 if the banded Newton matrix fits
+# in memory; the driver decides, the loop returns NEWTON_MEMORY when it would need it but not).
+SOLVER, FIXED, MAX_ITER, IS_DG, NEWTON_FITS = range(5)
 RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, RESIDUAL_POWER, KMIN_REL, SPAN = range(9)
 #: Relative size of the smallest increment an iteration still resolves (about 50 ulp).
 ROUNDING = 1e-14
@@ -48,6 +50,25 @@ _SIGNATURE = types.int64(
     _f8, _f8, _f8, _i8,                      # x, f0, state, counters
     _f8, _f8, types.float64[:, :, ::1],      # out_t, out_k, out_X
 )
+
+
+@njit(cache=True)
+def newton_band_columns(kl, ku, S):
+    """Columns of the band storage of the S N x S N Newton matrix (with LU fill-in rows).
+
+    Parameters
+    ----------
+    kl, ku : int
+        Lower and upper bandwidth of the Jacobian in the ordering used (RCM).
+    S : int
+        Number of stages of the method.
+
+    Returns
+    -------
+    int
+        ``2 (kl S + S - 1) + ku S + S - 1 + 1``.
+    """
+    return 2 * kl * S + ku * S + 3 * (S - 1) + 1
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
@@ -71,10 +92,11 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
     tmp_out = np.empty(N)
     fend = np.empty(N)
     jdata = np.empty(indices.shape[0])
-    ab = np.zeros((S * N, 2 * kl * S + ku * S + 3 * (S - 1) + 1))
     klS = kl * S + S - 1
     kuS = ku * S + S - 1
-    ipiv = np.zeros(S * N, dtype=np.int64)
+    # the Newton workspace is allocated when Newton is first used (fixed point needs none)
+    ab = np.zeros((0, 0))
+    ipiv = np.zeros(0, dtype=np.int64)
     rhs_perm = np.empty(S * N)
     counters[STORED] = 0
 
@@ -118,6 +140,13 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
                 for s in range(S):
                     for i in range(N):
                         X[s * N + i] = x[i] + tau[s] * k * f0[i]
+        if use_newton and ab.shape[0] == 0:
+            if iopts[NEWTON_FITS] == 0:
+                state[T_NOW] = t
+                state[K_NEXT] = k
+                return NEWTON_MEMORY
+            ab = np.zeros((S * N, newton_band_columns(kl, ku, S)))
+            ipiv = np.zeros(S * N, dtype=np.int64)
         if use_newton:
             jac(x.ctypes, t, p.ctypes, jdata.ctypes)
             counters[JACOBIANS] += 1

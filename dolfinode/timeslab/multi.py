@@ -61,6 +61,8 @@ _KMIN_RELATIVE = 1e-14
 #: A slab holds many elements of a fast component and one indicator above the margin rejects
 #: them all; steps are still chosen for indicators of 1 (DOLFIN G1 accepted up to 2 TOL too).
 ACCEPTANCE_MARGIN = 2.0
+#: Most Gauss-Seidel sweeps of one window per global iteration.
+MAX_SWEEPS = 30
 #: Sub-slabs coupled more strongly than this on their step are solved by Newton together.
 COUPLING_LIMIT = 0.5
 
@@ -284,79 +286,96 @@ def _group_newton(e0, e1, fi, ji, p, t, x, indptr, indices, position, comp, prev
 
 
 @njit(cache=True)
-def _sweep(lo, hi, predict, fi, ji, p, t, x, indptr, indices, position, comp, prev, cptr,
-           celems, ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, dptr, dcur,
-           jdiag, coupling, stiff, atol, rtol, uw, out, jrow, cur, mom, D, delta, local, order,
-           ab_ws, rhs, ipiv, counters):
-    """One Gauss-Seidel sweep over elements lo..hi-1, sub-slab by sub-slab (elements on one
-    interval). Each element's stage values xi from the fixed point
+def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, t, x, indptr,
+              indices, position, comp, prev, cptr, celems, ea, eb, values, nodes, bary, qweights,
+              Minv, A, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw, out, jrow,
+              cur, mom, D, delta, local, order, ab_ws, rhs, ipiv, counters):
+    """Gauss-Seidel sweeps over the element ranges starts[r]..starts[r+1] (the last up to
+    end), one range after the other, each swept until its largest scaled increment is below
+    ``limit`` (``iterate``) or once. A sweep goes sub-slab by sub-slab (elements on one
+    interval): each element's stage values xi from the fixed point
     xi = x_left + k M^{-1} m(xi), damped by the element's own Newton matrix,
     xi <- xi + (I - k J_ii A)^{-1} (x_left + k M^{-1} m(xi) - xi); a sub-slab whose
     components are strongly coupled on its step (k sum_j!=i |J_ij| > COUPLING_LIMIT, where
     Gauss-Seidel would crawl, as for diffusion on long steps), or every sub-slab when the
     problem is stiff, is updated together by a simplified Newton step (``_group_newton``).
-    With ``predict``, an element first continues its predecessor's polynomial. Returns the
-    largest scaled increment (inf on failure)."""
+    With ``predict_first``, an element first continues its predecessor's polynomial.
+    Returns the largest increment of the ranges' first sweeps and whether every range got
+    below the limit."""
     S = Minv.shape[0]
     nn = nodes.shape[0]
     first_stage = nn - S  # 1 for cG (node 0 is the left value), 0 for dG
-    d = 0.0
-    e = lo
-    while e < hi:
-        e1 = e + 1
-        while e1 < hi and ea[e1] == ea[e] and eb[e1] == eb[e]:
-            e1 += 1
-        if predict:
-            for ep in range(e, e1):
-                pe = prev[ep]
-                if pe < 0:
+    first = 0.0
+    settled = True
+    for r in range(nranges):
+        lo = starts[r]
+        hi = starts[r + 1] if r + 1 < nranges else end
+        for sweep in range(MAX_SWEEPS if iterate else 1):
+            predict = predict_first and sweep == 0
+            d = 0.0
+            e = lo
+            while e < hi:
+                e1 = e + 1
+                while e1 < hi and ea[e1] == ea[e] and eb[e1] == eb[e]:
+                    e1 += 1
+                if predict:
+                    for ep in range(e, e1):
+                        pe = prev[ep]
+                        if pe < 0:
+                            continue
+                        for m in range(nn):
+                            tau = ((ea[ep] + nodes[m] * (eb[ep] - ea[ep]) - ea[pe])
+                                   / (eb[pe] - ea[pe]))
+                            values[ep, m] = _evaluate(values, pe, min(tau, 3.0), nodes, bary)
+                k = eb[e] - ea[e]
+                together = stiff
+                if not stiff and e1 - e > 1:
+                    for ep in range(e, e1):
+                        if k * coupling[comp[ep]] > COUPLING_LIMIT:
+                            together = True
+                            break
+                if together:
+                    d = max(d, _group_newton(e, e1, fi, ji, p, t, x, indptr, indices, position, comp,
+                                             prev, cptr, celems, ea, eb, values, nodes, bary, qweights,
+                                             Minv, A, sptr, spts, dptr, dcur, atol, rtol, uw, out, jrow,
+                                             cur, mom, local, order, ab_ws, rhs, ipiv, counters))
+                    e = e1
                     continue
-                for m in range(nn):
-                    tau = (ea[ep] + nodes[m] * (eb[ep] - ea[ep]) - ea[pe]) / (eb[pe] - ea[pe])
-                    values[ep, m] = _evaluate(values, pe, min(tau, 3.0), nodes, bary)
-        k = eb[e] - ea[e]
-        together = stiff
-        if not stiff and e1 - e > 1:
-            for ep in range(e, e1):
-                if k * coupling[comp[ep]] > COUPLING_LIMIT:
-                    together = True
-                    break
-        if together:
-            d = max(d, _group_newton(e, e1, fi, ji, p, t, x, indptr, indices, position, comp,
-                                     prev, cptr, celems, ea, eb, values, nodes, bary, qweights,
-                                     Minv, A, sptr, spts, dptr, dcur, atol, rtol, uw, out, jrow,
-                                     cur, mom, local, order, ab_ws, rhs, ipiv, counters))
-            e = e1
-            continue
-        for ep in range(e, e1):
-            i = comp[ep]
-            xl = x[i] if prev[ep] < 0 else values[prev[ep], nn - 1]  # the left value
-            if first_stage == 1:
-                values[ep, 0] = xl
-            counters[F_EVALUATIONS] += _moments(fi, p, i, ep, t, x, indptr, indices, cptr,
-                                                celems, ea, eb, values, nodes, bary, qweights,
-                                                sptr, spts, dptr, dcur, cur, uw, out, mom)
-            for s in range(S):
-                acc = 0.0
-                for lm in range(S):
-                    acc += Minv[s, lm] * mom[lm]
-                delta[s] = xl + k * acc - values[ep, first_stage + s]
-            if abs(k * jdiag[i]) > 1e-3:
-                _damping(k, jdiag[i], A, D)
-                for s in range(S):
-                    acc = 0.0
-                    for c in range(S):
-                        acc += D[s, c] * delta[c]
-                    mom[s] = acc
-                for s in range(S):
-                    delta[s] = mom[s]
-            for s in range(S):
-                values[ep, first_stage + s] += delta[s]
-                scaled = abs(delta[s]) / (atol[i] + rtol * abs(values[ep, first_stage + s]))
-                if not scaled <= d:
-                    d = scaled if math.isfinite(scaled) else math.inf
-        e = e1
-    return d
+                for ep in range(e, e1):
+                    i = comp[ep]
+                    xl = x[i] if prev[ep] < 0 else values[prev[ep], nn - 1]  # the left value
+                    if first_stage == 1:
+                        values[ep, 0] = xl
+                    counters[F_EVALUATIONS] += _moments(fi, p, i, ep, t, x, indptr, indices, cptr,
+                                                        celems, ea, eb, values, nodes, bary, qweights,
+                                                        sptr, spts, dptr, dcur, cur, uw, out, mom)
+                    for s in range(S):
+                        acc = 0.0
+                        for lm in range(S):
+                            acc += Minv[s, lm] * mom[lm]
+                        delta[s] = xl + k * acc - values[ep, first_stage + s]
+                    if abs(k * jdiag[i]) > 1e-3:
+                        _damping(k, jdiag[i], A, D)
+                        for s in range(S):
+                            acc = 0.0
+                            for c in range(S):
+                                acc += D[s, c] * delta[c]
+                            mom[s] = acc
+                        for s in range(S):
+                            delta[s] = mom[s]
+                    for s in range(S):
+                        values[ep, first_stage + s] += delta[s]
+                        scaled = abs(delta[s]) / (atol[i] + rtol * abs(values[ep, first_stage + s]))
+                        if not scaled <= d:
+                            d = scaled if math.isfinite(scaled) else math.inf
+                e = e1
+            if sweep == 0:
+                first = max(first, d)
+            if d <= limit or not math.isfinite(d):
+                break
+        if not d <= limit:
+            settled = False
+    return first, settled
 
 
 @njit(cache=True)
@@ -470,6 +489,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     emax = np.empty(N)
     kact = np.empty(N)
     saved = np.empty((N, nn))  # the top level's values before its sweeps
+    top_start = np.zeros(1, dtype=np.int64)
     top_change = np.zeros(N)
     mark = np.zeros(N, dtype=np.int64)
     counters[STORED] = 0
@@ -536,42 +556,28 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         growth = 0
         for it in range(max_iter):
             # every window iterated to convergence in turn (the fast components advance window
-            # by window as in single-rate time stepping), then the top-level elements
-            d = 0.0
-            for w in range(nwin):
-                hi = windows[w + 1] if w + 1 < nwin else ne
-                for sweeps in range(max_iter):
-                    predict = it == 0 and sweeps == 0
-                    dl = _sweep(windows[w], hi, predict, fi, ji, p, t, x, indptr,
-                                indices, position, comp, prev, cptr, celems, ea, eb, values,
-                                nodes, bary, qweights, Minv, A, sptr, spts, dptr, dcur, jdiag,
-                                coupling, stiff, atol, rtol, uw, out, jrow, cur, mom, D, delta, local,
-                                group_order, ab_ws, newton_rhs, newton_ipiv, counters)
-                    if sweeps == 0:
-                        d = max(d, dl)
-                    # converge windows well below dtol, so that what the next global
-                    # iteration measures is the top level's influence, not leftover error
-                    if dl <= 0.1 * dtol or not math.isfinite(dl):
-                        break
-                if not dl <= 0.1 * dtol:
-                    d = math.inf
-            # the top level too: one sweep would leave the slow components' own coupling
-            # to the next global iteration, which costs a sweep over every window
-            resolved = math.isfinite(d)  # every window converged
+            # by window as in single-rate time stepping), then the top-level elements: one
+            # sweep would leave the slow components' own coupling to the next global
+            # iteration, which costs a sweep over every window
+            d, resolved = _converge(windows, nwin, ne, it == 0, True, 0.1 * dtol, fi, ji, p, t,
+                                    x, indptr, indices, position, comp, prev, cptr, celems, ea,
+                                    eb, values, nodes, bary, qweights, Minv, A, sptr, spts, dptr,
+                                    dcur, jdiag, coupling, stiff, atol, rtol, uw, out, jrow, cur,
+                                    mom, D, delta, local, group_order, ab_ws, newton_rhs,
+                                    newton_ipiv, counters)
+            if not resolved:
+                d = math.inf
             for e in range(nroot):
                 for m in range(nn):
                     saved[e, m] = values[e, m]
-            for sweeps in range(max_iter):
-                dl = _sweep(0, nroot, False, fi, ji, p, t, x, indptr, indices, position, comp,
-                            prev, cptr, celems, ea, eb, values, nodes, bary, qweights, Minv, A,
-                            sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw, out, jrow, cur,
-                            mom, D, delta, local, group_order, ab_ws, newton_rhs, newton_ipiv,
-                            counters)
-                if sweeps == 0:
-                    d = max(d, dl)
-                if dl <= 0.1 * dtol or not math.isfinite(dl) or nwin == 0:
-                    break
-            if not dl <= 0.1 * dtol and nwin > 0:
+            top, settled = _converge(top_start, 1, nroot, False, nwin > 0, 0.1 * dtol, fi, ji,
+                                     p, t, x, indptr, indices, position, comp, prev, cptr,
+                                     celems, ea, eb, values, nodes, bary, qweights, Minv, A,
+                                     sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol,
+                                     uw, out, jrow, cur, mom, D, delta, local, group_order, ab_ws,
+                                     newton_rhs, newton_ipiv, counters)
+            d = max(d, top)
+            if nwin > 0 and not settled:
                 d = math.inf
             counters[ITERATIONS] += 1
             # the distance to the fixed point is about d / (1 - rho) for the contraction

@@ -172,3 +172,35 @@ def test_bad_particle_systems_are_rejected():
         ps.add_force([1.0])
     with pytest.raises(ValueError, match="p >= 2"):
         dn.systems.lattice(1)
+
+
+@pytest.fixture(scope="module")
+def lattice_reference():
+    """The lattice demo with p = 10 (N = 724) over a few periods of the small masses, and a
+    DOP853 reference solution at T."""
+    from scipy.integrate import solve_ivp
+
+    ode = dn.systems.lattice(10, T=4e-6)
+    compiled = lower(ode)
+    ref = solve_ivp(lambda t, u: compiled.f(u, t), (0.0, ode.T), ode.u0, method="DOP853",
+                    rtol=1e-11, atol=1e-13)
+    large = np.r_[np.arange(200), 2 * 181 + np.arange(200)]  # x, y and velocities of M's
+    return ode, ref.y[:, -1], large
+
+
+@pytest.mark.parametrize("method", ["mcG(1)", "mdG(1)"])
+def test_multi_adaptive_on_the_lattice(lattice_reference, method):
+    """mcG(1)/mdG(1) on the template lattice: accurate against DOP853 and, for mcG(1), with far
+    fewer elements for the large masses (omega ~ 0.1) than the small ones (omega ~ 1.4e6)."""
+    ode, exact, large = lattice_reference
+    sol = dn.solve(ode, method, tolerance=1e-4, number_of_samples=2)
+    scale = np.abs(exact - ode.u0).max()  # velocities of the small masses, ~ 1e4
+    error = np.abs(sol(ode.T) - exact).max() / scale
+    mono = dn.solve(ode, method[1:], tolerance=1e-4, number_of_samples=2)
+    mono_error = np.abs(mono(ode.T) - exact).max() / scale
+    assert error < 1e-2 and error < 3 * mono_error + 1e-5
+    per_component = sol.stats["elements per component"]
+    assert per_component.min() >= 1 and per_component.sum() == sol.stats["elements"]
+    if method == "mcG(1)":
+        small = np.setdiff1d(np.arange(ode.N), large)
+        assert np.median(per_component[large]) * 4 < np.median(per_component[small])

@@ -92,11 +92,18 @@ def test_expand_gives_the_per_expression_system():
 
 @pytest.mark.parametrize("method", ["cG(1)", "dG(1)", "mcG(1)", "mdG(1)"])
 def test_solutions_equal_per_expression(method):
+    """With prescribed steps the solutions agree to rounding. Adaptive runs agree to the
+    tolerance: f agrees to rounding, not bit for bit, and a step decision at the margin
+    (accept or reject, one more slab) may go the other way."""
     template, expressions = pair()
-    kwargs = {"tolerance": 1e-6, "number_of_samples": 5}
-    st, se = dn.solve(template, method, **kwargs), dn.solve(expressions, method, **kwargs)
+    fixed = {"fixed_time_step": True, "initial_time_step": 0.05, "number_of_samples": 5}
+    st, se = dn.solve(template, method, **fixed), dn.solve(expressions, method, **fixed)
     assert st.stats["time slabs"] == se.stats["time slabs"]
     np.testing.assert_allclose(st.y, se.y, rtol=1e-10, atol=1e-12)
+    adaptive = {"tolerance": 1e-6, "number_of_samples": 5}
+    st, se = dn.solve(template, method, **adaptive), dn.solve(expressions, method, **adaptive)
+    assert abs(st.stats["time slabs"] - se.stats["time slabs"]) <= 0.02 * se.stats["time slabs"]
+    np.testing.assert_allclose(st.y, se.y, rtol=0, atol=1e-5)
 
 
 def test_generated_code_does_not_depend_on_the_number_of_components():

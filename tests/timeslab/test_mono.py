@@ -1,4 +1,5 @@
 """Mono-adaptive cG(q)/dG(q): convergence orders, adaptivity and stiff problems."""
+import importlib
 import itertools
 
 import numpy as np
@@ -126,3 +127,27 @@ def test_stats_are_counted():
     assert stats["f evaluations"] >= stats["nonlinear iterations"]
     assert stats["factorizations"] >= stats["jacobian evaluations"] > 0
     assert stats["solve time"] > 0
+
+
+def test_newton_matrix_is_allocated_only_when_needed(monkeypatch):
+    """With no memory for the Newton matrix, fixed point still solves; a stiff solve stops."""
+    driver = importlib.import_module("dolfinode.solve")  # the module, not dn.solve
+    monkeypatch.setattr(driver, "_NEWTON_MEMORY_FRACTION", 0.0)
+    harmonic, _ = problems.harmonic(T=1.0)
+    sol = dn.solve(harmonic, method="dG(1)", tolerance=1e-6)
+    assert not sol.stats["newton"] and sol.stats["time slabs"] > 1
+    ode, _ = problems.stiff_decay(lam=1000.0, T=10.0)
+    for solver in ("default", "newton"):
+        with pytest.raises(dn.SolverError, match="banded Newton matrix") as info:
+            dn.solve(ode, method="cG(1)", tolerance=1e-5, nonlinear_solver=solver)
+        assert info.value.t < 10.0
+        assert "fixed-point" in str(info.value)
+
+
+def test_newton_memory_formula():
+    """newton_memory counts the band storage of I - k A (x) J with LU fill-in, and pivots."""
+    from dolfinode.solve import newton_memory
+
+    # cG(1): one stage, 2 kl + ku + 1 columns; dG(1): two stages, 2 (2 kl + 1) + 2 ku + 1
+    assert newton_memory(1000, 3, 2, 1) == 8 * 1000 * (2 * 3 + 2 + 1 + 1)
+    assert newton_memory(1000, 3, 2, 2) == 8 * 2000 * (2 * 7 + 5 + 1 + 1)

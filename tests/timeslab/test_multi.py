@@ -86,7 +86,7 @@ def test_newton_matches_fixed_point(method):
 def test_stiff_hires(method):
     sol = dn.solve(problems.hires(), method=method, tolerance=1e-6)
     assert problems.mescd(sol(sol.ode.T), problems.HIRES_REFERENCE) >= 5
-    assert sol.stats["newton"]
+    assert sol.stats["factorizations"] > 0  # Newton on the strongly coupled sub-slabs
 
 
 @pytest.mark.parametrize("method", ["mdG(1)", "mcG(1)"])
