@@ -18,17 +18,16 @@ DEFAULTS = {
     "progress": False,             # tqdm progress bar
     "partitioning_threshold": 0.5,  # mcG/mdG: components with k >= theta max k share a sub-slab
     "interval_threshold": 0.9,     # mcG/mdG: a step >= beta times what is left is stretched to it
+    "automatic_modeling": False,   # build a reduced model for unresolvable fast time scales
+    "average_length": None,        # tau of the averages; None: 100 / |lambda|_max of df/du(u0)
+    "average_samples": 1000,       # samples per half averaging window
+    "average_tolerance": 0.1,      # inactivate components whose average drifts less than this
+    "control_points": 10,          # checks of the reduced model against the full model
+    "model_tolerance": 0.1,        # rebuild when |g~ - g-bar| > model_tolerance max |g-bar|
+    "rebuild_model": True,         # False: build once, only measure the defect at control points
 }
 
 NONLINEAR_SOLVERS = ("default", "fixed-point", "newton")
-
-#: DOLFIN parameter names of features that are not available yet, and the feature.
-PLANNED = {
-    "automatic_modeling": "automatic modeling",
-    "average_length": "automatic modeling",
-    "average_samples": "automatic modeling",
-    "average_tolerance": "automatic modeling",
-}
 
 
 def _positive(name, value, allow_none=True):
@@ -46,11 +45,8 @@ def _positive(name, value, allow_none=True):
 def check_parameters(given):
     """Merge ``given`` into the defaults; unknown names raise with the closest valid name."""
     for name in given:
-        if name in PLANNED:
-            raise NotImplementedError(f"{name} belongs to {PLANNED[name]}, which this version "
-                                      "of dolfinode does not provide yet")
         if name not in DEFAULTS:
-            close = difflib.get_close_matches(name, list(DEFAULTS) + list(PLANNED), n=1,
+            close = difflib.get_close_matches(name, list(DEFAULTS), n=1,
                                               cutoff=0.4)
             hint = f"; did you mean {close[0]!r}?" if close else ""
             raise ValueError(f"unknown parameter {name!r}{hint} Valid parameters: "
@@ -79,6 +75,24 @@ def check_parameters(given):
         value = params[name]
         if not isinstance(value, int) or isinstance(value, bool) or value < 1:
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    _check_modeling(params)
     if params["fixed_time_step"] and params["initial_time_step"] is None:
         raise ValueError("fixed_time_step=True needs the step: give initial_time_step=k")
     return params
+
+
+def _check_modeling(params):
+    """Validate the automatic-modeling parameters in place."""
+    params["average_length"] = _positive("average_length", params["average_length"])
+    for name in ("average_tolerance", "model_tolerance"):
+        params[name] = _positive(name, params[name], allow_none=False)
+    for name, low in (("average_samples", 2), ("control_points", 0)):
+        value = params[name]
+        if not isinstance(value, int) or isinstance(value, bool) or value < low:
+            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    for name in ("automatic_modeling", "rebuild_model"):
+        if not isinstance(params[name], (bool, int)):
+            raise TypeError(f"{name} must be True or False, got {params[name]!r}")
+    if params["automatic_modeling"] and params["fixed_time_step"]:
+        raise ValueError("automatic_modeling needs adaptive time steps: the resolved windows "
+                         "and the reduced model have time scales far apart; drop fixed_time_step")

@@ -46,7 +46,11 @@ class Solution:
     t, y : sample times (M,) and values (N, M), ``number_of_samples`` equispaced points
     stats : dict of counters and timings
     method : the :class:`~dolfinode.methods.Method`
+    model : the :class:`~dolfinode.modeling.ReducedModel` of a solve with automatic modeling,
+        else None
     """
+
+    model = None
 
     def __init__(self, ode, method, t_start, k, values, stats, number_of_samples):
         self.ode = ode

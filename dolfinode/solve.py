@@ -111,6 +111,8 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
     Returns
     -------
     Solution
+        With ``automatic_modeling=True`` also ``sol.model``, the
+        :class:`~dolfinode.modeling.ReducedModel` (see :mod:`dolfinode.modeling`).
 
     Raises
     ------
@@ -128,6 +130,10 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
         others = {name: value for name, value in parameters.items() if name != "tolerance"}
         return solve_for_goal(solve, ode, method, goal, params["tolerance"], others)
     multi_adaptive, m = parse_method(method)
+    if params["automatic_modeling"]:
+        from dolfinode.modeling import solve_with_modeling
+
+        return solve_with_modeling(ode, method, params, solve)
     compiled = lower(ode)
     start = time.perf_counter()
     rtol = params["tolerance"]

@@ -51,7 +51,25 @@ def test_hires(tmp_path):
     assert result["stats"]["newton"]
 
 
-@pytest.mark.parametrize("name", ["harmonic", "lorenz", "stiff", "hires"])
+def test_simple_model(tmp_path):
+    result = run_demo("simple_model", tmp_path)
+    assert abs(result["g1"] - 0.25) < 1e-4
+    assert result["error"] < 1e-3
+
+
+def test_lattice(tmp_path):
+    from dolfinode.io import read_trajectory
+
+    result = run_demo("lattice", tmp_path)
+    lat = result["lattice"]
+    fast = {int(i) for k in range(4) for i in lat.small + k * len(lat.points)}
+    assert fast <= result["inactive"]
+    _, springs, times, positions = read_trajectory(result["xdmf"])
+    assert np.array_equal(springs, lat.springs) and positions.shape[2] == times.size
+
+
+@pytest.mark.parametrize("name", ["harmonic", "lorenz", "stiff", "hires", "simple_model",
+                                  "lattice"])
 def test_demo_has_help(name, capsys):
     spec = importlib.util.spec_from_file_location(f"demo_{name}", DEMOS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)

@@ -192,11 +192,13 @@ def test_make_method_needs_a_known_family():
         dn.make_method("RK", 1)
 
 
-@pytest.mark.parametrize("name", ["automatic_modeling", "average_length", "average_tolerance"])
-def test_planned_dolfin_parameters_are_named_not_silently_ignored(name):
+@pytest.mark.parametrize("name, value", [("average_length", 0.0), ("average_length", -1e-7),
+                                         ("average_tolerance", 0.0), ("average_samples", 1),
+                                         ("control_points", -1), ("model_tolerance", -0.1)])
+def test_modeling_parameters_are_checked(name, value):
     u = sp.Symbol("u")
-    with pytest.raises(NotImplementedError, match=name):
-        dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), **{name: 0.5})
+    with pytest.raises(ValueError, match=name):
+        dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), automatic_modeling=True, **{name: value})
 
 
 def test_nonlinear_solver_is_case_insensitive():

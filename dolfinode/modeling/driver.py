@@ -1,0 +1,172 @@
+"""Automatic modeling: resolve, average, reduce, check at control points, rebuild.
+
+The pipeline (Jansson, Johnson & Logg 2005, sections 3-7, made automatic and checked):
+
+1. resolve the full model on [t0, t0 + 2 tau]; average it around t_c = t0 + tau;
+2. inactivate the fast components (omega_i tau >= 2 pi, omega_i^2 = |(J^2)_ii|) whose average
+   does not move (drift < average_tolerance), and
+   build the reduced model f~ = f + g~ with g~ = g-bar;
+3. solve the reduced model from u-bar(t_c); its solution is the output on (t_c, T] (the
+   resolved full solution on [t0, t_c]);
+4. at ``control_points`` equispaced times t_k, restart the full model at t_k - tau from the
+   reduced state plus the fast fluctuation measured when the model was built (a
+   perturbation of the size of the fast oscillation), average it around t_k, record the defect g~ - g-bar, and rebuild the
+   model when it exceeds model_tolerance * max |g-bar|.
+"""
+import time
+
+import numpy as np
+import sympy as sp
+
+from dolfinode.compile import lower
+from dolfinode.modeling.averaging import average_window
+from dolfinode.modeling.reduced import AVERAGE_PERIODS, ControlPoint, ReducedModel, \
+    component_frequencies, fast_time_scale
+from dolfinode.ode import ODE, t
+from dolfinode.solution import Solution
+
+#: Solver parameters that configure the modeling, not the inner solves.
+MODELING_PARAMETERS = ("automatic_modeling", "average_length", "average_samples",
+                       "average_tolerance", "control_points", "model_tolerance",
+                       "rebuild_model")
+#: Counters summed over every inner solve.
+_SUMMED = ("time slabs", "elements", "rejected steps", "f evaluations", "jacobian evaluations",
+           "nonlinear iterations", "failed nonlinear solves", "compile time")
+
+
+def solve_with_modeling(ode, method, params, solve):
+    """Solve ``ode`` with automatic modeling; ``solve`` is the plain driver.
+
+    Returns a :class:`~dolfinode.solution.Solution` whose ``model`` attribute is the
+    :class:`~dolfinode.modeling.reduced.ReducedModel`.
+    """
+    start = time.perf_counter()
+    inner = {k: v for k, v in params.items() if k not in MODELING_PARAMETERS}
+    inner["number_of_samples"] = 2
+    compiled = lower(ode)
+    span = ode.T - ode.t0
+    tau = params["average_length"]
+    fastest = fast_time_scale(compiled, ode.u0, ode.t0)
+    # the resolved windows must not step over the fast oscillation (an implicit solver
+    # damps it, the indicator may alias it): at least 8 pi = 25 steps per period
+    window_step = min(fastest / 4, params["maximum_time_step"] or np.inf)
+    if tau is None:
+        tau = AVERAGE_PERIODS * fastest
+        if not 4 * tau < span:
+            raise ValueError(f"automatic modeling found no fast time scale in [t0, T]: the "
+                             f"fastest one, {fastest:.3g}, gives average_length "
+                             f"{tau:.3g}, too long for T - t0 = {span:.3g}; give "
+                             "average_length, or solve without automatic_modeling")
+    n_control = params["control_points"]
+    spacing = (span - 2 * tau) / (n_control + 1)
+    if not spacing > 2 * tau:
+        raise ValueError(f"average_length = {tau:.3g} with {n_control} control points does not "
+                         f"fit in [{ode.t0}, {ode.T}]: every control point needs 2 tau; use "
+                         "fewer control_points or a shorter average_length")
+    model = ReducedModel(ode, tau)
+    runs = []
+
+    def run(declaration, **extra):
+        sol = solve(declaration, method, **dict(inner, **extra))
+        runs.append(sol.stats)
+        return sol
+
+    shift = sp.Symbol("t_window", real=True)
+    local_rhs = {s: expr.xreplace({t: t + shift}) for s, expr in zip(ode.states, ode.rhs)}
+
+    def resolve(u, center):
+        """Solve the full model on [center - tau, center + tau] and average it.
+
+        The window is solved in the local time t - (center - tau): in absolute time, steps
+        of the fast scale would lose their last digits to the rounding of t + k (at t = 90,
+        steps of 3e-11 are represented to 5e-4 only). It is solved as two halves that meet
+        at the centre, so that the first half is the output before the reduced solution
+        takes over there. Returns the averages and the first half (in local time)."""
+        local_params = {**ode.params, shift: center - tau}
+        local = ODE(local_rhs, u0=u, t0=0.0, T=2 * tau, params=local_params)
+        step = {"maximum_time_step": min(window_step, tau)}
+        before = run(ODE(local_rhs, u0=u, t0=0.0, T=tau, params=local_params), **step)
+        after = run(ODE(local_rhs, u0=before(tau), t0=tau, T=2 * tau, params=local_params),
+                    initial_time_step=float(before.time_steps(0)[1][-1] if before.multi
+                                            else before.k[-1]), **step)
+        window = _concatenate(local, [before, after], 2)
+        window.stats = {"elements": before.stats["elements"] + after.stats["elements"]}
+        averages = average_window(window, lower(local), tau, tau, params["average_samples"])
+        averages.center = center
+        return before, window, averages
+
+    first, window, averages = resolve(ode.u0, ode.t0 + tau)
+    # inactivated: the fast components (at least one period 2 pi / omega_i in the averaging
+    # length tau) whose average does not move; a slow component whose average happens to be
+    # constant over the window (a mass at rest by symmetry) stays active
+    fast = component_frequencies(compiled, ode.u0, ode.t0) * tau >= 2 * np.pi
+    model.build(averages, fast & (averages.drift < params["average_tolerance"]),
+                averages.center)
+    fluctuation = averages.fluctuation
+    first.t_start = first.t_start + ode.t0  # from the window's local time
+    if first.multi:
+        first._t_end = first._t_end + ode.t0
+    pieces = [first]
+    # the reduced solution starts at t_c = t0 + tau from u-bar(t_c): the output is the full
+    # solution on [t0, t_c] and the reduced one on (t_c, T] (left-continuous, as for dG)
+    step = {}
+    u, t_now = averages.u_bar, averages.center
+    reduced_start = (u, t_now)
+    checks = [ode.t0 + 2 * tau + k * spacing for k in range(1, n_control + 1)]
+    for t_next in [ode.t0 + 2 * tau] + checks + [ode.T]:
+        segment = run(model.declaration(u, t_now, t_next), **step)
+        pieces.append(segment)
+        u, t_now = segment(t_next), t_next
+        step = {"initial_time_step": float(segment.time_steps(0)[1][-1] if segment.multi
+                                           else segment.k[-1])}
+        if t_now >= ode.T or t_now == ode.t0 + 2 * tau:
+            continue
+        # control point at t_now: full model from t_now - tau, perturbed by the fast fluctuation
+        u_start = model.state(segment(t_now - tau)) + np.where(model.active, 0.0, fluctuation)
+        _, window, averages = resolve(u_start, t_now)
+        defect = model.defect(compiled, averages)
+        scale = np.max(np.abs(np.where(model.active, averages.g_bar, 0.0)))
+        relative = np.max(np.abs(defect)) / scale if scale > 0 else np.inf
+        rebuild = params["rebuild_model"] and relative > params["model_tolerance"]
+        if rebuild:
+            # g~ is refitted; the inactive set stays that of the first build, so that the
+            # reduced problem (and its dual) is one ODE on (t_c, T]
+            model.build(averages, ~model.active, t_now)
+            u = np.where(model.active, u, averages.u_bar)
+            # chained only through rebuilds, so that the energy errors of the resolved
+            # windows do not accumulate over the checks of one model
+            fluctuation = averages.fluctuation
+        model.control_points.append(ControlPoint(t_now, float(np.linalg.norm(defect)),
+                                                 float(relative), bool(rebuild),
+                                                 int(window.stats["elements"])))
+    model.reduced = _concatenate(model.declaration(*reduced_start, ode.T), pieces[1:], 2)
+    sol = _concatenate(ode, pieces, params["number_of_samples"])
+    sol.stats = _total_stats(runs, model, time.perf_counter() - start)
+    sol.model = model
+    return sol
+
+
+def _concatenate(ode, pieces, number_of_samples):
+    """One Solution on [t0, T] from solutions on consecutive intervals."""
+    method = pieces[0].method
+    if pieces[0].multi:
+        comp = [np.repeat(np.arange(ode.N), np.diff(p._component_ptr)) for p in pieces]
+        return Solution.multi_adaptive(ode, method, np.concatenate(comp),
+                                       np.concatenate([p.t_start for p in pieces]),
+                                       np.concatenate([p._t_end for p in pieces]),
+                                       np.concatenate([p.values for p in pieces]), {},
+                                       number_of_samples)
+    return Solution(ode, method, np.concatenate([p.t_start for p in pieces]),
+                    np.concatenate([p.k for p in pieces]),
+                    np.concatenate([p.values for p in pieces]), {}, number_of_samples)
+
+
+def _total_stats(runs, model, wall):
+    stats = {name: sum(r[name] for r in runs) for name in _SUMMED}
+    stats.update({"method": runs[0]["method"], "solve time": wall,
+                  "newton": any(r["newton"] for r in runs),
+                  "inner solves": len(runs),
+                  "average length": model.average_length,
+                  "model builds": len(model.built),
+                  "largest model defect": model.largest_defect})
+    return stats

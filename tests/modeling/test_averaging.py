@@ -1,0 +1,26 @@
+"""The Hann-kernel average: independent of the phase and of whole periods in the window."""
+import numpy as np
+import pytest
+
+from dolfinode.modeling import hann_weights
+
+
+def test_weights_normalised_and_symmetric():
+    w = hann_weights(100)
+    assert w.size == 201 and w.sum() == pytest.approx(1.0) and np.allclose(w, w[::-1])
+    assert w[0] == pytest.approx(0.0, abs=1e-30)
+
+
+@pytest.mark.parametrize("periods", [15.0, 15.25, 15.5, 16.37])
+def test_average_of_cos_squared_is_one_half_for_any_window(periods):
+    # omega tau = 2 pi periods ~ 100, the simple model's setting; a box average would be off
+    # by up to 1 / (4 omega tau) ~ 2.5e-3 depending on the fraction of a period
+    omega, tau = 2 * np.pi * periods, 1.0
+    s = tau * np.linspace(-1.0, 1.0, 2001)
+    w = hann_weights(1000)
+    box_errors = []
+    for phase in (0.0, 0.3, 1.1):
+        assert abs(np.cos(omega * s + phase) ** 2 @ w - 0.5) < 1e-5
+        box_errors.append(abs(np.mean(np.cos(omega * s[:1001] + phase) ** 2) - 0.5))
+    if periods % 0.5:  # not a whole number of periods of cos^2 in the box [-tau, 0]
+        assert max(box_errors) > 1e-4

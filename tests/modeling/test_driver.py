@@ -1,0 +1,110 @@
+"""Automatic modeling on the seed paper's simple model (closed-form solution for any kappa:
+u1 = (1 - cos t)/4 + A (cos(2 sqrt(kappa) t) - cos t), A = -1/(4 (4 kappa - 1)))."""
+import time
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import dolfinode as dn
+from dolfinode.modeling import hann_weights
+
+SETTINGS = {"method": "cG(2)", "tolerance": 1e-4, "automatic_modeling": True}
+
+
+def simple_model(kappa, T=100.0):
+    u1, u2, k = sp.symbols("u1 u2 kappa")
+    return dn.ODE.second_order({u1: -u1 + u2 ** 2 / 2, u2: -k * u2}, x0={u1: 0.0, u2: 1.0},
+                               v0={u1: 0.0, u2: 0.0}, T=T, params={k: kappa})
+
+
+def exact_u1(t, kappa):
+    A = -1.0 / (4 * (4 * kappa - 1))
+    return (1 - np.cos(t)) / 4 + A * (np.cos(2 * np.sqrt(kappa) * t) - np.cos(t))
+
+
+def test_kappa_1e18_subgrid_model_and_solution():
+    ode = simple_model(1e18)
+    sol = dn.solve(ode, average_length=1e-7, **SETTINGS)
+    g1 = sol.model.g[ode.velocity(ode.states[0])]
+    assert abs(g1 - 0.25) < 1e-4  # measured 6.7e-6 (DOLFIN's box average: 0.2495)
+    t = np.linspace(0.0, 100.0, 20001)
+    assert np.max(np.abs(sol(t)[0] - (1 - np.cos(t)) / 4)) < 1e-3  # measured 7.2e-5
+    # the fast component and its velocity, and only those, are inactivated
+    assert set(sol.model.inactive) == {ode.states[1], ode.states[3]}
+    assert sol.model.built == [pytest.approx(1e-7)]
+    assert len(sol.model.control_points) == 10
+    assert not any(c.rebuilt for c in sol.model.control_points)
+    assert sol.model.largest_defect < 1e-5  # the checks confirm the model
+    # ~1e3 reduced steps instead of ~1e12: everything, windows included, under 1e5 elements
+    assert sol.stats["elements"] < 1e5
+
+
+@pytest.mark.parametrize("given_tau", [True, False], ids=["tau=100/sqrt(kappa)", "tau chosen"])
+def test_cost_independent_of_kappa(given_tau):
+    kappas = (1e8, 1e13, 1e18)
+    odes = {k: simple_model(k) for k in kappas}
+    walls = {k: [] for k in kappas}
+    for _ in range(4):  # round robin, so that the load of a shared machine hits all alike
+        for kappa in kappas:
+            start = time.perf_counter()
+            sol = dn.solve(odes[kappa], average_length=100 / np.sqrt(kappa) if given_tau
+                           else None, **SETTINGS)
+            walls[kappa].append(time.perf_counter() - start)
+            t = np.linspace(0.0, 100.0, 2001)
+            assert np.max(np.abs(sol(t)[0] - (1 - np.cos(t)) / 4)) < 1e-3
+            assert sol.model.average_length == pytest.approx(100 / np.sqrt(kappa), rel=1e-6)
+            walls[kappa].append(sol.stats["elements"])
+    elements = np.array([w[1] for w in walls.values()])
+    fastest = np.array([min(w[0::2]) for w in walls.values()])
+    assert elements.max() / elements.min() < 1.2, walls
+    assert fastest.max() / fastest.min() < 1.2, walls
+
+
+def test_resolvable_kappa_agrees_with_window_average_of_full_solution():
+    kappa, tau = 1e4, 1.0
+    sol = dn.solve(simple_model(kappa), average_length=tau, **SETTINGS)
+    t = np.linspace(2 * tau, 100 - tau, 500)
+    w = hann_weights(2000)
+    offsets = tau * np.linspace(-1.0, 1.0, w.size)
+    average = np.array([exact_u1(tk + offsets, kappa) @ w for tk in t])
+    # measured 5.7e-5; t = 2 tau is the reduced solution (it takes over at t_c = tau)
+    assert np.max(np.abs(sol(t)[0] - average)) < 1e-3
+    assert len(sol.model.control_points) == 10  # none at T
+    # the average is not the pointwise solution: over tau = 1 it differs by O(tau^2)
+    assert np.max(np.abs(average - exact_u1(t, kappa))) > 1e-2
+
+
+def test_no_fast_scale_is_reported():
+    u = sp.Symbol("u")
+    with pytest.raises(ValueError, match="no fast time scale"):
+        dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), automatic_modeling=True)
+
+
+def test_control_points_must_fit():
+    with pytest.raises(ValueError, match="control_points"):
+        dn.solve(simple_model(1e4, T=10.0), automatic_modeling=True, average_length=1.0,
+                 control_points=5)
+
+
+def test_modeling_error_from_the_dual_of_the_reduced_problem():
+    """Reduced model u1'' = -u1 + g~ (u2 frozen): for the goal u1(T) the dual is a rotation
+    in (u1, u1'), ||phi|| = 1, so S0 = T - t_c; for psi = 1 on both active components,
+    ||phi|| = sqrt(2)."""
+    tau = 1e-4
+    ode = simple_model(1e12)
+    sol = dn.solve(ode, average_length=tau, **SETTINGS)
+    largest = max(c.defect for c in sol.model.control_points)
+    assert sol.model.largest_defect == largest > 0
+    estimate = sol.model.modeling_error({ode.states[0]: 1.0})
+    assert estimate.S0 == pytest.approx(100 - tau, rel=1e-3)
+    assert estimate.bound == pytest.approx(estimate.S0 * largest)
+    assert abs(estimate.discretization) < 1e-3
+    default = sol.model.modeling_error()
+    assert default.S0 == pytest.approx(np.sqrt(2) * (100 - tau), rel=1e-3)
+
+
+def test_modeling_error_needs_control_points():
+    sol = dn.solve(simple_model(1e12), average_length=1e-4, control_points=0, **SETTINGS)
+    with pytest.raises(ValueError, match="control_points"):
+        sol.model.modeling_error()
