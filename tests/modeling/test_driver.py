@@ -1,6 +1,5 @@
 """Automatic modeling on the seed paper's simple model (closed-form solution for any kappa:
 u1 = (1 - cos t)/4 + A (cos(2 sqrt(kappa) t) - cos t), A = -1/(4 (4 kappa - 1)))."""
-import time
 
 import numpy as np
 import pytest
@@ -42,23 +41,20 @@ def test_kappa_1e18_subgrid_model_and_solution():
 
 @pytest.mark.parametrize("given_tau", [True, False], ids=["tau=100/sqrt(kappa)", "tau chosen"])
 def test_cost_independent_of_kappa(given_tau):
+    """Elements and f evaluations within 20% for kappa from 1e8 to 1e18 (wall times, which
+    follow them, are measured by benchmarks/run_modeling.py, not asserted here)."""
     kappas = (1e8, 1e13, 1e18)
-    odes = {k: simple_model(k) for k in kappas}
-    walls = {k: [] for k in kappas}
-    for _ in range(4):  # round robin, so that the load of a shared machine hits all alike
-        for kappa in kappas:
-            start = time.perf_counter()
-            sol = dn.solve(odes[kappa], average_length=100 / np.sqrt(kappa) if given_tau
-                           else None, **SETTINGS)
-            walls[kappa].append(time.perf_counter() - start)
-            t = np.linspace(0.0, 100.0, 2001)
-            assert np.max(np.abs(sol(t)[0] - (1 - np.cos(t)) / 4)) < 1e-3
-            assert sol.model.average_length == pytest.approx(100 / np.sqrt(kappa), rel=1e-6)
-            walls[kappa].append(sol.stats["elements"])
-    elements = np.array([w[1] for w in walls.values()])
-    fastest = np.array([min(w[0::2]) for w in walls.values()])
-    assert elements.max() / elements.min() < 1.2, walls
-    assert fastest.max() / fastest.min() < 1.2, walls
+    cost = {}
+    for kappa in kappas:
+        sol = dn.solve(simple_model(kappa), average_length=100 / np.sqrt(kappa) if given_tau
+                       else None, **SETTINGS)
+        t = np.linspace(0.0, 100.0, 2001)
+        assert np.max(np.abs(sol(t)[0] - (1 - np.cos(t)) / 4)) < 1e-3
+        assert sol.model.average_length == pytest.approx(100 / np.sqrt(kappa), rel=1e-6)
+        cost[kappa] = (sol.stats["elements"], sol.stats["f evaluations"])
+    elements, evaluations = np.array(list(cost.values()), dtype=float).T
+    assert elements.max() / elements.min() < 1.2, cost
+    assert evaluations.max() / evaluations.min() < 1.2, cost
 
 
 def test_resolvable_kappa_agrees_with_window_average_of_full_solution():
