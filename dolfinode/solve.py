@@ -162,11 +162,13 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
 
 def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     _, position, kl, ku = compiled.ordering
-    fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0])
+    A = np.array(m.A)
+    gamma = abs(np.linalg.det(A)) ** (1.0 / A.shape[0])  # filter of the error estimate
+    fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, gamma])
     state = np.array([ode.t0, steps[0], 1.0, 1.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     tau = m.nodes[m.stages].copy()
-    A, b0 = np.array(m.A), m.b0.copy()
+    b0 = m.b0.copy()
     dend, lval = m.end_derivative.copy(), m.left_value.copy()
     nodes = m.q + 1
 

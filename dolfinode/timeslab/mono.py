@@ -10,7 +10,7 @@ import math
 import numpy as np
 from numba import njit, types
 
-from dolfinode.adaptivity import next_step
+from dolfinode.adaptivity import filter_estimate, next_step
 from dolfinode.compile.signatures import JACOBIAN_TYPE, RHS_TYPE
 from dolfinode.solvers.slab import assemble_newton_matrix, factor, fixed_point, newton
 from dolfinode.timeslab import (
@@ -34,7 +34,7 @@ from dolfinode.timeslab import (
 T_NOW, K_NEXT, EPS_PREV, HAVE_F0 = range(4)
 # Indices into the integer and float options.
 SOLVER, FIXED, MAX_ITER, IS_DG = range(4)
-RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, RESIDUAL_POWER, KMIN_REL, SPAN = range(9)
+RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, RESIDUAL_POWER, KMIN_REL, SPAN, GAMMA = range(10)
 #: Relative size of the smallest increment an iteration still resolves (about 50 ulp).
 ROUNDING = 1e-14
 
@@ -62,7 +62,9 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
     mode = iopts[SOLVER]
     max_iter = iopts[MAX_ITER]
     rtol, T, kmax, safety, dtol = fopts[RTOL], fopts[T_END], fopts[KMAX], fopts[SAFETY], fopts[DTOL]
-    order, rpow = fopts[ORDER], fopts[RESIDUAL_POWER]
+    # the estimate is O(k^(q+1)) for cG(q) and dG(q) (see dolfinode.adaptivity)
+    order = fopts[RESIDUAL_POWER] + (0.0 if is_dg else 1.0)
+    gamma = fopts[GAMMA]
 
     X = np.empty(S * N)
     F = np.empty(S * N)
@@ -76,6 +78,9 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
     kuS = ku * S + S - 1
     ipiv = np.zeros(S * N, dtype=np.int64)
     rhs_perm = np.empty(S * N)
+    ab_filter = np.zeros((N, 2 * kl + ku + 1))
+    ipiv_filter = np.zeros(N, dtype=np.int64)
+    est = np.empty(N)
     counters[STORED] = 0
 
     t = state[T_NOW]
@@ -140,27 +145,26 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
         xend = X[(S - 1) * N:]
         f(xend.ctypes, t + k, p.ctypes, fend.ctypes)
         counters[F_EVALUATIONS] += 1
-        eps = 0.0
         blowup = False
-        kp = k ** rpow
         for i in range(N):
             if not (math.isfinite(xend[i]) and math.isfinite(fend[i])):
                 blowup = True
                 break
             kdu = 0.0
-            u_left = 0.0
             for j in range(nodes):
                 if is_dg:
                     xi = X[j * N + i]
-                    u_left += left_value[j] * xi
                 else:
                     xi = x[i] if j == 0 else X[(j - 1) * N + i]
                 kdu += end_derivative[j] * xi
-            r = abs(kdu / k - fend[i])
-            if is_dg:
-                r += abs(u_left - x[i]) / k
-            e = kp * r / (atol[i] + rtol * abs(xend[i]))
-            eps = max(eps, e)
+            est[i] = kdu - k * fend[i]  # k R(t_n)
+        if use_newton and not blowup:
+            if not filter_estimate(jdata, indptr, indices, position, gamma * k, kl, ku,
+                                   ab_filter, ipiv_filter, est, tmp_in, counters):
+                blowup = True
+        eps = 0.0
+        for i in range(N):
+            eps = max(eps, abs(est[i]) / (atol[i] + rtol * abs(xend[i])))
         if blowup or not math.isfinite(eps):
             if fixed:
                 return BLOWUP
