@@ -37,6 +37,10 @@ SOLVER, FIXED, MAX_ITER, IS_DG = range(4)
 RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, RESIDUAL_POWER, KMIN_REL, SPAN, GAMMA = range(10)
 #: Relative size of the smallest increment an iteration still resolves (about 50 ulp).
 ROUNDING = 1e-14
+#: After a failed nonlinear solve of length k_fail, steps stay below SOLVER_MARGIN x k_fail,
+#: and k_fail grows by NEWTON_PROBE per accepted step.
+SOLVER_MARGIN = 0.8
+NEWTON_PROBE = 1.2
 
 _f8 = types.float64[::1]
 _i8 = types.int64[::1]
@@ -84,6 +88,10 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
     counters[STORED] = 0
 
     t = state[T_NOW]
+    # Largest step the nonlinear solver is trusted with: the length of its last failure,
+    # raised by NEWTON_PROBE per accepted step, so that the controller does not grow the step
+    # straight back into a failure (a step limited by convergence, not by accuracy).
+    k_solver = math.inf
     k = state[K_NEXT]
     if state[HAVE_F0] == 0.0:
         f(x.ctypes, t, p.ctypes, f0.ctypes)
@@ -137,6 +145,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
             counters[FAILED_SOLVES] += 1
             if fixed:
                 return NONCONVERGENCE
+            k_solver = k
             k *= 0.25
             if k < kmin:
                 return NONCONVERGENCE
@@ -190,6 +199,8 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
                 x[i] = xend[i]
                 f0[i] = fend[i]
             k_new = k if fixed else next_step(k, eps, state[EPS_PREV], order, safety, True)
+            k_new = min(k_new, SOLVER_MARGIN * k_solver)
+            k_solver *= NEWTON_PROBE
             state[EPS_PREV] = eps
             k = k_new
         else:
