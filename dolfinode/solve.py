@@ -169,7 +169,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     tau = m.nodes[m.stages].copy()
     b0 = m.b0.copy()
-    dend, lval = m.end_derivative.copy(), m.left_value.copy()
+    dend = m.end_derivative.copy()
     nodes = m.q + 1
 
     def buffers(capacity):
@@ -178,7 +178,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
 
     def advance(out_t, out_k, out_X):
         return mono.advance(compiled.rhs, compiled.jacobian, compiled.p, compiled.indptr,
-                            compiled.indices, position, kl, ku, A, b0, tau, dend, lval, iopts,
+                            compiled.indices, position, kl, ku, A, b0, tau, dend, iopts,
                             fopts, atol, x, f0, state, counters, out_t, out_k, out_X)
 
     capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))

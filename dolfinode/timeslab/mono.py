@@ -47,7 +47,7 @@ _i8 = types.int64[::1]
 _SIGNATURE = types.int64(
     RHS_TYPE, JACOBIAN_TYPE, _f8,            # f, J, p
     _i8, _i8, _i8, types.int64, types.int64,  # indptr, indices, position, kl, ku
-    types.float64[:, ::1], _f8, _f8, _f8, _f8,  # A, b0, tau, end_derivative, left_value
+    types.float64[:, ::1], _f8, _f8, _f8,  # A, b0, tau, end_derivative
     _i8, _f8, _f8,                           # iopts, fopts, atol
     _f8, _f8, _f8, _i8,                      # x, f0, state, counters
     _f8, _f8, types.float64[:, :, ::1],      # out_t, out_k, out_X
@@ -55,8 +55,8 @@ _SIGNATURE = types.int64(
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
-def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_derivative,
-            left_value, iopts, fopts, atol, x, f0, state, counters, out_t, out_k, out_X):
+def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_derivative, iopts,
+            fopts, atol, x, f0, state, counters, out_t, out_k, out_X):
     """Advance (x, t) towards T, storing accepted elements in out_*; returns a status code."""
     N = x.shape[0]
     S = A.shape[0]
@@ -168,9 +168,8 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
                 kdu += end_derivative[j] * xi
             est[i] = kdu - k * fend[i]  # k R(t_n)
         if use_newton and not blowup:
-            if not filter_estimate(jdata, indptr, indices, position, gamma * k, kl, ku,
-                                   ab_filter, ipiv_filter, est, tmp_in, counters):
-                blowup = True
+            blowup = not filter_estimate(jdata, indptr, indices, position, gamma * k, kl, ku,
+                                         ab_filter, ipiv_filter, est, tmp_in, counters)
         eps = 0.0
         for i in range(N):
             eps = max(eps, abs(est[i]) / (atol[i] + rtol * abs(xend[i])))
