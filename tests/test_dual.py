@@ -12,7 +12,7 @@ from dolfinode import problems
 from dolfinode.compile import lower
 from dolfinode.dual import adaptivity
 from dolfinode.dual.problem import jacobian_transpose
-from dolfinode.problems import _linear
+from dolfinode.bench.problems import linear
 
 RNG = np.random.default_rng(1)
 _B = RNG.normal(size=(10, 10))
@@ -45,9 +45,9 @@ def cases():
     out["decay"] = (ode, exact(ode.T))
     ode, exact = problems.harmonic(T=10.0)
     out["harmonic"] = (ode, exact(ode.T))
-    ode, exact = _linear(A_NON_NORMAL, [1.0, 1.0], 3.0)
+    ode, exact = linear(A_NON_NORMAL, [1.0, 1.0], 3.0)
     out["non-normal"] = (ode, exact(ode.T))
-    ode, exact = _linear(A10, U10, 2.0)
+    ode, exact = linear(A10, U10, 2.0)
     out["random 10"] = (ode, exact(ode.T))
     ode = problems.lorenz(T=5.0)
     out["lorenz"] = (ode, _reference(ode))
@@ -57,7 +57,7 @@ def cases():
 
 
 @pytest.mark.parametrize("make", [problems.lorenz, _van_der_pol,
-                                  lambda: _linear(A10, U10, 1.0)[0]])
+                                  lambda: linear(A10, U10, 1.0)[0]])
 def test_adjoint_identity_of_generated_jacobian(make):
     """<J v, w> = <v, J^T w>, and J v is the derivative of the compiled f along v."""
     ode = make()
@@ -78,7 +78,7 @@ def test_adjoint_identity_of_generated_jacobian(make):
 @pytest.mark.parametrize("method", ["cG(1)", "dG(2)", "mcG(2)", "mdG(1)"])
 def test_dual_of_linear_system_is_the_matrix_exponential(method):
     """phi(t) = exp(A^T (T - t)) psi for u' = A u."""
-    ode, _ = _linear(A_NON_NORMAL, [1.0, 1.0], 3.0)
+    ode, _ = linear(A_NON_NORMAL, [1.0, 1.0], 3.0)
     sol = dn.solve(ode, method=method, tolerance=1e-5)
     psi = np.array([0.3, -1.0])
     est = dn.estimate_error(sol, psi)

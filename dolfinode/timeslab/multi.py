@@ -63,7 +63,6 @@ _KMIN_RELATIVE = 1e-14
 ACCEPTANCE_MARGIN = 2.0
 #: Sub-slabs coupled more strongly than this on their step are solved by Newton together.
 COUPLING_LIMIT = 0.5
-_DEBUG = False
 
 
 @njit(cache=True, inline="always")
@@ -594,8 +593,6 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             d_prev = d
         if converged and mode == DEFAULT and it >= 7:
             counters[STIFF] = 1  # Gauss-Seidel converges too slowly: Newton from here on
-        if _DEBUG:
-            print("slab", t, b - t, "ne", ne, "nroot", nroot, "nwin", nwin, "it", it + 1, "conv", converged, "d", d, "stiff", stiff)
         if not fixed:
             kslab = _slab_limit(kslab, kmax, b - t, converged, it + 1, nwin, nroot, ne)
         if not converged:
