@@ -139,6 +139,15 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
                 iters = newton(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter, X, F,
                                G, tmp_in, tmp_out, ab, klS, kuS, ipiv, position, rhs_perm,
                                counters)
+                if iters < 0:
+                    # On stiff components the Euler predictor overshoots by |k lambda| (ROBER
+                    # at k ~ t: 1e6-1e11); start once more from the constant x before reducing k.
+                    for s in range(S):
+                        for i in range(N):
+                            X[s * N + i] = x[i]
+                    iters = newton(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter,
+                                   X, F, G, tmp_in, tmp_out, ab, klS, kuS, ipiv, position,
+                                   rhs_perm, counters)
             else:
                 iters = -1
         if iters < 0:
