@@ -1,20 +1,37 @@
-"""Step-size selection from the Galerkin residual, for mono-adaptive time slabs.
+"""Step-size selection from a local error estimate, for mono-adaptive time slabs.
 
-The indicator of an element of length k is (Eriksson-Estep-Hansbo-Johnson, the seed paper's
-error representation with stability factor and interpolation constant taken as one)
+The residual of the discrete solution at the element's end point,
 
-    eps = max_i k^p |R_i| / (atol_i + rtol |U_i(t_n)|),
-    R_i = U_i'(t_n) - f_i(U(t_n), t_n)  (+ |[U_i]_{n-1}| / k for dG),
+    R(t_n) = U'(t_n) - f(U(t_n), t_n),
 
-with p = q (cG) or q + 1 (dG), so that eps = O(k^(2q)) or O(k^(2q+1)) and the global error is
-about S * rtol * max eps. A step is accepted when eps <= 1. The next step comes from a PI
-controller on eps (Gustafsson; Soederlind's digital filters, as DOLFIN's H211PI intended):
+is O(k^q u^(q+1)) for cG(q) and dG(q) (for dG it is proportional to the jump [U]_{n-1}/k, so
+the jump need not be added). The error it makes over one step solves e' = J e - R, so the
+local error is about
 
-    k_new = k * clamp(safety * eps^(-0.7/P) * eps_prev^(0.4/P), 0.2, 5),   P = 2q or 2q + 1.
+    e_n = (I - gamma k J)^{-1} k R(t_n),      gamma = |det A|^(1/S),
+
+where J = df/du(U(t_{n-1})) and A is the method's (S, S) stage matrix. For non-stiff
+components (|k lambda| << 1) this is k R(t_n), of the size of the solution's change over the
+step times (k/tau)^q, tau the local time scale; for stiff components (k lambda -> -inf) the
+filter returns R / (gamma |lambda|), the solution's distance from its quasi-steady state,
+instead of k R (Hairer and Wanner's filtered estimate for Radau IIA, Sec. IV.8). Both terms
+are dimensionally consistent: the estimate is a change in u, whatever the time scale, which
+the former indicator k^p |R| (p = q or q + 1, stability factor one) was not. The step is
+accepted when
+
+    eps = max_i |e_{n,i}| / (atol_i + rtol |U_i(t_n)|) <= 1,
+
+and eps = O(k^(q+1)). The next step comes from a PI controller on eps (Gustafsson;
+Soederlind's digital filters, as DOLFIN's H211PI intended), with P = q + 1:
+
+    k_new = k * clamp(safety * eps^(-0.7/P) * eps_prev^(0.4/P), 0.2, 5).
 """
 import math
 
 from numba import njit
+
+from dolfinode.linalg.banded import band_lu, band_solve
+from dolfinode.timeslab import FACTORIZATIONS
 
 #: Smallest and largest factor by which a step may change.
 MIN_FACTOR = 0.2
@@ -23,7 +40,10 @@ MAX_FACTOR = 5.0
 
 @njit(cache=True)
 def next_step(k, eps, eps_prev, order, safety, accepted):
-    """Next step length after a step of length k with indicator eps (<= 1: accepted)."""
+    """Next step length after a step of length k with estimate eps (<= 1: accepted).
+
+    ``order`` is the power P in eps = O(k^P).
+    """
     eps = max(eps, 1e-10)
     if accepted:
         factor = safety * eps ** (-0.7 / order) * max(eps_prev, 1e-10) ** (0.4 / order)
@@ -32,3 +52,33 @@ def next_step(k, eps, eps_prev, order, safety, accepted):
     if not math.isfinite(factor):
         factor = MIN_FACTOR
     return k * min(MAX_FACTOR, max(MIN_FACTOR, factor))
+
+
+@njit(cache=True)
+def filter_estimate(jdata, indptr, indices, position, gamma_k, kl, ku, ab, ipiv, v, rhs,
+                    counters):
+    """Apply (I - gamma k J)^{-1} to v in place; returns False if the matrix is singular.
+
+    ``gamma_k`` = gamma k; J is given by its CSR values ``jdata`` (rows ``indptr``, columns
+    ``indices``) and stored in band form (``kl``, ``ku``) in the component ordering
+    ``position``, in ``ab`` of shape (N, 2 kl + ku + 1); ``rhs`` is (N,) work space.
+    """
+    N = position.shape[0]
+    kv = kl + ku
+    ab[:, :] = 0.0
+    for i in range(N):
+        ri = position[i]
+        for nz in range(indptr[i], indptr[i + 1]):
+            cj = position[indices[nz]]
+            ab[cj, kv + ri - cj] -= gamma_k * jdata[nz]
+    for r in range(N):
+        ab[r, kv] += 1.0
+    counters[FACTORIZATIONS] += 1
+    if band_lu(ab, kl, ku, ipiv) != 0:
+        return False
+    for i in range(N):
+        rhs[position[i]] = v[i]
+    band_solve(ab, kl, ku, ipiv, rhs)
+    for i in range(N):
+        v[i] = rhs[position[i]]
+    return True

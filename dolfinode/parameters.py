@@ -4,7 +4,7 @@ import math
 
 #: Every parameter ``solve`` accepts, with its default.
 DEFAULTS = {
-    "tolerance": 1e-6,             # rtol of the residual-based indicator (DOLFIN: TOL)
+    "tolerance": 1e-6,             # rtol of the step error estimate (DOLFIN: TOL)
     "absolute_tolerance": None,    # atol, scalar or per state; None: equal to tolerance
     "initial_time_step": None,     # None: chosen from f(u0)
     "maximum_time_step": None,     # None: T - t0

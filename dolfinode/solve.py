@@ -47,11 +47,13 @@ def newton_memory(N, kl, ku, stages):
     Returns
     -------
     int
-        ``8 S N (2 kl S + ku S + 3 (S - 1) + 1) + 8 S N``; allocated only when the solve
-        uses Newton's method (``nonlinear_solver="newton"``, or the default once fixed-point
-        iteration fails).
+        ``8 S N (2 kl S + ku S + 3 (S - 1) + 1) + 8 S N``, plus ``8 N (2 kl + ku + 2)`` for
+        the error filter (I - gamma k J)^{-1}; allocated only when the solve uses Newton's
+        method (``nonlinear_solver="newton"``, or the default once fixed-point iteration
+        fails).
     """
-    return 8 * stages * N * (mono.newton_band_columns(kl, ku, stages) + 1)
+    return (8 * stages * N * (mono.newton_band_columns(kl, ku, stages) + 1)
+            + 8 * N * (2 * kl + ku + 2))
 
 
 def _absolute_tolerance(ode, value, rtol):
@@ -205,16 +207,18 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
 
 def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     _, position, kl, ku = compiled.ordering
-    fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0])
+    A = np.array(m.A)
+    gamma = abs(np.linalg.det(A)) ** (1.0 / A.shape[0])  # filter of the error estimate
+    fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, gamma])
     state = np.array([ode.t0, steps[0], 1.0, 1.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     tau = m.nodes[m.stages].copy()
-    A, b0 = np.array(m.A), m.b0.copy()
+    b0 = m.b0.copy()
     band_bytes = newton_memory(ode.N, kl, ku, A.shape[0])
     available = _available_memory()
     fits = band_bytes <= _NEWTON_MEMORY_FRACTION * available
     iopts = np.concatenate([iopts, [int(fits)]])
-    dend, lval = m.end_derivative.copy(), m.left_value.copy()
+    dend = m.end_derivative.copy()
     nodes = m.q + 1
 
     def buffers(capacity):
@@ -223,7 +227,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
 
     def advance(out_t, out_k, out_X):
         return mono.advance(compiled.rhs, compiled.jacobian, compiled.p, compiled.indptr,
-                            compiled.indices, position, kl, ku, A, b0, tau, dend, lval, iopts,
+                            compiled.indices, position, kl, ku, A, b0, tau, dend, iopts,
                             fopts, atol, x, f0, state, counters, out_t, out_k, out_X)
 
     capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))

@@ -10,7 +10,7 @@ import math
 import numpy as np
 from numba import njit, types
 
-from dolfinode.adaptivity import next_step
+from dolfinode.adaptivity import filter_estimate, next_step
 from dolfinode.compile.signatures import JACOBIAN_TYPE, RHS_TYPE
 from dolfinode.solvers.slab import assemble_newton_matrix, factor, fixed_point, newton
 from dolfinode.timeslab import (
@@ -36,16 +36,20 @@ T_NOW, K_NEXT, EPS_PREV, HAVE_F0 = range(4)
 # Indices into the integer and float options (NEWTON_FITS: 1 if the banded Newton matrix fits
 # in memory; the driver decides, the loop returns NEWTON_MEMORY when it would need it but not).
 SOLVER, FIXED, MAX_ITER, IS_DG, NEWTON_FITS = range(5)
-RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, RESIDUAL_POWER, KMIN_REL, SPAN = range(9)
+RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, RESIDUAL_POWER, KMIN_REL, SPAN, GAMMA = range(10)
 #: Relative size of the smallest increment an iteration still resolves (about 50 ulp).
 ROUNDING = 1e-14
+#: After a failed nonlinear solve of length k_fail, steps stay below SOLVER_MARGIN x k_fail,
+#: and k_fail grows by NEWTON_PROBE per accepted step.
+SOLVER_MARGIN = 0.8
+NEWTON_PROBE = 1.2
 
 _f8 = types.float64[::1]
 _i8 = types.int64[::1]
 _SIGNATURE = types.int64(
     RHS_TYPE, JACOBIAN_TYPE, _f8,            # f, J, p
     _i8, _i8, _i8, types.int64, types.int64,  # indptr, indices, position, kl, ku
-    types.float64[:, ::1], _f8, _f8, _f8, _f8,  # A, b0, tau, end_derivative, left_value
+    types.float64[:, ::1], _f8, _f8, _f8,  # A, b0, tau, end_derivative
     _i8, _f8, _f8,                           # iopts, fopts, atol
     _f8, _f8, _f8, _i8,                      # x, f0, state, counters
     _f8, _f8, types.float64[:, :, ::1],      # out_t, out_k, out_X
@@ -72,8 +76,8 @@ def newton_band_columns(kl, ku, S):
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
-def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_derivative,
-            left_value, iopts, fopts, atol, x, f0, state, counters, out_t, out_k, out_X):
+def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_derivative, iopts,
+            fopts, atol, x, f0, state, counters, out_t, out_k, out_X):
     """Advance (x, t) towards T, storing accepted elements in out_*; returns a status code."""
     N = x.shape[0]
     S = A.shape[0]
@@ -83,7 +87,9 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
     mode = iopts[SOLVER]
     max_iter = iopts[MAX_ITER]
     rtol, T, kmax, safety, dtol = fopts[RTOL], fopts[T_END], fopts[KMAX], fopts[SAFETY], fopts[DTOL]
-    order, rpow = fopts[ORDER], fopts[RESIDUAL_POWER]
+    # the estimate is O(k^(q+1)) for cG(q) and dG(q) (see dolfinode.adaptivity)
+    order = fopts[RESIDUAL_POWER] + (0.0 if is_dg else 1.0)
+    gamma = fopts[GAMMA]
 
     X = np.empty(S * N)
     F = np.empty(S * N)
@@ -98,9 +104,17 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
     ab = np.zeros((0, 0))
     ipiv = np.zeros(0, dtype=np.int64)
     rhs_perm = np.empty(S * N)
+    # the error filter (I - gamma k J)^{-1} is applied with Newton only: allocated with it
+    ab_filter = np.zeros((0, 0))
+    ipiv_filter = np.zeros(0, dtype=np.int64)
+    est = np.empty(N)
     counters[STORED] = 0
 
     t = state[T_NOW]
+    # Largest step the nonlinear solver is trusted with: the length of its last failure,
+    # raised by NEWTON_PROBE per accepted step, so that the controller does not grow the step
+    # straight back into a failure (a step limited by convergence, not by accuracy).
+    k_solver = math.inf
     k = state[K_NEXT]
     if state[HAVE_F0] == 0.0:
         f(x.ctypes, t, p.ctypes, f0.ctypes)
@@ -147,6 +161,8 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
                 return NEWTON_MEMORY
             ab = np.zeros((S * N, newton_band_columns(kl, ku, S)))
             ipiv = np.zeros(S * N, dtype=np.int64)
+            ab_filter = np.zeros((N, 2 * kl + ku + 1))
+            ipiv_filter = np.zeros(N, dtype=np.int64)
         if use_newton:
             jac(x.ctypes, t, p.ctypes, jdata.ctypes)
             counters[JACOBIANS] += 1
@@ -155,12 +171,22 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
                 iters = newton(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter, X, F,
                                G, tmp_in, tmp_out, ab, klS, kuS, ipiv, position, rhs_perm,
                                counters)
+                if iters < 0:
+                    # On stiff components the Euler predictor overshoots by |k lambda| (ROBER
+                    # at k ~ t: 1e6-1e11); start once more from the constant x before reducing k.
+                    for s in range(S):
+                        for i in range(N):
+                            X[s * N + i] = x[i]
+                    iters = newton(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter,
+                                   X, F, G, tmp_in, tmp_out, ab, klS, kuS, ipiv, position,
+                                   rhs_perm, counters)
             else:
                 iters = -1
         if iters < 0:
             counters[FAILED_SOLVES] += 1
             if fixed:
                 return NONCONVERGENCE
+            k_solver = k
             k *= 0.25
             if k < kmin:
                 return NONCONVERGENCE
@@ -169,27 +195,25 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
         xend = X[(S - 1) * N:]
         f(xend.ctypes, t + k, p.ctypes, fend.ctypes)
         counters[F_EVALUATIONS] += 1
-        eps = 0.0
         blowup = False
-        kp = k ** rpow
         for i in range(N):
             if not (math.isfinite(xend[i]) and math.isfinite(fend[i])):
                 blowup = True
                 break
             kdu = 0.0
-            u_left = 0.0
             for j in range(nodes):
                 if is_dg:
                     xi = X[j * N + i]
-                    u_left += left_value[j] * xi
                 else:
                     xi = x[i] if j == 0 else X[(j - 1) * N + i]
                 kdu += end_derivative[j] * xi
-            r = abs(kdu / k - fend[i])
-            if is_dg:
-                r += abs(u_left - x[i]) / k
-            e = kp * r / (atol[i] + rtol * abs(xend[i]))
-            eps = max(eps, e)
+            est[i] = kdu - k * fend[i]  # k R(t_n)
+        if use_newton and not blowup:
+            blowup = not filter_estimate(jdata, indptr, indices, position, gamma * k, kl, ku,
+                                         ab_filter, ipiv_filter, est, tmp_in, counters)
+        eps = 0.0
+        for i in range(N):
+            eps = max(eps, abs(est[i]) / (atol[i] + rtol * abs(xend[i])))
         if blowup or not math.isfinite(eps):
             if fixed:
                 return BLOWUP
@@ -215,6 +239,8 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
                 x[i] = xend[i]
                 f0[i] = fend[i]
             k_new = k if fixed else next_step(k, eps, state[EPS_PREV], order, safety, True)
+            k_new = min(k_new, SOLVER_MARGIN * k_solver)
+            k_solver *= NEWTON_PROBE
             state[EPS_PREV] = eps
             k = k_new
         else:

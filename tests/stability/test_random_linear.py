@@ -4,10 +4,11 @@ A = V diag(-lambda) V^-1 with a well-conditioned V (a rotation plus a bounded sh
 rates lambda log-uniform in [1, 10^s], s <= 8; errors are measured in the mixed norm
 |U - u| / (atol + rtol |u|) the solver controls, at T and at 101 samples.
 
-Measured on 12 random systems at tolerance 1e-6: at T every method is within 1.3 x tolerance;
-over the samples, inside the initial transient, dG(1..3) reach 20-170 x tolerance and cG(2..3)
-3-10 x (the step indicator underestimates the error of the fast decaying modes), hence the
-looser bound there.
+Measured on 12 random systems at tolerance 1e-6 (mono-adaptive, max over the samples / at T,
+in units of the tolerance): cG(1) 0.13 / 0.07, cG(2) 0.03 / 4e-4, cG(3) 0.01 / 9e-5,
+dG(0) 0.7 / 0.3, dG(1) 0.25 / 2e-4, dG(2) 0.11 / 1e-5, dG(3) 0.04 / 2e-5. (With the former
+indicator k^p |R(t_n)|, dG(1..3) reached 20-170 x tolerance inside the initial transient.)
+The multi-adaptive methods keep the looser bound over the samples.
 """
 import numpy as np
 import pytest
@@ -46,7 +47,7 @@ def check(method, seed, n, stiffness, T, bound=1000.0, bound_T=10.0, **options):
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 4), stiffness=st.floats(0.0, 8.0))
 def test_mono_adaptive_matches_expm(method, seed, n, stiffness):
-    check(method, seed, n, stiffness, T=1.0)
+    check(method, seed, n, stiffness, T=1.0, bound=10.0)
 
 
 @pytest.mark.parametrize("method", ["mcG(1)", "mdG(1)"])

@@ -46,12 +46,17 @@ def test_nodal_convergence_order(linear, method):
     assert abs(observed_order(ode, exact, method, ks) - order) < 0.3
 
 
+#: Rounding error accumulated over thousands of steps on [0, 10] for |u| ~ 1.
+ROUNDING_AT_T = 1e-11
+
+
 @pytest.mark.parametrize("method", ["cG(1)", "cG(2)", "dG(1)", "dG(2)"])
 def test_error_decreases_with_tolerance_harmonic(method):
     ode, exact = problems.harmonic(T=10.0)
     errors = [np.abs(dn.solve(ode, method=method, tolerance=tol)(ode.T) - exact(ode.T)).max()
               for tol in (1e-3, 1e-5, 1e-7, 1e-9)]
-    assert all(a > b for a, b in itertools.pairwise(errors)), errors
+    # until rounding: dG(2) measured 5.6e-7, 2.9e-9, 1.5e-12, 1.7e-12 (over ~5000 steps)
+    assert all(a > b or max(a, b) < ROUNDING_AT_T for a, b in itertools.pairwise(errors)), errors
     assert errors[-1] < 1e-6
 
 
