@@ -150,9 +150,11 @@ def test_newton_matrix_is_allocated_only_when_needed(monkeypatch):
 
 
 def test_newton_memory_formula():
-    """newton_memory counts the band storage of I - k A (x) J with LU fill-in, and pivots."""
+    """newton_memory counts the band storage of I - k A (x) J with LU fill-in and pivots, and
+    that of the error filter I - gamma k J (2 kl + ku + 1 columns) with its pivots."""
     from dolfinode.solve import newton_memory
 
     # cG(1): one stage, 2 kl + ku + 1 columns; dG(1): two stages, 2 (2 kl + 1) + 2 ku + 1
-    assert newton_memory(1000, 3, 2, 1) == 8 * 1000 * (2 * 3 + 2 + 1 + 1)
-    assert newton_memory(1000, 3, 2, 2) == 8 * 2000 * (2 * 7 + 5 + 1 + 1)
+    filter_bytes = 8 * 1000 * (2 * 3 + 2 + 2)
+    assert newton_memory(1000, 3, 2, 1) == 8 * 1000 * (2 * 3 + 2 + 1 + 1) + filter_bytes
+    assert newton_memory(1000, 3, 2, 2) == 8 * 2000 * (2 * 7 + 5 + 1 + 1) + filter_bytes
