@@ -35,8 +35,10 @@ def test_kappa_1e18_subgrid_model_and_solution():
     assert len(sol.model.control_points) == 10
     assert not any(c.rebuilt for c in sol.model.control_points)
     assert sol.model.largest_defect < 1e-5  # the checks confirm the model
-    # ~1e3 reduced steps instead of ~1e12: everything, windows included, under 1e5 elements
-    assert sol.stats["elements"] < 1e5
+    # ~1e3 reduced steps instead of ~1e12: everything, windows included, under 2e5 elements
+    # (measured 161,256 with the filtered local error estimate of the mono loop, 37,556 with
+    # the former residual indicator, which controlled the error less tightly)
+    assert sol.stats["elements"] < 2e5
 
 
 @pytest.mark.parametrize("given_tau", [True, False], ids=["tau=100/sqrt(kappa)", "tau chosen"])
