@@ -83,75 +83,40 @@ def _evaluate(values, e, tau, nodes, bary):
 
 
 @njit(cache=True, inline="always")
-def _covering(c, t, last, celems, eb):
-    """Advance the cursor c (a position in a component's element list, ending at last) to the
-    first element ending at or after t."""
-    while c < last and eb[celems[c]] < t:
-        c += 1
-    return c
-
-
-@njit(cache=True, inline="always")
-def _read_dependencies(i, e, s0, s1, m, t, slab_start, x0, indptr, indices, cptr, celems, ea,
-                       eb, values, nodes, bary, cur, own, uw):
-    """Fill uw[j] = U_j(t) for the dependencies j of f_i at a point t of the interval
-    [s0, s1] of element e, on which every dependency is one polynomial (cursors in cur).
-    Node m of the interval when m >= 0: an element that is exactly the interval is read at
-    its node without evaluation."""
-    row0 = indptr[i]
-    mid = 0.5 * (s0 + s1)
-    for r in range(indptr[i + 1] - row0):
-        j = indices[row0 + r]
-        if j == i:
-            uw[j] = own
-            continue
-        if mid <= slab_start:  # only at a point evaluation at the slab start
-            uw[j] = x0[j]
-            continue
-        c = _covering(cur[r], mid, cptr[j + 1] - 1, celems, eb)
-        cur[r] = c
-        ej = celems[c]
-        if m >= 0 and ea[ej] == s0 and eb[ej] == s1:
-            uw[j] = values[ej, m]
-        else:
-            tau = (t - ea[ej]) / (eb[ej] - ea[ej])
-            uw[j] = _evaluate(values, ej, min(max(tau, 0.0), 1.0), nodes, bary)
-
-
-@njit(cache=True, inline="always")
-def _start_cursors(i, e, indptr, dptr, dcur, cur):
-    for r in range(indptr[i + 1] - indptr[i]):
-        cur[r] = dcur[dptr[e] + r]
-
-
-@njit(cache=True, inline="always")
-def _end_rhs(fi, p, i, e, slab_start, x0, indptr, indices, cptr, celems, ea, eb, values, nodes,
-             bary, sptr, spts, dptr, dcur, cur, uw, out):
-    """f_i at the end of element e (component i), dependencies read from their elements."""
-    nn = nodes.shape[0]
-    _start_cursors(i, e, indptr, dptr, dcur, cur)
-    _read_dependencies(i, e, spts[sptr[e + 1] - 2], eb[e], nn - 1, eb[e], slab_start, x0,
-                       indptr, indices, cptr, celems, ea, eb, values, nodes, bary, cur,
-                       values[e, nn - 1], uw)
-    fi(i, uw.ctypes, eb[e], p.ctypes, out.ctypes)
-    return out[0]
-
-
-@njit(cache=True, inline="always")
-def _moments(fi, p, i, e, slab_start, x0, indptr, indices, cptr, celems, ea, eb, values, nodes,
-             bary, qweights, sptr, spts, dptr, dcur, cur, uw, out, mom):
+def _moments(fi, ji, p, i, e, indptr, indices, cptr, celems, ea, eb, values, nodes, bary,
+             qweights, sptr, spts, dptr, dcur, cur, uw, out, mom, row, jrow, fend):
     """Moments m_l = int_0^1 f_i(U(tau)) tau^l dtau of element e by quadrature on every
-    interval between breakpoints (exact for linear f). Returns the f evaluations."""
+    interval between breakpoints (exact for linear f); f_i at the end of e into fend[e] (the
+    last node of the last interval is the element's end); with ``row``, also row i of df/du
+    at the first quadrature point into jrow. Every dependency is one polynomial on each
+    interval: its element there is found by a cursor from dcur that walks its elements in
+    time order, and an element that is exactly the interval is read at its nodes. (The reads
+    are written out here, not in a helper: numba's reference counting of each array argument
+    of a call cost more than the reads.) Returns the f evaluations."""
     S = mom.shape[0]
     nn = nodes.shape[0]
     k = eb[e] - ea[e]
-    mom[:] = 0.0
-    _start_cursors(i, e, indptr, dptr, dcur, cur)
+    uwp, pp, op = uw.ctypes, p.ctypes, out.ctypes
+    for lm in range(S):
+        mom[lm] = 0.0
+    row0 = indptr[i]
+    degree = indptr[i + 1] - row0
+    for r in range(degree):
+        cur[r] = dcur[dptr[e] + r]
     whole = sptr[e + 1] - sptr[e] == 2  # no dependency breaks inside e
     for sub in range(sptr[e], sptr[e + 1] - 1):
         s0 = spts[sub]
         s1 = spts[sub + 1]
         h = s1 - s0
+        mid = 0.5 * (s0 + s1)
+        for r in range(degree):
+            j = indices[row0 + r]
+            if j != i:
+                c = cur[r]
+                last = cptr[j + 1] - 1
+                while c < last and eb[celems[c]] < mid:
+                    c += 1
+                cur[r] = c
         for m in range(nn):
             tq = s0 + nodes[m] * h
             if whole:
@@ -160,14 +125,26 @@ def _moments(fi, p, i, e, slab_start, x0, indptr, indices, cptr, celems, ea, eb,
             else:
                 tau = min(max((tq - ea[e]) / k, 0.0), 1.0)
                 own = _evaluate(values, e, tau, nodes, bary)
-            _read_dependencies(i, e, s0, s1, m, tq, slab_start, x0, indptr, indices, cptr,
-                               celems, ea, eb, values, nodes, bary, cur, own, uw)
-            fi(i, uw.ctypes, tq, p.ctypes, out.ctypes)
+            for r in range(degree):
+                j = indices[row0 + r]
+                if j == i:
+                    uw[j] = own
+                    continue
+                ej = celems[cur[r]]
+                if ea[ej] == s0 and eb[ej] == s1:
+                    uw[j] = values[ej, m]
+                else:
+                    tj = (tq - ea[ej]) / (eb[ej] - ea[ej])
+                    uw[j] = _evaluate(values, ej, min(max(tj, 0.0), 1.0), nodes, bary)
+            fi(i, uwp, tq, pp, op)
+            if row and sub == sptr[e] and m == 0:
+                ji(i, uwp, tq, pp, jrow.ctypes)
             w = qweights[m] * h / k
             power = 1.0
             for lm in range(S):
                 mom[lm] += w * power * out[0]
                 power *= tau
+    fend[e] = out[0]
     return (sptr[e + 1] - sptr[e] - 1) * nn
 
 
@@ -196,20 +173,20 @@ def _damping(k, jii, A, D):
                     D[r, cc] -= factor * D[c, cc]
 
 
-@njit(cache=True)
-def _group_newton(e0, e1, fi, ji, p, t, x, indptr, indices, position, comp, prev, cptr, celems,
+@njit(cache=True, _nrt=False)
+def _group_newton(e0, e1, fi, ji, p, x, indptr, indices, position, comp, prev, cptr, celems,
                   ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, dptr, dcur, atol,
-                  rtol, uw, out, jrow, cur, mom, local, order, ab_ws, rhs, ipiv, counters):
+                  rtol, uw, out, jrow, cur, mom, fend, local, order, ab_ws, rhs, ipiv, counters):
     """One simplified Newton step for the elements e0..e1-1 of one sub-slab (same interval):
     (I - k A (x) J_gg) dX = r, with r the exact Galerkin residuals and J_gg the sparse Jacobian
-    restricted to the group's components at the sub-slab start, in band storage (components
-    in the global bandwidth ordering). Returns the largest scaled increment (inf on failure)."""
+    restricted to the group's components (each row at its element's first quadrature point),
+    in band storage (components in the global bandwidth ordering). Returns the largest scaled
+    increment (inf on failure)."""
     S = Minv.shape[0]
     nn = nodes.shape[0]
     first_stage = nn - S
     n = e1 - e0
     k = eb[e0] - ea[e0]
-    ta = ea[e0]
     # the group's components in bandwidth order: local[i] = their row block
     for r_ in range(n):
         order[r_] = comp[e0 + r_]
@@ -241,21 +218,17 @@ def _group_newton(e0, e1, fi, ji, p, t, x, indptr, indices, position, comp, prev
         xl = x[i] if prev[e] < 0 else values[prev[e], nn - 1]
         if first_stage == 1:
             values[e, 0] = xl
-        counters[F_EVALUATIONS] += _moments(fi, p, i, e, t, x, indptr, indices, cptr, celems, ea,
+        # the moments, and row i of df/du at the element's first quadrature point
+        counters[F_EVALUATIONS] += _moments(fi, ji, p, i, e, indptr, indices, cptr, celems, ea,
                                             eb, values, nodes, bary, qweights, sptr, spts, dptr,
-                                            dcur, cur, uw, out, mom)
+                                            dcur, cur, uw, out, mom, True, jrow, fend)
+        counters[JACOBIANS] += 1
         row = local[i] * S
         for s_ in range(S):
             acc = 0.0
             for lm in range(S):
                 acc += Minv[s_, lm] * mom[lm]
             rhs[row + s_] = xl + k * acc - values[e, first_stage + s_]
-        # row i of df/du at the sub-slab start, restricted to the group
-        _start_cursors(i, e, indptr, dptr, dcur, cur)
-        _read_dependencies(i, e, ta, ta, -1, ta, t, x, indptr, indices, cptr, celems, ea, eb,
-                           values, nodes, bary, cur, xl, uw)
-        ji(i, uw.ctypes, ta, p.ctypes, jrow.ctypes)
-        counters[JACOBIANS] += 1
         for nz in range(indptr[i], indptr[i + 1]):
             j = indices[nz]
             if local[j] < 0:
@@ -285,11 +258,11 @@ def _group_newton(e0, e1, fi, ji, p, t, x, indptr, indices, position, comp, prev
     return d
 
 
-@njit(cache=True)
-def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, t, x, indptr,
+@njit(cache=True, _nrt=False)
+def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, x, indptr,
               indices, position, comp, prev, cptr, celems, ea, eb, values, nodes, bary, qweights,
               Minv, A, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw, out, jrow,
-              cur, mom, D, delta, local, order, ab_ws, rhs, ipiv, counters):
+              cur, mom, fend, D, delta, local, order, ab_ws, rhs, ipiv, counters):
     """Gauss-Seidel sweeps over the element ranges starts[r]..starts[r+1] (the last up to
     end), one range after the other, each swept until its largest scaled increment is below
     ``limit`` (``iterate``) or once. A sweep goes sub-slab by sub-slab (elements on one
@@ -335,10 +308,11 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, t,
                             together = True
                             break
                 if together:
-                    d = max(d, _group_newton(e, e1, fi, ji, p, t, x, indptr, indices, position, comp,
-                                             prev, cptr, celems, ea, eb, values, nodes, bary, qweights,
-                                             Minv, A, sptr, spts, dptr, dcur, atol, rtol, uw, out, jrow,
-                                             cur, mom, local, order, ab_ws, rhs, ipiv, counters))
+                    d = max(d, _group_newton(e, e1, fi, ji, p, x, indptr, indices, position, comp,
+                                             prev, cptr, celems, ea, eb, values, nodes, bary,
+                                             qweights, Minv, A, sptr, spts, dptr, dcur, atol,
+                                             rtol, uw, out, jrow, cur, mom, fend, local, order,
+                                             ab_ws, rhs, ipiv, counters))
                     e = e1
                     continue
                 for ep in range(e, e1):
@@ -346,9 +320,10 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, t,
                     xl = x[i] if prev[ep] < 0 else values[prev[ep], nn - 1]  # the left value
                     if first_stage == 1:
                         values[ep, 0] = xl
-                    counters[F_EVALUATIONS] += _moments(fi, p, i, ep, t, x, indptr, indices, cptr,
-                                                        celems, ea, eb, values, nodes, bary, qweights,
-                                                        sptr, spts, dptr, dcur, cur, uw, out, mom)
+                    counters[F_EVALUATIONS] += _moments(fi, ji, p, i, ep, indptr, indices, cptr,
+                                                        celems, ea, eb, values, nodes, bary,
+                                                        qweights, sptr, spts, dptr, dcur, cur, uw,
+                                                        out, mom, False, jrow, fend)
                     for s in range(S):
                         acc = 0.0
                         for lm in range(S):
@@ -461,6 +436,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     eb = np.empty(4 * N)
     windows = np.empty(16, dtype=np.int64)
     values = np.empty((4 * N, nn))
+    fend = np.empty(4 * N)  # f_i at each element's end
     mom = np.empty(S)
     delta = np.empty(S)
     D = np.empty((S, S))
@@ -524,6 +500,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             return UNDERFLOW
         if values.shape[0] < ne:
             values = np.empty((max(ne, 2 * values.shape[0]), nn))
+            fend = np.empty(values.shape[0])
         cptr, celems, prev = component_elements(comp, ne, N)
         sptr, spts, dptr, dcur = dependency_structure(ne, comp, indptr, indices, cptr, celems,
                                                       ea, eb)
@@ -559,11 +536,11 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             # by window as in single-rate time stepping), then the top-level elements: one
             # sweep would leave the slow components' own coupling to the next global
             # iteration, which costs a sweep over every window
-            d, resolved = _converge(windows, nwin, ne, it == 0, True, 0.1 * dtol, fi, ji, p, t,
-                                    x, indptr, indices, position, comp, prev, cptr, celems, ea,
-                                    eb, values, nodes, bary, qweights, Minv, A, sptr, spts, dptr,
+            d, resolved = _converge(windows, nwin, ne, it == 0, True, 0.1 * dtol, fi, ji, p, x,
+                                    indptr, indices, position, comp, prev, cptr, celems, ea, eb,
+                                    values, nodes, bary, qweights, Minv, A, sptr, spts, dptr,
                                     dcur, jdiag, coupling, stiff, atol, rtol, uw, out, jrow, cur,
-                                    mom, D, delta, local, group_order, ab_ws, newton_rhs,
+                                    mom, fend, D, delta, local, group_order, ab_ws, newton_rhs,
                                     newton_ipiv, counters)
             if not resolved:
                 d = math.inf
@@ -571,10 +548,10 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                 for m in range(nn):
                     saved[e, m] = values[e, m]
             top, settled = _converge(top_start, 1, nroot, False, nwin > 0, 0.1 * dtol, fi, ji,
-                                     p, t, x, indptr, indices, position, comp, prev, cptr,
-                                     celems, ea, eb, values, nodes, bary, qweights, Minv, A,
-                                     sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol,
-                                     uw, out, jrow, cur, mom, D, delta, local, group_order, ab_ws,
+                                     p, x, indptr, indices, position, comp, prev, cptr, celems,
+                                     ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts,
+                                     dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw, out,
+                                     jrow, cur, mom, fend, D, delta, local, group_order, ab_ws,
                                      newton_rhs, newton_ipiv, counters)
             d = max(d, top)
             if nwin > 0 and not settled:
@@ -622,15 +599,12 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         for e in range(ne):
             i = comp[e]
             k = eb[e] - ea[e]
-            fend = _end_rhs(fi, p, i, e, t, x, indptr, indices, cptr, celems, ea, eb, values,
-                            nodes, bary, sptr, spts, dptr, dcur, cur, uw, out)
-            counters[F_EVALUATIONS] += 1
             kdu = 0.0
             ul = 0.0
             for j in range(nn):
                 kdu += end_derivative[j] * values[e, j]
                 ul += left_value[j] * values[e, j]
-            res = abs(kdu / k - fend)
+            res = abs(kdu / k - fend[e])  # f_i(U(t_e)) from the last sweep
             if is_dg:
                 xl = x[i] if prev[e] < 0 else values[prev[e], nn - 1]
                 res += abs(ul - xl) / k
