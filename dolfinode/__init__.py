@@ -5,6 +5,7 @@ Public surface (see shared/API.md): ``ODE``, ``t``, ``solve``, ``Solution``, ``S
 ``TemplateODE``, ``ParticleSystem`` (``dolfinode.systems``); ensembles ``solve_ensemble``,
 ``vary``.
 """
+from dolfinode import systems
 from dolfinode.dual import ErrorEstimate, Goal, estimate_error
 from dolfinode.ensemble import solve_ensemble, vary
 from dolfinode.errors import SolverError
@@ -13,7 +14,6 @@ from dolfinode.ode import ODE, t
 from dolfinode.parameters import DEFAULTS as default_parameters
 from dolfinode.solution import Solution
 from dolfinode.solve import solve
-from dolfinode import systems  # noqa: E402 - after solve, as the package's own modules
 from dolfinode.systems import ParticleSystem, Template, TemplateODE
 
 __version__ = "0.1.0"

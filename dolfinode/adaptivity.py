@@ -28,6 +28,7 @@ Soederlind's digital filters, as DOLFIN's H211PI intended), with P = q + 1:
 """
 import math
 
+import numpy as np
 from numba import njit
 
 from dolfinode.linalg.banded import band_lu, band_solve
@@ -52,6 +53,14 @@ def next_step(k, eps, eps_prev, order, safety, accepted):
     if not math.isfinite(factor):
         factor = MIN_FACTOR
     return k * min(MAX_FACTOR, max(MIN_FACTOR, factor))
+
+
+def filter_constant(method):
+    """gamma = |det A|^(1/s) of the method's stage matrix A: the local error estimate is
+    (I - gamma k J)^{-1} k R(t_n), which is k R on non-stiff components and tends to the
+    distance from the quasi-steady state on stiff ones (as Radau5's estimate)."""
+    A = np.array(method.A)
+    return abs(np.linalg.det(A)) ** (1.0 / A.shape[0])
 
 
 @njit(cache=True)

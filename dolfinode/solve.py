@@ -5,6 +5,7 @@ import time
 import numpy as np
 
 from dolfinode import timeslab as ts
+from dolfinode.adaptivity import filter_constant
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
 from dolfinode.methods import parse_method
@@ -208,8 +209,7 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
 def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     _, position, kl, ku = compiled.ordering
     A = np.array(m.A)
-    gamma = abs(np.linalg.det(A)) ** (1.0 / A.shape[0])  # filter of the error estimate
-    fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, gamma])
+    fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, filter_constant(m)])
     state = np.array([ode.t0, steps[0], 1.0, 1.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     tau = m.nodes[m.stages].copy()

@@ -1,8 +1,16 @@
 """Automatic modeling: reduced models of systems with unresolvable fast time scales."""
 from dolfinode.modeling.averaging import WindowAverages, average_window, hann_weights
 from dolfinode.modeling.driver import MODELING_PARAMETERS, solve_with_modeling
-from dolfinode.modeling.reduced import ControlPoint, ModelingError, ReducedModel, \
-    fast_time_scale
+from dolfinode.modeling.reduced import ControlPoint, ModelingError, ReducedModel, fast_time_scale
 
-__all__ = ["ControlPoint", "MODELING_PARAMETERS", "ModelingError", "ReducedModel", "WindowAverages",
-           "average_window", "fast_time_scale", "hann_weights", "solve_with_modeling"]
+__all__ = [
+           "MODELING_PARAMETERS",
+           "ControlPoint",
+           "ModelingError",
+           "ReducedModel",
+           "WindowAverages",
+           "average_window",
+           "fast_time_scale",
+           "hann_weights",
+           "solve_with_modeling",
+]

@@ -20,8 +20,13 @@ import sympy as sp
 
 from dolfinode.compile import lower
 from dolfinode.modeling.averaging import average_window
-from dolfinode.modeling.reduced import AVERAGE_PERIODS, ControlPoint, ReducedModel, \
-    component_frequencies, fast_time_scale
+from dolfinode.modeling.reduced import (
+    AVERAGE_PERIODS,
+    ControlPoint,
+    ReducedModel,
+    component_frequencies,
+    fast_time_scale,
+)
 from dolfinode.ode import ODE, t
 from dolfinode.solution import Solution
 
