@@ -63,6 +63,8 @@ _KMIN_RELATIVE = 1e-14
 ACCEPTANCE_MARGIN = 2.0
 #: Most Gauss-Seidel sweeps of one window per global iteration.
 MAX_SWEEPS = 30
+#: Accepted slabs after a rejection during which the slab length limit does not grow.
+REJECTION_HOLD = 4
 #: Sub-slabs coupled more strongly than this on their step are solved by Newton together.
 COUPLING_LIMIT = 0.5
 
@@ -462,6 +464,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     coupling = np.zeros(N)  # sum_j!=i |J_ij|
     jacobian_time = math.nan
     kslab = kmax  # slab length limit, adapted to the Gauss-Seidel iterations a slab needs
+    hold = 0  # accepted slabs to go before the limit may grow again after a rejection
     emax = np.empty(N)
     kact = np.empty(N)
     saved = np.empty((N, nn))  # the top level's values before its sweeps
@@ -577,7 +580,10 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         if converged and mode == DEFAULT and it >= 7:
             counters[STIFF] = 1  # Gauss-Seidel converges too slowly: Newton from here on
         if not fixed:
-            kslab = _slab_limit(kslab, kmax, b - t, converged, it + 1, nwin, nroot, ne)
+            limit = _slab_limit(kslab, kmax, b - t, converged, it + 1, nwin, nroot, ne)
+            # no growth for REJECTION_HOLD slabs after a rejection: growing straight back
+            # into the length that was rejected costs another whole slab
+            kslab = limit if hold == 0 else min(limit, max(kslab, b - t))
         if not converged:
             counters[FAILED_SOLVES] += 1
             if mode == DEFAULT and counters[STIFF] == 0:
@@ -651,6 +657,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             # a rejection discards the whole slab: the steps chosen at its start no longer
             # fit its end (a front arrives), so try a shorter one
             kslab = min(kslab, 0.5 * (b - t))
+            hold = REJECTION_HOLD
             continue
         # store the slab's elements and move to its end
         n0 = counters[STORED]
@@ -667,6 +674,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             kmin = min(kmin, eb[e] - ea[e])
         state[MONO_ELEMENTS] += (b - t) / kmin * N
         counters[SLABS] += 1
+        hold = max(0, hold - 1)
         counters[SUBSLABS] += nsub
         for i in range(N):
             last = celems[cptr[i + 1] - 1]
