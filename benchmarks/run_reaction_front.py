@@ -1,0 +1,95 @@
+"""Reaction front, N = 1000 ... 16000: mcG(1) against cG(1) (issue 3's headline measurement).
+
+u' = eps u_xx + gamma u^2 (1 - u), eps = 0.01, gamma = 1000, finite differences on N points
+with mirror ghost points (homogeneous Neumann), h = L / (N - 1), L = 5 N / 1000 (the front
+region keeps its size while the domain grows), u0 = 1 / (1 + exp(lam (x - 1))),
+lam = 0.5 sqrt(2 gamma / eps) (DOLFIN's reaction demo). Declared as a template system
+(`dn.Template`: a diffusion edge per neighbour pair, a reaction term per point), so the
+generated code does not grow with N.
+
+Each method runs at tolerance 1e-6 after one warm-up call; the time is the CPU time of the
+solve call (``time.process_time``: the machine may be shared). Error: max_i |u_i(T) - ref_i|,
+reference dG(3) at tolerance 1e-10.
+
+Usage::
+
+    .venv/bin/python benchmarks/run_reaction_front.py [--sizes 1000,4000,16000] [--T 0.1]
+        [--output doc/benchmarks]
+"""
+import argparse
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import sympy as sp
+from scipy.special import expit
+
+import dolfinode as dn
+
+EPS, GAMMA = 0.01, 1000.0
+
+
+def front(n, T):
+    """The reaction front on n points as a template system."""
+    L = 5.0 * n / 1000.0
+    h = L / (n - 1)
+    lam = 0.5 * math.sqrt(2.0 * GAMMA / EPS)
+    a, b, wa, wb, c, g, u = sp.symbols("a b w_a w_b c gamma u")
+    edges = np.column_stack([np.arange(n - 1), np.arange(1, n)])
+    weights = np.ones((n - 1, 2))
+    weights[0, 0] = weights[-1, 1] = 2.0   # ghost points u_{-1} = u_1, u_n = u_{n-2}
+    diffusion = dn.Template(slots=(a, b), terms={a: wa * c * (b - a), b: wb * c * (a - b)},
+                            indices=edges, params=(wa, wb), values=weights)
+    reaction = dn.Template(slots=(u,), terms={u: g * u**2 * (1 - u)},
+                           indices=np.arange(n)[:, None])
+    u0 = expit(-lam * (np.linspace(0.0, L, n) - 1.0))
+    return dn.TemplateODE([diffusion, reaction], u0=u0, T=T,
+                          params={c: EPS / (h * h), g: GAMMA})
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", default="1000,4000,16000")
+    parser.add_argument("--T", type=float, default=0.1)
+    parser.add_argument("--output", default=str(Path(__file__).resolve().parents[1] / "doc"
+                                                / "benchmarks"))
+    args = parser.parse_args(argv)
+    rows = []
+    for n in (int(v) for v in args.sizes.split(",")):
+        ode = front(n, args.T)
+        ref = dn.solve(ode, method="dG(3)", tolerance=1e-10)(args.T)
+        for method in ("cG(1)", "mcG(1)"):
+            dn.solve(ode, method=method, tolerance=1e-2)  # warm-up: kernels and loops
+            start = time.process_time()
+            sol = dn.solve(ode, method=method, tolerance=1e-6)
+            cpu = time.process_time() - start
+            st = sol.stats
+            rows.append((n, method, cpu, st["elements"], st["time slabs"], st["rejected steps"],
+                         float(np.max(np.abs(sol(args.T) - ref)))))
+            print(*rows[-1], flush=True)
+    lines = [f"# Reaction front: mcG(1) against cG(1), T = {args.T:g}, tolerance 1e-6", "",
+             (f"`python benchmarks/run_reaction_front.py --sizes {args.sizes} --T {args.T:g}`, "
+             f"{time.strftime('%Y-%m-%d')}; CPU time of the solve call."), "",
+             "| N | method | CPU [s] | elements | time slabs | rejected | max error |",
+             "|---|---|---|---|---|---|---|"]
+    lines += [f"| {n} | {m} | {c:.3g} | {e:,} | {s:,} | {r} | {err:.1e} |"
+              for n, m, c, e, s, r, err in rows]
+    cpu = {(n, m): c for n, m, c, *_ in rows}
+    sizes = sorted({n for n, *_ in rows})
+    lines += ["", "mcG(1) / cG(1) time: " + ", ".join(
+        f"N = {n}: {cpu[n, 'cG(1)'] / cpu[n, 'mcG(1)']:.2g}x faster" for n in sizes)]
+    if len(sizes) > 1:
+        lines += [(f"Growth of mcG(1), time(N = {sizes[-1]}) / time(N = {sizes[0]}): "
+                  f"{cpu[sizes[-1], 'mcG(1)'] / cpu[sizes[0], 'mcG(1)']:.2g} "
+                  f"(cG(1): {cpu[sizes[-1], 'cG(1)'] / cpu[sizes[0], 'cG(1)']:.2g}).")]
+    out = Path(args.output) / "reaction_front.md"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".md.tmp")
+    tmp.write_text("\n".join(lines) + "\n")
+    tmp.replace(out)
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
