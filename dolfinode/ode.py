@@ -131,11 +131,15 @@ class ODE:
         self.params = self._params(params)
         self.rhs = tuple(_as_expression(expr, state) for state, expr in pairs)
         self._check_symbols()
+        self._set_interval(t0, T)
+        self.u0 = self._initial_vector(u0)
+
+    def _set_interval(self, t0, T):
+        """Validated finite t0 < T."""
         self.t0 = _check_time(t0, "t0")
         self.T = _check_time(T, "T")
         if not self.T > self.t0:
             raise ValueError(f"the final time T = {self.T} must be larger than t0 = {self.t0}")
-        self.u0 = self._initial_vector(u0)
 
     def _initial_vector(self, u0):
         """u0 as a validated float vector in component order (dict by state or sequence)."""

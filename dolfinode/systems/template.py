@@ -17,7 +17,7 @@ from functools import cached_property
 import numpy as np
 import sympy as sp
 
-from dolfinode.ode import ODE, _as_expression, _check_time, _suggest, t
+from dolfinode.ode import ODE, _as_expression, _suggest, t
 
 
 def _symbols(values, what):
@@ -207,10 +207,7 @@ class TemplateODE(ODE):
             raise ValueError("an ODE needs at least one state")
         self.params = self._params(params)
         self._check_templates()
-        self.t0 = _check_time(t0, "t0")
-        self.T = _check_time(T, "T")
-        if not self.T > self.t0:
-            raise ValueError(f"the final time T = {self.T} must be larger than t0 = {self.t0}")
+        self._set_interval(t0, T)
         self.u0 = self._initial_vector(u0)
 
     def _initial_vector(self, u0):
