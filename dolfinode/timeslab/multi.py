@@ -49,7 +49,12 @@ from dolfinode.timeslab import (
     SUBSLABS,
     UNDERFLOW,
 )
-from dolfinode.timeslab.partition import build_slab, component_elements, dependency_structure
+from dolfinode.timeslab.partition import (
+    build_slab,
+    component_elements,
+    dependency_structure,
+    grow_float,
+)
 
 # Indices into the float state: current time, and the elements a mono-adaptive method with
 # each slab's smallest step would have needed (for the multi-adaptive efficiency index).
@@ -67,6 +72,9 @@ MAX_SWEEPS = 30
 REJECTION_HOLD = 4
 #: Sub-slabs coupled more strongly than this on their step are solved by Newton together.
 COUPLING_LIMIT = 0.5
+#: Largest step ratio between strongly coupled components (see ``_grade``), and sweeps.
+GRADING = 2.0
+GRADING_SWEEPS = 4
 
 
 @njit(cache=True, inline="always")
@@ -176,22 +184,23 @@ def _damping(k, jii, A, D):
 
 
 @njit(cache=True, _nrt=False)
-def _group_newton(e0, e1, fi, ji, p, x, indptr, indices, position, comp, prev, cptr, celems,
+def _group_newton(elist, n, fi, ji, p, x, indptr, indices, position, comp, prev, cptr, celems,
                   ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, dptr, dcur, atol,
-                  rtol, uw, out, jrow, cur, mom, fend, local, order, ab_ws, rhs, ipiv, counters):
-    """One simplified Newton step for the elements e0..e1-1 of one sub-slab (same interval):
+                  rtol, uw, out, jrow, cur, mom, fend, local, order, ab_ws, rhs, ipiv, changed,
+                  computed, clock, small, counters):
+    """One simplified Newton step for the elements elist[:n] of one sub-slab (same interval):
     (I - k A (x) J_gg) dX = r, with r the exact Galerkin residuals and J_gg the sparse Jacobian
     restricted to the group's components (each row at its element's first quadrature point),
-    in band storage (components in the global bandwidth ordering). Returns the largest scaled
-    increment (inf on failure)."""
+    in band storage (components in the global bandwidth ordering); the other components of
+    the sub-slab keep their values. Records the update in ``computed`` and ``changed`` (see
+    ``_converge``). Returns the largest scaled increment (inf on failure)."""
     S = Minv.shape[0]
     nn = nodes.shape[0]
     first_stage = nn - S
-    n = e1 - e0
-    k = eb[e0] - ea[e0]
+    k = eb[elist[0]] - ea[elist[0]]
     # the group's components in bandwidth order: local[i] = their row block
     for r_ in range(n):
-        order[r_] = comp[e0 + r_]
+        order[r_] = comp[elist[r_]]
     for a_ in range(1, n):  # insertion sort by global position (groups are small or sorted)
         c = order[a_]
         b_ = a_ - 1
@@ -203,8 +212,8 @@ def _group_newton(e0, e1, fi, ji, p, x, indptr, indices, position, comp, prev, c
         local[order[r_]] = r_
     kl = 0
     ku = 0
-    for e in range(e0, e1):
-        i = comp[e]
+    for r_ in range(n):
+        i = order[r_]
         for nz in range(indptr[i], indptr[i + 1]):
             j = indices[nz]
             if local[j] >= 0:
@@ -215,7 +224,8 @@ def _group_newton(e0, e1, fi, ji, p, x, indptr, indices, position, comp, prev, c
     kv = klS + kuS
     ab = ab_ws[:n * S, :2 * klS + kuS + 1]  # the workspace fits: local bands <= global ones
     ab[:, :] = 0.0
-    for e in range(e0, e1):
+    for r_ in range(n):
+        e = elist[r_]
         i = comp[e]
         xl = x[i] if prev[e] < 0 else values[prev[e], nn - 1]
         if first_stage == 1:
@@ -247,24 +257,45 @@ def _group_newton(e0, e1, fi, ji, p, x, indptr, indices, position, comp, prev, c
     if band_lu(ab, klS, kuS, ipiv) == 0:
         band_solve(ab, klS, kuS, ipiv, rhs)
         d = 0.0
-        for e in range(e0, e1):
+        stamp = clock[0]
+        clock[0] += 1  # changes after the step: a significant one makes its readers stale
+        for r_ in range(n):
+            e = elist[r_]
             i = comp[e]
+            di = 0.0
             for s_ in range(S):
                 delta = rhs[local[i] * S + s_]
                 values[e, first_stage + s_] += delta
                 scaled = abs(delta) / (atol[i] + rtol * abs(values[e, first_stage + s_]))
-                if not scaled <= d:
-                    d = scaled if math.isfinite(scaled) else math.inf
+                if not scaled <= di:
+                    di = scaled if math.isfinite(scaled) else math.inf
+            computed[e] = stamp
+            if di > small:
+                changed[i] = clock[0]
+            d = max(d, di)
     for r_ in range(n):
         local[order[r_]] = -1
     return d
+
+
+@njit(cache=True, inline="always")
+def _stale(e, i, indptr, indices, changed, computed):
+    """Whether element e of component i must be recomputed: never computed, or i (its left
+    value) or a component it reads changed since."""
+    if computed[e] < 0 or changed[i] > computed[e]:
+        return True
+    for nz in range(indptr[i], indptr[i + 1]):
+        if changed[indices[nz]] > computed[e]:
+            return True
+    return False
 
 
 @njit(cache=True, _nrt=False)
 def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, x, indptr,
               indices, position, comp, prev, cptr, celems, ea, eb, values, nodes, bary, qweights,
               Minv, A, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw, out, jrow,
-              cur, mom, fend, D, delta, local, order, ab_ws, rhs, ipiv, counters):
+              cur, mom, fend, D, delta, local, order, elist, ab_ws, rhs, ipiv, changed, computed,
+              clock, counters):
     """Gauss-Seidel sweeps over the element ranges starts[r]..starts[r+1] (the last up to
     end), one range after the other, each swept until its largest scaled increment is below
     ``limit`` (``iterate``) or once. A sweep goes sub-slab by sub-slab (elements on one
@@ -275,11 +306,16 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, x,
     Gauss-Seidel would crawl, as for diffusion on long steps), or every sub-slab when the
     problem is stiff, is updated together by a simplified Newton step (``_group_newton``).
     With ``predict_first``, an element first continues its predecessor's polynomial.
-    Returns the largest increment of the ranges' first sweeps and whether every range got
-    below the limit."""
+
+    Sweeps are lazy: an element is recomputed only when its own last update or a component
+    it reads changed by more than limit / 10 (scaled) since its last update (clock stamps ``changed`` per
+    component, ``computed`` per element), so components far from any activity, most of a
+    large slab's top level, cost one evaluation per slab. Returns the largest increment of
+    the ranges' first sweeps and whether every range got below the limit."""
     S = Minv.shape[0]
     nn = nodes.shape[0]
     first_stage = nn - S  # 1 for cG (node 0 is the left value), 0 for dG
+    small = 0.1 * limit
     first = 0.0
     settled = True
     for r in range(nranges):
@@ -298,6 +334,7 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, x,
                         pe = prev[ep]
                         if pe < 0:
                             continue
+                        computed[ep] = -1
                         for m in range(nn):
                             tau = ((ea[ep] + nodes[m] * (eb[ep] - ea[ep]) - ea[pe])
                                    / (eb[pe] - ea[pe]))
@@ -310,15 +347,24 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, x,
                             together = True
                             break
                 if together:
-                    d = max(d, _group_newton(e, e1, fi, ji, p, x, indptr, indices, position, comp,
-                                             prev, cptr, celems, ea, eb, values, nodes, bary,
-                                             qweights, Minv, A, sptr, spts, dptr, dcur, atol,
-                                             rtol, uw, out, jrow, cur, mom, fend, local, order,
-                                             ab_ws, rhs, ipiv, counters))
+                    n = 0
+                    for ep in range(e, e1):
+                        if _stale(ep, comp[ep], indptr, indices, changed, computed):
+                            elist[n] = ep
+                            n += 1
+                    if n > 0:
+                        d = max(d, _group_newton(elist, n, fi, ji, p, x, indptr, indices,
+                                                 position, comp, prev, cptr, celems, ea, eb,
+                                                 values, nodes, bary, qweights, Minv, A, sptr,
+                                                 spts, dptr, dcur, atol, rtol, uw, out, jrow, cur,
+                                                 mom, fend, local, order, ab_ws, rhs, ipiv,
+                                                 changed, computed, clock, small, counters))
                     e = e1
                     continue
                 for ep in range(e, e1):
                     i = comp[ep]
+                    if not _stale(ep, i, indptr, indices, changed, computed):
+                        continue
                     xl = x[i] if prev[ep] < 0 else values[prev[ep], nn - 1]  # the left value
                     if first_stage == 1:
                         values[ep, 0] = xl
@@ -340,11 +386,19 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, x,
                             mom[s] = acc
                         for s in range(S):
                             delta[s] = mom[s]
+                    di = 0.0
                     for s in range(S):
                         values[ep, first_stage + s] += delta[s]
                         scaled = abs(delta[s]) / (atol[i] + rtol * abs(values[ep, first_stage + s]))
-                        if not scaled <= d:
-                            d = scaled if math.isfinite(scaled) else math.inf
+                        if not scaled <= di:
+                            di = scaled if math.isfinite(scaled) else math.inf
+                    # a significant change makes e itself (f_i may read u_i) and its readers
+                    # stale
+                    computed[ep] = clock[0]
+                    if di > small:
+                        clock[0] += 1
+                        changed[i] = clock[0]
+                    d = max(d, di)
                 e = e1
             if sweep == 0:
                 first = max(first, d)
@@ -386,20 +440,66 @@ def _windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol
 
 
 @njit(cache=True)
+def _guess_from(ne, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues, nodes,
+                bary):
+    """Initial values of a slab rebuilt after a rejection: every element of component i
+    reads the rejected attempt's polynomials of i at its nodes (the same values where the
+    element is unchanged, interpolation where it was refined)."""
+    nn = nodes.shape[0]
+    for i in range(cptr.shape[0] - 1):
+        c = ocptr[i]
+        last = ocptr[i + 1] - 1
+        for r in range(cptr[i], cptr[i + 1]):
+            e = celems[r]
+            for m in range(nn):
+                tq = ea[e] + nodes[m] * (eb[e] - ea[e])
+                while c < last and oeb[ocelems[c]] < tq:
+                    c += 1
+                eo = ocelems[c]
+                tau = min(max((tq - oea[eo]) / (oeb[eo] - oea[eo]), 0.0), 1.0)
+                values[e, m] = _evaluate(ovalues, eo, tau, nodes, bary)
+
+
+@njit(cache=True)
+def _grade(kdes, indptr, indices, jacobian):
+    """Grade the steps along strong couplings, k_i <= max(GRADING k_j, 1 / |df_i/du_j|):
+    a component that reacts to u_j within its own step may not step far beyond j, so that
+    activity moving along the couplings (a front) meets steps that shrink towards it instead
+    of one long step that the next slab rejects. Alternating sweeps, to a fixed point or
+    GRADING_SWEEPS of them."""
+    N = kdes.shape[0]
+    for sweep in range(GRADING_SWEEPS):
+        moved = False
+        for r in range(N):
+            i = r if sweep % 2 == 0 else N - 1 - r
+            for nz in range(indptr[i], indptr[i + 1]):
+                j = indices[nz]
+                if j == i or jacobian[nz] == 0.0:
+                    continue
+                cap = max(GRADING * kdes[j], 1.0 / abs(jacobian[nz]))
+                if kdes[i] > cap:
+                    kdes[i] = cap
+                    moved = True
+        if not moved:
+            return
+
+
+@njit(cache=True)
 def _slab_limit(kslab, kmax, K, converged, iterations, nwin, nroot, ne):
-    """The next slab length limit. A slab with windows is a waveform-relaxation window: each
-    global iteration sweeps its W = ne - nroot window elements and R = nroot top-level
-    elements, and a longer slab needs more iterations. Modelling one more iteration per
-    doubling of K, the cost per unit time its (W + R) / K falls when K doubles if
-    R (its - 1) > 2 W, and when K halves if R (its - 2) < W: few components on the top level
-    (fine structure everywhere) favour short slabs, many slow components long ones."""
+    """The next slab length limit. A slab with windows costs its R = nroot top-level elements
+    about once (lazy sweeps) and its W = ne - nroot window elements once per global
+    iteration. Fast convergence (at most two global iterations) or a top level much larger
+    than the windows (R > 2 W: one more iteration per doubling of K still lowers the cost
+    per unit time (R + W its) / K) let the limit grow; slow convergence with the windows
+    dominating (R < W, its >= 4) halves it. Growth starts from the limit itself, not from K,
+    which the top level's smallest desired step may keep below it."""
     if not converged:
         return 0.5 * K
     W = ne - nroot
     R = nroot
-    if nwin == 0 or iterations <= 1 or R * (iterations - 1) > 2 * W:
-        return min(kmax, 2.0 * K)
-    if iterations >= 3 and R * (iterations - 2) < W:
+    if nwin == 0 or iterations <= 2 or R > 2 * W:
+        return min(kmax, 2.0 * max(kslab, K))
+    if iterations >= 4 and R < W:
         return 0.5 * K
     return max(kslab, K)
 
@@ -448,6 +548,10 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     cur = np.empty(degree, dtype=np.int64)
     local = np.full(N, -1, dtype=np.int64)
     group_order = np.empty(N, dtype=np.int64)
+    elist = np.empty(N, dtype=np.int64)
+    changed = np.zeros(N, dtype=np.int64)  # clock stamps of the lazy sweeps (see _converge)
+    computed = np.empty(4 * N, dtype=np.int64)
+    clock = np.zeros(1, dtype=np.int64)
     last_a = np.zeros(N)  # each component's last element of the previous slab
     last_b = np.zeros(N)
     last_values = np.empty((N, nn))
@@ -471,6 +575,13 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     top_start = np.zeros(1, dtype=np.int64)
     top_change = np.zeros(N)
     mark = np.zeros(N, dtype=np.int64)
+    # the last rejected attempt, the initial guess of its retry
+    retry = False
+    oea = np.empty(0)
+    oeb = np.empty(0)
+    ovalues = np.empty((0, nn))
+    ocptr = np.zeros(N + 1, dtype=np.int64)
+    ocelems = np.empty(0, dtype=np.int64)
     counters[STORED] = 0
     capacity = out_a.shape[0]
     t = state[T_NOW]
@@ -492,9 +603,11 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                         coupling[i] += abs(jrow[nz - indptr[i]])
             counters[JACOBIANS] += N
             jacobian_time = t
+        kcap = 0.0  # the largest desired step
         for i in range(N):
             if not fixed:
                 kdes[i] = min(kdes[i], kmax)
+            kcap = max(kcap, kdes[i])
         b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, theta, beta, kslab, comp,
                                                               ea, eb, windows)
         if ne > capacity - counters[STORED]:
@@ -504,6 +617,10 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         if values.shape[0] < ne:
             values = np.empty((max(ne, 2 * values.shape[0]), nn))
             fend = np.empty(values.shape[0])
+            computed = np.empty(values.shape[0], dtype=np.int64)
+        computed[:ne] = -1
+        changed[:] = 0
+        clock[0] = 0
         cptr, celems, prev = component_elements(comp, ne, N)
         sptr, spts, dptr, dcur = dependency_structure(ne, comp, indptr, indices, cptr, celems,
                                                       ea, eb)
@@ -519,7 +636,11 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         # initial guess: each component's first element continues its last polynomial of the
         # previous slab (at most two element lengths ahead); later elements continue their
         # predecessor when the sweep reaches them
-        for e in range(ne):
+        # (after a rejection: the rejected attempt)
+        if retry:
+            _guess_from(ne, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues,
+                        nodes, bary)
+        for e in range(ne if not retry else 0):
             i = comp[e]
             for m in range(nn):
                 values[e, m] = x[i]
@@ -539,12 +660,13 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             # by window as in single-rate time stepping), then the top-level elements: one
             # sweep would leave the slow components' own coupling to the next global
             # iteration, which costs a sweep over every window
-            d, resolved = _converge(windows, nwin, ne, it == 0, True, 0.1 * dtol, fi, ji, p, x,
+            predict = it == 0 and not retry
+            d, resolved = _converge(windows, nwin, ne, predict, True, 0.1 * dtol, fi, ji, p, x,
                                     indptr, indices, position, comp, prev, cptr, celems, ea, eb,
                                     values, nodes, bary, qweights, Minv, A, sptr, spts, dptr,
                                     dcur, jdiag, coupling, stiff, atol, rtol, uw, out, jrow, cur,
-                                    mom, fend, D, delta, local, group_order, ab_ws, newton_rhs,
-                                    newton_ipiv, counters)
+                                    mom, fend, D, delta, local, group_order, elist, ab_ws,
+                                    newton_rhs, newton_ipiv, changed, computed, clock, counters)
             if not resolved:
                 d = math.inf
             for e in range(nroot):
@@ -554,8 +676,9 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                                      p, x, indptr, indices, position, comp, prev, cptr, celems,
                                      ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts,
                                      dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw, out,
-                                     jrow, cur, mom, fend, D, delta, local, group_order, ab_ws,
-                                     newton_rhs, newton_ipiv, counters)
+                                     jrow, cur, mom, fend, D, delta, local, group_order, elist,
+                                     ab_ws, newton_rhs, newton_ipiv, changed, computed, clock,
+                                     counters)
             d = max(d, top)
             if nwin > 0 and not settled:
                 d = math.inf
@@ -580,7 +703,8 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         if converged and mode == DEFAULT and it >= 7:
             counters[STIFF] = 1  # Gauss-Seidel converges too slowly: Newton from here on
         if not fixed:
-            limit = _slab_limit(kslab, kmax, b - t, converged, it + 1, nwin, nroot, ne)
+            limit = _slab_limit(min(kslab, kcap), kmax, b - t, converged, it + 1, nwin, nroot,
+                                 ne)
             # no growth for REJECTION_HOLD slabs after a rejection: growing straight back
             # into the length that was rejected costs another whole slab
             kslab = limit if hold == 0 else min(limit, max(kslab, b - t))
@@ -621,6 +745,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             emax[i] = max(emax[i], ind)
             kact[i] = max(kact[i], k)
         if blowup:
+            retry = False
             if fixed:
                 return BLOWUP
             for i in range(N):
@@ -652,13 +777,29 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                     j = indices[nz]
                     if j != i and abs(jacobian[nz]) * kdes[i] > 1.0:
                         kdes[j] = min(kdes[j], kdes[i])
+            _grade(kdes, indptr, indices, jacobian)
         if not accept:
             counters[REJECTED] += 1
-            # a rejection discards the whole slab: the steps chosen at its start no longer
-            # fit its end (a front arrives), so try a shorter one
-            kslab = min(kslab, 0.5 * (b - t))
+            # the steps chosen at the slab's start no longer fit its end (a front arrives):
+            # retry the same slab with the failed components refined, from the rejected
+            # values; a second rejection in a row shortens the slab
             hold = REJECTION_HOLD
+            if retry:
+                kslab = min(kslab, 0.5 * (b - t))
+                retry = False
+                continue
+            kslab = min(kslab, b - t)
+            oea = grow_float(oea, ne)
+            oeb = grow_float(oeb, ne)
+            if ovalues.shape[0] < ne:
+                ovalues = np.empty((max(ne, 2 * ovalues.shape[0]), nn))
+            oea[:ne] = ea[:ne]
+            oeb[:ne] = eb[:ne]
+            ovalues[:ne] = values[:ne]
+            ocptr, ocelems = cptr, celems
+            retry = True
             continue
+        retry = False
         # store the slab's elements and move to its end
         n0 = counters[STORED]
         for e in range(ne):

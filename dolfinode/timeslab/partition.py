@@ -1,13 +1,13 @@
 """Construction of multi-adaptive time slabs in flat arrays.
 
 A time slab [a, b] is built recursively from the components' desired steps k_i (DOLFIN's
-``createTimeSlab`` and ``Partition``): the remaining components whose k_i >= theta max k_i
+``createTimeSlab`` and ``Partition``): the remaining components whose
+k_i >= theta min(max k_i, L) (L: the interval's length, at the top the slab length limit)
 form a group that takes one element of the group's smallest step K (stretched to the end of
 the enclosing interval when K >= beta times its length, so slabs end synchronised); the other
 components fill [a, a + K] with sub-slabs built the same way. Elements live in flat arrays
 (component, interval), in creation order, with per-component index arrays.
 """
-import math
 
 import numpy as np
 from numba import njit
@@ -32,13 +32,16 @@ def grow_int(array, size):
 
 
 @njit(cache=True)
-def _partition(perm, offset, kdes, theta):
-    """Move the components of perm[offset:] with k >= theta max k to the front; return the
-    group's end and its smallest step (DOLFIN's ``Partition::update``)."""
+def _partition(perm, offset, kdes, theta, length):
+    """Move the components of perm[offset:] with k >= theta min(max k, length) to the front;
+    return the group's end and its step: the group's smallest k, at most ``length`` (DOLFIN's
+    ``Partition::update``, with the interval's length as a cap: every component that could
+    step over most of the interval joins the group instead of taking sub-slabs of its own)."""
     n = perm.shape[0]
     kmax = 0.0
     for r in range(offset, n):
         kmax = max(kmax, kdes[perm[r]])
+    kmax = min(kmax, length)
     pivot = theta * kmax
     end = offset
     for r in range(offset, n):
@@ -47,7 +50,7 @@ def _partition(perm, offset, kdes, theta):
             perm[end] = perm[r]
             perm[r] = tmp
             end += 1
-    K = math.inf
+    K = kmax
     for r in range(offset, end):
         K = min(K, kdes[perm[r]])
     return end, K
@@ -73,9 +76,8 @@ def build_slab(a, T, kdes, theta, beta, kslab, comp, ea, eb, windows):
     offset, lo, hi = 0, a, T
     while True:
         # create a sub-slab on [lo, hi] for the components perm[offset:]
-        end, K = _partition(perm, offset, kdes, theta)
-        if depth == 0:
-            K = min(K, kslab)
+        end, K = _partition(perm, offset, kdes, theta, min(hi - lo, kslab) if depth == 0
+                            else hi - lo)
         b1 = lo + K if K < beta * (hi - lo) else hi
         if depth == 1:
             windows = grow_int(windows, nwin + 1)
