@@ -16,10 +16,10 @@ The pipeline (Jansson, Johnson & Logg 2005, sections 3-7, made automatic and che
 import time
 
 import numpy as np
-import sympy as sp
 
 from dolfinode.compile import lower
 from dolfinode.modeling.averaging import average_window
+from dolfinode.modeling.declaration import WindowModel
 from dolfinode.modeling.reduced import (
     AVERAGE_PERIODS,
     ControlPoint,
@@ -27,13 +27,12 @@ from dolfinode.modeling.reduced import (
     component_frequencies,
     fast_time_scale,
 )
-from dolfinode.ode import ODE, t
 from dolfinode.solution import Solution
 
 #: Solver parameters that configure the modeling, not the inner solves.
 MODELING_PARAMETERS = ("automatic_modeling", "average_length", "average_samples",
                        "average_tolerance", "control_points", "model_tolerance",
-                       "rebuild_model")
+                       "rebuild_model", "subgrid_model")
 #: Counters summed over every inner solve.
 _SUMMED = ("time slabs", "elements", "rejected steps", "f evaluations", "jacobian evaluations",
            "nonlinear iterations", "failed nonlinear solves", "compile time")
@@ -68,7 +67,7 @@ def solve_with_modeling(ode, method, params, solve):
         raise ValueError(f"average_length = {tau:.3g} with {n_control} control points does not "
                          f"fit in [{ode.t0}, {ode.T}]: every control point needs 2 tau; use "
                          "fewer control_points or a shorter average_length")
-    model = ReducedModel(ode, tau)
+    model = ReducedModel(ode, tau, subgrid_model=params["subgrid_model"])
     runs = []
 
     def run(declaration, **extra):
@@ -76,28 +75,25 @@ def solve_with_modeling(ode, method, params, solve):
         runs.append(sol.stats)
         return sol
 
-    shift = sp.Symbol("t_window", real=True)
-    local_rhs = {s: expr.xreplace({t: t + shift}) for s, expr in zip(ode.states, ode.rhs)}
+    window_model = WindowModel(ode)
 
     def resolve(u, center):
-        """Solve the full model on [center - tau, center + tau] and average it.
+        """Solve the full model on [center - tau, center + tau] (in the window's local time,
+        see WindowModel) and average it.
 
-        The window is solved in the local time t - (center - tau): in absolute time, steps
-        of the fast scale would lose their last digits to the rounding of t + k (at t = 90,
-        steps of 3e-11 are represented to 5e-4 only). It is solved as two halves that meet
-        at the centre, so that the first half is the output before the reduced solution
-        takes over there. Returns the averages and the first half (in local time)."""
-        local_params = {**ode.params, shift: center - tau}
-        local = ODE(local_rhs, u0=u, t0=0.0, T=2 * tau, params=local_params)
+        It is solved as two halves that meet at the centre, so that the first half is the
+        output before the reduced solution takes over there. Returns the first half (in
+        local time), the window and its averages, recorded as data of the subgrid model."""
+        local = window_model.declaration(u, 0.0, 2 * tau, center - tau)
         step = {"maximum_time_step": min(window_step, tau)}
-        before = run(ODE(local_rhs, u0=u, t0=0.0, T=tau, params=local_params), **step)
-        after = run(ODE(local_rhs, u0=before(tau), t0=tau, T=2 * tau, params=local_params),
-                    initial_time_step=float(before.time_steps(0)[1][-1] if before.multi
-                                            else before.k[-1]), **step)
+        before = run(window_model.declaration(u, 0.0, tau, center - tau), **step)
+        after = run(window_model.declaration(before(tau), tau, 2 * tau, center - tau),
+                    initial_time_step=_last_step(before), **step)
         window = _concatenate(local, [before, after], 2)
         window.stats = {"elements": before.stats["elements"] + after.stats["elements"]}
         averages = average_window(window, lower(local), tau, tau, params["average_samples"])
         averages.center = center
+        model.record(averages)
         return before, window, averages
 
     first, window, averages = resolve(ode.u0, ode.t0 + tau)
@@ -106,7 +102,7 @@ def solve_with_modeling(ode, method, params, solve):
     # constant over the window (a mass at rest by symmetry) stays active
     fast = component_frequencies(compiled, ode.u0, ode.t0) * tau >= 2 * np.pi
     model.build(averages, fast & (averages.drift < params["average_tolerance"]),
-                averages.center)
+                averages.center, compiled)
     fluctuation = averages.fluctuation
     first.t_start = first.t_start + ode.t0  # from the window's local time
     if first.multi:
@@ -122,8 +118,7 @@ def solve_with_modeling(ode, method, params, solve):
         segment = run(model.declaration(u, t_now, t_next), **step)
         pieces.append(segment)
         u, t_now = segment(t_next), t_next
-        step = {"initial_time_step": float(segment.time_steps(0)[1][-1] if segment.multi
-                                           else segment.k[-1])}
+        step = {"initial_time_step": _last_step(segment)}
         if t_now >= ode.T or t_now == ode.t0 + 2 * tau:
             continue
         # control point at t_now: full model from t_now - tau, perturbed by the fast fluctuation
@@ -136,7 +131,7 @@ def solve_with_modeling(ode, method, params, solve):
         if rebuild:
             # g~ is refitted; the inactive set stays that of the first build, so that the
             # reduced problem (and its dual) is one ODE on (t_c, T]
-            model.build(averages, ~model.active, t_now)
+            model.build(averages, ~model.active, t_now, compiled)
             u = np.where(model.active, u, averages.u_bar)
             # chained only through rebuilds, so that the energy errors of the resolved
             # windows do not accumulate over the checks of one model
@@ -149,6 +144,11 @@ def solve_with_modeling(ode, method, params, solve):
     sol.stats = _total_stats(runs, model, time.perf_counter() - start)
     sol.model = model
     return sol
+
+
+def _last_step(sol):
+    """The last step of a solution (of component 0 for a multi-adaptive one)."""
+    return float(sol.time_steps(0)[1][-1] if sol.multi else sol.k[-1])
 
 
 def _concatenate(ode, pieces, number_of_samples):
