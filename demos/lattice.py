@@ -52,6 +52,11 @@ class Lattice:
         """(n, 2, M) positions from solution values (N, M)."""
         return np.stack([values[self.x], values[self.y]], axis=1)
 
+    def components(self, particles):
+        """Component indices of the positions and velocities of ``particles`` (sorted)."""
+        x, y = self.x[particles], self.y[particles]
+        return np.sort(np.concatenate([x, y, x + self.ode.N // 2, y + self.ode.N // 2]))
+
     def diameter(self, values):
         """D: distance between the lower-left and the upper-right large mass."""
         pos = self.positions(values)
