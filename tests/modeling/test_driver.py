@@ -43,9 +43,11 @@ def test_kappa_1e18_subgrid_model_and_solution():
 
 @pytest.mark.parametrize("given_tau", [True, False], ids=["tau=100/sqrt(kappa)", "tau chosen"])
 def test_cost_independent_of_kappa(given_tau):
-    """Elements and f evaluations within 20% for kappa from 1e8 to 1e18 (wall times, which
-    follow them, are measured by benchmarks/run_modeling.py, not asserted here)."""
-    kappas = (1e8, 1e13, 1e18)
+    """Elements and f evaluations within 20% for kappa from 1e8 to 1e18 (measured: within
+    0.4%). Wall and CPU times follow them but are not asserted: on the shared 2-core machine
+    the CPU time of one and the same solve varied by 1.4x between kappas (0.37-0.52 s, best
+    of 3); benchmarks/run_modeling.py measures them."""
+    kappas = (1e8, 1e10, 1e12, 1e14, 1e16, 1e18)
     cost = {}
     for kappa in kappas:
         sol = dn.solve(simple_model(kappa), average_length=100 / np.sqrt(kappa) if given_tau
