@@ -89,7 +89,7 @@ def reference(lat, T, tau, per_tau=100):
     compiled = lower(lat.ode)
     full = solve_ivp(lambda t, u: compiled.f(u, t), (0.0, T), lat.ode.u0, method="DOP853",
                      rtol=1e-8, atol=1e-10, dense_output=True)
-    grid = np.linspace(0.0, T, int(round(T / tau)) * per_tau + 1)
+    grid = np.linspace(0.0, T, round(T / tau) * per_tau + 1)
     D = lat.diameter(full.sol(grid))
     D_bar = np.convolve(D, hann_weights(per_tau), mode="valid")
     return grid[per_tau:-per_tau], D[per_tau:-per_tau], D_bar, full
@@ -134,7 +134,7 @@ def main(argv=None):
     ax1.plot(t, D)
     ax1.set(xlabel="t", ylabel="D(t)", title=f"diameter, m = {args.m:g}, tau = {args.tau:g}")
     ax2.plot(fast, d)
-    ax2.set(xlabel="t", ylabel="d(t)", title=f"distance to the small mass on [0, 4 tau]")
+    ax2.set(xlabel="t", ylabel="d(t)", title="distance to the small mass on [0, 4 tau]")
     fig.tight_layout()
     plot = args.output / "lattice.png"
     fig.savefig(plot, dpi=110)

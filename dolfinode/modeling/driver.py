@@ -7,11 +7,17 @@ The pipeline (Jansson, Johnson & Logg 2005, sections 3-7, made automatic and che
    does not move (drift < average_tolerance), and
    build the reduced model f~ = f + g~ with g~ = g-bar;
 3. solve the reduced model from u-bar(t_c); its solution is the output on (t_c, T] (the
-   resolved full solution on [t0, t_c]);
+   resolved full solution on [t0, t_c]): the model is built once [t0, t0 + 2 tau] is
+   resolved, as in the paper, but the reduced solution starts at the window's centre;
 4. at ``control_points`` equispaced times t_k, restart the full model at t_k - tau from the
    reduced state plus the fast fluctuation measured when the model was built (a
-   perturbation of the size of the fast oscillation), average it around t_k, record the defect g~ - g-bar, and rebuild the
-   model when it exceeds model_tolerance * max |g-bar|.
+   perturbation of the size of the fast oscillation), average it around t_k, record the
+   defect g~ - g-bar, and rebuild the model when it exceeds model_tolerance * max |g-bar|
+   (with ``subgrid_model="auto"`` the rebuilt model is affine in the slow state, see
+   :mod:`dolfinode.modeling.reduced`).
+
+Windows are resolved with a cG method (cG(q) for dG(q), mcG(q) for mdG(q)), see
+``_conservative``.
 """
 import time
 

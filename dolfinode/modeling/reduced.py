@@ -21,9 +21,10 @@ its simple model; on the lattice g-bar follows the slow contraction and the affi
 follows it between control points.
 """
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
-import scipy.sparse as sparse
+from scipy import sparse
 
 from dolfinode.modeling.declaration import ReducedDeclaration
 from dolfinode.ode import ODE
@@ -138,7 +139,7 @@ def fit_affine(pattern, u_bars, g_bars):
     dU = np.asarray(u_bars[:-1]) - u_bars[-1]
     dG = np.asarray(g_bars[:-1]) - g_bars[-1]
     starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1], True])
-    for a, b in zip(starts[:-1], starts[1:]):
+    for a, b in pairwise(starts):
         values[a:b] = np.linalg.lstsq(dU[:, cols[a:b]], dG[:, rows[a]],
                                       rcond=AFFINE_RCOND)[0]
     return values
@@ -154,7 +155,8 @@ class ReducedModel:
     g : dict state -> subgrid model value g~ as last built (for an inactive state,
         g~_i = -f_i(u-bar), the paper's inactivation)
     inactive : tuple of the inactivated states
-    built : times at which the model was built (the first is t0 + tau)
+    built : times at which the model was built (the first is t_c = t0 + tau, the centre of
+        the first resolved window [t0, t0 + 2 tau], where the reduced solution starts)
     control_points : list of :class:`ControlPoint`
     reduced : the reduced solution on (t_c, T] (a :class:`~dolfinode.Solution` of the
         reduced ODE; set by the solver)

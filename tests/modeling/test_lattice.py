@@ -75,7 +75,7 @@ def test_modeling_error_bounds_the_error_in_the_diameter(figure5):
     actual error |D(U(T)) - D-bar(T)| of both reduced models (measured: bounds 0.13 and
     0.20 against errors 9.4e-4 and 7.3e-3; loose, as S0 comes from a dual over 100 time
     units)."""
-    lat, times, D_bar, rebuilt, once = figure5
+    lat, _, D_bar, rebuilt, once = figure5
     s = lat.ode.states
     last = len(lat.points) - len(lat.small) - 1
     goal = sp.sqrt((s[lat.x[last]] - s[lat.x[0]]) ** 2 + (s[lat.y[last]] - s[lat.y[0]]) ** 2)

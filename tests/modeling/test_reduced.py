@@ -1,6 +1,6 @@
 """The subgrid models: the pattern of the affine model and its least-squares fit."""
 import numpy as np
-import scipy.sparse as sparse
+from scipy import sparse
 
 from dolfinode.modeling.reduced import affine_pattern, fit_affine
 
