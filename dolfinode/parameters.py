@@ -23,11 +23,14 @@ DEFAULTS = {
     "average_samples": 1000,       # samples per half averaging window
     "average_tolerance": 0.1,      # inactivate components whose average drifts less than this
     "control_points": 10,          # checks of the reduced model against the full model
-    "model_tolerance": 0.1,        # rebuild when |g~ - g-bar| > model_tolerance max |g-bar|
+    "model_tolerance": 0.02,       # rebuild when |g~ - g-bar| > model_tolerance max |g-bar|
     "rebuild_model": True,         # False: build once, only measure the defect at control points
+    "subgrid_model": "auto",       # "constant" | "affine" in the slow state | "auto": affine after a rebuild
 }
 
 NONLINEAR_SOLVERS = ("default", "fixed-point", "newton")
+#: The subgrid models of automatic modeling (see :mod:`dolfinode.modeling.reduced`).
+SUBGRID_MODELS = ("auto", "constant", "affine")
 
 
 def _positive(name, value, allow_none=True):
@@ -93,6 +96,11 @@ def _check_modeling(params):
     for name in ("automatic_modeling", "rebuild_model"):
         if not isinstance(params[name], (bool, int)):
             raise TypeError(f"{name} must be True or False, got {params[name]!r}")
+    if params["subgrid_model"] not in SUBGRID_MODELS:
+        close = difflib.get_close_matches(str(params["subgrid_model"]), SUBGRID_MODELS, n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise ValueError(f"unknown subgrid_model {params['subgrid_model']!r}{hint} Choose one "
+                         f"of {SUBGRID_MODELS}")
     if params["automatic_modeling"] and params["fixed_time_step"]:
         raise ValueError("automatic_modeling needs adaptive time steps: the resolved windows "
                          "and the reduced model have time scales far apart; drop fixed_time_step")

@@ -9,18 +9,35 @@ whose average does not change over the resolved window (the fast ones) are *inac
 g~_i = -f_i: they keep the value of their average, which removes the leftover fast
 oscillation of amplitude ~1/(sqrt(kappa) tau) that would otherwise force small steps in the
 reduced system (the paper's section 5, "Solving the reduced system").
+
+The subgrid model is constant, g~ = g-bar of the last build, or affine in the slow state,
+
+    g~(u~) = g-bar_k + G (u~ - u-bar_k),
+
+with G fitted by least squares to the differences of the last windows' (u-bar, g-bar)
+(builds and checks), on the pattern of the active variables that reach g-bar through the
+inactive ones (the entries of J_AI (J_II)^* J_IA). The paper's constant model is exact for
+its simple model; on the lattice g-bar follows the slow contraction and the affine model
+follows it between control points.
 """
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
-import sympy as sp
+from scipy import sparse
 
+from dolfinode.modeling.declaration import ReducedDeclaration
 from dolfinode.ode import ODE
 
 #: tau = AVERAGE_PERIODS / |lambda|_max when average_length is not given: about 16 periods of
 #: the fastest oscillation in each half of the window, enough for the Hann average to reach
 #: O((|lambda| tau)^-3) = 1e-6.
 AVERAGE_PERIODS = 100.0
+#: Windows (the last build and the checks and builds before it) fitted by the affine model.
+AFFINE_SAMPLES = 4
+#: Singular values of the fit below this fraction of the largest are dropped (the windows
+#: move mostly along one slow mode; a second direction is mostly measurement noise).
+AFFINE_RCOND = 0.1
 
 
 def fast_time_scale(compiled, u, t):
@@ -92,6 +109,42 @@ class ModelingError:
     discretization: float
 
 
+def affine_pattern(jacobian, active):
+    """Entries (i, j), i and j active, of the pattern J_AI (J_II)^* J_IA: the active
+    variables j that move the inactive (fast) variables that f_i depends on. g-bar_i is an
+    average over those fast variables, so these are the j it depends on."""
+    J = (sparse.csr_matrix(jacobian) != 0).astype(np.int8)
+    inactive = ~active
+    A, I = np.flatnonzero(active), np.flatnonzero(inactive)
+    J_AI, J_IA, J_II = J[A][:, I], J[I][:, A], J[I][:, I]
+    reach = J_IA.copy()
+    while True:  # reach = (I + J_II + J_II^2 + ...) J_IA, by fixed point
+        grown = ((reach + J_II @ reach) != 0).astype(np.int8)
+        if grown.nnz == reach.nnz:
+            break
+        reach = grown
+    B = (J_AI @ reach).tocoo()
+    order = np.lexsort((B.col, B.row))
+    return A[B.row[order]], A[B.col[order]]
+
+
+def fit_affine(pattern, u_bars, g_bars):
+    """Least-squares G on ``pattern`` from windows (u-bar_k, g-bar_k), k = 1..K:
+    minimum-norm solution of  G_i. (u-bar_k - u-bar_K) = g-bar_ik - g-bar_iK  per row i,
+    with singular values below AFFINE_RCOND of the largest dropped. Returns the entries."""
+    rows, cols = pattern
+    values = np.zeros(len(rows))
+    if len(u_bars) < 2 or not len(rows):
+        return values
+    dU = np.asarray(u_bars[:-1]) - u_bars[-1]
+    dG = np.asarray(g_bars[:-1]) - g_bars[-1]
+    starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1], True])
+    for a, b in pairwise(starts):
+        values[a:b] = np.linalg.lstsq(dU[:, cols[a:b]], dG[:, rows[a]],
+                                      rcond=AFFINE_RCOND)[0]
+    return values
+
+
 @dataclass
 class ReducedModel:
     """The automatically built reduced model and its history (``sol.model``).
@@ -102,10 +155,16 @@ class ReducedModel:
     g : dict state -> subgrid model value g~ as last built (for an inactive state,
         g~_i = -f_i(u-bar), the paper's inactivation)
     inactive : tuple of the inactivated states
-    built : times at which the model was built (the first is t0 + tau)
+    built : times at which the model was built (the first is t_c = t0 + tau, the centre of
+        the first resolved window [t0, t0 + 2 tau], where the reduced solution starts)
     control_points : list of :class:`ControlPoint`
     reduced : the reduced solution on (t_c, T] (a :class:`~dolfinode.Solution` of the
         reduced ODE; set by the solver)
+    subgrid_model : "auto", "constant" or "affine" (the ``subgrid_model`` parameter)
+    affine : whether g~ is affine in the slow state (from the start for "affine", from the
+        first rebuild for "auto")
+    G : scipy.sparse matrix (N, N), the slope of the affine model as last built (zero for
+        the constant model)
     """
 
     ode: ODE
@@ -115,30 +174,59 @@ class ReducedModel:
     built: list = field(default_factory=list)
     control_points: list = field(default_factory=list)
     reduced: object = None
+    subgrid_model: str = "constant"
+    affine: bool = False
 
     def __post_init__(self):
-        taken = {s.name for s in self.ode.states} | {s.name for s in self.ode.params}
-        self._symbols = []
-        for s in self.ode.states:
-            name = f"g_{s.name}"
-            while name in taken:
-                name += "_"
-            self._symbols.append(sp.Symbol(name, real=True))
-        self._g = np.zeros(self.ode.N)
-        self._active = np.ones(self.ode.N, dtype=bool)
-        self._frozen = np.zeros(self.ode.N)
+        N = self.ode.N
+        self._g = np.zeros(N)        # g~ at the reference state: g-bar of the last build
+        self._reference = np.zeros(N)  # u-bar of the last build
+        self._G = np.zeros(0)        # G's entries on self._pattern
+        self._pattern = (np.zeros(0, dtype=np.int64),) * 2
+        self._active = np.ones(N, dtype=bool)
+        self._frozen = np.zeros(N)
+        self._windows = []           # (u-bar, g-bar) of every window, for the affine fit
+        self._declarations = {}
+        self.affine = self.subgrid_model == "affine"
 
     @property
     def active(self):
         """Boolean mask of the active components."""
         return self._active.copy()
 
-    def build(self, averages, inactive_mask, time):
-        """(Re)build from window averages: g~ = g-bar on active components, inactive ones
-        frozen at their average."""
-        self._active = ~inactive_mask
-        self._g = np.where(self._active, averages.g_bar, 0.0)
+    @property
+    def G(self):
+        rows, cols = self._pattern if len(self._G) else (np.zeros(0, dtype=np.int64),) * 2
+        return sparse.csr_matrix((self._G, (rows, cols)), shape=(self.ode.N,) * 2)
+
+    def record(self, averages):
+        """Keep a window's averages as data for the affine fit."""
+        self._windows.append(averages)
+
+    def build(self, averages, inactive_mask, time, compiled):
+        """(Re)build from window averages: g~ = g-bar on active components (plus, for the
+        affine model, G fitted to the recorded windows), inactive ones frozen at their
+        average.
+
+        The affine model is fitted to what the reduced model must supply at each recorded
+        window k, y_k = f-bar_k - f(u-bar_k with the inactive components at their new
+        frozen values): y_k is g-bar_k plus the error of freezing the fast components while
+        the slow ones move (a small mass frozen in space anchors the corners it should
+        follow); at the newest window y = g-bar."""
+        if not self.built:
+            self._active = ~inactive_mask
+            self._pattern = affine_pattern(compiled.jacobian_matrix(averages.u_bar,
+                                                                    averages.center),
+                                           self._active)
+        elif self.subgrid_model == "auto":
+            self.affine = True  # the constant model needed a rebuild
         self._frozen = np.where(inactive_mask, averages.u_bar, 0.0)
+        self._g = np.where(self._active, averages.g_bar, 0.0)
+        self._reference = averages.u_bar.copy()
+        if self.affine:
+            recent = self._windows[-AFFINE_SAMPLES:]
+            targets = [w.f_bar - compiled.f(self.state(w.u_bar), w.center) for w in recent]
+            self._G = fit_affine(self._pattern, [w.u_bar for w in recent], targets)
         f_bar_state = averages.f_bar - averages.g_bar  # f(u-bar, t_c)
         self.g = {s: float(self._g[i] if self._active[i] else -f_bar_state[i])
                   for i, s in enumerate(self.ode.states)}
@@ -149,21 +237,32 @@ class ReducedModel:
         """u with its inactive components replaced by their frozen averages."""
         return np.where(self._active, u, self._frozen)
 
-    def declaration(self, u0, t0, T):
-        """The reduced ODE on [t0, T]: f_i + g~_i for active i, 0 for inactive i.
+    def subgrid(self, u):
+        """g~(u) on the active components (zero elsewhere)."""
+        g = self._g.copy()
+        if self.affine and len(self._G):
+            g += self.G @ (self.state(u) - self.state(self._reference))
+        return np.where(self._active, g, 0.0)
 
-        g~ enters as parameters, so a rebuilt model reuses the compiled kernels.
+    def declaration(self, u0, t0, T):
+        """The reduced ODE on [t0, T]: f_i + g~_i(u) for active i, 0 for inactive i.
+
+        g~ (and G) enter as parameters, so a rebuilt model reuses the compiled kernels.
         """
-        rhs = {s: (expr + g if a else sp.S.Zero)
-               for s, expr, g, a in zip(self.ode.states, self.ode.rhs, self._symbols,
-                                        self._active)}
-        params = dict(self.ode.params)
-        params.update({g: float(v) for g, v in zip(self._symbols, self._g)})
-        return ODE(rhs, u0=self.state(u0), T=T, t0=t0, params=params)
+        if self.affine not in self._declarations:
+            self._declarations[self.affine] = ReducedDeclaration(
+                self.ode, self._active, self._pattern if self.affine else None)
+        declarer = self._declarations[self.affine]
+        if not self.affine:
+            return declarer.declaration(self.state(u0), t0, T, self._g)
+        # g + G (u - r) = (g - G r) + G u
+        constant = self._g - self.G @ self.state(self._reference)
+        return declarer.declaration(self.state(u0), t0, T, constant, self._G)
 
     def defect(self, compiled, averages):
         """g~ - g-bar on the active components (zero elsewhere), see :class:`ControlPoint`."""
-        reduced_rhs = compiled.f(self.state(averages.u_bar), averages.center) + self._g
+        u = self.state(averages.u_bar)
+        reduced_rhs = compiled.f(u, averages.center) + self.subgrid(u)
         return np.where(self._active, reduced_rhs - averages.f_bar, 0.0)
 
     @property

@@ -95,6 +95,13 @@ class ParticleSystem:
         self._springs = []  # (pairs, stiffness, rest length) blocks
         self._forces = []   # (force expressions, particles)
 
+    @property
+    def springs(self):
+        """The particle pairs of all springs added so far, shape (E, 2)."""
+        if not self._springs:
+            return np.zeros((0, 2), dtype=np.int64)
+        return np.concatenate([block[0] for block in self._springs])
+
     def position_components(self, particles):
         """Component indices of the positions of ``particles``, shape (len, dim)."""
         return np.asarray(particles, dtype=np.int64)[:, None] * self.dim + np.arange(self.dim)
@@ -159,7 +166,7 @@ class ParticleSystem:
         r = sp.sqrt(sum((b - a) ** 2 for a, b in zip(xa, xb)))
         force = [k * (r - rest) * (b - a) / r for a, b in zip(xa, xb)]  # on a, from b
         terms = {**{v: f / ma for v, f in zip(va, force)}, **{v: -f / mb for v, f in zip(vb, force)}}
-        pairs = np.concatenate([block[0] for block in self._springs])
+        pairs = self.springs
         a, b = pairs[:, 0], pairs[:, 1]
         indices = np.hstack([self.position_components(a), self.position_components(b),
                              self.velocity_components(a), self.velocity_components(b)])
@@ -192,18 +199,26 @@ class ParticleSystem:
 
 
 def lattice(p=5, m=1e-12, M=100.0, T=10.0):
-    """The lattice of DOLFIN's automatic-modeling demo (``modeling/lattice``, 2004), in 2-D.
+    """The lattice of DOLFIN's automatic-modeling demo as a :class:`TemplateODE` on [0, T]:
+    ``lattice_system(p, m, M).ode(T)``, N = 4 (p^2 + (p - 1)^2) components."""
+    return lattice_system(p, m, M).ode(T=T)
+
+
+def lattice_system(p=5, m=1e-12, M=100.0):
+    """The lattice of DOLFIN's automatic-modeling demo (``modeling/lattice``, 2004), in 2-D,
+    as a :class:`ParticleSystem` (its ``positions`` and ``springs`` give the geometry).
 
     p^2 large masses M on a square grid of spacing h = 1/(p - 1), numbered row by row;
     then (p - 1)^2 small masses m, one per cell, at the cell centre displaced by
     (+-h/4, -+h/4) in a checkerboard pattern (+h/4 in x for even cell columns, -h/4 in y for
     even cell rows). Unit springs join horizontal and vertical neighbours (rest length h) and
     every small mass to the two corners of its cell whose grid indices have an even sum
-    (rest length h/sqrt(2)); the small masses start off their rest positions.
+    (rest length h/sqrt(2)); the small masses start off their rest positions, perpendicular
+    to their springs.
 
     Returns
     -------
-    TemplateODE with N = 4 (p^2 + (p - 1)^2) components.
+    ParticleSystem of p^2 + (p - 1)^2 particles.
     """
     if int(p) != p or p < 2:
         raise ValueError(f"the lattice needs p >= 2 large masses per side, got {p}")
@@ -227,4 +242,4 @@ def lattice(p=5, m=1e-12, M=100.0, T=10.0):
     second = np.where(even, grid[c2 + 1, c1 + 1], grid[c2 + 1, c1])
     ps.add_springs(np.column_stack([np.repeat(cell, 2), np.column_stack([first, second]).ravel()]),
                    1.0, hsmall)
-    return ps.ode(T=T)
+    return ps

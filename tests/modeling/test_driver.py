@@ -43,9 +43,11 @@ def test_kappa_1e18_subgrid_model_and_solution():
 
 @pytest.mark.parametrize("given_tau", [True, False], ids=["tau=100/sqrt(kappa)", "tau chosen"])
 def test_cost_independent_of_kappa(given_tau):
-    """Elements and f evaluations within 20% for kappa from 1e8 to 1e18 (wall times, which
-    follow them, are measured by benchmarks/run_modeling.py, not asserted here)."""
-    kappas = (1e8, 1e13, 1e18)
+    """Elements and f evaluations within 20% for kappa from 1e8 to 1e18 (measured: within
+    0.4%). Wall and CPU times follow them but are not asserted: on the shared 2-core machine
+    the CPU time of one and the same solve varied by 1.4x between kappas (0.37-0.52 s, best
+    of 3); benchmarks/run_modeling.py measures them."""
+    kappas = (1e8, 1e10, 1e12, 1e14, 1e16, 1e18)
     cost = {}
     for kappa in kappas:
         sol = dn.solve(simple_model(kappa), average_length=100 / np.sqrt(kappa) if given_tau
@@ -106,3 +108,26 @@ def test_modeling_error_needs_control_points():
     sol = dn.solve(simple_model(1e12), average_length=1e-4, control_points=0, **SETTINGS)
     with pytest.raises(ValueError, match="control_points"):
         sol.model.modeling_error()
+
+
+@pytest.mark.parametrize("method, error", [("mcG(2)", 1e-3), ("mdG(1)", 1e-3), ("dG(1)", 1e-3),
+                                           ("mcG(1)", 5e-3)])
+def test_multi_adaptive_and_dg_methods(method, error):
+    """Automatic modeling with individual steps and with dG (whose windows are resolved with
+    the cG method of the same order: dG's damping would compound over the control points).
+    Measured errors: mcG(2) 1.6e-4, mdG(1) 3.8e-4, mcG(1) 1.8e-3 (second order at tolerance
+    1e-4 over 100 time units)."""
+    ode = simple_model(1e12)
+    sol = dn.solve(ode, method=method, tolerance=1e-4, automatic_modeling=True,
+                   average_length=1e-4)
+    assert sol.multi == method.startswith("m") and sol.method.name == method.lstrip("m")
+    assert abs(sol.model.g[ode.velocity(ode.states[0])] - 0.25) < 1e-4
+    assert set(sol.model.inactive) == {ode.states[1], ode.states[3]}
+    assert sol.model.built == [pytest.approx(1e-4)]  # the checks confirm the model
+    t = np.linspace(0.0, 100.0, 5001)
+    assert np.max(np.abs(sol(t)[0] - (1 - np.cos(t)) / 4)) < error
+
+
+def test_subgrid_model_parameter():
+    with pytest.raises(ValueError, match="subgrid_model"):
+        dn.solve(simple_model(1e12), automatic_modeling=True, subgrid_model="linear")

@@ -94,6 +94,46 @@ def test_lattice_solution_equals_per_expression_solution():
     np.testing.assert_allclose(sb.y, sr.y, rtol=1e-9, atol=1e-12)
 
 
+def _lattice_demo():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).parents[2] / "demos" / "lattice.py"
+    spec = importlib.util.spec_from_file_location("demo_lattice", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_lattice_demo_reproduces_the_per_expression_lattice():
+    """demos/lattice.py declares the lattice with the builder; the term-by-term transcription
+    of DOLFIN's demo gives the same f, Jacobian and solution (issue 7). The per-expression
+    systems are those of the tests above, so their kernels are compiled once."""
+    demo = _lattice_demo()
+    lat, reference = demo.lattice(4), dolfin_lattice(4)
+    np.testing.assert_array_equal(lat.ode.u0, reference.u0)
+    np.testing.assert_array_equal(lat.points.ravel(), reference.u0[:reference.N // 2])
+    cb, cr = lower(lat.ode), lower(reference)
+    np.testing.assert_array_equal(cb.indptr, cr.indptr)
+    np.testing.assert_array_equal(cb.indices, cr.indices)
+    u = lat.ode.u0 + 0.01 * np.random.default_rng(0).normal(size=lat.ode.N)
+    fr = cr.f(u, 0.0)
+    np.testing.assert_allclose(cb.f(u, 0.0), fr, rtol=1e-13, atol=1e-14 * np.abs(fr).max())
+    Jb, Jr = cb.jacobian_matrix(u, 0.0), cr.jacobian_matrix(u, 0.0).tocsr()
+    np.testing.assert_allclose(Jb.data, Jr.data, rtol=1e-12, atol=1e-13 * np.abs(Jr.data).max())
+    # the demo's springs join the particles whose accelerations depend on each other
+    half = reference.N // 2
+    coupled = {(i, int(j)) for i in range(len(lat.points))
+               for j in np.unique(Jr[half + 2 * i].indices // 2) if i < j < len(lat.points)}
+    assert {tuple(sorted(map(int, e))) for e in lat.springs} == coupled
+    assert list(lat.small) == list(range(16, 25))
+    small, reference = demo.lattice(3, m=1e-2, T=0.05), dolfin_lattice(3, m=1e-2)
+    reference.T = 0.05
+    kwargs = {"tolerance": 1e-6, "number_of_samples": 3}
+    sb, sr = dn.solve(small.ode, "cG(1)", **kwargs), dn.solve(reference, "cG(1)", **kwargs)
+    np.testing.assert_allclose(sb.y, sr.y, rtol=1e-9, atol=1e-12)
+
+
 def test_lattice_geometry():
     ode = dn.systems.lattice(5)
     n = 25 + 16
