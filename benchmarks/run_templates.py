@@ -38,6 +38,7 @@ import argparse
 import csv
 import json
 import os
+import re
 import resource
 import subprocess
 import sys
@@ -181,6 +182,12 @@ def _where(stderr):
     return frames[:4]
 
 
+def _frame(line):
+    """'File ".../dolfinode/ode.py", line 48 in f' -> 'dolfinode/ode.py:48 f'."""
+    match = re.search(r'File ".*?(dolfinode/[^"]+)", line (\d+) in (\S+)', line)
+    return f"{match[1]}:{match[2]} {match[3]}" if match else line
+
+
 def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--quick", action="store_true")
@@ -190,6 +197,9 @@ def main():
     parser.add_argument("--limit", type=float, default=900.0,
                         help="seconds per automatic-modeling run (default %(default)s)")
     parser.add_argument("--codegen", type=int)
+    parser.add_argument("--codegen-limit", type=float, default=60.0,
+                        help="stop the per-expression series after the first size above this "
+                             "many seconds (default %(default)s)")
     parser.add_argument("--expressions", action="store_true")
     parser.add_argument("--parts", default="scale,modeling,codegen",
                         help="comma-separated parts to run; the others are kept from the json")
@@ -238,7 +248,7 @@ def main():
                              tempfile.mkdtemp(prefix="dn-codegen-"))
                 records["codegen"].append(record)
                 print(record, flush=True)
-                if record["declare_s"] + record["lower_s"] > 60:
+                if record["declare_s"] + record["lower_s"] > args.codegen_limit:
                     break
     output.mkdir(parents=True, exist_ok=True)
     saved.write_text(json.dumps(records, indent=1))
@@ -321,7 +331,7 @@ def _modeling_table(rows):
         else:
             why = (f"no: stopped at the {r['limit_s']:.0f} s limit" if r.get("limit_s")
                    else f"no: {r.get('error')}")
-            where = "; ".join(r.get("where", [])[:2]).replace("|", "/")
+            where = " < ".join(_frame(f) for f in r.get("where", [])).replace("|", "/")
             lines.append(f"| {r['p']} | | {why} (in: {where}) | | | | | | | |")
     return lines
 
@@ -331,8 +341,8 @@ def _codegen_table(gen):
         "## Code generation: template versus per-expression", "",
         ("Empty kernel cache per run; declare = building the ODE (sympy expressions for the "
          "per-expression lattice), lower = pattern + C generation + gcc. The per-expression "
-         "series stops after the first size above 60 s. CPU times exclude gcc (a child "
-         "process)."), "",
+         "series stops after the first size above a time limit. CPU times exclude gcc (a "
+         "child process)."), "",
         "| p | N | kind | declare s (wall / CPU) | lower s (wall / CPU) |",
         "|---|---|---|---|---|"]
     for r in gen:
