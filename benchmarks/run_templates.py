@@ -343,6 +343,12 @@ def _modeling_table(rows):
                    else f"no: {r.get('error')}")
             where = " < ".join(_frame(f) for f in r.get("where", [])).replace("|", "/")
             lines.append(f"| {r['p']} | | {why} (in: {where}) | | | | | | | |")
+    if any(not r.get("finished") for r in rows):
+        lines += ["", ("'in:' gives the innermost frames of the run when it was stopped. The "
+                       "driver of dolfinode.modeling builds every resolved window and reduced "
+                       "model as a per-expression ODE from `ode.rhs` (O(N) sympy expressions), "
+                       "whose per-expression code generation grows with N as in the last "
+                       "table.")]
     return lines
 
 
