@@ -177,7 +177,7 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None,
     linear_solver : {"auto", "banded", "sparse"}
         How the dual's stage systems are solved: the compiled banded LU, scipy's splu, or
         (default) splu when the Jacobian's band is wide (see
-        :func:`dolfinode.dual.problem.wide_band`).
+        :func:`dolfinode.linalg.wide_band`).
 
     Returns
     -------

@@ -13,7 +13,7 @@ of all components' element partitions, where U is a polynomial in every componen
 linear stage system of an interval has the sparsity of J^T; it is solved by the banded LU of
 :mod:`dolfinode.linalg.banded` in the Jacobian's bandwidth ordering, so that a chain-like
 coupling costs O(N) per interval, or, when the band is wide (2-D lattices, see
-:func:`wide_band`), by scipy's sparse LU (SuperLU with a fill-reducing ordering).
+:func:`dolfinode.linalg.wide_band`), by scipy's sparse LU (SuperLU, fill-reducing ordering).
 """
 import numpy as np
 import scipy.sparse as sps
@@ -23,7 +23,7 @@ from scipy.sparse.linalg import splu
 from dolfinode.compile import lower
 from dolfinode.compile.pattern import assemble_pattern
 from dolfinode.errors import SolverError
-from dolfinode.linalg.banded import band_lu, band_solve
+from dolfinode.linalg import band_lu, band_solve, wide_band
 from dolfinode.methods import make_method
 
 
@@ -228,27 +228,6 @@ def _backward_cg_sparse(jac, p, indptr, indices, position, grid, ptr, t_start, t
     return -1
 
 
-#: The dual uses splu when the stage matrix's band r (kl + ku + 2) exceeds this ...
-SPARSE_BAND = 200
-#: ... and it has at least this many unknowns (below, the Python loop over intervals of the
-#: sparse path costs more than the factorisations).
-SPARSE_MINIMUM = 1000
-
-
-def wide_band(n_unknowns, band):
-    """Whether the dual's stage system (``n_unknowns`` = r N, total band ``band``) is solved
-    faster by scipy's splu than by the compiled banded LU.
-
-    Measured per interval (CPU, cG(3) dual, 2026-11-23): the banded LU costs about
-    0.2 us + 3.5e-11 band^2 s per unknown, splu 1-8 us per unknown (1-D chains to 2-D
-    lattices). On chains (band 18) the banded LU is 4-6x faster (N = 200 to 10^4); on the 2-D
-    lattice (band 354-1770) splu is 1.7x faster at N = 164, 7x at N = 724, 15x at N = 3044
-    and 17x at N = 6964 (2.8 s against 0.16 s). The crossover, 3.5e-11 band^2 ~ 1-3 us, is
-    at a band of 170-290.
-    """
-    return n_unknowns >= SPARSE_MINIMUM and band > SPARSE_BAND
-
-
 def monomial_coefficients(nodes):
     """C with c = values @ C: monomial coefficients in tau of the interpolant at the nodes."""
     return np.linalg.inv(np.vander(nodes, increasing=True)).T
@@ -325,7 +304,7 @@ def solve_dual(sol, final, integral, degree, primal=None, linear_solver="auto"):
     linear_solver : {"auto", "banded", "sparse"}
         How the stage system of every interval is solved: the compiled banded LU in the
         Jacobian's bandwidth ordering (O(N b^2), for chains and narrow bands), scipy's splu
-        (for wide bands, as on 2-D lattices), or the choice of :func:`wide_band`.
+        (for wide bands, as on 2-D lattices), or the choice of :func:`dolfinode.linalg.wide_band`.
 
     Returns
     -------
