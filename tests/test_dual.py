@@ -253,7 +253,7 @@ def test_sparse_and_banded_dual_agree_on_a_2d_lattice(method):
 def test_dual_chooses_splu_for_wide_bands_only():
     from dolfinode.linalg import wide_band
     lattice = lower(dn.systems.lattice(20, m=1.0))  # 2-D: band 578 in the RCM ordering
-    chain = lower(problems.mass_spring_chain(500)[0])  # band 2
+    chain = lower(problems.mass_spring_chain(500)[0])  # kl + ku = 4
     for compiled, wide in ((lattice, True), (chain, False)):
         _, _, kl, ku = compiled.ordering
         assert wide_band(3 * compiled.N, 3 * (kl + ku + 2)) == wide

@@ -21,9 +21,11 @@ def wide_band(n_unknowns, band):
 
     Measured on the dual's per-interval stage systems (CPU, cG(3), 2026-11-23): the banded
     LU costs about 0.2 us + 3.5e-11 band^2 s per unknown, splu 1-8 us per unknown (1-D
-    chains to 2-D lattices). On chains (band 18) the banded LU is 4-6x faster (N = 200 to 10^4); on the 2-D
-    lattice (band 354-1770) splu is 1.7x faster at N = 164, 7x at N = 724, 15x at N = 3044
-    and 17x at N = 6964 (2.8 s against 0.16 s). The crossover, 3.5e-11 band^2 ~ 1-3 us, is
-    at a band of 170-290.
+    chains to 2-D lattices). On chains (band 18) the banded LU is 3-7x faster (N = 100 to
+    5000); on the 2-D lattice (band 354-1776) splu is 1.6x faster at N = 164, 7x at
+    N = 724, 19x at N = 3044 and 18x at N = 6964 (2.3 s against 0.13 s), on a 60 x 60
+    reaction-diffusion grid (r = 4, band 488) 4.6x; see doc/benchmarks/dual_lu.md
+    (benchmarks/run_dual_lu.py). The crossover, 3.5e-11 band^2 ~ 1-3 us, is at a band of
+    170-290.
     """
     return n_unknowns >= SPARSE_MINIMUM and band > SPARSE_BAND
