@@ -234,3 +234,32 @@ def test_estimate_of_a_1000_component_chain(method):
     assert 0.5 <= est.value / error <= 2.0, (est.value, error)
     assert est.bound >= abs(error)
     assert elapsed < 20.0, elapsed
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "dG(1)"])
+def test_sparse_and_banded_dual_agree_on_a_2d_lattice(method):
+    """The stage systems solved by splu and by the banded LU give the same dual and estimate."""
+    ode = dn.systems.lattice(6, m=1.0, T=0.5)
+    sol = dn.solve(ode, method=method, tolerance=1e-4)
+    goal = {ode.states[0]: 1.0, ode.states[-1]: 1.0}
+    banded = dn.estimate_error(sol, goal, linear_solver="banded")
+    sparse = dn.estimate_error(sol, goal, linear_solver="sparse")
+    scale = np.max(np.abs(banded.dual.coef))
+    np.testing.assert_allclose(sparse.dual.coef, banded.dual.coef, rtol=0, atol=1e-12 * scale)
+    assert sparse.value == pytest.approx(banded.value, rel=1e-9, abs=1e-15)
+    assert sparse.bound == pytest.approx(banded.bound, rel=1e-9)
+
+
+def test_dual_chooses_splu_for_wide_bands_only():
+    from dolfinode.linalg import wide_band
+    lattice = lower(dn.systems.lattice(20, m=1.0))  # 2-D: band 578 in the RCM ordering
+    chain = lower(problems.mass_spring_chain(500)[0])  # kl + ku = 4
+    for compiled, wide in ((lattice, True), (chain, False)):
+        _, _, kl, ku = compiled.ordering
+        assert wide_band(3 * compiled.N, 3 * (kl + ku + 2)) == wide
+
+
+def test_unknown_linear_solver_is_rejected():
+    sol = dn.solve(dn.ODE({sp.Symbol("u"): -sp.Symbol("u")}, u0=[1.0], T=1.0))
+    with pytest.raises(ValueError, match="linear_solver must be"):
+        dn.estimate_error(sol, [1.0], linear_solver="dense")

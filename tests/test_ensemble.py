@@ -104,3 +104,9 @@ def test_runs_and_solutions_pickle_for_process_pools_and_clusters():
     np.testing.assert_array_equal(back(0.1), solution(0.1))
     np.testing.assert_array_equal(dn.solve(pickle.loads(pickle.dumps(run)), tolerance=1e-6).y,
                                   solution.y)
+
+
+def test_progress_bar_counts_the_runs(capsys):
+    dn.solve_ensemble(oscillator(), VARIATIONS, reduce=final_value, progress=True,
+                      method="cG(2)", tolerance=1e-8)
+    assert "4/4" in capsys.readouterr().err

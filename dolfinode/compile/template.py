@@ -26,6 +26,7 @@ import sympy as sp
 from dolfinode.compile.cache import signature
 from dolfinode.compile.codegen import _PROLOGUE, _statements
 from dolfinode.compile.lowering import _derivative
+from dolfinode.compile.pattern import assemble_pattern
 from dolfinode.ode import t as time_symbol
 
 _STRUCTS = """\
@@ -75,11 +76,11 @@ class _LocalTemplate:
     def derivatives(self, m):
         return [_derivative(self.exprs[m], self._local[r]) for r in self.deps[m]]
 
-    def rows_and_columns(self, index):
-        """Global (row, column) of every local Jacobian entry, shape (cells, entries) each."""
-        rows = np.repeat(self.targets, [len(d) for d in self.deps])
+    def entry_slots(self):
+        """(rows, columns): the slots of every local Jacobian entry, in entry order."""
+        rows = np.repeat(self.targets, [len(d) for d in self.deps]).astype(np.int64)
         columns = np.array([r for d in self.deps for r in d], dtype=np.int64)
-        return index[:, rows], index[:, columns]
+        return rows, columns
 
 
 def _gather(slots_used):
@@ -159,18 +160,8 @@ def template_source(locals_, parameters):
 
 def _pattern(ode, locals_):
     """CSR pattern (indptr, indices) of df/du and the CSR position of every local entry."""
-    n = ode.N
-    pairs = [local.rows_and_columns(template.indices)
-             for local, template in zip(locals_, ode.templates)]
-    keys = [rows * n + columns for rows, columns in pairs]  # row-major order = CSR order
-    # sort + mask: np.unique (numpy 2's hash table, then a sort) took 9 of 12 s at N = 3 10^5
-    unique = np.sort(np.concatenate([k.ravel() for k in keys])) if keys else np.zeros(0, np.int64)
-    unique = unique[np.concatenate([[True], unique[1:] != unique[:-1]])] if unique.size else unique
-    indices = (unique % n).astype(np.int64)
-    indptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(unique // n, minlength=n), out=indptr[1:])
-    positions = [np.ascontiguousarray(np.searchsorted(unique, k), dtype=np.int64) for k in keys]
-    return indptr, indices, positions
+    return assemble_pattern(ode.N, [(template.indices, *local.entry_slots())
+                                    for local, template in zip(locals_, ode.templates)])
 
 
 def _incidence(template, local, n):

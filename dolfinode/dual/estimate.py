@@ -157,7 +157,8 @@ def _weighted_residuals(rhs, p, grid, ptr, t_start, t_end, coef, phi, x, w, proj
                 norms[1] += wh * np.sqrt(size1)
 
 
-def estimate_error(sol, goal, dual_degree=None, quadrature_points=None):
+def estimate_error(sol, goal, dual_degree=None, quadrature_points=None,
+                   linear_solver="auto"):
     """A posteriori estimate of the error in a goal, from the dual problem.
 
     Parameters
@@ -173,6 +174,10 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None):
         r - 1 measures that error (``dual_error``).
     quadrature_points : int, optional
         Gauss points per union-grid interval; default q + r + 2.
+    linear_solver : {"auto", "banded", "sparse"}
+        How the dual's stage systems are solved: the compiled banded LU, scipy's splu, or
+        (default) splu when the Jacobian's band is wide (see
+        :func:`dolfinode.linalg.wide_band`).
 
     Returns
     -------
@@ -193,9 +198,9 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None):
     q = method.q
     r = _positive_int(dual_degree, "dual_degree", max(q + 2, 2), minimum=2)
     gauss = _positive_int(quadrature_points, "quadrature_points", q + r + 2)
-    dual, primal = solve_dual(sol, final, integral, r)
+    dual, primal = solve_dual(sol, final, integral, r, linear_solver=linear_solver)
     parts = _error_representation(sol, primal, dual, gauss)
-    coarse, _ = solve_dual(sol, final, integral, r - 1, primal)
+    coarse, _ = solve_dual(sol, final, integral, r - 1, primal, linear_solver)
     dual_error = abs(parts["value"] - _error_representation(sol, primal, coarse, gauss)["value"])
     return ErrorEstimate(value=parts["value"],
                          bound=float(parts["bound_contributions"].sum() + parts["defect"]

@@ -12,14 +12,18 @@ continuous Galerkin method cG(r) of :mod:`dolfinode.methods` on every interval o
 of all components' element partitions, where U is a polynomial in every component. The
 linear stage system of an interval has the sparsity of J^T; it is solved by the banded LU of
 :mod:`dolfinode.linalg.banded` in the Jacobian's bandwidth ordering, so that a chain-like
-coupling costs O(N) per interval.
+coupling costs O(N) per interval, or, when the band is wide (2-D lattices, see
+:func:`dolfinode.linalg.wide_band`), by scipy's sparse LU (SuperLU, fill-reducing ordering).
 """
 import numpy as np
+import scipy.sparse as sps
 from numba import njit
+from scipy.sparse.linalg import splu
 
 from dolfinode.compile import lower
+from dolfinode.compile.pattern import assemble_pattern
 from dolfinode.errors import SolverError
-from dolfinode.linalg.banded import band_lu, band_solve
+from dolfinode.linalg import band_lu, band_solve, wide_band
 from dolfinode.methods import make_method
 
 
@@ -104,6 +108,41 @@ def assemble_dual_matrix(jdata, indptr, indices, position, A, h, kl, ku, ab):
 
 
 @njit(cache=True)
+def _interval(jac, p, indptr, indices, position, l, grid, ptr, t_start, t_end, coef, A, b0,
+              nodes, source, y, current, u, jdata, stages):
+    """Set up the stage system of interval l (from the end): J at its R nodes into jdata
+    (jdata[j] at backward node j), and the right-hand side into ``stages``, the unknown
+    (stage s, component i) at position[i] r + s. Returns the interval length h."""
+    N, r, R = y.shape[0], A.shape[0], nodes.shape[0]
+    h = grid[l + 1] - grid[l]
+    g = source[l if source.shape[0] > 1 else 0]
+    advance_backward(ptr, t_start, grid[l], grid[l + 1], current)
+    for j in range(R):  # backward node j is forward node R - 1 - j
+        t = grid[l + 1] - nodes[j] * h
+        evaluate_primal(coef, t_start, t_end, current, t, u)
+        jac(u.ctypes, t, p.ctypes, jdata[j].ctypes)
+    slope = h * g[R - 1]  # h (J_0^T y_0 + source_0)
+    add_transpose_product(indptr, indices, jdata[0], y, h, slope)
+    for s in range(r):
+        for i in range(N):
+            value = y[i] + b0[s] * slope[i]
+            for m in range(r):
+                value += h * A[s, m] * g[R - 2 - m, i]
+            stages[position[i] * r + s] = value
+    return h
+
+
+@njit(cache=True)
+def _store(phi, l, y, stages, position, r):
+    """phi[l] from the interval's start value y and its solved stages."""
+    R = phi.shape[1]
+    phi[l, R - 1, :] = y
+    for s in range(r):
+        for i in range(y.shape[0]):
+            phi[l, R - 2 - s, i] = stages[position[i] * r + s]
+
+
+@njit(cache=True)
 def _backward_cg(jac, p, indptr, indices, position, kl, ku, grid, ptr, t_start, t_end, coef, A,
                  b0, nodes, source, psi, phi):
     """cG(r) for y' = J(U(T - s))^T y + source in s = T - t, interval by interval from T.
@@ -132,29 +171,59 @@ def _backward_cg(jac, p, indptr, indices, position, kl, ku, grid, ptr, t_start, 
     current = ptr[1:] - 1
     y = psi.copy()
     for l in range(L - 1, -1, -1):
-        h = grid[l + 1] - grid[l]
-        g = source[l if source.shape[0] > 1 else 0]
-        advance_backward(ptr, t_start, grid[l], grid[l + 1], current)
-        for j in range(R):  # backward node j is forward node R - 1 - j
-            t = grid[l + 1] - nodes[j] * h
-            evaluate_primal(coef, t_start, t_end, current, t, u)
-            jac(u.ctypes, t, p.ctypes, jdata[j].ctypes)
-        slope = h * g[R - 1]  # h (J_0^T y_0 + source_0)
-        add_transpose_product(indptr, indices, jdata[0], y, h, slope)
-        for s in range(r):
-            for i in range(N):
-                value = y[i] + b0[s] * slope[i]
-                for m in range(r):
-                    value += h * A[s, m] * g[R - 2 - m, i]
-                stages[position[i] * r + s] = value
+        h = _interval(jac, p, indptr, indices, position, l, grid, ptr, t_start, t_end, coef, A,
+                      b0, nodes, source, y, current, u, jdata, stages)
         assemble_dual_matrix(jdata, indptr, indices, position, A, h, low, up, ab)
         if band_lu(ab, low, up, ipiv) != 0:
             return l
         band_solve(ab, low, up, ipiv, stages)
-        phi[l, R - 1, :] = y
-        for s in range(r):
-            for i in range(N):
-                phi[l, R - 2 - s, i] = stages[position[i] * r + s]
+        _store(phi, l, y, stages, position, r)
+        y = phi[l, 0].copy()
+    return -1
+
+
+def _stage_pattern(indptr, indices, position, r):
+    """CSC pattern of the stage matrix I - h (A (x) I) diag(J_m^T) and the CSC position of
+    each of its entries: first the (s, m, nz) products, then the identity."""
+    n = len(position)
+    c = np.repeat(np.arange(n), np.diff(indptr))  # J[c, i] with i = indices[nz]
+    s, m = np.divmod(np.arange(r * r), r)
+    rows = (position[indices][None, :] * r + s[:, None]).ravel()   # (s, i)
+    columns = (position[c][None, :] * r + m[:, None]).ravel()      # (m, c)
+    diagonal = np.arange(r * n)
+    pairs = np.column_stack([np.concatenate([columns, diagonal]),
+                             np.concatenate([rows, diagonal])])
+    # CSR of the transpose = CSC of the matrix
+    colptr, row_index, (position_of,) = assemble_pattern(r * n, [(pairs, [0], [1])])
+    return colptr, row_index, position_of.ravel()
+
+
+def _backward_cg_sparse(jac, p, indptr, indices, position, grid, ptr, t_start, t_end, coef, A,
+                        b0, nodes, source, psi, phi):
+    """As :func:`_backward_cg`, with the stage matrix factored by SuperLU (scipy's splu, fill-
+    reducing column ordering) instead of the banded LU: for wide bands (2-D lattices)."""
+    L, N = grid.shape[0] - 1, psi.shape[0]
+    r, R = A.shape[0], nodes.shape[0]
+    colptr, row_index, where = _stage_pattern(indptr, indices, position, r)
+    u = np.empty(N)
+    jdata = np.empty((R, max(indices.shape[0], 1)))
+    stages = np.empty(r * N)
+    current = ptr[1:] - 1
+    values = np.empty(len(where))
+    values[r * r * len(indices):] = 1.0
+    products = values[:r * r * len(indices)].reshape(r, r, len(indices))
+    y = psi.copy()
+    for l in range(L - 1, -1, -1):
+        h = _interval(jac, p, indptr, indices, position, l, grid, ptr, t_start, t_end, coef, A,
+                      b0, nodes, source, y, current, u, jdata, stages)
+        np.multiply(-h * A[:, :, None], jdata[None, 1:r + 1, :len(indices)], out=products)
+        data = np.bincount(where, weights=values, minlength=len(row_index))
+        matrix = sps.csc_matrix((data, row_index, colptr), shape=(r * N, r * N))
+        try:
+            stages = splu(matrix).solve(stages)
+        except RuntimeError:  # "Factor is exactly singular"
+            return l
+        _store(phi, l, y, stages, position, r)
         y = phi[l, 0].copy()
     return -1
 
@@ -221,7 +290,7 @@ class DualSolution:
         return self._evaluate(t, derivative=True)
 
 
-def solve_dual(sol, final, integral, degree, primal=None):
+def solve_dual(sol, final, integral, degree, primal=None, linear_solver="auto"):
     """Solve the dual problem linearised at the solution ``sol``.
 
     Parameters
@@ -232,6 +301,10 @@ def solve_dual(sol, final, integral, degree, primal=None):
         r of the cG(r) dual scheme (nodal order 2r on the primal's union grid).
     primal : PrimalPolynomials, optional
         Reused when given.
+    linear_solver : {"auto", "banded", "sparse"}
+        How the stage system of every interval is solved: the compiled banded LU in the
+        Jacobian's bandwidth ordering (O(N b^2), for chains and narrow bands), scipy's splu
+        (for wide bands, as on 2-D lattices), or the choice of :func:`dolfinode.linalg.wide_band`.
 
     Returns
     -------
@@ -242,6 +315,9 @@ def solve_dual(sol, final, integral, degree, primal=None):
     SolverError
         If the stage matrix of an interval is singular.
     """
+    if linear_solver not in ("auto", "banded", "sparse"):
+        raise ValueError(f"linear_solver must be 'auto', 'banded' or 'sparse', got "
+                         f"{linear_solver!r}")
     ode = sol.ode
     primal = primal or PrimalPolynomials(sol)
     compiled = lower(ode)
@@ -258,10 +334,17 @@ def solve_dual(sol, final, integral, degree, primal=None):
         weights = integral.at(sol(times), times)
         source = np.ascontiguousarray(weights.T.reshape(len(grid) - 1, degree + 1, ode.N))
     phi = np.empty((len(grid) - 1, degree + 1, ode.N))
-    failed = _backward_cg(compiled.jacobian, compiled.p, compiled.indptr, compiled.indices,
-                          position, kl, ku, grid, primal.ptr, primal.t_start, primal.t_end,
-                          primal.coef, np.array(m.A), m.b0.copy(), m.nodes.copy(), source, psi,
-                          phi)
+    arguments = (grid, primal.ptr, primal.t_start, primal.t_end, primal.coef, np.array(m.A),
+                 m.b0.copy(), m.nodes.copy(), source, psi, phi)
+    r = degree
+    if linear_solver == "auto":
+        linear_solver = "sparse" if wide_band(r * ode.N, r * (kl + ku + 2)) else "banded"
+    if linear_solver == "sparse":
+        failed = _backward_cg_sparse(compiled.jacobian, compiled.p, compiled.indptr,
+                                     compiled.indices, position, *arguments)
+    else:
+        failed = _backward_cg(compiled.jacobian, compiled.p, compiled.indptr, compiled.indices,
+                              position, kl, ku, *arguments)
     if failed >= 0:
         raise SolverError(f"the dual's stage matrix is singular on [{grid[failed]:.6g}, "
                           f"{grid[failed + 1]:.6g}]: I - h A (x) J^T has a zero pivot")
