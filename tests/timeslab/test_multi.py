@@ -99,3 +99,22 @@ def test_stiff_decay(method):
     times = np.array([0.001, 0.01, 1.0, 10.0])
     assert np.abs(sol(times)[0] - exact(times)[0]).max() < 1e-2
     assert k.max() > 0.1  # far beyond the explicit stability limit 2/1000
+
+
+def test_steps_are_graded_along_strong_couplings():
+    """k_i <= max(2 k_j, 1 / |df_i/du_j|) after grading: on a diffusion chain (|J| = 400)
+    the steps grow by at most 2 per neighbour away from a small one, weak couplings (1e-3)
+    constrain nothing."""
+    from dolfinode.timeslab.multi import _grade
+
+    n = 6
+    indptr = np.arange(0, 2 * n + 1, 2)  # row i reads i - 1 and i + 1 (i = 0: 1, i = n-1: n-2)
+    indices = np.array([j for i in range(n) for j in ((1, 1) if i == 0 else (n - 2, n - 2)
+                                                      if i == n - 1 else (i - 1, i + 1))])
+    jacobian = np.full(2 * n, 400.0)
+    kdes = np.array([1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])
+    _grade(kdes, indptr, indices, jacobian)
+    np.testing.assert_allclose(kdes, [1e-5, 0.0025, 0.005, 0.01, 0.02, 0.04])
+    kdes = np.array([1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])
+    _grade(kdes, indptr, indices, np.full(2 * n, 1e-3))
+    np.testing.assert_allclose(kdes, [1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])
