@@ -6,6 +6,8 @@ against, either a closed-form solution or a published reference value at the fin
 copied digit for digit from its ``solut`` routines). The declarations double as examples of how
 to write systems for dolfinode: one sympy expression per component, parameters as symbols.
 
+MEDAKZO's declaration and its 400 reference values are in :mod:`dolfinode.bench.medakzo`.
+
 The functions :func:`harmonic`, :func:`lorenz`, :func:`stiff_decay`, :func:`hires` and
 :func:`stiff_suite` return plain ``ODE`` objects (and exact solutions) as they always did; they
 are re-exported by :mod:`dolfinode.problems` for the demos and tests.
@@ -296,6 +298,19 @@ def pollu():
                    description="air pollution, 20 species (Verwer 1994), T = 60")
 
 
+def medakzo():
+    """MEDAKZO (Medical Akzo Nobel, Test Set ``medakzo.f``): 400 components, a discretised
+    reaction-convection-diffusion PDE with a discontinuity in time at t = 5, T = 20; declared
+    as a template system in :mod:`dolfinode.bench.medakzo`. Scored with atol = rtol (the
+    u-components are ~1e-4 at T, the v-components near the inflow ~1e-143)."""
+    from dolfinode.bench.medakzo import MEDAKZO_REFERENCE, medakzo_ode
+
+    return Problem("MEDAKZO", medakzo_ode(), stiff=True, final=MEDAKZO_REFERENCE.copy(),
+                   reference=f"{TEST_SET}, medakzo.f (PSIDE, rtol = atol = 1e-10)",
+                   description="Medical Akzo Nobel, 400 components (method of lines, "
+                               "200 points), phi(t) jumps at t = 5, T = 20")
+
+
 ARENSTORF_PERIOD = 17.0652165601579625588917206249
 
 
@@ -421,6 +436,7 @@ PROBLEMS = {
     "VDPOL": vdpol,
     "VDPOLM": vdpolm,
     "POLLU": pollu,
+    "MEDAKZO": medakzo,
     "Arenstorf": arenstorf,
     "harmonic": harmonic_problem,
     "Lorenz": lorenz_problem,

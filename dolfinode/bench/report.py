@@ -170,7 +170,7 @@ def plot(path, rows, problems):
                           markersize=4, linewidth=1.3, label=f"{sm[0]} {sm[1]}", **style[sm])
         ax.set_title(f"{p.name} (N = {p.ode.N}{', stiff' if p.stiff else ''})", fontsize=10)
         ax.set_xlabel("mixed error at T, $10^{-\\mathrm{mescd}}$")
-        ax.set_ylabel("wall time [s]")
+        ax.set_ylabel("CPU time [s]")
         ax.grid(True, which="major", alpha=0.4)
         ax.invert_xaxis()
     for ax in axes.ravel()[len(problems):]:
@@ -281,7 +281,8 @@ def write_markdown(path, meta, rows, cases, heads, png_name, title="Benchmark su
            "`solve_ivp(rtol=rtol, atol=atol)`; atol = rtol x the problem's atol/rtol."),
            ("* scipy gets NumPy right-hand sides and exact Jacobians lambdified from the same "
            "sympy declaration (sparse CSC above 40 components)."),
-           ("* Time: wall time of the whole `dn.solve` / `solve_ivp` call (scipy with `t_eval` "
+           ("* Time: CPU time (`time.process_time`, the machine is shared) of the whole `dn.solve` / "
+           "`solve_ivp` call (scipy with `t_eval` "
            "at 100 points), median of repeats in interleaved rounds after one untimed run; "
            "dolfinode's kernel compile is excluded (table below)."),
            ("* mescd = min_i -log10(|y_i(T) - ref_i| / (atol/rtol + |ref_i|)) (Test Set); "
