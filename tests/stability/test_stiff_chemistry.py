@@ -26,19 +26,25 @@ def test_rober_to_1e11_is_right_or_raises(method, finite):
         return
     finite(sol)
     assert sol.values.min() >= -atol, "a concentration below -atol"
+    # within the tolerance of the reference (measured: 2e-3 x tolerance or less; dG(0)
+    # raises SolverError at t ~ 9)
     err = np.abs(sol(p.T) - p.final)
-    assert np.all(err <= 10 * (atol + tol * np.abs(p.final))), err
+    assert np.all(err <= atol + tol * np.abs(p.final)), err
     # conservation: y1 + y2 + y3 = 1 at every sample, to 10 x tolerance
     assert np.max(np.abs(sol.y.sum(axis=0) - 1.0)) <= 10 * tol
 
 
 def test_rober_to_1e11_returns_a_solution_with_dg1(finite):
-    """At least one method gets through (so the test above is not all SolverErrors)."""
+    """At least one method gets through (so the test above is not all SolverErrors), and
+    it conserves y1 + y2 + y3 = 1 to 10 x tolerance at every sample and every node."""
     p = P.rober()
-    sol = dn.solve(p.ode, method="dG(1)", tolerance=1e-6, absolute_tolerance=1e-6,
+    tol = 1e-6
+    sol = dn.solve(p.ode, method="dG(1)", tolerance=tol, absolute_tolerance=tol,
                    maximum_steps=200_000)
     finite(sol)
     assert P.mescd(sol(p.T), p.final, 1.0) > 6
+    assert np.max(np.abs(sol.y.sum(axis=0) - 1.0)) <= 10 * tol
+    assert np.max(np.abs(sol.values.sum(axis=-1) - 1.0)) <= 10 * tol
 
 
 @pytest.mark.parametrize("method, steps", [("dG(2)", 5000), ("dG(3)", 2000)])
