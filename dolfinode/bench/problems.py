@@ -452,11 +452,15 @@ QUICK_PROBLEMS = ("HIRES", "ROBER", "VDPOLM", "Arenstorf")
 
 
 def get_problem(name):
-    """Build a problem of :data:`PROBLEMS` by name (case-insensitive)."""
-    for key, build in PROBLEMS.items():
+    """Build a problem of :data:`PROBLEMS` or of the multi-adaptive set
+    (:data:`dolfinode.bench.multirate.MULTIADAPTIVE_PROBLEMS`) by name (case-insensitive)."""
+    from dolfinode.bench.multirate import MULTIADAPTIVE_PROBLEMS
+
+    known = {**PROBLEMS, **MULTIADAPTIVE_PROBLEMS}
+    for key, build in known.items():
         if key.lower() == name.lower():
             return build()
     import difflib
-    close = difflib.get_close_matches(name, list(PROBLEMS), n=1, cutoff=0.4)
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.4)
     hint = f"; did you mean {close[0]!r}?" if close else ""
-    raise ValueError(f"unknown benchmark problem {name!r}{hint} Known: {', '.join(PROBLEMS)}")
+    raise ValueError(f"unknown benchmark problem {name!r}{hint} Known: {', '.join(known)}")

@@ -35,7 +35,7 @@ N_EVAL = 100
 
 ROW_FIELDS = ("problem", "solver", "method", "tolerance", "atol", "status", "note",
               "time_median_s", "time_min_s", "repeats", "first_call_s", "dn_solve_time_s", "mescd", "err_T",
-              "err_L2", "f_evals", "jacobians", "factorizations", "steps", "rejected")
+              "err_L2", "f_evals", "jacobians", "factorizations", "steps", "rejected", "elements")
 
 
 def check_methods(methods):
@@ -167,7 +167,7 @@ def run_dolfinode(case, method, tol, maximum_steps):
     row.update(case.score(sol(case.ode.T), sol(case.t_eval)))
     row.update(f_evals=st["f evaluations"], jacobians=st["jacobian evaluations"],
                factorizations=st["factorizations"], steps=st["time slabs"],
-               rejected=st["rejected steps"])
+               rejected=st["rejected steps"], elements=st["elements"])
     return row, lambda: dn.solve(case.ode, **options).stats["solve time"]
 
 

@@ -199,3 +199,16 @@ def test_cli_bench_rejects_bad_input(capsys):
     with pytest.raises(SystemExit):
         main(["bench", "--tolerances", "1e-4,-1", "--no-progress"])
     assert "positive" in capsys.readouterr().err
+
+
+def test_multiadaptive_problems_are_found_by_name_and_solve_their_odes():
+    """The problems of benchmarks/run_multiadaptive.py (not in the default suite)."""
+    from dolfinode.bench.multirate import MULTIADAPTIVE_PROBLEMS
+
+    assert not set(MULTIADAPTIVE_PROBLEMS) & set(P.PROBLEMS)
+    p = P.get_problem("Oscillators")
+    assert p.name == "oscillators" and p.ode.N == 4
+    fun, _ = numpy_functions(p.ode)
+    res = solve_ivp(fun, (0, 0.05), p.ode.u0, method="DOP853", rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(res.y[:, -1], p.exact(0.05), rtol=1e-9, atol=1e-9)
+    assert P.get_problem("chain-stiff").name == "chain-stiff"
