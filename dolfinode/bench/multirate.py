@@ -22,7 +22,7 @@ def coupled_oscillators(eps=1e-3, w=1000.0, T=10.0):
                   [0.0, 0.0, 0.0, 1.0],
                   [eps, 0.0, -w**2 - eps, 0.0]])
     ode, exact = linear(A, [1.0, 0.0, 1.0, 0.0], T, name="x")
-    return Problem("oscillators", ode, stiff=False, final=exact(T), exact=exact,
+    return Problem("oscillators", ode, stiff=False, final=exact(T), exact=exact, multiscale=True,
                    reference="matrix exponential (linear system)",
                    description=f"two oscillators, frequencies 1 and {w:g}, coupling {eps:g}, "
                                f"T = {T:g}")

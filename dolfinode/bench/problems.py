@@ -45,6 +45,9 @@ class Problem:
         Where ``final`` comes from.
     description : str
         One line: the equation or its source.
+    multiscale : bool
+        Whether the problem has widely separated time scales in different components (the
+        issue's "multiscale problems", where the target is orders of magnitude).
     """
 
     name: str
@@ -55,6 +58,7 @@ class Problem:
     atol_ratio: float = 1.0
     reference: str = ""
     description: str = ""
+    multiscale: bool = False
 
     @property
     def T(self):
@@ -364,7 +368,7 @@ def reaction_front(n=200, T=0.05, eps=0.01, gamma=1000.0):
         right = u[i + 1] if i < n - 1 else u[n - 2]
         rhs[u[i]] = e * (left - 2 * u[i] + right) / h2 + g * u[i] ** 2 * (1 - u[i])
     ode = ODE(rhs, u0=expit(-lam * (xs - 1.0)), T=T, params={e: eps, g: gamma, h2: h * h})
-    return Problem("reaction", ode, stiff=True, final=None,
+    return Problem("reaction", ode, stiff=True, final=None, multiscale=True,
                    reference="scipy Radau at rtol = 1e-11 (computed)",
                    description=f"reaction front, N = {n}, T = {T:g}")
 
@@ -398,7 +402,7 @@ def mass_spring_chain(n=50, stiffness=1e4, stiff_springs=2, T=10.0):
         out = (V @ (c[:, None] * np.exp(np.outer(w, np.atleast_1d(s))))).real
         return out[:, 0] if s.ndim == 0 else out
 
-    return Problem("chain", ode, stiff=False, final=exact(T), exact=exact,
+    return Problem("chain", ode, stiff=False, final=exact(T), exact=exact, multiscale=True,
                    reference="modal solution (eigendecomposition of the linear system)",
                    description=f"mass-spring chain, {n} masses, {stiff_springs} springs "
                                f"{stiffness:g}x stiffer, T = {T:g}")
@@ -425,6 +429,7 @@ def seed_model(kappa=1e4, T=10.0):
                          -w * np.sin(w * s)])
 
     return Problem(f"seed k={kappa:g}", ode, stiff=False, final=exact(T), exact=exact,
+                   multiscale=True,
                    reference="closed form",
                    description=f"automatic-modeling seed problem, kappa = {kappa:g}, T = {T:g}")
 

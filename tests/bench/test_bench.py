@@ -212,3 +212,17 @@ def test_multiadaptive_problems_are_found_by_name_and_solve_their_odes():
     res = solve_ivp(fun, (0, 0.05), p.ode.u0, method="DOP853", rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(res.y[:, -1], p.exact(0.05), rtol=1e-9, atol=1e-9)
     assert P.get_problem("chain-stiff").name == "chain-stiff"
+
+
+def test_target_section_states_met_and_missed_with_ratios():
+    def entry(level, ratio):
+        return {"level": level, "ratio": ratio, "dolfinode_best": "dG(2)", "scipy_best": "LSODA"}
+
+    heads = {"fast": {"stiff": True, "multiscale": True, "table": [entry(6, 0.005), entry(7, 0.002)]},
+             "slow": {"stiff": True, "multiscale": False, "table": [entry(5, 0.1), entry(6, 2.0)]},
+             "wave": {"stiff": False, "multiscale": True, "table": [entry(6, 0.5)]}}
+    text = report.target_section(heads)
+    assert "* fast: met (ratio 0.002-0.005 over mescd 6-7" in text
+    assert "* slow: **not met** (ratio 2-2 over mescd 6-6; worst at 6 digits: dG(2) vs LSODA)" in text
+    assert "* wave: **not met** (ratio 0.5-0.5" in text
+    assert text.count("* fast") == 2 and "* slow" not in text.split("Multiscale")[1]
