@@ -362,6 +362,9 @@ def readme_paragraph(meta, heads, md_rel, png_rel):
     met = [n for n in stiff if heads[n]["target_met"]]
     missed = [f"{n} ({'slower at some level' if heads[n]['levels_compared'] else _verdict(heads[n])})"
               for n in stiff if not heads[n]["target_met"]]
+    multi = [n for n, h in heads.items() if h.get("multiscale")]
+    orders = [n for n in multi if heads[n]["levels_compared"]
+              and max(e["ratio"] for e in _compared(heads[n])) <= MULTISCALE_RATIO]
     return "\n".join([
         README_BEGIN,
         ("**Benchmark suite.** `dolfinode bench` (or `python benchmarks/run_suite.py`; `--quick` "
@@ -375,8 +378,12 @@ def readme_paragraph(meta, heads, md_rel, png_rel):
         f"at T; < 1: dolfinode faster), over the levels >= {TARGET_LEVEL} both reached (all "
         f"common levels where there are none): {'; '.join(parts)}. Target (faster than every "
         f"scipy solver at >= {TARGET_LEVEL} digits on every stiff problem): met on "
-        f"{', '.join(met) or 'none'}; not met on {', '.join(missed) or 'none'}. Kernel compile "
-        f"times are not included. Tables: [{md_rel}]({md_rel}); plot: [{png_rel}]({png_rel})."),
+        f"{', '.join(met) or 'none'}; not met on {', '.join(missed) or 'none'}. "
+        + (f"Orders of magnitude (ratio <= {MULTISCALE_RATIO:g}) on the multiscale problems "
+           f"({', '.join(multi)}): met on {', '.join(orders) or 'none'}. " if multi else "")
+        + "Kernel compile "
+        f"times are not included; times are CPU times. Tables: [{md_rel}]({md_rel}); plot: "
+        f"[{png_rel}]({png_rel})."),
         README_END])
 
 
