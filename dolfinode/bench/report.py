@@ -263,6 +263,24 @@ def target_section(heads):
     return "\n".join(lines)
 
 
+#: What the ratios do and do not say (written under the target in every suite.md).
+CAVEATS = (
+    ("Kernel compile times are excluded (the problems table lists the first `dn.solve`, which "
+    "generates and compiles or loads the kernels; a cold compile takes seconds, more than most "
+    "solves here)."),
+    ("scipy's RK45, DOP853, Radau and BDF step in Python, and LSODA (Fortran) calls a Python "
+    "right-hand side: much of each ratio is interpreter overhead, not the method. Compiled "
+    "peers (SUNDIALS, Julia's solvers) are not measured here."),
+    ("The seed models are solved here without automatic modeling, resolving every fast period "
+    "(as scipy must); the orders of magnitude on multiscale problems are what automatic "
+    "modeling (`doc/benchmarks/modeling.md`) and multi-adaptivity are for, and are not shown "
+    "by these runs."),
+    ("A level marked * in a problem's table is below that solver's loosest run: its fastest "
+    "run's time is used. The accuracy measurable against a published reference is limited by "
+    "the reference (MEDAKZO's is good to about 10 mixed digits)."),
+)
+
+
 def level_table(table):
     lines = ["| mescd | best dolfinode | time | best scipy | time | ratio |",
              "|---|---|---|---|---|---|"]
@@ -313,7 +331,8 @@ def write_markdown(path, meta, rows, cases, heads, png_name, title="Benchmark su
            "accurate; its fastest time is used. Target: faster than every scipy solver at every "
            f"level >= {TARGET_LEVEL} reached by both."), "",
            f"![work-precision]({png_name})", "", "## Target: where it is met", "",
-           target_section(heads), "",
+           target_section(heads), "", "What the ratios do not say:", "",
+           *(f"* {c}" for c in CAVEATS), "",
            "## How it is measured", "",
            ("* Tolerances: dolfinode `tolerance` = rtol, `absolute_tolerance` = atol; scipy "
            "`solve_ivp(rtol=rtol, atol=atol)`; atol = rtol x the problem's atol/rtol."),
