@@ -5,8 +5,8 @@ runs are re-timed in interleaved rounds (one call of every run per round), so th
 load from other processes spreads over many runs instead of inflating one; the time of a run is
 the median of its repeats. Runs are timed in CPU time of this process (``time.process_time``,
 all its threads), not wall time: the benchmark machines are shared, and CPU time does not count
-the time other processes hold the cores. dolfinode's kernel compile is measured once per problem, on the
-first call, and reported on its own (it is not part of any timing).
+the time other processes hold the cores. dolfinode's kernel compile is measured once per
+problem, on the first call, and reported on its own (it is not part of any timing).
 
 Scores (Test Set and SciMLBenchmarks conventions):
 
