@@ -83,9 +83,9 @@ def run(args, planned, command="dolfinode bench"):
     start = time.perf_counter()
     problems, methods, tolerances, options = planned
     repeats = options["repeats"]
+    meta = report.machine_info()   # before the run: the commit whose code is measured
     rows, cases = run_suite(problems, methods, tolerances, progress=not args.no_progress,
                             **options)
-    meta = report.machine_info()
     meta.update(command=command, quick=bool(args.quick), tolerances=list(tolerances),
                 repeats=repeats, methods=methods,
                 total_seconds=time.perf_counter() - start)
