@@ -9,8 +9,7 @@ from dolfinode.bench.runner import SCIPY_METHODS, check_methods, run_suite
 DN_METHODS = ("cG(1)", "cG(2)", "cG(3)", "dG(1)", "dG(2)", "dG(3)")
 FULL_TOLERANCES = tuple(10.0 ** -e for e in range(3, 11))
 QUICK = {"methods": ("cG(2)", "dG(2)", "dG(3)", "DOP853", "Radau", "BDF", "LSODA"),
-         "tolerances": (1e-4, 1e-7), "repeats": 1, "time_limit": 3.0,
-         "maximum_steps": 200_000}
+         "tolerances": (1e-4, 1e-7), "repeats": 1, "time_limit": 3.0}
 
 
 def _list(text):
@@ -34,8 +33,11 @@ def add_arguments(parser):
     parser.add_argument("--repeats", type=int, default=None,
                         help="timed repeats per run, median (default 3; --quick: 1)")
     parser.add_argument("--time-limit", type=float, default=None,
-                        help="seconds after which a scipy run is abandoned (default 20; "
+                        help="CPU seconds after which a scipy run is abandoned (default 20; "
                              "--quick: 3)")
+    parser.add_argument("--maximum-steps", type=int, default=None,
+                        help="dolfinode's maximum_steps for every run (default 200000; it "
+                             "also bounds the memory of a stored solution)")
     parser.add_argument("--output", default="doc/benchmarks", help="output folder")
     parser.add_argument("--name", default="suite", help="file stem of the outputs")
     parser.add_argument("--update-readme", metavar="README", default=None,
@@ -64,7 +66,11 @@ def plan(args):
     if options["repeats"] < 1:
         raise ValueError(f"--repeats must be at least 1, got {args.repeats}")
     if args.quick:
-        options.update({k: QUICK[k] for k in ("time_limit", "maximum_steps")})
+        options["time_limit"] = QUICK["time_limit"]
+    if args.maximum_steps is not None:
+        if args.maximum_steps < 1:
+            raise ValueError(f"--maximum-steps must be at least 1, got {args.maximum_steps}")
+        options["maximum_steps"] = args.maximum_steps
     if args.time_limit is not None:
         if not args.time_limit > 0:
             raise ValueError(f"--time-limit must be positive, got {args.time_limit}")
@@ -77,9 +83,9 @@ def run(args, planned, command="dolfinode bench"):
     start = time.perf_counter()
     problems, methods, tolerances, options = planned
     repeats = options["repeats"]
+    meta = report.machine_info()   # before the run: the commit whose code is measured
     rows, cases = run_suite(problems, methods, tolerances, progress=not args.no_progress,
                             **options)
-    meta = report.machine_info()
     meta.update(command=command, quick=bool(args.quick), tolerances=list(tolerances),
                 repeats=repeats, methods=methods,
                 total_seconds=time.perf_counter() - start)

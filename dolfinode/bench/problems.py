@@ -6,6 +6,8 @@ against, either a closed-form solution or a published reference value at the fin
 copied digit for digit from its ``solut`` routines). The declarations double as examples of how
 to write systems for dolfinode: one sympy expression per component, parameters as symbols.
 
+MEDAKZO's declaration and its 400 reference values are in :mod:`dolfinode.bench.medakzo`.
+
 The functions :func:`harmonic`, :func:`lorenz`, :func:`stiff_decay`, :func:`hires` and
 :func:`stiff_suite` return plain ``ODE`` objects (and exact solutions) as they always did; they
 are re-exported by :mod:`dolfinode.problems` for the demos and tests.
@@ -43,6 +45,9 @@ class Problem:
         Where ``final`` comes from.
     description : str
         One line: the equation or its source.
+    multiscale : bool
+        Whether the problem has widely separated time scales in different components (the
+        issue's "multiscale problems", where the target is orders of magnitude).
     """
 
     name: str
@@ -53,6 +58,7 @@ class Problem:
     atol_ratio: float = 1.0
     reference: str = ""
     description: str = ""
+    multiscale: bool = False
 
     @property
     def T(self):
@@ -296,6 +302,19 @@ def pollu():
                    description="air pollution, 20 species (Verwer 1994), T = 60")
 
 
+def medakzo():
+    """MEDAKZO (Medical Akzo Nobel, Test Set ``medakzo.f``): 400 components, a discretised
+    reaction-convection-diffusion PDE with a discontinuity in time at t = 5, T = 20; declared
+    as a template system in :mod:`dolfinode.bench.medakzo`. Scored with atol = rtol (the
+    u-components are ~1e-4 at T, the v-components near the inflow ~1e-143)."""
+    from dolfinode.bench.medakzo import MEDAKZO_REFERENCE, medakzo_ode
+
+    return Problem("MEDAKZO", medakzo_ode(), stiff=True, final=MEDAKZO_REFERENCE.copy(),
+                   reference=f"{TEST_SET}, medakzo.f (PSIDE, rtol = atol = 1e-10)",
+                   description="Medical Akzo Nobel, 400 components (method of lines, "
+                               "200 points), phi(t) jumps at t = 5, T = 20")
+
+
 ARENSTORF_PERIOD = 17.0652165601579625588917206249
 
 
@@ -349,7 +368,7 @@ def reaction_front(n=200, T=0.05, eps=0.01, gamma=1000.0):
         right = u[i + 1] if i < n - 1 else u[n - 2]
         rhs[u[i]] = e * (left - 2 * u[i] + right) / h2 + g * u[i] ** 2 * (1 - u[i])
     ode = ODE(rhs, u0=expit(-lam * (xs - 1.0)), T=T, params={e: eps, g: gamma, h2: h * h})
-    return Problem("reaction", ode, stiff=True, final=None,
+    return Problem("reaction", ode, stiff=True, final=None, multiscale=True,
                    reference="scipy Radau at rtol = 1e-11 (computed)",
                    description=f"reaction front, N = {n}, T = {T:g}")
 
@@ -383,7 +402,7 @@ def mass_spring_chain(n=50, stiffness=1e4, stiff_springs=2, T=10.0):
         out = (V @ (c[:, None] * np.exp(np.outer(w, np.atleast_1d(s))))).real
         return out[:, 0] if s.ndim == 0 else out
 
-    return Problem("chain", ode, stiff=False, final=exact(T), exact=exact,
+    return Problem("chain", ode, stiff=False, final=exact(T), exact=exact, multiscale=True,
                    reference="modal solution (eigendecomposition of the linear system)",
                    description=f"mass-spring chain, {n} masses, {stiff_springs} springs "
                                f"{stiffness:g}x stiffer, T = {T:g}")
@@ -410,6 +429,7 @@ def seed_model(kappa=1e4, T=10.0):
                          -w * np.sin(w * s)])
 
     return Problem(f"seed k={kappa:g}", ode, stiff=False, final=exact(T), exact=exact,
+                   multiscale=True,
                    reference="closed form",
                    description=f"automatic-modeling seed problem, kappa = {kappa:g}, T = {T:g}")
 
@@ -421,6 +441,7 @@ PROBLEMS = {
     "VDPOL": vdpol,
     "VDPOLM": vdpolm,
     "POLLU": pollu,
+    "MEDAKZO": medakzo,
     "Arenstorf": arenstorf,
     "harmonic": harmonic_problem,
     "Lorenz": lorenz_problem,
@@ -436,11 +457,15 @@ QUICK_PROBLEMS = ("HIRES", "ROBER", "VDPOLM", "Arenstorf")
 
 
 def get_problem(name):
-    """Build a problem of :data:`PROBLEMS` by name (case-insensitive)."""
-    for key, build in PROBLEMS.items():
+    """Build a problem of :data:`PROBLEMS` or of the multi-adaptive set
+    (:data:`dolfinode.bench.multirate.MULTIADAPTIVE_PROBLEMS`) by name (case-insensitive)."""
+    from dolfinode.bench.multirate import MULTIADAPTIVE_PROBLEMS
+
+    known = {**PROBLEMS, **MULTIADAPTIVE_PROBLEMS}
+    for key, build in known.items():
         if key.lower() == name.lower():
             return build()
     import difflib
-    close = difflib.get_close_matches(name, list(PROBLEMS), n=1, cutoff=0.4)
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.4)
     hint = f"; did you mean {close[0]!r}?" if close else ""
-    raise ValueError(f"unknown benchmark problem {name!r}{hint} Known: {', '.join(PROBLEMS)}")
+    raise ValueError(f"unknown benchmark problem {name!r}{hint} Known: {', '.join(known)}")

@@ -199,3 +199,31 @@ def test_cli_bench_rejects_bad_input(capsys):
     with pytest.raises(SystemExit):
         main(["bench", "--tolerances", "1e-4,-1", "--no-progress"])
     assert "positive" in capsys.readouterr().err
+
+
+def test_multiadaptive_problems_are_found_by_name_and_solve_their_odes():
+    """The problems of benchmarks/run_multiadaptive.py (not in the default suite)."""
+    from dolfinode.bench.multirate import MULTIADAPTIVE_PROBLEMS
+
+    assert not set(MULTIADAPTIVE_PROBLEMS) & set(P.PROBLEMS)
+    p = P.get_problem("Oscillators")
+    assert p.name == "oscillators" and p.ode.N == 4
+    fun, _ = numpy_functions(p.ode)
+    res = solve_ivp(fun, (0, 0.05), p.ode.u0, method="DOP853", rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(res.y[:, -1], p.exact(0.05), rtol=1e-9, atol=1e-9)
+    # building the 200-mass chain takes ~10 s of sympy: only its registration is checked
+    assert {"chain-stiff", "reaction-500"} <= set(MULTIADAPTIVE_PROBLEMS)
+
+
+def test_target_section_states_met_and_missed_with_ratios():
+    def entry(level, ratio):
+        return {"level": level, "ratio": ratio, "dolfinode_best": "dG(2)", "scipy_best": "LSODA"}
+
+    heads = {"fast": {"stiff": True, "multiscale": True, "table": [entry(6, 0.005), entry(7, 0.002)]},
+             "slow": {"stiff": True, "multiscale": False, "table": [entry(5, 0.1), entry(6, 2.0)]},
+             "wave": {"stiff": False, "multiscale": True, "table": [entry(6, 0.5)]}}
+    text = report.target_section(heads)
+    assert "* fast: met (ratio 0.002-0.005 over mescd 6-7" in text
+    assert "* slow: **not met** (ratio 2-2 over mescd 6-6; worst at 6 digits: dG(2) vs LSODA)" in text
+    assert "* wave: **not met** (ratio 0.5-0.5" in text
+    assert text.count("* fast") == 2 and "* slow" not in text.split("Multiscale")[1]

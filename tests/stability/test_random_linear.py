@@ -8,7 +8,9 @@ Measured on 12 random systems at tolerance 1e-6 (mono-adaptive, max over the sam
 in units of the tolerance): cG(1) 0.13 / 0.07, cG(2) 0.03 / 4e-4, cG(3) 0.01 / 9e-5,
 dG(0) 0.7 / 0.3, dG(1) 0.25 / 2e-4, dG(2) 0.11 / 1e-5, dG(3) 0.04 / 2e-5. (With the former
 indicator k^p |R(t_n)|, dG(1..3) reached 20-170 x tolerance inside the initial transient.)
-The multi-adaptive methods keep the looser bound over the samples.
+The multi-adaptive methods keep the looser bound over the samples. mdG(0) (first order: 1-3
+million elements at tolerance 1e-6, 2-5 s per system) is checked on two fixed systems instead
+of hypothesis examples.
 """
 import numpy as np
 import pytest
@@ -43,15 +45,27 @@ def check(method, seed, n, stiffness, T, bound=1000.0, bound_T=10.0, **options):
     assert err.max() <= bound, f"mixed error {err.max():.3g} x tolerance"
 
 
-@pytest.mark.parametrize("method", ["cG(1)", "cG(2)", "dG(0)", "dG(1)", "dG(2)", "dG(3)"])
+@pytest.mark.parametrize("method", ["cG(1)", "cG(2)", "cG(3)", "dG(0)", "dG(1)", "dG(2)",
+                                    "dG(3)"])
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 4), stiffness=st.floats(0.0, 8.0))
 def test_mono_adaptive_matches_expm(method, seed, n, stiffness):
     check(method, seed, n, stiffness, T=1.0, bound=10.0)
 
 
-@pytest.mark.parametrize("method", ["mcG(1)", "mdG(1)"])
+@pytest.mark.parametrize("method", ["mcG(1)", "mcG(2)", "mdG(1)", "mdG(2)"])
 @settings(max_examples=3, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**32 - 1), stiffness=st.floats(0.0, 8.0))
 def test_multi_adaptive_matches_expm(method, seed, stiffness):
     check(method, seed, 2, stiffness, T=0.5)
+
+
+@pytest.mark.parametrize("seed, stiffness", [
+    (1, 3.0),
+    pytest.param(5640095, 6.0, marks=pytest.mark.xfail(
+        strict=True, reason="mdG(0) ends 33 x tolerance off at T (dG(0): 0.15 x, mdG(1): "
+                            "0.008 x); found by hypothesis, reported to the multi-adaptive "
+                            "owner (dolfinode/timeslab/multi.py)")),
+])
+def test_mdg0_matches_expm(seed, stiffness):
+    check("mdG(0)", seed, 2, stiffness, T=0.5)

@@ -26,19 +26,25 @@ def test_rober_to_1e11_is_right_or_raises(method, finite):
         return
     finite(sol)
     assert sol.values.min() >= -atol, "a concentration below -atol"
+    # within the tolerance of the reference (measured: 2e-3 x tolerance or less; dG(0)
+    # raises SolverError at t ~ 9)
     err = np.abs(sol(p.T) - p.final)
-    assert np.all(err <= 10 * (atol + tol * np.abs(p.final))), err
+    assert np.all(err <= atol + tol * np.abs(p.final)), err
     # conservation: y1 + y2 + y3 = 1 at every sample, to 10 x tolerance
     assert np.max(np.abs(sol.y.sum(axis=0) - 1.0)) <= 10 * tol
 
 
 def test_rober_to_1e11_returns_a_solution_with_dg1(finite):
-    """At least one method gets through (so the test above is not all SolverErrors)."""
+    """At least one method gets through (so the test above is not all SolverErrors), and
+    it conserves y1 + y2 + y3 = 1 to 10 x tolerance at every sample and every node."""
     p = P.rober()
-    sol = dn.solve(p.ode, method="dG(1)", tolerance=1e-6, absolute_tolerance=1e-6,
+    tol = 1e-6
+    sol = dn.solve(p.ode, method="dG(1)", tolerance=tol, absolute_tolerance=tol,
                    maximum_steps=200_000)
     finite(sol)
     assert P.mescd(sol(p.T), p.final, 1.0) > 6
+    assert np.max(np.abs(sol.y.sum(axis=0) - 1.0)) <= 10 * tol
+    assert np.max(np.abs(sol.values.sum(axis=-1) - 1.0)) <= 10 * tol
 
 
 @pytest.mark.parametrize("method, steps", [("dG(2)", 5000), ("dG(3)", 2000)])
@@ -62,7 +68,7 @@ def test_hires_y7_plus_y8_is_conserved(method, finite):
     assert np.max(np.abs(sol.y[6] + sol.y[7] - 0.0057)) <= 10 * tol * (1 + 0.0057)
 
 
-# Measured (tolerance 1e-8, mescd at T; 8 meets the tolerance): VDPOL cG(2) 11.7, dG(2) 14.3,
+# Measured (tolerance 1e-8, mescd at T; 8 meets the tolerance, and is required): VDPOL cG(2) 11.7, dG(2) 14.3,
 # dG(3) 14.0 (the former indicator k^p |R(t_n)|, not scaled by the time scale, gave 2.7-4.3).
 @pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "dG(2)", "dG(3)"])
 def test_vdpol_meets_the_tolerance(method, finite):
@@ -70,7 +76,7 @@ def test_vdpol_meets_the_tolerance(method, finite):
     tol = 1e-8
     sol = dn.solve(p.ode, method=method, tolerance=tol)
     finite(sol)
-    assert P.mescd(sol(p.T), p.final) >= -np.log10(10 * tol)
+    assert P.mescd(sol(p.T), p.final) >= -np.log10(tol)   # the tolerance, no slack
 
 
 @pytest.mark.parametrize("method", ["dG(1)", "dG(2)", "dG(3)", "cG(2)"])
@@ -80,4 +86,4 @@ def test_pollu_meets_the_tolerance(method, finite):
     tol = 1e-8
     sol = dn.solve(p.ode, method=method, tolerance=tol)
     finite(sol)
-    assert P.mescd(sol(p.T), p.final) >= -np.log10(10 * tol)
+    assert P.mescd(sol(p.T), p.final) >= -np.log10(tol)   # the tolerance, no slack
