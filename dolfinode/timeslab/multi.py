@@ -532,6 +532,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     max_iter = iopts[MAX_ITER]
     rtol, T, kmax, safety, dtol = fopts[RTOL], fopts[T_END], fopts[KMAX], fopts[SAFETY], fopts[DTOL]
     order, rpow, theta, beta = fopts[ORDER], fopts[RESIDUAL_POWER], fopts[THETA], fopts[BETA]
+    efloor = (safety / 5.0) ** order
 
     comp = np.empty(4 * N, dtype=np.int64)
     ea = np.empty(4 * N)
@@ -741,7 +742,10 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             uend = values[e, nn - 1]
             if not (math.isfinite(uend) and math.isfinite(res)):
                 blowup = True
-            ind = k ** rpow * res / (atol[i] + rtol * abs(uend))
+            kp = 1.0  # k^rpow: rpow is a small integer (q or q + 1), pow() costs more
+            for _ in range(int(rpow)):
+                kp *= k
+            ind = kp * res / (atol[i] + rtol * abs(uend))
             emax[i] = max(emax[i], ind)
             kact[i] = max(kact[i], k)
         if blowup:
@@ -760,7 +764,9 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                 if emax[i] > ACCEPTANCE_MARGIN:
                     accept = False
             for i in range(N):
-                factor = safety * max(emax[i], 1e-10) ** (-1.0 / order)
+                # below efloor the factor is capped at 5 anyway: no pow() for idle components
+                factor = (5.0 if emax[i] <= efloor else
+                          safety * max(emax[i], 1e-10) ** (-1.0 / order))
                 knew = kact[i] * min(5.0, max(0.2, factor))
                 if accept:
                     knew = 2.0 * kdes[i] * knew / (kdes[i] + knew)  # harmonic-mean regulator
