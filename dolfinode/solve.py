@@ -261,7 +261,7 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     iopts = np.concatenate([iopts, [kl, ku]])
     Minv, A = np.array(m.moment_inverse), np.array(m.A)
     nodes, qweights = m.nodes.copy(), m.quadrature_weights.copy()
-    bary, dend, lval = m.barycentric_weights.copy(), m.end_derivative.copy(), m.left_value.copy()
+    bary, dend = m.barycentric_weights.copy(), m.end_derivative.copy()
     kdes = steps.copy()
 
     def buffers(capacity):
@@ -271,7 +271,7 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     def advance(out_comp, out_a, out_b, out_values):
         return multi.advance(compiled.rhs_component, compiled.jacobian_row, compiled.p,
                              compiled.indptr, compiled.indices, position, Minv, A, nodes,
-                             qweights, bary, dend, lval, iopts, fopts, atol, x, kdes, state,
+                             qweights, bary, dend, iopts, fopts, atol, x, kdes, state,
                              counters, out_comp, out_a, out_b, out_values)
 
     capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 22 // (m.q + 1))))

@@ -18,9 +18,10 @@ the problem is treated as stiff, and the elements of each sub-slab (one interval
 components) are updated together by a simplified Newton step with the sparse sympy Jacobian
 restricted to them.
 
-After a slab, every element's residual gives an indicator as in :mod:`dolfinode.adaptivity`;
-the slab is accepted when all are <= ACCEPTANCE_MARGIN, and each component gets its own next
-step.
+After a slab, every element's residual R = U' - f_i(U) at its end gives an indicator,
+k^q |R| for mcG(q) (DOLFIN's, for the nodal order 2q) and the local error estimate k |R| of
+:mod:`dolfinode.adaptivity` for mdG(q) (order q + 1), scaled by atol + rtol |U|; the slab is
+accepted when all are <= ACCEPTANCE_MARGIN, and each component gets its own next step.
 """
 import math
 
@@ -511,7 +512,7 @@ _SIGNATURE = types.int64(
     _i8, _i8, _i8,                                 # indptr, indices, bandwidth position
     types.float64[:, ::1], types.float64[:, ::1],  # M^{-1}, A
     _f8, _f8, _f8,                                 # nodes, quadrature weights, bary
-    _f8, _f8,                                      # end_derivative, left_value
+    _f8,                                           # end_derivative
     _i8, _f8, _f8,                                 # iopts, fopts, atol
     _f8, _f8, _f8, _i8,                            # x, kdes, state, counters
     _i8, _f8, _f8, types.float64[:, ::1],          # out_comp, out_a, out_b, out_values
@@ -520,7 +521,7 @@ _SIGNATURE = types.int64(
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
 def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary, end_derivative,
-            left_value, iopts, fopts, atol, x, kdes, state, counters, out_comp, out_a, out_b,
+            iopts, fopts, atol, x, kdes, state, counters, out_comp, out_a, out_b,
             out_values):
     """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status."""
     N = x.shape[0]
@@ -532,6 +533,13 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     max_iter = iopts[MAX_ITER]
     rtol, T, kmax, safety, dtol = fopts[RTOL], fopts[T_END], fopts[KMAX], fopts[SAFETY], fopts[DTOL]
     order, rpow, theta, beta = fopts[ORDER], fopts[RESIDUAL_POWER], fopts[THETA], fopts[BETA]
+    if is_dg:
+        # dG: the local error estimate k |R(t_e)| of the mono-adaptive loop, O(k^(q+1)) (R at
+        # the end point is proportional to the jump, see dolfinode.adaptivity); DOLFIN's
+        # k^(q+1) |R| with the nodal order 2q + 1 gave mdG(1) 2600x the error of dG(1) on
+        # the template lattice
+        order = rpow
+        rpow = 1.0
     efloor = (safety / 5.0) ** order
 
     comp = np.empty(4 * N, dtype=np.int64)
@@ -731,14 +739,9 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             i = comp[e]
             k = eb[e] - ea[e]
             kdu = 0.0
-            ul = 0.0
             for j in range(nn):
                 kdu += end_derivative[j] * values[e, j]
-                ul += left_value[j] * values[e, j]
             res = abs(kdu / k - fend[e])  # f_i(U(t_e)) from the last sweep
-            if is_dg:
-                xl = x[i] if prev[e] < 0 else values[prev[e], nn - 1]
-                res += abs(ul - xl) / k
             uend = values[e, nn - 1]
             if not (math.isfinite(uend) and math.isfinite(res)):
                 blowup = True

@@ -228,10 +228,7 @@ def lattice_reference():
     return ode, ref.y[:, -1], large
 
 
-@pytest.mark.parametrize("method", ["mcG(1)", pytest.param("mdG(1)", marks=pytest.mark.xfail(
-    strict=True, reason="mdG(1) relative error 1.8e-3 against 6.8e-7 for dG(1): the "
-    "multi-adaptive loop still selects steps by the residual indicator k^p |R| that the "
-    "mono-adaptive loop replaced by the filtered local error estimate"))])
+@pytest.mark.parametrize("method", ["mcG(1)", "mdG(1)"])
 def test_multi_adaptive_on_the_lattice(lattice_reference, method):
     """mcG(1)/mdG(1) on the template lattice: accurate against DOP853 and, for mcG(1), with far
     fewer elements for the large masses (omega ~ 0.1) than the small ones (omega ~ 1.4e6)."""
