@@ -34,6 +34,31 @@ def time_at(rows, method, error):
                           and r["time_median_s"]], error)
 
 
+def plot(rows, path, title):
+    """Work-precision diagram: max error at T against time, one line per method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for method in METHODS:
+        pts = sorted((r["time_median_s"], r["err_T"]) for r in rows
+                     if r["method"] == method and r["status"] == "ok" and r["time_median_s"])
+        if pts:
+            ax.loglog(*zip(*pts), marker="o", label=method)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("max error at T")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    tmp = path.with_name(path.stem + ".tmp.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    tmp.replace(path)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=1000)
@@ -76,6 +101,8 @@ def main(argv=None):
                      + f" | {ratio:.3g}x |" if ratio else " | - |")
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
+    plot(rows, out / "chain.png", f"{args.n}-mass chain, 10 springs 1e6 stiffer, T = {args.T:g}")
+    lines += ["", "![work-precision](chain.png)"]
     for name, text in (("chain.md", "\n".join(lines) + "\n"),
                        ("chain.json", json.dumps({"rows": rows, "summary": summary},
                                                  indent=1, default=str))):
