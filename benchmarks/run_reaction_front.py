@@ -63,6 +63,29 @@ def time_at_error(points, error):
     return None
 
 
+def plot(sizes, mono, multi, path, T):
+    """CPU time against N (log-log) of cG(1) and of mcG(1) at cG(1)'s error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    ax.loglog(sizes, [mono[n][0] for n in sizes], marker="o", label="cG(1)")
+    ns = [n for n in sizes if multi[n]]
+    ax.loglog(ns, [multi[n] for n in ns], marker="o", label="mcG(1), at cG(1)'s error")
+    ax.set_xlabel("N")
+    ax.set_ylabel("CPU time [s]")
+    ax.set_title(f"reaction front, T = {T:g}, tolerance 1e-6", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    tmp = path.with_name(path.stem + ".tmp.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    tmp.replace(path)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default="1000,4000,16000")
@@ -104,6 +127,8 @@ def main(argv=None):
                    f"(cG(1): {mono[sizes[-1]][0] / mono[sizes[0]][0]:.2g}).")]
     out = Path(args.output) / "reaction_front.md"
     out.parent.mkdir(parents=True, exist_ok=True)
+    plot(sizes, mono, multi, out.with_suffix(".png"), args.T)
+    lines += ["", "![time against N](reaction_front.png)"]
     tmp = out.with_suffix(".md.tmp")
     tmp.write_text("\n".join(lines) + "\n")
     tmp.replace(out)
