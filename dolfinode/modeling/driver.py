@@ -97,20 +97,23 @@ def solve_with_modeling(ode, method, params, solve):
 
         It is solved as two halves that meet at the centre, so that the first half is the
         output before the reduced solution takes over there. Returns the first half (in
-        local time), the window and its averages, recorded as data of the subgrid model."""
+        local time), the number of elements of the window and its averages, recorded as
+        data of the subgrid model. The window itself is dropped here: its elements (N per
+        slab, thousands of slabs) are most of the memory of a large system."""
         local = window_model.declaration(u, 0.0, 2 * tau, center - tau)
         step = {"maximum_time_step": min(window_step, tau), "method": window_method}
         before = run(window_model.declaration(u, 0.0, tau, center - tau), **step)
         after = run(window_model.declaration(before(tau), tau, 2 * tau, center - tau),
                     initial_time_step=_last_step(before), **step)
+        elements = before.stats["elements"] + after.stats["elements"]
         window = _concatenate(local, [before, after], 2)
-        window.stats = {"elements": before.stats["elements"] + after.stats["elements"]}
+        del after
         averages = average_window(window, lower(local), tau, tau, params["average_samples"])
         averages.center = center
         model.record(averages)
-        return before, window, averages
+        return before, elements, averages
 
-    first, window, averages = resolve(ode.u0, ode.t0 + tau)
+    first, _, averages = resolve(ode.u0, ode.t0 + tau)
     if window_method != method:
         first = run(window_model.declaration(ode.u0, 0.0, tau, ode.t0),
                     maximum_time_step=min(window_step, tau))
@@ -140,7 +143,7 @@ def solve_with_modeling(ode, method, params, solve):
             continue
         # control point at t_now: full model from t_now - tau, perturbed by the fast fluctuation
         u_start = model.state(segment(t_now - tau)) + np.where(model.active, 0.0, fluctuation)
-        _, window, averages = resolve(u_start, t_now)
+        elements, averages = resolve(u_start, t_now)[1:]
         defect = model.defect(compiled, averages)
         scale = np.max(np.abs(np.where(model.active, averages.g_bar, 0.0)))
         relative = np.max(np.abs(defect)) / scale if scale > 0 else np.inf
@@ -155,7 +158,7 @@ def solve_with_modeling(ode, method, params, solve):
             fluctuation = averages.fluctuation
         model.control_points.append(ControlPoint(t_now, float(np.linalg.norm(defect)),
                                                  float(relative), bool(rebuild),
-                                                 int(window.stats["elements"])))
+                                                 int(elements)))
     model.reduced = _concatenate(model.declaration(*reduced_start, ode.T), pieces[1:], 2)
     sol = _concatenate(ode, pieces, params["number_of_samples"])
     sol.stats = _total_stats(runs, model, time.perf_counter() - start)
