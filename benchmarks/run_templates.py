@@ -365,6 +365,13 @@ def _modeling_table(rows):
             lines.append(f"| {r['p']} | | {why} (in: {where}) |" + " |" * 9)
     if any(not r.get("finished") for r in rows):
         lines += ["", "'in:' gives the innermost frames of the run when it was stopped."]
+    lines += ["", ("Almost all elements are those of the resolved windows (five windows of "
+                   "2 tau, one build and four control points, with steps below the fast "
+                   "period); the reduced model itself takes a few slabs. The windows are also "
+                   "the memory peak: each is stored element by element (N x (q + 1) values per "
+                   "slab) until it is averaged, and the averaging samples u and f at "
+                   "2 average_samples + 1 = 2001 times (two N x 2001 arrays); the returned "
+                   "solution holds the first half-window and the reduced slabs.")]
     return lines
 
 
