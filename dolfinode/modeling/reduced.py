@@ -44,7 +44,7 @@ def fast_time_scale(compiled, u, t):
     """1 / |lambda|_max: the fastest time scale of the linearisation df/du at (u, t).
 
     The spectral radius is computed from the dense Jacobian for N <= 500 and with ARPACK
-    (largest magnitude, from a fixed start vector, so that solves repeat exactly) otherwise.
+    (largest magnitude) otherwise.
     """
     J = compiled.jacobian_matrix(u, t)
     if J.shape[0] <= 500:
@@ -52,10 +52,7 @@ def fast_time_scale(compiled, u, t):
     else:
         from scipy.sparse.linalg import eigs
 
-        # a fixed start vector: ARPACK's own is random, and the windows' step bound (and so
-        # every element of the solve) would change from run to run
-        start = np.random.default_rng(0).standard_normal(J.shape[0])
-        radius = np.max(np.abs(eigs(J.astype(float), k=1, which="LM", v0=start,
+        radius = np.max(np.abs(eigs(J.astype(float), k=1, which="LM",
                                     return_eigenvectors=False)))
     return 1.0 / radius if radius > 0 else np.inf
 
