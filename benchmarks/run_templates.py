@@ -140,8 +140,10 @@ def modeling(p):
     print(json.dumps({"p": p, "N": ode.N, "finished": True, "build_s": build,
                       "solve_s": seconds, "solve_cpu_s": cpu,
                       "compile_s": stats["compile time"], "elements": int(stats["elements"]),
-                      "slabs": int(stats["time slabs"]), "inactive": len(sol.model.inactive),
+                      "slabs": int(stats["time slabs"]),
+                      "inactive": int((~sol.model.active).sum()),
                       "us_cpu_per_element": 1e6 * cpu / stats["elements"],
+                      "output_slabs": len(sol.k), "stored_MB": sol.values.nbytes / 2**20,
                       "maxrss_MB": _maxrss_mb()}))
 
 
@@ -201,6 +203,9 @@ def main():
                         help="stop the per-expression series after the first size above this "
                              "many seconds (default %(default)s)")
     parser.add_argument("--expressions", action="store_true")
+    parser.add_argument("--sizes", help="comma-separated p for the scale and modeling parts "
+                        "(default 5,50,100,300; --quick: 5,50); rows of other sizes are kept "
+                        "from the json")
     parser.add_argument("--parts", default="scale,modeling,codegen",
                         help="comma-separated parts to run; the others are kept from the json")
     parser.add_argument("--rewrite", action="store_true",
@@ -221,14 +226,17 @@ def main():
         return write(output, records)
     parts = args.parts.split(",")
     sizes = [5, 50] if args.quick else [5, 50, 100, 300]
+    if args.sizes:
+        sizes = [int(p) for p in args.sizes.split(",")]
     cache = tempfile.mkdtemp(prefix="dn-templates-")  # empty: the first size compiles cold
     if "scale" in parts:
-        records["scale"] = []
+        records["scale"] = [r for r in records.get("scale", []) if r["p"] not in sizes]
         for p in sizes:
             records["scale"].append(run(["--one", str(p)], cache))
             print(records["scale"][-1], flush=True)
+        records["scale"].sort(key=lambda r: r["p"])
     if "modeling" in parts:
-        records["modeling"] = []
+        records["modeling"] = [r for r in records.get("modeling", []) if r["p"] not in sizes]
         for p in sizes:
             # the child stops itself (faulthandler) a little before the parent would kill it
             record = run(["--modeling", str(p), "--limit", str(args.limit)], cache,
@@ -236,13 +244,16 @@ def main():
             record.setdefault("p", p)
             if record.get("limit_s"):
                 record["limit_s"] = args.limit
-            if record.get("finished"):  # again, with the kernels of the first run on disk
+            # again, with the kernels of the first run on disk; the kernels do not depend
+            # on p, so the later sizes find them there already
+            if record.get("finished") and p == sizes[0]:
                 record["warm"] = run(["--modeling", str(p), "--limit", str(args.limit)], cache,
                                      args.limit + 30)
             records["modeling"].append(record)
             print(record, flush=True)
             if not record.get("finished"):
                 break  # larger sizes only take longer
+        records["modeling"].sort(key=lambda r: r["p"])
     if "codegen" in parts:
         records["codegen"] = []
         for expressions in (False, True):
@@ -320,35 +331,47 @@ def _modeling_table(rows):
         ("`dn.solve(dn.systems.lattice(p), method='cG(2)', tolerance=1e-4, "
          "automatic_modeling=True, average_length=1e-4, control_points=4)`, m = 1e-12, "
          "M = 100, one process per size with a time limit; sizes after the first run that "
-         "does not finish are not tried; a size that finishes is run a second time with its "
-         "kernels in the disk cache. Compile: the kernel generation inside the solve (wall; "
-         "the windows and reduced models are per-expression ODEs)."), "",
+         "does not finish are not tried. The first size runs with an empty kernel cache and "
+         "again with its kernels on disk; the windows and reduced models are template "
+         "systems, whose kernels do not depend on p, so the later sizes find them on disk. "
+         "Compile: kernel loading and generation inside the solve (wall). Elements are "
+         "component-elements (N per time slab: cG(2) is mono-adaptive), over every inner "
+         "solve; us = CPU microseconds per component-element. Output: the slabs and bytes of "
+         "the returned solution; RSS: the process's peak resident memory (including the "
+         "~0.2 GB of Python, numpy and the compiled kernels)."), "",
         ("| p | N | finished | solve s (wall / CPU) | compile s | elements | slabs | "
-         "inactive | us CPU / element | max RSS MB |"),
-        "|---|---|---|---|---|---|---|---|---|---|"]
+         "inactive | us CPU / comp-elem | output slabs / MB | max RSS MB | RSS kB / "
+         "component |"),
+        "|" + "---|" * 12]
+
+    def cells(r, label):
+        output = (f"{r['output_slabs']} / {r['stored_MB']:.0f}" if "output_slabs" in r
+                  else "")
+        return (f"| {r['p']} | {r['N']} | {label} | {r['solve_s']:.1f} / "
+                f"{r['solve_cpu_s']:.1f} | {r['compile_s']:.1f} | {r['elements']} | "
+                f"{r['slabs']} | {r['inactive']} | {r['us_cpu_per_element']:.3f} | {output} | "
+                f"{r['maxrss_MB']:.0f} | {1024 * r['maxrss_MB'] / r['N']:.0f} |")
+
     for r in rows:
         if r.get("finished"):
-            lines.append(f"| {r['p']} | {r['N']} | yes | {r['solve_s']:.1f} / "
-                         f"{r['solve_cpu_s']:.1f} | {r['compile_s']:.1f} | {r['elements']} | "
-                         f"{r['slabs']} | {r['inactive']} | {r['us_cpu_per_element']:.2f} | "
-                         f"{r['maxrss_MB']:.0f} |")
             w = r.get("warm") or {}
+            lines.append(cells(r, "yes, empty kernel cache" if w else "yes"))
             if w.get("finished"):
-                lines.append(f"| {r['p']} | {r['N']} | yes, kernels cached | {w['solve_s']:.1f} / "
-                             f"{w['solve_cpu_s']:.1f} | {w['compile_s']:.1f} | {w['elements']} | "
-                             f"{w['slabs']} | {w['inactive']} | {w['us_cpu_per_element']:.2f} | "
-                             f"{w['maxrss_MB']:.0f} |")
+                lines.append(cells(w, "yes, kernels cached"))
         else:
             why = (f"no: stopped at the {r['limit_s']:.0f} s limit" if r.get("limit_s")
                    else f"no: {r.get('error')}")
             where = " < ".join(_frame(f) for f in r.get("where", [])).replace("|", "/")
-            lines.append(f"| {r['p']} | | {why} (in: {where}) | | | | | | | |")
+            lines.append(f"| {r['p']} | | {why} (in: {where}) |" + " |" * 9)
     if any(not r.get("finished") for r in rows):
-        lines += ["", ("'in:' gives the innermost frames of the run when it was stopped. The "
-                       "driver of dolfinode.modeling builds every resolved window and reduced "
-                       "model as a per-expression ODE from `ode.rhs` (O(N) sympy expressions), "
-                       "whose per-expression code generation grows with N as in the last "
-                       "table.")]
+        lines += ["", "'in:' gives the innermost frames of the run when it was stopped."]
+    lines += ["", ("Almost all elements are those of the resolved windows (five windows of "
+                   "2 tau, one build and four control points, with steps below the fast "
+                   "period); the reduced model itself takes a few slabs. The windows are also "
+                   "the memory peak: each is stored element by element (N x (q + 1) values per "
+                   "slab) until it is averaged, and the averaging samples u and f at "
+                   "2 average_samples + 1 = 2001 times (two N x 2001 arrays); the returned "
+                   "solution holds the first half-window and the reduced slabs.")]
     return lines
 
 

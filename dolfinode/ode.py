@@ -164,7 +164,7 @@ class ODE:
         for symbol, value in params.items():
             if not isinstance(symbol, sp.Symbol):
                 raise TypeError(f"parameter keys must be sympy Symbols, got {symbol!r}")
-            if symbol in self.states:
+            if self._is_state(symbol):
                 raise ValueError(f"{symbol} is both a state and a parameter")
             if symbol == t:
                 raise ValueError("dn.t is the time and cannot be a parameter")
@@ -176,6 +176,10 @@ class ODE:
                 raise ValueError(f"parameter {symbol} must be finite, got {value}")
             clean[symbol] = value
         return clean
+
+    def _is_state(self, symbol):
+        """Whether ``symbol`` is one of the state symbols."""
+        return symbol in self.states
 
     def _check_symbols(self):
         known = set(self.states) | set(self.params) | {t}

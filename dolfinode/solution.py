@@ -30,6 +30,27 @@ def _evaluate_components(ptr, t_start, t_end, values, nodes, bary, times, out):
                 den += w
             out[i, m] = values[lo, hit] if hit >= 0 else num / den
 
+#: Bytes of elements gathered at once when a solution is evaluated at many times.
+_EVALUATION_BYTES = 2**26
+
+
+def join_elements(chunks):
+    """np.concatenate of element arrays given in chunks, [[t_start, k, values], ...], per array.
+
+    The list is emptied and each chunk released once copied: the result's pages are
+    committed as the chunks' are freed, so the stored elements (gigabytes on a large
+    system) are not held twice as with np.concatenate."""
+    total = sum(len(chunk[0]) for chunk in chunks)
+    joined = [np.empty((total, *a.shape[1:]), dtype=a.dtype) for a in chunks[0]]
+    chunks.reverse()
+    start = 0
+    while chunks:
+        chunk = chunks.pop()
+        for out, part in zip(joined, chunk):
+            out[start:start + len(part)] = part
+        start += len(chunk[0])
+    return joined
+
 
 class Solution:
     """Piecewise polynomial solution U of a Galerkin method on [t0, T].
@@ -98,14 +119,20 @@ class Solution:
             raise ValueError(f"the solution is defined on [{self.ode.t0}, {self.ode.T}], "
                              f"got t outside it")
         if self.multi:
-            out = np.empty((self.ode.N, times.size))
+            out = np.empty((times.size, self.ode.N)).T  # the layout einsum gives
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
                                  self.method.nodes, self.method.barycentric_weights, times, out)
         else:
             t_end = self.t_start + self.k
             n = np.minimum(np.searchsorted(t_end, times, side="left"), len(self.k) - 1)
             tau = np.clip((times - self.t_start[n]) / self.k[n], 0.0, 1.0)
-            out = np.einsum("mj,mjn->nm", self.method.basis(tau), self.values[n])
+            basis = self.method.basis(tau)
+            out = np.empty((times.size, self.ode.N)).T  # the layout einsum gives
+            # in blocks of times: the gathered elements take (q + 1) N doubles per time
+            block = max(1, _EVALUATION_BYTES // max(self.values[0].nbytes, 1))
+            for a in range(0, times.size, block):
+                out[:, a:a + block] = np.einsum("mj,mjn->nm", basis[a:a + block],
+                                                self.values[n[a:a + block]])
         # U(t0) is the initial value (for dG the element polynomial starts after the jump)
         out[:, times == self.ode.t0] = self.ode.u0[:, None]
         return out[:, 0] if scalar else out

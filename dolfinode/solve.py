@@ -11,7 +11,7 @@ from dolfinode.errors import SolverError
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
 from dolfinode.parameters import NONLINEAR_SOLVERS, check_parameters
-from dolfinode.solution import Solution
+from dolfinode.solution import Solution, join_elements
 from dolfinode.timeslab import mono
 
 #: Relative size (times |t|) below which a time step cannot be resolved in double precision.
@@ -203,7 +203,8 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
         if counters[ts.SLABS] >= params["maximum_steps"]:
             status = _STATUS_STEP_LIMIT
             break
-    return status, [np.concatenate(parts) for parts in zip(*chunks)]
+    del buffers
+    return status, join_elements(chunks)
 
 
 def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):

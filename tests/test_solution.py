@@ -52,3 +52,25 @@ def test_initial_time_gives_initial_value(method):
     u = sp.Symbol("u")
     sol = dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), method=method, tolerance=1e-3)
     assert sol(0.0)[0] == 1.0 and sol.y[0, 0] == 1.0
+
+
+def test_evaluation_in_blocks_equals_one_gather(monkeypatch):
+    # many times on a large system are evaluated in blocks; the values must not change
+    u, v = sp.symbols("u v")
+    sol = dn.solve(dn.ODE({u: v, v: -u}, u0=[0, 1], T=3.0), method="cG(2)", tolerance=1e-8)
+    times = np.linspace(0, 3, 101)
+    whole = sol(times)
+    monkeypatch.setattr("dolfinode.solution._EVALUATION_BYTES", 1)
+    assert np.array_equal(sol(times), whole)
+
+
+def test_join_elements_concatenates_and_empties_the_chunks():
+    from dolfinode.solution import join_elements
+
+    rng = np.random.default_rng(1)
+    chunks = [[rng.random(n), rng.random((n, 2, 3))] for n in (4, 1, 7)]
+    expected = [np.concatenate(parts) for parts in zip(*chunks)]
+    joined = join_elements(chunks)
+    assert chunks == []
+    for a, b in zip(joined, expected):
+        assert np.array_equal(a, b)

@@ -68,7 +68,9 @@ def average_window(solution, compiled, center, tau, samples):
 
     times = sample(center, tau, samples)
     values = solution(times)
-    f_values = np.column_stack([compiled.f(values[:, j], tj) for j, tj in enumerate(times)])
+    f_values = np.empty(values.shape)
+    for j, tj in enumerate(times):
+        f_values[:, j] = compiled.f(values[:, j], tj)
     w = hann_weights(samples)
     u_bar, f_bar = values @ w, f_values @ w
     half = hann_weights(samples // 2)

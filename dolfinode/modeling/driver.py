@@ -34,7 +34,7 @@ from dolfinode.modeling.reduced import (
     component_frequencies,
     fast_time_scale,
 )
-from dolfinode.solution import Solution
+from dolfinode.solution import Solution, join_elements
 
 #: Solver parameters that configure the modeling, not the inner solves.
 MODELING_PARAMETERS = ("automatic_modeling", "average_length", "average_samples",
@@ -91,26 +91,33 @@ def solve_with_modeling(ode, method, params, solve):
     # solution, so that the returned Solution has one method.
     window_method = _conservative(method)
 
-    def resolve(u, center):
+    def resolve(u, center, keep_first=False):
         """Solve the full model on [center - tau, center + tau] (in the window's local time,
         see WindowModel) and average it.
 
         It is solved as two halves that meet at the centre, so that the first half is the
         output before the reduced solution takes over there. Returns the first half (in
-        local time), the window and its averages, recorded as data of the subgrid model."""
+        local time; None unless ``keep_first``), the number of elements of the window and
+        its averages, recorded as data of the subgrid model. The window itself is dropped
+        here: its elements (N per slab, thousands of slabs) are most of the memory of a
+        large system."""
         local = window_model.declaration(u, 0.0, 2 * tau, center - tau)
         step = {"maximum_time_step": min(window_step, tau), "method": window_method}
         before = run(window_model.declaration(u, 0.0, tau, center - tau), **step)
         after = run(window_model.declaration(before(tau), tau, 2 * tau, center - tau),
                     initial_time_step=_last_step(before), **step)
-        window = _concatenate(local, [before, after], 2)
-        window.stats = {"elements": before.stats["elements"] + after.stats["elements"]}
+        elements = before.stats["elements"] + after.stats["elements"]
+        halves = [before, after]
+        del after
+        if not keep_first:
+            del before
+        window = _concatenate(local, halves, 2)  # consumes halves: frees what it copied
         averages = average_window(window, lower(local), tau, tau, params["average_samples"])
         averages.center = center
         model.record(averages)
-        return before, window, averages
+        return (before if keep_first else None), elements, averages
 
-    first, window, averages = resolve(ode.u0, ode.t0 + tau)
+    first, _, averages = resolve(ode.u0, ode.t0 + tau, keep_first=window_method == method)
     if window_method != method:
         first = run(window_model.declaration(ode.u0, 0.0, tau, ode.t0),
                     maximum_time_step=min(window_step, tau))
@@ -140,7 +147,7 @@ def solve_with_modeling(ode, method, params, solve):
             continue
         # control point at t_now: full model from t_now - tau, perturbed by the fast fluctuation
         u_start = model.state(segment(t_now - tau)) + np.where(model.active, 0.0, fluctuation)
-        _, window, averages = resolve(u_start, t_now)
+        elements, averages = resolve(u_start, t_now)[1:]
         defect = model.defect(compiled, averages)
         scale = np.max(np.abs(np.where(model.active, averages.g_bar, 0.0)))
         relative = np.max(np.abs(defect)) / scale if scale > 0 else np.inf
@@ -155,7 +162,7 @@ def solve_with_modeling(ode, method, params, solve):
             fluctuation = averages.fluctuation
         model.control_points.append(ControlPoint(t_now, float(np.linalg.norm(defect)),
                                                  float(relative), bool(rebuild),
-                                                 int(window.stats["elements"])))
+                                                 int(elements)))
     model.reduced = _concatenate(model.declaration(*reduced_start, ode.T), pieces[1:], 2)
     sol = _concatenate(ode, pieces, params["number_of_samples"])
     sol.stats = _total_stats(runs, model, time.perf_counter() - start)
@@ -175,18 +182,21 @@ def _last_step(sol):
 
 
 def _concatenate(ode, pieces, number_of_samples):
-    """One Solution on [t0, T] from solutions on consecutive intervals."""
+    """One Solution on [t0, T] from solutions on consecutive intervals.
+
+    The list ``pieces`` is emptied: a mono-adaptive piece's arrays are released as soon as
+    they are copied (unless referenced elsewhere), so that a resolved window of a large
+    system is not held twice."""
     method = pieces[0].method
     if pieces[0].multi:
         comp = [np.repeat(np.arange(ode.N), np.diff(p._component_ptr)) for p in pieces]
-        return Solution.multi_adaptive(ode, method, np.concatenate(comp),
-                                       np.concatenate([p.t_start for p in pieces]),
-                                       np.concatenate([p._t_end for p in pieces]),
-                                       np.concatenate([p.values for p in pieces]), {},
-                                       number_of_samples)
-    return Solution(ode, method, np.concatenate([p.t_start for p in pieces]),
-                    np.concatenate([p.k for p in pieces]),
-                    np.concatenate([p.values for p in pieces]), {}, number_of_samples)
+        arrays = [np.concatenate(comp)] + [np.concatenate([getattr(p, name) for p in pieces])
+                                           for name in ("t_start", "_t_end", "values")]
+        pieces.clear()
+        return Solution.multi_adaptive(ode, method, *arrays, {}, number_of_samples)
+    chunks = [[p.t_start, p.k, p.values] for p in pieces]
+    pieces.clear()
+    return Solution(ode, method, *join_elements(chunks), {}, number_of_samples)
 
 
 def _total_stats(runs, model, wall):

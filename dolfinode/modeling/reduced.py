@@ -153,8 +153,8 @@ class ReducedModel:
     ----------
     average_length : tau (given or chosen from the fast time scale)
     g : dict state -> subgrid model value g~ as last built (for an inactive state,
-        g~_i = -f_i(u-bar), the paper's inactivation)
-    inactive : tuple of the inactivated states
+        g~_i = -f_i(u-bar), the paper's inactivation); made on first use
+    inactive : tuple of the inactivated states; made on first use
     built : times at which the model was built (the first is t_c = t0 + tau, the centre of
         the first resolved window [t0, t0 + 2 tau], where the reduced solution starts)
     control_points : list of :class:`ControlPoint`
@@ -169,8 +169,6 @@ class ReducedModel:
 
     ode: ODE
     average_length: float
-    g: dict = field(default_factory=dict)
-    inactive: tuple = ()
     built: list = field(default_factory=list)
     control_points: list = field(default_factory=list)
     reduced: object = None
@@ -185,6 +183,7 @@ class ReducedModel:
         self._pattern = (np.zeros(0, dtype=np.int64),) * 2
         self._active = np.ones(N, dtype=bool)
         self._frozen = np.zeros(N)
+        self._g_inactive = np.zeros(N)  # -f_i(u-bar) of the last build
         self._windows = []           # (u-bar, g-bar) of every window, for the affine fit
         self._declarations = {}
         self.affine = self.subgrid_model == "affine"
@@ -227,11 +226,20 @@ class ReducedModel:
             recent = self._windows[-AFFINE_SAMPLES:]
             targets = [w.f_bar - compiled.f(self.state(w.u_bar), w.center) for w in recent]
             self._G = fit_affine(self._pattern, [w.u_bar for w in recent], targets)
-        f_bar_state = averages.f_bar - averages.g_bar  # f(u-bar, t_c)
-        self.g = {s: float(self._g[i] if self._active[i] else -f_bar_state[i])
-                  for i, s in enumerate(self.ode.states)}
-        self.inactive = tuple(s for s, a in zip(self.ode.states, self._active) if not a)
+        self._g_inactive = -(averages.f_bar - averages.g_bar)  # -f(u-bar, t_c)
         self.built.append(float(time))
+
+    # g and inactive are by state symbol: a lattice of 10^5 masses creates its N symbols
+    # only if they are asked for, not at every build
+    @property
+    def g(self):
+        return {s: float(self._g[i] if self._active[i] else self._g_inactive[i])
+                for i, s in enumerate(self.ode.states)} if self.built else {}
+
+    @property
+    def inactive(self):
+        return tuple(self.ode.states[i] for i in np.flatnonzero(~self._active)) \
+            if self.built else ()
 
     def state(self, u):
         """u with its inactive components replaced by their frozen averages."""
@@ -311,5 +319,6 @@ class ReducedModel:
                              discretization=estimate.value)
 
     def __repr__(self):
-        return (f"ReducedModel(tau={self.average_length:.3g}, inactive={len(self.inactive)}, "
+        return (f"ReducedModel(tau={self.average_length:.3g}, "
+                f"inactive={int(np.count_nonzero(~self._active))}, "
                 f"built={len(self.built)}x, control points={len(self.control_points)})")

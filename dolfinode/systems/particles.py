@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 import sympy as sp
 
-from dolfinode.systems.template import Template, TemplateODE
+from dolfinode.systems.template import Template, TemplateODE, spells_index
 
 _AXES = "xyz"
 
@@ -38,6 +38,12 @@ class ParticleNames(Sequence):
         velocity, rest = divmod(k % len(self), self.n * self.dim)
         particle, axis = divmod(rest, self.dim)
         return f"{_AXES[axis]}_{particle}" + ("_dot" if velocity else "")
+
+    def __contains__(self, name):
+        # parsed, not searched: Sequence's default would build the 2 n dim names
+        name = str(name).removesuffix("_dot")
+        axis, _, particle = name.partition("_")
+        return axis in _AXES[:self.dim] and len(axis) == 1 and spells_index(particle, self.n)
 
 
 def _local(dim, suffix=""):

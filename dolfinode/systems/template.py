@@ -151,6 +151,16 @@ class StateNames(Sequence):
             raise IndexError(f"state {i} out of range for {self.n} states")
         return f"{self.prefix}_{i % self.n}"
 
+    def __contains__(self, name):
+        # parsed, not searched: Sequence's default would build the N names
+        head, _, number = str(name).rpartition("_")
+        return head == self.prefix and spells_index(number, self.n)
+
+
+def spells_index(text, n):
+    """Whether ``text`` is f"{i}" for an integer 0 <= i < n."""
+    return text.isascii() and text.isdigit() and str(int(text)) == text and int(text) < n
+
 
 class TemplateODE(ODE):
     """An ODE u' = f(u, t) whose right-hand side is a sum of :class:`Template` s.
@@ -257,6 +267,10 @@ class TemplateODE(ODE):
     def states(self):
         """State symbols in component order (created on first use: O(N) sympy symbols)."""
         return tuple(sp.Symbol(name) for name in self.names)
+
+    def _is_state(self, symbol):
+        # without creating the N state symbols: they are plain Symbols named by ``names``
+        return symbol == sp.Symbol(symbol.name) and symbol.name in self.names
 
     @cached_property
     def _positions(self):

@@ -9,6 +9,8 @@ import sympy as sp
 
 import dolfinode as dn
 from dolfinode.compile import lower
+from dolfinode.systems.particles import ParticleNames
+from dolfinode.systems.template import StateNames
 
 t = dn.t
 a, b, va, vb, k, L, x, v = sp.symbols("a b v_a v_b k L x v")
@@ -196,3 +198,22 @@ def test_bad_systems_are_rejected():
         dn.TemplateODE(spring, u0=[0.0, np.inf, 0.0, 0.0], T=1.0)
     with pytest.raises(ValueError, match="duplicate state names"):
         dn.TemplateODE(spring, u0=np.zeros(4), T=1.0, names=["a", "a", "c", "d"])
+
+
+@pytest.mark.parametrize("names", [StateNames(37), StateNames(5, "w"), ParticleNames(7, 2),
+                                   ParticleNames(4, 3), ParticleNames(3, 1)])
+def test_lazy_names_membership_is_parsed_as_the_list_would_answer(names):
+    listed = set(names[:])
+    probes = listed | {"u_37", "u_01", "u_-1", "x_7", "x_07", "z_1", "x_1_dot_dot", "x__1",
+                       "w_5", "u", "x_", "_1", "vx_1", "xy_1", "u_\u0663", "x_\u0661"}
+    for probe in probes:
+        assert (probe in names) == (probe in listed), probe
+
+
+def test_a_state_cannot_be_a_parameter_without_building_the_states():
+    ode = dn.systems.lattice(3)
+    with pytest.raises(ValueError, match="both a state and a parameter"):
+        dn.TemplateODE(ode.templates, u0=ode.u0, T=1.0, names=ode.names,
+                       params={**ode.params, sp.Symbol("x_0"): 1.0})
+    assert "states" not in vars(ode)
+    assert not ode._is_state(sp.Symbol("x_0", real=True))
