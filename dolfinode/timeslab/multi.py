@@ -308,10 +308,10 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, x,
     problem is stiff, is updated together by a simplified Newton step (``_group_newton``).
     With ``predict_first``, an element first continues its predecessor's polynomial.
 
-    Sweeps are lazy: an element is recomputed only when its own last update or a component
-    it reads changed by more than limit / 10 (scaled) since its last update (clock stamps ``changed`` per
-    component, ``computed`` per element), so components far from any activity, most of a
-    large slab's top level, cost one evaluation per slab. Returns the largest increment of
+    Sweeps are lazy: an element is recomputed only when its own last update, or a component
+    it reads, changed by more than limit / 10 (scaled) since then (clock stamps: ``changed``
+    per component, ``computed`` per element), so components far from any activity, most of
+    a large slab's top level, cost one evaluation per slab. Returns the largest increment of
     the ranges' first sweeps and whether every range got below the limit."""
     S = Minv.shape[0]
     nn = nodes.shape[0]
@@ -649,14 +649,16 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         if retry:
             _guess_from(ne, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues,
                         nodes, bary)
-        for e in range(ne if not retry else 0):
-            i = comp[e]
-            for m in range(nn):
-                values[e, m] = x[i]
-                if prev[e] < 0 and last_b[i] > last_a[i]:
-                    tau = (ea[e] + nodes[m] * (eb[e] - ea[e]) - last_a[i]) / (last_b[i] - last_a[i])
-                    if tau <= 3.0:
-                        values[e, m] = _evaluate(last_values, i, tau, nodes, bary)
+        else:
+            for e in range(ne):
+                i = comp[e]
+                for m in range(nn):
+                    values[e, m] = x[i]
+                    if prev[e] < 0 and last_b[i] > last_a[i]:
+                        tau = ((ea[e] + nodes[m] * (eb[e] - ea[e]) - last_a[i])
+                               / (last_b[i] - last_a[i]))
+                        if tau <= 3.0:
+                            values[e, m] = _evaluate(last_values, i, tau, nodes, bary)
         stiff = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         nroot = windows[0] if nwin > 0 else ne
         if saved.shape[0] < nroot:
@@ -745,7 +747,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             uend = values[e, nn - 1]
             if not (math.isfinite(uend) and math.isfinite(res)):
                 blowup = True
-            kp = 1.0  # k^rpow: rpow is a small integer (q or q + 1), pow() costs more
+            kp = 1.0  # k^rpow (rpow: q for mcG(q), 1 for mdG(q)); pow() costs more
             for _ in range(int(rpow)):
                 kp *= k
             ind = kp * res / (atol[i] + rtol * abs(uend))
