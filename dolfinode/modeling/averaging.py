@@ -48,12 +48,25 @@ class WindowAverages:
     fluctuation: np.ndarray
 
 
+def window_times(center, tau, samples, t0, T):
+    """The times at which :func:`average_window` reads the solution: the ``2 samples + 1``
+    points of [center - tau, center + tau] and the ``samples + 1`` (even ``samples``) points
+    of each half window, clipped to [t0, T] (center +- tau may round outside the window)."""
+    def sample(middle, half_width, n):
+        times = middle + half_width * np.linspace(-1.0, 1.0, 2 * n + 1)
+        return np.clip(times, t0, T)
+
+    return (sample(center, tau, samples), sample(center - tau / 2, tau / 2, samples // 2),
+            sample(center + tau / 2, tau / 2, samples // 2))
+
+
 def average_window(solution, compiled, center, tau, samples):
     """Averages of a solution resolved on [center - tau, center + tau].
 
     Parameters
     ----------
-    solution : :class:`~dolfinode.solution.Solution` of the full model on the window
+    solution : :class:`~dolfinode.solution.Solution` of the full model on the window, or
+        anything with its ``ode`` and its values at the :func:`window_times` when called
     compiled : :class:`~dolfinode.compile.lowering.CompiledODE` of the full model
     center, tau : float
     samples : int, points per half window (DOLFIN's ``average_samples``)
@@ -62,11 +75,8 @@ def average_window(solution, compiled, center, tau, samples):
     -------
     WindowAverages
     """
-    def sample(middle, half_width, n):  # clipped: center +- tau may round outside the window
-        times = middle + half_width * np.linspace(-1.0, 1.0, 2 * n + 1)
-        return np.clip(times, solution.ode.t0, solution.ode.T)
-
-    times = sample(center, tau, samples)
+    times, first_times, second_times = window_times(center, tau, samples, solution.ode.t0,
+                                                    solution.ode.T)
     values = solution(times)
     f_values = np.empty(values.shape)
     for j, tj in enumerate(times):
@@ -74,8 +84,8 @@ def average_window(solution, compiled, center, tau, samples):
     w = hann_weights(samples)
     u_bar, f_bar = values @ w, f_values @ w
     half = hann_weights(samples // 2)
-    first = solution(sample(center - tau / 2, tau / 2, samples // 2)) @ half
-    second = solution(sample(center + tau / 2, tau / 2, samples // 2)) @ half
+    first = solution(first_times) @ half
+    second = solution(second_times) @ half
     spread = values.max(axis=1) - values.min(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         drift = np.where(spread > 0, np.abs(second - first) / spread, np.inf)

@@ -19,13 +19,15 @@ The pipeline (Jansson, Johnson & Logg 2005, sections 3-7, made automatic and che
 Windows are resolved with a cG method (cG(q) for dG(q), mcG(q) for mdG(q)), see
 ``_conservative``.
 """
+import itertools
+import math
 import time
 
 import numpy as np
 
 from dolfinode.compile import lower
 from dolfinode.methods import parse_method
-from dolfinode.modeling.averaging import average_window
+from dolfinode.modeling.averaging import average_window, window_times
 from dolfinode.modeling.declaration import WindowModel
 from dolfinode.modeling.reduced import (
     AVERAGE_PERIODS,
@@ -40,6 +42,8 @@ from dolfinode.solution import Solution, join_elements
 MODELING_PARAMETERS = ("automatic_modeling", "average_length", "average_samples",
                        "average_tolerance", "control_points", "model_tolerance",
                        "rebuild_model", "subgrid_model")
+#: Bytes of elements a piece of a resolved window may hold (estimated before solving it).
+WINDOW_PIECE_BYTES = 2**26
 #: Counters summed over every inner solve.
 _SUMMED = ("time slabs", "elements", "rejected steps", "f evaluations", "jacobian evaluations",
            "nonlinear iterations", "failed nonlinear solves", "compile time")
@@ -91,31 +95,45 @@ def solve_with_modeling(ode, method, params, solve):
     # solution, so that the returned Solution has one method.
     window_method = _conservative(method)
 
+    # a window of a large system is solved in pieces of about WINDOW_PIECE_BYTES of elements
+    # (estimated from the window step), each read at the averaging times and dropped
+    q = parse_method(window_method)[1].q
+    slab_bytes = 8 * (q + 1) * ode.N
+    pieces_per_half = max(1, math.ceil(slab_bytes * tau / window_step / WINDOW_PIECE_BYTES))
+
     def resolve(u, center, keep_first=False):
         """Solve the full model on [center - tau, center + tau] (in the window's local time,
         see WindowModel) and average it.
 
         It is solved as two halves that meet at the centre, so that the first half is the
-        output before the reduced solution takes over there. Returns the first half (in
-        local time; None unless ``keep_first``), the number of elements of the window and
-        its averages, recorded as data of the subgrid model. The window itself is dropped
-        here: its elements (N per slab, thousands of slabs) are most of the memory of a
-        large system."""
+        output before the reduced solution takes over there (then kept whole). Each half is
+        solved in ``pieces_per_half`` consecutive pieces, each restarted from the end of
+        the last, read at the averaging times and dropped: a window's elements (N per slab,
+        thousands of slabs) are most of the memory of a large system. Returns the first
+        half (in local time; None unless ``keep_first``), the number of elements of the
+        window and its averages, recorded as data of the subgrid model."""
         local = window_model.declaration(u, 0.0, 2 * tau, center - tau)
+        window = _SampledWindow(local, np.unique(np.concatenate(
+            window_times(tau, tau, params["average_samples"], 0.0, 2 * tau))))
         step = {"maximum_time_step": min(window_step, tau), "method": window_method}
-        before = run(window_model.declaration(u, 0.0, tau, center - tau), **step)
-        after = run(window_model.declaration(before(tau), tau, 2 * tau, center - tau),
-                    initial_time_step=_last_step(before), **step)
-        elements = before.stats["elements"] + after.stats["elements"]
-        halves = [before, after]
-        del after
-        if not keep_first:
-            del before
-        window = _concatenate(local, halves, 2)  # consumes halves: frees what it copied
+        first = None
+        elements = 0
+        for half in (0, 1):
+            n = 1 if keep_first and half == 0 else pieces_per_half
+            ends = tau * (half + np.arange(n + 1) / n)
+            for a, b in itertools.pairwise(ends):
+                piece = run(window_model.declaration(u, a, b, center - tau), **step)
+                window.record(piece)
+                elements += piece.stats["elements"]
+                u = piece(b)
+                step["initial_time_step"] = _last_step(piece)
+                if keep_first and half == 0:
+                    first = piece
+                del piece
         averages = average_window(window, lower(local), tau, tau, params["average_samples"])
         averages.center = center
         model.record(averages)
-        return (before if keep_first else None), elements, averages
+        return first, elements, averages
 
     first, _, averages = resolve(ode.u0, ode.t0 + tau, keep_first=window_method == method)
     if window_method != method:
@@ -168,6 +186,24 @@ def solve_with_modeling(ode, method, params, solve):
     sol.stats = _total_stats(runs, model, time.perf_counter() - start)
     sol.model = model
     return sol
+
+
+class _SampledWindow:
+    """A resolved window known only at the times :func:`average_window` reads (sorted
+    ``times``), filled piece by piece with :meth:`record`."""
+
+    def __init__(self, ode, times):
+        self.ode = ode
+        self.times = times
+        self.values = np.empty((ode.N, times.size))
+
+    def record(self, piece):
+        """Read a piece of the window (a Solution on a sub-interval) at its times."""
+        inside = (self.times >= piece.ode.t0) & (self.times <= piece.ode.T)
+        self.values[:, inside] = piece(self.times[inside])
+
+    def __call__(self, times):
+        return self.values[:, np.searchsorted(self.times, times)]
 
 
 def _conservative(method):
