@@ -21,6 +21,7 @@ from pathlib import Path
 
 from run_reaction_front import time_at_error
 
+from dolfinode.bench import report
 from dolfinode.bench.problems import mass_spring_chain
 from dolfinode.bench.runner import run_suite
 
@@ -36,27 +37,13 @@ def time_at(rows, method, error):
 
 def plot(rows, path, title):
     """Work-precision diagram: max error at T against time, one line per method."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4.5))
+    fig, ax = report.single_panel()
     for method in METHODS:
         pts = sorted((r["time_median_s"], r["err_T"]) for r in rows
                      if r["method"] == method and r["status"] == "ok" and r["time_median_s"])
         if pts:
             ax.loglog(*zip(*pts), marker="o", label=method)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("max error at T")
-    ax.set_title(title, fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    tmp.replace(path)
+    report.save_panel(fig, ax, path, title, "time [s]", "max error at T")
 
 
 def main(argv=None):

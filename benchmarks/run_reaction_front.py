@@ -28,6 +28,7 @@ import sympy as sp
 from scipy.special import expit
 
 import dolfinode as dn
+from dolfinode.bench import report
 
 EPS, GAMMA = 0.01, 1000.0
 
@@ -65,25 +66,12 @@ def time_at_error(points, error):
 
 def plot(sizes, mono, multi, path, T):
     """CPU time against N (log-log) of cG(1) and of mcG(1) at cG(1)'s error."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4.5))
+    fig, ax = report.single_panel()
     ax.loglog(sizes, [mono[n][0] for n in sizes], marker="o", label="cG(1)")
     ns = [n for n in sizes if multi[n]]
     ax.loglog(ns, [multi[n] for n in ns], marker="o", label="mcG(1), at cG(1)'s error")
-    ax.set_xlabel("N")
-    ax.set_ylabel("CPU time [s]")
-    ax.set_title(f"reaction front, T = {T:g}, tolerance 1e-6", fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    tmp.replace(path)
+    report.save_panel(fig, ax, path, f"reaction front, T = {T:g}, tolerance 1e-6", "N",
+                      "CPU time [s]")
 
 
 def main(argv=None):

@@ -186,8 +186,39 @@ def plot(path, rows, problems):
     fig.suptitle("Work-precision: dolfinode vs scipy solve_ivp (right = more accurate, "
                  "lower = faster)", fontsize=11)
     fig.tight_layout(rect=(0, 0.8 / (4.2 * nrow + 0.8) + 0.03, 1, 0.97))
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path)
+
+
+def single_panel():
+    """A new figure with one panel (matplotlib's Agg backend): (fig, ax)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt.subplots(figsize=(6, 4.5))
+
+
+def save_panel(fig, ax, path, title, xlabel, ylabel):
+    """Label, grid and legend a log-log panel of :func:`single_panel`, and save it."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def save_figure(fig, path):
+    """Write ``fig`` to ``path`` (PNG) through a temporary file, so that a failure leaves no
+    half-written plot, and close it."""
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    tmp = path.with_name(path.stem + ".tmp.png")
+    fig.savefig(tmp, dpi=100)
     plt.close(fig)
+    tmp.replace(path)
 
 
 def _ratio_text(x):
