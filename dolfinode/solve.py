@@ -157,7 +157,7 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
                       int(fixed), params["maximum_iterations"], int(m.family == "dG")],
                      dtype=np.int64)
     fopts = [rtol, ode.T, params["maximum_time_step"] or ode.T - ode.t0,
-             params["safety_factor"], dtol, m.order, m.residual_power]
+             params["safety_factor"], dtol, m.local_order]
     run = _run_multi if multi_adaptive else _run_mono
     status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
                                                    x, f0, steps)

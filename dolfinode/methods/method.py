@@ -39,8 +39,8 @@ class Method:
     moment_inverse : (s, s) M^{-1}: xi_stages = x0 + k M^{-1} m with the moments
         m_l = int_0^1 f(U(tau), tau) tau^l dtau (l = 0..s-1), for quadrature of one's choice
     order : nodal order of convergence, 2q (cG) or 2q + 1 (dG)
-    residual_power : power p of k in the multi-adaptive indicator k^p |R| (q for cG, q + 1 for
-        dG); the mono-adaptive estimate k R(t_n) is O(k^(q+1)) for both families
+    local_order : order P = q + 1 of the local error estimate k R(t_n) = O(k^P) (both
+        families; see :mod:`dolfinode.adaptivity`), which selects the steps
     """
 
     family: str
@@ -64,8 +64,8 @@ class Method:
         return 2 * self.q if self.family == "cG" else 2 * self.q + 1
 
     @property
-    def residual_power(self):
-        return self.q if self.family == "cG" else self.q + 1
+    def local_order(self):
+        return self.q + 1
 
     @property
     def num_stages(self):

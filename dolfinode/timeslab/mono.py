@@ -36,7 +36,7 @@ T_NOW, K_NEXT, EPS_PREV, HAVE_F0 = range(4)
 # Indices into the integer and float options (NEWTON_FITS: 1 if the banded Newton matrix fits
 # in memory; the driver decides, the loop returns NEWTON_MEMORY when it would need it but not).
 SOLVER, FIXED, MAX_ITER, IS_DG, NEWTON_FITS = range(5)
-RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, RESIDUAL_POWER, KMIN_REL, SPAN, GAMMA = range(10)
+RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, KMIN_REL, SPAN, GAMMA = range(9)
 #: Relative size of the smallest increment an iteration still resolves (about 50 ulp).
 ROUNDING = 1e-14
 #: After a failed nonlinear solve of length k_fail, steps stay below SOLVER_MARGIN x k_fail,
@@ -88,7 +88,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
     max_iter = iopts[MAX_ITER]
     rtol, T, kmax, safety, dtol = fopts[RTOL], fopts[T_END], fopts[KMAX], fopts[SAFETY], fopts[DTOL]
     # the estimate is O(k^(q+1)) for cG(q) and dG(q) (see dolfinode.adaptivity)
-    order = fopts[RESIDUAL_POWER] + (0.0 if is_dg else 1.0)
+    order = fopts[ORDER]
     gamma = fopts[GAMMA]
 
     X = np.empty(S * N)

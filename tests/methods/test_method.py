@@ -80,11 +80,11 @@ def test_nodes_stages_and_orders(method):
     np.testing.assert_array_equal(method.quadrature_weights, [float(w) for w in rule[1]])
     if method.family == "cG":
         np.testing.assert_array_equal(method.stages, np.arange(1, q + 1))
-        assert (method.order, method.residual_power, method.num_stages) == (2 * q, q, q)
+        assert (method.order, method.local_order, method.num_stages) == (2 * q, q + 1, q)
         assert np.all(method.b0 != 0)
     else:
         np.testing.assert_array_equal(method.stages, np.arange(0, q + 1))
-        assert (method.order, method.residual_power, method.num_stages) == (2 * q + 1, q + 1, q + 1)
+        assert (method.order, method.local_order, method.num_stages) == (2 * q + 1, q + 1, q + 1)
         np.testing.assert_array_equal(method.b0, 0.0)
     s = method.num_stages
     assert method.A.shape == (s, s) and method.b0.shape == (s,)

@@ -57,18 +57,21 @@ def test_adaptive_harmonic_meets_tolerance():
         assert np.abs(sol(10.0) - exact(10.0)).max() < 2e-5, method
 
 
-def test_slow_component_takes_fewer_steps():
+@pytest.mark.parametrize("method", ["mcG(2)", "mcG(3)", "mdG(2)"])
+def test_slow_component_takes_fewer_steps(method):
     """Two weakly coupled oscillators, frequencies 1 and 1000: at least 100x fewer elements
-    for the slow component (measured 308x with mcG(2), tolerance 1e-6, T = 1)."""
+    for the slow component (measured 810x, 250x and 730x), and every component, the fast one
+    included, within the tolerance at T. With DOLFIN's indicator k^q |R| the fast component
+    of mcG(3) stepped over its oscillation and ended 2 10^4 x tolerance off."""
     x1, v1, x2, v2 = sp.symbols("x1 v1 x2 v2")
     eps, w = 1e-3, 1000.0
     ode = dn.ODE({x1: v1, v1: -x1 + eps * (x2 - x1), x2: v2, v2: -w**2 * x2 + eps * (x1 - x2)},
                  u0=[1.0, 0.0, 1.0, 0.0], T=1.0)
-    sol = dn.solve(ode, method="mcG(2)", tolerance=1e-6)
-    reference = dn.solve(ode, method="cG(4)", tolerance=1e-12)
+    sol = dn.solve(ode, method=method, tolerance=1e-6)
+    reference = dn.solve(ode, method="cG(4)", tolerance=1e-12)(1.0)
     counts = sol.stats["elements per component"]
     assert counts[2] >= 100 * counts[0]
-    assert np.abs(sol(1.0)[:2] - reference(1.0)[:2]).max() < 1e-6
+    assert np.all(np.abs(sol(1.0) - reference) < 1e-6 * (1 + np.abs(reference)))
     t, k = sol.time_steps(x1)
     assert np.isclose(t[0], 0.0) and np.isclose(t[-1] + k[-1], 1.0) and np.all(k > 0)
 
