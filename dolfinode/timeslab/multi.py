@@ -560,7 +560,6 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     N = x.shape[0]
     S = Minv.shape[0]
     nn = nodes.shape[0]
-    is_dg = iopts[IS_DG] == 1
     fixed = iopts[FIXED] == 1
     mode = iopts[SOLVER]
     max_iter = iopts[MAX_ITER]
