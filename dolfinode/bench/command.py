@@ -1,12 +1,20 @@
 """``dolfinode bench``: run the suite and write its tables and plots."""
+import os
 import time
 from pathlib import Path
 
 from dolfinode.bench import report
 from dolfinode.bench.problems import PROBLEMS, QUICK_PROBLEMS, get_problem
-from dolfinode.bench.runner import SCIPY_METHODS, check_methods, run_suite
+from dolfinode.bench.runner import (
+    MAXIMUM_STEPS,
+    SCIPY_METHODS,
+    TIME_LIMIT,
+    check_methods,
+    run_suite,
+)
 
-DN_METHODS = ("cG(1)", "cG(2)", "cG(3)", "dG(1)", "dG(2)", "dG(3)")
+#: dolfinode's methods of a full run; "+modeling" runs only on problems that declare modeling.
+DN_METHODS = ("cG(1)", "cG(2)", "cG(3)", "dG(1)", "dG(2)", "dG(3)", "cG(2)+modeling")
 FULL_TOLERANCES = tuple(10.0 ** -e for e in range(3, 11))
 QUICK = {"methods": ("cG(2)", "dG(2)", "dG(3)", "DOP853", "Radau", "BDF", "LSODA"),
          "tolerances": (1e-4, 1e-7), "repeats": 1, "time_limit": 3.0}
@@ -40,6 +48,9 @@ def add_arguments(parser):
                              "also bounds the memory of a stored solution)")
     parser.add_argument("--output", default="doc/benchmarks", help="output folder")
     parser.add_argument("--name", default="suite", help="file stem of the outputs")
+    parser.add_argument("--merge", action="store_true",
+                        help="merge into the existing record OUTPUT/NAME.json: the problems run "
+                             "replace theirs, the others are kept; all outputs are rewritten")
     parser.add_argument("--update-readme", metavar="README", default=None,
                         help="rewrite the benchmark-suite section of this README.md")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -75,7 +86,21 @@ def plan(args):
         if not args.time_limit > 0:
             raise ValueError(f"--time-limit must be positive, got {args.time_limit}")
         options["time_limit"] = args.time_limit
+    if args.merge and not (Path(args.output) / f"{args.name}.json").exists():
+        raise ValueError(f"--merge: there is no record {Path(args.output) / args.name}.json")
     return problems, methods, tolerances, options
+
+
+def settings(options):
+    """The run's limits and environment, for the record: time limit, maximum_steps, thread
+    variables and the load average at the start."""
+    env = [f"{k}={os.environ[k]}" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+           if k in os.environ]
+    limit = options.get("time_limit", TIME_LIMIT)
+    steps = options.get("maximum_steps", MAXIMUM_STEPS)
+    return "; ".join([f"scipy runs abandoned after {limit:g} CPU s",
+                      f"dolfinode maximum_steps = {steps:,}",
+                      f"load average {os.getloadavg()[0]:.1f} at the start", *env])
 
 
 def run(args, planned, command="dolfinode bench"):
@@ -84,13 +109,18 @@ def run(args, planned, command="dolfinode bench"):
     problems, methods, tolerances, options = planned
     repeats = options["repeats"]
     meta = report.machine_info()   # before the run: the commit whose code is measured
+    meta["settings"] = settings(options)
     rows, cases = run_suite(problems, methods, tolerances, progress=not args.no_progress,
                             **options)
     meta.update(command=command, quick=bool(args.quick), tolerances=list(tolerances),
-                repeats=repeats, methods=methods,
+                repeats=repeats, methods=methods, problems=[p.name for p in problems],
                 total_seconds=time.perf_counter() - start)
     out = Path(args.output)
-    heads = report.write_outputs(out, args.name, meta, rows, cases)
+    infos = report.problem_info(cases)
+    if args.merge:
+        meta, rows, infos = report.merge(report.read_record(out / f"{args.name}.json"), meta,
+                                         rows, infos)
+    heads = report.write_outputs(out, args.name, meta, rows, infos)
     print(report.summary_table(heads))
     print(f"wrote {out}/{args.name}.{{csv,json,png,md}} in {meta['total_seconds']:.0f} s")
     if args.update_readme:
