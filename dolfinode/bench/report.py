@@ -333,7 +333,9 @@ def _span(entries):
         return None, "no common level"
     worst = max(entries, key=lambda e: e["ratio"])
     best = min(entries, key=lambda e: e["ratio"])
-    return worst["ratio"], (f"ratio {_ratio(best, 2)}-{_ratio(worst, 2)} over mescd "
+    low, high = _ratio(best, 2), _ratio(worst, 2)
+    span = high if low == high else f"{low} to {high}"
+    return worst["ratio"], (f"ratio {span} over mescd "
                             f"{entries[0]['level']}-{entries[-1]['level']}; worst at "
                             f"{worst['level']} digits: {worst['dolfinode_best']} vs "
                             f"{worst['scipy_best']}")
