@@ -51,19 +51,29 @@ def add_arguments(parser):
     parser.add_argument("--merge", action="store_true",
                         help="merge into the existing record OUTPUT/NAME.json: the problems run "
                              "replace theirs, the others are kept; all outputs are rewritten")
+    parser.add_argument("--report-only", action="store_true",
+                        help="run nothing: rewrite the tables, plot and README section from the "
+                             "record OUTPUT/NAME.json (after a change of the report)")
     parser.add_argument("--update-readme", metavar="README", default=None,
                         help="rewrite the benchmark-suite section of this README.md")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def plan(args):
-    """The problems, methods, tolerances and runner options the arguments ask for.
+    """The problems, methods, tolerances and runner options the arguments ask for; None for
+    ``--report-only``.
 
     Raises
     ------
     ValueError
-        For an unknown problem or method, or a non-positive number.
+        For an unknown problem or method, a non-positive number, or a missing record for
+        ``--merge`` or ``--report-only``.
     """
+    record = Path(args.output) / f"{args.name}.json"
+    if (args.merge or args.report_only) and not record.exists():
+        raise ValueError(f"there is no record {record} to merge into or report from")
+    if args.report_only:
+        return None
     names = args.problems or (QUICK_PROBLEMS if args.quick else list(PROBLEMS))
     problems = [get_problem(n) for n in names]
     methods = list(args.methods or (QUICK["methods"] if args.quick
@@ -86,8 +96,6 @@ def plan(args):
         if not args.time_limit > 0:
             raise ValueError(f"--time-limit must be positive, got {args.time_limit}")
         options["time_limit"] = args.time_limit
-    if args.merge and not (Path(args.output) / f"{args.name}.json").exists():
-        raise ValueError(f"--merge: there is no record {Path(args.output) / args.name}.json")
     return problems, methods, tolerances, options
 
 
@@ -104,25 +112,30 @@ def settings(options):
 
 
 def run(args, planned, command="dolfinode bench"):
-    """Run the suite as planned by :func:`plan`; returns the headline dict."""
+    """Run the suite as planned by :func:`plan` (None: only rewrite the outputs from the
+    record); returns the headline dict."""
     start = time.perf_counter()
-    problems, methods, tolerances, options = planned
-    repeats = options["repeats"]
-    meta = report.machine_info()   # before the run: the commit whose code is measured
-    meta["settings"] = settings(options)
-    rows, cases = run_suite(problems, methods, tolerances, progress=not args.no_progress,
-                            **options)
-    meta.update(command=command, quick=bool(args.quick), tolerances=list(tolerances),
-                repeats=repeats, methods=methods, problems=[p.name for p in problems],
-                total_seconds=time.perf_counter() - start)
     out = Path(args.output)
-    infos = report.problem_info(cases)
-    if args.merge:
-        meta, rows, infos = report.merge(report.read_record(out / f"{args.name}.json"), meta,
-                                         rows, infos)
+    record = out / f"{args.name}.json"
+    if planned is None:
+        meta, rows, infos = report.read_record(record)
+    else:
+        problems, methods, tolerances, options = planned
+        meta = report.machine_info()   # before the run: the commit whose code is measured
+        meta["settings"] = settings(options)
+        rows, cases = run_suite(problems, methods, tolerances, progress=not args.no_progress,
+                                **options)
+        meta.update(command=command, quick=bool(args.quick), tolerances=list(tolerances),
+                    repeats=options["repeats"], methods=methods,
+                    problems=[p.name for p in problems],
+                    total_seconds=time.perf_counter() - start)
+        infos = report.problem_info(cases)
+        if args.merge:
+            meta, rows, infos = report.merge(report.read_record(record), meta, rows, infos)
     heads = report.write_outputs(out, args.name, meta, rows, infos)
     print(report.summary_table(heads))
-    print(f"wrote {out}/{args.name}.{{csv,json,png,md}} in {meta['total_seconds']:.0f} s")
+    print(f"wrote {out}/{args.name}.{{csv,json,png,md}} in "
+          f"{time.perf_counter() - start:.0f} s")
     if args.update_readme:
         readme = Path(args.update_readme)
 

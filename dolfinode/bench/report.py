@@ -327,15 +327,22 @@ def _multiscale_entries(h):
     return [e for e in h["table"] if e["level"] >= TARGET_LEVEL]
 
 
+def _range(entries):
+    """The range of ratios over ``entries``: '0.5', '0.002-0.005', '< 0.01 to < 0.05'."""
+    worst = max(entries, key=lambda e: e["ratio"])
+    best = min(entries, key=lambda e: e["ratio"])
+    low, high = _ratio(best, 2), _ratio(worst, 2)
+    if low == high:
+        return high
+    return f"{low}{' to ' if '<' in low + high else '-'}{high}"
+
+
 def _span(entries):
     """(worst ratio or None, text): the range of ratios over ``entries`` and the worst."""
     if not entries:
         return None, "no common level"
     worst = max(entries, key=lambda e: e["ratio"])
-    best = min(entries, key=lambda e: e["ratio"])
-    low, high = _ratio(best, 2), _ratio(worst, 2)
-    span = high if low == high else f"{low} to {high}"
-    return worst["ratio"], (f"ratio {span} over mescd "
+    return worst["ratio"], (f"ratio {_range(entries)} over mescd "
                             f"{entries[0]['level']}-{entries[-1]['level']}; worst at "
                             f"{worst['level']} digits: {worst['dolfinode_best']} vs "
                             f"{worst['scipy_best']}")
@@ -411,9 +418,9 @@ CAVEATS = (
     "`seed_model`). `cG(2)+modeling` solves them with automatic modeling (average_length "
     "30/sqrt(kappa)): its modeling error does not shrink with the tolerance, so it reaches a "
     "few digits only and is compared at those, mostly against scipy's loosest runs (*). "
-    "Modeling resolves 2 average lengths per control point (11 windows): it pays only when T "
-    "holds many more fast periods than that (kappa = 1e8, T = 10: 1.6e5 periods), not at "
-    "kappa = 1e4 or 1e6 with T = 10 or 1 (160 periods)."),
+    "Modeling resolves two average lengths around the start and each of its 10 control "
+    "points; it saves work only when T holds many more fast periods than these windows: "
+    "160 periods at kappa = 1e4 (T = 10) and 1e6 (T = 1), 1.6e5 at kappa = 1e8 (T = 10)."),
     ("A scipy solver abandoned at the time limit (status timeout) gives only a lower bound on "
     "its time; where every scipy solver was abandoned, the ratio is an upper bound (<), "
     "t_dolfinode / time limit, however much longer scipy would have taken."),
@@ -532,14 +539,10 @@ def readme_paragraph(meta, heads, md_rel, png_rel):
         if not entries:
             parts.append(f"{name}: no common accuracy level")
             continue
-        ratios = [e["ratio"] for e in entries]
-        lo, hi = min(ratios), max(ratios)
-        span = f"{lo:.2g}" if f"{lo:.2g}" == f"{hi:.2g}" else f"{lo:.2g}-{hi:.2g}"
-        text = f"{name} {span} (mescd {entries[0]['level']}-{entries[-1]['level']})"
+        text = f"{name} {_range(entries)} (mescd {entries[0]['level']}-{entries[-1]['level']})"
         modeled = h.get("modeling_table")
         if modeled:
-            worst = max(modeled, key=lambda e: e["ratio"])
-            text += (f", with automatic modeling {_ratio(worst, 2)} or less (mescd "
+            text += (f", with automatic modeling {_range(modeled)} (mescd "
                      f"{modeled[0]['level']}-{modeled[-1]['level']})")
         parts.append(text)
     stiff = [n for n, h in heads.items() if h["stiff"]]
