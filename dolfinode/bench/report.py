@@ -247,6 +247,10 @@ def plot(path, rows, problems):
             if pts:
                 ax.loglog([10.0 ** -r["mescd"] for r in pts], [r["time_median_s"] for r in pts],
                           markersize=4, linewidth=1.3, label=f"{sm[0]} {sm[1]}", **style[sm])
+        bound = scipy_lower_bound([r for r in rows if r["problem"] == name])
+        if bound is not None:
+            ax.axhline(bound, color="gray", linestyle=":", label="every scipy solver over the "
+                                                                 "time limit (lower bound)")
         scored = f"; scored: {', '.join(info['scored'])}" if info.get("scored") else ""
         ax.set_title(f"{name} (N = {info['N']}{', stiff' if info['stiff'] else ''}{scored})",
                      fontsize=10)
