@@ -1,5 +1,6 @@
-"""The benchmark suite: every problem of dolfinode.bench, dolfinode cG(1..3)/dG(1..3) against
-scipy RK45, DOP853, Radau, BDF and LSODA; writes doc/benchmarks/suite.{csv,json,png,md} and
+"""The benchmark suite: every problem of dolfinode.bench, dolfinode cG(1..3)/dG(1..3) (and
+cG(2)+modeling on the problems that declare automatic modeling) against scipy RK45, DOP853,
+Radau, BDF and LSODA; writes doc/benchmarks/suite.{csv,json,png,md} and
 the README's benchmark-suite paragraph. Same as ``dolfinode bench`` with those two defaults;
 any of its options may follow (``--quick``, ``--problems``, ``--methods``, ``--tolerances``).
 

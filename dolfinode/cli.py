@@ -4,6 +4,7 @@
 (see :mod:`dolfinode.bench`).
 """
 import argparse
+import shlex
 import sys
 
 from dolfinode.parameters import DEFAULTS
@@ -28,7 +29,7 @@ def main(argv=None):
         except ValueError as exc:
             parser.error(str(exc))
         given = sys.argv[1:] if argv is None else argv
-        bench.run(args, planned, command="dolfinode " + " ".join(given))
+        bench.run(args, planned, command="dolfinode " + shlex.join(given))
     return 0
 
 

@@ -1,12 +1,20 @@
 """``dolfinode bench``: run the suite and write its tables and plots."""
+import os
 import time
 from pathlib import Path
 
 from dolfinode.bench import report
 from dolfinode.bench.problems import PROBLEMS, QUICK_PROBLEMS, get_problem
-from dolfinode.bench.runner import SCIPY_METHODS, check_methods, run_suite
+from dolfinode.bench.runner import (
+    MAXIMUM_STEPS,
+    SCIPY_METHODS,
+    TIME_LIMIT,
+    check_methods,
+    run_suite,
+)
 
-DN_METHODS = ("cG(1)", "cG(2)", "cG(3)", "dG(1)", "dG(2)", "dG(3)")
+#: dolfinode's methods of a full run; "+modeling" runs only on problems that declare modeling.
+DN_METHODS = ("cG(1)", "cG(2)", "cG(3)", "dG(1)", "dG(2)", "dG(3)", "cG(2)+modeling")
 FULL_TOLERANCES = tuple(10.0 ** -e for e in range(3, 11))
 QUICK = {"methods": ("cG(2)", "dG(2)", "dG(3)", "DOP853", "Radau", "BDF", "LSODA"),
          "tolerances": (1e-4, 1e-7), "repeats": 1, "time_limit": 3.0}
@@ -40,19 +48,32 @@ def add_arguments(parser):
                              "also bounds the memory of a stored solution)")
     parser.add_argument("--output", default="doc/benchmarks", help="output folder")
     parser.add_argument("--name", default="suite", help="file stem of the outputs")
+    parser.add_argument("--merge", action="store_true",
+                        help="merge into the existing record OUTPUT/NAME.json: the problems run "
+                             "replace theirs, the others are kept; all outputs are rewritten")
+    parser.add_argument("--report-only", action="store_true",
+                        help="run nothing: rewrite the tables, plot and README section from the "
+                             "record OUTPUT/NAME.json (after a change of the report)")
     parser.add_argument("--update-readme", metavar="README", default=None,
                         help="rewrite the benchmark-suite section of this README.md")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def plan(args):
-    """The problems, methods, tolerances and runner options the arguments ask for.
+    """The problems, methods, tolerances and runner options the arguments ask for; None for
+    ``--report-only``.
 
     Raises
     ------
     ValueError
-        For an unknown problem or method, or a non-positive number.
+        For an unknown problem or method, a non-positive number, or a missing record for
+        ``--merge`` or ``--report-only``.
     """
+    record = Path(args.output) / f"{args.name}.json"
+    if (args.merge or args.report_only) and not record.exists():
+        raise ValueError(f"there is no record {record} to merge into or report from")
+    if args.report_only:
+        return None
     names = args.problems or (QUICK_PROBLEMS if args.quick else list(PROBLEMS))
     problems = [get_problem(n) for n in names]
     methods = list(args.methods or (QUICK["methods"] if args.quick
@@ -78,21 +99,43 @@ def plan(args):
     return problems, methods, tolerances, options
 
 
+def settings(options):
+    """The run's limits and environment, for the record: time limit, maximum_steps, thread
+    variables and the load average at the start."""
+    env = [f"{k}={os.environ[k]}" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+           if k in os.environ]
+    limit = options.get("time_limit", TIME_LIMIT)
+    steps = options.get("maximum_steps", MAXIMUM_STEPS)
+    return "; ".join([f"scipy runs abandoned after {limit:g} CPU s",
+                      f"dolfinode maximum_steps = {steps:,}",
+                      f"load average {os.getloadavg()[0]:.1f} at the start", *env])
+
+
 def run(args, planned, command="dolfinode bench"):
-    """Run the suite as planned by :func:`plan`; returns the headline dict."""
+    """Run the suite as planned by :func:`plan` (None: only rewrite the outputs from the
+    record); returns the headline dict."""
     start = time.perf_counter()
-    problems, methods, tolerances, options = planned
-    repeats = options["repeats"]
-    meta = report.machine_info()   # before the run: the commit whose code is measured
-    rows, cases = run_suite(problems, methods, tolerances, progress=not args.no_progress,
-                            **options)
-    meta.update(command=command, quick=bool(args.quick), tolerances=list(tolerances),
-                repeats=repeats, methods=methods,
-                total_seconds=time.perf_counter() - start)
     out = Path(args.output)
-    heads = report.write_outputs(out, args.name, meta, rows, cases)
+    record = out / f"{args.name}.json"
+    if planned is None:
+        meta, rows, infos = report.read_record(record)
+    else:
+        problems, methods, tolerances, options = planned
+        meta = report.machine_info()   # before the run: the commit whose code is measured
+        meta["settings"] = settings(options)
+        rows, cases = run_suite(problems, methods, tolerances, progress=not args.no_progress,
+                                **options)
+        meta.update(command=command, quick=bool(args.quick), tolerances=list(tolerances),
+                    repeats=options["repeats"], methods=methods,
+                    problems=[p.name for p in problems],
+                    total_seconds=time.perf_counter() - start)
+        infos = report.problem_info(cases)
+        if args.merge:
+            meta, rows, infos = report.merge(report.read_record(record), meta, rows, infos)
+    heads = report.write_outputs(out, args.name, meta, rows, infos)
     print(report.summary_table(heads))
-    print(f"wrote {out}/{args.name}.{{csv,json,png,md}} in {meta['total_seconds']:.0f} s")
+    print(f"wrote {out}/{args.name}.{{csv,json,png,md}} in "
+          f"{time.perf_counter() - start:.0f} s")
     if args.update_readme:
         readme = Path(args.update_readme)
 

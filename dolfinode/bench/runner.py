@@ -32,6 +32,11 @@ IMPLICIT = ("Radau", "BDF", "LSODA")
 clock = time.process_time
 #: Points of the L2 error.
 N_EVAL = 100
+#: Default CPU seconds after which a scipy run is abandoned, and dolfinode's maximum_steps.
+TIME_LIMIT, MAXIMUM_STEPS = 20.0, 200_000
+#: Suffix of a method label that solves with automatic modeling ("cG(2)+modeling"), with the
+#: parameters the problem declares (``Problem.modeling``).
+MODELING = "+modeling"
 
 ROW_FIELDS = ("problem", "solver", "method", "tolerance", "atol", "status", "note",
               "time_median_s", "time_min_s", "repeats", "first_call_s", "dn_solve_time_s", "mescd", "err_T",
@@ -44,12 +49,25 @@ def check_methods(methods):
 
     for m in methods:
         if not is_scipy(m):
-            dn.parse_method(m)
+            dn.parse_method(split_modeling(m)[0])
 
 
 def is_scipy(method):
     """Whether ``method`` names a scipy solver (else a dolfinode method)."""
     return method in SCIPY_METHODS
+
+
+def split_modeling(method):
+    """(dolfinode method, whether with automatic modeling) of a method label."""
+    if method.endswith(MODELING):
+        return method[:-len(MODELING)], True
+    return method, False
+
+
+def applies(problem, method):
+    """Whether the runner runs ``method`` on ``problem``: a modeling variant only on a problem
+    that declares modeling parameters."""
+    return not split_modeling(method)[1] or problem.modeling is not None
 
 
 class RunTimeout(Exception):
@@ -117,12 +135,15 @@ class Case:
         return res.y.copy(), note
 
     def score(self, y_final, y_samples):
-        """mescd at T, max error at T and L2 error over the 100 points."""
+        """mescd at T, max error at T and L2 error over the 100 points, over the problem's
+        scored components."""
         p = self.problem
-        y_final = np.asarray(y_final, dtype=float)
-        return {"mescd": mescd(y_final, p.final, p.atol_ratio),
-                "err_T": float(np.max(np.abs(y_final - p.final))),
-                "err_L2": float(np.sqrt(np.mean((np.asarray(y_samples) - self.ref_y) ** 2)))}
+        scored = slice(None) if p.scored is None else list(p.scored)
+        y_final = np.asarray(y_final, dtype=float)[scored]
+        samples = np.asarray(y_samples)[scored]
+        return {"mescd": mescd(y_final, p.final[scored], p.atol_ratio),
+                "err_T": float(np.max(np.abs(y_final - p.final[scored]))),
+                "err_L2": float(np.sqrt(np.mean((samples - self.ref_y[scored]) ** 2)))}
 
 
 def _row(case, method, tol):
@@ -150,12 +171,17 @@ def first_call(case):
 
 
 def run_dolfinode(case, method, tol, maximum_steps):
-    """One untimed dolfinode run: errors and counts. Returns (row, timed call or None)."""
+    """One untimed dolfinode run: errors and counts. Returns (row, timed call or None).
+    A modeling variant (:data:`MODELING`) solves with automatic modeling and the problem's
+    modeling parameters."""
     import dolfinode as dn
 
     row = _row(case, method, tol)
-    options = {"method": method, "tolerance": tol, "absolute_tolerance": row["atol"],
-                   "maximum_steps": maximum_steps}
+    base, modeling = split_modeling(method)
+    options = {"method": base, "tolerance": tol, "absolute_tolerance": row["atol"],
+               "maximum_steps": maximum_steps}
+    if modeling:
+        options.update(automatic_modeling=True, **case.problem.modeling)
     try:
         start = clock()
         sol = dn.solve(case.ode, **options)
@@ -166,9 +192,15 @@ def run_dolfinode(case, method, tol, maximum_steps):
     st = sol.stats
     row.update(case.score(sol(case.ode.T), sol(case.t_eval)))
     row.update(f_evals=st["f evaluations"], jacobians=st["jacobian evaluations"],
-               factorizations=st["factorizations"], steps=st["time slabs"],
+               factorizations=st.get("factorizations"), steps=st["time slabs"],
                rejected=st["rejected steps"], elements=st["elements"])
-    return row, lambda: dn.solve(case.ode, **options).stats["solve time"]
+
+    def timed():
+        stats = dn.solve(case.ode, **options).stats
+        # with modeling, "solve time" is the wall time of the whole pipeline, not a loop's
+        return None if modeling else stats["solve time"]
+
+    return row, timed
 
 
 def _scipy_solve(case, method, tol, fun, **extra):
@@ -219,8 +251,10 @@ def _scipy_counts(case, method, tol):
 
 
 def run_scipy(case, method, tol, time_limit):
-    """One untimed scipy run (abandoned after ``time_limit`` s): errors and counts.
-    Returns (row, timed call or None)."""
+    """One untimed scipy run: errors and counts. Returns (row, timed call or None).
+
+    A run is abandoned after ``time_limit`` CPU seconds: status "timeout", with the CPU time
+    it had used in ``first_call_s`` (a lower bound on its time)."""
     row = _row(case, method, tol)
     fun, last = with_deadline(case.fun, time_limit)
     try:
@@ -228,8 +262,9 @@ def run_scipy(case, method, tol, time_limit):
         res, caught = _scipy_solve(case, method, tol, fun, t_eval=case.t_eval)
         row["first_call_s"] = clock() - start
     except RunTimeout:
-        row.update(status="skipped", note=f"over {time_limit:g} s (abandoned at t = "
-                                          f"{last[0]:.4g} of {case.ode.T:g})")
+        row.update(status="timeout", first_call_s=clock() - start,
+                   note=f"over {time_limit:g} s (abandoned at t = {last[0]:.4g} of "
+                        f"{case.ode.T:g})")
         return row, None
     except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
         row.update(status="failed", note=f"{type(exc).__name__}: {exc}")   # scipy raised
@@ -282,15 +317,17 @@ def time_interleaved(jobs, repeats, budget, bar=None):
             row["dn_solve_time_s"] = float(np.median(inner[id(row)]))
 
 
-def run_suite(problems, methods, tolerances, *, repeats=3, budget=2.0, time_limit=20.0,
-              maximum_steps=200_000, progress=True):
+def run_suite(problems, methods, tolerances, *, repeats=3, budget=2.0, time_limit=TIME_LIMIT,
+              maximum_steps=MAXIMUM_STEPS, progress=True):
     """Sweep every method over the tolerances on every problem, score and time the runs.
 
     Parameters
     ----------
     problems : list of Problem
     methods : list of str
-        dolfinode methods ("cG(2)", "mdG(1)", ...) and scipy solvers (:data:`SCIPY_METHODS`).
+        dolfinode methods ("cG(2)", "mdG(1)", ...), their automatic-modeling variants
+        ("cG(2)+modeling", run only on problems that declare ``modeling``) and scipy solvers
+        (:data:`SCIPY_METHODS`).
     tolerances : list of float
         Relative tolerances; the absolute tolerance is ``problem.atol_ratio`` times each.
     repeats : int
@@ -315,6 +352,7 @@ def run_suite(problems, methods, tolerances, *, repeats=3, budget=2.0, time_limi
     Notes
     -----
     Once a method fails or is abandoned at one tolerance, its tighter tolerances are skipped.
+    A modeling variant has no rows on a problem without modeling parameters.
     """
     from tqdm.auto import tqdm
 
@@ -324,7 +362,7 @@ def run_suite(problems, methods, tolerances, *, repeats=3, budget=2.0, time_limi
         raise ValueError(f"repeats must be at least 1, got {repeats}")
     check_methods(methods)
     tolerances = sorted(tolerances, reverse=True)
-    total = len(problems) * len(methods) * len(tolerances)
+    total = sum(applies(p, m) for p in problems for m in methods) * len(tolerances)
     bar = tqdm(total=total * (1 + repeats), desc="bench", unit="run", disable=not progress)
     rows, jobs, cases = [], [], []
     try:
@@ -333,7 +371,7 @@ def run_suite(problems, methods, tolerances, *, repeats=3, budget=2.0, time_limi
             case = Case(problem)
             first_call(case)
             cases.append(case)
-            for method in methods:
+            for method in (m for m in methods if applies(problem, m)):
                 bar.set_postfix_str(f"{problem.name} {method}")
                 given_up = None
                 for tol in tolerances:

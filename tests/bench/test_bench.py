@@ -155,8 +155,7 @@ def test_headline_verdicts():
                                 ("scipy", "Radau", [(5.0, 1.0), (8.0, 0.2)])):
         rows += [{"problem": "p", "solver": solver, "method": method, "status": "ok",
                   "mescd": d, "time_median_s": s} for d, s in pts]
-    problem = P.Problem("p", _tiny().ode, stiff=True, final=np.zeros(1))
-    heads = report.headline(rows, [problem])
+    heads = report.headline(rows, {"p": {"stiff": True, "multiscale": False}})
     assert heads["p"]["levels_compared"] == [6, 7, 8] and not heads["p"]["target_met"]
     heads["q"] = {"stiff": True, "table": [entry(4, 0.5)], "target_met": False,
                   "levels_compared": []}
@@ -224,6 +223,115 @@ def test_target_section_states_met_and_missed_with_ratios():
              "wave": {"stiff": False, "multiscale": True, "table": [entry(6, 0.5)]}}
     text = report.target_section(heads)
     assert "* fast: met (ratio 0.002-0.005 over mescd 6-7" in text
-    assert "* slow: **not met** (ratio 2-2 over mescd 6-6; worst at 6 digits: dG(2) vs LSODA)" in text
-    assert "* wave: **not met** (ratio 0.5-0.5" in text
+    assert "* slow: **not met** (ratio 2 over mescd 6-6; worst at 6 digits: dG(2) vs LSODA)" in text
+    assert "* wave: **not met** (ratio 0.5 over" in text
     assert text.count("* fast") == 2 and "* slow" not in text.split("Multiscale")[1]
+
+
+def test_modeling_variant_runs_where_declared_and_is_scored_on_x1():
+    """cG(2)+modeling runs on a seed model (its declared average_length) and not on a problem
+    without modeling parameters; the seed models are scored on x1 alone."""
+    seed = P.seed_model(1e6, T=1.0)
+    assert seed.modeling == {"average_length": pytest.approx(0.03)} and seed.scored == (0,)
+    assert P.seed_model(1e2).modeling is None
+    rows, cases = run_suite([seed, _tiny()], ["cG(2)+modeling", "cG(2)"], [1e-3], repeats=1,
+                            progress=False)
+    assert [(r["problem"], r["method"]) for r in rows] == [
+        (seed.name, "cG(2)+modeling"), (seed.name, "cG(2)"), ("decay", "cG(2)")]
+    modeled = rows[0]
+    assert set(modeled) == set(ROW_FIELDS) and modeled["status"] == "ok", modeled["note"]
+    assert modeled["time_median_s"] > 0 and modeled["elements"] > 0
+    assert modeled["factorizations"] is None and modeled["dn_solve_time_s"] is None
+    # the modeling error: about 5 digits in x1 at kappa = 1e6, tau = 0.03
+    assert 4 < modeled["mescd"] < 7
+    assert modeled["mescd"] == pytest.approx(
+        -np.log10(modeled["err_T"] / (1 + abs(seed.final[0]))))
+    # x1 only: an error in the fast components does not count
+    case = cases[0]
+    wrong = seed.final + [0.0, 1.0, 0.0, 1.0]
+    assert case.score(wrong, case.ref_y)["mescd"] == 300
+    info = report.problem_info(cases)
+    assert info[seed.name]["scored"] == ["x1"] and info["decay"]["scored"] is None
+
+
+def test_abandoned_scipy_runs_are_timeouts_and_bound_scipy_time():
+    rows, _ = run_suite([P.seed_model(1e6, T=1.0)], ["RK45"], [1e-3, 1e-4], repeats=1,
+                        time_limit=0.02, progress=False)
+    assert [r["status"] for r in rows] == ["timeout", "skipped"]
+    assert rows[0]["first_call_s"] >= 0.02 and "over 0.02 s" in rows[0]["note"]
+    assert rows[1]["note"] == "timeout at tolerance 0.001"
+
+    def run(solver, method, status, digits=None, seconds=None, spent=None):
+        return {"problem": "p", "solver": solver, "method": method, "status": status,
+                "mescd": digits, "time_median_s": seconds, "first_call_s": spent}
+
+    rows = [run("dolfinode", "cG(2)+modeling", "ok", 2.5, 0.01),
+            run("dolfinode", "cG(2)+modeling", "ok", 3.0, 0.02),
+            run("scipy", "DOP853", "ok", 2.2, 1.0), run("scipy", "DOP853", "timeout", spent=5.1),
+            run("scipy", "Radau", "timeout", spent=5.0)]
+    table = {e["level"]: e for e in report.equal_accuracy(rows, "p")}
+    assert not table[2]["scipy_bound"] and table[2]["scipy_best"] == "DOP853"
+    # level 3: no scipy solver reached it and every one was abandoned: scipy > 5 s
+    assert table[3]["scipy_bound"] and table[3]["scipy_time_s"] == 5.0
+    assert table[3]["ratio"] == pytest.approx(0.02 / 5.0)
+    assert "| 3 | cG(2)+modeling | 20 ms | none (all over the time limit) | > 5 s | < 0.004 |" \
+        in report.level_table(table.values())
+    # a solver that ended its sweep below a level gives no bound there
+    rows.append(run("scipy", "LSODA", "ok", 2.1, 0.5))
+    assert [e["level"] for e in report.equal_accuracy(rows, "p")] == [2]
+
+
+def test_multiscale_target_uses_the_modeling_runs():
+    def run(method, solver, digits, seconds):
+        return {"problem": "s", "solver": solver, "method": method, "status": "ok",
+                "mescd": digits, "time_median_s": seconds, "first_call_s": seconds}
+
+    rows = [run("cG(2)+modeling", "dolfinode", 4.2, 0.001), run("dG(3)", "dolfinode", 6.5, 0.05),
+            run("dG(3)", "dolfinode", 8.5, 0.1), run("LSODA", "scipy", 4.5, 0.2),
+            run("LSODA", "scipy", 8.5, 1.0)]
+    heads = report.headline(rows, {"s": {"stiff": False, "multiscale": True}})
+    h = heads["s"]
+    assert [e["level"] for e in h["modeling_table"]] == [4]
+    assert h["modeling_table"][0]["ratio"] == pytest.approx(0.005)
+    assert h["modeling_table"][0]["scipy_clamped"]   # LSODA's loosest run is more accurate
+    text = report.target_section(heads)
+    assert ("* s: met (with automatic modeling: ratio 0.005 over mescd 4-4; worst at 4 "
+            "digits: cG(2)+modeling vs LSODA. All methods, mescd >= 6: ratio") in text
+    readme = report.readme_paragraph({"date": "d", "cpu_count": 2, "tolerances": [1e-4],
+                                      "command": "c"}, heads, "m", "p")
+    assert "with automatic modeling 0.005 (mescd 4-4)" in readme
+    assert "(s): met on s." in readme
+
+
+def test_cli_bench_merges_a_run_into_the_record_and_rewrites_it(tmp_path, monkeypatch):
+    from dolfinode.bench import problems
+
+    def renamed():
+        problem = _tiny()
+        problem.name = "decay2"
+        return problem
+
+    monkeypatch.setitem(problems.PROBLEMS, "decay", _tiny)
+    monkeypatch.setitem(problems.PROBLEMS, "decay2", renamed)
+    common = ["--methods", "dG(1),LSODA", "--tolerances", "1e-3", "--repeats", "1",
+              "--output", str(tmp_path), "--no-progress"]
+    with pytest.raises(SystemExit):
+        main(["bench", "--problems", "decay", "--merge", *common])
+    assert main(["bench", "--problems", "decay,decay2", *common]) == 0
+    first = json.loads((tmp_path / "suite.json").read_text())
+    assert main(["bench", "--problems", "decay2", "--methods", "cG(1),LSODA", "--merge",
+                 *common[2:]]) == 0
+    record = json.loads((tmp_path / "suite.json").read_text())
+    assert list(record["problems"]) == ["decay", "decay2"]
+    methods = [(r["problem"], r["method"]) for r in record["runs"]]
+    assert methods == [("decay", "dG(1)"), ("decay", "LSODA"), ("decay2", "cG(1)"),
+                       ("decay2", "LSODA")]
+    assert record["runs"][0] == first["runs"][0]
+    assert record["meta"]["command"] == first["meta"]["command"]
+    assert record["meta"]["merged"][0]["problems"] == ["decay2"]
+    assert "Merged: decay2 re-run" in (tmp_path / "suite.md").read_text()
+    # --report-only rewrites the outputs from the record, running nothing
+    (tmp_path / "suite.md").unlink()
+    assert main(["bench", "--report-only", "--output", str(tmp_path), "--no-progress"]) == 0
+    assert json.loads((tmp_path / "suite.json").read_text())["runs"] == record["runs"]
+    assert "Merged: decay2 re-run" in (tmp_path / "suite.md").read_text()
