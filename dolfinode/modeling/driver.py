@@ -19,8 +19,6 @@ The pipeline (Jansson, Johnson & Logg 2005, sections 3-7, made automatic and che
 Windows are resolved with a cG method (cG(q) for dG(q), mcG(q) for mdG(q)), see
 ``_conservative``.
 """
-import functools
-import itertools
 import math
 import time
 
@@ -105,30 +103,29 @@ def solve_with_modeling(ode, method, params, solve):
     window_options = {"maximum_time_step": min(window_step, tau)}
 
     # a window of a large system is solved in pieces of about WINDOW_PIECE_BYTES of elements
-    # (estimated from the window step), each read at the averaging times and dropped
+    # (the first estimated from the window step), each read at the averaging times and
+    # dropped
     q = parse_method(window_method)[1].q
     half_bytes = 8 * (q + 1) * ode.N * tau / window_step
-    pieces_per_half = max(1, math.ceil(half_bytes / WINDOW_PIECE_BYTES))
-    fractions = np.arange(pieces_per_half + 1) / pieces_per_half
-    half_ends = tau * fractions  # the pieces of the first half-window, in its local time
+    first_length = tau / max(1, math.ceil(half_bytes / WINDOW_PIECE_BYTES))
+    pace = {"length": first_length}  # windows after the first start at the last density
 
     def resolve(u, center, record_first=None):
         """Solve the full model on [center - tau, center + tau] (in the window's local time
         [0, 2 tau], see WindowModel) and average it.
 
-        The window is solved in consecutive pieces (each half in as many as the first),
-        each restarted from the end of the last, read at the averaging times and dropped: a
-        window's elements (N per slab, thousands of slabs) are most of the memory of a
-        large system. ``record_first`` is given the pieces of the first half (the output
-        on [t0, t_c] for the first window). Returns the number of elements of the window
-        and its averages, recorded as data of the subgrid model."""
+        The window is solved in consecutive pieces (see _pieces), each restarted from the
+        end of the last, read at the averaging times and dropped: a window's elements (N
+        per slab, thousands of slabs) are most of the memory of a large system.
+        ``record_first`` is given the pieces of the first half (the output on [t0, t_c] for
+        the first window). Returns the number of elements of the window and its averages,
+        recorded as data of the subgrid model."""
         local = window_model.declaration(u, 0.0, 2 * tau, center - tau)
         averager = WindowAverager(lower(local), tau, tau, params["average_samples"], 0.0,
                                   2 * tau)
         elements = 0
-        ends = tau * np.concatenate([fractions, 1 + fractions[1:]])
-        for piece in _pieces(run, window_model, u, ends, center - tau,
-                             dict(window_options, method=window_method)):
+        for piece in _pieces(run, window_model, u, (0.0, tau, 2 * tau), center - tau,
+                             dict(window_options, method=window_method), pace):
             averager.record(piece)
             elements += piece.stats["elements"]
             if record_first is not None and piece.ode.T <= tau:
@@ -146,16 +143,17 @@ def solve_with_modeling(ode, method, params, solve):
         kept = []
         record_start = kept.append
     else:
-        start = _Start(functools.partial(_pieces, solve_piece, window_model, ode.u0,
-                                         shift=ode.t0, step=dict(window_options, method=method)),
-                       half_ends, ode.t0, ode.N,
-                       np.linspace(ode.t0, ode.T, params["number_of_samples"]))
+        # solved again as in the solve: the first half of the first window, or its own
+        start = _Start(lambda: _pieces(solve_piece, window_model, ode.u0, (0.0, tau), ode.t0,
+                                       dict(window_options, method=method),
+                                       {"length": first_length}),
+                       tau, ode.t0, ode.N, np.linspace(ode.t0, ode.T, params["number_of_samples"]))
         record_start = start.record
     _, averages = resolve(ode.u0, ode.t0 + tau,
                           record_first=record_start if window_method == method else None)
     if window_method != method:
-        for piece in _pieces(run, window_model, ode.u0, half_ends, ode.t0,
-                             dict(window_options, method=method)):
+        for piece in _pieces(run, window_model, ode.u0, (0.0, tau), ode.t0,
+                             dict(window_options, method=method), {"length": first_length}):
             record_start(piece)
             del piece
     # inactivated: the fast components (at least one period 2 pi / omega_i in the averaging
@@ -264,17 +262,16 @@ class _Start:
     read at the output samples while it is solved (:meth:`record`), and solved again where
     it is evaluated at other times.
 
-    ``pieces(ends)`` solves it on the pieces between ``ends[:j]`` (the first of
-    ``half_ends``, in the local time of the first window, which starts at t0) and yields
-    them, as in the solve."""
+    ``pieces()`` solves it again and yields its pieces, as in the solve (on [0, tau], the
+    local time of the first window, which starts at t0)."""
 
-    def __init__(self, pieces, half_ends, t0, N, sample_times):
-        self.pieces, self.half_ends, self.t0, self.N = pieces, half_ends, t0, N
+    def __init__(self, pieces, tau, t0, N, sample_times):
+        self.pieces, self.tau, self.t0, self.N = pieces, tau, t0, N
         self.samples = _SampledWindow(N, np.unique(self._local(
-            sample_times[sample_times <= t0 + half_ends[-1]])))
+            sample_times[sample_times <= t0 + tau])))
 
     def _local(self, times):
-        return np.minimum(times - self.t0, self.half_ends[-1])
+        return np.minimum(times - self.t0, self.tau)
 
     def record(self, piece):
         self.samples.record(piece)
@@ -284,11 +281,12 @@ class _Start:
         window = self.samples
         if not np.isin(local[local > 0], window.times).all():
             window = _SampledWindow(self.N, np.unique(local))
-            # the pieces up to the first that ends at or after the latest time
-            last = np.searchsorted(self.half_ends, window.times[-1])
-            for piece in self.pieces(self.half_ends[:last + 1]):
+            for piece in self.pieces():  # up to the latest time
                 window.record(piece)
+                done = piece.ode.T >= window.times[-1]
                 del piece
+                if done:
+                    break
         return window(local)
 
 
@@ -309,17 +307,27 @@ class _SampledWindow:
         return self.values[:, np.searchsorted(self.times, times)]
 
 
-def _pieces(solve, window_model, u, ends, shift, step):
-    """The full model solved on consecutive pieces [ends[i], ends[i + 1]] of a window (in
-    the local time of the window starting at ``shift``), each restarted from the end of the
-    last with its last step: yields the solutions, to be read and dropped.
-    ``solve(declaration, **step)`` solves one piece."""
+def _pieces(solve, window_model, u, stops, shift, step, pace):
+    """The full model solved on consecutive pieces of a window from stops[0], ending at
+    every stop (in the local time of the window starting at ``shift``), each restarted from
+    the end of the last with its last step: yields the solutions, to be read and dropped.
+
+    A piece is at most ``pace["length"]`` long (equal pieces up to the next stop); after
+    each, that length is set to hold about WINDOW_PIECE_BYTES of elements at its step
+    density (the steps of a window vary: on the lattice the windows of the control points
+    take up to 4 times the steps of the first). ``solve(declaration, **step)`` solves one
+    piece."""
     step = dict(step)
-    for a, b in itertools.pairwise(ends):
-        piece = solve(window_model.declaration(u, a, b, shift), **step)
-        yield piece
-        u, step["initial_time_step"] = piece(b), _last_step(piece)
-        del piece
+    a = stops[0]
+    for stop in stops[1:]:
+        while a < stop:
+            n = math.ceil((stop - a) / pace["length"])
+            b = a + (stop - a) / n if n > 1 else stop
+            piece = solve(window_model.declaration(u, a, b, shift), **step)
+            yield piece
+            pace["length"] = (b - a) * WINDOW_PIECE_BYTES / piece.values.nbytes
+            u, step["initial_time_step"], a = piece(b), _last_step(piece), b
+            del piece
 
 
 def _conservative(method):
