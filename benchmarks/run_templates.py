@@ -133,7 +133,7 @@ def one_size(p):
 def modeling(p):
     """The issue's run: lattice(p), T = 10, automatic modeling; prints a JSON record."""
     import dolfinode as dn
-    from dolfinode.modeling.driver import ModelingSolution
+    from dolfinode.modeling import ModelingSolution
 
     ode, build, _ = _timed(dn.systems.lattice, p, T=10.0)
     before = _maxrss_mb()

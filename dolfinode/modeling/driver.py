@@ -41,7 +41,8 @@ from dolfinode.solution import Solution, join_elements
 MODELING_PARAMETERS = ("automatic_modeling", "average_length", "average_samples",
                        "average_tolerance", "control_points", "model_tolerance",
                        "rebuild_model", "subgrid_model")
-#: Bytes of elements a piece of a resolved window may hold (estimated before solving it).
+#: Bytes of elements a piece of a resolved window should hold (its length is set from the
+#: last piece's step density; the first from the window step).
 WINDOW_PIECE_BYTES = 2**26
 #: Bytes of elements of the resolved start [t0, t_c] the returned Solution may hold
 #: (estimated); a larger start is not stored but solved again where it is evaluated, see
