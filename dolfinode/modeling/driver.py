@@ -57,7 +57,8 @@ def solve_with_modeling(ode, method, params, solve):
     """Solve ``ode`` with automatic modeling; ``solve`` is the plain driver.
 
     Returns a :class:`~dolfinode.solution.Solution` whose ``model`` attribute is the
-    :class:`~dolfinode.modeling.reduced.ReducedModel`.
+    :class:`~dolfinode.modeling.reduced.ReducedModel`: a :class:`ModelingSolution` when the
+    resolved start [t0, t_c] would exceed START_BYTES.
     """
     start_time = time.perf_counter()
     inner = {k: v for k, v in params.items() if k not in MODELING_PARAMETERS}
