@@ -133,17 +133,24 @@ def one_size(p):
 def modeling(p):
     """The issue's run: lattice(p), T = 10, automatic modeling; prints a JSON record."""
     import dolfinode as dn
+    from dolfinode.modeling import ModelingSolution
 
     ode, build, _ = _timed(dn.systems.lattice, p, T=10.0)
+    before = _maxrss_mb()
     sol, seconds, cpu = _timed(dn.solve, ode, **MODELING)
     stats = sol.stats
+    reduced = sol.model.reduced
+    # the returned elements: the reduced solution's, and the start's when it is kept whole
+    start_kept = not isinstance(sol, ModelingSolution)
+    stored = reduced.values.nbytes + (sol.values.nbytes if start_kept else 0)
     print(json.dumps({"p": p, "N": ode.N, "finished": True, "build_s": build,
                       "solve_s": seconds, "solve_cpu_s": cpu,
                       "compile_s": stats["compile time"], "elements": int(stats["elements"]),
                       "slabs": int(stats["time slabs"]),
                       "inactive": int((~sol.model.active).sum()),
                       "us_cpu_per_element": 1e6 * cpu / stats["elements"],
-                      "output_slabs": len(sol.k), "stored_MB": sol.values.nbytes / 2**20,
+                      "reduced_slabs": len(reduced.k), "start_kept": start_kept,
+                      "stored_MB": stored / 2**20, "maxrss_before_MB": before,
                       "maxrss_MB": _maxrss_mb()}))
 
 
@@ -336,21 +343,25 @@ def _modeling_table(rows):
          "systems, whose kernels do not depend on p, so the later sizes find them on disk. "
          "Compile: kernel loading and generation inside the solve (wall). Elements are "
          "component-elements (N per time slab: cG(2) is mono-adaptive), over every inner "
-         "solve; us = CPU microseconds per component-element. Output: the slabs and bytes of "
-         "the returned solution; RSS: the process's peak resident memory (including the "
-         "~0.2 GB of Python, numpy and the compiled kernels)."), "",
+         "solve; us = CPU microseconds per component-element. Stored: the reduced solution's "
+         "slabs, whether the resolved start [t0, t_c] is kept element by element (below "
+         "START_BYTES) and the MB of elements the returned solution holds. RSS: the "
+         "process's peak resident memory (including the ~0.2 GB of Python, numpy, the "
+         "compiled kernels and the lattice), before the solve (after building the lattice) "
+         "and in all; per component: the solve's part, (max - before) / N."), "",
         ("| p | N | finished | solve s (wall / CPU) | compile s | elements | slabs | "
-         "inactive | us CPU / comp-elem | output slabs / MB | max RSS MB | RSS kB / "
-         "component |"),
-        "|" + "---|" * 12]
+         "inactive | us CPU / comp-elem | stored: reduced slabs, start kept, MB | RSS before "
+         "solve MB | max RSS MB | solve's RSS kB / component |"),
+        "|" + "---|" * 13]
 
     def cells(r, label):
-        output = (f"{r['output_slabs']} / {r['stored_MB']:.0f}" if "output_slabs" in r
-                  else "")
+        stored = (f"{r['reduced_slabs']}, {'yes' if r['start_kept'] else 'no'}, "
+                  f"{r['stored_MB']:.1f}")
         return (f"| {r['p']} | {r['N']} | {label} | {r['solve_s']:.1f} / "
                 f"{r['solve_cpu_s']:.1f} | {r['compile_s']:.1f} | {r['elements']} | "
-                f"{r['slabs']} | {r['inactive']} | {r['us_cpu_per_element']:.3f} | {output} | "
-                f"{r['maxrss_MB']:.0f} | {1024 * r['maxrss_MB'] / r['N']:.0f} |")
+                f"{r['slabs']} | {r['inactive']} | {r['us_cpu_per_element']:.3f} | {stored} | "
+                f"{r['maxrss_before_MB']:.0f} | {r['maxrss_MB']:.0f} | "
+                f"{1024 * (r['maxrss_MB'] - r['maxrss_before_MB']) / r['N']:.1f} |")
 
     for r in rows:
         if r.get("finished"):
@@ -362,16 +373,17 @@ def _modeling_table(rows):
             why = (f"no: stopped at the {r['limit_s']:.0f} s limit" if r.get("limit_s")
                    else f"no: {r.get('error')}")
             where = " < ".join(_frame(f) for f in r.get("where", [])).replace("|", "/")
-            lines.append(f"| {r['p']} | | {why} (in: {where}) |" + " |" * 9)
+            lines.append(f"| {r['p']} | | {why} (in: {where}) |" + " |" * 10)
     if any(not r.get("finished") for r in rows):
         lines += ["", "'in:' gives the innermost frames of the run when it was stopped."]
     lines += ["", ("Almost all elements are those of the resolved windows (five windows of "
                    "2 tau, one build and four control points, with steps below the fast "
-                   "period); the reduced model itself takes a few slabs. The windows are also "
-                   "the memory peak: each is stored element by element (N x (q + 1) values per "
-                   "slab) until it is averaged, and the averaging samples u and f at "
-                   "2 average_samples + 1 = 2001 times (two N x 2001 arrays); the returned "
-                   "solution holds the first half-window and the reduced slabs.")]
+                   "period); the reduced model itself takes a few slabs. Each window is "
+                   "solved in pieces of about WINDOW_PIECE_BYTES (64 MB) of elements, each "
+                   "added to the window's running averages and dropped, so the windows' "
+                   "memory does not grow with N; above START_BYTES (64 MB) the resolved start "
+                   "[t0, t_c] is not stored (sol(t) there solves it again), and the returned "
+                   "solution holds the reduced slabs.")]
     return lines
 
 

@@ -118,6 +118,13 @@ class Solution:
                            or times.max() > self.ode.T):
             raise ValueError(f"the solution is defined on [{self.ode.t0}, {self.ode.T}], "
                              f"got t outside it")
+        out = self._evaluate(times)
+        # U(t0) is the initial value (for dG the element polynomial starts after the jump)
+        out[:, times == self.ode.t0] = self.ode.u0[:, None]
+        return out[:, 0] if scalar else out
+
+    def _evaluate(self, times):
+        """U at ``times`` in [t0, T], shape (N, len(times)), from the elements."""
         if self.multi:
             out = np.empty((times.size, self.ode.N)).T  # the layout einsum gives
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
@@ -133,9 +140,7 @@ class Solution:
             for a in range(0, times.size, block):
                 out[:, a:a + block] = np.einsum("mj,mjn->nm", basis[a:a + block],
                                                 self.values[n[a:a + block]])
-        # U(t0) is the initial value (for dG the element polynomial starts after the jump)
-        out[:, times == self.ode.t0] = self.ode.u0[:, None]
-        return out[:, 0] if scalar else out
+        return out
 
     def time_steps(self, component=None):
         """Element start times and lengths (t_n, k_n): of the shared partition, or of one

@@ -6,8 +6,9 @@ The passes run in a fixed order:
 3. differentiate exactly with sympy, only on the dependency pattern (the sparse Jacobian);
 4. generate C with common-subexpression elimination and compile it, cached by hash.
 """
+import copy
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
@@ -117,7 +118,9 @@ def _derivative(expr, x):
 def lower(ode):
     """Compile ``ode`` to kernels (memoised on the declaration, and on disk by signature)."""
     if getattr(ode, "_compiled", None) is not None:
-        return replace(ode._compiled, compile_time=0.0, cached=True)
+        again = copy.copy(ode._compiled)  # with its band ordering once computed
+        again.compile_time, again.cached = 0.0, True
+        return again
     start = time.perf_counter()
     if hasattr(ode, "templates"):
         from dolfinode.compile.template import lower_template  # imports this module

@@ -1,12 +1,13 @@
 """Automatic modeling: reduced models of systems with unresolvable fast time scales."""
 from dolfinode.modeling.averaging import WindowAverages, average_window, hann_weights
-from dolfinode.modeling.driver import MODELING_PARAMETERS, solve_with_modeling
+from dolfinode.modeling.driver import MODELING_PARAMETERS, ModelingSolution, solve_with_modeling
 from dolfinode.modeling.reduced import ControlPoint, ModelingError, ReducedModel, fast_time_scale
 
 __all__ = [
            "MODELING_PARAMETERS",
            "ControlPoint",
            "ModelingError",
+           "ModelingSolution",
            "ReducedModel",
            "WindowAverages",
            "average_window",

@@ -60,13 +60,68 @@ def window_times(center, tau, samples, t0, T):
             sample(center + tau / 2, tau / 2, samples // 2))
 
 
+class WindowAverager:
+    """The sums of :func:`average_window` accumulated from consecutive pieces of a resolved
+    window, so that the window is never held: neither its elements nor its values at the
+    2 ``samples`` + 1 averaging times (N of them per time).
+
+    Parameters
+    ----------
+    compiled : :class:`~dolfinode.compile.lowering.CompiledODE` of the full model
+    center, tau : float
+    samples : int, points per half window (DOLFIN's ``average_samples``)
+    t0, T : the window's ends (the :func:`window_times` are clipped to them)
+    """
+
+    def __init__(self, compiled, center, tau, samples, t0, T):
+        self.compiled, self.center = compiled, center
+        times, first_times, second_times = window_times(center, tau, samples, t0, T)
+        half = hann_weights(samples // 2)
+        # per set of times: the times, their weights, the row of _sums, the first time unread
+        self._reads = [[times, hann_weights(samples), 0, 0], [first_times, half, 2, 0],
+                       [second_times, half, 3, 0]]
+        # u-bar, f-bar and the averages of the two half windows; the range of u; u at the end
+        self._sums = np.zeros((4, compiled.N))
+        self._max, self._min = np.full(compiled.N, -np.inf), np.full(compiled.N, np.inf)
+        self._last = None
+
+    def record(self, piece):
+        """Add the averaging times in a piece of the window (a solution on a sub-interval;
+        pieces are recorded in time order)."""
+        for read in self._reads:
+            times, weights, row, start = read
+            end = np.searchsorted(times, piece.ode.T, side="right")
+            if end == start:
+                continue
+            read[3] = end
+            values = piece(times[start:end])
+            self._sums[row] += values @ weights[start:end]
+            if row == 0:
+                f_values = np.empty(values.shape)
+                for j, tj in enumerate(times[start:end]):
+                    f_values[:, j] = self.compiled.f(values[:, j], tj)
+                self._sums[1] += f_values @ weights[start:end]
+                np.maximum(self._max, values.max(axis=1), out=self._max)
+                np.minimum(self._min, values.min(axis=1), out=self._min)
+                self._last = values[:, -1].copy()
+
+    def averages(self):
+        """The :class:`WindowAverages` once every piece is recorded."""
+        u_bar, f_bar, first, second = self._sums
+        spread = self._max - self._min
+        with np.errstate(divide="ignore", invalid="ignore"):
+            drift = np.where(spread > 0, np.abs(second - first) / spread, np.inf)
+        return WindowAverages(self.center, u_bar, f_bar,
+                              f_bar - self.compiled.f(u_bar, self.center), drift,
+                              self._last - u_bar)
+
+
 def average_window(solution, compiled, center, tau, samples):
     """Averages of a solution resolved on [center - tau, center + tau].
 
     Parameters
     ----------
-    solution : :class:`~dolfinode.solution.Solution` of the full model on the window, or
-        anything with its ``ode`` and its values at the :func:`window_times` when called
+    solution : :class:`~dolfinode.solution.Solution` of the full model on the window
     compiled : :class:`~dolfinode.compile.lowering.CompiledODE` of the full model
     center, tau : float
     samples : int, points per half window (DOLFIN's ``average_samples``)
@@ -75,19 +130,6 @@ def average_window(solution, compiled, center, tau, samples):
     -------
     WindowAverages
     """
-    times, first_times, second_times = window_times(center, tau, samples, solution.ode.t0,
-                                                    solution.ode.T)
-    values = solution(times)
-    f_values = np.empty(values.shape)
-    for j, tj in enumerate(times):
-        f_values[:, j] = compiled.f(values[:, j], tj)
-    w = hann_weights(samples)
-    u_bar, f_bar = values @ w, f_values @ w
-    half = hann_weights(samples // 2)
-    first = solution(first_times) @ half
-    second = solution(second_times) @ half
-    spread = values.max(axis=1) - values.min(axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        drift = np.where(spread > 0, np.abs(second - first) / spread, np.inf)
-    return WindowAverages(center, u_bar, f_bar, f_bar - compiled.f(u_bar, center), drift,
-                          values[:, -1] - u_bar)
+    averager = WindowAverager(compiled, center, tau, samples, solution.ode.t0, solution.ode.T)
+    averager.record(solution)
+    return averager.averages()

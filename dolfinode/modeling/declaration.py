@@ -42,6 +42,7 @@ class WindowModel:
     def __init__(self, ode):
         self.ode = ode
         self.shift = _fresh("t_window", _taken(ode))
+        self._last = None  # the last declaration
         moved = {t: t + self.shift}
         if isinstance(ode, TemplateODE):
             self._templates = tuple(
@@ -52,12 +53,20 @@ class WindowModel:
 
     def declaration(self, u0, t0, T, shift):
         """The window's ODE on [t0, T] (local time) from u0, for the window starting at
-        absolute time ``shift``."""
+        absolute time ``shift``.
+
+        Declarations of one window (the same shift) share their lowering, kernels and band
+        ordering (about 0.3 s to redo at N = 4 10^5, for each piece of a window)."""
         params = {**self.ode.params, self.shift: float(shift)}
         if isinstance(self.ode, TemplateODE):
-            return TemplateODE(self._templates, u0=u0, T=T, params=params, t0=t0,
-                               names=self.ode.names)
-        return ODE(self._rhs, u0=u0, T=T, t0=t0, params=params)
+            ode = TemplateODE(self._templates, u0=u0, T=T, params=params, t0=t0,
+                              names=self.ode.names)
+        else:
+            ode = ODE(self._rhs, u0=u0, T=T, t0=t0, params=params)
+        if self._last is not None and self._last.params == ode.params:
+            ode._compiled = getattr(self._last, "_compiled", None)
+        self._last = ode
+        return ode
 
 
 class ReducedDeclaration:

@@ -19,7 +19,6 @@ The pipeline (Jansson, Johnson & Logg 2005, sections 3-7, made automatic and che
 Windows are resolved with a cG method (cG(q) for dG(q), mcG(q) for mdG(q)), see
 ``_conservative``.
 """
-import itertools
 import math
 import time
 
@@ -27,7 +26,7 @@ import numpy as np
 
 from dolfinode.compile import lower
 from dolfinode.methods import parse_method
-from dolfinode.modeling.averaging import average_window, window_times
+from dolfinode.modeling.averaging import WindowAverager
 from dolfinode.modeling.declaration import WindowModel
 from dolfinode.modeling.reduced import (
     AVERAGE_PERIODS,
@@ -42,8 +41,13 @@ from dolfinode.solution import Solution, join_elements
 MODELING_PARAMETERS = ("automatic_modeling", "average_length", "average_samples",
                        "average_tolerance", "control_points", "model_tolerance",
                        "rebuild_model", "subgrid_model")
-#: Bytes of elements a piece of a resolved window may hold (estimated before solving it).
+#: Bytes of elements a piece of a resolved window should hold (its length is set from the
+#: last piece's step density; the first from the window step).
 WINDOW_PIECE_BYTES = 2**26
+#: Bytes of elements of the resolved start [t0, t_c] the returned Solution may hold
+#: (estimated); a larger start is not stored but solved again where it is evaluated, see
+#: :class:`ModelingSolution`.
+START_BYTES = 2**26
 #: Counters summed over every inner solve.
 _SUMMED = ("time slabs", "elements", "rejected steps", "f evaluations", "jacobian evaluations",
            "nonlinear iterations", "failed nonlinear solves", "compile time")
@@ -53,9 +57,10 @@ def solve_with_modeling(ode, method, params, solve):
     """Solve ``ode`` with automatic modeling; ``solve`` is the plain driver.
 
     Returns a :class:`~dolfinode.solution.Solution` whose ``model`` attribute is the
-    :class:`~dolfinode.modeling.reduced.ReducedModel`.
+    :class:`~dolfinode.modeling.reduced.ReducedModel`: a :class:`ModelingSolution` when the
+    resolved start [t0, t_c] would exceed START_BYTES.
     """
-    start = time.perf_counter()
+    start_time = time.perf_counter()
     inner = {k: v for k, v in params.items() if k not in MODELING_PARAMETERS}
     inner["number_of_samples"] = 2
     compiled = lower(ode)
@@ -81,8 +86,11 @@ def solve_with_modeling(ode, method, params, solve):
     model = ReducedModel(ode, tau, subgrid_model=params["subgrid_model"])
     runs = []
 
+    def solve_piece(declaration, method=method, **extra):
+        return solve(declaration, method, **dict(inner, **extra))
+
     def run(declaration, method=method, **extra):
-        sol = solve(declaration, method, **dict(inner, **extra))
+        sol = solve_piece(declaration, method, **extra)
         runs.append(sol.stats)
         return sol
 
@@ -94,51 +102,62 @@ def solve_with_modeling(ode, method, params, solve):
     # on [t0, t_c] is the first half-window solved again with the method of the reduced
     # solution, so that the returned Solution has one method.
     window_method = _conservative(method)
+    window_options = {"maximum_time_step": min(window_step, tau)}
 
     # a window of a large system is solved in pieces of about WINDOW_PIECE_BYTES of elements
-    # (estimated from the window step), each read at the averaging times and dropped
+    # (the first estimated from the window step), each read at the averaging times and
+    # dropped
     q = parse_method(window_method)[1].q
-    slab_bytes = 8 * (q + 1) * ode.N
-    pieces_per_half = max(1, math.ceil(slab_bytes * tau / window_step / WINDOW_PIECE_BYTES))
+    half_bytes = 8 * (q + 1) * ode.N * tau / window_step
+    first_length = tau / max(1, math.ceil(half_bytes / WINDOW_PIECE_BYTES))
+    pace = {"length": first_length}  # windows after the first start at the last density
 
-    def resolve(u, center, keep_first=False):
-        """Solve the full model on [center - tau, center + tau] (in the window's local time,
-        see WindowModel) and average it.
+    def resolve(u, center, record_first=None):
+        """Solve the full model on [center - tau, center + tau] (in the window's local time
+        [0, 2 tau], see WindowModel) and average it.
 
-        It is solved as two halves that meet at the centre, so that the first half is the
-        output before the reduced solution takes over there (then kept whole). Each half is
-        solved in ``pieces_per_half`` consecutive pieces, each restarted from the end of
-        the last, read at the averaging times and dropped: a window's elements (N per slab,
-        thousands of slabs) are most of the memory of a large system. Returns the first
-        half (in local time; None unless ``keep_first``), the number of elements of the
-        window and its averages, recorded as data of the subgrid model."""
+        The window is solved in consecutive pieces (see _pieces), each restarted from the
+        end of the last, read at the averaging times and dropped: a window's elements (N
+        per slab, thousands of slabs) are most of the memory of a large system.
+        ``record_first`` is given the pieces of the first half (the output on [t0, t_c] for
+        the first window). Returns the number of elements of the window and its averages,
+        recorded as data of the subgrid model."""
         local = window_model.declaration(u, 0.0, 2 * tau, center - tau)
-        window = _SampledWindow(local, np.unique(np.concatenate(
-            window_times(tau, tau, params["average_samples"], 0.0, 2 * tau))))
-        step = {"maximum_time_step": min(window_step, tau), "method": window_method}
-        first = None
+        averager = WindowAverager(lower(local), tau, tau, params["average_samples"], 0.0,
+                                  2 * tau)
         elements = 0
-        for half in (0, 1):
-            n = 1 if keep_first and half == 0 else pieces_per_half
-            ends = tau * (half + np.arange(n + 1) / n)
-            for a, b in itertools.pairwise(ends):
-                piece = run(window_model.declaration(u, a, b, center - tau), **step)
-                window.record(piece)
-                elements += piece.stats["elements"]
-                u = piece(b)
-                step["initial_time_step"] = _last_step(piece)
-                if keep_first and half == 0:
-                    first = piece
-                del piece
-        averages = average_window(window, lower(local), tau, tau, params["average_samples"])
+        for piece in _pieces(run, window_model, u, (0.0, tau, 2 * tau), center - tau,
+                             dict(window_options, method=window_method), pace):
+            averager.record(piece)
+            elements += piece.stats["elements"]
+            if record_first is not None and piece.ode.T <= tau:
+                record_first(piece)
+            del piece
+        averages = averager.averages()
         averages.center = center
         model.record(averages)
-        return first, elements, averages
+        return elements, averages
 
-    first, _, averages = resolve(ode.u0, ode.t0 + tau, keep_first=window_method == method)
+    # the output on [t0, t_c]: kept element by element when small, else only read at the
+    # output samples while it is solved (and solved again where it is evaluated)
+    keep_start = half_bytes <= START_BYTES
+    if keep_start:
+        kept = []
+        record_start = kept.append
+    else:
+        # solved again as in the solve: the first half of the first window, or its own
+        start = _Start(lambda: _pieces(solve_piece, window_model, ode.u0, (0.0, tau), ode.t0,
+                                       dict(window_options, method=method),
+                                       {"length": first_length}),
+                       tau, ode.t0, ode.N, np.linspace(ode.t0, ode.T, params["number_of_samples"]))
+        record_start = start.record
+    _, averages = resolve(ode.u0, ode.t0 + tau,
+                          record_first=record_start if window_method == method else None)
     if window_method != method:
-        first = run(window_model.declaration(ode.u0, 0.0, tau, ode.t0),
-                    maximum_time_step=min(window_step, tau))
+        for piece in _pieces(run, window_model, ode.u0, (0.0, tau), ode.t0,
+                             dict(window_options, method=method), {"length": first_length}):
+            record_start(piece)
+            del piece
     # inactivated: the fast components (at least one period 2 pi / omega_i in the averaging
     # length tau) whose average does not move; a slow component whose average happens to be
     # constant over the window (a mass at rest by symmetry) stays active
@@ -146,10 +165,7 @@ def solve_with_modeling(ode, method, params, solve):
     model.build(averages, fast & (averages.drift < params["average_tolerance"]),
                 averages.center, compiled)
     fluctuation = averages.fluctuation
-    first.t_start = first.t_start + ode.t0  # from the window's local time
-    if first.multi:
-        first._t_end = first._t_end + ode.t0
-    pieces = [first]
+    segments = []
     # the reduced solution starts at t_c = t0 + tau from u-bar(t_c): the output is the full
     # solution on [t0, t_c] and the reduced one on (t_c, T] (left-continuous, as for dG)
     step = {}
@@ -158,14 +174,14 @@ def solve_with_modeling(ode, method, params, solve):
     checks = [ode.t0 + 2 * tau + k * spacing for k in range(1, n_control + 1)]
     for t_next in [ode.t0 + 2 * tau] + checks + [ode.T]:
         segment = run(model.declaration(u, t_now, t_next), **step)
-        pieces.append(segment)
+        segments.append(segment)
         u, t_now = segment(t_next), t_next
         step = {"initial_time_step": _last_step(segment)}
         if t_now >= ode.T or t_now == ode.t0 + 2 * tau:
             continue
         # control point at t_now: full model from t_now - tau, perturbed by the fast fluctuation
         u_start = model.state(segment(t_now - tau)) + np.where(model.active, 0.0, fluctuation)
-        elements, averages = resolve(u_start, t_now)[1:]
+        elements, averages = resolve(u_start, t_now)
         defect = model.defect(compiled, averages)
         scale = np.max(np.abs(np.where(model.active, averages.g_bar, 0.0)))
         relative = np.max(np.abs(defect)) / scale if scale > 0 else np.inf
@@ -181,21 +197,108 @@ def solve_with_modeling(ode, method, params, solve):
         model.control_points.append(ControlPoint(t_now, float(np.linalg.norm(defect)),
                                                  float(relative), bool(rebuild),
                                                  int(elements)))
-    model.reduced = _concatenate(model.declaration(*reduced_start, ode.T), pieces[1:], 2)
-    sol = _concatenate(ode, pieces, params["number_of_samples"])
-    sol.stats = _total_stats(runs, model, time.perf_counter() - start)
+    del segment
+    model.reduced = _concatenate(model.declaration(*reduced_start, ode.T), segments, 2)
+    if keep_start:
+        for piece in kept:  # from the window's local time
+            piece.t_start = piece.t_start + ode.t0
+            if piece.multi:
+                piece._t_end = piece._t_end + ode.t0
+        kept.append(model.reduced)
+        sol = _concatenate(ode, kept, params["number_of_samples"])
+    else:
+        sol = ModelingSolution(ode, model, start, params["number_of_samples"])
+    sol.stats = _total_stats(runs, model, time.perf_counter() - start_time)
     sol.model = model
     return sol
 
 
-class _SampledWindow:
-    """A resolved window known only at the times :func:`average_window` reads (sorted
-    ``times``), filled piece by piece with :meth:`record`."""
+class ModelingSolution(Solution):
+    """The output of automatic modeling whose resolved start [t0, t_c] is not stored (its
+    elements would exceed START_BYTES): the full model's Galerkin solution on [t0, t_c],
+    then the reduced solution ``model.reduced`` on (t_c, T].
 
-    def __init__(self, ode, times):
-        self.ode = ode
+    The output samples ``t, y`` were read while the start was solved; at other times in
+    (t0, t_c] the start is solved again, deterministically and piece by piece, from t0 up
+    to the latest of them (at most the cost of a half-window). Its elements are not stored:
+    ``t_start``, ``k``, ``values``, :meth:`time_steps` and :meth:`elements` raise
+    AttributeError (``model.reduced`` has the reduced solution's).
+    """
+
+    def __init__(self, ode, model, start, number_of_samples):
+        self.ode, self.model, self.stats = ode, model, {}
+        self.method = model.reduced.method
+        self._start = start
+        self._sample(number_of_samples)
+
+    @property
+    def multi(self):
+        return self.model.reduced.multi
+
+    def _evaluate(self, times):
+        reduced = self.model.reduced
+        out = np.empty((self.ode.N, times.size))
+        late = times > reduced.ode.t0
+        out[:, late] = reduced(times[late])
+        out[:, ~late] = self._start(times[~late])
+        return out
+
+    def _not_stored(self, *args, **kwargs):
+        raise AttributeError(
+            f"the elements of the resolved start [{self.ode.t0}, {self.model.reduced.ode.t0}] "
+            "of this automatic-modeling solution are not stored (they would exceed "
+            "dolfinode.modeling.driver.START_BYTES; sol(t) solves it again); "
+            "sol.model.reduced has the reduced solution's elements")
+
+    t_start = k = values = property(_not_stored)
+    time_steps = elements = _not_stored
+
+    def __repr__(self):
+        kind = "multi-adaptive" if self.multi else "mono-adaptive"
+        return (f"ModelingSolution({self.method.name}, {kind}, N={self.ode.N}, "
+                f"t=[{self.ode.t0}, {self.ode.T}], start not stored)")
+
+
+class _Start:
+    """The full model's solution on [t0, t_c], the first half-window, without its elements:
+    read at the output samples while it is solved (:meth:`record`), and solved again where
+    it is evaluated at other times.
+
+    ``pieces()`` solves it again and yields its pieces, as in the solve (on [0, tau], the
+    local time of the first window, which starts at t0)."""
+
+    def __init__(self, pieces, tau, t0, N, sample_times):
+        self.pieces, self.tau, self.t0, self.N = pieces, tau, t0, N
+        self.samples = _SampledWindow(N, np.unique(self._local(
+            sample_times[sample_times <= t0 + tau])))
+
+    def _local(self, times):
+        return np.minimum(times - self.t0, self.tau)
+
+    def record(self, piece):
+        self.samples.record(piece)
+
+    def __call__(self, times):
+        local = self._local(times)
+        window = self.samples
+        if not np.isin(local[local > 0], window.times).all():
+            window = _SampledWindow(self.N, np.unique(local))
+            for piece in self.pieces():  # up to the latest time
+                window.record(piece)
+                done = piece.ode.T >= window.times[-1]
+                del piece
+                if done:
+                    break
+        return window(local)
+
+
+class _SampledWindow:
+    """A solution known only at sorted ``times``, filled piece by piece with
+    :meth:`record`."""
+
+    def __init__(self, N, times):
         self.times = times
-        self.values = np.empty((ode.N, times.size))
+        self.values = np.empty((N, times.size))
 
     def record(self, piece):
         """Read a piece of the window (a Solution on a sub-interval) at its times."""
@@ -204,6 +307,29 @@ class _SampledWindow:
 
     def __call__(self, times):
         return self.values[:, np.searchsorted(self.times, times)]
+
+
+def _pieces(solve, window_model, u, stops, shift, step, pace):
+    """The full model solved on consecutive pieces of a window from stops[0], ending at
+    every stop (in the local time of the window starting at ``shift``), each restarted from
+    the end of the last with its last step: yields the solutions, to be read and dropped.
+
+    A piece is at most ``pace["length"]`` long (equal pieces up to the next stop); after
+    each, that length is set to hold about WINDOW_PIECE_BYTES of elements at its step
+    density (the steps of a window vary: on the lattice the windows of the control points
+    take up to 4 times the steps of the first). ``solve(declaration, **step)`` solves one
+    piece."""
+    step = dict(step)
+    a = stops[0]
+    for stop in stops[1:]:
+        while a < stop:
+            n = math.ceil((stop - a) / pace["length"])
+            b = a + (stop - a) / n if n > 1 else stop
+            piece = solve(window_model.declaration(u, a, b, shift), **step)
+            yield piece
+            pace["length"] = (b - a) * WINDOW_PIECE_BYTES / piece.values.nbytes
+            u, step["initial_time_step"], a = piece(b), _last_step(piece), b
+            del piece
 
 
 def _conservative(method):

@@ -254,6 +254,16 @@ def test_same_expressions_are_memoised_in_process():
     np.testing.assert_array_equal(second.indptr, first.indptr)
 
 
+def test_lowering_and_band_ordering_are_memoised_on_the_declaration():
+    """Every solve of one declaration lowers it again: it gets the first lowering, with the
+    band ordering once computed (not computed again per solve)."""
+    ode = oscillator()
+    first = lower(ode)
+    assert first.ordering is lower(ode).ordering
+    again = lower(ode)
+    assert again.cached and again.compile_time == 0.0 and first.compile_time > 0.0
+
+
 def test_parameter_values_are_not_compiled_in():
     ode = oscillator()
     other = dn.ODE(dict(zip(ode.states, ode.rhs)), u0=[1.0, 0.0], T=1.0,

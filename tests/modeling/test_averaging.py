@@ -1,8 +1,14 @@
 """The Hann-kernel average: independent of the phase and of whole periods in the window."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
+import sympy as sp
 
-from dolfinode.modeling import hann_weights
+import dolfinode as dn
+from dolfinode.compile import lower
+from dolfinode.modeling import average_window, hann_weights
+from dolfinode.modeling.averaging import WindowAverager
 
 
 def test_weights_normalised_and_symmetric():
@@ -24,3 +30,30 @@ def test_average_of_cos_squared_is_one_half_for_any_window(periods):
         box_errors.append(abs(np.mean(np.cos(omega * s[:1001] + phase) ** 2) - 0.5))
     if periods % 0.5:  # not a whole number of periods of cos^2 in the box [-tau, 0]
         assert max(box_errors) > 1e-4
+
+
+def test_window_averaged_piece_by_piece_equals_the_whole_window():
+    """WindowAverager fed a window in consecutive pieces gives the averages of the whole
+    window to rounding; the averaging times at a piece end are read once."""
+    u, v = sp.symbols("u v")
+    ode = dn.ODE({u: v, v: -400 * u}, u0=[1.0, 0.0], T=2.0)
+    tau, samples = 1.0, 100
+    whole = dn.solve(ode, method="cG(2)", tolerance=1e-8)
+    compiled = lower(ode)
+    expected = average_window(whole, compiled, tau, tau, samples)
+
+    class Piece:  # the whole solution on [., T]
+        def __init__(self, T):
+            self.ode = SimpleNamespace(T=T)
+
+        def __call__(self, t):
+            return whole(t)
+
+    averager = WindowAverager(compiled, tau, tau, samples, 0.0, 2.0)
+    for T in (0.5, 1.25, 2.0):  # 0.5 and 1.25 are averaging times
+        averager.record(Piece(T))
+    pieces = averager.averages()
+    for name in ("u_bar", "f_bar", "g_bar", "drift", "fluctuation"):
+        np.testing.assert_allclose(getattr(pieces, name), getattr(expected, name), rtol=0,
+                                   atol=1e-12, err_msg=name)
+    assert pieces.center == expected.center == tau

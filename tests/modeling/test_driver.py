@@ -148,16 +148,60 @@ def test_modeling_solves_repeat_exactly_above_the_dense_eigenvalue_size():
 def test_windows_solved_in_pieces_give_the_same_model(monkeypatch):
     """A window whose elements would exceed WINDOW_PIECE_BYTES is solved in consecutive
     pieces, each read at the averaging times and dropped: the averages, and so the model and
-    the solution, agree with the window solved whole."""
+    the solution, agree with the window solved whole. The pieces hold about
+    WINDOW_PIECE_BYTES each (their lengths follow the step density)."""
     from dolfinode.modeling import driver
 
     ode = simple_model(1e12, T=2.0)
     options = dict(SETTINGS, average_length=1e-4, control_points=2)
     whole = dn.solve(ode, **options)
     monkeypatch.setattr(driver, "WINDOW_PIECE_BYTES", 4096)  # 96 B per slab: ~10 pieces
+    sizes = []
+    solve_pieces = driver._pieces
+
+    def measured(*args):
+        for piece in solve_pieces(*args):
+            sizes.append(piece.values.nbytes / 4096)
+            yield piece
+
+    monkeypatch.setattr(driver, "_pieces", measured)
     pieces = dn.solve(ode, **options)
     assert pieces.stats["inner solves"] > whole.stats["inner solves"] + 20
+    # measured: median 1.05, 90% under 1.29 (the first piece, from the estimate, 4.7)
+    assert 0.8 < np.median(sizes) < 1.2 and np.percentile(sizes, 90) < 1.5
     g = ode.velocity(ode.states[0])
     assert abs(pieces.model.g[g] - whole.model.g[g]) < 1e-6
     t = np.linspace(0.0, 2.0, 101)
     assert np.max(np.abs(pieces(t)[0] - whole(t)[0])) < 1e-6
+
+
+@pytest.mark.parametrize("case", ["cG(2)", "dG(1)", "mcG(2)", "lattice"])
+def test_start_solved_again_where_evaluated(monkeypatch, case):
+    """Above START_BYTES the resolved start [t0, t_c] is not stored: sol(t) there solves it
+    again piece by piece and gives the same values as the start kept whole (the pieces of
+    the first solve, repeated exactly); the output samples, the reduced solution and the
+    stats agree; element-level access raises."""
+    from dolfinode.modeling import driver
+
+    if case == "lattice":
+        ode, method = dn.systems.lattice(3, T=2e-3), "cG(2)"
+    else:
+        ode, method = simple_model(1e12, T=2.0), case
+    options = dict(SETTINGS, method=method, average_length=1e-4, control_points=2)
+    monkeypatch.setattr(driver, "WINDOW_PIECE_BYTES", 4096)  # the first half in pieces
+    whole = dn.solve(ode, **options)
+    monkeypatch.setattr(driver, "START_BYTES", 4096)
+    large = dn.solve(ode, **options)
+    assert isinstance(large, driver.ModelingSolution) and type(whole) is dn.Solution
+    assert large.multi == whole.multi == method.startswith("m")
+    assert large.stats["elements"] == whole.stats["elements"]
+    np.testing.assert_array_equal(large.y, whole.y)
+    # inside the start (not an output sample: solved again), across t_c and after
+    t = np.concatenate([np.linspace(0.0, 3e-4, 41), np.linspace(0.0, ode.T, 101)[::-1]])
+    np.testing.assert_allclose(large(t), whole(t), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(large(5e-5), whole(5e-5), rtol=0, atol=1e-14)
+    np.testing.assert_array_equal(large.model.reduced.values, whole.model.reduced.values)
+    for element_access in (lambda: large.values, lambda: large.k, lambda: large.elements(),
+                           lambda: large.time_steps(0)):
+        with pytest.raises(AttributeError, match="START_BYTES"):
+            element_access()
