@@ -32,8 +32,8 @@ from dolfinode.modeling.reduced import (
     AVERAGE_PERIODS,
     ControlPoint,
     ReducedModel,
-    component_frequencies,
     fast_time_scale,
+    inactive_components,
 )
 from dolfinode.solution import Solution, join_elements
 
@@ -158,12 +158,12 @@ def solve_with_modeling(ode, method, params, solve):
                              dict(window_options, method=method), {"length": first_length}):
             record_start(piece)
             del piece
-    # inactivated: the fast components (at least one period 2 pi / omega_i in the averaging
-    # length tau) whose average does not move; a slow component whose average happens to be
-    # constant over the window (a mass at rest by symmetry) stays active
-    fast = component_frequencies(compiled, ode.u0, ode.t0) * tau >= 2 * np.pi
-    model.build(averages, fast & (averages.drift < params["average_tolerance"]),
-                averages.center, compiled)
+    # inactivated: the fast components whose average does not move, with their fast
+    # partners; a slow component whose average happens to be constant over the window (a
+    # mass at rest by symmetry) stays active
+    inactive = inactive_components(ode, compiled, tau, averages.drift,
+                                   params["average_tolerance"])
+    model.build(averages, inactive, averages.center, compiled)
     fluctuation = averages.fluctuation
     segments = []
     # the reduced solution starts at t_c = t0 + tau from u-bar(t_c): the output is the full

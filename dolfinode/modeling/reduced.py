@@ -76,6 +76,38 @@ def component_frequencies(compiled, u, t):
     return np.sqrt(np.abs(np.asarray(J.multiply(J.T).sum(axis=1)).ravel()))
 
 
+def inactive_components(ode, compiled, tau, drift, average_tolerance):
+    """The components of ``ode`` to inactivate (at u0, t0): the fast ones (at least one period 2 pi / omega_i in
+    the averaging length tau, see :func:`component_frequencies`) whose average does not move
+    (``drift`` < ``average_tolerance``), closed under mutual coupling: a fast component
+    stays active when a fast component coupled both ways with it (J_ij J_ji != 0) does.
+
+    One of a pair frozen at its average while its partner evolves makes the partner drift
+    (x' = v, v' = -kappa x with x frozen at a nonzero average: v grows linearly); on the
+    seed model with tau = 1.6 fast periods v's average moved and the reduced model blew up.
+    Raises ValueError when fast components exist but none can be inactivated."""
+    J = compiled.jacobian_matrix(ode.u0, ode.t0)
+    fast = component_frequencies(compiled, ode.u0, ode.t0) * tau >= 2 * np.pi
+    inactive = fast & (drift < average_tolerance)
+    mutual = (abs(J).multiply(abs(J.T)) > 0).astype(float)
+    while True:
+        blocked = (mutual @ (fast & ~inactive).astype(float)) > 0
+        if not np.any(inactive & blocked):
+            break
+        inactive &= ~blocked
+    if fast.any() and not inactive.any():
+        moving = np.flatnonzero(fast & ~(drift < average_tolerance))
+        raise ValueError(
+            f"automatic modeling can inactivate none of the {int(fast.sum())} fast components: "
+            f"the averages of {len(moving)} of them ({ode.states[int(moving[0])]} first) move by "
+            f"more than average_tolerance = {average_tolerance:g} over the window (largest "
+            f"drift {float(np.max(drift[fast])):.3g}), and each fast component is inactivated "
+            f"only with its fast partners; average_length = {tau:.3g} may be too short for "
+            "the average to settle: use at least two periods of the fastest scale, or a "
+            "larger average_tolerance")
+    return inactive
+
+
 @dataclass
 class ControlPoint:
     """A check of the reduced model against the full model resolved around ``time``.

@@ -1,8 +1,14 @@
 """The subgrid models: the pattern of the affine model and its least-squares fit."""
 import numpy as np
+import pytest
+import sympy as sp
 from scipy import sparse
 
-from dolfinode.modeling.reduced import affine_pattern, fit_affine
+import dolfinode as dn
+from dolfinode.bench.problems import seed_model
+from dolfinode.compile import lower
+
+from dolfinode.modeling.reduced import affine_pattern, fit_affine, inactive_components
 
 
 def test_affine_pattern_reaches_through_the_inactive_components():
@@ -29,3 +35,32 @@ def test_fit_affine_recovers_a_linear_dependence_along_the_windows():
     u = [np.array([0.0, 1.0, 1.0 + 1e-3]), np.array([0.0, 2.0, 2.0]), np.zeros(3)]
     g = [np.array([G @ uk[1:], 0.0, 0.0]) for uk in u]
     np.testing.assert_allclose(fit_affine(pattern, u, g), [0.5, 0.5], atol=1e-3)
+
+
+def test_fast_pairs_are_inactivated_together():
+    """Two fast oscillators (omega 100 and 200) and a slow one: a fast velocity whose average
+    moves keeps its position active too; the other pair is inactivated; the slow pair never."""
+    x, v = sp.symbols("x0:3"), sp.symbols("v0:3")
+    rhs = {}
+    for i, w2 in enumerate((1.0, 1e4, 4e4)):
+        rhs[x[i]] = v[i]
+        rhs[v[i]] = -w2 * x[i] + (x[0] if i else 0)
+    ode = dn.ODE(rhs, u0=[1.0] * 6, T=1.0)
+    compiled = lower(ode)
+    index = {s: i for i, s in enumerate(ode.states)}
+    drift = np.zeros(ode.N)
+    drift[index[v[1]]] = 1.0  # the average of v1 moves
+    inactive = inactive_components(ode, compiled, 0.1, drift, 0.1)
+    assert {s for s in ode.states if inactive[index[s]]} == {x[2], v[2]}
+    drift[index[v[2]]] = 1.0
+    with pytest.raises(ValueError, match="average_length = 0.1 may be too short"):
+        inactive_components(ode, compiled, 0.1, drift, 0.1)
+
+
+def test_too_short_average_length_is_a_clear_error():
+    """The seed model with tau = 1.6 fast periods: x2 was inactivated alone, x2' drifted and
+    the reduced model blew up (SolverError at maximum_steps); now a ValueError says why."""
+    problem = seed_model(1e4, T=10.0)
+    with pytest.raises(ValueError, match="average_tolerance"):
+        dn.solve(problem.ode, method="cG(2)", tolerance=1e-4, automatic_modeling=True,
+                 average_length=10.0 / 100.0)
