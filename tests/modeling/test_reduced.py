@@ -7,7 +7,6 @@ from scipy import sparse
 import dolfinode as dn
 from dolfinode.bench.problems import seed_model
 from dolfinode.compile import lower
-
 from dolfinode.modeling.reduced import affine_pattern, fit_affine, inactive_components
 
 
