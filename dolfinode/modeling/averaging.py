@@ -13,6 +13,9 @@ which has the same integral-equivalent width tau but whose Fourier transform dec
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, types
+
+from dolfinode.compile.signatures import RHS_TYPE
 
 
 def hann_weights(samples):
@@ -60,6 +63,15 @@ def window_times(center, tau, samples, t0, T):
             sample(center + tau / 2, tau / 2, samples // 2))
 
 
+@njit(types.void(RHS_TYPE, types.float64[::1], types.float64[:, ::1], types.float64[::1],
+                 types.float64[:, ::1]), cache=True)
+def _rhs_at(rhs, p, states, times, out):
+    """out[j] = f(states[j], times[j]) for every row j, compiled (from Python, one call of
+    the kernel per averaging time was most of automatic modeling's time on small systems)."""
+    for j in range(times.shape[0]):
+        rhs(states[j].ctypes, times[j], p.ctypes, out[j].ctypes)
+
+
 class WindowAverager:
     """The sums of :func:`average_window` accumulated from consecutive pieces of a resolved
     window, so that the window is never held: neither its elements nor its values at the
@@ -97,10 +109,11 @@ class WindowAverager:
             values = piece(times[start:end])
             self._sums[row] += values @ weights[start:end]
             if row == 0:
-                f_values = np.empty(values.shape)
-                for j, tj in enumerate(times[start:end]):
-                    f_values[:, j] = self.compiled.f(values[:, j], tj)
-                self._sums[1] += f_values @ weights[start:end]
+                states = np.ascontiguousarray(values.T)
+                f_values = np.empty_like(states)
+                _rhs_at(self.compiled.rhs, self.compiled.p, states,
+                        np.ascontiguousarray(times[start:end]), f_values)
+                self._sums[1] += weights[start:end] @ f_values
                 np.maximum(self._max, values.max(axis=1), out=self._max)
                 np.minimum(self._min, values.min(axis=1), out=self._min)
                 self._last = values[:, -1].copy()
