@@ -214,14 +214,17 @@ def read_record(path):
 def merge(record, meta, rows, problems):
     """Merge a run of some problems into a record ((meta, rows, problems) of
     :func:`read_record`): their runs and entries replace the record's, the others are kept
-    (new problems last), and this run's meta is appended to the record's ``meta["merged"]``.
+    (new problems last), and this run's meta is appended to the record's ``meta["merged"]``,
+    from which earlier merges whose problems this run all replaces are dropped.
     Returns (meta, rows, problems) of the merged record."""
     old_meta, old_rows, old_problems = record
     problems = {**old_problems, **problems}
     order = {name: i for i, name in enumerate(problems)}
     rows = sorted([r for r in old_rows if r["problem"] not in meta["problems"]] + rows,
                   key=lambda r: order[r["problem"]])
-    merged = dict(old_meta, merged=old_meta.get("merged", []) + [meta])
+    kept = [m for m in old_meta.get("merged", [])
+            if not set(m["problems"]) <= set(meta["problems"])]
+    merged = dict(old_meta, merged=kept + [meta])
     return merged, rows, problems
 
 

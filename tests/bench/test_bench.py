@@ -330,6 +330,11 @@ def test_cli_bench_merges_a_run_into_the_record_and_rewrites_it(tmp_path, monkey
     assert record["meta"]["command"] == first["meta"]["command"]
     assert record["meta"]["merged"][0]["problems"] == ["decay2"]
     assert "Merged: decay2 re-run" in (tmp_path / "suite.md").read_text()
+    # merging decay2 again supersedes the first merge's note
+    assert main(["bench", "--problems", "decay2", "--methods", "cG(1),LSODA", "--merge",
+                 *common[2:]]) == 0
+    record = json.loads((tmp_path / "suite.json").read_text())
+    assert [m["problems"] for m in record["meta"]["merged"]] == [["decay2"]]
     # --report-only rewrites the outputs from the record, running nothing
     (tmp_path / "suite.md").unlink()
     assert main(["bench", "--report-only", "--output", str(tmp_path), "--no-progress"]) == 0
