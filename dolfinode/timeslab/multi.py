@@ -20,8 +20,8 @@ restricted to them.
 
 After a slab, every element's residual R = U' - f_i(U) at its end gives the local error
 estimate k |R| of :mod:`dolfinode.adaptivity` (order q + 1 for mcG(q) and mdG(q)), scaled by
-atol + rtol |U|; the slab is accepted when all are <= ACCEPTANCE_MARGIN, and each component
-gets its own next step. DOLFIN's indicators k^q |R| (mcG) and k^(q+1) |R| (mdG) depend on
+atol + rtol max |U_i| over the slab; the slab is accepted when all are <= ACCEPTANCE_MARGIN,
+and each component gets its own next step. DOLFIN's indicators k^q |R| (mcG) and k^(q+1) |R| (mdG) depend on
 the unit of time: for q >= 2 and k < 1 they let fast components step over their oscillation
 (mcG(3) on the stiff chain: 15x too long steps, errors 10^3-10^5 x tolerance), and mdG(1) reached
 2600x the error of dG(1) on the template lattice.
