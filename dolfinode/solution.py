@@ -125,8 +125,8 @@ class Solution:
 
     def _evaluate(self, times):
         """U at ``times`` in [t0, T], shape (N, len(times)), from the elements."""
+        out = np.empty((times.size, self.ode.N)).T  # the layout einsum gives
         if self.multi:
-            out = np.empty((times.size, self.ode.N)).T  # the layout einsum gives
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
                                  self.method.nodes, self.method.barycentric_weights, times, out)
         else:
@@ -134,7 +134,6 @@ class Solution:
             n = np.minimum(np.searchsorted(t_end, times, side="left"), len(self.k) - 1)
             tau = np.clip((times - self.t_start[n]) / self.k[n], 0.0, 1.0)
             basis = self.method.basis(tau)
-            out = np.empty((times.size, self.ode.N)).T  # the layout einsum gives
             # in blocks of times: the gathered elements take (q + 1) N doubles per time
             block = max(1, _EVALUATION_BYTES // max(self.values[0].nbytes, 1))
             for a in range(0, times.size, block):
