@@ -200,6 +200,11 @@ class ODE:
         return len(self.states)
 
     @property
+    def autonomous(self):
+        """Whether f does not depend on the time t explicitly."""
+        return not any(t in expr.free_symbols for expr in self.rhs)
+
+    @property
     def parameter_symbols(self):
         return tuple(self.params)
 

@@ -259,11 +259,12 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     state = np.array([ode.t0, 0.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     _, position, kl, ku = compiled.ordering
-    iopts = np.concatenate([iopts, [kl, ku]])
+    iopts = np.concatenate([iopts, [kl, ku, int(ode.autonomous)]])
     Minv, A = np.array(m.moment_inverse), np.array(m.A)
     nodes, qweights = m.nodes.copy(), m.quadrature_weights.copy()
     bary, dend = m.barycentric_weights.copy(), m.end_derivative.copy()
     kdes = steps.copy()
+    frozen = np.full(ode.N, np.nan)  # since when each component is frozen (NaN: active)
 
     def buffers(capacity):
         return (np.empty(capacity, dtype=np.int64), np.empty(capacity), np.empty(capacity),
@@ -272,8 +273,8 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     def advance(out_comp, out_a, out_b, out_values):
         return multi.advance(compiled.rhs_component, compiled.jacobian_row, compiled.p,
                              compiled.indptr, compiled.indices, position, Minv, A, nodes,
-                             qweights, bary, dend, iopts, fopts, atol, x, kdes, state,
-                             counters, out_comp, out_a, out_b, out_values)
+                             qweights, bary, dend, iopts, fopts, atol, x, kdes, frozen,
+                             state, counters, out_comp, out_a, out_b, out_values)
 
     capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 22 // (m.q + 1))))
     with _progress(ode, params) as bar:

@@ -284,6 +284,12 @@ class TemplateODE(ODE):
         except (KeyError, TypeError):
             raise ValueError(f"{state!r} is not a state") from None
 
+    @property
+    def autonomous(self):
+        """Whether f does not depend on the time t explicitly (read off the templates)."""
+        return not any(t in expr.free_symbols for template in self.templates
+                       for _, expr in template.terms)
+
     @cached_property
     def rhs(self):
         """The right-hand sides as per-component sympy expressions (O(N) symbolic work: for

@@ -64,7 +64,7 @@ from dolfinode.timeslab.partition import (
 # each slab's smallest step would have needed (for the multi-adaptive efficiency index).
 T_NOW, MONO_ELEMENTS = range(2)
 # Integer and float options.
-SOLVER, FIXED, MAX_ITER, IS_DG, BAND_LOWER, BAND_UPPER = range(6)
+SOLVER, FIXED, MAX_ITER, IS_DG, BAND_LOWER, BAND_UPPER, AUTONOMOUS = range(7)
 RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, THETA, BETA = range(8)
 _KMIN_RELATIVE = 1e-14
 #: A slab holds many elements of a fast component and one indicator above the margin rejects
@@ -81,6 +81,9 @@ GRADING = 2.0
 GRADING_SWEEPS = 4
 #: A mutual coupling with |J_ij| >= ASYMMETRY^2 |J_ji| ties u_j's step to u_i's (``_propagate``).
 ASYMMETRY = 10.0
+#: A component whose change on a slab and drift over the rest of the interval stay below QUIET
+#: times its error scale is frozen: a constant, with no elements, until it drifts (``_freeze``).
+QUIET = 1e-3
 
 
 @njit(cache=True, inline="always")
@@ -99,14 +102,15 @@ def _evaluate(values, e, tau, nodes, bary):
 
 
 @njit(cache=True, inline="always")
-def _moments(fi, ji, p, i, e, indptr, indices, cptr, celems, ea, eb, values, nodes, bary,
+def _moments(fi, ji, p, x, i, e, indptr, indices, cptr, celems, ea, eb, values, nodes, bary,
              qweights, sptr, spts, dptr, dcur, cur, uw, out, mom, row, jrow, fend):
     """Moments m_l = int_0^1 f_i(U(tau)) tau^l dtau of element e by quadrature on every
     interval between breakpoints (exact for linear f); f_i at the end of e into fend[e] (the
     last node of the last interval is the element's end); with ``row``, also row i of df/du
     at the first quadrature point into jrow. Every dependency is one polynomial on each
     interval: its element there is found by a cursor from dcur that walks its elements in
-    time order, and an element that is exactly the interval is read at its nodes. (The reads
+    time order, and an element that is exactly the interval is read at its nodes; a frozen
+    dependency (no element in the slab) is its constant value x_j. (The reads
     are written out here, not in a helper: numba's reference counting of each array argument
     of a call cost more than the reads.) Returns the f evaluations."""
     S = mom.shape[0]
@@ -145,6 +149,9 @@ def _moments(fi, ji, p, i, e, indptr, indices, cptr, celems, ea, eb, values, nod
                 j = indices[row0 + r]
                 if j == i:
                     uw[j] = own
+                    continue
+                if cptr[j] == cptr[j + 1]:
+                    uw[j] = x[j]
                     continue
                 ej = celems[cur[r]]
                 if ea[ej] == s0 and eb[ej] == s1:
@@ -237,9 +244,9 @@ def _group_newton(elist, n, fi, ji, p, x, indptr, indices, position, comp, prev,
         if first_stage == 1:
             values[e, 0] = xl
         # the moments, and row i of df/du at the element's first quadrature point
-        counters[F_EVALUATIONS] += _moments(fi, ji, p, i, e, indptr, indices, cptr, celems, ea,
-                                            eb, values, nodes, bary, qweights, sptr, spts, dptr,
-                                            dcur, cur, uw, out, mom, True, jrow, fend)
+        counters[F_EVALUATIONS] += _moments(fi, ji, p, x, i, e, indptr, indices, cptr, celems,
+                                            ea, eb, values, nodes, bary, qweights, sptr, spts,
+                                            dptr, dcur, cur, uw, out, mom, True, jrow, fend)
         counters[JACOBIANS] += 1
         row = local[i] * S
         for s_ in range(S):
@@ -374,8 +381,8 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, x,
                     xl = x[i] if prev[ep] < 0 else values[prev[ep], nn - 1]  # the left value
                     if first_stage == 1:
                         values[ep, 0] = xl
-                    counters[F_EVALUATIONS] += _moments(fi, ji, p, i, ep, indptr, indices, cptr,
-                                                        celems, ea, eb, values, nodes, bary,
+                    counters[F_EVALUATIONS] += _moments(fi, ji, p, x, i, ep, indptr, indices,
+                                                        cptr, celems, ea, eb, values, nodes, bary,
                                                         qweights, sptr, spts, dptr, dcur, cur, uw,
                                                         out, mom, False, jrow, fend)
                     for s in range(S):
@@ -417,7 +424,7 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, x,
 
 @njit(cache=True)
 def _windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol, rtol, x, K,
-                     dtol, change, mark):
+                     dtol, change, mark, frozen):
     """Whether the windows, converged against the top-level values before its last sweeps,
     stay within dtol of what the changed top level implies: a change du_j of a top-level
     component moves a window component u_i by at most about K sum_j |df_i/du_j| du_j over a
@@ -433,7 +440,7 @@ def _windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol
         for m in range(values.shape[1]):
             change[j] = max(change[j], abs(values[e, m] - saved[e, m]))
     for i in range(N):
-        if mark[i] == 1:
+        if mark[i] == 1 or not math.isnan(frozen[i]):
             continue
         moved = 0.0
         for nz in range(indptr[i], indptr[i + 1]):
@@ -446,13 +453,17 @@ def _windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol
 
 
 @njit(cache=True)
-def _guess_from(ne, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues, nodes,
+def _guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues, nodes,
                 bary):
     """Initial values of a slab rebuilt after a rejection: every element of component i
     reads the rejected attempt's polynomials of i at its nodes (the same values where the
-    element is unchanged, interpolation where it was refined)."""
+    element is unchanged, interpolation where it was refined; x_i where i was frozen)."""
     nn = nodes.shape[0]
     for i in range(cptr.shape[0] - 1):
+        if ocptr[i] == ocptr[i + 1]:
+            for r in range(cptr[i], cptr[i + 1]):
+                values[celems[r], :] = x[i]
+            continue
         c = ocptr[i]
         last = ocptr[i + 1] - 1
         for r in range(cptr[i], cptr[i + 1]):
@@ -467,7 +478,7 @@ def _guess_from(ne, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb
 
 
 @njit(cache=True)
-def _propagate(kdes, indptr, indices, jacobian):
+def _propagate(kdes, rows, frozen, indptr, indices, jacobian):
     """Small steps travel along strong dependencies: k_j <= k_i when f_i reacts to u_j within
     one step of i (|J_ij| k_i > 1; DOLFIN's "poor man's dual weighting", restricted to the
     couplings that matter), or when the coupling is mutual and lopsided,
@@ -475,13 +486,13 @@ def _propagate(kdes, indptr, indices, jacobian):
     u_i over i's time scale (the scaling that makes the pair symmetric; omega for x' = v,
     v' = -omega^2 x), so u_j must be as resolved as u_i although its own indicator allows
     longer steps (mcG(1) on the stiff chain at tolerance 1e-7: positions 40x longer than
-    their velocities, 2 10^4 x tolerance)."""
-    N = kdes.shape[0]
-    for i in range(N):
+    their velocities, 2 10^4 x tolerance). Only the components ``rows`` and the active ones
+    they read take part (frozen components have no step)."""
+    for i in rows:
         for nz in range(indptr[i], indptr[i + 1]):
             j = indices[nz]
             jij = abs(jacobian[nz])
-            if j == i or jij == 0.0 or kdes[j] <= kdes[i]:
+            if j == i or jij == 0.0 or kdes[j] <= kdes[i] or not math.isnan(frozen[j]):
                 continue
             tie = jij * kdes[i] > 1.0
             if not tie:
@@ -495,26 +506,80 @@ def _propagate(kdes, indptr, indices, jacobian):
 
 
 @njit(cache=True)
-def _grade(kdes, indptr, indices, jacobian):
+def _grade(kdes, rows, frozen, indptr, indices, jacobian):
     """Grade the steps along strong couplings, k_i <= max(GRADING k_j, 1 / |df_i/du_j|):
     a component that reacts to u_j within its own step may not step far beyond j, so that
     activity moving along the couplings (a front) meets steps that shrink towards it instead
-    of one long step that the next slab rejects. Alternating sweeps, to a fixed point or
-    GRADING_SWEEPS of them."""
-    N = kdes.shape[0]
+    of one long step that the next slab rejects. Alternating sweeps over the components
+    ``rows``, to a fixed point or GRADING_SWEEPS of them; frozen components constrain
+    nothing."""
+    n = rows.shape[0]
     for sweep in range(GRADING_SWEEPS):
         moved = False
-        for r in range(N):
-            i = r if sweep % 2 == 0 else N - 1 - r
+        for r in range(n):
+            i = rows[r] if sweep % 2 == 0 else rows[n - 1 - r]
             for nz in range(indptr[i], indptr[i + 1]):
                 j = indices[nz]
-                if j == i or jacobian[nz] == 0.0:
+                if j == i or jacobian[nz] == 0.0 or not math.isnan(frozen[j]):
                     continue
                 cap = max(GRADING * kdes[j], 1.0 / abs(jacobian[nz]))
                 if kdes[i] > cap:
                     kdes[i] = cap
                     moved = True
         if not moved:
+            return
+
+
+@njit(cache=True)
+def _store_constant(i, a, b, x, counters, out_comp, out_a, out_b, out_values):
+    """Store the constant element U_i = x_i on [a, b]: component i was frozen there."""
+    if b <= a:
+        return
+    n = counters[STORED]
+    out_comp[n] = i
+    out_a[n] = a
+    out_b[n] = b
+    out_values[n, :] = x[i]
+    counters[STORED] += 1
+    counters[ELEMENTS] += 1
+
+
+@njit(cache=True)
+def _freeze(b, k, nactive, indptr, indices, drift, atol, rtol, umax, x, frozen, kdes, last_a,
+            last_b, quiet, counters, out_comp, out_a, out_b, out_values):
+    """Freeze and wake components at the end b of an accepted slab of length k.
+
+    Component i is quiet when drift_i = |U_i(b) - U_i(a)| + (T - b) |f_i(U(b))| (its change
+    on the slab, and on the rest of the interval at its present rate) is at most QUIET times
+    atol + rtol max |U_i|. A frozen component that is no longer quiet wakes up (its constant
+    element on [frozen since, b] is stored); an active one freezes when it and every
+    component it reads are quiet, unless no component would be left active."""
+    N = x.shape[0]
+    for i in range(N):
+        quiet[i] = drift[i] <= QUIET * (atol[i] + rtol * umax[i])
+    awake = nactive
+    for i in range(N):
+        if not (math.isnan(frozen[i]) or quiet[i]):
+            _store_constant(i, frozen[i], b, x, counters, out_comp, out_a, out_b, out_values)
+            frozen[i] = math.nan
+            last_b[i] = last_a[i]  # no polynomial to continue
+            kdes[i] = k  # (graded against its active neighbours)
+            awake += 1
+    for sweep in range(2):  # count, then freeze when some component stays active
+        count = 0
+        for i in range(N):
+            if not (math.isnan(frozen[i]) and quiet[i]):
+                continue
+            reads_quiet = True
+            for nz in range(indptr[i], indptr[i + 1]):
+                if not quiet[indices[nz]]:
+                    reads_quiet = False
+                    break
+            if reads_quiet:
+                count += 1
+                if sweep == 1:
+                    frozen[i] = b
+        if count >= awake:
             return
 
 
@@ -547,20 +612,22 @@ _SIGNATURE = types.int64(
     _f8, _f8, _f8,                                 # nodes, quadrature weights, bary
     _f8,                                           # end_derivative
     _i8, _f8, _f8,                                 # iopts, fopts, atol
-    _f8, _f8, _f8, _i8,                            # x, kdes, state, counters
+    _f8, _f8, _f8, _f8, _i8,                       # x, kdes, frozen, state, counters
     _i8, _f8, _f8, types.float64[:, ::1],          # out_comp, out_a, out_b, out_values
 )
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
 def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary, end_derivative,
-            iopts, fopts, atol, x, kdes, state, counters, out_comp, out_a, out_b,
+            iopts, fopts, atol, x, kdes, frozen, state, counters, out_comp, out_a, out_b,
             out_values):
-    """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status."""
+    """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status.
+    ``frozen[i]`` is the time since which component i is frozen (NaN: active)."""
     N = x.shape[0]
     S = Minv.shape[0]
     nn = nodes.shape[0]
     fixed = iopts[FIXED] == 1
+    autonomous = iopts[AUTONOMOUS] == 1
     mode = iopts[SOLVER]
     max_iter = iopts[MAX_ITER]
     rtol, T, kmax, safety, dtol = fopts[RTOL], fopts[T_END], fopts[KMAX], fopts[SAFETY], fopts[DTOL]
@@ -600,7 +667,10 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     jacobian = np.empty(max(1, indices.shape[0]))  # df/du at the slab start (CSR values)
     jdiag = np.zeros(N)
     coupling = np.zeros(N)  # sum_j!=i |J_ij|
-    jacobian_time = math.nan
+    jacobian_time = np.full(N, np.nan)  # when each row of ``jacobian`` was evaluated
+    active = np.empty(N, dtype=np.int64)
+    drift = np.empty(N)  # |U_i(b) - U_i(a)| + (T - b) |f_i(U(b))|
+    quiet = np.zeros(N, dtype=np.bool_)
     kslab = kmax  # slab length limit, adapted to the Gauss-Seidel iterations a slab needs
     hold = 0  # accepted slabs to go before the limit may grow again after a rejection
     emax = np.empty(N)
@@ -621,12 +691,26 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     capacity = out_a.shape[0]
     t = state[T_NOW]
     while True:
+        nactive = 0
+        for i in range(N):
+            if math.isnan(frozen[i]):
+                active[nactive] = i
+                nactive += 1
+        nfrozen = N - nactive
         if t >= T:
-            return DONE
-        if t != jacobian_time:
-            # the Jacobian at the slab start: its diagonal damps the element updates, its
-            # couplings propagate small steps
+            if nfrozen > capacity - counters[STORED]:
+                return FULL
             for i in range(N):
+                if not math.isnan(frozen[i]):
+                    _store_constant(i, frozen[i], t, x, counters, out_comp, out_a, out_b,
+                                    out_values)
+                    frozen[i] = math.nan
+            return DONE
+        # the Jacobian at the slab start: its diagonal damps the element updates, its
+        # couplings propagate small steps
+        for r in range(nactive):
+            i = active[r]
+            if jacobian_time[i] != t:
                 ji(i, x.ctypes, t, p.ctypes, jrow.ctypes)
                 jdiag[i] = 0.0
                 coupling[i] = 0.0
@@ -636,16 +720,18 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                         jdiag[i] = jrow[nz - indptr[i]]
                     else:
                         coupling[i] += abs(jrow[nz - indptr[i]])
-            counters[JACOBIANS] += N
-            jacobian_time = t
+                counters[JACOBIANS] += 1
+                jacobian_time[i] = t
         kcap = 0.0  # the largest desired step
-        for i in range(N):
+        for r in range(nactive):
+            i = active[r]
             if not fixed:
                 kdes[i] = min(kdes[i], kmax)
             kcap = max(kcap, kdes[i])
-        b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, theta, beta, kslab, comp,
-                                                              ea, eb, windows)
-        if ne > capacity - counters[STORED]:
+        b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, active[:nactive], theta,
+                                                              beta, kslab, comp, ea, eb, windows)
+        if ne + nfrozen > capacity - counters[STORED]:
+            # (room for the frozen components' elements too, stored when they wake up)
             return FULL  # with nothing stored: the driver grows the buffers
         if b - t < _KMIN_RELATIVE * max(abs(t), abs(T) * 1e-6) and b < T:
             return UNDERFLOW
@@ -673,7 +759,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         # predecessor when the sweep reaches them
         # (after a rejection: the rejected attempt)
         if retry:
-            _guess_from(ne, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues,
+            _guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues,
                         nodes, bary)
         else:
             for e in range(ne):
@@ -728,7 +814,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                 break
             if nwin > 0 and resolved and math.isfinite(d) and _windows_settled(
                     nroot, comp, values, saved, indptr, indices, jacobian, atol, rtol, x,
-                    b - t, dtol, top_change, mark):
+                    b - t, dtol, top_change, mark, frozen):
                 converged = True
                 break
             if not math.isfinite(d):
@@ -780,8 +866,44 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             emax[i] = max(emax[i], res)
             umax[i] = max(umax[i], abs(uend))
             kact[i] = max(kact[i], k)
+        if nfrozen > 0:
+            # a frozen component is a constant on the slab: its residual is -f_i(U(b)), with
+            # every other component at its end value. For autonomous f only the components
+            # that read an active one can have changed since they were last checked.
+            for i in range(N):
+                uw[i] = x[i]
+            for r in range(nactive):
+                i = active[r]
+                uw[i] = values[celems[cptr[i + 1] - 1], nn - 1]
+            for i in range(N):
+                if math.isnan(frozen[i]):
+                    continue
+                umax[i] = abs(x[i])
+                kact[i] = b - t
+                if autonomous:
+                    reads_active = False
+                    for nz in range(indptr[i], indptr[i + 1]):
+                        if math.isnan(frozen[indices[nz]]):
+                            reads_active = True
+                            break
+                    if not reads_active:
+                        continue
+                fi(i, uw.ctypes, b, p.ctypes, out.ctypes)
+                counters[F_EVALUATIONS] += 1
+                if not math.isfinite(out[0]):
+                    blowup = True
+                emax[i] = (b - t) * abs(out[0])
+                drift[i] = (T - b) * abs(out[0])
         for i in range(N):
             emax[i] /= atol[i] + rtol * umax[i]
+        if not (blowup and fixed):
+            # frozen components that fail the slab take part in its retry
+            for i in range(N):
+                if not (math.isnan(frozen[i]) or emax[i] <= ACCEPTANCE_MARGIN):
+                    _store_constant(i, frozen[i], t, x, counters, out_comp, out_a, out_b,
+                                    out_values)
+                    frozen[i] = math.nan
+                    last_b[i] = last_a[i]
         if blowup:
             retry = False
             if fixed:
@@ -798,6 +920,8 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                 if emax[i] > ACCEPTANCE_MARGIN:
                     accept = False
             for i in range(N):
+                if not math.isnan(frozen[i]):
+                    continue  # keeps its step until it wakes up
                 # below efloor the factor is capped at 5 anyway: no pow() for idle components
                 factor = (5.0 if emax[i] <= efloor else
                           safety * max(emax[i], 1e-10) ** (-1.0 / order))
@@ -809,8 +933,8 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                 else:
                     knew = kdes[i]
                 kdes[i] = min(knew, kmax)
-            _propagate(kdes, indptr, indices, jacobian)
-            _grade(kdes, indptr, indices, jacobian)
+            _propagate(kdes, active[:nactive], frozen, indptr, indices, jacobian)
+            _grade(kdes, active[:nactive], frozen, indptr, indices, jacobian)
         if not accept:
             counters[REJECTED] += 1
             # the steps chosen at the slab's start no longer fit its end (a front arrives):
@@ -850,11 +974,16 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         counters[SLABS] += 1
         hold = max(0, hold - 1)
         counters[SUBSLABS] += nsub
-        for i in range(N):
+        for r in range(nactive):
+            i = active[r]
             last = celems[cptr[i + 1] - 1]
+            drift[i] = abs(values[last, nn - 1] - x[i]) + (T - b) * abs(fend[last])
             x[i] = values[last, nn - 1]
             last_a[i], last_b[i] = ea[last], eb[last]
             for m in range(nn):
                 last_values[i, m] = values[last, m]
+        if not fixed and b < T:
+            _freeze(b, b - t, nactive, indptr, indices, drift, atol, rtol, umax, x, frozen,
+                    kdes, last_a, last_b, quiet, counters, out_comp, out_a, out_b, out_values)
         t = b
         state[T_NOW] = t

@@ -57,14 +57,15 @@ def _partition(perm, offset, kdes, theta, length):
 
 
 @njit(cache=True)
-def build_slab(a, T, kdes, theta, beta, kslab, comp, ea, eb, windows):
-    """Build the time slab starting at a, at most kslab long; returns (b, number of elements,
-    number of sub-slabs, number of windows, comp, ea, eb, windows), the arrays grown as needed.
+def build_slab(a, T, kdes, active, theta, beta, kslab, comp, ea, eb, windows):
+    """Build the time slab starting at a, at most kslab long, for the components ``active``
+    (the others are frozen and get no element); returns (b, number of elements, number of
+    sub-slabs, number of windows, comp, ea, eb, windows), the arrays grown as needed.
 
     Elements come in creation order (depth first), so the sub-slabs nested in each sub-slab of
     the top level form a contiguous range, a *window*, starting at ``windows[w]``."""
-    n = kdes.shape[0]
-    perm = np.arange(n)
+    n = active.shape[0]
+    perm = active.copy()
     # frame stack: (end of its interval b1, end of its group, current time t)
     fb = np.empty(64)
     fend = np.empty(64, dtype=np.int64)

@@ -133,8 +133,55 @@ def test_steps_are_graded_along_strong_couplings():
                                                       if i == n - 1 else (i - 1, i + 1))])
     jacobian = np.full(2 * n, 400.0)
     kdes = np.array([1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])
-    _grade(kdes, indptr, indices, jacobian)
+    _grade(kdes, np.arange(n), np.full(n, np.nan), indptr, indices, jacobian)
     np.testing.assert_allclose(kdes, [1e-5, 0.0025, 0.005, 0.01, 0.02, 0.04])
     kdes = np.array([1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])
-    _grade(kdes, indptr, indices, np.full(2 * n, 1e-3))
+    _grade(kdes, np.arange(n), np.full(n, np.nan), indptr, indices, np.full(2 * n, 1e-3))
     np.testing.assert_allclose(kdes, [1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])
+
+
+def _front(n, T):
+    """The reaction front u' = eps u_xx + gamma u^2 (1 - u) on n points of [0, (n - 1) / 200]
+    (h = 0.005, mirror ghost points), its front at x = 0.3 moving right at ~2.2."""
+    eps, gamma, h = 0.01, 1000.0, 0.005
+    u = sp.symbols(f"u0:{n}")
+    c = eps / h**2
+    rhs = {}
+    for i in range(n):
+        left, right = u[i - 1] if i > 0 else u[1], u[i + 1] if i < n - 1 else u[n - 2]
+        rhs[u[i]] = c * (left - 2 * u[i] + right) + gamma * u[i] ** 2 * (1 - u[i])
+    x = h * np.arange(n)
+    lam = 0.5 * np.sqrt(2 * gamma / eps)
+    return dn.ODE(rhs, u0=1.0 / (1.0 + np.exp(lam * (x - 0.3))), T=T)
+
+
+def test_quiet_components_are_frozen():
+    """Components at rest (behind the front at u = 1, far ahead at u = 0) are frozen: one
+    constant element over most of [0, T] instead of one per slab, at the accuracy of
+    the mono-adaptive method."""
+    ode = _front(200, 0.05)
+    reference = dn.solve(ode, method="dG(3)", tolerance=1e-10)(ode.T)
+    multi = dn.solve(ode, method="mcG(1)", tolerance=1e-6)
+    mono = dn.solve(ode, method="cG(1)", tolerance=1e-6)
+    error = np.abs(multi(ode.T) - reference).max()
+    assert error <= 2 * np.abs(mono(ode.T) - reference).max(), error
+    counts = multi.stats["elements per component"]
+    front = counts[60:90].min()  # x in [0.3, 0.45]: the front passes
+    assert front > 50 * max(counts[:10].max(), counts[150:].max()), counts
+    ptr, a, b, values = multi.elements()
+    last = slice(ptr[-2], ptr[-1])
+    longest = np.argmax(b[last] - a[last]) + ptr[-2]
+    assert b[longest] - a[longest] > 0.5 * ode.T
+    assert np.ptp(values[longest]) == 0.0  # a frozen component is a constant
+
+
+@pytest.mark.parametrize("autonomous", [True, False])
+def test_frozen_components_wake_up(autonomous):
+    """u' = 1e-11 e^(2t) is negligible at first and grows to 5e-3: frozen while quiet, u must
+    wake up, whether its growth comes through a state it reads (w' = 2w) or through t."""
+    u, w, v = sp.symbols("u w v")
+    growth = 1e-11 * (w if autonomous else sp.exp(2 * dn.t))
+    ode = dn.ODE({u: growth, w: 2 * w, v: -v + sp.sin(10 * dn.t)}, u0=[0.0, 1.0, 0.0], T=10.0)
+    sol = dn.solve(ode, method="mcG(1)", tolerance=1e-6, absolute_tolerance=1e-6)
+    exact = 1e-11 * (np.exp(2 * ode.T) - 1) / 2
+    assert abs(sol(ode.T)[0] - exact) <= 10 * 1e-6 * (1 + exact)
