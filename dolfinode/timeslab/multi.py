@@ -18,6 +18,11 @@ the problem is treated as stiff, and the elements of each sub-slab (one interval
 components) are updated together by a simplified Newton step with the sparse sympy Jacobian
 restricted to them.
 
+Components at rest are frozen (``_freeze``): no elements, the constant x_i for the others,
+until they drift; then their constant element over the whole span is stored. After a slab the
+frozen components that read an active one (all of them for non-autonomous f) are checked by
+one evaluation of f_i at the slab end.
+
 After a slab, every element's residual R = U' - f_i(U) at its end gives the local error
 estimate k |R| of :mod:`dolfinode.adaptivity` (order q + 1 for mcG(q) and mdG(q)), scaled by
 atol + rtol max |U_i| over the slab; the slab is accepted when all are <= ACCEPTANCE_MARGIN,
