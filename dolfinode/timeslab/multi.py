@@ -901,14 +901,12 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                 drift[i] = (T - b) * abs(out[0])
         for i in range(N):
             emax[i] /= atol[i] + rtol * umax[i]
-        if not (blowup and fixed):
-            # frozen components that fail the slab take part in its retry
-            for i in range(N):
-                if not (math.isnan(frozen[i]) or emax[i] <= ACCEPTANCE_MARGIN):
-                    _store_constant(i, frozen[i], t, x, counters, out_comp, out_a, out_b,
-                                    out_values)
-                    frozen[i] = math.nan
-                    last_b[i] = last_a[i]
+        for i in range(N):  # frozen components that fail the slab take part in its retry
+            if not (math.isnan(frozen[i]) or emax[i] <= ACCEPTANCE_MARGIN):
+                _store_constant(i, frozen[i], t, x, counters, out_comp, out_a, out_b,
+                                out_values)
+                frozen[i] = math.nan
+                last_b[i] = last_a[i]
         if blowup:
             retry = False
             if fixed:
