@@ -360,12 +360,15 @@ def lorenz_problem(T=5.0):
 def reaction_front(n=200, T=0.05, eps=0.01, gamma=1000.0):
     """Reaction front u_t = eps u_xx + gamma u^2 (1 - u) on n points (Logg's multi-adaptive
     reaction-diffusion example): second differences with mirror ghost points (Neumann), domain
-    length L = 5 n / 1000, u0 = 1 / (1 + exp(lam (x - 1))), lam = sqrt(gamma / (2 eps))."""
+    length L = 5 n / 1000, u0 = 1 / (1 + exp(lam (x - x0))), lam = sqrt(gamma / (2 eps)),
+    x0 = min(1, L / 2): the front starts inside the domain and travels right at about
+    sqrt(gamma eps / 2)."""
     from scipy.special import expit
 
     L = 5.0 * n / 1000.0
     h = L / (n - 1)
     lam = np.sqrt(gamma / (2.0 * eps))
+    x0 = min(1.0, L / 2)
     xs = np.linspace(0.0, L, n)
     u = sp.symbols(f"u0:{n}")
     e, g, h2 = sp.symbols("epsilon gamma h2")
@@ -374,7 +377,7 @@ def reaction_front(n=200, T=0.05, eps=0.01, gamma=1000.0):
         left = u[i - 1] if i > 0 else u[1]
         right = u[i + 1] if i < n - 1 else u[n - 2]
         rhs[u[i]] = e * (left - 2 * u[i] + right) / h2 + g * u[i] ** 2 * (1 - u[i])
-    ode = ODE(rhs, u0=expit(-lam * (xs - 1.0)), T=T, params={e: eps, g: gamma, h2: h * h})
+    ode = ODE(rhs, u0=expit(-lam * (xs - x0)), T=T, params={e: eps, g: gamma, h2: h * h})
     return Problem("reaction", ode, stiff=True, final=None, multiscale=True,
                    reference="scipy Radau at rtol = 1e-11 (computed)",
                    description=f"reaction front, N = {n}, T = {T:g}")

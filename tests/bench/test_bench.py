@@ -340,3 +340,17 @@ def test_cli_bench_merges_a_run_into_the_record_and_rewrites_it(tmp_path, monkey
     assert main(["bench", "--report-only", "--output", str(tmp_path), "--no-progress"]) == 0
     assert json.loads((tmp_path / "suite.json").read_text())["runs"] == record["runs"]
     assert "Merged: decay2 re-run" in (tmp_path / "suite.md").read_text()
+
+
+def test_reaction_front_travels_inside_the_domain():
+    """The suite's front starts inside [0, L] and moves right at about sqrt(gamma eps / 2)."""
+    p = P.reaction_front(n=200, T=0.05)
+    xs = np.linspace(0.0, 1.0, 200)
+    sol = dn.solve(p.ode, method="dG(2)", tolerance=1e-6)
+
+    def position(u):
+        return np.interp(0.5, u[::-1], xs[::-1])  # u decreases in x
+
+    moved = position(sol(p.ode.T)) - position(p.ode.u0)
+    assert 0.0 < position(p.ode.u0) < 0.9
+    assert moved == pytest.approx(np.sqrt(1000.0 * 0.01 / 2) * p.ode.T, rel=0.25)
