@@ -2,7 +2,7 @@
 DOP853, LSODA, Radau and BDF on the problems of dolfinode.bench.multirate:
 
 * ``oscillators``: two weakly coupled oscillators, frequencies 1 and 1000, T = 10;
-* ``chain-stiff``: 200 unit masses, 10 of the 201 springs 1e6 times stiffer, T = 10;
+* ``chain-stiff``: 200 unit masses, 10 of the 201 springs 1e6 times stiffer, T = 0.1;
 * ``reaction-500``: the reaction front u' = 0.01 u_xx + 1000 u^2 (1 - u) on 500 points, T = 0.05.
 
 A preset of ``dolfinode bench`` (see dolfinode.bench: CPU times, mescd and L2 scores, counts

@@ -549,14 +549,28 @@ def _store_constant(i, a, b, x, counters, out_comp, out_a, out_b, out_values):
     counters[ELEMENTS] += 1
 
 
+@njit(cache=True, inline="always")
+def _drift(change, rate, tau, mu):
+    """|change| + |rate| tau (e^(mu tau) - 1) / (mu tau): a component's change on a slab and a
+    bound of its drift over the time tau left, if it moves at ``rate`` now and its row of
+    df/du has mu = J_ii + sum_j!=i |J_ij| (the row's bound of the logarithmic max-norm:
+    rates of size r grow at most like e^(mu t) r). Without the growth factor u' = u from
+    u = 1e-12 would be frozen for good."""
+    if rate == 0.0:
+        return abs(change)
+    z = max(mu, 0.0) * tau
+    growth = 1.0 if z < 1e-8 else (math.expm1(z) / z if z < 700.0 else math.inf)
+    return abs(change) + abs(rate) * tau * growth
+
+
 @njit(cache=True)
 def _freeze(b, k, nactive, indptr, indices, drift, atol, rtol, umax, x, frozen, kdes, last_a,
             last_b, quiet, counters, out_comp, out_a, out_b, out_values):
     """Freeze and wake components at the end b of an accepted slab of length k.
 
-    Component i is quiet when drift_i = |U_i(b) - U_i(a)| + (T - b) |f_i(U(b))| (its change
-    on the slab, and on the rest of the interval at its present rate) is at most QUIET times
-    atol + rtol max |U_i|. A frozen component that is no longer quiet wakes up (its constant
+    Component i is quiet when its drift (``_drift``: its change on the slab, and a bound of
+    its change on the rest of the interval from its present rate f_i(U(b))) is at most QUIET
+    times atol + rtol max |U_i|. A frozen component that is no longer quiet wakes up (its constant
     element on [frozen since, b] is stored); an active one freezes when it and every
     component it reads are quiet, unless no component would be left active."""
     N = x.shape[0]
@@ -674,7 +688,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     coupling = np.zeros(N)  # sum_j!=i |J_ij|
     jacobian_time = np.full(N, np.nan)  # when each row of ``jacobian`` was evaluated
     active = np.empty(N, dtype=np.int64)
-    drift = np.empty(N)  # |U_i(b) - U_i(a)| + (T - b) |f_i(U(b))|
+    drift = np.empty(N)  # change on the slab and bound of the drift until T (``_drift``)
     quiet = np.zeros(N, dtype=np.bool_)
     kslab = kmax  # slab length limit, adapted to the Gauss-Seidel iterations a slab needs
     hold = 0  # accepted slabs to go before the limit may grow again after a rejection
@@ -898,7 +912,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                 if not math.isfinite(out[0]):
                     blowup = True
                 emax[i] = (b - t) * abs(out[0])
-                drift[i] = (T - b) * abs(out[0])
+                drift[i] = _drift(0.0, out[0], T - b, jdiag[i] + coupling[i])
         for i in range(N):
             emax[i] /= atol[i] + rtol * umax[i]
         for i in range(N):  # frozen components that fail the slab take part in its retry
@@ -980,7 +994,8 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         for r in range(nactive):
             i = active[r]
             last = celems[cptr[i + 1] - 1]
-            drift[i] = abs(values[last, nn - 1] - x[i]) + (T - b) * abs(fend[last])
+            drift[i] = _drift(values[last, nn - 1] - x[i], fend[last], T - b,
+                              jdiag[i] + coupling[i])
             x[i] = values[last, nn - 1]
             last_a[i], last_b[i] = ea[last], eb[last]
             for m in range(nn):

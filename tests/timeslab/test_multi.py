@@ -185,3 +185,19 @@ def test_frozen_components_wake_up(autonomous):
     sol = dn.solve(ode, method="mcG(1)", tolerance=1e-6, absolute_tolerance=1e-6)
     exact = 1e-11 * (np.exp(2 * ode.T) - 1) / 2
     assert abs(sol(ode.T)[0] - exact) <= 10 * 1e-6 * (1 + exact)
+
+
+def test_growing_components_are_not_frozen():
+    """u' = u from u = 1e-12 changes by only 3e-11 at its present rate over T = 30 (far below
+    QUIET x atol), but grows to 11: the drift bound includes the growth e^(mu t) of its row's
+    log-norm bound mu = 1, so u is not frozen (frozen, it ended at 1.005e-12). Below atol its
+    own steps are long, so only that it grows is checked here."""
+    from dolfinode.timeslab.multi import _drift
+
+    assert _drift(0.0, 1e-12, 30.0, 1.0) == pytest.approx(1e-12 * np.expm1(30.0))
+    assert _drift(-2e-3, 1e-12, 30.0, -5.0) == pytest.approx(2e-3 + 3e-11)
+    assert _drift(0.0, 1e-300, 1e3, 1.0) == np.inf
+    u, x, y = sp.symbols("u x y")
+    ode = dn.ODE({u: u, x: y, y: -x}, u0=[1e-12, 1.0, 0.0], T=30.0)
+    sol = dn.solve(ode, method="mcG(1)", tolerance=1e-6)
+    assert sol(ode.T)[0] > 1e-9 and sol.stats["elements per component"][0] > 10
