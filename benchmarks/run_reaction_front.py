@@ -92,18 +92,22 @@ def main(argv=None):
             cpu = time.process_time() - start
             st = sol.stats
             rows.append((n, method, tol, cpu, st["elements"], st["time slabs"],
-                         st["rejected steps"], float(np.max(np.abs(sol(args.T) - ref)))))
+                         st["rejected steps"], float(np.max(np.abs(sol(args.T) - ref))),
+                         st["f evaluations"]))
             print(*rows[-1], flush=True)
     lines = [f"# Reaction front: mcG(1) against cG(1), T = {args.T:g}, tolerance 1e-6", "",
              (f"`python benchmarks/run_reaction_front.py --sizes {args.sizes} --T {args.T:g}`, "
              f"{time.strftime('%Y-%m-%d')}; CPU time of the solve call."), "",
-             "| N | method | tolerance | CPU [s] | elements | time slabs | rejected | max error |",
-             "|---|---|---|---|---|---|---|---|"]
-    lines += [f"| {n} | {m} | {tol:g} | {c:.3g} | {e:,} | {s:,} | {r} | {err:.1e} |"
-              for n, m, tol, c, e, s, r, err in rows]
+             ("| N | method | tolerance | CPU [s] | elements | time slabs | rejected | max error "
+              "| ns per element | ns per f_i evaluation |"),
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    # cG(1)'s f evaluations are of the whole f: N component evaluations each
+    lines += [f"| {n} | {m} | {tol:g} | {c:.3g} | {e:,} | {s:,} | {r} | {err:.1e} "
+              f"| {1e9 * c / e:.0f} | {1e9 * c / (fe * (1 if m.startswith('m') else n)):.0f} |"
+              for n, m, tol, c, e, s, r, err, fe in rows]
     sizes = sorted({row[0] for row in rows})
-    mono = {n: (c, err) for n, m, tol, c, e, s, r, err in rows if m == "cG(1)"}
-    multi = {n: time_at_error([(err, c) for n2, m, tol, c, e, s, r, err in rows
+    mono = {n: (c, err) for n, m, tol, c, e, s, r, err, fe in rows if m == "cG(1)"}
+    multi = {n: time_at_error([(err, c) for n2, m, tol, c, e, s, r, err, fe in rows
                                if n2 == n and m == "mcG(1)"], mono[n][1]) for n in sizes}
     lines += ["", "mcG(1) against cG(1) at cG(1)'s error (mcG(1)'s time interpolated): "
               + ", ".join(f"N = {n}: {mono[n][0] / multi[n]:.2g}x faster" if multi[n] else
