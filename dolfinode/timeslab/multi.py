@@ -571,30 +571,34 @@ def _drift(change, rate, tau, mu):
 
 
 @njit(cache=True)
-def _freeze(b, k, nactive, indptr, indices, drift, atol, rtol, umax, x, frozen, kdes, last_a,
-            last_b, quiet, counters, out_comp, out_a, out_b, out_values):
-    """Freeze and wake components at the end b of an accepted slab of length k.
+def _freeze(b, k, active, checked, indptr, indices, drift, atol, rtol, umax, x, frozen, kdes,
+            last_a, last_b, quiet, uw, counters, out_comp, out_a, out_b, out_values):
+    """Freeze and wake components at the end b of an accepted slab of length k, from the
+    ``active`` ones and the frozen ones ``checked`` on it; returns whether any changed.
 
     Component i is quiet when its drift (``_drift``: its change on the slab, and a bound of
     its change on the rest of the interval from its present rate f_i(U(b))) is at most QUIET
-    times atol + rtol max |U_i|. A frozen component that is no longer quiet wakes up (its constant
-    element on [frozen since, b] is stored); an active one freezes when it and every
-    component it reads are quiet, unless no component would be left active."""
-    N = x.shape[0]
-    for i in range(N):
-        quiet[i] = drift[i] <= QUIET * (atol[i] + rtol * umax[i])
-    awake = nactive
-    for i in range(N):
-        if not (math.isnan(frozen[i]) or quiet[i]):
+    times atol + rtol max |U_i|. A frozen component that is no longer quiet wakes up (its
+    constant element on [frozen since, b] is stored); an active one freezes when it and every
+    component it reads are quiet, unless no component would be left active. (A frozen
+    component that was not checked stays quiet: none of its inputs changed.)"""
+    for lst in (active, checked):
+        for i in lst:
+            quiet[i] = drift[i] <= QUIET * (atol[i] + rtol * umax[i])
+    changed = False
+    awake = active.shape[0]
+    for i in checked:
+        if not quiet[i]:
             _store_constant(i, frozen[i], b, x, counters, out_comp, out_a, out_b, out_values)
             frozen[i] = math.nan
             last_b[i] = last_a[i]  # no polynomial to continue
             kdes[i] = k  # (graded against its active neighbours)
             awake += 1
+            changed = True
     for sweep in range(2):  # count, then freeze when some component stays active
         count = 0
-        for i in range(N):
-            if not (math.isnan(frozen[i]) and quiet[i]):
+        for i in active:
+            if not quiet[i]:
                 continue
             reads_quiet = True
             for nz in range(indptr[i], indptr[i + 1]):
@@ -605,8 +609,30 @@ def _freeze(b, k, nactive, indptr, indices, drift, atol, rtol, umax, x, frozen, 
                 count += 1
                 if sweep == 1:
                     frozen[i] = b
+                    uw[i] = x[i]  # the value the others read (see ``advance``)
+                    changed = True
         if count >= awake:
-            return
+            break
+    return changed
+
+
+@njit(cache=True)
+def _readers(indptr, indices, N):
+    """The transpose of the dependency pattern, as CSR (rptr, readers): the components whose
+    f_i reads u_j are readers[rptr[j]:rptr[j + 1]]."""
+    rptr = np.zeros(N + 1, dtype=np.int64)
+    for nz in range(indices.shape[0]):
+        rptr[indices[nz] + 1] += 1
+    for j in range(N):
+        rptr[j + 1] += rptr[j]
+    fill = rptr[:-1].copy()
+    readers = np.empty(indices.shape[0], dtype=np.int64)
+    for i in range(N):
+        for nz in range(indptr[i], indptr[i + 1]):
+            j = indices[nz]
+            readers[fill[j]] = i
+            fill[j] += 1
+    return rptr, readers
 
 
 @njit(cache=True)
@@ -694,9 +720,18 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     jdiag = np.zeros(N)
     coupling = np.zeros(N)  # sum_j!=i |J_ij|
     jacobian_time = np.full(N, np.nan)  # when each row of ``jacobian`` was evaluated
+    # the active (not frozen) components, rebuilt when that set changes (``regroup``), and
+    # the frozen ones checked after a slab: per slab, the work stays proportional to the
+    # active components and their frozen readers, not to N
     active = np.empty(N, dtype=np.int64)
+    nactive = 0
+    regroup = True
+    checked = np.empty(N, dtype=np.int64)
+    check_stamp = np.zeros(N, dtype=np.int64)
+    check_round = 0
+    rptr, readers = _readers(indptr, indices, N)
     drift = np.empty(N)  # change on the slab and bound of the drift until T (``_drift``)
-    quiet = np.zeros(N, dtype=np.bool_)
+    quiet = np.ones(N, dtype=np.bool_)  # (stays True for a frozen component until it wakes)
     kslab = kmax  # slab length limit, adapted to the Gauss-Seidel iterations a slab needs
     hold = 0  # accepted slabs to go before the limit may grow again after a rejection
     emax = np.empty(N)
@@ -717,11 +752,13 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     capacity = out_a.shape[0]
     t = state[T_NOW]
     while True:
-        nactive = 0
-        for i in range(N):
-            if math.isnan(frozen[i]):
-                active[nactive] = i
-                nactive += 1
+        if regroup:
+            nactive = 0
+            for i in range(N):
+                if math.isnan(frozen[i]):
+                    active[nactive] = i
+                    nactive += 1
+            regroup = False
         nfrozen = N - nactive
         if t >= T:
             if nfrozen > capacity - counters[STORED]:
@@ -874,7 +911,8 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         # the slab, relative to atol + rtol max |U_i| over the slab (one step serves all of
         # the component's elements in the slab, so one scale: an element's own |U_i(t_e)|
         # would let the zero crossings of an oscillation dictate the step of every period)
-        for i in range(N):
+        for r in range(nactive):
+            i = active[r]
             emax[i] = 0.0
             kact[i] = 0.0
             umax[i] = 0.0
@@ -892,42 +930,51 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             emax[i] = max(emax[i], res)
             umax[i] = max(umax[i], abs(uend))
             kact[i] = max(kact[i], k)
+        # a frozen component is a constant on the slab: its residual is -f_i(U(b)), every
+        # other component at its end value (uw holds x_j for the frozen ones). For autonomous
+        # f only the frozen components that read an active one can have changed.
+        nchecked = 0
         if nfrozen > 0:
-            # a frozen component is a constant on the slab: its residual is -f_i(U(b)), with
-            # every other component at its end value. For autonomous f only the components
-            # that read an active one can have changed since they were last checked.
-            for i in range(N):
-                uw[i] = x[i]
+            check_round += 1
             for r in range(nactive):
-                i = active[r]
-                uw[i] = values[celems[cptr[i + 1] - 1], nn - 1]
-            for i in range(N):
-                if math.isnan(frozen[i]):
-                    continue
-                umax[i] = abs(x[i])
-                kact[i] = b - t
-                if autonomous:
-                    reads_active = False
-                    for nz in range(indptr[i], indptr[i + 1]):
-                        if math.isnan(frozen[indices[nz]]):
-                            reads_active = True
-                            break
-                    if not reads_active:
-                        continue
+                j = active[r]
+                uw[j] = values[celems[cptr[j + 1] - 1], nn - 1]
+                for q in range(rptr[j], rptr[j + 1]):
+                    i = readers[q]
+                    if (autonomous and check_stamp[i] != check_round
+                            and not math.isnan(frozen[i])):
+                        check_stamp[i] = check_round
+                        checked[nchecked] = i
+                        nchecked += 1
+            if not autonomous:
+                for i in range(N):
+                    if not math.isnan(frozen[i]):
+                        checked[nchecked] = i
+                        nchecked += 1
+            for c in range(nchecked):
+                i = checked[c]
                 fi(i, uw.ctypes, b, p.ctypes, out.ctypes)
                 counters[F_EVALUATIONS] += 1
                 if not math.isfinite(out[0]):
                     blowup = True
                 emax[i] = (b - t) * abs(out[0])
+                umax[i] = abs(x[i])
+                kact[i] = b - t
                 drift[i] = _drift(0.0, out[0], T - b, jdiag[i] + coupling[i])
-        for i in range(N):
+        # (the components with elements, then the frozen ones checked)
+        nseen = nactive + nchecked
+        for r in range(nseen):
+            i = active[r] if r < nactive else checked[r - nactive]
             emax[i] /= atol[i] + rtol * umax[i]
-        for i in range(N):  # frozen components that fail the slab take part in its retry
-            if not (math.isnan(frozen[i]) or emax[i] <= ACCEPTANCE_MARGIN):
+        for c in range(nchecked):  # frozen components that fail the slab take part in its retry
+            i = checked[c]
+            if not emax[i] <= ACCEPTANCE_MARGIN:
                 _store_constant(i, frozen[i], t, x, counters, out_comp, out_a, out_b,
                                 out_values)
                 frozen[i] = math.nan
+                quiet[i] = False
                 last_b[i] = last_a[i]
+                regroup = True
         if blowup:
             retry = False
             if fixed:
@@ -940,10 +987,12 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             continue
         accept = True
         if not fixed:
-            for i in range(N):
+            for r in range(nseen):
+                i = active[r] if r < nactive else checked[r - nactive]
                 if emax[i] > ACCEPTANCE_MARGIN:
                     accept = False
-            for i in range(N):
+            for r in range(nseen):
+                i = active[r] if r < nactive else checked[r - nactive]
                 if not math.isnan(frozen[i]):
                     continue  # keeps its step until it wakes up
                 # below efloor the factor is capped at 5 anyway: no pow() for idle components
@@ -1007,8 +1056,10 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             last_a[i], last_b[i] = ea[last], eb[last]
             for m in range(nn):
                 last_values[i, m] = values[last, m]
-        if not fixed and b < T:
-            _freeze(b, b - t, nactive, indptr, indices, drift, atol, rtol, umax, x, frozen,
-                    kdes, last_a, last_b, quiet, counters, out_comp, out_a, out_b, out_values)
+        if not fixed and b < T and _freeze(b, b - t, active[:nactive], checked[:nchecked],
+                                           indptr, indices, drift, atol, rtol, umax, x, frozen,
+                                           kdes, last_a, last_b, quiet, uw, counters, out_comp,
+                                           out_a, out_b, out_values):
+            regroup = True
         t = b
         state[T_NOW] = t
