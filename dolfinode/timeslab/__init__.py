@@ -12,3 +12,5 @@ NUM_COUNTERS = 11
 DONE, FULL, NONCONVERGENCE, BLOWUP, UNDERFLOW, NEWTON_MEMORY = range(6)
 # Nonlinear solver modes, in the order of parameters.NONLINEAR_SOLVERS.
 DEFAULT, FIXED_POINT, NEWTON = range(3)
+#: Relative size of the smallest increment an iteration still resolves (about 50 ulp).
+ROUNDING = 1e-14

@@ -25,6 +25,7 @@ from dolfinode.timeslab import (
     NEWTON_MEMORY,
     NONCONVERGENCE,
     REJECTED,
+    ROUNDING,
     SLABS,
     STIFF,
     STORED,
@@ -37,8 +38,6 @@ T_NOW, K_NEXT, EPS_PREV, HAVE_F0 = range(4)
 # in memory; the driver decides, the loop returns NEWTON_MEMORY when it would need it but not).
 SOLVER, FIXED, MAX_ITER, IS_DG, NEWTON_FITS = range(5)
 RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, KMIN_REL, SPAN, GAMMA = range(9)
-#: Relative size of the smallest increment an iteration still resolves (about 50 ulp).
-ROUNDING = 1e-14
 #: After a failed nonlinear solve of length k_fail, steps stay below SOLVER_MARGIN x k_fail,
 #: and k_fail grows by NEWTON_PROBE per accepted step.
 SOLVER_MARGIN = 0.8

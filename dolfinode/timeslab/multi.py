@@ -52,6 +52,7 @@ from dolfinode.timeslab import (
     NEWTON,
     NONCONVERGENCE,
     REJECTED,
+    ROUNDING,
     SLABS,
     STIFF,
     STORED,
@@ -685,6 +686,9 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     rtol, T, kmax, safety, dtol = fopts[RTOL], fopts[T_END], fopts[KMAX], fopts[SAFETY], fopts[DTOL]
     order, theta, beta = fopts[ORDER], fopts[THETA], fopts[BETA]
     efloor = (safety / 5.0) ** order
+    # sweeps stop a tenth below the discrete tolerance, but not below the rounding level
+    # (fixed steps iterate to dtol = 1e-15 of |U| + 1: Gauss-Seidel stalls above 1e-16)
+    sweep_limit = max(0.1 * dtol, ROUNDING / rtol)
 
     comp = np.empty(4 * N, dtype=np.int64)
     ea = np.empty(4 * N)
@@ -847,7 +851,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             # sweep would leave the slow components' own coupling to the next global
             # iteration, which costs a sweep over every window
             predict = it == 0 and not retry
-            d, resolved = _converge(windows, nwin, ne, predict, True, 0.1 * dtol, fi, ji, p, x,
+            d, resolved = _converge(windows, nwin, ne, predict, True, sweep_limit, fi, ji, p, x,
                                     indptr, indices, position, comp, prev, cptr, celems, ea, eb,
                                     values, nodes, bary, qweights, Minv, A, sptr, spts, dptr,
                                     dcur, jdiag, coupling, stiff, atol, rtol, uw, out, jrow, cur,
@@ -858,7 +862,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             for e in range(nroot):
                 for m in range(nn):
                     saved[e, m] = values[e, m]
-            top, settled = _converge(top_start, 1, nroot, False, nwin > 0, 0.1 * dtol, fi, ji,
+            top, settled = _converge(top_start, 1, nroot, False, nwin > 0, sweep_limit, fi, ji,
                                      p, x, indptr, indices, position, comp, prev, cptr, celems,
                                      ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts,
                                      dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw, out,

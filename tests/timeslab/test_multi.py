@@ -206,3 +206,17 @@ def test_growing_components_are_not_frozen():
     ode = dn.ODE({u: u, x: y, y: -x}, u0=[1e-12, 1.0, 0.0], T=30.0)
     sol = dn.solve(ode, method="mcG(1)", tolerance=1e-6)
     assert sol(ode.T)[0] > 1e-9 and sol.stats["elements per component"][0] > 10
+
+
+@pytest.mark.parametrize("ratio", [4, 0.25])
+def test_fixed_unequal_steps_on_a_stiff_nonnormal_system(ratio):
+    """Fixed steps iterate to dtol = 1e-15 of |U| + 1; the sweeps stop at the rounding level
+    (1e-14), not a tenth of dtol: below it Gauss-Seidel stalled and the solve was reported as
+    not converging at t = 1e-4 (seed 5640095 of tests/stability, steps 1e-6 and 4e-6)."""
+    A = np.array([[-80.25276504, -268.5777391], [-457.09662444, -1550.04346716]])
+    u0 = np.array([0.9572703, -1.36685819])
+    u = sp.symbols("u0:2")
+    ode = dn.ODE({u[i]: A[i, 0] * u[0] + A[i, 1] * u[1] for i in range(2)}, u0=u0, T=0.01)
+    steps = {u[0]: 1e-6 * ratio ** 0.5, u[1]: 1e-6 / ratio ** 0.5}
+    sol = dn.solve(ode, method="mdG(0)", fixed_time_step=True, initial_time_step=steps)
+    assert np.abs(sol(ode.T) - sl.expm(A * ode.T) @ u0).max() < 1e-5
