@@ -943,10 +943,11 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             for r in range(nactive):
                 j = active[r]
                 uw[j] = values[celems[cptr[j + 1] - 1], nn - 1]
+                if not autonomous:
+                    continue
                 for q in range(rptr[j], rptr[j + 1]):
                     i = readers[q]
-                    if (autonomous and check_stamp[i] != check_round
-                            and not math.isnan(frozen[i])):
+                    if check_stamp[i] != check_round and not math.isnan(frozen[i]):
                         check_stamp[i] = check_round
                         checked[nchecked] = i
                         nchecked += 1
