@@ -16,7 +16,8 @@ windows' response to the top level's change is below the discrete tolerance. The
 adapts to the number of global iterations. When Gauss-Seidel fails or converges too slowly
 the problem is treated as stiff, and the elements of each sub-slab (one interval, several
 components) are updated together by a simplified Newton step with the sparse sympy Jacobian
-restricted to them.
+at the slab start restricted to them, factored once for all the sub-slabs and sweeps with the
+same components and step.
 
 Components at rest are frozen (``_freeze``): no elements, the constant x_i for the others,
 until they drift; then their constant element over the whole span is stored. After a slab the
@@ -108,17 +109,16 @@ def _evaluate(values, e, tau, nodes, bary):
 
 
 @njit(cache=True, inline="always")
-def _moments(fi, ji, p, x, i, e, indptr, indices, cptr, celems, ea, eb, values, nodes, bary,
-             qweights, sptr, spts, dptr, dcur, cur, uw, out, mom, row, jrow, fend):
+def _moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea, eb, values, nodes, bary,
+             qweights, sptr, spts, dptr, dcur, cur, uw, out, mom, fend):
     """Moments m_l = int_0^1 f_i(U(tau)) tau^l dtau of element e by quadrature on every
     interval between breakpoints (exact for linear f); f_i at the end of e into fend[e] (the
-    last node of the last interval is the element's end); with ``row``, also row i of df/du
-    at the first quadrature point into jrow. Every dependency is one polynomial on each
-    interval: its element there is found by a cursor from dcur that walks its elements in
-    time order, and an element that is exactly the interval is read at its nodes; a frozen
-    dependency (no element in the slab) is its constant value x_j. (The reads
-    are written out here, not in a helper: numba's reference counting of each array argument
-    of a call cost more than the reads.) Returns the f evaluations."""
+    last node of the last interval is the element's end). Every dependency is one polynomial
+    on each interval: its element there is found by a cursor from dcur that walks its
+    elements in time order, and an element that is exactly the interval is read at its nodes;
+    a frozen dependency (no element in the slab) is its constant value x_j. (The reads are
+    written out here, not in a helper: numba's reference counting of each array argument of a
+    call cost more than the reads.) Returns the f evaluations."""
     S = mom.shape[0]
     nn = nodes.shape[0]
     k = eb[e] - ea[e]
@@ -166,8 +166,6 @@ def _moments(fi, ji, p, x, i, e, indptr, indices, cptr, celems, ea, eb, values, 
                     tj = (tq - ea[ej]) / (eb[ej] - ea[ej])
                     uw[j] = _evaluate(values, ej, min(max(tj, 0.0), 1.0), nodes, bary)
             fi(i, uwp, tq, pp, op)
-            if row and sub == sptr[e] and m == 0:
-                ji(i, uwp, tq, pp, jrow.ctypes)
             w = qweights[m] * h / k
             power = 1.0
             for lm in range(S):
@@ -203,16 +201,20 @@ def _damping(k, jii, A, D):
 
 
 @njit(cache=True, _nrt=False)
-def _group_newton(elist, n, fi, ji, p, x, indptr, indices, position, comp, prev, cptr, celems,
-                  ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, dptr, dcur, atol,
-                  rtol, uw, out, jrow, cur, mom, fend, local, order, ab_ws, rhs, ipiv, changed,
-                  computed, clock, small, counters):
+def _group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp, prev, cptr,
+                  celems, ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, dptr, dcur,
+                  atol, rtol, uw, out, cur, mom, fend, local, order, ab_ws, rhs, ipiv, factored,
+                  factored_k, changed, computed, clock, small, counters):
     """One simplified Newton step for the elements elist[:n] of one sub-slab (same interval):
-    (I - k A (x) J_gg) dX = r, with r the exact Galerkin residuals and J_gg the sparse Jacobian
-    restricted to the group's components (each row at its element's first quadrature point),
-    in band storage (components in the global bandwidth ordering); the other components of
-    the sub-slab keep their values. Records the update in ``computed`` and ``changed`` (see
-    ``_converge``). Returns the largest scaled increment (inf on failure)."""
+    (I - k A (x) J_gg) dX = r, with r the exact Galerkin residuals and J_gg the Jacobian at
+    the slab start restricted to the group's components, in band storage (components in the
+    global bandwidth ordering); the other components of the sub-slab keep their values.
+
+    The factorization stays in ``ab_ws`` and serves the next groups with the same components
+    and step (the sub-slabs of a window, and every sweep over them): ``factored`` holds its
+    n, band widths and components, ``factored_k`` its step (n = 0: none; reset at every slab
+    start). Records the update in ``computed`` and ``changed`` (see ``_converge``). Returns
+    the largest scaled increment (inf on failure)."""
     S = Minv.shape[0]
     nn = nodes.shape[0]
     first_stage = nn - S
@@ -229,69 +231,85 @@ def _group_newton(elist, n, fi, ji, p, x, indptr, indices, position, comp, prev,
         order[b_ + 1] = c
     for r_ in range(n):
         local[order[r_]] = r_
-    kl = 0
-    ku = 0
+    reuse = factored[0] == n and factored_k[0] == k
     for r_ in range(n):
-        i = order[r_]
-        for nz in range(indptr[i], indptr[i + 1]):
-            j = indices[nz]
-            if local[j] >= 0:
-                kl = max(kl, local[i] - local[j])
-                ku = max(ku, local[j] - local[i])
-    klS = kl * S + S - 1
-    kuS = ku * S + S - 1
-    kv = klS + kuS
-    ab = ab_ws[:n * S, :2 * klS + kuS + 1]  # the workspace fits: local bands <= global ones
-    ab[:, :] = 0.0
+        if not reuse:
+            break
+        reuse = factored[3 + r_] == order[r_]
+    if not reuse:
+        kl = 0
+        ku = 0
+        for r_ in range(n):
+            i = order[r_]
+            for nz in range(indptr[i], indptr[i + 1]):
+                j = indices[nz]
+                if local[j] >= 0:
+                    kl = max(kl, local[i] - local[j])
+                    ku = max(ku, local[j] - local[i])
+        klS = kl * S + S - 1
+        kuS = ku * S + S - 1
+        kv = klS + kuS
+        ab = ab_ws[:n * S, :2 * klS + kuS + 1]  # the workspace fits: local bands <= global ones
+        ab[:, :] = 0.0
+        for r_ in range(n):
+            i = order[r_]
+            row = r_ * S
+            for nz in range(indptr[i], indptr[i + 1]):
+                j = indices[nz]
+                if local[j] < 0:
+                    continue
+                col = local[j] * S
+                value = -k * jacobian[nz]
+                for s_ in range(S):
+                    for m_ in range(S):
+                        ab[col + m_, kv + row + s_ - col - m_] += value * A[s_, m_]
+        for r_ in range(n * S):
+            ab[r_, kv] += 1.0
+        counters[FACTORIZATIONS] += 1
+        factored[0] = 0
+        if band_lu(ab, klS, kuS, ipiv) != 0:
+            for r_ in range(n):
+                local[order[r_]] = -1
+            return math.inf
+        factored[0], factored[1], factored[2] = n, klS, kuS
+        factored_k[0] = k
+        for r_ in range(n):
+            factored[3 + r_] = order[r_]
+    klS, kuS = factored[1], factored[2]
+    ab = ab_ws[:n * S, :2 * klS + kuS + 1]
     for r_ in range(n):
         e = elist[r_]
         i = comp[e]
         xl = x[i] if prev[e] < 0 else values[prev[e], nn - 1]
         if first_stage == 1:
             values[e, 0] = xl
-        # the moments, and row i of df/du at the element's first quadrature point
-        counters[F_EVALUATIONS] += _moments(fi, ji, p, x, i, e, indptr, indices, cptr, celems,
-                                            ea, eb, values, nodes, bary, qweights, sptr, spts,
-                                            dptr, dcur, cur, uw, out, mom, True, jrow, fend)
-        counters[JACOBIANS] += 1
+        counters[F_EVALUATIONS] += _moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea,
+                                            eb, values, nodes, bary, qweights, sptr, spts, dptr,
+                                            dcur, cur, uw, out, mom, fend)
         row = local[i] * S
         for s_ in range(S):
             acc = 0.0
             for lm in range(S):
                 acc += Minv[s_, lm] * mom[lm]
             rhs[row + s_] = xl + k * acc - values[e, first_stage + s_]
-        for nz in range(indptr[i], indptr[i + 1]):
-            j = indices[nz]
-            if local[j] < 0:
-                continue
-            col = local[j] * S
-            value = -k * jrow[nz - indptr[i]]
-            for s_ in range(S):
-                for m_ in range(S):
-                    ab[col + m_, kv + row + s_ - col - m_] += value * A[s_, m_]
-    for r_ in range(n * S):
-        ab[r_, kv] += 1.0
-    counters[FACTORIZATIONS] += 1
-    d = math.inf
-    if band_lu(ab, klS, kuS, ipiv) == 0:
-        band_solve(ab, klS, kuS, ipiv, rhs)
-        d = 0.0
-        stamp = clock[0]
-        clock[0] += 1  # changes after the step: a significant one makes its readers stale
-        for r_ in range(n):
-            e = elist[r_]
-            i = comp[e]
-            di = 0.0
-            for s_ in range(S):
-                delta = rhs[local[i] * S + s_]
-                values[e, first_stage + s_] += delta
-                scaled = abs(delta) / (atol[i] + rtol * abs(values[e, first_stage + s_]))
-                if not scaled <= di:
-                    di = scaled if math.isfinite(scaled) else math.inf
-            computed[e] = stamp
-            if di > small:
-                changed[i] = clock[0]
-            d = max(d, di)
+    band_solve(ab, klS, kuS, ipiv, rhs)
+    d = 0.0
+    stamp = clock[0]
+    clock[0] += 1  # changes after the step: a significant one makes its readers stale
+    for r_ in range(n):
+        e = elist[r_]
+        i = comp[e]
+        di = 0.0
+        for s_ in range(S):
+            delta = rhs[local[i] * S + s_]
+            values[e, first_stage + s_] += delta
+            scaled = abs(delta) / (atol[i] + rtol * abs(values[e, first_stage + s_]))
+            if not scaled <= di:
+                di = scaled if math.isfinite(scaled) else math.inf
+        computed[e] = stamp
+        if di > small:
+            changed[i] = clock[0]
+        d = max(d, di)
     for r_ in range(n):
         local[order[r_]] = -1
     return d
@@ -310,11 +328,11 @@ def _stale(e, i, indptr, indices, changed, computed):
 
 
 @njit(cache=True, _nrt=False)
-def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, x, indptr,
-              indices, position, comp, prev, cptr, celems, ea, eb, values, nodes, bary, qweights,
-              Minv, A, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw, out, jrow,
-              cur, mom, fend, D, delta, local, order, elist, ab_ws, rhs, ipiv, changed, computed,
-              clock, counters):
+def _converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, indptr, indices,
+              position, jacobian, comp, prev, cptr, celems, ea, eb, values, nodes, bary,
+              qweights, Minv, A, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw,
+              out, cur, mom, fend, D, delta, local, order, elist, ab_ws, rhs, ipiv, factored,
+              factored_k, changed, computed, clock, counters):
     """Gauss-Seidel sweeps over the element ranges starts[r]..starts[r+1] (the last up to
     end), one range after the other, each swept until its largest scaled increment is below
     ``limit`` (``iterate``) or once. A sweep goes sub-slab by sub-slab (elements on one
@@ -372,12 +390,13 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, x,
                             elist[n] = ep
                             n += 1
                     if n > 0:
-                        d = max(d, _group_newton(elist, n, fi, ji, p, x, indptr, indices,
-                                                 position, comp, prev, cptr, celems, ea, eb,
-                                                 values, nodes, bary, qweights, Minv, A, sptr,
-                                                 spts, dptr, dcur, atol, rtol, uw, out, jrow, cur,
-                                                 mom, fend, local, order, ab_ws, rhs, ipiv,
-                                                 changed, computed, clock, small, counters))
+                        d = max(d, _group_newton(elist, n, fi, p, x, indptr, indices,
+                                                 position, jacobian, comp, prev, cptr, celems,
+                                                 ea, eb, values, nodes, bary, qweights, Minv, A,
+                                                 sptr, spts, dptr, dcur, atol, rtol, uw, out,
+                                                 cur, mom, fend, local, order, ab_ws, rhs, ipiv,
+                                                 factored, factored_k, changed, computed, clock,
+                                                 small, counters))
                     e = e1
                     continue
                 for ep in range(e, e1):
@@ -387,10 +406,10 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, ji, p, x,
                     xl = x[i] if prev[ep] < 0 else values[prev[ep], nn - 1]  # the left value
                     if first_stage == 1:
                         values[ep, 0] = xl
-                    counters[F_EVALUATIONS] += _moments(fi, ji, p, x, i, ep, indptr, indices,
-                                                        cptr, celems, ea, eb, values, nodes, bary,
+                    counters[F_EVALUATIONS] += _moments(fi, p, x, i, ep, indptr, indices, cptr,
+                                                        celems, ea, eb, values, nodes, bary,
                                                         qweights, sptr, spts, dptr, dcur, cur, uw,
-                                                        out, mom, False, jrow, fend)
+                                                        out, mom, fend)
                     for s in range(S):
                         acc = 0.0
                         for lm in range(S):
@@ -717,6 +736,8 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     ab_ws = np.zeros((S, band_width))
     newton_rhs = np.empty(S)
     newton_ipiv = np.empty(S, dtype=np.int64)
+    factored = np.zeros(N + 3, dtype=np.int64)  # the factorization in ab_ws (_group_newton)
+    factored_k = np.zeros(1)
     uw = x.copy()
     out = np.empty(1)
     jrow = np.empty(max(1, indices.shape[0]))
@@ -774,7 +795,8 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                     frozen[i] = math.nan
             return DONE
         # the Jacobian at the slab start: its diagonal damps the element updates, its
-        # couplings propagate small steps
+        # couplings propagate small steps, and it is the Newton matrix of coupled sub-slabs
+        factored[0] = 0
         for r in range(nactive):
             i = active[r]
             if jacobian_time[i] != t:
@@ -851,24 +873,25 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             # sweep would leave the slow components' own coupling to the next global
             # iteration, which costs a sweep over every window
             predict = it == 0 and not retry
-            d, resolved = _converge(windows, nwin, ne, predict, True, sweep_limit, fi, ji, p, x,
-                                    indptr, indices, position, comp, prev, cptr, celems, ea, eb,
-                                    values, nodes, bary, qweights, Minv, A, sptr, spts, dptr,
-                                    dcur, jdiag, coupling, stiff, atol, rtol, uw, out, jrow, cur,
+            d, resolved = _converge(windows, nwin, ne, predict, True, sweep_limit, fi, p, x,
+                                    indptr, indices, position, jacobian, comp, prev, cptr, celems,
+                                    ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts,
+                                    dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw, out, cur,
                                     mom, fend, D, delta, local, group_order, elist, ab_ws,
-                                    newton_rhs, newton_ipiv, changed, computed, clock, counters)
+                                    newton_rhs, newton_ipiv, factored, factored_k, changed,
+                                    computed, clock, counters)
             if not resolved:
                 d = math.inf
             for e in range(nroot):
                 for m in range(nn):
                     saved[e, m] = values[e, m]
-            top, settled = _converge(top_start, 1, nroot, False, nwin > 0, sweep_limit, fi, ji,
-                                     p, x, indptr, indices, position, comp, prev, cptr, celems,
-                                     ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts,
-                                     dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw, out,
-                                     jrow, cur, mom, fend, D, delta, local, group_order, elist,
-                                     ab_ws, newton_rhs, newton_ipiv, changed, computed, clock,
-                                     counters)
+            top, settled = _converge(top_start, 1, nroot, False, nwin > 0, sweep_limit, fi, p,
+                                     x, indptr, indices, position, jacobian, comp, prev, cptr,
+                                     celems, ea, eb, values, nodes, bary, qweights, Minv, A,
+                                     sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol,
+                                     uw, out, cur, mom, fend, D, delta, local, group_order, elist,
+                                     ab_ws, newton_rhs, newton_ipiv, factored, factored_k,
+                                     changed, computed, clock, counters)
             d = max(d, top)
             if nwin > 0 and not settled:
                 d = math.inf
