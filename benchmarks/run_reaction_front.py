@@ -1,4 +1,4 @@
-"""Reaction front, N = 1000 ... 16000: mcG(1) against cG(1) (issue 3's headline measurement).
+"""Reaction front, N = 1000 ... 16000: mcG(1) against cG(1) and scipy (issue 3's headline).
 
 u' = eps u_xx + gamma u^2 (1 - u), eps = 0.01, gamma = 1000, finite differences on N points
 with mirror ghost points (homogeneous Neumann), h = L / (N - 1), L = 5 N / 1000 (the front
@@ -12,31 +12,63 @@ is the CPU time of the solve call (``time.process_time``: the machine may be sha
 max_i |u_i(T) - ref_i|, reference dG(3) at tolerance 1e-10. The speed-up is taken at equal
 error: mcG(1)'s time at cG(1)'s error, interpolated log-log between its two runs.
 
+scipy's ``solve_ivp`` solvers (LSODA, DOP853, Radau, BDF) are the peers: they solve the same
+discretization, written by hand in NumPy (``front_numpy``; the template system has no cheap
+per-component expressions at N = 16000), with the analytic Jacobian, tridiagonal,
+
+    J = tridiag(c_i^-, -2 c + gamma u_i (2 - 3 u_i), c_i^+),  c = eps / h^2,
+
+where c_0^+ = c_{N-1}^- = 2 c (the ghost points) and all other off-diagonal entries are c:
+sparse (CSC) for Radau and BDF, in band storage (``lband = uband = 1``) for LSODA (as fast as
+LSODA's own banded difference quotients here: LSODA stays in its nonstiff Adams mode and
+evaluates no Jacobian; a dense one would take 2 GB at N = 16000). Each sweeps rtol = atol =
+1e-4 ... 1e-9 (dolfinode's default absolute tolerance equals its tolerance), with t_eval = [T]
+only. Every run is made once untimed (the error, and the time limit: a run past ``--time-limit``
+CPU seconds is abandoned from inside f, and the solver's tighter tolerances are skipped), then
+timed once, twice when under a second (the minimum). The fastest solver's time at cG(1)'s error,
+interpolated log-log like mcG(1)'s, is compared with mcG(1) and cG(1) (a time ratio < 1: the
+dolfinode method is faster).
+
 Usage::
 
     .venv/bin/python benchmarks/run_reaction_front.py [--sizes 1000,4000,16000] [--T 0.1]
-        [--output doc/benchmarks]
+        [--time-limit 60] [--output doc/benchmarks]
 """
 import argparse
 import itertools
 import math
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sps
 import sympy as sp
+from scipy.integrate import solve_ivp
 from scipy.special import expit
 
 import dolfinode as dn
 from dolfinode.bench import report
+from dolfinode.bench.runner import RunTimeout, clock, with_deadline
 
 EPS, GAMMA = 0.01, 1000.0
+#: scipy's solvers and their tolerances (rtol = atol).
+SCIPY = ("LSODA", "DOP853", "Radau", "BDF")
+SCIPY_TOLERANCES = tuple(10.0**-k for k in range(4, 10))
+#: A scipy run faster than this (CPU seconds) is timed twice.
+TIME_TWICE_BELOW = 1.0
+
+
+def grid(n):
+    """The points x_i = i h, h = L / (n - 1), L = 5 n / 1000, and c = eps / h^2."""
+    L = 5.0 * n / 1000.0
+    h = L / (n - 1)
+    return np.linspace(0.0, L, n), EPS / (h * h)
 
 
 def front(n, T):
     """The reaction front on n points as a template system."""
-    L = 5.0 * n / 1000.0
-    h = L / (n - 1)
+    x, c_value = grid(n)
     lam = 0.5 * math.sqrt(2.0 * GAMMA / EPS)
     a, b, wa, wb, c, g, u = sp.symbols("a b w_a w_b c gamma u")
     edges = np.column_stack([np.arange(n - 1), np.arange(1, n)])
@@ -46,9 +78,96 @@ def front(n, T):
                             indices=edges, params=(wa, wb), values=weights)
     reaction = dn.Template(slots=(u,), terms={u: g * u**2 * (1 - u)},
                            indices=np.arange(n)[:, None])
-    u0 = expit(-lam * (np.linspace(0.0, L, n) - 1.0))
-    return dn.TemplateODE([diffusion, reaction], u0=u0, T=T,
-                          params={c: EPS / (h * h), g: GAMMA})
+    u0 = expit(-lam * (x - 1.0))
+    return dn.TemplateODE([diffusion, reaction], u0=u0, T=T, params={c: c_value, g: GAMMA})
+
+
+def front_numpy(n):
+    """The right-hand side and Jacobian of ``front(n, T)`` in NumPy, for ``solve_ivp``.
+
+    f_i = c (u_{i-1} - 2 u_i + u_{i+1}) + gamma u_i^2 (1 - u_i), with the ghost points
+    u_{-1} = u_1 and u_n = u_{n-2}; J = df/du is tridiagonal.
+
+    Returns
+    -------
+    fun : callable
+        fun(t, u) -> f, ndarray (n,).
+    bands : callable
+        bands(t, u) -> J in LAPACK band storage, ndarray (3, n): bands[1 + i - j, j] = J_ij
+        (LSODA with ``lband = uband = 1``).
+    jac : callable
+        jac(t, u) -> J, scipy.sparse CSC matrix (Radau, BDF).
+    """
+    c = grid(n)[1]
+    upper = np.full(n - 1, c)   # J_{i, i+1}
+    lower = np.full(n - 1, c)   # J_{i+1, i}
+    upper[0] = lower[-1] = 2.0 * c
+
+    def fun(t, u):
+        du = np.diff(u)
+        f = GAMMA * u * u * (1.0 - u)
+        f[:-1] += upper * du
+        f[1:] -= lower * du
+        return f
+
+    def bands(t, u):
+        b = np.zeros((3, n))
+        b[0, 1:] = upper
+        b[1] = GAMMA * u * (2.0 - 3.0 * u) - 2.0 * c
+        b[2, :-1] = lower
+        return b
+
+    def jac(t, u):
+        # band storage is the DIA format with offsets 1, 0, -1
+        return sps.dia_matrix((bands(t, u), [1, 0, -1]), shape=(n, n)).tocsc()
+
+    return fun, bands, jac
+
+
+def run_scipy(ode, method, tolerances, ref, time_limit):
+    """Sweep one scipy solver over ``tolerances`` (loosest first) on ``ode``.
+
+    Every run is made once untimed (the error max_i |u_i(T) - ref_i|, and the time limit:
+    past ``time_limit`` CPU seconds it is abandoned and the tighter tolerances are skipped),
+    then timed once, twice below :data:`TIME_TWICE_BELOW` seconds (the minimum).
+
+    Returns
+    -------
+    rows : list of tuple
+        (N, method, tolerance, CPU seconds or None, f evaluations, Jacobian evaluations,
+        LU factorizations, max error, note).
+    """
+    fun, bands, jac = front_numpy(ode.N)
+    options = {"LSODA": {"jac": bands, "lband": 1, "uband": 1}, "Radau": {"jac": jac},
+               "BDF": {"jac": jac}}.get(method, {})
+
+    def solve(f, tol):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return solve_ivp(f, (ode.t0, ode.T), ode.u0, method=method, rtol=tol, atol=tol,
+                             t_eval=[ode.T], **options)
+
+    rows = []
+    for tol in tolerances:
+        f, last = with_deadline(fun, time_limit)
+        try:
+            res = solve(f, tol)
+        except RunTimeout:
+            rows.append((ode.N, method, tol, None, None, None, None, None,
+                         f"abandoned after {time_limit:g} s at t = {last[0]:.3g}"))
+            break
+        if not res.success:
+            rows.append((ode.N, method, tol, None, None, None, None, None, res.message))
+            break
+        times = []
+        while not times or (len(times) == 1 and times[0] < TIME_TWICE_BELOW):
+            start = clock()
+            solve(fun, tol)
+            times.append(clock() - start)
+        rows.append((ode.N, method, tol, min(times), res.nfev, res.njev, res.nlu,
+                     float(np.max(np.abs(res.y[:, -1] - ref))), ""))
+        print(*rows[-1], flush=True)
+    return rows
 
 
 def time_at_error(points, error):
@@ -64,24 +183,75 @@ def time_at_error(points, error):
     return None
 
 
-def plot(sizes, mono, multi, path, T):
-    """CPU time against N (log-log) of cG(1) and of mcG(1) at cG(1)'s error."""
+def plot(sizes, mono, multi, best, path, T):
+    """CPU time against N (log-log) of cG(1), and of mcG(1) and the fastest scipy solver
+    (named at each point) at cG(1)'s error."""
     fig, ax = report.single_panel()
     ax.loglog(sizes, [mono[n][0] for n in sizes], marker="o", label="cG(1)")
     ns = [n for n in sizes if multi[n]]
     ax.loglog(ns, [multi[n] for n in ns], marker="o", label="mcG(1), at cG(1)'s error")
+    ns = [n for n in sizes if best[n]]
+    ax.loglog(ns, [best[n][1] for n in ns], marker="o",
+              label="fastest scipy solver, at cG(1)'s error")
+    for n in ns:
+        ax.annotate(best[n][0], (n, best[n][1]), textcoords="offset points", xytext=(4, -10),
+                    fontsize=7)
     report.save_panel(fig, ax, path, f"reaction front, T = {T:g}, tolerance 1e-6", "N",
                       "CPU time [s]")
+
+
+def scipy_section(sizes, scipy_rows, mono, multi):
+    """Markdown lines of the scipy runs and of the times at cG(1)'s error, and the fastest
+    scipy solver at cG(1)'s error per N: (solver, time) or None."""
+    lines = ["", (f"scipy's `solve_ivp`, rtol = atol = {SCIPY_TOLERANCES[0]:g} ... "
+                  f"{SCIPY_TOLERANCES[-1]:g}, the hand-written NumPy f and analytic Jacobian "
+                  "(LSODA banded, Radau and BDF sparse); CPU time of one call after an untimed "
+                  f"one (the minimum of two under {TIME_TWICE_BELOW:g} s):"), "",
+             ("| N | solver | rtol = atol | CPU [s] | f evaluations | Jacobians | LU "
+              "| max error |"), "|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {n} | {m} | {tol:g} | {note} | | | | |" if c is None else
+              f"| {n} | {m} | {tol:g} | {c:.3g} | {fe:,} | {je} | {lu} | {err:.1e} |"
+              for n, m, tol, c, fe, je, lu, err, note in scipy_rows]
+    at = {n: {m: time_at_error([(err, c) for n2, m2, tol, c, fe, je, lu, err, note in scipy_rows
+                                if n2 == n and m2 == m and c is not None], mono[n][1])
+              for m in SCIPY} for n in sizes}
+    best = {n: min(((m, t) for m, t in at[n].items() if t), key=lambda mt: mt[1], default=None)
+            for n in sizes}   # (solver, time) or None
+    lines += ["", ("Time at cG(1)'s error (log-log interpolation between the runs around it; '-' "
+                   "where they do not bracket it) and time ratios to the fastest scipy solver "
+                   "(< 1: faster than it):"), "",
+              "| N | max error | cG(1) | mcG(1) | " + " | ".join(SCIPY)
+              + " | fastest scipy | mcG(1) / scipy | cG(1) / scipy |",
+              "|---" * (len(SCIPY) + 7) + "|"]
+
+    def cell(value):
+        return f"{value:.3g}" if value else "-"
+
+    for n in sizes:
+        solver, t = best[n] or ("-", None)
+        lines.append(f"| {n} | {mono[n][1]:.1e} | {cell(mono[n][0])} | {cell(multi[n])} | "
+                     + " | ".join(cell(at[n][m]) for m in SCIPY)
+                     + f" | {solver} | {cell(multi[n] and t and multi[n] / t)} | "
+                       f"{cell(t and mono[n][0] / t)} |")
+    lines += ["", "mcG(1) against the fastest scipy solver at cG(1)'s error: " + ", ".join(
+        f"N = {n}: {best[n][0]} {best[n][1]:.2g} s, mcG(1) {multi[n] / best[n][1]:.2g}x its time"
+        if best[n] and multi[n] else f"N = {n}: no interpolated time" for n in sizes)
+        + (f"; growth of the fastest scipy time, N = {sizes[0]} to {sizes[-1]}: "
+           f"{best[sizes[-1]][1] / best[sizes[0]][1]:.2g}." if len(sizes) > 1
+           and best[sizes[0]] and best[sizes[-1]] else ".")]
+    return lines, best
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default="1000,4000,16000")
     parser.add_argument("--T", type=float, default=0.1)
+    parser.add_argument("--time-limit", type=float, default=60.0,
+                        help="CPU seconds after which a scipy run is abandoned")
     parser.add_argument("--output", default=str(Path(__file__).resolve().parents[1] / "doc"
                                                 / "benchmarks"))
     args = parser.parse_args(argv)
-    rows = []
+    rows, scipy_rows = [], []
     for n in (int(v) for v in args.sizes.split(",")):
         ode = front(n, args.T)
         ref = dn.solve(ode, method="dG(3)", tolerance=1e-10)(args.T)
@@ -95,9 +265,13 @@ def main(argv=None):
                          st["rejected steps"], float(np.max(np.abs(sol(args.T) - ref))),
                          st["f evaluations"]))
             print(*rows[-1], flush=True)
-    lines = [f"# Reaction front: mcG(1) against cG(1), T = {args.T:g}, tolerance 1e-6", "",
-             (f"`python benchmarks/run_reaction_front.py --sizes {args.sizes} --T {args.T:g}`, "
-             f"{time.strftime('%Y-%m-%d')}; CPU time of the solve call."), "",
+        for method in SCIPY:
+            scipy_rows += run_scipy(ode, method, SCIPY_TOLERANCES, ref, args.time_limit)
+    lines = [(f"# Reaction front: mcG(1) against cG(1) and scipy, T = {args.T:g}, "
+              "tolerance 1e-6"), "",
+             (f"`python benchmarks/run_reaction_front.py --sizes {args.sizes} --T {args.T:g} "
+              f"--time-limit {args.time_limit:g}`, {time.strftime('%Y-%m-%d')}; CPU time of the "
+              "solve call."), "",
              ("| N | method | tolerance | CPU [s] | elements | time slabs | rejected | max error "
               "| ns per element | ns per f_i evaluation |"),
              "|---|---|---|---|---|---|---|---|---|---|"]
@@ -117,9 +291,11 @@ def main(argv=None):
         lines += [(f"Growth of mcG(1) at equal error, time(N = {sizes[-1]}) / "
                    f"time(N = {sizes[0]}): {multi[sizes[-1]] / multi[sizes[0]]:.2g} "
                    f"(cG(1): {mono[sizes[-1]][0] / mono[sizes[0]][0]:.2g}).")]
+    scipy_table, best = scipy_section(sizes, scipy_rows, mono, multi)
+    lines += scipy_table
     out = Path(args.output) / "reaction_front.md"
     out.parent.mkdir(parents=True, exist_ok=True)
-    plot(sizes, mono, multi, out.with_suffix(".png"), args.T)
+    plot(sizes, mono, multi, best, out.with_suffix(".png"), args.T)
     lines += ["", "![time against N](reaction_front.png)"]
     tmp = out.with_suffix(".md.tmp")
     tmp.write_text("\n".join(lines) + "\n")
