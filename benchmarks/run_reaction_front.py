@@ -1,4 +1,4 @@
-"""Reaction front, N = 1000 ... 16000: mcG(1) against cG(1) and scipy (issue 3's headline).
+"""Reaction front, N = 1000 ... 16000: mcG(q) against cG(1) and scipy (issue 3's headline).
 
 u' = eps u_xx + gamma u^2 (1 - u), eps = 0.01, gamma = 1000, finite differences on N points
 with mirror ghost points (homogeneous Neumann), h = L / (N - 1), L = 5 N / 1000 (the front
@@ -7,10 +7,12 @@ lam = 0.5 sqrt(2 gamma / eps) (DOLFIN's reaction demo). Declared as a template s
 (`dn.Template`: a diffusion edge per neighbour pair, a reaction term per point), so the
 generated code does not grow with N.
 
-cG(1) runs at tolerance 1e-6, mcG(1) at 1e-6 and 4e-7, each after one warm-up call; the time
-is the CPU time of the solve call (``time.process_time``: the machine may be shared). Error:
-max_i |u_i(T) - ref_i|, reference dG(3) at tolerance 1e-10. The speed-up is taken at equal
-error: mcG(1)'s time at cG(1)'s error, interpolated log-log between its two runs.
+cG(1) runs at tolerance 1e-6, mcG(1) at 1e-6 and 4e-7, mcG(2) and mcG(3) at 1e-3 ... 1e-8,
+each method after one warm-up call; the time is the CPU time of the solve call
+(``time.process_time``: the machine may be shared), the minimum of two under a second. Error:
+max_i |u_i(T) - ref_i|, reference dG(3) at tolerance 1e-10 (checked against dG(3) at 1e-11 and
+DOP853 at rtol = atol = 1e-12). The speed-up is taken at equal error: mcG(1)'s time at cG(1)'s
+error, interpolated log-log between its two runs.
 
 scipy's ``solve_ivp`` solvers (LSODA, DOP853, Radau, BDF) are the peers: they solve the same
 discretization, written by hand in NumPy (``front_numpy``; the template system has no cheap
@@ -22,13 +24,16 @@ where c_0^+ = c_{N-1}^- = 2 c (the ghost points) and all other off-diagonal entr
 sparse (CSC) for Radau and BDF, in band storage (``lband = uband = 1``) for LSODA (as fast as
 LSODA's own banded difference quotients here: LSODA stays in its nonstiff Adams mode and
 evaluates no Jacobian; a dense one would take 2 GB at N = 16000). Each sweeps rtol = atol =
-1e-4 ... 1e-9 (dolfinode's default absolute tolerance equals its tolerance), with t_eval = [T]
+1e-4 ... 1e-11 (dolfinode's default absolute tolerance equals its tolerance), with t_eval = [T]
 only. Every run is made once untimed (the error, and the time limit: a run past ``--time-limit``
 CPU seconds is abandoned from inside f, and the solver's tighter tolerances are skipped), then
 timed once, twice when under a second (the minimum of the two). The markdown gets a table of
 these runs and one of every solver's time at cG(1)'s error (interpolated log-log like
 mcG(1)'s) with the time ratios mcG(1) / fastest scipy and cG(1) / fastest scipy (< 1: the
-dolfinode method is faster); the plot gets the fastest scipy solver as a third line.
+dolfinode method is faster); the plot gets the fastest scipy solver as a third line. At the
+errors 1e-5 ... 1e-9 the fastest dolfinode method (of cG(1), mcG(1), mcG(2), mcG(3)) meets
+the fastest scipy solver in a last table (each one's time interpolated the same way), and
+``reaction_front_wp.png`` plots every method's CPU time against its error, a panel per N.
 
 Usage::
 
@@ -36,6 +41,7 @@ Usage::
         [--time-limit 60] [--output doc/benchmarks]
 """
 import argparse
+import functools
 import itertools
 import math
 import time
@@ -55,8 +61,15 @@ from dolfinode.bench.runner import RunTimeout, clock, with_deadline
 EPS, GAMMA = 0.01, 1000.0
 #: scipy's solvers and their tolerances (rtol = atol).
 SCIPY = ("LSODA", "DOP853", "Radau", "BDF")
-SCIPY_TOLERANCES = tuple(10.0**-k for k in range(4, 10))
-#: A scipy run faster than this (CPU seconds) is timed twice.
+SCIPY_TOLERANCES = tuple(10.0**-k for k in range(4, 12))
+#: dolfinode's methods and their tolerances.
+HIGH_ORDER_TOLERANCES = tuple(10.0**-k for k in range(3, 9))
+DOLFINODE_RUNS = (("cG(1)", (1e-6,)), ("mcG(1)", (1e-6, 4e-7)),
+                  ("mcG(2)", HIGH_ORDER_TOLERANCES), ("mcG(3)", HIGH_ORDER_TOLERANCES))
+DOLFINODE = tuple(method for method, _ in DOLFINODE_RUNS)
+#: The errors at which the fastest dolfinode method and the fastest scipy solver are compared.
+ERROR_LEVELS = tuple(10.0**-k for k in range(5, 10))
+#: A run faster than this (CPU seconds) is timed twice.
 TIME_TWICE_BELOW = 1.0
 
 
@@ -125,12 +138,33 @@ def front_numpy(n):
     return fun, bands, jac
 
 
+def timed(call):
+    """``call()`` timed once, twice when under :data:`TIME_TWICE_BELOW` CPU seconds: (its
+    result, the minimum time)."""
+    times = []
+    while not times or (len(times) == 1 and times[0] < TIME_TWICE_BELOW):
+        start = clock()
+        result = call()
+        times.append(clock() - start)
+    return result, min(times)
+
+
+def reference(ode):
+    """The reference u(T), dG(3) at tolerance 1e-10, and its max-norm distances to dG(3) at
+    1e-11 and to DOP853 at rtol = atol = 1e-12 (its accuracy check)."""
+    ref = dn.solve(ode, method="dG(3)", tolerance=1e-10)(ode.T)
+    tighter = dn.solve(ode, method="dG(3)", tolerance=1e-11)(ode.T)
+    dop = solve_ivp(front_numpy(ode.N)[0], (ode.t0, ode.T), ode.u0, method="DOP853", rtol=1e-12,
+                    atol=1e-12, t_eval=[ode.T]).y[:, -1]
+    return ref, float(np.max(np.abs(tighter - ref))), float(np.max(np.abs(dop - ref)))
+
+
 def run_scipy(ode, method, tolerances, ref, time_limit):
     """Sweep one scipy solver over ``tolerances`` (loosest first) on ``ode``.
 
     Every run is made once untimed (the error max_i |u_i(T) - ref_i|, and the time limit:
     past ``time_limit`` CPU seconds it is abandoned and the tighter tolerances are skipped),
-    then timed once, twice below :data:`TIME_TWICE_BELOW` seconds (the minimum).
+    then :func:`timed`.
 
     Returns
     -------
@@ -160,12 +194,8 @@ def run_scipy(ode, method, tolerances, ref, time_limit):
         if not res.success:
             rows.append((ode.N, method, tol, None, None, None, None, None, res.message))
             break
-        times = []
-        while not times or (len(times) == 1 and times[0] < TIME_TWICE_BELOW):
-            start = clock()
-            solve(fun, tol)
-            times.append(clock() - start)
-        rows.append((ode.N, method, tol, min(times), res.nfev, res.njev, res.nlu,
+        cpu = timed(functools.partial(solve, fun, tol))[1]
+        rows.append((ode.N, method, tol, cpu, res.nfev, res.njev, res.nlu,
                      float(np.max(np.abs(res.y[:, -1] - ref))), ""))
         print(*rows[-1], flush=True)
     return rows
@@ -182,6 +212,42 @@ def time_at_error(points, error):
             w = math.log(error / e1) / math.log(e2 / e1)
             return math.exp((1 - w) * math.log(t1) + w * math.log(t2))
     return None
+
+
+def work_precision(rows):
+    """The (error, CPU time) points of run rows (N, method, tolerance, CPU seconds or None, ...,
+    max error at index 7), abandoned runs left out: {N: {method: [(error, time)]}}."""
+    curves = {}
+    for row in rows:
+        if row[3] is not None:
+            curves.setdefault(row[0], {}).setdefault(row[1], []).append((row[7], row[3]))
+    return curves
+
+
+def fastest(curves, methods, error):
+    """The fastest of ``methods`` at ``error`` (:func:`time_at_error` on each one's points in
+    ``curves``, {method: [(error, time)]}): (method, time), or None when none brackets it."""
+    times = ((m, time_at_error(curves.get(m, []), error)) for m in methods)
+    return min(((m, t) for m, t in times if t), key=lambda mt: mt[1], default=None)
+
+
+def equal_error(curves, levels):
+    """The fastest dolfinode method and the fastest scipy solver at each error level of
+    ``levels`` where both have a time, per N of ``curves`` (from :func:`work_precision`).
+
+    Returns
+    -------
+    list of tuple
+        (N, level, (dolfinode method, time), (scipy solver, time), the scipy solvers whose
+        runs do not bracket the level).
+    """
+    rows = []
+    for n, level in itertools.product(sorted(curves), levels):
+        dolfinode, scipy = fastest(curves[n], DOLFINODE, level), fastest(curves[n], SCIPY, level)
+        if dolfinode and scipy:
+            rows.append((n, level, dolfinode, scipy, [
+                m for m in SCIPY if time_at_error(curves[n].get(m, []), level) is None]))
+    return rows
 
 
 def plot(sizes, mono, multi, best, path, T):
@@ -201,9 +267,38 @@ def plot(sizes, mono, multi, best, path, T):
                       "CPU time [s]")
 
 
-def scipy_section(sizes, scipy_rows, mono, multi):
-    """Markdown lines of the scipy runs and of the times at cG(1)'s error, and the fastest
-    scipy solver at cG(1)'s error per N: (solver, time) or None."""
+def plot_work_precision(curves, path, T):
+    """CPU time against max error (log-log), one panel per N and one line per method of
+    ``curves`` (from :func:`work_precision`; dolfinode solid, scipy dashed)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sizes = sorted(curves)
+    fig, axes = plt.subplots(1, len(sizes), figsize=(4.5 * len(sizes), 4.6), squeeze=False)
+    colors = plt.get_cmap("tab10").colors
+    for ax, n in zip(axes[0], sizes):
+        for i, m in enumerate(DOLFINODE + SCIPY):
+            points = sorted(curves[n].get(m, []))
+            if points:
+                ax.loglog(*zip(*points), color=colors[i], marker="o" if m in DOLFINODE else "s",
+                          linestyle="-" if m in DOLFINODE else "--", markersize=4, label=m)
+        ax.set_title(f"N = {n}", fontsize=10)
+        ax.set_xlabel("max error at T")
+        ax.grid(True, which="major", alpha=0.4)
+        ax.invert_xaxis()
+    axes[0, 0].set_ylabel("CPU time [s]")
+    axes[0, -1].legend(fontsize=8)
+    fig.suptitle(f"reaction front, T = {T:g}: work-precision (right = more accurate, lower = "
+                 "faster)", fontsize=11)
+    fig.tight_layout()
+    report.save_figure(fig, path)
+
+
+def scipy_section(sizes, scipy_rows, curves, mono, multi):
+    """Markdown lines of the scipy runs and of the times at cG(1)'s error (``curves`` from
+    :func:`work_precision`), and the fastest scipy solver at cG(1)'s error per N: (solver,
+    time) or None."""
     lines = ["", (f"scipy's `solve_ivp`, rtol = atol = {SCIPY_TOLERANCES[0]:g} ... "
                   f"{SCIPY_TOLERANCES[-1]:g}, the hand-written NumPy f and analytic Jacobian "
                   "(LSODA banded, Radau and BDF sparse); CPU time of one call after an untimed "
@@ -213,11 +308,8 @@ def scipy_section(sizes, scipy_rows, mono, multi):
     lines += [f"| {n} | {m} | {tol:g} | {note} | | | | |" if c is None else
               f"| {n} | {m} | {tol:g} | {c:.3g} | {fe:,} | {je} | {lu} | {err:.1e} |"
               for n, m, tol, c, fe, je, lu, err, note in scipy_rows]
-    at = {n: {m: time_at_error([(err, c) for n2, m2, tol, c, fe, je, lu, err, note in scipy_rows
-                                if n2 == n and m2 == m and c is not None], mono[n][1])
-              for m in SCIPY} for n in sizes}
-    best = {n: min(((m, t) for m, t in at[n].items() if t), key=lambda mt: mt[1], default=None)
-            for n in sizes}   # (solver, time) or None
+    at = {n: {m: time_at_error(curves[n].get(m, []), mono[n][1]) for m in SCIPY} for n in sizes}
+    best = {n: fastest(curves[n], SCIPY, mono[n][1]) for n in sizes}
     lines += ["", ("Time at cG(1)'s error (log-log interpolation between the runs around it; '-' "
                    "where they do not bracket it) and time ratios to the fastest scipy solver "
                    "(< 1: faster than it):"), "",
@@ -243,6 +335,38 @@ def scipy_section(sizes, scipy_rows, mono, multi):
     return lines, best
 
 
+def equal_error_section(curves, checks):
+    """Markdown lines of the reference check (``checks``: N -> distances of :func:`reference`)
+    and of the fastest dolfinode method against the fastest scipy solver at
+    :data:`ERROR_LEVELS`."""
+    lines = ["", ("Reference check, max_i |ref_i - u_i(T)| of the dG(3) reference (tolerance "
+                  "1e-10) against dG(3) at 1e-11 and DOP853 at rtol = atol = 1e-12: "
+                  + ", ".join(f"N = {n}: {tight:.1e} and {dop:.1e}"
+                              for n, (tight, dop) in checks.items()) + "."), "",
+             ("Fastest dolfinode method (of " + ", ".join(DOLFINODE) + ") and fastest scipy "
+              "solver at equal max error (times interpolated log-log as above; levels where "
+              "either side's runs do not bracket the error are left out); ratio < 1: dolfinode "
+              "faster:"), "",
+             ("| N | max error | dolfinode | CPU [s] | scipy | CPU [s] | dolfinode / scipy "
+              "| scipy solvers not bracketing it |"), "|---|---|---|---|---|---|---|---|"]
+    rows = equal_error(curves, ERROR_LEVELS)
+    lines += [f"| {n} | {level:.0e} | {dm} | {dt:.3g} | {sm} | {st:.3g} | {dt / st:.2g} "
+              f"| {', '.join(missing)} |" for n, level, (dm, dt), (sm, st), missing in rows]
+    summary = []
+    for n in sorted(curves):
+        ratios = [(dt / st, level) for n2, level, (dm, dt), (sm, st), _ in rows if n2 == n]
+        if ratios:
+            summary.append(f"N = {n}: {min(ratios)[0]:.2g}-{max(ratios)[0]:.2g} (errors "
+                           f"{max(ratios, key=lambda r: r[1])[1]:.0e} ... "
+                           f"{min(ratios, key=lambda r: r[1])[1]:.0e})")
+    slower = [f"N = {n} at {level:.0e} ({dt / st:.2g}x)"
+              for n, level, (dm, dt), (sm, st), _ in rows if dt > st]
+    lines += ["", "Fastest dolfinode method / fastest scipy solver at equal error: "
+              + ", ".join(summary) + "; dolfinode's fastest is "
+              + (f"slower at {', '.join(slower)}." if slower else "faster at every level compared.")]
+    return lines
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default="1000,4000,16000")
@@ -252,27 +376,27 @@ def main(argv=None):
     parser.add_argument("--output", default=str(Path(__file__).resolve().parents[1] / "doc"
                                                 / "benchmarks"))
     args = parser.parse_args(argv)
-    rows, scipy_rows = [], []
+    rows, scipy_rows, checks = [], [], {}
     for n in (int(v) for v in args.sizes.split(",")):
         ode = front(n, args.T)
-        ref = dn.solve(ode, method="dG(3)", tolerance=1e-10)(args.T)
-        for method, tol in (("cG(1)", 1e-6), ("mcG(1)", 1e-6), ("mcG(1)", 4e-7)):
+        ref, *checks[n] = reference(ode)
+        print("reference check", n, *checks[n], flush=True)
+        for method, tolerances in DOLFINODE_RUNS:
             dn.solve(ode, method=method, tolerance=1e-2)  # warm-up: kernels and loops
-            start = time.process_time()
-            sol = dn.solve(ode, method=method, tolerance=tol)
-            cpu = time.process_time() - start
-            st = sol.stats
-            rows.append((n, method, tol, cpu, st["elements"], st["time slabs"],
-                         st["rejected steps"], float(np.max(np.abs(sol(args.T) - ref))),
-                         st["f evaluations"]))
-            print(*rows[-1], flush=True)
+            for tol in tolerances:
+                sol, cpu = timed(functools.partial(dn.solve, ode, method=method, tolerance=tol))
+                st = sol.stats
+                rows.append((n, method, tol, cpu, st["elements"], st["time slabs"],
+                             st["rejected steps"], float(np.max(np.abs(sol(args.T) - ref))),
+                             st["f evaluations"]))
+                print(*rows[-1], flush=True)
         for method in SCIPY:
             scipy_rows += run_scipy(ode, method, SCIPY_TOLERANCES, ref, args.time_limit)
-    lines = [(f"# Reaction front: mcG(1) against cG(1) and scipy, T = {args.T:g}, "
-              "tolerance 1e-6"), "",
+    lines = [f"# Reaction front: mcG(q) against cG(1) and scipy, T = {args.T:g}", "",
              (f"`python benchmarks/run_reaction_front.py --sizes {args.sizes} --T {args.T:g} "
               f"--time-limit {args.time_limit:g}`, {time.strftime('%Y-%m-%d')}; CPU time of the "
-              "solve call."), "",
+              f"solve call after a warm-up (the minimum of two under {TIME_TWICE_BELOW:g} s)."),
+             "",
              ("| N | method | tolerance | CPU [s] | elements | time slabs | rejected | max error "
               "| ns per element | ns per f_i evaluation |"),
              "|---|---|---|---|---|---|---|---|---|---|"]
@@ -282,8 +406,8 @@ def main(argv=None):
               for n, m, tol, c, e, s, r, err, fe in rows]
     sizes = sorted({row[0] for row in rows})
     mono = {n: (c, err) for n, m, tol, c, e, s, r, err, fe in rows if m == "cG(1)"}
-    multi = {n: time_at_error([(err, c) for n2, m, tol, c, e, s, r, err, fe in rows
-                               if n2 == n and m == "mcG(1)"], mono[n][1]) for n in sizes}
+    curves = work_precision(rows + scipy_rows)
+    multi = {n: time_at_error(curves[n]["mcG(1)"], mono[n][1]) for n in sizes}
     lines += ["", "mcG(1) against cG(1) at cG(1)'s error (mcG(1)'s time interpolated): "
               + ", ".join(f"N = {n}: {mono[n][0] / multi[n]:.2g}x faster" if multi[n] else
                           f"N = {n}: mcG(1)'s runs do not bracket cG(1)'s error"
@@ -292,12 +416,14 @@ def main(argv=None):
         lines += [(f"Growth of mcG(1) at equal error, time(N = {sizes[-1]}) / "
                    f"time(N = {sizes[0]}): {multi[sizes[-1]] / multi[sizes[0]]:.2g} "
                    f"(cG(1): {mono[sizes[-1]][0] / mono[sizes[0]][0]:.2g}).")]
-    scipy_table, best = scipy_section(sizes, scipy_rows, mono, multi)
-    lines += scipy_table
+    scipy_table, best = scipy_section(sizes, scipy_rows, curves, mono, multi)
+    lines += scipy_table + equal_error_section(curves, checks)
     out = Path(args.output) / "reaction_front.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     plot(sizes, mono, multi, best, out.with_suffix(".png"), args.T)
-    lines += ["", "![time against N](reaction_front.png)"]
+    plot_work_precision(curves, out.with_name("reaction_front_wp.png"), args.T)
+    lines += ["", "![time against N](reaction_front.png)", "",
+              "![work-precision](reaction_front_wp.png)"]
     tmp = out.with_suffix(".md.tmp")
     tmp.write_text("\n".join(lines) + "\n")
     tmp.replace(out)

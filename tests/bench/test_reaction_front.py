@@ -43,3 +43,17 @@ def test_scipy_sweep_against_dolfinode_and_the_time_limit(rf):
     assert fine[3] > 0 and fine[7] < 1e-7 and fine[7] < coarse[7] / 100
     rows = rf.run_scipy(ode, "DOP853", [1e-4, 1e-6], ref, 0.0)
     assert len(rows) == 1 and rows[0][3] is None and "abandoned" in rows[0][8]
+
+
+def test_equal_error_picks_the_fastest_bracketing_method_per_side(rf):
+    """At each level the fastest dolfinode method and scipy solver whose runs bracket it are
+    paired, with the scipy solvers that do not bracket it; levels either side does not bracket
+    are left out."""
+    curves = {1000: {"mcG(2)": [(1e-4, 1.0), (1e-8, 3.0)], "mcG(3)": [(1e-6, 0.5), (1e-8, 0.8)],
+                     "DOP853": [(1e-3, 0.1), (1e-6, 0.2)], "Radau": [(1e-4, 0.5), (1e-9, 4.0)]}}
+    rows = rf.equal_error(curves, [1e-3, 1e-5, 1e-7, 1e-10])
+    assert [(level, dm, sm, missing) for n, level, (dm, dt), (sm, st), missing in rows] == [
+        (1e-5, "mcG(2)", "DOP853", ["LSODA", "BDF"]),
+        (1e-7, "mcG(3)", "Radau", ["LSODA", "DOP853", "BDF"])]
+    assert rows[0][2][1] == pytest.approx(1.0 * 3.0**0.25)   # log-log, a quarter of the way
+    assert rows[1][2][1] == pytest.approx(0.5 * 1.6**0.5)
