@@ -255,7 +255,8 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     # imported on first use: compiling its loop (once per installation) takes ~30 s
     from dolfinode.timeslab import multi
 
-    fopts = np.array(fopts + [params["partitioning_threshold"], params["interval_threshold"]])
+    fopts = np.array(fopts + [params["partitioning_threshold"], params["interval_threshold"],
+                              filter_constant(m)])
     state = np.array([ode.t0, 0.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     _, position, kl, ku = compiled.ordering
