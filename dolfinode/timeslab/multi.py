@@ -30,10 +30,10 @@ sub-slab, (I - gamma k J_gg)^{-1} k R (``_filter_residuals``), and scaled by
 atol + rtol max |U_i| over the slab; the slab is accepted when all are <= ACCEPTANCE_MARGIN,
 and each component gets its own next step. Unfiltered, k |R| of a stiff component is
 k |lambda| times its distance from the quasi-steady state: mcG(2) took 3.9 million slabs on
-ROBER to 1e11 (25 s; 1323 slabs and 9 ms filtered). DOLFIN's indicators k^q |R| (mcG) and k^(q+1) |R| (mdG) depend on
-the unit of time: for q >= 2 and k < 1 they let fast components step over their oscillation
-(mcG(3) on the stiff chain: 15x too long steps, errors 10^3-10^5 x tolerance), and mdG(1) reached
-2600x the error of dG(1) on the template lattice.
+ROBER to 1e11 (25 s; 1323 slabs and 9 ms filtered). DOLFIN's indicators k^q |R| (mcG) and
+k^(q+1) |R| (mdG) depend on the unit of time: for q >= 2 and k < 1 they let fast components
+step over their oscillation (mcG(3) on the stiff chain: 15x too long steps, errors
+10^3-10^5 x tolerance), and mdG(1) reached 2600x the error of dG(1) on the template lattice.
 """
 import math
 
