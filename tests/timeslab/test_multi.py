@@ -107,16 +107,14 @@ def test_newton_factorization_serves_the_sub_slabs_of_a_window():
     solved together by Newton, with the Jacobian at the slab start, so one factorization
     serves every sub-slab of a window with the same step and every sweep over it (measured:
     283 Newton factorizations for 2372 elements; 709 with one per group solve, same
-    solution). The error filter factors at most once per sub-slab of each attempt (177 of
-    460 factorizations; 210 sub-slabs accepted), so factorizations - sub-slabs bounds the
-    Newton factorizations from below."""
+    solution), and the error filter 177: 460 in all, 0.19 per element (886, 0.37, with one
+    Newton factorization per group solve)."""
     from dolfinode.bench.problems import mass_spring_chain
 
     chain = mass_spring_chain(n=10, stiffness=1e4, stiff_springs=1, T=1.0)
     sol = dn.solve(chain.ode, method="mcG(1)", tolerance=1e-6)
     assert np.abs(sol(chain.ode.T) - chain.final).max() < 1e-6
-    newton = sol.stats["factorizations"] - sol.stats["sub-slabs"]
-    assert 0 < newton < 0.2 * sol.stats["elements"]
+    assert 0 < sol.stats["factorizations"] < 0.25 * sol.stats["elements"]
 
 
 @pytest.mark.parametrize("method", ["mdG(1)", "mcG(1)", "mdG(2)"])
