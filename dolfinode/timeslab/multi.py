@@ -89,6 +89,8 @@ COUPLING_LIMIT = 0.5
 #: Largest step ratio between strongly coupled components (see ``_grade``), and sweeps.
 GRADING = 2.0
 GRADING_SWEEPS = 4
+#: Most passes of ``_propagate`` (ties passed on along chains of strong couplings).
+PROPAGATION_SWEEPS = 8
 #: A mutual coupling with |J_ij| >= ASYMMETRY^2 |J_ji| ties u_j's step to u_i's (``_propagate``).
 ASYMMETRY = 10.0
 #: A component whose change on a slab and drift over the rest of the interval stay below QUIET
@@ -589,22 +591,29 @@ def _propagate(kdes, rows, frozen, indptr, indices, jacobian):
     v' = -omega^2 x), so u_j must be as resolved as u_i although its own indicator allows
     longer steps (mcG(1) on the stiff chain at tolerance 1e-7: positions 40x longer than
     their velocities, 2 10^4 x tolerance). Only the components ``rows`` and the active ones
-    they read take part (frozen components have no step)."""
-    for i in rows:
-        for nz in range(indptr[i], indptr[i + 1]):
-            j = indices[nz]
-            jij = abs(jacobian[nz])
-            if j == i or jij == 0.0 or kdes[j] <= kdes[i] or not math.isnan(frozen[j]):
-                continue
-            tie = jij * kdes[i] > 1.0
-            if not tie:
-                for nz2 in range(indptr[j], indptr[j + 1]):
-                    if indices[nz2] == i:
-                        jji = abs(jacobian[nz2])
-                        tie = 0.0 < jji and jij >= ASYMMETRY**2 * jji
-                        break
-            if tie:
-                kdes[j] = kdes[i]
+    they read take part (frozen components have no step). Passes repeat until no step
+    changes (at most PROPAGATION_SWEEPS): a step lowered by a tie is passed on along the
+    next one (on POLLU, y4 -> y3 -> the species with J_ii = -4.4e11)."""
+    for sweep in range(PROPAGATION_SWEEPS):
+        moved = False
+        for i in rows:
+            for nz in range(indptr[i], indptr[i + 1]):
+                j = indices[nz]
+                jij = abs(jacobian[nz])
+                if j == i or jij == 0.0 or kdes[j] <= kdes[i] or not math.isnan(frozen[j]):
+                    continue
+                tie = jij * kdes[i] > 1.0
+                if not tie:
+                    for nz2 in range(indptr[j], indptr[j + 1]):
+                        if indices[nz2] == i:
+                            jji = abs(jacobian[nz2])
+                            tie = 0.0 < jji and jij >= ASYMMETRY**2 * jji
+                            break
+                if tie:
+                    kdes[j] = kdes[i]
+                    moved = True
+        if not moved:
+            return
 
 
 @njit(cache=True)

@@ -155,6 +155,20 @@ def test_steps_are_graded_along_strong_couplings():
     np.testing.assert_allclose(kdes, [1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])
 
 
+def test_ties_are_passed_on_along_chains_of_strong_couplings():
+    """u0 reads u1 and u1 reads u2, both strongly (|J| k > 1): all three take u0's step,
+    whatever the order of the rows (one pass in the order [1, 0] left u2 at u1's old step;
+    on POLLU that chain, y4 -> y3 -> a species with J_ii = -4.4e11, cost mcG(2) 9.3 million
+    elements at tolerance 1e-10)."""
+    from dolfinode.timeslab.multi import _propagate
+
+    indptr = np.array([0, 1, 2, 2])
+    indices = np.array([1, 2])
+    kdes = np.array([1e-3, 2e-3, 4e-3])
+    _propagate(kdes, np.array([1, 0]), np.full(3, np.nan), indptr, indices, np.full(2, 1e4))
+    np.testing.assert_allclose(kdes, [1e-3, 1e-3, 1e-3])
+
+
 def _front(n, T):
     """The reaction front u' = eps u_xx + gamma u^2 (1 - u) on n points of [0, (n - 1) / 200]
     (h = 0.005, mirror ghost points), its front at x = 0.3 moving right at ~2.2."""
