@@ -1033,8 +1033,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             resid[e] = kdu - (eb[e] - ea[e]) * fend[e]  # k R(t_e), f_i(U(t_e)) from the last sweep
         _filter_residuals(ne, comp, ea, eb, resid, position, indptr, indices, jacobian, jdiag,
                           coupling, G, elist, group_order, local, ab_ws, newton_rhs, newton_ipiv,
-                          counters)
-        factored[0] = 0  # (ab_ws now holds the filter's factors)
+                          counters)  # (overwrites ab_ws: ``factored`` is reset at every slab start)
         for e in range(ne):
             i = comp[e]
             k = eb[e] - ea[e]
