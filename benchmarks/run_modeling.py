@@ -126,7 +126,7 @@ def lattice_drift(output, T=100.0, tau=1.0, m=1e-4):
              (f"`python benchmarks/run_modeling.py --lattice`: m = {m:g}, tau = {tau:g}, "
               f"T = {T:g}, cG(2), tolerance 1e-4, 10 control points (default), "
               "model_tolerance 0.02 (default). D-bar: the full model's diameter (scipy DOP853, "
-              "rtol 1e-8) averaged with the Hann kernel of length tau. CPU seconds (process "
+              "rtol 1e-8) averaged with the modeling kernel of length tau. CPU seconds (process "
               "time, kernels cached; the first row includes loading them)."), "",
              ("| p | N | subgrid model | max abs(D - D-bar) on [2 tau, T] | builds | elements "
               "| CPU [s] | contraction of D-bar | DOP853 CPU [s] |"),

@@ -32,7 +32,7 @@ import numpy as np
 
 import dolfinode as dn
 from dolfinode.io import write_trajectory
-from dolfinode.modeling import hann_weights
+from dolfinode.modeling import kernel_weights
 
 
 @dataclass
@@ -79,7 +79,8 @@ def lattice(p=5, m=1e-12, M=100.0, T=10.0):
 
 
 def reference(lat, T, tau, per_tau=100):
-    """The full model with scipy's DOP853 (rtol 1e-8) and its Hann average of length tau:
+    """The full model with scipy's DOP853 (rtol 1e-8) and its average of length tau
+    (the kernel of the modeling, :func:`~dolfinode.modeling.kernel_weights`):
     returns times on [tau, T - tau] (spacing tau / per_tau), D(t), D-bar(t) and the
     scipy solution."""
     from scipy.integrate import solve_ivp
@@ -91,7 +92,7 @@ def reference(lat, T, tau, per_tau=100):
                      rtol=1e-8, atol=1e-10, dense_output=True)
     grid = np.linspace(0.0, T, round(T / tau) * per_tau + 1)
     D = lat.diameter(full.sol(grid))
-    D_bar = np.convolve(D, hann_weights(per_tau), mode="valid")
+    D_bar = np.convolve(D, kernel_weights(per_tau), mode="valid")
     return grid[per_tau:-per_tau], D[per_tau:-per_tau], D_bar, full
 
 

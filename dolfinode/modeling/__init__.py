@@ -1,5 +1,5 @@
 """Automatic modeling: reduced models of systems with unresolvable fast time scales."""
-from dolfinode.modeling.averaging import WindowAverages, average_window, hann_weights
+from dolfinode.modeling.averaging import WindowAverages, average_window, kernel_weights
 from dolfinode.modeling.driver import MODELING_PARAMETERS, ModelingSolution, solve_with_modeling
 from dolfinode.modeling.reduced import ControlPoint, ModelingError, ReducedModel, fast_time_scale
 
@@ -12,6 +12,6 @@ __all__ = [
            "WindowAverages",
            "average_window",
            "fast_time_scale",
-           "hann_weights",
+           "kernel_weights",
            "solve_with_modeling",
 ]

@@ -30,8 +30,9 @@ from dolfinode.modeling.declaration import ReducedDeclaration
 from dolfinode.ode import ODE
 
 #: tau = AVERAGE_PERIODS / |lambda|_max when average_length is not given: about 16 periods of
-#: the fastest oscillation in each half of the window, enough for the Hann average to reach
-#: O((|lambda| tau)^-3) = 1e-6.
+#: the fastest oscillation in each half of the window, where the average of its oscillation
+#: is below 1e-9 (the kernel's transform decays like (|lambda| tau)^-7, see
+#: :mod:`dolfinode.modeling.averaging`).
 AVERAGE_PERIODS = 100.0
 #: Relative accuracy of the spectral radius (a time scale: a few digits suffice).
 SPECTRAL_TOLERANCE = 1e-6
