@@ -13,10 +13,10 @@ would alias the fast forcing of small ones and lose the 2q / 2q + 1 nodal order.
 A slab is solved window by window (the sub-slabs nested in each top-level sub-slab, in time
 order), then the top level, each to convergence; the global iteration stops when the
 windows' response to the top level's change is below the discrete tolerance. The slab length
-adapts to the number of global iterations. When Gauss-Seidel fails or converges too slowly
-the problem is treated as stiff, and the elements of each sub-slab (one interval, several
-components) are updated together by a simplified Newton step with the sparse sympy Jacobian
-at the slab start restricted to them, factored once for all the sub-slabs and sweeps with the
+limit climbs on the measured cost per unit time (``_slab_limit``). When Gauss-Seidel fails
+or converges too slowly the problem is treated as stiff, and the elements of each sub-slab
+(one interval, several components) are updated together by a simplified Newton step with the
+sparse sympy Jacobian at the slab start restricted to them, factored once for all the sub-slabs and sweeps with the
 same components and step.
 
 Components at rest are frozen (``_freeze``): no elements, the constant x_i for the others,
@@ -99,6 +99,8 @@ QUIET = 1e-3
 #: The error filter of a sub-slab is skipped when it would change the estimates by at most
 #: this fraction (gamma k ||J_gg||_inf).
 FILTER_NEGLIGIBLE = 0.1
+#: Factor by which the slab length limit climbs on the cost per unit time (``_slab_limit``).
+SLAB_CLIMB = 1.5
 
 
 @njit(cache=True, inline="always")
@@ -735,23 +737,28 @@ def _readers(indptr, indices, N):
 
 
 @njit(cache=True)
-def _slab_limit(kslab, kmax, K, converged, iterations, nwin, nroot, ne):
-    """The next slab length limit. A slab with windows costs its R = nroot top-level elements
-    about once (lazy sweeps) and its W = ne - nroot window elements once per global
-    iteration. Fast convergence (at most two global iterations) or a top level much larger
-    than the windows (R > 2 W: one more iteration per doubling of K still lowers the cost
-    per unit time (R + W its) / K) let the limit grow; slow convergence with the windows
-    dominating (R < W, its >= 4) halves it. Growth starts from the limit itself, not from K,
-    which the top level's smallest desired step may keep below it."""
+def _slab_limit(kslab, kmax, K, converged, nwin, cost, climb):
+    """The next slab length limit. A slab with windows costs its top-level elements about
+    once (lazy sweeps) and its window elements once per global iteration: a longer slab
+    takes fewer top-level elements per unit time, but more global iterations and longer
+    windows, whose sweeps converge more slowly. Without windows the limit grows. With them
+    it climbs on the measured cost per unit time, ``cost`` (f evaluations of the slab's
+    solve / K): by SLAB_CLIMB in the direction ``climb[1]`` (+1 longer, -1 shorter),
+    turning when the cost rose above the last slab's, ``climb[0]``. (The former rule, grow
+    at two global iterations or fewer and halve at four, let the windows of the
+    multi-adaptive problems of the benchmark suite take 2-3 times the f evaluations.)
+    Growth starts from the limit itself, not from K, which the top level's smallest desired
+    step may keep below it."""
     if not converged:
         return 0.5 * K
-    W = ne - nroot
-    R = nroot
-    if nwin == 0 or iterations <= 2 or R > 2 * W:
+    if nwin == 0:
         return min(kmax, 2.0 * max(kslab, K))
-    if iterations >= 4 and R < W:
-        return 0.5 * K
-    return max(kslab, K)
+    if cost > climb[0]:
+        climb[1] = -climb[1]
+    climb[0] = cost
+    if climb[1] > 0:
+        return min(kmax, SLAB_CLIMB * max(kslab, K))
+    return K / SLAB_CLIMB
 
 
 _f8 = types.float64[::1]
@@ -838,8 +845,9 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     rptr, readers = _readers(indptr, indices, N)
     drift = np.empty(N)  # change on the slab and bound of the drift until T (``_drift``)
     quiet = np.ones(N, dtype=np.bool_)  # (stays True for a frozen component until it wakes)
-    kslab = kmax  # slab length limit, adapted to the Gauss-Seidel iterations a slab needs
+    kslab = kmax  # slab length limit, adapted to the cost per unit time (``_slab_limit``)
     hold = 0  # accepted slabs to go before the limit may grow again after a rejection
+    climb = np.array([math.inf, 1.0])  # the last slab's cost per unit time, the direction
     emax = np.empty(N)
     kact = np.empty(N)
     umax = np.empty(N)
@@ -949,6 +957,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         converged = False
         d_prev = math.inf
         growth = 0
+        f_attempt = counters[F_EVALUATIONS]
         for it in range(max_iter):
             # every window iterated to convergence in turn (the fast components advance window
             # by window as in single-rate time stepping), then the top-level elements: one
@@ -998,8 +1007,8 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
         if converged and mode == DEFAULT and it >= 7:
             counters[STIFF] = 1  # Gauss-Seidel converges too slowly: Newton from here on
         if not fixed:
-            limit = _slab_limit(min(kslab, kcap), kmax, b - t, converged, it + 1, nwin, nroot,
-                                 ne)
+            limit = _slab_limit(min(kslab, kcap), kmax, b - t, converged, nwin,
+                                (counters[F_EVALUATIONS] - f_attempt) / (b - t), climb)
             # no growth for REJECTION_HOLD slabs after a rejection: growing straight back
             # into the length that was rejected costs another whole slab
             kslab = limit if hold == 0 else min(limit, max(kslab, b - t))

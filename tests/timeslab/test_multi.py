@@ -59,10 +59,12 @@ def test_adaptive_harmonic_meets_tolerance():
 
 @pytest.mark.parametrize("method", ["mcG(2)", "mcG(3)", "mdG(2)"])
 def test_slow_component_takes_fewer_steps(method):
-    """Two weakly coupled oscillators, frequencies 1 and 1000: at least 100x fewer elements
-    for the slow component (measured 810x, 250x and 730x), and every component, the fast one
-    included, within the tolerance at T. With DOLFIN's indicator k^q |R| the fast component
-    of mcG(3) stepped over its oscillation and ended 2 10^4 x tolerance off."""
+    """Two weakly coupled oscillators, frequencies 1 and 1000: at least 20x fewer elements
+    for the slow component (measured 52x, 26x and 49x; the slab length, which bounds the
+    slow step, is chosen for the least f evaluations per unit time, see ``_slab_limit``),
+    and every component, the fast one included, within the tolerance at T. With DOLFIN's
+    indicator k^q |R| the fast component of mcG(3) stepped over its oscillation and ended
+    2 10^4 x tolerance off."""
     x1, v1, x2, v2 = sp.symbols("x1 v1 x2 v2")
     eps, w = 1e-3, 1000.0
     ode = dn.ODE({x1: v1, v1: -x1 + eps * (x2 - x1), x2: v2, v2: -w**2 * x2 + eps * (x1 - x2)},
@@ -70,7 +72,7 @@ def test_slow_component_takes_fewer_steps(method):
     sol = dn.solve(ode, method=method, tolerance=1e-6)
     reference = dn.solve(ode, method="cG(4)", tolerance=1e-12)(1.0)
     counts = sol.stats["elements per component"]
-    assert counts[2] >= 100 * counts[0]
+    assert counts[2] >= 20 * counts[0]
     assert np.all(np.abs(sol(1.0) - reference) < 1e-6 * (1 + np.abs(reference)))
     t, k = sol.time_steps(x1)
     assert np.isclose(t[0], 0.0) and np.isclose(t[-1] + k[-1], 1.0) and np.all(k > 0)
@@ -108,13 +110,44 @@ def test_newton_factorization_serves_the_sub_slabs_of_a_window():
     serves every sub-slab of a window with the same step and every sweep over it (measured:
     283 Newton factorizations for 2372 elements; 709 with one per group solve, same
     solution), and the error filter 177: 460 in all, 0.19 per element (the code before the
-    reuse, which had no filter: 709, 0.30)."""
+    reuse, which had no filter: 709, 0.30; with the slab length chosen by cost, 516 for
+    2720 elements)."""
     from dolfinode.bench.problems import mass_spring_chain
 
     chain = mass_spring_chain(n=10, stiffness=1e4, stiff_springs=1, T=1.0)
     sol = dn.solve(chain.ode, method="mcG(1)", tolerance=1e-6)
     assert np.abs(sol(chain.ode.T) - chain.final).max() < 1e-6
     assert 0 < sol.stats["factorizations"] < 0.25 * sol.stats["elements"]
+
+
+def test_slab_limit_climbs_on_the_cost_per_unit_time():
+    """With windows the slab length limit moves by SLAB_CLIMB in one direction while the
+    cost per unit time falls and turns when it rises; without windows it doubles; after a
+    failed solve it halves."""
+    from dolfinode.timeslab.multi import SLAB_CLIMB, _slab_limit
+
+    climb = np.array([np.inf, 1.0])
+    assert _slab_limit(1.0, 100.0, 1.0, True, 2, 10.0, climb) == SLAB_CLIMB
+    assert _slab_limit(1.5, 100.0, 1.5, True, 2, 8.0, climb) == 1.5 * SLAB_CLIMB
+    assert _slab_limit(2.25, 100.0, 2.25, True, 2, 9.0, climb) == 2.25 / SLAB_CLIMB
+    assert climb[1] == -1.0 and climb[0] == 9.0
+    assert _slab_limit(1.5, 100.0, 1.5, True, 2, 7.0, climb) == 1.5 / SLAB_CLIMB
+    assert _slab_limit(1.0, 100.0, 1.0, True, 0, 50.0, climb) == 2.0
+    assert _slab_limit(1.0, 1.5, 1.0, True, 0, 50.0, climb) == 1.5  # at most kmax
+    assert _slab_limit(1.0, 100.0, 1.0, False, 2, 1.0, climb) == 0.5
+
+
+def test_windows_cost_few_evaluations_per_element():
+    """The suite's chain (50 masses, 2 springs 10^4 x stiffer), mcG(3) at tolerance 1e-5:
+    measured 11.7 f_i evaluations per element and max error 1.4e-6. With the former slab
+    rule (grow at two global iterations or fewer, halve at four) the slabs were 4.5x longer
+    and every window was swept to convergence three times: 27.4 per element, error 3.2e-6."""
+    from dolfinode.bench.problems import mass_spring_chain
+
+    chain = mass_spring_chain()
+    sol = dn.solve(chain.ode, method="mcG(3)", tolerance=1e-5)
+    assert np.abs(sol(chain.ode.T) - chain.final).max() < 1e-5
+    assert sol.stats["f evaluations"] < 16 * sol.stats["elements"]
 
 
 @pytest.mark.parametrize("method", ["mdG(1)", "mcG(1)", "mdG(2)"])
