@@ -16,8 +16,8 @@ windows' response to the top level's change is below the discrete tolerance. The
 limit climbs on the measured cost per unit time (``_slab_limit``). When Gauss-Seidel fails
 or converges too slowly the problem is treated as stiff, and the elements of each sub-slab
 (one interval, several components) are updated together by a simplified Newton step with the
-sparse sympy Jacobian at the slab start restricted to them, factored once for all the sub-slabs and sweeps with the
-same components and step.
+sparse sympy Jacobian at the slab start restricted to them, factored once for all the
+sub-slabs and sweeps with the same components and step.
 
 Components at rest are frozen (``_freeze``): no elements, the constant x_i for the others,
 until they drift; then their constant element over the whole span is stored. After a slab the
