@@ -43,9 +43,9 @@ RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, KMIN_REL, SPAN, GAMMA = range(9)
 SOLVER_MARGIN = 0.8
 #: Fixed-point iteration starts from the last element extrapolated (see :func:`extrapolate`)
 #: when the step is at most EXTRAPOLATE times the last one, else from explicit Euler. Newton
-#: starts from explicit Euler: on a stiff component the last element's polynomial, continued,
-#: can lead Newton to a spurious root (cG(2) on ROBER at tolerance 1e-2: y2 = -4e-6 and
-#: y1 = -4e7 at T, with every local estimate within the tolerance).
+#: starts from explicit Euler: extrapolated, it saved 5-35% of the f evaluations on the stiff
+#: Test Set problems but moved their accuracy by up to 1.9 digits either way (VDPOLM dG(3) at
+#: tolerance 1e-4: 8.8 -> 7.0 digits), a stiff component's polynomial being a poor predictor.
 EXTRAPOLATE = 2.0
 NEWTON_PROBE = 1.2
 
