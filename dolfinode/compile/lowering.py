@@ -7,6 +7,7 @@ The passes run in a fixed order:
 4. generate C with common-subexpression elimination and compile it, cached by hash.
 """
 import copy
+import hashlib
 import time
 from dataclasses import dataclass
 from functools import cached_property
@@ -56,8 +57,16 @@ class CompiledODE:
 
     @cached_property
     def ordering(self):
-        """(order, position, kl, ku): the component ordering that narrows the Jacobian's band."""
-        return bandwidth_ordering(self.indptr, self.indices, self.N)
+        """(order, position, kl, ku): the component ordering that narrows the Jacobian's band
+        (remembered by sparsity pattern: automatic modeling solves one pattern dozens of
+        times, with new parameter values)."""
+        key = hashlib.blake2b(self.indptr.tobytes() + self.indices.tobytes(),
+                              digest_size=16).digest()
+        if key not in _orderings:
+            if len(_orderings) >= REMEMBERED:
+                del _orderings[next(iter(_orderings))]
+            _orderings[key] = bandwidth_ordering(self.indptr, self.indices, self.N)
+        return _orderings[key]
 
     def dependencies(self):
         """Dependency graph as a CSR boolean matrix: entry (i, j) if f_i depends on u_j."""
@@ -103,7 +112,11 @@ class CompiledODE:
         return sps.csr_matrix((data, self.indices.copy(), self.indptr.copy()), shape=(self.N, self.N))
 
 
+#: How many lowerings of expression ODEs and band orderings are remembered (oldest dropped).
+REMEMBERED = 16
 _loaded = {}
+_orderings = {}
+_lowerings = {}
 
 
 def _derivative(expr, x):
@@ -126,7 +139,12 @@ def lower(ode):
         from dolfinode.compile.template import lower_template  # imports this module
         key, source, indptr, indices, p, data = lower_template(ode)
     else:
-        key, source, indptr, indices = _lower_expressions(ode)
+        declared = (tuple(ode.states), tuple(ode.rhs), tuple(ode.parameter_symbols))
+        if declared not in _lowerings:
+            if len(_lowerings) >= REMEMBERED:
+                del _lowerings[next(iter(_lowerings))]
+            _lowerings[declared] = _lower_expressions(ode)
+        key, source, indptr, indices = _lowerings[declared]
         p, data = ode.parameter_values, ()
     cached = key in _loaded
     if not cached:

@@ -264,6 +264,22 @@ def test_lowering_and_band_ordering_are_memoised_on_the_declaration():
     assert again.cached and again.compile_time == 0.0 and first.compile_time > 0.0
 
 
+def test_new_declarations_of_the_same_expressions_share_pattern_and_ordering():
+    """Automatic modeling declares the same expressions dozens of times with new initial
+    values and parameters: the pattern and band ordering are not derived again, and another
+    expression is not served the memoised lowering."""
+    ode = oscillator()
+    again = dn.ODE(dict(zip(ode.states, ode.rhs)), u0=[0.5, 2.0], T=3.0,
+                   params={s: 3 * v for s, v in ode.params.items()})
+    a, b = lower(ode), lower(again)
+    assert b.indptr is a.indptr and b.ordering is a.ordering
+    u, v = ode.states
+    other = dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=1.0)
+    c = lower(other)
+    assert c.rhs is not a.rhs
+    np.testing.assert_allclose(c.f([0.4, 0.9], 0.3), [0.9, -0.4], rtol=1e-15)
+
+
 def test_parameter_values_are_not_compiled_in():
     ode = oscillator()
     other = dn.ODE(dict(zip(ode.states, ode.rhs)), u0=[1.0, 0.0], T=1.0,
