@@ -144,9 +144,7 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F, G,
             return -1
         if _converged(d, d_prev, it, dtol):
             return it + 1
-        if it >= 2 and d >= d_prev:
-            # diverging; the first iteration may still grow the increment (cG(2) on ROBER
-            # at t ~ 6e10 from y2 off its quasi-steady state: 0.14, 0.19, 0.014, 9e-4, ...)
+        if it >= 1 and d >= d_prev:
             return -1
         d_prev = d
     return -1

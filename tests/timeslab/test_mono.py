@@ -97,18 +97,25 @@ def test_fixed_point_starts_from_the_last_element_extrapolated(method, iteration
     assert np.abs(sol(ode.T) - exact(ode.T)).max() < 1e-9
 
 
-def test_newton_survives_a_growing_first_increment():
-    """ROBER with cG(2) at tolerance 1e-4 (atol 1e-8): from t ~ 6e10, y2 starts each slab
-    off its quasi-steady state and Newton's second increment exceeds its first (0.14, 0.19,
-    0.014, 9e-4, ...). Declared divergent there, every slab failed and the steps fell to
-    t / 10^6 (160,648 slabs); measured now 465 slabs, mescd 4.45."""
+@pytest.mark.parametrize("method, tol", [("cG(1)", 1e-2), ("cG(2)", 1e-2), ("cG(2)", 1e-3)])
+def test_rober_at_loose_tolerance_is_right_or_raises(method, tol):
+    """ROBER with atol 1e-6 (where scipy's BDF returns y1 = -3e6) at loose tolerances.
+
+    cG(q) is not L-stable: on ROBER the error of the stiff y2 is not damped but carried
+    from slab to slab, and through 1e4 y2 y3 it drives y1 below zero, into the branch where
+    y1 = -y3 grows without bound. Letting Newton's second increment exceed its first (cG(2)
+    at t ~ 6e10: 0.14, 0.19, 0.014, ...) completed these runs with y1 = -4e7 at T; as
+    Newton is now, they end in SolverError."""
     from dolfinode.bench import problems as bench
 
     p = bench.rober()
-    sol = dn.solve(p.ode, method="cG(2)", tolerance=1e-4, absolute_tolerance=1e-8,
-                   maximum_steps=5000)
-    assert sol.stats["failed nonlinear solves"] == 0
-    assert bench.mescd(sol(p.T), p.final, p.atol_ratio) > 4
+    try:
+        sol = dn.solve(p.ode, method=method, tolerance=tol, absolute_tolerance=1e-6,
+                       maximum_steps=20_000)
+    except dn.SolverError:
+        return
+    assert np.all(np.abs(sol(p.T) - p.final) <= 1e-6 + tol * np.abs(p.final))
+    assert sol.values.min() >= -1e-6
 
 
 def test_explicit_newton_matches_fixed_point():
