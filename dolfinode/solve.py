@@ -220,6 +220,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     fits = band_bytes <= _NEWTON_MEMORY_FRACTION * available
     iopts = np.concatenate([iopts, [int(fits)]])
     dend = m.end_derivative.copy()
+    element_nodes, bary = m.nodes.copy(), m.barycentric_weights.copy()
     nodes = m.q + 1
 
     def buffers(capacity):
@@ -228,8 +229,9 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
 
     def advance(out_t, out_k, out_X):
         return mono.advance(compiled.rhs, compiled.jacobian, compiled.p, compiled.indptr,
-                            compiled.indices, position, kl, ku, A, b0, tau, dend, iopts,
-                            fopts, atol, x, f0, state, counters, out_t, out_k, out_X)
+                            compiled.indices, position, kl, ku, A, b0, tau, element_nodes,
+                            bary, dend, iopts, fopts, atol, x, f0, state, counters, out_t,
+                            out_k, out_X)
 
     capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
     with _progress(ode, params) as bar:

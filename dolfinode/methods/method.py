@@ -15,6 +15,7 @@ from functools import cache
 
 import mpmath as mp
 import numpy as np
+from numba import njit
 
 from dolfinode.methods.quadrature import _DPS, lobatto, radau
 
@@ -84,6 +85,23 @@ class Method:
 
     def __repr__(self):
         return f"Method({self.name})"
+
+
+@njit(cache=True, inline="always")
+def element_value(values, e, tau, nodes, bary):
+    """The polynomial of element e at tau (in [0, 1], or past it to extrapolate) from its
+    nodal values ``values[e, j]`` at ``nodes`` (barycentric Lagrange formula, weights
+    ``bary``)."""
+    num = 0.0
+    den = 0.0
+    for j in range(nodes.shape[0]):
+        d = tau - nodes[j]
+        if d == 0.0:
+            return values[e, j]
+        w = bary[j] / d
+        num += w * values[e, j]
+        den += w
+    return num / den
 
 
 def _lagrange_coefficients(nodes):

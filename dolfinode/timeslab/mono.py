@@ -12,6 +12,7 @@ from numba import njit, types
 
 from dolfinode.adaptivity import filter_estimate, next_step
 from dolfinode.compile.signatures import JACOBIAN_TYPE, RHS_TYPE
+from dolfinode.methods.method import element_value
 from dolfinode.solvers.slab import assemble_newton_matrix, factor, fixed_point, newton
 from dolfinode.timeslab import (
     BLOWUP,
@@ -41,20 +42,21 @@ RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, KMIN_REL, SPAN, GAMMA = range(9)
 #: After a failed nonlinear solve of length k_fail, steps stay below SOLVER_MARGIN x k_fail,
 #: and k_fail grows by NEWTON_PROBE per accepted step.
 SOLVER_MARGIN = 0.8
+NEWTON_PROBE = 1.2
 #: Fixed-point iteration starts from the last element extrapolated (see :func:`extrapolate`)
 #: when the step is at most EXTRAPOLATE times the last one, else from explicit Euler. Newton
 #: starts from explicit Euler: extrapolated, it saved 5-35% of the f evaluations on the stiff
 #: Test Set problems but moved their accuracy by up to 1.9 digits either way (VDPOLM dG(3) at
 #: tolerance 1e-4: 8.8 -> 7.0 digits), a stiff component's polynomial being a poor predictor.
 EXTRAPOLATE = 2.0
-NEWTON_PROBE = 1.2
 
 _f8 = types.float64[::1]
 _i8 = types.int64[::1]
 _SIGNATURE = types.int64(
     RHS_TYPE, JACOBIAN_TYPE, _f8,            # f, J, p
     _i8, _i8, _i8, types.int64, types.int64,  # indptr, indices, position, kl, ku
-    types.float64[:, ::1], _f8, _f8, _f8,  # A, b0, tau, end_derivative
+    types.float64[:, ::1], _f8, _f8,       # A, b0, tau
+    _f8, _f8, _f8,                           # nodes, barycentric weights, end_derivative
     _i8, _f8, _f8,                           # iopts, fopts, atol
     _f8, _f8, _f8, _i8,                      # x, f0, state, counters
     _f8, _f8, types.float64[:, :, ::1],      # out_t, out_k, out_X
@@ -81,35 +83,25 @@ def newton_band_columns(kl, ku, S):
 
 
 @njit(cache=True)
-def extrapolate(values, sigma, k_prev, k, tau, X):
+def extrapolate(values, nodes, bary, k_prev, k, tau, X):
     """Predict the stages from the last element's polynomial, continued past its end:
-
-        X_s = sum_j values_j l_j(1 + tau_s k / k_prev),
-
-    with l_j the Lagrange basis on the element's nodes ``sigma`` (on [0, 1]) and
-    ``values`` (nodes, N) its nodal values. Its error is O(k^(q+1)) on a smooth solution,
-    against O(k^2) for the explicit Euler predictor."""
-    nodes, N = values.shape
+    X_s = U_prev(1 + tau_s k / k_prev), from its nodal values ``values`` (nodes, N). Its
+    error is O(k^(q+1)) on a smooth solution, against O(k^2) for explicit Euler."""
+    N = values.shape[1]
+    by_component = values.T
     for s in range(tau.shape[0]):
         theta = 1.0 + tau[s] * k / k_prev
         for i in range(N):
-            X[s * N + i] = 0.0
-        for j in range(nodes):
-            w = 1.0
-            for m in range(nodes):
-                if m != j:
-                    w *= (theta - sigma[m]) / (sigma[j] - sigma[m])
-            for i in range(N):
-                X[s * N + i] += w * values[j, i]
+            X[s * N + i] = element_value(by_component, i, theta, nodes, bary)
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
-def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_derivative, iopts,
-            fopts, atol, x, f0, state, counters, out_t, out_k, out_X):
+def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bary,
+            end_derivative, iopts, fopts, atol, x, f0, state, counters, out_t, out_k, out_X):
     """Advance (x, t) towards T, storing accepted elements in out_*; returns a status code."""
     N = x.shape[0]
     S = A.shape[0]
-    nodes = end_derivative.shape[0]
+    n_nodes = nodes.shape[0]
     is_dg = iopts[IS_DG] == 1
     fixed = iopts[FIXED] == 1
     mode = iopts[SOLVER]
@@ -136,11 +128,6 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
     ab_filter = np.zeros((0, 0))
     ipiv_filter = np.zeros(0, dtype=np.int64)
     est = np.empty(N)
-    # the nodes of an element on [0, 1]: the stage times, and 0 for cG(q)
-    sigma = np.empty(nodes)
-    sigma[nodes - S:] = tau
-    if nodes > S:
-        sigma[0] = 0.0
     counters[STORED] = 0
 
     t = state[T_NOW]
@@ -175,7 +162,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
         use_newton = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         n_prev = counters[STORED] - 1
         if not use_newton and n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
-            extrapolate(out_X[n_prev], sigma, out_k[n_prev], k, tau, X)
+            extrapolate(out_X[n_prev], nodes, bary, out_k[n_prev], k, tau, X)
         else:  # explicit Euler to every stage
             for s in range(S):
                 for i in range(N):
@@ -237,7 +224,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
                 blowup = True
                 break
             kdu = 0.0
-            for j in range(nodes):
+            for j in range(n_nodes):
                 if is_dg:
                     xi = X[j * N + i]
                 else:
@@ -262,7 +249,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, end_deriva
             n = counters[STORED]
             out_t[n] = t
             out_k[n] = k
-            for j in range(nodes):
+            for j in range(n_nodes):
                 for i in range(N):
                     if is_dg:
                         out_X[n, j, i] = X[j * N + i]

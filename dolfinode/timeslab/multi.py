@@ -42,6 +42,7 @@ from numba import njit, types
 
 from dolfinode.compile.signatures import COMPONENT_TYPE
 from dolfinode.linalg.banded import band_lu, band_solve
+from dolfinode.methods.method import element_value
 from dolfinode.timeslab import (
     BLOWUP,
     DEFAULT,
@@ -104,21 +105,6 @@ SLAB_CLIMB = 1.5
 
 
 @njit(cache=True, inline="always")
-def _evaluate(values, e, tau, nodes, bary):
-    """The element polynomial of e at tau in [0, 1] (barycentric Lagrange formula)."""
-    num = 0.0
-    den = 0.0
-    for j in range(nodes.shape[0]):
-        d = tau - nodes[j]
-        if d == 0.0:
-            return values[e, j]
-        w = bary[j] / d
-        num += w * values[e, j]
-        den += w
-    return num / den
-
-
-@njit(cache=True, inline="always")
 def _moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea, eb, values, nodes, bary,
              qweights, sptr, spts, dptr, dcur, cur, uw, out, mom, fend):
     """Moments m_l = int_0^1 f_i(U(tau)) tau^l dtau of element e by quadrature on every
@@ -160,7 +146,7 @@ def _moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea, eb, values, node
                 own = values[e, m]
             else:
                 tau = min(max((tq - ea[e]) / k, 0.0), 1.0)
-                own = _evaluate(values, e, tau, nodes, bary)
+                own = element_value(values, e, tau, nodes, bary)
             for r in range(degree):
                 j = indices[row0 + r]
                 if j == i:
@@ -174,7 +160,7 @@ def _moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea, eb, values, node
                     uw[j] = values[ej, m]
                 else:
                     tj = (tq - ea[ej]) / (eb[ej] - ea[ej])
-                    uw[j] = _evaluate(values, ej, min(max(tj, 0.0), 1.0), nodes, bary)
+                    uw[j] = element_value(values, ej, min(max(tj, 0.0), 1.0), nodes, bary)
             fi(i, uwp, tq, pp, op)
             w = qweights[m] * h / k
             power = 1.0
@@ -449,7 +435,7 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, ind
                         for m in range(nn):
                             tau = ((ea[ep] + nodes[m] * (eb[ep] - ea[ep]) - ea[pe])
                                    / (eb[pe] - ea[pe]))
-                            values[ep, m] = _evaluate(values, pe, min(tau, 3.0), nodes, bary)
+                            values[ep, m] = element_value(values, pe, min(tau, 3.0), nodes, bary)
                 k = eb[e] - ea[e]
                 together = stiff
                 if not stiff and e1 - e > 1:
@@ -580,7 +566,7 @@ def _guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb,
                     c += 1
                 eo = ocelems[c]
                 tau = min(max((tq - oea[eo]) / (oeb[eo] - oea[eo]), 0.0), 1.0)
-                values[e, m] = _evaluate(ovalues, eo, tau, nodes, bary)
+                values[e, m] = element_value(ovalues, eo, tau, nodes, bary)
 
 
 @njit(cache=True)
@@ -949,7 +935,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                         tau = ((ea[e] + nodes[m] * (eb[e] - ea[e]) - last_a[i])
                                / (last_b[i] - last_a[i]))
                         if tau <= 3.0:
-                            values[e, m] = _evaluate(last_values, i, tau, nodes, bary)
+                            values[e, m] = element_value(last_values, i, tau, nodes, bary)
         stiff = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         nroot = windows[0] if nwin > 0 else ne
         if saved.shape[0] < nroot:
