@@ -62,11 +62,8 @@ class CompiledODE:
         times, with new parameter values)."""
         key = hashlib.blake2b(self.indptr.tobytes() + self.indices.tobytes(),
                               digest_size=16).digest()
-        if key not in _orderings:
-            if len(_orderings) >= REMEMBERED:
-                del _orderings[next(iter(_orderings))]
-            _orderings[key] = bandwidth_ordering(self.indptr, self.indices, self.N)
-        return _orderings[key]
+        return _remembered(_orderings, key,
+                           lambda: bandwidth_ordering(self.indptr, self.indices, self.N))
 
     def dependencies(self):
         """Dependency graph as a CSR boolean matrix: entry (i, j) if f_i depends on u_j."""
@@ -119,6 +116,16 @@ _orderings = {}
 _lowerings = {}
 
 
+def _remembered(store, key, make):
+    """store[key], made by ``make()`` when missing; the oldest entry is dropped to keep
+    REMEMBERED."""
+    if key not in store:
+        if len(store) >= REMEMBERED:
+            del store[next(iter(store))]
+        store[key] = make()
+    return store[key]
+
+
 def _derivative(expr, x):
     """d expr / dx, with the derivatives of piecewise-constant functions (sign, Heaviside,
     floor, ceiling) set to their value zero almost everywhere."""
@@ -140,11 +147,8 @@ def lower(ode):
         key, source, indptr, indices, p, data = lower_template(ode)
     else:
         declared = (tuple(ode.states), tuple(ode.rhs), tuple(ode.parameter_symbols))
-        if declared not in _lowerings:
-            if len(_lowerings) >= REMEMBERED:
-                del _lowerings[next(iter(_lowerings))]
-            _lowerings[declared] = _lower_expressions(ode)
-        key, source, indptr, indices = _lowerings[declared]
+        key, source, indptr, indices = _remembered(_lowerings, declared,
+                                                   lambda: _lower_expressions(ode))
         p, data = ode.parameter_values, ()
     cached = key in _loaded
     if not cached:
