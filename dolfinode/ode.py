@@ -106,6 +106,13 @@ class ODE:
         Parameter symbol -> value, for every other symbol in the right-hand sides.
     t0 : float, optional
         Initial time (default 0).
+    nonnegative : bool or sequence, optional
+        Components that stay >= 0 (concentrations, populations): True for all, or their
+        state symbols (or names), or a boolean mask (N,). The solvers reject a time step on
+        which such a component falls below -atol and retry with a smaller one (raising
+        :class:`~dolfinode.SolverError` when that does not help), and set accepted values in
+        [-atol, 0) to 0, as CVODE's inequality constraints. Stored as the mask
+        ``ode.nonnegative``.
 
     Raises
     ------
@@ -113,7 +120,7 @@ class ODE:
         With a message naming the offending state, symbol or value.
     """
 
-    def __init__(self, rhs, u0, T, params=None, t0=0.0):
+    def __init__(self, rhs, u0, T, params=None, t0=0.0, nonnegative=None):
         pairs = list(rhs.items()) if isinstance(rhs, Mapping) else self._pairs(rhs)
         if not pairs:
             raise ValueError("an ODE needs at least one state")
@@ -132,6 +139,7 @@ class ODE:
         self.rhs = tuple(_as_expression(expr, state) for state, expr in pairs)
         self._check_symbols()
         self._set_interval(t0, T)
+        self.nonnegative = self._nonnegative_mask(nonnegative)
         self.u0 = self._initial_vector(u0)
 
     def _set_interval(self, t0, T):
@@ -143,7 +151,33 @@ class ODE:
 
     def _initial_vector(self, u0):
         """u0 as a validated float vector in component order (dict by state or sequence)."""
-        return _vector_by_state(u0, self.states, "u0")
+        return self._in_domain(_vector_by_state(u0, self.states, "u0"))
+
+    def _nonnegative_mask(self, nonnegative):
+        """The ``nonnegative`` declaration as a boolean mask (N,)."""
+        if nonnegative is None or isinstance(nonnegative, (bool, np.bool_)):
+            return np.full(self.N, bool(nonnegative))
+        if isinstance(nonnegative, np.ndarray) and nonnegative.dtype == bool:
+            if nonnegative.shape != (self.N,):
+                raise ValueError(f"nonnegative as a mask needs shape ({self.N},), got "
+                                 f"{nonnegative.shape}")
+            return nonnegative.copy()
+        if isinstance(nonnegative, (str, sp.Symbol)) or not np.iterable(nonnegative):
+            raise TypeError("nonnegative must be True, a sequence of states or a boolean "
+                            f"mask, got {nonnegative!r}")
+        mask = np.zeros(self.N, dtype=bool)
+        for state in nonnegative:
+            mask[self.index(state)] = True
+        return mask
+
+    def _in_domain(self, u0):
+        """u0, checked against the declared constraints."""
+        bad = np.flatnonzero(self.nonnegative & (u0 < 0))
+        if bad.size:
+            i = bad[0]
+            raise ValueError(f"u0 of {self.states[i].name} is {u0[i]}, but {self.states[i].name} "
+                             "is declared nonnegative")
+        return u0
 
     @staticmethod
     def _pairs(rhs):
@@ -220,12 +254,13 @@ class ODE:
         raise ValueError(f"{state!r} is not a state{_suggest(str(state), [s.name for s in self.states])}")
 
     @classmethod
-    def second_order(cls, accelerations, x0, v0, T, params=None, t0=0.0, velocities=None):
+    def second_order(cls, accelerations, x0, v0, T, params=None, t0=0.0, velocities=None,
+                     nonnegative=None):
         """Declare x'' = a(x, x', t) as the first-order system (x, v)' = (v, a).
 
         Components are all positions, then all velocities. Velocity symbols default to
         ``Symbol(name + "_dot")``; pass ``velocities={x: xdot}`` to choose them (and use them
-        in the accelerations).
+        in the accelerations). ``nonnegative`` is as for :class:`ODE`, over all 2n components.
         """
         if not isinstance(accelerations, Mapping):
             raise TypeError("accelerations must be a dict {position symbol: expression}")
@@ -241,7 +276,7 @@ class ODE:
         rhs = list(zip(positions, vel)) + [(v, accelerations[x]) for x, v in zip(positions, vel)]
         u0 = np.concatenate([_vector_by_state(x0, positions, "x0"),
                              _vector_by_state(v0, positions, "v0")])
-        ode = cls(rhs, u0=u0, T=T, params=params, t0=t0)
+        ode = cls(rhs, u0=u0, T=T, params=params, t0=t0, nonnegative=nonnegative)
         ode.velocity_symbols = dict(zip(positions, vel))
         return ode
 

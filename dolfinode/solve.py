@@ -148,6 +148,7 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
         raise ValueError(f"f(u0, t0) is not finite in the right-hand side of {bad}: check u0 "
                          "and the parameters")
     steps = _initial_steps(ode, params["initial_time_step"], f0, atol, rtol, multi_adaptive)
+    floor = np.where(ode.nonnegative, -atol, -np.inf)  # the domain of the values
     fixed = bool(params["fixed_time_step"])
     if fixed:  # no error control: iterate to rounding level, relative to the solution size
         atol, rtol, dtol = np.ones(ode.N), 1.0, 1e-15
@@ -160,7 +161,7 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
              params["safety_factor"], dtol, m.local_order]
     run = _run_multi if multi_adaptive else _run_mono
     status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
-                                                   x, f0, steps)
+                                                   floor, x, f0, steps)
     if status != ts.DONE:
         raise SolverError(_failure_message(status, state, fixed, x), t=float(state[0]))
     stats.update({
@@ -207,7 +208,7 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
     return status, join_elements(chunks)
 
 
-def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
+def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps):
     _, position, kl, ku = compiled.ordering
     A = np.array(m.A)
     fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, filter_constant(m)])
@@ -230,8 +231,8 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     def advance(out_t, out_k, out_X):
         return mono.advance(compiled.rhs, compiled.jacobian, compiled.p, compiled.indptr,
                             compiled.indices, position, kl, ku, A, b0, tau, element_nodes,
-                            bary, dend, iopts, fopts, atol, x, f0, state, counters, out_t,
-                            out_k, out_X)
+                            bary, dend, iopts, fopts, atol, floor, x, f0, state, counters,
+                            out_t, out_k, out_X)
 
     capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
     with _progress(ode, params) as bar:
@@ -253,7 +254,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, stats
 
 
-def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
+def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps):
     # imported on first use: compiling its loop (once per installation) takes ~30 s
     from dolfinode.timeslab import multi
 
@@ -276,8 +277,8 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, x, f0, steps):
     def advance(out_comp, out_a, out_b, out_values):
         return multi.advance(compiled.rhs_component, compiled.jacobian_row, compiled.p,
                              compiled.indptr, compiled.indices, position, Minv, A, nodes,
-                             qweights, bary, dend, iopts, fopts, atol, x, kdes, frozen,
-                             state, counters, out_comp, out_a, out_b, out_values)
+                             qweights, bary, dend, iopts, fopts, atol, floor, x, kdes,
+                             frozen, state, counters, out_comp, out_a, out_b, out_values)
 
     capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 22 // (m.q + 1))))
     with _progress(ode, params) as bar:
@@ -325,6 +326,11 @@ def _failure_message(status, state, fixed, x):
         return (f"the nonlinear solver did not converge at t = {t:.6g}, even after reducing the "
                 f"time step to {k:.3g}; try nonlinear_solver='newton', a dG(q) method, or check "
                 f"the right-hand side for a singularity near this time ({size})")
+    if status == ts.CONSTRAINT:
+        what = (f"with the fixed time step {k:.3g}; use a smaller initial_time_step" if fixed else
+                f"even with the time step reduced to {k:.3g}; tighten absolute_tolerance")
+        return (f"a component declared nonnegative fell below -absolute_tolerance at t = {t:.6g} "
+                f"{what}, and check that the right-hand side keeps it >= 0 ({size})")
     if status == ts.BLOWUP:
         return (f"the solution is not finite or blows up near t = {t:.6g} (time step reduced to "
                 f"{k:.3g}; {size}): the exact solution may have a finite-time singularity there")

@@ -21,6 +21,12 @@ def _fresh(name, taken):
     return sp.Symbol(name, real=True)
 
 
+def _admissible(ode, u0):
+    """u0 with the components declared nonnegative set to max(u0, 0): averages and values
+    between nodes may dip below zero by the tolerance."""
+    return np.where(ode.nonnegative, np.maximum(u0, 0.0), u0)
+
+
 def _taken(ode):
     names = {s.name for s in ode.params} | {t.name}
     if isinstance(ode, TemplateODE):
@@ -58,11 +64,13 @@ class WindowModel:
         Declarations of one window (the same shift) share their lowering, kernels and band
         ordering (about 0.3 s to redo at N = 4 10^5, for each piece of a window)."""
         params = {**self.ode.params, self.shift: float(shift)}
+        u0 = _admissible(self.ode, u0)
         if isinstance(self.ode, TemplateODE):
             ode = TemplateODE(self._templates, u0=u0, T=T, params=params, t0=t0,
-                              names=self.ode.names)
+                              names=self.ode.names, nonnegative=self.ode.nonnegative)
         else:
-            ode = ODE(self._rhs, u0=u0, T=T, t0=t0, params=params)
+            ode = ODE(self._rhs, u0=u0, T=T, t0=t0, params=params,
+                      nonnegative=self.ode.nonnegative)
         if self._last is not None and self._last.params == ode.params:
             ode._compiled = getattr(self._last, "_compiled", None)
         self._last = ode
@@ -129,6 +137,7 @@ class ReducedDeclaration:
         """The reduced ODE on [t0, T] from u0, with constant part c (N,) and G's entries
         on the pattern (or None)."""
         c = np.where(self.active, c, 0.0)
+        u0 = _admissible(self.ode, u0)
         if isinstance(self.ode, TemplateODE):
             templates = list(self._templates)
             rows = np.flatnonzero(self.active)
@@ -140,9 +149,10 @@ class ReducedDeclaration:
                 templates.append(Template(a.slots, dict(a.terms), a.indices, a.params,
                                           np.asarray(G, dtype=float)[:, None]))
             return TemplateODE(templates, u0=u0, T=T, params=self.ode.params, t0=t0,
-                               names=self.ode.names)
+                               names=self.ode.names, nonnegative=self.ode.nonnegative)
         params = dict(self.ode.params)
         params.update({s: float(v) for s, v in zip(self._c, c)})
         if self._G:
             params.update({s: float(v) for s, v in zip(self._G, G)})
-        return ODE(self._rhs, u0=u0, T=T, t0=t0, params=params)
+        return ODE(self._rhs, u0=u0, T=T, t0=t0, params=params,
+                   nonnegative=self.ode.nonnegative)

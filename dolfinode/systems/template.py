@@ -185,6 +185,8 @@ class TemplateODE(ODE):
         State names in component order (default ``u_0, u_1, ...``); a list or tuple is
         checked for duplicates, a lazy ``Sequence`` (as :class:`StateNames`) is trusted.
         States are sympy symbols created on first use of :attr:`states`.
+    nonnegative : bool or sequence, optional
+        As :class:`~dolfinode.ODE`: True, state symbols or names, or a boolean mask (N,).
 
     Raises
     ------
@@ -193,7 +195,7 @@ class TemplateODE(ODE):
         template (named with the template and slot).
     """
 
-    def __init__(self, templates, u0, T, params=None, t0=0.0, names=None):
+    def __init__(self, templates, u0, T, params=None, t0=0.0, names=None, nonnegative=None):
         if isinstance(templates, Template):
             templates = [templates]
         self.templates = tuple(templates)
@@ -218,6 +220,7 @@ class TemplateODE(ODE):
         self.params = self._params(params)
         self._check_templates()
         self._set_interval(t0, T)
+        self.nonnegative = self._nonnegative_mask(nonnegative)
         self.u0 = self._initial_vector(u0)
 
     def _initial_vector(self, u0):
@@ -232,7 +235,7 @@ class TemplateODE(ODE):
         bad = np.flatnonzero(~np.isfinite(array))
         if bad.size:
             raise ValueError(f"u0 is not finite for {self.names[bad[0]]}: {array[bad[0]]}")
-        return array
+        return self._in_domain(array)
 
     def _params(self, params):
         clean = super()._params(params)
@@ -308,7 +311,7 @@ class TemplateODE(ODE):
     def expand(self):
         """The same system as a per-expression :class:`~dolfinode.ODE` (O(N) symbolic work)."""
         return ODE(dict(zip(self.states, self.rhs)), u0=self.u0, T=self.T, params=self.params,
-                   t0=self.t0)
+                   t0=self.t0, nonnegative=self.nonnegative)
 
     def __getstate__(self):
         # compiled kernels and the O(N) symbol caches are rebuilt where the ODE is unpickled

@@ -8,9 +8,12 @@ and the driver, so every counter and status code has one index.
 SLABS, REJECTED, F_EVALUATIONS, JACOBIANS, FACTORIZATIONS, ITERATIONS, STORED, FAILED_SOLVES, \
     STIFF, ELEMENTS, SUBSLABS = range(11)
 NUM_COUNTERS = 11
-# Return codes of the loops (NEWTON_MEMORY: mono only, Newton needed but its matrix is too big).
-DONE, FULL, NONCONVERGENCE, BLOWUP, UNDERFLOW, NEWTON_MEMORY = range(6)
+# Return codes of the loops (NEWTON_MEMORY: mono only, Newton needed but its matrix is too big;
+# CONSTRAINT: a component declared nonnegative fell below its floor however short the step).
+DONE, FULL, NONCONVERGENCE, BLOWUP, UNDERFLOW, NEWTON_MEMORY, CONSTRAINT = range(7)
 # Nonlinear solver modes, in the order of parameters.NONLINEAR_SOLVERS.
 DEFAULT, FIXED_POINT, NEWTON = range(3)
 #: Relative size of the smallest increment an iteration still resolves (about 50 ulp).
 ROUNDING = 1e-14
+#: Factor by which a step is shortened when a component leaves its declared domain.
+CONSTRAINT_CUT = 0.5

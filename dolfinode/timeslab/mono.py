@@ -16,6 +16,8 @@ from dolfinode.methods.method import element_value
 from dolfinode.solvers.slab import assemble_newton_matrix, factor, fixed_point, newton
 from dolfinode.timeslab import (
     BLOWUP,
+    CONSTRAINT,
+    CONSTRAINT_CUT,
     DEFAULT,
     DONE,
     F_EVALUATIONS,
@@ -57,7 +59,7 @@ _SIGNATURE = types.int64(
     _i8, _i8, _i8, types.int64, types.int64,  # indptr, indices, position, kl, ku
     types.float64[:, ::1], _f8, _f8,       # A, b0, tau
     _f8, _f8, _f8,                           # nodes, barycentric weights, end_derivative
-    _i8, _f8, _f8,                           # iopts, fopts, atol
+    _i8, _f8, _f8, _f8,                      # iopts, fopts, atol, floor
     _f8, _f8, _f8, _i8,                      # x, f0, state, counters
     _f8, _f8, types.float64[:, :, ::1],      # out_t, out_k, out_X
 )
@@ -95,10 +97,38 @@ def extrapolate(values, nodes, bary, k_prev, k, tau, X):
             X[s * N + i] = element_value(by_component, i, theta, nodes, bary)
 
 
+@njit(cache=True)
+def leaves_domain(X, floor):
+    """Whether a stage value X_(s N + i) lies below its component's floor (-atol_i for a
+    component declared nonnegative, -inf for the others)."""
+    N = floor.shape[0]
+    for n in range(X.shape[0]):
+        if X[n] < floor[n % N]:
+            return True
+    return False
+
+
+@njit(cache=True)
+def project(X, floor):
+    """Set the stage values of the nonnegative components in [floor, 0) to 0; returns whether
+    any changed."""
+    N = floor.shape[0]
+    changed = False
+    for n in range(X.shape[0]):
+        if X[n] < 0.0 and floor[n % N] > -math.inf:
+            X[n] = 0.0
+            changed = True
+    return changed
+
+
 @njit(_SIGNATURE, cache=True, error_model="numpy")
 def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bary,
-            end_derivative, iopts, fopts, atol, x, f0, state, counters, out_t, out_k, out_X):
-    """Advance (x, t) towards T, storing accepted elements in out_*; returns a status code."""
+            end_derivative, iopts, fopts, atol, floor, x, f0, state, counters, out_t, out_k,
+            out_X):
+    """Advance (x, t) towards T, storing accepted elements in out_*; returns a status code.
+
+    A step on which a stage value leaves the declared domain (``leaves_domain``) is
+    shortened by CONSTRAINT_CUT and retried; an accepted one is projected on it."""
     N = x.shape[0]
     S = A.shape[0]
     n_nodes = nodes.shape[0]
@@ -245,7 +275,18 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
             if k < kmin:
                 return BLOWUP
             continue
+        if (fixed or eps <= 1.0) and leaves_domain(X, floor):
+            counters[REJECTED] += 1
+            k *= CONSTRAINT_CUT
+            if fixed or k < kmin:
+                state[T_NOW] = t
+                state[K_NEXT] = k
+                return CONSTRAINT
+            continue
         if fixed or eps <= 1.0:
+            if project(X, floor):
+                f(xend.ctypes, t + k, p.ctypes, fend.ctypes)
+                counters[F_EVALUATIONS] += 1
             n = counters[STORED]
             out_t[n] = t
             out_k[n] = k

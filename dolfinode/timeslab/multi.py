@@ -45,6 +45,8 @@ from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.methods.method import element_value
 from dolfinode.timeslab import (
     BLOWUP,
+    CONSTRAINT,
+    CONSTRAINT_CUT,
     DEFAULT,
     DONE,
     ELEMENTS,
@@ -755,18 +757,45 @@ _SIGNATURE = types.int64(
     types.float64[:, ::1], types.float64[:, ::1],  # M^{-1}, A
     _f8, _f8, _f8,                                 # nodes, quadrature weights, bary
     _f8,                                           # end_derivative
-    _i8, _f8, _f8,                                 # iopts, fopts, atol
+    _i8, _f8, _f8, _f8,                            # iopts, fopts, atol, floor
     _f8, _f8, _f8, _f8, _i8,                       # x, kdes, frozen, state, counters
     _i8, _f8, _f8, types.float64[:, ::1],          # out_comp, out_a, out_b, out_values
 )
 
 
+@njit(cache=True)
+def _leaves_domain(ne, comp, values, floor, kdes, kact):
+    """Whether a nodal value lies below its component's floor (-atol_i for a component
+    declared nonnegative, -inf for the others); such components' steps are cut to
+    CONSTRAINT_CUT times their longest element of the slab."""
+    found = False
+    for e in range(ne):
+        i = comp[e]
+        for m in range(values.shape[1]):
+            if values[e, m] < floor[i]:
+                kdes[i] = min(kdes[i], CONSTRAINT_CUT * kact[i])
+                found = True
+                break
+    return found
+
+
+@njit(cache=True)
+def _project(ne, comp, values, floor):
+    """Set the nodal values of the nonnegative components in [floor, 0) to 0."""
+    for e in range(ne):
+        if floor[comp[e]] > -math.inf:
+            for m in range(values.shape[1]):
+                values[e, m] = max(values[e, m], 0.0)
+
+
 @njit(_SIGNATURE, cache=True, error_model="numpy")
 def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary, end_derivative,
-            iopts, fopts, atol, x, kdes, frozen, state, counters, out_comp, out_a, out_b,
+            iopts, fopts, atol, floor, x, kdes, frozen, state, counters, out_comp, out_a, out_b,
             out_values):
     """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status.
-    ``frozen[i]`` is the time since which component i is frozen (NaN: active)."""
+    ``frozen[i]`` is the time since which component i is frozen (NaN: active). A slab on
+    which a value leaves the declared domain is rejected (``_leaves_domain``); an accepted
+    one is projected on it."""
     N = x.shape[0]
     S = Minv.shape[0]
     nn = nodes.shape[0]
@@ -848,6 +877,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     ovalues = np.empty((0, nn))
     ocptr = np.zeros(N + 1, dtype=np.int64)
     ocelems = np.empty(0, dtype=np.int64)
+    outside = False  # the last slab was rejected for leaving the domain
     counters[STORED] = 0
     capacity = out_a.shape[0]
     t = state[T_NOW]
@@ -898,7 +928,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             # (room for the frozen components' elements too, stored when they wake up)
             return FULL  # with nothing stored: the driver grows the buffers
         if b - t < _KMIN_RELATIVE * max(abs(t), abs(T) * 1e-6) and b < T:
-            return UNDERFLOW
+            return CONSTRAINT if outside else UNDERFLOW
         if values.shape[0] < ne:
             values = np.empty((max(ne, 2 * values.shape[0]), nn))
             fend = np.empty(values.shape[0])
@@ -1116,6 +1146,12 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                 else:
                     knew = kdes[i]
                 kdes[i] = min(knew, kmax)
+        outside = _leaves_domain(ne, comp, values, floor, kdes, kact)
+        if outside:
+            if fixed:
+                return CONSTRAINT
+            accept = False
+        if not fixed:
             _propagate(kdes, active[:nactive], frozen, indptr, indices, jacobian)
             _grade(kdes, active[:nactive], frozen, indptr, indices, jacobian)
         if not accept:
@@ -1141,6 +1177,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             continue
         retry = False
         # store the slab's elements and move to its end
+        _project(ne, comp, values, floor)
         n0 = counters[STORED]
         for e in range(ne):
             out_comp[n0 + e] = comp[e]
