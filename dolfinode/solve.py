@@ -163,7 +163,8 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
     status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
                                                    floor, x, f0, steps)
     if status != ts.DONE:
-        raise SolverError(_failure_message(status, state, fixed, x), t=float(state[0]))
+        outside = ode.states[counters[ts.OUTSIDE] - 1] if counters[ts.OUTSIDE] else None
+        raise SolverError(_failure_message(status, state, fixed, x, outside), t=float(state[0]))
     stats.update({
         "method": ("m" if multi_adaptive else "") + m.name,
         "rejected steps": int(counters[ts.REJECTED]),
@@ -313,7 +314,7 @@ def _progress(ode, params):
                 bar_format="{l_bar}{bar}| t={n:.4g}/{total:.4g} [{elapsed}<{remaining}]")
 
 
-def _failure_message(status, state, fixed, x):
+def _failure_message(status, state, fixed, x, outside):
     t, k = state
     size = f"max |u| = {np.max(np.abs(x)):.3g} there"
     if status == _STATUS_STEP_LIMIT:
@@ -327,10 +328,13 @@ def _failure_message(status, state, fixed, x):
                 f"time step to {k:.3g}; try nonlinear_solver='newton', a dG(q) method, or check "
                 f"the right-hand side for a singularity near this time ({size})")
     if status == ts.CONSTRAINT:
-        what = (f"with the fixed time step {k:.3g}; use a smaller initial_time_step" if fixed else
-                f"even with the time step reduced to {k:.3g}; tighten absolute_tolerance")
-        return (f"a component declared nonnegative fell below -absolute_tolerance at t = {t:.6g} "
-                f"{what}, and check that the right-hand side keeps it >= 0 ({size})")
+        name = outside.name
+        how = "" if fixed else (", or it falls below -absolute_tolerance on every step down to "
+                                f"{k:.3g}")
+        return (f"{name}, declared nonnegative, leaves [0, inf) at t = {t:.6g} (the right-hand "
+                f"side drives it below zero from {name} = 0{how}). Check that f keeps {name} >= 0 "
+                f"(f >= 0 where {name} = 0), or drop {name} from nonnegative="
+                + ("; with fixed_time_step, a smaller initial_time_step may help" if fixed else ""))
     if status == ts.BLOWUP:
         return (f"the solution is not finite or blows up near t = {t:.6g} (time step reduced to "
                 f"{k:.3g}; {size}): the exact solution may have a finite-time singularity there")

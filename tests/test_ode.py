@@ -382,3 +382,43 @@ def test_parameter_keys_must_be_symbols():
 def test_params_must_be_a_dict():
     with pytest.raises(TypeError, match="params must be a dict"):
         declare(params=[4.0])
+
+
+# --- declared domain ------------------------------------------------------------------------
+
+
+def test_nonnegative_is_a_mask_in_component_order():
+    assert declare().nonnegative.tolist() == [False, False]
+    assert declare(nonnegative=True).nonnegative.tolist() == [True, True]
+    assert declare(nonnegative=[v]).nonnegative.tolist() == [False, True]
+    assert declare(nonnegative=("u",)).nonnegative.tolist() == [True, False]
+    assert declare(nonnegative=np.array([False, True])).nonnegative.tolist() == [False, True]
+
+
+def test_nonnegative_unknown_state_suggests_the_name():
+    with pytest.raises(ValueError, match="'vv' is not a state; did you mean 'v'"):
+        declare(nonnegative=["vv"])
+
+
+def test_nonnegative_mask_of_the_wrong_size():
+    with pytest.raises(ValueError, match=r"nonnegative as a mask needs shape \(2,\), got \(3,\)"):
+        declare(nonnegative=np.array([True, False, True]))
+
+
+@pytest.mark.parametrize("bad", [u, "u", 1.5])
+def test_nonnegative_state_outside_a_sequence(bad):
+    with pytest.raises(TypeError, match="nonnegative must be True, a sequence of states"):
+        declare(nonnegative=bad)
+
+
+def test_negative_initial_value_of_a_nonnegative_state():
+    with pytest.raises(ValueError, match="u0 of u is -0.5, but u is declared nonnegative"):
+        declare(u0={u: -0.5, v: 0.0}, nonnegative=[u])
+    assert declare(u0={u: 1.0, v: -0.5}, nonnegative=[u]).u0.tolist() == [1.0, -0.5]
+
+
+def test_second_order_nonnegative_counts_positions_then_velocities():
+    x1, x2 = sp.symbols("x1 x2")
+    ode = dn.ODE.second_order({x1: -x1, x2: -x2}, x0=[1.0, 2.0], v0=[0.0, 0.0], T=1.0,
+                              nonnegative=[x2])
+    assert ode.nonnegative.tolist() == [False, True, False, False]

@@ -211,18 +211,21 @@ def hires_problem(T=321.8122):
 ROBER_REFERENCE = np.array([0.2083340149701255e-7, 0.8333360770334713e-13, 0.9999999791665050])
 
 
-def rober(T=1e11):
+def rober(T=1e11, nonnegative=False):
     """ROBER (Robertson's chemical kinetics) on [0, 1e11]:
 
         y1' = -0.04 y1 + 1e4 y2 y3,  y2' = 0.04 y1 - 1e4 y2 y3 - 3e7 y2^2,  y3' = 3e7 y2^2.
 
     y2 ~ 1e-13 at T, so the absolute tolerance is 1e-4 times the relative one (the Test Set's
-    atol = 1e-14 at rtol = 1e-10). y1 + y2 + y3 = 1 is conserved."""
+    atol = 1e-14 at rtol = 1e-10). y1 + y2 + y3 = 1 is conserved. ``nonnegative=True``
+    declares the concentrations nonnegative (the suite runs without: scipy has no such
+    constraint)."""
     y1, y2, y3, k1, k2, k3 = sp.symbols("y1 y2 y3 k1 k2 k3")
     ode = ODE({y1: -k1 * y1 + k3 * y2 * y3,
                y2: k1 * y1 - k3 * y2 * y3 - k2 * y2**2,
                y3: k2 * y2**2},
-              u0=[1.0, 0.0, 0.0], T=T, params={k1: 0.04, k2: 3e7, k3: 1e4})
+              u0=[1.0, 0.0, 0.0], T=T, params={k1: 0.04, k2: 3e7, k3: 1e4},
+              nonnegative=nonnegative)
     final = ROBER_REFERENCE.copy() if T == 1e11 else None
     return Problem("ROBER", ode, stiff=True, final=final, atol_ratio=1e-4,
                    reference=f"{TEST_SET}, rober.f (RADAU, extended precision)",

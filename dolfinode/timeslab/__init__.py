@@ -4,12 +4,14 @@ The constants below are shared by the mono- and multi-adaptive loops, the nonlin
 and the driver, so every counter and status code has one index.
 """
 
-# Indices into the integer counters (kept across calls by the driver).
+# Indices into the integer counters (kept across calls by the driver). OUTSIDE: the component
+# that left its declared domain (see CONSTRAINT), plus one.
 SLABS, REJECTED, F_EVALUATIONS, JACOBIANS, FACTORIZATIONS, ITERATIONS, STORED, FAILED_SOLVES, \
-    STIFF, ELEMENTS, SUBSLABS = range(11)
-NUM_COUNTERS = 11
+    STIFF, ELEMENTS, SUBSLABS, OUTSIDE = range(12)
+NUM_COUNTERS = 12
 # Return codes of the loops (NEWTON_MEMORY: mono only, Newton needed but its matrix is too big;
-# CONSTRAINT: a component declared nonnegative fell below its floor however short the step).
+# CONSTRAINT: a component declared nonnegative fell below its floor however short the step, or
+# the right-hand side drives it below zero from zero).
 DONE, FULL, NONCONVERGENCE, BLOWUP, UNDERFLOW, NEWTON_MEMORY, CONSTRAINT = range(7)
 # Nonlinear solver modes, in the order of parameters.NONLINEAR_SOLVERS.
 DEFAULT, FIXED_POINT, NEWTON = range(3)

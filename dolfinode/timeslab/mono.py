@@ -27,6 +27,7 @@ from dolfinode.timeslab import (
     NEWTON,
     NEWTON_MEMORY,
     NONCONVERGENCE,
+    OUTSIDE,
     REJECTED,
     ROUNDING,
     SLABS,
@@ -99,13 +100,13 @@ def extrapolate(values, nodes, bary, k_prev, k, tau, X):
 
 @njit(cache=True)
 def leaves_domain(X, floor):
-    """Whether a stage value X_(s N + i) lies below its component's floor (-atol_i for a
-    component declared nonnegative, -inf for the others)."""
+    """The first component with a stage value X_(s N + i) below its floor (-atol_i for a
+    component declared nonnegative, -inf for the others), or -1."""
     N = floor.shape[0]
     for n in range(X.shape[0]):
         if X[n] < floor[n % N]:
-            return True
-    return False
+            return n % N
+    return -1
 
 
 @njit(cache=True)
@@ -119,6 +120,18 @@ def project(X, floor):
             X[n] = 0.0
             changed = True
     return changed
+
+
+@njit(cache=True)
+def drives_out(u, fu, floor, remaining):
+    """The first nonnegative component at zero that f drives below its floor by the end,
+    f_i(u) (T - t) < -atol_i, or -1. For a right-hand side that keeps the nonnegative
+    components so (f_i >= 0 where u_i = 0) there is none: without this check a projected
+    solution would stay at 0 where the exact one turns negative."""
+    for i in range(u.shape[0]):
+        if u[i] == 0.0 and floor[i] > -math.inf and fu[i] * remaining < floor[i]:
+            return i
+    return -1
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
@@ -275,18 +288,22 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
             if k < kmin:
                 return BLOWUP
             continue
-        if (fixed or eps <= 1.0) and leaves_domain(X, floor):
-            counters[REJECTED] += 1
-            k *= CONSTRAINT_CUT
-            if fixed or k < kmin:
+        accepted = fixed or eps <= 1.0
+        if accepted:
+            outside = leaves_domain(X, floor)
+            if outside >= 0 and not fixed and CONSTRAINT_CUT * k >= kmin:
+                counters[REJECTED] += 1
+                k *= CONSTRAINT_CUT
+                continue
+            if outside < 0 and project(X, floor):
+                f(xend.ctypes, t + k, p.ctypes, fend.ctypes)
+                counters[F_EVALUATIONS] += 1
+                outside = drives_out(xend, fend, floor, T - t - k)
+            if outside >= 0:
+                counters[OUTSIDE] = outside + 1
                 state[T_NOW] = t
                 state[K_NEXT] = k
                 return CONSTRAINT
-            continue
-        if fixed or eps <= 1.0:
-            if project(X, floor):
-                f(xend.ctypes, t + k, p.ctypes, fend.ctypes)
-                counters[F_EVALUATIONS] += 1
             n = counters[STORED]
             out_t[n] = t
             out_k[n] = k

@@ -58,6 +58,7 @@ from dolfinode.timeslab import (
     JACOBIANS,
     NEWTON,
     NONCONVERGENCE,
+    OUTSIDE,
     REJECTED,
     ROUNDING,
     SLABS,
@@ -765,27 +766,31 @@ _SIGNATURE = types.int64(
 
 @njit(cache=True)
 def _leaves_domain(ne, comp, values, floor, kdes, kact):
-    """Whether a nodal value lies below its component's floor (-atol_i for a component
-    declared nonnegative, -inf for the others); such components' steps are cut to
-    CONSTRAINT_CUT times their longest element of the slab."""
-    found = False
+    """The first component with a nodal value below its floor (-atol_i for a component
+    declared nonnegative, -inf for the others), or -1; the steps of all such components are
+    cut to CONSTRAINT_CUT times their longest element of the slab."""
+    first = -1
     for e in range(ne):
         i = comp[e]
         for m in range(values.shape[1]):
             if values[e, m] < floor[i]:
                 kdes[i] = min(kdes[i], CONSTRAINT_CUT * kact[i])
-                found = True
+                first = i if first < 0 else first
                 break
-    return found
+    return first
 
 
 @njit(cache=True)
-def _project(ne, comp, values, floor):
-    """Set the nodal values of the nonnegative components in [floor, 0) to 0."""
+def _project(ne, comp, values, floor, projected):
+    """Set the nodal values of the nonnegative components in [floor, 0) to 0, marking those
+    components in ``projected``."""
     for e in range(ne):
-        if floor[comp[e]] > -math.inf:
+        i = comp[e]
+        if floor[i] > -math.inf:
             for m in range(values.shape[1]):
-                values[e, m] = max(values[e, m], 0.0)
+                if values[e, m] < 0.0:
+                    values[e, m] = 0.0
+                    projected[i] = True
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
@@ -877,7 +882,8 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
     ovalues = np.empty((0, nn))
     ocptr = np.zeros(N + 1, dtype=np.int64)
     ocelems = np.empty(0, dtype=np.int64)
-    outside = False  # the last slab was rejected for leaving the domain
+    outside = -1  # the component that left its domain on the last slab (rejected), or -1
+    projected = np.zeros(N, dtype=np.bool_)
     counters[STORED] = 0
     capacity = out_a.shape[0]
     t = state[T_NOW]
@@ -928,7 +934,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             # (room for the frozen components' elements too, stored when they wake up)
             return FULL  # with nothing stored: the driver grows the buffers
         if b - t < _KMIN_RELATIVE * max(abs(t), abs(T) * 1e-6) and b < T:
-            return CONSTRAINT if outside else UNDERFLOW
+            return CONSTRAINT if outside >= 0 else UNDERFLOW
         if values.shape[0] < ne:
             values = np.empty((max(ne, 2 * values.shape[0]), nn))
             fend = np.empty(values.shape[0])
@@ -1147,7 +1153,8 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
                     knew = kdes[i]
                 kdes[i] = min(knew, kmax)
         outside = _leaves_domain(ne, comp, values, floor, kdes, kact)
-        if outside:
+        if outside >= 0:
+            counters[OUTSIDE] = outside + 1
             if fixed:
                 return CONSTRAINT
             accept = False
@@ -1177,7 +1184,7 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             continue
         retry = False
         # store the slab's elements and move to its end
-        _project(ne, comp, values, floor)
+        _project(ne, comp, values, floor, projected)
         n0 = counters[STORED]
         for e in range(ne):
             out_comp[n0 + e] = comp[e]
@@ -1203,6 +1210,20 @@ def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary
             last_a[i], last_b[i] = ea[last], eb[last]
             for m in range(nn):
                 last_values[i, m] = values[last, m]
+        # a component projected to zero that f drives below its floor by T: f does not keep
+        # it nonnegative, and the projected solution would stay at 0 where the exact one
+        # turns negative
+        for r in range(nactive):
+            i = active[r]
+            if projected[i]:
+                projected[i] = False
+                if x[i] == 0.0:
+                    fi(i, x.ctypes, b, p.ctypes, out.ctypes)
+                    counters[F_EVALUATIONS] += 1
+                    if out[0] * (T - b) < floor[i]:
+                        counters[OUTSIDE] = i + 1
+                        state[T_NOW] = b
+                        return CONSTRAINT
         if not fixed and b < T and _freeze(b, b - t, active[:nactive], checked[:nchecked],
                                            indptr, indices, drift, atol, rtol, umax, x, frozen,
                                            kdes, last_a, last_b, quiet, uw, counters, out_comp,

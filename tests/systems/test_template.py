@@ -217,3 +217,16 @@ def test_a_state_cannot_be_a_parameter_without_building_the_states():
                        params={**ode.params, sp.Symbol("x_0"): 1.0})
     assert "states" not in vars(ode)
     assert not ode._is_state(sp.Symbol("x_0", real=True))
+
+
+def test_nonnegative_states_of_a_template_system():
+    template, _ = pair(4)
+    declared = dn.TemplateODE(template.templates, u0=template.u0, T=1.0,
+                              params=template.params, nonnegative=["u_0", "u_3"])
+    assert np.flatnonzero(declared.nonnegative).tolist() == [0, 3]
+    assert declared.expand().nonnegative.tolist() == declared.nonnegative.tolist()
+    u0 = template.u0.copy()
+    u0[5] = -0.1
+    with pytest.raises(ValueError, match="u0 of u_5 is -0.1, but u_5 is declared nonnegative"):
+        dn.TemplateODE(template.templates, u0=u0, T=1.0, params=template.params,
+                       nonnegative=True)
