@@ -31,8 +31,7 @@ import math
 import numpy as np
 from numba import njit
 
-from dolfinode.linalg.banded import band_lu, band_solve
-from dolfinode.timeslab import FACTORIZATIONS
+from dolfinode.linalg.banded import band_solve
 
 #: Smallest and largest factor by which a step may change.
 MIN_FACTOR = 0.2
@@ -64,30 +63,16 @@ def filter_constant(method):
 
 
 @njit(cache=True)
-def filter_estimate(jdata, indptr, indices, position, gamma_k, kl, ku, ab, ipiv, v, rhs,
-                    counters):
-    """Apply (I - gamma k J)^{-1} to v in place; returns False if the matrix is singular.
+def filter_estimate(ab, kl, ku, ipiv, position, v, rhs):
+    """Apply (I - gamma k J)^{-1} to v in place.
 
-    ``gamma_k`` = gamma k; J is given by its CSR values ``jdata`` (rows ``indptr``, columns
-    ``indices``) and stored in band form (``kl``, ``ku``) in the component ordering
-    ``position``, in ``ab`` of shape (N, 2 kl + ku + 1); ``rhs`` is (N,) work space.
+    ``ab`` holds the LU factors of I - gamma k J (band storage ``kl``, ``ku``, pivots
+    ``ipiv``; assembled as the one-stage Newton matrix with A = (gamma)) in the component
+    ordering ``position``; ``rhs`` is (N,) work space.
     """
     N = position.shape[0]
-    kv = kl + ku
-    ab[:, :] = 0.0
-    for i in range(N):
-        ri = position[i]
-        for nz in range(indptr[i], indptr[i + 1]):
-            cj = position[indices[nz]]
-            ab[cj, kv + ri - cj] -= gamma_k * jdata[nz]
-    for r in range(N):
-        ab[r, kv] += 1.0
-    counters[FACTORIZATIONS] += 1
-    if band_lu(ab, kl, ku, ipiv) != 0:
-        return False
     for i in range(N):
         rhs[position[i]] = v[i]
     band_solve(ab, kl, ku, ipiv, rhs)
     for i in range(N):
         v[i] = rhs[position[i]]
-    return True

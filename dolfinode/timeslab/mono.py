@@ -171,6 +171,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
     ab_filter = np.zeros((0, 0))
     ipiv_filter = np.zeros(0, dtype=np.int64)
     est = np.empty(N)
+    gamma_stage = np.full((1, 1), gamma)  # the filter's matrix I - gamma k J, as a 1-stage one
     counters[STORED] = 0
 
     t = state[T_NOW]
@@ -275,8 +276,11 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
                 kdu += end_derivative[j] * xi
             est[i] = kdu - k * fend[i]  # k R(t_n)
         if use_newton and not blowup:
-            blowup = not filter_estimate(jdata, indptr, indices, position, gamma * k, kl, ku,
-                                         ab_filter, ipiv_filter, est, tmp_in, counters)
+            assemble_newton_matrix(jdata, indptr, indices, position, gamma_stage, k, kl, ku,
+                                   ab_filter)
+            blowup = not factor(ab_filter, kl, ku, ipiv_filter, counters)
+            if not blowup:
+                filter_estimate(ab_filter, kl, ku, ipiv_filter, position, est, tmp_in)
         eps = 0.0
         for i in range(N):
             eps = max(eps, abs(est[i]) / (atol[i] + rtol * abs(xend[i])))
