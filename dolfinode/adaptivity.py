@@ -27,11 +27,13 @@ Soederlind's digital filters, as DOLFIN's H211PI intended), with P = q + 1:
     k_new = k * clamp(safety * eps^(-0.7/P) * eps_prev^(0.4/P), 0.2, 5).
 """
 import math
+from functools import cache
 
 import numpy as np
 from numba import njit
 
 from dolfinode.linalg.banded import band_solve
+from dolfinode.methods import make_method
 
 #: Smallest and largest factor by which a step may change.
 MIN_FACTOR = 0.2
@@ -58,7 +60,12 @@ def filter_constant(method):
     """gamma = |det A|^(1/s) of the method's stage matrix A: the local error estimate is
     (I - gamma k J)^{-1} k R(t_n), which is k R on non-stiff components and tends to the
     distance from the quasi-steady state on stiff ones (as Radau5's estimate)."""
-    A = np.array(method.A)
+    return _filter_constant(method.family, method.q)
+
+
+@cache
+def _filter_constant(family, q):
+    A = np.array(make_method(family, q).A)
     return abs(np.linalg.det(A)) ** (1.0 / A.shape[0])
 
 

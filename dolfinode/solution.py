@@ -2,36 +2,31 @@
 import numpy as np
 from numba import njit
 
+from dolfinode.methods.method import element_value
+
 
 @njit(cache=True)
 def _evaluate_components(ptr, t_start, t_end, values, nodes, bary, times, out):
-    """out[i, m] = U_i(times[m]) from component i's elements ptr[i]:ptr[i+1] (time-sorted)."""
+    """out[i, m] = U_i(times[m]) from component i's elements ptr[i]:ptr[i+1] (time-sorted;
+    values (E, q + 1)), each from the first element ending at or after the time."""
     for i in range(ptr.shape[0] - 1):
+        ends = t_end[ptr[i]:ptr[i + 1]]
         for m in range(times.shape[0]):
-            t = times[m]
-            lo, hi = ptr[i], ptr[i + 1] - 1
-            while lo < hi:  # first element ending at or after t
-                mid = (lo + hi) // 2
-                if t_end[mid] >= t:
-                    hi = mid
-                else:
-                    lo = mid + 1
-            tau = min(max((t - t_start[lo]) / (t_end[lo] - t_start[lo]), 0.0), 1.0)
-            num = 0.0
-            den = 0.0
-            hit = -1
-            for j in range(nodes.shape[0]):
-                d = tau - nodes[j]
-                if d == 0.0:
-                    hit = j
-                    break
-                w = bary[j] / d
-                num += w * values[lo, j]
-                den += w
-            out[i, m] = values[lo, hit] if hit >= 0 else num / den
+            e = ptr[i] + min(np.searchsorted(ends, times[m]), ends.shape[0] - 1)
+            tau = min(max((times[m] - t_start[e]) / (t_end[e] - t_start[e]), 0.0), 1.0)
+            out[i, m] = element_value(values, e, tau, nodes, bary)
 
-#: Bytes of elements gathered at once when a solution is evaluated at many times.
-_EVALUATION_BYTES = 2**26
+
+@njit(cache=True)
+def _evaluate_shared(t_start, t_end, values, nodes, bary, times, out):
+    """out[i, m] = U_i(times[m]) on a partition shared by all components (values
+    (M, q + 1, N)), from the first element ending at or after the time."""
+    for m in range(times.shape[0]):
+        n = min(np.searchsorted(t_end, times[m]), t_end.shape[0] - 1)
+        tau = min(max((times[m] - t_start[n]) / (t_end[n] - t_start[n]), 0.0), 1.0)
+        by_component = values[n].T
+        for i in range(out.shape[0]):
+            out[i, m] = element_value(by_component, i, tau, nodes, bary)
 
 
 def join_elements(chunks):
@@ -125,20 +120,14 @@ class Solution:
 
     def _evaluate(self, times):
         """U at ``times`` in [t0, T], shape (N, len(times)), from the elements."""
-        out = np.empty((times.size, self.ode.N)).T  # the layout einsum gives
+        out = np.empty((times.size, self.ode.N)).T  # components contiguous at each time
+        nodes, bary = self.method.nodes, self.method.barycentric_weights
         if self.multi:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
-                                 self.method.nodes, self.method.barycentric_weights, times, out)
+                                 nodes, bary, times, out)
         else:
-            t_end = self.t_start + self.k
-            n = np.minimum(np.searchsorted(t_end, times, side="left"), len(self.k) - 1)
-            tau = np.clip((times - self.t_start[n]) / self.k[n], 0.0, 1.0)
-            basis = self.method.basis(tau)
-            # in blocks of times: the gathered elements take (q + 1) N doubles per time
-            block = max(1, _EVALUATION_BYTES // max(self.values[0].nbytes, 1))
-            for a in range(0, times.size, block):
-                out[:, a:a + block] = np.einsum("mj,mjn->nm", basis[a:a + block],
-                                                self.values[n[a:a + block]])
+            _evaluate_shared(self.t_start, self.t_start + self.k, self.values, nodes, bary,
+                             times, out)
         return out
 
     def time_steps(self, component=None):

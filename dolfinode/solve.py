@@ -17,8 +17,10 @@ from dolfinode.timeslab import mono
 #: Relative size (times |t|) below which a time step cannot be resolved in double precision.
 _KMIN_RELATIVE = 1e-14
 _STATUS_STEP_LIMIT = -1
-#: Fraction of the available memory the banded Newton matrix of a mono-adaptive slab may take.
+#: Fraction of the available memory the banded Newton matrix of a mono-adaptive slab may take;
+#: a matrix of at most _NEWTON_SMALL bytes is taken to fit without asking the system.
 _NEWTON_MEMORY_FRACTION = 0.5
+_NEWTON_SMALL = 2**26
 
 
 def _available_memory():
@@ -218,8 +220,8 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
     tau = m.nodes[m.stages].copy()
     b0 = m.b0.copy()
     band_bytes = newton_memory(ode.N, kl, ku, A.shape[0])
-    available = _available_memory()
-    fits = band_bytes <= _NEWTON_MEMORY_FRACTION * available
+    fits = (band_bytes <= _NEWTON_SMALL
+            or band_bytes <= _NEWTON_MEMORY_FRACTION * _available_memory())
     iopts = np.concatenate([iopts, [int(fits)]])
     dend = m.end_derivative.copy()
     element_nodes, bary = m.nodes.copy(), m.barycentric_weights.copy()
@@ -240,6 +242,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
         status, elements = _integrate(advance, buffers, capacity, counters, params,
                                       state, bar)
     if status == ts.NEWTON_MEMORY:
+        available = _available_memory()
         why = ("was not selected" if params["nonlinear_solver"] == "newton" else "failed")
         raise SolverError(
             f"{m.name} needs Newton's method at t = {state[mono.T_NOW]:.6g} (fixed-point "

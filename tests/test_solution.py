@@ -54,14 +54,18 @@ def test_initial_time_gives_initial_value(method):
     assert sol(0.0)[0] == 1.0 and sol.y[0, 0] == 1.0
 
 
-def test_evaluation_in_blocks_equals_one_gather(monkeypatch):
-    # many times on a large system are evaluated in blocks; the values must not change
+def test_evaluation_is_the_element_polynomial():
+    """U(t) on the shared partition is the Lagrange polynomial of the element containing t
+    (the left one at element ends): against the method's basis, at many times."""
     u, v = sp.symbols("u v")
     sol = dn.solve(dn.ODE({u: v, v: -u}, u0=[0, 1], T=3.0), method="cG(2)", tolerance=1e-8)
-    times = np.linspace(0, 3, 101)
-    whole = sol(times)
-    monkeypatch.setattr("dolfinode.solution._EVALUATION_BYTES", 1)
-    assert np.array_equal(sol(times), whole)
+    times = np.linspace(0, 3, 1001)[1:]
+    t_end = sol.t_start + sol.k
+    n = np.searchsorted(t_end, times)
+    basis = sol.method.basis((times - sol.t_start[n]) / sol.k[n])
+    expected = np.einsum("mj,mjn->nm", basis, sol.values[n])
+    np.testing.assert_allclose(sol(times), expected, rtol=0, atol=1e-14)
+    np.testing.assert_array_equal(sol(t_end[:5]), sol.values[:5, -1].T)
 
 
 def test_join_elements_concatenates_and_empties_the_chunks():
