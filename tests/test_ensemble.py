@@ -79,6 +79,13 @@ def test_bad_variations_fail_before_running(variations, error, match):
         dn.solve_ensemble(oscillator(), variations)
 
 
+def test_a_variation_keeps_the_declared_domain():
+    ode = dn.ODE({u: v, v: -k * u}, u0=[1.0, 0.0], T=1.0, params={k: 4.0}, nonnegative=[u])
+    assert dn.vary(ode, {k: 1.0}).nonnegative.tolist() == [True, False]
+    with pytest.raises(ValueError, match="u0 of u is -1.0, but u is declared nonnegative"):
+        dn.solve_ensemble(ode, [{k: 1.0}, {"u0": [-1.0, 0.0]}])
+
+
 def test_bad_arguments_fail_before_running():
     with pytest.raises(ValueError, match="tolerance"):
         dn.solve_ensemble(oscillator(), [{}], tolerence=1e-3)
