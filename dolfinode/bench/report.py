@@ -514,8 +514,8 @@ def write_markdown(path, meta, rows, problems, heads, png_name, title="Benchmark
            ("* Counts: dolfinode `sol.stats` (steps = time slabs; elements = component "
            "steps, N x steps for cG/dG, fewer for mcG/mdG); scipy nfev/njev/nlu, steps "
            "and rejected attempts from an instrumented run (n/a for LSODA)."),
-           ("* A method that fails or exceeds the time limit at one tolerance is skipped at the "
-           "tighter ones."),
+           ("* A method that exceeds the time limit at one tolerance, or fails at two in a row, "
+           "is skipped at the tighter ones."),
            ("* `<method>+modeling`: `dn.solve(..., automatic_modeling=True)` with the "
            "problem's modeling parameters (run only on problems that declare them); its "
            "stats count every inner solve."), "", "## Problems", "",
