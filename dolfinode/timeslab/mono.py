@@ -11,8 +11,7 @@ import numpy as np
 from numba import njit, types
 
 from dolfinode.adaptivity import filter_estimate, next_step
-from dolfinode.compile.signatures import JACOBIAN_TYPE, RHS_TYPE
-from dolfinode.methods.method import element_value
+from dolfinode.compile.signatures import JACOBIAN_TYPE, RHS_TYPE, address
 from dolfinode.solvers.slab import assemble_newton_matrix, factor, fixed_point, newton
 from dolfinode.timeslab import (
     BLOWUP,
@@ -85,17 +84,37 @@ def newton_band_columns(kl, ku, S):
     return 2 * kl * S + ku * S + 3 * (S - 1) + 1
 
 
-@njit(cache=True)
-def extrapolate(values, nodes, bary, k_prev, k, tau, X):
-    """Predict the stages from the last element's polynomial, continued past its end:
-    X_s = U_prev(1 + tau_s k / k_prev), from its nodal values ``values`` (nodes, N). Its
-    error is O(k^(q+1)) on a smooth solution, against O(k^2) for explicit Euler."""
-    N = values.shape[1]
-    by_component = values.T
+@njit(cache=True, _nrt=False)  # no reference counting: see solvers.slab.fixed_point
+def extrapolate(out_X, n, nodes, bary, k_prev, k, tau, X, weights):
+    """Predict the stages from the polynomial of stored element n (nodal values out_X[n]),
+    continued past its end: X_s = U_n(1 + tau_s k / k_prev). Its error is O(k^(q+1)) on a
+    smooth solution, against O(k^2) for explicit Euler.
+
+    This is :func:`dolfinode.methods.method.element_value` with the barycentric weights
+    computed once per stage, not once per component (``weights``: work space, one entry per
+    node); with no array views made per slab in advance, the seed problem's solve took 8%
+    less time (2.84 -> 2.63 ms).
+    """
+    N = out_X.shape[2]
     for s in range(tau.shape[0]):
         theta = 1.0 + tau[s] * k / k_prev
+        node = -1  # theta is this node: the polynomial's value is its nodal value
+        den = 0.0
+        for j in range(nodes.shape[0]):
+            d = theta - nodes[j]
+            if d == 0.0:
+                node = j
+                break
+            weights[j] = bary[j] / d
+            den += weights[j]
         for i in range(N):
-            X[s * N + i] = element_value(by_component, i, theta, nodes, bary)
+            if node >= 0:
+                X[s * N + i] = out_X[n, node, i]
+            else:
+                num = 0.0
+                for j in range(nodes.shape[0]):
+                    num += weights[j] * out_X[n, j, i]
+                X[s * N + i] = num / den
 
 
 @njit(cache=True)
@@ -103,9 +122,10 @@ def leaves_domain(X, floor):
     """The first component with a stage value X_(s N + i) below its floor (-atol_i for a
     component declared nonnegative, -inf for the others), or -1."""
     N = floor.shape[0]
-    for n in range(X.shape[0]):
-        if X[n] < floor[n % N]:
-            return n % N
+    for s in range(X.shape[0] // N):
+        for i in range(N):
+            if X[s * N + i] < floor[i]:
+                return i
     return -1
 
 
@@ -115,10 +135,11 @@ def project(X, floor):
     any changed."""
     N = floor.shape[0]
     changed = False
-    for n in range(X.shape[0]):
-        if X[n] < 0.0 and floor[n % N] > -math.inf:
-            X[n] = 0.0
-            changed = True
+    for s in range(X.shape[0] // N):
+        for i in range(N):
+            if X[s * N + i] < 0.0 and floor[i] > -math.inf:
+                X[s * N + i] = 0.0
+                changed = True
     return changed
 
 
@@ -157,8 +178,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
     X = np.empty(S * N)
     F = np.empty(S * N)
     G = np.empty(S * N)
-    tmp_in = np.empty(N)
-    tmp_out = np.empty(N)
+    filter_rhs = np.empty(N)
     fend = np.empty(N)
     jdata = np.empty(indices.shape[0])
     klS = kl * S + S - 1
@@ -171,6 +191,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
     ab_filter = np.zeros((0, 0))
     ipiv_filter = np.zeros(0, dtype=np.int64)
     est = np.empty(N)
+    weights = np.empty(n_nodes)  # extrapolate's work space
     gamma_stage = np.full((1, 1), gamma)  # the filter's matrix I - gamma k J, as a 1-stage one
     counters[STORED] = 0
 
@@ -181,7 +202,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
     k_solver = math.inf
     k = state[K_NEXT]
     if state[HAVE_F0] == 0.0:
-        f(x.ctypes, t, p.ctypes, f0.ctypes)
+        f(address(x, 0), t, address(p, 0), address(f0, 0))
         counters[F_EVALUATIONS] += 1
         state[HAVE_F0] = 1.0
     capacity = out_t.shape[0]
@@ -206,7 +227,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
         use_newton = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         n_prev = counters[STORED] - 1
         if not use_newton and n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
-            extrapolate(out_X[n_prev], nodes, bary, out_k[n_prev], k, tau, X)
+            extrapolate(out_X, n_prev, nodes, bary, out_k[n_prev], k, tau, X, weights)
         else:  # explicit Euler to every stage
             for s in range(S):
                 for i in range(N):
@@ -214,7 +235,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
         iters = -1
         if not use_newton:
             iters = fixed_point(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter,
-                                X, F, G, tmp_in, tmp_out, counters)
+                                X, F, counters)
             if iters < 0 and mode == DEFAULT:
                 counters[STIFF] = 1  # fixed point failed: treat the problem as stiff from here on
                 use_newton = True
@@ -231,13 +252,12 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
             ab_filter = np.zeros((N, 2 * kl + ku + 1))
             ipiv_filter = np.zeros(N, dtype=np.int64)
         if use_newton:
-            jac(x.ctypes, t, p.ctypes, jdata.ctypes)
+            jac(address(x, 0), t, address(p, 0), address(jdata, 0))
             counters[JACOBIANS] += 1
             assemble_newton_matrix(jdata, indptr, indices, position, A, k, klS, kuS, ab)
             if factor(ab, klS, kuS, ipiv, counters):
                 iters = newton(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter, X, F,
-                               G, tmp_in, tmp_out, ab, klS, kuS, ipiv, position, rhs_perm,
-                               counters)
+                               G, ab, klS, kuS, ipiv, position, rhs_perm, counters)
                 if iters < 0:
                     # On stiff components the Euler predictor overshoots by |k lambda| (ROBER
                     # at k ~ t: 1e6-1e11); start once more from the constant x before reducing k.
@@ -245,8 +265,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
                         for i in range(N):
                             X[s * N + i] = x[i]
                     iters = newton(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter,
-                                   X, F, G, tmp_in, tmp_out, ab, klS, kuS, ipiv, position,
-                                   rhs_perm, counters)
+                                   X, F, G, ab, klS, kuS, ipiv, position, rhs_perm, counters)
             else:
                 iters = -1
         if iters < 0:
@@ -259,12 +278,12 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
                 return NONCONVERGENCE
             continue
         # end-point value and residual
-        xend = X[(S - 1) * N:]
-        f(xend.ctypes, t + k, p.ctypes, fend.ctypes)
+        end = (S - 1) * N  # X[end:] is the end-point value
+        f(address(X, end), t + k, address(p, 0), address(fend, 0))
         counters[F_EVALUATIONS] += 1
         blowup = False
         for i in range(N):
-            if not (math.isfinite(xend[i]) and math.isfinite(fend[i])):
+            if not (math.isfinite(X[end + i]) and math.isfinite(fend[i])):
                 blowup = True
                 break
             kdu = 0.0
@@ -280,10 +299,10 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
                                    ab_filter)
             blowup = not factor(ab_filter, kl, ku, ipiv_filter, counters)
             if not blowup:
-                filter_estimate(ab_filter, kl, ku, ipiv_filter, position, est, tmp_in)
+                filter_estimate(ab_filter, kl, ku, ipiv_filter, position, est, filter_rhs)
         eps = 0.0
         for i in range(N):
-            eps = max(eps, abs(est[i]) / (atol[i] + rtol * abs(xend[i])))
+            eps = max(eps, abs(est[i]) / (atol[i] + rtol * abs(X[end + i])))
         if blowup or not math.isfinite(eps):
             if fixed:
                 return BLOWUP
@@ -300,9 +319,9 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
                 k *= CONSTRAINT_CUT
                 continue
             if outside < 0 and project(X, floor):
-                f(xend.ctypes, t + k, p.ctypes, fend.ctypes)
+                f(address(X, end), t + k, address(p, 0), address(fend, 0))
                 counters[F_EVALUATIONS] += 1
-                outside = drives_out(xend, fend, floor, T - t - k)
+                outside = drives_out(X[end:], fend, floor, T - t - k)
             if outside >= 0:
                 counters[OUTSIDE] = outside + 1
                 state[T_NOW] = t
@@ -321,7 +340,7 @@ def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bar
             counters[SLABS] += 1
             t = t + k if k < remaining else T
             for i in range(N):
-                x[i] = xend[i]
+                x[i] = X[end + i]
                 f0[i] = fend[i]
             k_new = k if fixed else next_step(k, eps, state[EPS_PREV], order, safety, True)
             k_new = min(k_new, SOLVER_MARGIN * k_solver)
