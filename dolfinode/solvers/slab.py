@@ -18,7 +18,7 @@ import math
 
 from numba import njit
 
-from dolfinode.compile.signatures import address
+from dolfinode.compile.signatures import NO_REFCOUNT, address
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.timeslab import F_EVALUATIONS, FACTORIZATIONS, ITERATIONS
 
@@ -94,11 +94,8 @@ def _residual(x0, f0, X, F, A, b0, k, G):
             G[s * N + i] = _residual_entry(x0, f0, X, F, A, b0, k, s, i)
 
 
-# The iterations run without numba's reference counting (_nrt=False; they allocate nothing),
-# their helpers inlined into them: numba increfs and decrefs, with atomic instructions, the
-# arrays passed to every helper call, which took 15-20% of the seed problem's time (N = 4,
-# cG(3): solve 3.9 -> 3.3 ms).
-@njit(cache=True, _nrt=False)
+# The iterations run without reference counting (NO_REFCOUNT), their helpers inlined.
+@njit(cache=True, **NO_REFCOUNT)
 def fixed_point(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F, counters):
     """Fixed-point iteration X <- x0 + k (b0 f0 + A F(X)) on the stages (in place in X)."""
     S = A.shape[0]
@@ -150,7 +147,7 @@ def assemble_newton_matrix(jdata, indptr, indices, position, A, k, kl, ku, ab):
         ab[r, kv] += 1.0
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def newton(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F, G, ab, kl, ku,
            ipiv, position, rhs_perm, counters):
     """Simplified Newton iteration on the stages with the factored matrix in ``ab``."""

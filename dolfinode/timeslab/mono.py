@@ -11,7 +11,7 @@ import numpy as np
 from numba import njit, types
 
 from dolfinode.adaptivity import filter_estimate, next_step
-from dolfinode.compile.signatures import JACOBIAN_TYPE, RHS_TYPE, address
+from dolfinode.compile.signatures import JACOBIAN_TYPE, NO_REFCOUNT, RHS_TYPE, address
 from dolfinode.solvers.slab import assemble_newton_matrix, factor, fixed_point, newton
 from dolfinode.timeslab import (
     BLOWUP,
@@ -84,7 +84,7 @@ def newton_band_columns(kl, ku, S):
     return 2 * kl * S + ku * S + 3 * (S - 1) + 1
 
 
-@njit(cache=True, _nrt=False)  # no reference counting: see solvers.slab.fixed_point
+@njit(cache=True, **NO_REFCOUNT)
 def extrapolate(out_X, n, nodes, bary, k_prev, k, tau, X, weights):
     """Predict the stages from the polynomial of stored element n (nodal values out_X[n]),
     continued past its end: X_s = U_n(1 + tau_s k / k_prev). Its error is O(k^(q+1)) on a

@@ -40,7 +40,7 @@ import math
 import numpy as np
 from numba import njit, types
 
-from dolfinode.compile.signatures import COMPONENT_TYPE
+from dolfinode.compile.signatures import COMPONENT_TYPE, NO_REFCOUNT
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.methods.method import element_value
 from dolfinode.timeslab import (
@@ -254,7 +254,7 @@ def _factor_group(order, n, local, indptr, indices, jacobian, k, A, ab_ws, ipiv,
     return klS, kuS, band_lu(ab, klS, kuS, ipiv)
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def _group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp, prev, cptr,
                   celems, ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, dptr, dcur,
                   atol, rtol, uw, out, cur, mom, fend, local, order, ab_ws, rhs, ipiv, factored,
@@ -331,7 +331,7 @@ def _group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp,
     return d
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def _filter_residuals(ne, comp, ea, eb, res, position, indptr, indices, jacobian, jdiag,
                       coupling, G, elist, order, local, ab_ws, rhs, ipiv, counters):
     """The local error estimates of the elements from their residuals k R(t_e) (``res``, in
@@ -390,7 +390,7 @@ def _stale(e, i, indptr, indices, changed, computed):
     return False
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, **NO_REFCOUNT)
 def _converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, indptr, indices,
               position, jacobian, comp, prev, cptr, celems, ea, eb, values, nodes, bary,
               qweights, Minv, A, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw,
