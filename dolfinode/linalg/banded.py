@@ -12,6 +12,12 @@ import scipy.sparse as sps
 from numba import njit
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+#: Column indices of the band storage are cast to unsigned in the inner loops: numba wraps a
+#: signed index around (i < 0: i + n), a select that keeps LLVM from vectorizing the loop;
+#: an unsigned one it takes as is (HIRES cG(3), n = 24, kl = ku = 8: LU 2.0 -> 1.3 us,
+#: solve 0.57 -> 0.45 us; same results, the updates of each entry in the same order).
+_u = np.uint64
+
 
 def band_storage(n, kl, ku):
     """Zeroed band storage for an n x n matrix with kl sub- and ku super-diagonals."""
@@ -50,12 +56,12 @@ def band_lu(ab, kl, ku, ipiv):
         if km > 0:
             rp = 1.0 / ab[j, kv]
             for i in range(1, km + 1):
-                ab[j, kv + i] *= rp
+                ab[j, _u(kv + i)] *= rp
             for c in range(1, ju - j + 1):
                 a_rj = ab[j + c, kv - c]
                 if a_rj != 0.0:
                     for i in range(1, km + 1):
-                        ab[j + c, kv - c + i] -= ab[j, kv + i] * a_rj
+                        ab[j + c, _u(kv - c + i)] -= ab[j, _u(kv + i)] * a_rj
     return info
 
 
@@ -74,13 +80,13 @@ def band_solve(ab, kl, ku, ipiv, b):
         bj = b[j]
         if bj != 0.0:
             for i in range(1, lm + 1):
-                b[j + i] -= ab[j, kv + i] * bj
+                b[_u(j + i)] -= ab[j, _u(kv + i)] * bj
     for j in range(n - 1, -1, -1):
         b[j] /= ab[j, kv]
         bj = b[j]
         if bj != 0.0:
             for i in range(max(0, j - kv), j):
-                b[i] -= ab[j, kv + i - j] * bj
+                b[_u(i)] -= ab[j, _u(kv + i - j)] * bj
 
 
 def bandwidth_ordering(indptr, indices, n):
