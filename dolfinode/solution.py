@@ -94,7 +94,7 @@ class Solution:
 
     def _sample(self, number_of_samples):
         self.t = np.linspace(self.ode.t0, self.ode.T, number_of_samples)
-        self.y = self(self.t)
+        self.y = self._values(self.t)
 
     @property
     def multi(self):
@@ -113,10 +113,15 @@ class Solution:
                            or times.max() > self.ode.T):
             raise ValueError(f"the solution is defined on [{self.ode.t0}, {self.ode.T}], "
                              f"got t outside it")
+        out = self._values(times)
+        return out[:, 0] if scalar else out
+
+    def _values(self, times):
+        """U at ``times`` in [t0, T], shape (N, len(times))."""
         out = self._evaluate(times)
         # U(t0) is the initial value (for dG the element polynomial starts after the jump)
         out[:, times == self.ode.t0] = self.ode.u0[:, None]
-        return out[:, 0] if scalar else out
+        return out
 
     def _evaluate(self, times):
         """U at ``times`` in [t0, T], shape (N, len(times)), from the elements."""

@@ -232,10 +232,10 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
         return np.empty(size), np.empty(size), np.empty((size, nodes, ode.N))
 
     def advance(out_t, out_k, out_X):
-        return mono.advance(compiled.rhs, compiled.jacobian, compiled.p, compiled.indptr,
-                            compiled.indices, position, kl, ku, A, b0, tau, element_nodes,
-                            bary, dend, iopts, fopts, atol, floor, x, f0, state, counters,
-                            out_t, out_k, out_X)
+        return mono.advance(compiled.rhs.address, compiled.jacobian.address, compiled.p,
+                            compiled.indptr, compiled.indices, position, kl, ku, A, b0, tau,
+                            element_nodes, bary, dend, iopts, fopts, atol, floor, x, f0,
+                            state, counters, out_t, out_k, out_X)
 
     capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
     with _progress(ode, params) as bar:
@@ -279,9 +279,9 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
                 np.empty((capacity, m.q + 1)))
 
     def advance(out_comp, out_a, out_b, out_values):
-        return multi.advance(compiled.rhs_component, compiled.jacobian_row, compiled.p,
-                             compiled.indptr, compiled.indices, position, Minv, A, nodes,
-                             qweights, bary, dend, iopts, fopts, atol, floor, x, kdes,
+        return multi.advance(compiled.rhs_component.address, compiled.jacobian_row.address,
+                             compiled.p, compiled.indptr, compiled.indices, position, Minv, A,
+                             nodes, qweights, bary, dend, iopts, fopts, atol, floor, x, kdes,
                              frozen, state, counters, out_comp, out_a, out_b, out_values)
 
     capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 22 // (m.q + 1))))

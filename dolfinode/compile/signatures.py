@@ -1,7 +1,10 @@
 """Signatures of the generated C kernels, as numba first-class function types.
 
-The time-stepping loops take the kernels as arguments of these fixed types, so they compile
-once (and are cached by numba) whatever the ODE; arrays are passed as data pointers.
+The time-stepping loops take the kernels' addresses (integers) and make them functions of
+these fixed types (:func:`rhs_kernel`, :func:`component_kernel`), so they compile once (and are
+cached by numba) whatever the ODE; arrays are passed as data pointers. A kernel passed as a
+first-class function object instead costs ~40 us per call of a loop from Python (numba types it
+and unpickles its signature, twice, on every call): 10% of a small solve.
 """
 import ctypes
 
@@ -24,47 +27,60 @@ def _no_refcount():
 #: call: 15-20% of the seed problem's time (N = 4, cG(3): solve 3.9 -> 3.3 ms).
 NO_REFCOUNT = _no_refcount()
 
-#: f(u, t, p, out): the full right-hand side, written into out.
-RHS = types.void(types.voidptr, types.float64, types.voidptr, types.voidptr)
-#: f_i(i, u, t, p, out): one component of the right-hand side, written into out[0].
-COMPONENT = types.void(types.int64, types.voidptr, types.float64, types.voidptr, types.voidptr)
+#: f(u, t, p, out): the full right-hand side, written into out; also
 #: J(u, t, p, data): the Jacobian df/du, its nonzero values in CSR order written into data.
-JACOBIAN = RHS
+RHS_TYPE = types.FunctionType(types.void(types.voidptr, types.float64, types.voidptr,
+                                         types.voidptr))
+#: f_i(i, u, t, p, out): one component of the right-hand side, written into out[0]; also
 #: J_i(i, u, t, p, out): row i of df/du, its nonzero values (CSR order) written into out.
-JACOBIAN_ROW = COMPONENT
-
-RHS_TYPE = types.FunctionType(RHS)
-COMPONENT_TYPE = types.FunctionType(COMPONENT)
-JACOBIAN_TYPE = types.FunctionType(JACOBIAN)
-JACOBIAN_ROW_TYPE = COMPONENT_TYPE
+COMPONENT_TYPE = types.FunctionType(types.void(types.int64, types.voidptr, types.float64,
+                                               types.voidptr, types.voidptr))
 
 _p = ctypes.c_void_p
 _vector = (None, [_p, ctypes.c_double, _p, _p])
 _row = (None, [ctypes.c_long, _p, ctypes.c_double, _p, _p])
 CTYPES = {"dn_rhs": _vector, "dn_rhs_component": _row, "dn_jacobian": _vector,
           "dn_jacobian_row": _row}
-SIGNATURES = {"dn_rhs": RHS, "dn_rhs_component": COMPONENT, "dn_jacobian": JACOBIAN,
-              "dn_jacobian_row": JACOBIAN_ROW}
 KERNELS = tuple(CTYPES)
 
 
-class Kernel(types.WrapperAddressProtocol):
-    """A compiled C function, callable from Python (via ctypes) and from numba (by address)."""
+class Kernel:
+    """A compiled C function, callable from Python (via ctypes) and from numba by its
+    ``address`` (see :func:`rhs_kernel`)."""
 
     def __init__(self, library, name):
         self._library = library  # keeps the shared library loaded
         self._function = getattr(library, name)
         self._function.restype, self._function.argtypes = CTYPES[name]
-        self._signature = SIGNATURES[name]
-
-    def __wrapper_address__(self):
-        return ctypes.cast(self._function, ctypes.c_void_p).value
-
-    def signature(self):
-        return self._signature
+        self.address = ctypes.cast(self._function, ctypes.c_void_p).value
 
     def __call__(self, *args):
         return self._function(*args)
+
+
+def _kernel_of(function_type, name):
+    """An intrinsic ``name`` making a kernel address (an integer) a function of
+    ``function_type``."""
+
+    def kernel(typingctx, kernel_address):
+        def codegen(context, builder, signature, args):
+            function = cgutils.create_struct_proxy(function_type)(context, builder)
+            function.c_addr = builder.inttoptr(args[0], cgutils.voidptr_t)
+            # no Python object and no numba-compiled version: called as a C function
+            function.py_addr = cgutils.get_null_value(cgutils.voidptr_t)
+            function.jit_addr = cgutils.get_null_value(cgutils.voidptr_t)
+            return function._getvalue()
+
+        return function_type(kernel_address), codegen
+
+    kernel.__name__ = kernel.__qualname__ = name
+    return intrinsic(kernel)
+
+
+#: rhs_kernel(address): the kernel f(u, t, p, out) or J(u, t, p, data) at that address.
+rhs_kernel = _kernel_of(RHS_TYPE, "rhs_kernel")
+#: component_kernel(address): the kernel f_i(i, u, t, p, out) or J_i at that address.
+component_kernel = _kernel_of(COMPONENT_TYPE, "component_kernel")
 
 
 @intrinsic

@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit
 
 from dolfinode.compile import lower
+from dolfinode.compile.signatures import rhs_kernel
 from dolfinode.dual.goal import resolve
 from dolfinode.dual.problem import (
     DualSolution,
@@ -98,7 +99,7 @@ def _legendre(x, degree, out):
 
 
 @njit(cache=True)
-def _weighted_residuals(rhs, p, grid, ptr, t_start, t_end, coef, phi, x, w, projection,
+def _weighted_residuals(rhs_address, p, grid, ptr, t_start, t_end, coef, phi, x, w, projection,
                         first_pass, phi_start, r_phi, phi_moments, r_moments, abs_weighted,
                         norms):
     """Gauss quadrature of the residual R = U' - f(U, t) against the dual, interval by interval.
@@ -107,8 +108,9 @@ def _weighted_residuals(rhs, p, grid, ptr, t_start, t_end, coef, phi, x, w, proj
     int R P_m (P_m: Legendre on element e), phi_start[e] = phi at the element's start, and
     norms = (S0, S1). Second pass (with the projections pi phi known):
     abs_weighted[e] = int |R| |phi - pi phi|. The primal elements are tracked by one cursor
-    per component (memory O(N)).
+    per component (memory O(N)); f is the kernel at ``rhs_address``.
     """
+    rhs = rhs_kernel(rhs_address)
     L, N = grid.shape[0] - 1, ptr.shape[0] - 1
     d = projection.shape[1] - 1
     u = np.empty(N)
@@ -224,7 +226,7 @@ def _error_representation(sol, primal, dual, gauss):
     compiled = lower(sol.ode)
 
     def integrate(first_pass):
-        _weighted_residuals(compiled.rhs, compiled.p, primal.grid, primal.ptr,
+        _weighted_residuals(compiled.rhs.address, compiled.p, primal.grid, primal.ptr,
                             primal.t_start, primal.t_end, primal.coef, dual.coef, x, w,
                             projection, first_pass, phi_start, r_phi, phi_moments, r_moments,
                             abs_weighted, norms)

@@ -22,6 +22,7 @@ from scipy.sparse.linalg import splu
 
 from dolfinode.compile import lower
 from dolfinode.compile.pattern import assemble_pattern
+from dolfinode.compile.signatures import rhs_kernel
 from dolfinode.errors import SolverError
 from dolfinode.linalg import band_lu, band_solve, wide_band
 from dolfinode.methods import make_method
@@ -108,11 +109,13 @@ def assemble_dual_matrix(jdata, indptr, indices, position, A, h, kl, ku, ab):
 
 
 @njit(cache=True)
-def _interval(jac, p, indptr, indices, position, l, grid, ptr, t_start, t_end, coef, A, b0,
-              nodes, source, y, current, u, jdata, stages):
-    """Set up the stage system of interval l (from the end): J at its R nodes into jdata
-    (jdata[j] at backward node j), and the right-hand side into ``stages``, the unknown
-    (stage s, component i) at position[i] r + s. Returns the interval length h."""
+def _interval(jac_address, p, indptr, indices, position, l, grid, ptr, t_start, t_end, coef, A,
+              b0, nodes, source, y, current, u, jdata, stages):
+    """Set up the stage system of interval l (from the end): J (the kernel at ``jac_address``)
+    at its R nodes into jdata (jdata[j] at backward node j), and the right-hand side into
+    ``stages``, the unknown (stage s, component i) at position[i] r + s. Returns the interval
+    length h."""
+    jac = rhs_kernel(jac_address)
     N, r, R = y.shape[0], A.shape[0], nodes.shape[0]
     h = grid[l + 1] - grid[l]
     g = source[l if source.shape[0] > 1 else 0]
@@ -143,7 +146,7 @@ def _store(phi, l, y, stages, position, r):
 
 
 @njit(cache=True)
-def _backward_cg(jac, p, indptr, indices, position, kl, ku, grid, ptr, t_start, t_end, coef, A,
+def _backward_cg(jac_address, p, indptr, indices, position, kl, ku, grid, ptr, t_start, t_end, coef, A,
                  b0, nodes, source, psi, phi):
     """cG(r) for y' = J(U(T - s))^T y + source in s = T - t, interval by interval from T.
 
@@ -171,8 +174,8 @@ def _backward_cg(jac, p, indptr, indices, position, kl, ku, grid, ptr, t_start, 
     current = ptr[1:] - 1
     y = psi.copy()
     for l in range(L - 1, -1, -1):
-        h = _interval(jac, p, indptr, indices, position, l, grid, ptr, t_start, t_end, coef, A,
-                      b0, nodes, source, y, current, u, jdata, stages)
+        h = _interval(jac_address, p, indptr, indices, position, l, grid, ptr, t_start, t_end,
+                      coef, A, b0, nodes, source, y, current, u, jdata, stages)
         assemble_dual_matrix(jdata, indptr, indices, position, A, h, low, up, ab)
         if band_lu(ab, low, up, ipiv) != 0:
             return l
@@ -198,7 +201,7 @@ def _stage_pattern(indptr, indices, position, r):
     return colptr, row_index, position_of.ravel()
 
 
-def _backward_cg_sparse(jac, p, indptr, indices, position, grid, ptr, t_start, t_end, coef, A,
+def _backward_cg_sparse(jac_address, p, indptr, indices, position, grid, ptr, t_start, t_end, coef, A,
                         b0, nodes, source, psi, phi):
     """As :func:`_backward_cg`, with the stage matrix factored by SuperLU (scipy's splu, fill-
     reducing column ordering) instead of the banded LU: for wide bands (2-D lattices)."""
@@ -214,8 +217,8 @@ def _backward_cg_sparse(jac, p, indptr, indices, position, grid, ptr, t_start, t
     products = values[:r * r * len(indices)].reshape(r, r, len(indices))
     y = psi.copy()
     for l in range(L - 1, -1, -1):
-        h = _interval(jac, p, indptr, indices, position, l, grid, ptr, t_start, t_end, coef, A,
-                      b0, nodes, source, y, current, u, jdata, stages)
+        h = _interval(jac_address, p, indptr, indices, position, l, grid, ptr, t_start, t_end,
+                      coef, A, b0, nodes, source, y, current, u, jdata, stages)
         np.multiply(-h * A[:, :, None], jdata[None, 1:r + 1, :len(indices)], out=products)
         data = np.bincount(where, weights=values, minlength=len(row_index))
         matrix = sps.csc_matrix((data, row_index, colptr), shape=(r * N, r * N))
@@ -340,10 +343,10 @@ def solve_dual(sol, final, integral, degree, primal=None, linear_solver="auto"):
     if linear_solver == "auto":
         linear_solver = "sparse" if wide_band(r * ode.N, r * (kl + ku + 2)) else "banded"
     if linear_solver == "sparse":
-        failed = _backward_cg_sparse(compiled.jacobian, compiled.p, compiled.indptr,
+        failed = _backward_cg_sparse(compiled.jacobian.address, compiled.p, compiled.indptr,
                                      compiled.indices, position, *arguments)
     else:
-        failed = _backward_cg(compiled.jacobian, compiled.p, compiled.indptr, compiled.indices,
+        failed = _backward_cg(compiled.jacobian.address, compiled.p, compiled.indptr, compiled.indices,
                               position, kl, ku, *arguments)
     if failed >= 0:
         raise SolverError(f"the dual's stage matrix is singular on [{grid[failed]:.6g}, "

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, types
 
-from dolfinode.compile.signatures import RHS_TYPE
+from dolfinode.compile.signatures import rhs_kernel
 
 
 def kernel_weights(samples):
@@ -73,11 +73,12 @@ def window_times(center, tau, samples, t0, T):
             sample(center + tau / 2, tau / 2, samples // 2))
 
 
-@njit(types.void(RHS_TYPE, types.float64[::1], types.float64[:, ::1], types.float64[::1],
+@njit(types.void(types.intp, types.float64[::1], types.float64[:, ::1], types.float64[::1],
                  types.float64[:, ::1]), cache=True)
-def _rhs_at(rhs, p, states, times, out):
+def _rhs_at(rhs_address, p, states, times, out):
     """out[j] = f(states[j], times[j]) for every row j, compiled (from Python, one call of
     the kernel per averaging time was most of automatic modeling's time on small systems)."""
+    rhs = rhs_kernel(rhs_address)
     for j in range(times.shape[0]):
         rhs(states[j].ctypes, times[j], p.ctypes, out[j].ctypes)
 
@@ -121,7 +122,7 @@ class WindowAverager:
             if row == 0:
                 states = np.ascontiguousarray(values.T)
                 f_values = np.empty_like(states)
-                _rhs_at(self.compiled.rhs, self.compiled.p, states,
+                _rhs_at(self.compiled.rhs.address, self.compiled.p, states,
                         np.ascontiguousarray(times[start:end]), f_values)
                 self._sums[1] += weights[start:end] @ f_values
                 np.maximum(self._max, values.max(axis=1), out=self._max)

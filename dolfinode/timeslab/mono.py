@@ -11,7 +11,7 @@ import numpy as np
 from numba import njit, types
 
 from dolfinode.adaptivity import filter_estimate, next_step
-from dolfinode.compile.signatures import JACOBIAN_TYPE, NO_REFCOUNT, RHS_TYPE, address
+from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
 from dolfinode.solvers.slab import assemble_newton_matrix, factor, fixed_point, newton
 from dolfinode.timeslab import (
     BLOWUP,
@@ -55,7 +55,7 @@ EXTRAPOLATE = 2.0
 _f8 = types.float64[::1]
 _i8 = types.int64[::1]
 _SIGNATURE = types.int64(
-    RHS_TYPE, JACOBIAN_TYPE, _f8,            # f, J, p
+    types.intp, types.intp, _f8,            # addresses of f and J, p
     _i8, _i8, _i8, types.int64, types.int64,  # indptr, indices, position, kl, ku
     types.float64[:, ::1], _f8, _f8,       # A, b0, tau
     _f8, _f8, _f8,                           # nodes, barycentric weights, end_derivative
@@ -156,13 +156,15 @@ def drives_out(u, fu, floor, remaining):
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
-def advance(f, jac, p, indptr, indices, position, kl, ku, A, b0, tau, nodes, bary,
-            end_derivative, iopts, fopts, atol, floor, x, f0, state, counters, out_t, out_k,
-            out_X):
+def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0, tau, nodes,
+            bary, end_derivative, iopts, fopts, atol, floor, x, f0, state, counters, out_t,
+            out_k, out_X):
     """Advance (x, t) towards T, storing accepted elements in out_*; returns a status code.
 
     A step on which a stage value leaves the declared domain (``leaves_domain``) is
     shortened by CONSTRAINT_CUT and retried; an accepted one is projected on it."""
+    f = rhs_kernel(f_address)
+    jac = rhs_kernel(jac_address)
     N = x.shape[0]
     S = A.shape[0]
     n_nodes = nodes.shape[0]

@@ -40,7 +40,7 @@ import math
 import numpy as np
 from numba import njit, types
 
-from dolfinode.compile.signatures import COMPONENT_TYPE, NO_REFCOUNT
+from dolfinode.compile.signatures import NO_REFCOUNT, component_kernel
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.methods.method import element_value
 from dolfinode.timeslab import (
@@ -753,7 +753,7 @@ def _slab_limit(kslab, kmax, K, converged, nwin, cost, climb):
 _f8 = types.float64[::1]
 _i8 = types.int64[::1]
 _SIGNATURE = types.int64(
-    COMPONENT_TYPE, COMPONENT_TYPE, _f8,           # f_i, J_i, p
+    types.intp, types.intp, _f8,                   # addresses of f_i and J_i, p
     _i8, _i8, _i8,                                 # indptr, indices, bandwidth position
     types.float64[:, ::1], types.float64[:, ::1],  # M^{-1}, A
     _f8, _f8, _f8,                                 # nodes, quadrature weights, bary
@@ -794,13 +794,15 @@ def _project(ne, comp, values, floor, projected):
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
-def advance(fi, ji, p, indptr, indices, position, Minv, A, nodes, qweights, bary, end_derivative,
-            iopts, fopts, atol, floor, x, kdes, frozen, state, counters, out_comp, out_a, out_b,
-            out_values):
+def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, nodes, qweights, bary,
+            end_derivative, iopts, fopts, atol, floor, x, kdes, frozen, state, counters, out_comp,
+            out_a, out_b, out_values):
     """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status.
     ``frozen[i]`` is the time since which component i is frozen (NaN: active). A slab on
     which a value leaves the declared domain is rejected (``_leaves_domain``); an accepted
     one is projected on it."""
+    fi = component_kernel(fi_address)
+    ji = component_kernel(ji_address)
     N = x.shape[0]
     S = Minv.shape[0]
     nn = nodes.shape[0]

@@ -14,8 +14,9 @@ def test_no_refcount_falls_back_to_plain_njit(monkeypatch):
 
 
 @njit
-def _rhs_of_rows(rhs, p, states, out):
+def _rhs_of_rows(rhs_address, p, states, out):
     # every row of states through the kernel, addressed in place
+    rhs = signatures.rhs_kernel(rhs_address)
     N = states.shape[1]
     for j in range(states.shape[0]):
         rhs(signatures.address(states, j * N), 0.0, signatures.address(p, 0),
@@ -27,6 +28,6 @@ def test_address_passes_a_row_in_place():
     compiled = lower(ode)
     states = np.arange(8.0).reshape(4, 2)
     out = np.zeros_like(states)
-    _rhs_of_rows(compiled.rhs, compiled.p, states, out)
+    _rhs_of_rows(compiled.rhs.address, compiled.p, states, out)
     expected = np.array([compiled.f(u, 0.0) for u in states])
     assert np.array_equal(out, expected)
