@@ -9,6 +9,7 @@ pieces are templates again, so the generated code does not grow with N and a reb
 import numpy as np
 import sympy as sp
 
+from dolfinode.ensemble import vary
 from dolfinode.ode import ODE, t
 from dolfinode.systems.template import Template, TemplateODE
 
@@ -61,20 +62,27 @@ class WindowModel:
         """The window's ODE on [t0, T] (local time) from u0, for the window starting at
         absolute time ``shift``.
 
-        Declarations of one window (the same shift) share their lowering, kernels and band
-        ordering (about 0.3 s to redo at N = 4 10^5, for each piece of a window)."""
-        params = {**self.ode.params, self.shift: float(shift)}
+        The expressions are declared (and checked by sympy) once, later declarations vary
+        the first (:func:`~dolfinode.vary`; 11 of the 60 ms of the seed problem's automatic
+        modeling went to re-declaring). Declarations of one window (the same shift) share
+        their lowering, kernels and band ordering (about 0.3 s to redo at N = 4 10^5, for
+        each piece of a window)."""
         u0 = _admissible(self.ode, u0)
-        if isinstance(self.ode, TemplateODE):
-            ode = TemplateODE(self._templates, u0=u0, T=T, params=params, t0=t0,
+        if self._last is not None:
+            ode = vary(self._last, {self.shift: float(shift), "u0": u0, "t0": t0, "T": T})
+            if self._last.params == ode.params:
+                ode._compiled = getattr(self._last, "_compiled", None)
+        elif isinstance(self.ode, TemplateODE):
+            ode = TemplateODE(self._templates, u0=u0, T=T, params=self._params(shift), t0=t0,
                               names=self.ode.names, nonnegative=self.ode.nonnegative)
         else:
-            ode = ODE(self._rhs, u0=u0, T=T, t0=t0, params=params,
+            ode = ODE(self._rhs, u0=u0, T=T, t0=t0, params=self._params(shift),
                       nonnegative=self.ode.nonnegative)
-        if self._last is not None and self._last.params == ode.params:
-            ode._compiled = getattr(self._last, "_compiled", None)
         self._last = ode
         return ode
+
+    def _params(self, shift):
+        return {**self.ode.params, self.shift: float(shift)}
 
 
 class ReducedDeclaration:
@@ -117,6 +125,7 @@ class ReducedDeclaration:
                     self._G.append(G)
                     rhs[i] = rhs[i] + G * ode.states[j]
             self._rhs = dict(zip(ode.states, rhs))
+            self._declared = None
 
     def _masked_templates(self, taken):
         """The full model's templates with every term multiplied by a per-cell 0/1 factor:
@@ -150,9 +159,12 @@ class ReducedDeclaration:
                                           np.asarray(G, dtype=float)[:, None]))
             return TemplateODE(templates, u0=u0, T=T, params=self.ode.params, t0=t0,
                                names=self.ode.names, nonnegative=self.ode.nonnegative)
-        params = dict(self.ode.params)
-        params.update({s: float(v) for s, v in zip(self._c, c)})
+        values = dict(zip(self._c, c))
         if self._G:
-            params.update({s: float(v) for s, v in zip(self._G, G)})
-        return ODE(self._rhs, u0=u0, T=T, t0=t0, params=params,
-                   nonnegative=self.ode.nonnegative)
+            values.update(zip(self._G, G))
+        if self._declared is None:  # declared (and checked by sympy) once, then varied
+            self._declared = ODE(self._rhs, u0=u0, T=T, t0=t0,
+                                 params={**self.ode.params, **values},
+                                 nonnegative=self.ode.nonnegative)
+            return self._declared
+        return vary(self._declared, {**values, "u0": u0, "t0": t0, "T": T})
