@@ -146,8 +146,8 @@ def _store(phi, l, y, stages, position, r):
 
 
 @njit(cache=True)
-def _backward_cg(jac_address, p, indptr, indices, position, kl, ku, grid, ptr, t_start, t_end, coef, A,
-                 b0, nodes, source, psi, phi):
+def _backward_cg(jac_address, p, indptr, indices, position, kl, ku, grid, ptr, t_start, t_end,
+                 coef, A, b0, nodes, source, psi, phi):
     """cG(r) for y' = J(U(T - s))^T y + source in s = T - t, interval by interval from T.
 
     The stage form of cG(r) with its Lobatto quadrature (see :mod:`dolfinode.methods.method`),
@@ -201,8 +201,8 @@ def _stage_pattern(indptr, indices, position, r):
     return colptr, row_index, position_of.ravel()
 
 
-def _backward_cg_sparse(jac_address, p, indptr, indices, position, grid, ptr, t_start, t_end, coef, A,
-                        b0, nodes, source, psi, phi):
+def _backward_cg_sparse(jac_address, p, indptr, indices, position, grid, ptr, t_start, t_end,
+                        coef, A, b0, nodes, source, psi, phi):
     """As :func:`_backward_cg`, with the stage matrix factored by SuperLU (scipy's splu, fill-
     reducing column ordering) instead of the banded LU: for wide bands (2-D lattices)."""
     L, N = grid.shape[0] - 1, psi.shape[0]
@@ -346,8 +346,8 @@ def solve_dual(sol, final, integral, degree, primal=None, linear_solver="auto"):
         failed = _backward_cg_sparse(compiled.jacobian.address, compiled.p, compiled.indptr,
                                      compiled.indices, position, *arguments)
     else:
-        failed = _backward_cg(compiled.jacobian.address, compiled.p, compiled.indptr, compiled.indices,
-                              position, kl, ku, *arguments)
+        failed = _backward_cg(compiled.jacobian.address, compiled.p, compiled.indptr,
+                              compiled.indices, position, kl, ku, *arguments)
     if failed >= 0:
         raise SolverError(f"the dual's stage matrix is singular on [{grid[failed]:.6g}, "
                           f"{grid[failed + 1]:.6g}]: I - h A (x) J^T has a zero pivot")
