@@ -12,7 +12,12 @@ from numba import njit, types
 
 from dolfinode.adaptivity import filter_estimate, next_step
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
-from dolfinode.solvers.slab import assemble_newton_matrix, factor, fixed_point, newton
+from dolfinode.solvers.slab import (
+    assemble_newton_matrix,
+    factor,
+    fixed_point,
+    newton,
+)
 from dolfinode.timeslab import (
     BLOWUP,
     CONSTRAINT,
@@ -193,6 +198,7 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
     ab_filter = np.zeros((0, 0))
     ipiv_filter = np.zeros(0, dtype=np.int64)
     est = np.empty(N)
+    w = np.empty(S * N)  # weights of the scaled norm (solvers' work space)
     weights = np.empty(n_nodes)  # extrapolate's work space
     gamma_stage = np.full((1, 1), gamma)  # the filter's matrix I - gamma k J, as a 1-stage one
     counters[STORED] = 0
@@ -237,7 +243,7 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
         iters = -1
         if not use_newton:
             iters = fixed_point(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter,
-                                X, F, counters)
+                                X, F, G, w, counters)
             if iters < 0 and mode == DEFAULT:
                 counters[STIFF] = 1  # fixed point failed: treat the problem as stiff from here on
                 use_newton = True
@@ -259,7 +265,7 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
             assemble_newton_matrix(jdata, indptr, indices, position, A, k, klS, kuS, ab)
             if factor(ab, klS, kuS, ipiv, counters):
                 iters = newton(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter, X, F,
-                               G, ab, klS, kuS, ipiv, position, rhs_perm, counters)
+                               G, ab, klS, kuS, ipiv, position, rhs_perm, w, counters)
                 if iters < 0:
                     # On stiff components the Euler predictor overshoots by |k lambda| (ROBER
                     # at k ~ t: 1e6-1e11); start once more from the constant x before reducing k.
@@ -267,7 +273,8 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
                         for i in range(N):
                             X[s * N + i] = x[i]
                     iters = newton(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter,
-                                   X, F, G, ab, klS, kuS, ipiv, position, rhs_perm, counters)
+                                   X, F, G, ab, klS, kuS, ipiv, position, rhs_perm, w,
+                                   counters)
             else:
                 iters = -1
         if iters < 0:
