@@ -575,7 +575,7 @@ def readme_paragraph(meta, heads, md_rel, png_rel):
         f"at T; < 1: dolfinode faster), over the levels >= {TARGET_LEVEL} both reached (all "
         f"common levels where there are none): {'; '.join(parts)}. Target (faster than every "
         f"scipy solver at >= {TARGET_LEVEL} digits on every stiff problem): met on "
-        f"{', '.join(met) or 'none'}; not met on {', '.join(missed) or 'none'}. "
+        f"{', '.join(met) or 'none'}{'; not met on ' + ', '.join(missed) if missed else ''}. "
         + (f"Orders of magnitude (ratio <= {MULTISCALE_RATIO:g}; with automatic modeling where "
            f"the problem has such runs) on the multiscale problems ({', '.join(multi)}): met on "
            f"{', '.join(orders) or 'none'}. " if multi else "")

@@ -168,6 +168,10 @@ def test_headline_verdicts():
                                     "command": "c"}, heads, "m", "p")
     assert "met on r; not met on p (slower at some level), q (no level >= 6" in text
     assert "r 0.25-0.5 (mescd 6-7)" in text
+    del heads["p"], heads["q"]
+    text = report.readme_paragraph({"date": "d", "cpu_count": 2, "tolerances": [1e-4],
+                                    "command": "c"}, heads, "m", "p")
+    assert "met on r. " in text and "not met" not in text
     table = report.summary_table(heads)
     assert "| r | yes | 6-7 | 0.5 (2x faster; 6, dG(2) vs Radau)" in table
 
