@@ -86,6 +86,25 @@ def stage_rhs(f, p, X, t, k, tau, F):
 
 
 @njit(cache=True, inline="always")
+def _start4(c, f0, i):
+    """c f0[i:i + 4], as four scalars (kept in registers)."""
+    return c * f0[_u(i)], c * f0[_u(i + 1)], c * f0[_u(i + 2)], c * f0[_u(i + 3)]
+
+
+@njit(cache=True, inline="always")
+def _add4(sums, a, F, o):
+    """sums + a F[o:o + 4]."""
+    return (sums[0] + a * F[_u(o)], sums[1] + a * F[_u(o + 1)], sums[2] + a * F[_u(o + 2)],
+            sums[3] + a * F[_u(o + 3)])
+
+
+@njit(cache=True, inline="always")
+def _store4(sums, out, i):
+    for r in range(4):
+        out[_u(i + r)] = sums[r]
+
+
+@njit(cache=True, inline="always")
 def _stage_sum(f0, F, A, b0, s, out):
     """out = b0_s f0 + sum_m A_sm F_m: one stage of the quadrature, in blocks of 8 and then 4
     components whose sums stay in registers over m (stored once; the compiler packs them
@@ -98,50 +117,19 @@ def _stage_sum(f0, F, A, b0, s, out):
     c = b0[s]
     i = 0
     while i + 8 <= N:
-        a0 = c * f0[_u(i)]
-        a1 = c * f0[_u(i + 1)]
-        a2 = c * f0[_u(i + 2)]
-        a3 = c * f0[_u(i + 3)]
-        a4 = c * f0[_u(i + 4)]
-        a5 = c * f0[_u(i + 5)]
-        a6 = c * f0[_u(i + 6)]
-        a7 = c * f0[_u(i + 7)]
+        low = _start4(c, f0, i)
+        high = _start4(c, f0, i + 4)
         for m in range(S):
-            a = A[s, m]
-            o = m * N + i
-            a0 += a * F[_u(o)]
-            a1 += a * F[_u(o + 1)]
-            a2 += a * F[_u(o + 2)]
-            a3 += a * F[_u(o + 3)]
-            a4 += a * F[_u(o + 4)]
-            a5 += a * F[_u(o + 5)]
-            a6 += a * F[_u(o + 6)]
-            a7 += a * F[_u(o + 7)]
-        out[_u(i)] = a0
-        out[_u(i + 1)] = a1
-        out[_u(i + 2)] = a2
-        out[_u(i + 3)] = a3
-        out[_u(i + 4)] = a4
-        out[_u(i + 5)] = a5
-        out[_u(i + 6)] = a6
-        out[_u(i + 7)] = a7
+            low = _add4(low, A[s, m], F, m * N + i)
+            high = _add4(high, A[s, m], F, m * N + i + 4)
+        _store4(low, out, i)
+        _store4(high, out, i + 4)
         i += 8
     if i + 4 <= N:
-        a0 = c * f0[_u(i)]
-        a1 = c * f0[_u(i + 1)]
-        a2 = c * f0[_u(i + 2)]
-        a3 = c * f0[_u(i + 3)]
+        low = _start4(c, f0, i)
         for m in range(S):
-            a = A[s, m]
-            o = m * N + i
-            a0 += a * F[_u(o)]
-            a1 += a * F[_u(o + 1)]
-            a2 += a * F[_u(o + 2)]
-            a3 += a * F[_u(o + 3)]
-        out[_u(i)] = a0
-        out[_u(i + 1)] = a1
-        out[_u(i + 2)] = a2
-        out[_u(i + 3)] = a3
+            low = _add4(low, A[s, m], F, m * N + i)
+        _store4(low, out, i)
         i += 4
     while i < N:
         acc = c * f0[_u(i)]
