@@ -12,12 +12,7 @@ from numba import njit, types
 
 from dolfinode.adaptivity import filter_estimate, next_step
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
-from dolfinode.solvers.slab import (
-    assemble_newton_matrix,
-    factor,
-    fixed_point,
-    newton,
-)
+from dolfinode.solvers.slab import assemble_newton_matrix, factor, fixed_point, newton
 from dolfinode.timeslab import (
     BLOWUP,
     CONSTRAINT,
