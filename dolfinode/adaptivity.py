@@ -74,7 +74,7 @@ def filter_estimate(ab, kl, ku, ipiv, position, v, rhs):
     """Apply (I - gamma k J)^{-1} to v in place.
 
     ``ab`` holds the LU factors of I - gamma k J (band storage ``kl``, ``ku``, pivots
-    ``ipiv``; assembled as the one-stage Newton matrix with A = (gamma)) in the component
+    ``ipiv``; made by :func:`dolfinode.solvers.slab.shift`) in the component
     ordering ``position``; ``rhs`` is (N,) work space.
     """
     N = position.shape[0]

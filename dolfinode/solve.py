@@ -17,7 +17,7 @@ from dolfinode.timeslab import mono
 #: Relative size (times |t|) below which a time step cannot be resolved in double precision.
 _KMIN_RELATIVE = 1e-14
 _STATUS_STEP_LIMIT = -1
-#: Fraction of the available memory the banded Newton matrix of a mono-adaptive slab may take;
+#: Fraction of the available memory the banded Newton matrices of a mono-adaptive slab may take;
 #: a matrix of at most _NEWTON_SMALL bytes is taken to fit without asking the system.
 _NEWTON_MEMORY_FRACTION = 0.5
 _NEWTON_SMALL = 2**26
@@ -36,7 +36,7 @@ def _available_memory():
 
 
 def newton_memory(N, kl, ku, stages):
-    """Bytes of the banded Newton matrix (and its pivots) of a mono-adaptive time slab.
+    """Bytes of the banded Newton matrices (and their pivots) of a mono-adaptive time slab.
 
     Parameters
     ----------
@@ -50,13 +50,15 @@ def newton_memory(N, kl, ku, stages):
     Returns
     -------
     int
-        ``8 S N (2 kl S + ku S + 3 (S - 1) + 1) + 8 S N``, plus ``8 N (2 kl + ku + 2)`` for
-        the error filter (I - gamma k J)^{-1}; allocated only when the solve uses Newton's
-        method (``nonlinear_solver="newton"``, or the default once fixed-point iteration
-        fails).
+        ``8 (S + 1) N (2 kl + ku + 4)``, an upper bound: the N x N matrices I - k lambda J
+        in band storage with LU fill-in (2 kl + ku + 1 columns), one real per real eigenvalue
+        lambda of the stage matrix and one complex (16 bytes an entry) per complex pair (so S
+        real ones' worth), and J, which then holds the error filter (I - gamma k J)^{-1};
+        at most S + 1 pivot vectors and S + 3 work vectors. Allocated only when the solve
+        uses Newton's method (``nonlinear_solver="newton"``, or the default once fixed-point
+        iteration fails).
     """
-    return (8 * stages * N * (mono.newton_band_columns(kl, ku, stages) + 1)
-            + 8 * N * (2 * kl + ku + 2))
+    return 8 * (stages + 1) * N * (2 * kl + ku + 4)
 
 
 def _absolute_tolerance(ode, value, rtol):
@@ -225,6 +227,8 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
     iopts = np.concatenate([iopts, [int(fits)]])
     dend = m.end_derivative.copy()
     element_nodes, bary = m.nodes.copy(), m.barycentric_weights.copy()
+    T, T_inverse = m.stage_transform.copy(), m.stage_transform_inverse.copy()
+    eigenvalues = m.stage_eigenvalues.copy()
     nodes = m.q + 1
 
     def buffers(capacity):
@@ -234,7 +238,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
     def advance(out_t, out_k, out_X):
         return mono.advance(compiled.rhs.address, compiled.jacobian.address, compiled.p,
                             compiled.indptr, compiled.indices, position, kl, ku, A, b0, tau,
-                            element_nodes, bary, dend, iopts, fopts, atol, floor, x, f0,
+                            T, T_inverse, eigenvalues, element_nodes, bary, dend, iopts, fopts, atol, floor, x, f0,
                             state, counters, out_t, out_k, out_X)
 
     capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
@@ -246,8 +250,8 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
         why = ("was not selected" if params["nonlinear_solver"] == "newton" else "failed")
         raise SolverError(
             f"{m.name} needs Newton's method at t = {state[mono.T_NOW]:.6g} (fixed-point "
-            f"iteration {why}), but its banded Newton matrix ({A.shape[0] * ode.N} unknowns, "
-            f"bandwidth {kl} + {ku} after reordering) takes {band_bytes / 2**30:.3g} GB, more "
+            f"iteration {why}), but its banded Newton matrices ({ode.N} unknowns each, "
+            f"bandwidth {kl} + {ku} after reordering) take {band_bytes / 2**30:.3g} GB, more "
             f"than {_NEWTON_MEMORY_FRACTION:g} x the {available / 2**30:.3g} GB available. "
             "Use smaller steps with fixed_time_step=True and nonlinear_solver='fixed-point', "
             "or a smaller system", t=float(state[mono.T_NOW]))

@@ -6,8 +6,9 @@ discrete equations (see :mod:`dolfinode.methods.method`) read
     G(X)_s = X_s - x0 - k (b0_s f(x0, t) + sum_m A_sm f(X_m, t + tau_m k)) = 0.
 
 * fixed-point iteration X <- X - G(X) converges when k ||A|| Lip(f) < 1 (non-stiff);
-* simplified Newton solves (I - k A (x) J) dX = -G(X) with J = df/du(x0, t), assembled in
-  band storage in the component ordering chosen by ``bandwidth_ordering`` (stiff).
+* simplified Newton solves (I - k A (x) J) dX = -G(X) with J = df/du(x0, t), split by the
+  eigenstructure of A into N x N systems I - k lambda J, in band storage in the component
+  ordering chosen by ``bandwidth_ordering`` (stiff).
 
 Increments are measured in the scaled max-norm |dX_i| w_i, w_i = 1 / (atol_i + rtol |X_i|),
 X the current iterate (Newton) or the starting guess (fixed point, see there). An iteration
@@ -105,8 +106,9 @@ def _store4(sums, out, i):
 
 
 @njit(cache=True, inline="always")
-def _stage_sum(f0, F, A, b0, s, out):
-    """out = b0_s f0 + sum_m A_sm F_m: one stage of the quadrature, in blocks of 8 and then 4
+def _stage_sum(c, f0, F, A, s, out):
+    """out = c f0 + sum_m A_sm F_m (one stage of the quadrature, c = b0_s; or with c = 0 one
+    stage of a transformation F -> (A (x) I) F), in blocks of 8 and then 4
     components whose sums stay in registers over m (stored once; the compiler packs them
     into vector registers), the rest one by one; unsigned indices, see
     dolfinode.linalg.banded. Against axpys over all components per m, the sums of a sweep
@@ -114,7 +116,6 @@ def _stage_sum(f0, F, A, b0, s, out):
     order of summation, same results)."""
     N = f0.shape[0]
     S = A.shape[0]
-    c = b0[s]
     i = 0
     while i + 8 <= N:
         low = _start4(c, f0, i)
@@ -144,7 +145,7 @@ def _residual(x0, f0, X, F, A, b0, k, G):
     """G = X - x0 - k (b0 f0 + A F), stage-major."""
     N = x0.shape[0]
     for s in range(A.shape[0]):
-        _stage_sum(f0, F, A, b0, s, G[s * N:])
+        _stage_sum(b0[s], f0, F, A, s, G[s * N:])
         for i in range(N):
             e = _u(s * N + i)
             G[e] = X[e] - x0[_u(i)] - k * G[e]
@@ -169,7 +170,7 @@ def fixed_point(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F
         # sums as axpys, before they were blocked)
         d = 0.0
         for s in range(S):
-            _stage_sum(f0, F, A, b0, s, G)
+            _stage_sum(b0[s], f0, F, A, s, G)
             for i in range(N):
                 e = _u(s * N + i)
                 g = X[e] - x0[_u(i)] - k * G[_u(i)]
@@ -191,43 +192,89 @@ def fixed_point(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F
 
 
 @njit(cache=True)
-def assemble_newton_matrix(jdata, indptr, indices, position, A, k, kl, ku, ab):
-    """Band storage of I - k A (x) J, unknown (component i, stage s) at row position[i] S + s."""
-    S = A.shape[0]
-    n = ab.shape[0]
-    N = position.shape[0]
+def band_jacobian(jdata, indptr, indices, position, kl, ku, jb):
+    """J (its CSR values ``jdata``) in band storage ``jb`` (2 kl + ku + 1 columns), in the
+    component ordering ``position``: scattered once per Jacobian, then shifted by
+    :func:`shift` into each matrix I - c J the slab needs."""
     kv = kl + ku
-    ab[:, :] = 0.0
-    for i in range(N):
-        ri = position[i] * S
+    jb[:, :] = 0.0
+    for i in range(position.shape[0]):
+        r = position[i]
         for nz in range(indptr[i], indptr[i + 1]):
-            cj = position[indices[nz]] * S
-            value = -k * jdata[nz]
-            for s in range(S):
-                for m in range(S):
-                    ab[cj + m, kv + ri + s - cj - m] += value * A[s, m]
-    for r in range(n):
+            col = position[indices[nz]]
+            jb[col, kv + r - col] += jdata[nz]
+
+
+@njit(cache=True)
+def shift(jb, c, kl, ku, ab):
+    """ab = I - c J (c real or complex) from J in band storage ``jb``; the kl fill-in columns
+    are band_lu's to clear."""
+    kv = kl + ku
+    for r in range(jb.shape[0]):
+        for col in range(kl, jb.shape[1]):
+            ab[r, col] = -c * jb[r, col]
         ab[r, kv] += 1.0
 
 
+@njit(cache=True)
+def factor(ab, kl, ku, ipiv, counters):
+    """LU-factor a band matrix in place; returns True on success."""
+    counters[FACTORIZATIONS] += 1
+    return band_lu(ab, kl, ku, ipiv) == 0
+
+
+@njit(cache=True)
+def factor_stages(jb, k, eigenvalues, kl, ku, ab_real, ab_complex, ipiv, counters):
+    """LU factors of I - k lambda_j J (J in band storage ``jb``) for the eigenvalues of the
+    stage matrix: the real ones into ab_real[j], one per complex pair into ab_complex[c].
+    Returns True on success."""
+    r = ab_real.shape[0]
+    for j in range(r):
+        shift(jb, k * eigenvalues[j].real, kl, ku, ab_real[j])
+        if not factor(ab_real[j], kl, ku, ipiv[j], counters):
+            return False
+    for c in range(ab_complex.shape[0]):
+        shift(jb, k * eigenvalues[r + c], kl, ku, ab_complex[c])
+        if not factor(ab_complex[c], kl, ku, ipiv[r + c], counters):
+            return False
+    return True
+
+
 @njit(cache=True, **NO_REFCOUNT)
-def newton(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F, G, ab, kl, ku,
-           ipiv, position, rhs_perm, w, counters):
-    """Simplified Newton iteration on the stages with the factored matrix in ``ab``."""
+def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_iter, X, F, G,
+           Z, ab_real, ab_complex, kl, ku, ipiv, position, z_real, z_complex, w, counters):
+    """Simplified Newton iteration on the stages, (I - k A (x) J) dX = -G(X), with the
+    factors of :func:`factor_stages`: with A = T B T^{-1} (``T``, ``T_inverse``) the system is
+    (I - k B (x) J) Z = -(T^{-1} (x) I) G, dX = (T (x) I) Z, and B's blocks decouple it into
+    one N x N band solve per real eigenvalue and one complex one per pair (RADAU5's
+    transformation): S N x S N with bandwidth ~S b becomes ~S/2 N x N with bandwidth b."""
     S = A.shape[0]
     N = x0.shape[0]
+    r = ab_real.shape[0]
     d_prev = 0.0
     for it in range(max_iter):
         counters[F_EVALUATIONS] += stage_rhs(f, p, X, t, k, tau, F)
         _residual(x0, f0, X, F, A, b0, k, G)
-        for s in range(S):
+        for j in range(S):
+            _stage_sum(0.0, x0, G, T_inverse, j, Z[j * N:])
+        for j in range(r):
             for i in range(N):
-                rhs_perm[position[i] * S + s] = -G[s * N + i]
-        band_solve(ab, kl, ku, ipiv, rhs_perm)
-        for s in range(S):
+                z_real[position[i]] = -Z[j * N + i]
+            band_solve(ab_real[j], kl, ku, ipiv[j], z_real)
             for i in range(N):
-                G[s * N + i] = rhs_perm[position[i] * S + s]
-                X[s * N + i] += G[s * N + i]
+                Z[j * N + i] = z_real[position[i]]
+        for c in range(ab_complex.shape[0]):
+            re = (r + 2 * c) * N
+            for i in range(N):
+                z_complex[position[i]] = complex(-Z[re + i], -Z[re + N + i])
+            band_solve(ab_complex[c], kl, ku, ipiv[r + c], z_complex)
+            for i in range(N):
+                Z[re + i] = z_complex[position[i]].real
+                Z[re + N + i] = z_complex[position[i]].imag
+        for s in range(S):
+            _stage_sum(0.0, x0, Z, T, s, G[s * N:])
+        for e in range(S * N):
+            X[e] += G[e]
         counters[ITERATIONS] += 1
         scale_weights(X, atol, rtol, w)
         d = weighted_norm(G, w)
@@ -239,10 +286,3 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F, G, 
             return -1
         d_prev = d
     return -1
-
-
-@njit(cache=True)
-def factor(ab, kl, ku, ipiv, counters):
-    """LU-factor the Newton matrix; returns True on success."""
-    counters[FACTORIZATIONS] += 1
-    return band_lu(ab, kl, ku, ipiv) == 0

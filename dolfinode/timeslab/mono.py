@@ -12,7 +12,14 @@ from numba import njit, types
 
 from dolfinode.adaptivity import filter_estimate, next_step
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
-from dolfinode.solvers.slab import assemble_newton_matrix, factor, fixed_point, newton
+from dolfinode.solvers.slab import (
+    band_jacobian,
+    factor,
+    factor_stages,
+    fixed_point,
+    newton,
+    shift,
+)
 from dolfinode.timeslab import (
     BLOWUP,
     CONSTRAINT,
@@ -58,30 +65,12 @@ _SIGNATURE = types.int64(
     types.intp, types.intp, _f8,            # addresses of f and J, p
     _i8, _i8, _i8, types.int64, types.int64,  # indptr, indices, position, kl, ku
     types.float64[:, ::1], _f8, _f8,       # A, b0, tau
+    types.float64[:, ::1], types.float64[:, ::1], types.complex128[::1],  # A = T B T^-1, eig B
     _f8, _f8, _f8,                           # nodes, barycentric weights, end_derivative
     _i8, _f8, _f8, _f8,                      # iopts, fopts, atol, floor
     _f8, _f8, _f8, _i8,                      # x, f0, state, counters
     _f8, _f8, types.float64[:, :, ::1],      # out_t, out_k, out_X
 )
-
-
-@njit(cache=True)
-def newton_band_columns(kl, ku, S):
-    """Columns of the band storage of the S N x S N Newton matrix (with LU fill-in rows).
-
-    Parameters
-    ----------
-    kl, ku : int
-        Lower and upper bandwidth of the Jacobian in the ordering used (RCM).
-    S : int
-        Number of stages of the method.
-
-    Returns
-    -------
-    int
-        ``2 (kl S + S - 1) + ku S + S - 1 + 1``.
-    """
-    return 2 * kl * S + ku * S + 3 * (S - 1) + 1
 
 
 @njit(cache=True, **NO_REFCOUNT)
@@ -156,9 +145,9 @@ def drives_out(u, fu, floor, remaining):
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
-def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0, tau, nodes,
-            bary, end_derivative, iopts, fopts, atol, floor, x, f0, state, counters, out_t,
-            out_k, out_X):
+def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0, tau,
+            transform, transform_inverse, eigenvalues, nodes, bary, end_derivative, iopts, fopts, atol, floor, x,
+            f0, state, counters, out_t, out_k, out_X):
     """Advance (x, t) towards T, storing accepted elements in out_*; returns a status code.
 
     A step on which a stage value leaves the declared domain (``leaves_domain``) is
@@ -183,19 +172,26 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
     filter_rhs = np.empty(N)
     fend = np.empty(N)
     jdata = np.empty(indices.shape[0])
-    klS = kl * S + S - 1
-    kuS = ku * S + S - 1
-    # the Newton workspace is allocated when Newton is first used (fixed point needs none)
-    ab = np.zeros((0, 0))
-    ipiv = np.zeros(0, dtype=np.int64)
-    rhs_perm = np.empty(S * N)
-    # the error filter (I - gamma k J)^{-1} is applied with Newton only: allocated with it
-    ab_filter = np.zeros((0, 0))
+    # the Newton workspace (one band matrix I - k lambda J per real eigenvalue lambda of A
+    # and per complex pair) is allocated when Newton is first used (fixed point needs none)
+    n_real = 0
+    for j in range(eigenvalues.shape[0]):
+        if eigenvalues[j].imag == 0.0:
+            n_real += 1
+    columns = 2 * kl + ku + 1
+    # J in band storage; once the stage matrices are factored, the error filter's
+    # I - gamma k J and its factors (the filter is applied with Newton only)
+    jb = np.zeros((0, 0))
+    ab_real = np.zeros((0, 0, 0))
+    ab_complex = np.zeros((0, 0, 0), dtype=np.complex128)
+    ipiv = np.zeros((0, 0), dtype=np.int64)
+    Z = np.empty(S * N)
+    z_real = np.empty(N)
+    z_complex = np.empty(N, dtype=np.complex128)
     ipiv_filter = np.zeros(0, dtype=np.int64)
     est = np.empty(N)
     w = np.empty(S * N)  # weights of the scaled norm (solvers' work space)
     weights = np.empty(n_nodes)  # extrapolate's work space
-    gamma_stage = np.full((1, 1), gamma)  # the filter's matrix I - gamma k J, as a 1-stage one
     counters[STORED] = 0
 
     t = state[T_NOW]
@@ -245,31 +241,35 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
                 for s in range(S):
                     for i in range(N):
                         X[s * N + i] = x[i] + tau[s] * k * f0[i]
-        if use_newton and ab.shape[0] == 0:
+        if use_newton and ipiv.shape[0] == 0:
             if iopts[NEWTON_FITS] == 0:
                 state[T_NOW] = t
                 state[K_NEXT] = k
                 return NEWTON_MEMORY
-            ab = np.zeros((S * N, newton_band_columns(kl, ku, S)))
-            ipiv = np.zeros(S * N, dtype=np.int64)
-            ab_filter = np.zeros((N, 2 * kl + ku + 1))
+            jb = np.zeros((N, columns))
+            ab_real = np.zeros((n_real, N, columns))
+            ab_complex = np.zeros((eigenvalues.shape[0] - n_real, N, columns),
+                                  dtype=np.complex128)
+            ipiv = np.zeros((eigenvalues.shape[0], N), dtype=np.int64)
             ipiv_filter = np.zeros(N, dtype=np.int64)
         if use_newton:
             jac(address(x, 0), t, address(p, 0), address(jdata, 0))
             counters[JACOBIANS] += 1
-            assemble_newton_matrix(jdata, indptr, indices, position, A, k, klS, kuS, ab)
-            if factor(ab, klS, kuS, ipiv, counters):
-                iters = newton(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter, X, F,
-                               G, ab, klS, kuS, ipiv, position, rhs_perm, w, counters)
+            band_jacobian(jdata, indptr, indices, position, kl, ku, jb)
+            if factor_stages(jb, k, eigenvalues, kl, ku, ab_real, ab_complex, ipiv, counters):
+                iters = newton(f, p, x, f0, t, k, A, b0, tau, transform, transform_inverse,
+                               atol, rtol, dtol_k, max_iter, X, F, G, Z, ab_real, ab_complex,
+                               kl, ku, ipiv, position, z_real, z_complex, w, counters)
                 if iters < 0:
                     # On stiff components the Euler predictor overshoots by |k lambda| (ROBER
                     # at k ~ t: 1e6-1e11); start once more from the constant x before reducing k.
                     for s in range(S):
                         for i in range(N):
                             X[s * N + i] = x[i]
-                    iters = newton(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter,
-                                   X, F, G, ab, klS, kuS, ipiv, position, rhs_perm, w,
-                                   counters)
+                    iters = newton(f, p, x, f0, t, k, A, b0, tau, transform,
+                                   transform_inverse, atol, rtol, dtol_k, max_iter, X, F, G, Z,
+                                   ab_real, ab_complex, kl, ku, ipiv, position, z_real,
+                                   z_complex, w, counters)
             else:
                 iters = -1
         if iters < 0:
@@ -299,11 +299,10 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
                 kdu += end_derivative[j] * xi
             est[i] = kdu - k * fend[i]  # k R(t_n)
         if use_newton and not blowup:
-            assemble_newton_matrix(jdata, indptr, indices, position, gamma_stage, k, kl, ku,
-                                   ab_filter)
-            blowup = not factor(ab_filter, kl, ku, ipiv_filter, counters)
+            shift(jb, gamma * k, kl, ku, jb)
+            blowup = not factor(jb, kl, ku, ipiv_filter, counters)
             if not blowup:
-                filter_estimate(ab_filter, kl, ku, ipiv_filter, position, est, filter_rhs)
+                filter_estimate(jb, kl, ku, ipiv_filter, position, est, filter_rhs)
         eps = 0.0
         for i in range(N):
             eps = max(eps, abs(est[i]) / (atol[i] + rtol * abs(X[end + i])))

@@ -73,6 +73,21 @@ def test_band_solve_matches_numpy(n, kl, ku, seed):
     np.testing.assert_allclose(A @ x, b, rtol=0, atol=1e-10 * (1 + np.abs(b).max()))
 
 
+@pytest.mark.parametrize("n, kl, ku", SHAPES)
+def test_complex_band_solve_matches_numpy(n, kl, ku):
+    """The same code factors complex matrices (I - k lambda J for complex lambda)."""
+    rng = np.random.default_rng(n)
+    A = random_banded(rng, n, kl, ku) + 1j * random_banded(rng, n, kl, ku)
+    b = rng.standard_normal(n) + 1j * rng.standard_normal(n)
+    ab = to_band(A.real, kl, ku) + 1j * to_band(A.imag, kl, ku)
+    ipiv = np.zeros(n, dtype=np.int64)
+    assert band_lu(ab, kl, ku, ipiv) == 0
+    x = b.copy()
+    band_solve(ab, kl, ku, ipiv, x)
+    np.testing.assert_allclose(x, np.linalg.solve(A, b), rtol=1e-9,
+                               atol=1e-11 * np.abs(x).max())
+
+
 @pytest.mark.parametrize("n, kl, ku", [(2, 1, 1), (6, 1, 1), (8, 2, 1), (12, 1, 3), (30, 3, 3),
                                        (6, 5, 5)])
 def test_zero_diagonal_needs_pivoting(n, kl, ku):

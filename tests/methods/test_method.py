@@ -213,6 +213,28 @@ def test_left_value_is_the_basis_at_zero(method):
         assert method.left_value @ method.nodes**d == pytest.approx(float(d == 0), abs=1e-11)
 
 
+def test_stage_eigenstructure_block_diagonalizes_a(method):
+    """A = T B T^{-1}, B block diagonal: the real eigenvalues, then [[a, -b], [b, a]] per
+    complex pair a + i b; together they are A's eigenvalues (up to conjugation)."""
+    A, T, T_inverse = method.A, method.stage_transform, method.stage_transform_inverse
+    eigenvalues = method.stage_eigenvalues
+    S = A.shape[0]
+    np.testing.assert_allclose(T @ T_inverse, np.eye(S), atol=1e-9)
+    real = eigenvalues[eigenvalues.imag == 0].real
+    pairs = eigenvalues[eigenvalues.imag != 0]
+    assert len(real) + 2 * len(pairs) == S
+    B = np.zeros((S, S))
+    B[range(len(real)), range(len(real))] = real
+    for c, mu in enumerate(pairs):
+        j = len(real) + 2 * c
+        B[j:j + 2, j:j + 2] = [[mu.real, -mu.imag], [mu.imag, mu.real]]
+    np.testing.assert_allclose(T @ B @ T_inverse, A, atol=1e-12 * np.linalg.cond(T))
+    expected = np.sort_complex(np.linalg.eigvals(A))
+    found = np.sort_complex(np.concatenate([real, pairs, pairs.conj()]))
+    np.testing.assert_allclose(found, expected, atol=1e-12)
+    assert np.all(found.real > 0)  # I - k lambda J is regular for J with eigenvalues in Re <= 0
+
+
 # --- construction ---------------------------------------------------------------------------------
 
 
@@ -221,7 +243,8 @@ def test_make_method_is_cached_and_tables_are_read_only():
     assert make_method("cG", 3) is a
     assert make_method("dG", 3) is not a
     for array in (a.nodes, a.quadrature_weights, a.stages, a.A, a.b0, a.end_derivative,
-                  a.left_value, a.barycentric_weights):
+                  a.left_value, a.barycentric_weights, a.stage_transform,
+                  a.stage_transform_inverse, a.stage_eigenvalues):
         assert not array.flags.writeable
     with pytest.raises(ValueError):
         a.A[0, 0] = 1.0
