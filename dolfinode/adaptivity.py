@@ -41,6 +41,21 @@ MAX_FACTOR = 5.0
 
 
 @njit(cache=True)
+def initial_step(f0, u0, atol, rtol, span):
+    """k0 = 0.01 d0 / d1 with d0 = |u0|, d1 = |f(u0)| in the scaled max-norm (weights
+    1 / (atol + rtol |u0|); Hairer-Noersett-Wanner's first guess), 1e-6 span if either is
+    below 1e-5; at most the span."""
+    d0 = 0.0
+    d1 = 0.0
+    for i in range(u0.shape[0]):
+        w = 1.0 / (atol[i] + rtol * abs(u0[i]))
+        d0 = max(d0, abs(u0[i]) * w)
+        d1 = max(d1, abs(f0[i]) * w)
+    k0 = 1e-6 * span if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
+    return min(k0, span)
+
+
+@njit(cache=True)
 def next_step(k, eps, eps_prev, order, safety, accepted):
     """Next step length after a step of length k with estimate eps (<= 1: accepted).
 

@@ -1,11 +1,12 @@
 """The driver: ``solve(ode, method, **parameters) -> Solution``."""
+import math
 import os
 import time
 
 import numpy as np
 
 from dolfinode import timeslab as ts
-from dolfinode.adaptivity import filter_constant
+from dolfinode.adaptivity import filter_constant, initial_step
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
 from dolfinode.methods import parse_method
@@ -62,31 +63,23 @@ def newton_memory(N, kl, ku, stages):
 
 
 def _absolute_tolerance(ode, value, rtol):
-    if value is None:
-        return np.full(ode.N, rtol)
-    if np.isscalar(value):
-        atol = np.full(ode.N, float(value))
+    if value is None or np.isscalar(value):
+        scalar = float(rtol if value is None else value)
+        valid = math.isfinite(scalar) and scalar > 0  # Python floats: 20 us less than numpy
+        atol = np.full(ode.N, scalar)
     else:
         atol = _vector_by_state(value, ode.states, "absolute_tolerance")
-    if np.any(~(atol > 0)) or np.any(~np.isfinite(atol)):
+        valid = np.all(atol > 0) and np.all(np.isfinite(atol))
+    if not valid:
         raise ValueError(f"absolute_tolerance must be positive and finite, got {value!r}")
     return atol
-
-
-def _initial_step(f0, u0, atol, rtol, span):
-    """k0 = 0.01 |u0| / |f(u0)| in the scaled norm (Hairer-Noersett-Wanner's first guess)."""
-    scale = atol + rtol * np.abs(u0)
-    d0 = np.max(np.abs(u0) / scale)
-    d1 = np.max(np.abs(f0) / scale)
-    k0 = 1e-6 * span if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
-    return min(k0, span)
 
 
 def _initial_steps(ode, given, f0, atol, rtol, multi_adaptive):
     """The first step: a number, or per state (dict/sequence) for multi-adaptive methods."""
     span = ode.T - ode.t0
     if given is None:
-        return np.full(ode.N, _initial_step(f0, ode.u0, atol, rtol, span))
+        return np.full(ode.N, initial_step(f0, ode.u0, atol, rtol, span))
     if np.isscalar(given):
         return np.full(ode.N, float(given))
     if not multi_adaptive:
@@ -215,20 +208,14 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
 
 def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps):
     _, position, kl, ku = compiled.ordering
-    A = np.array(m.A)
+    tables = mono.method_tables(m)
     fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, filter_constant(m)])
     state = np.array([ode.t0, steps[0], 1.0, 1.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
-    tau = m.nodes[m.stages].copy()
-    b0 = m.b0.copy()
-    band_bytes = newton_memory(ode.N, kl, ku, A.shape[0])
+    band_bytes = newton_memory(ode.N, kl, ku, m.num_stages)
     fits = (band_bytes <= _NEWTON_SMALL
             or band_bytes <= _NEWTON_MEMORY_FRACTION * _available_memory())
     iopts = np.concatenate([iopts, [int(fits)]])
-    dend = m.end_derivative.copy()
-    element_nodes, bary = m.nodes.copy(), m.barycentric_weights.copy()
-    T, T_inverse = m.stage_transform.copy(), m.stage_transform_inverse.copy()
-    eigenvalues = m.stage_eigenvalues.copy()
     nodes = m.q + 1
 
     def buffers(capacity):
@@ -237,9 +224,9 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
 
     def advance(out_t, out_k, out_X):
         return mono.advance(compiled.rhs.address, compiled.jacobian.address, compiled.p,
-                            compiled.indptr, compiled.indices, position, kl, ku, A, b0, tau,
-                            T, T_inverse, eigenvalues, element_nodes, bary, dend, iopts, fopts, atol, floor, x, f0,
-                            state, counters, out_t, out_k, out_X)
+                            compiled.indptr, compiled.indices, position, kl, ku, *tables,
+                            iopts, fopts, atol, floor, x, f0, state, counters, out_t, out_k,
+                            out_X)
 
     capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
     with _progress(ode, params) as bar:

@@ -6,6 +6,7 @@ when it reaches T, when its output buffer is full (the driver then calls it agai
 also where progress is reported), or when it cannot continue.
 """
 import math
+from functools import cache
 
 import numpy as np
 from numba import njit, types
@@ -71,6 +72,18 @@ _SIGNATURE = types.int64(
     _f8, _f8, _f8, _i8,                      # x, f0, state, counters
     _f8, _f8, types.float64[:, :, ::1],      # out_t, out_k, out_X
 )
+
+
+@cache
+def method_tables(method):
+    """The method's tables in the order :func:`advance` takes them (A, b0, tau, T, T^{-1},
+    eigenvalues, nodes, barycentric weights, end derivative), as the writable arrays of its
+    signature (numba types read-only arrays apart); made once per method, as advance only
+    reads them."""
+    m = method
+    tables = (m.A, m.b0, m.nodes[m.stages], m.stage_transform, m.stage_transform_inverse,
+              m.stage_eigenvalues, m.nodes, m.barycentric_weights, m.end_derivative)
+    return tuple(np.array(table) for table in tables)
 
 
 @njit(cache=True, **NO_REFCOUNT)
