@@ -255,8 +255,10 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
     for it in range(max_iter):
         counters[F_EVALUATIONS] += stage_rhs(f, p, X, t, k, tau, F)
         _residual(x0, f0, X, F, A, b0, k, G)
-        for j in range(S):
+        for j in range(S):  # Z = (T^{-1} (x) I) G
             _stage_sum(0.0, x0, G, T_inverse, j, Z[j * N:])
+        # Z_j <- (I - k lambda_j J)^{-1} (-Z_j), in the band ordering; a complex pair's two
+        # real blocks are the real and imaginary parts of one complex vector
         for j in range(r):
             for i in range(N):
                 z_real[position[i]] = -Z[j * N + i]
@@ -271,7 +273,7 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
             for i in range(N):
                 Z[re + i] = z_complex[position[i]].real
                 Z[re + N + i] = z_complex[position[i]].imag
-        for s in range(S):
+        for s in range(S):  # dX = (T (x) I) Z, into G
             _stage_sum(0.0, x0, Z, T, s, G[s * N:])
         for e in range(S * N):
             X[e] += G[e]

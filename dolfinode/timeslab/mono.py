@@ -159,8 +159,8 @@ def drives_out(u, fu, floor, remaining):
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
 def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0, tau,
-            transform, transform_inverse, eigenvalues, nodes, bary, end_derivative, iopts, fopts, atol, floor, x,
-            f0, state, counters, out_t, out_k, out_X):
+            transform, transform_inverse, eigenvalues, nodes, bary, end_derivative, iopts,
+            fopts, atol, floor, x, f0, state, counters, out_t, out_k, out_X):
     """Advance (x, t) towards T, storing accepted elements in out_*; returns a status code.
 
     A step on which a stage value leaves the declared domain (``leaves_domain``) is
