@@ -2,7 +2,7 @@
 import numpy as np
 from numba import njit
 
-from dolfinode.methods.method import element_value
+from dolfinode.methods.method import element_value, lagrange_weights
 
 
 @njit(cache=True)
@@ -20,13 +20,18 @@ def _evaluate_components(ptr, t_start, t_end, values, nodes, bary, times, out):
 @njit(cache=True)
 def _evaluate_shared(t_start, t_end, values, nodes, bary, times, out):
     """out[i, m] = U_i(times[m]) on a partition shared by all components (values
-    (M, q + 1, N)), from the first element ending at or after the time."""
+    (M, q + 1, N)), from the first element ending at or after the time; the basis is
+    evaluated once per time for all components."""
+    weights = np.empty(nodes.shape[0])
     for m in range(times.shape[0]):
         n = min(np.searchsorted(t_end, times[m]), t_end.shape[0] - 1)
         tau = min(max((times[m] - t_start[n]) / (t_end[n] - t_start[n]), 0.0), 1.0)
-        by_component = values[n].T
+        lagrange_weights(tau, nodes, bary, weights)
         for i in range(out.shape[0]):
-            out[i, m] = element_value(by_component, i, tau, nodes, bary)
+            value = 0.0
+            for j in range(nodes.shape[0]):
+                value += weights[j] * values[n, j, i]
+            out[i, m] = value
 
 
 def join_elements(chunks):
@@ -35,6 +40,8 @@ def join_elements(chunks):
     The list is emptied and each chunk released once copied: the result's pages are
     committed as the chunks' are freed, so the stored elements (gigabytes on a large
     system) are not held twice as with np.concatenate."""
+    if len(chunks) == 1:  # the common case: copies of the used part of the buffers
+        return [part.copy() for part in chunks.pop()]
     total = sum(len(chunk[0]) for chunk in chunks)
     joined = [np.empty((total, *a.shape[1:]), dtype=a.dtype) for a in chunks[0]]
     chunks.reverse()

@@ -140,7 +140,7 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
     x = ode.u0.copy()
     f0 = compiled.f(x, ode.t0)
-    if not np.all(np.isfinite(f0)):
+    if not np.isfinite(f0).all():
         bad = ode.states[int(np.flatnonzero(~np.isfinite(f0))[0])]
         raise ValueError(f"f(u0, t0) is not finite in the right-hand side of {bad}: check u0 "
                          "and the parameters")

@@ -18,7 +18,7 @@ import sympy as sp
 
 from dolfinode.compile.cache import load_library, signature
 from dolfinode.compile.codegen import kernel_source
-from dolfinode.compile.signatures import KERNELS, Kernel
+from dolfinode.compile.signatures import KERNELS, Kernel, call_rhs
 from dolfinode.linalg import bandwidth_ordering
 from dolfinode.ode import t as time_symbol
 
@@ -78,9 +78,8 @@ class CompiledODE:
 
     def f(self, u, t):
         """f(u, t) as a new array (convenience, not for hot loops)."""
-        u = self._vector(u)
         out = np.empty(self.N)
-        self.rhs(u.ctypes.data, float(t), self.p.ctypes.data, out.ctypes.data)
+        call_rhs(self.rhs.address, self._vector(u), float(t), self.p, out)
         return out
 
     def f_component(self, i, u, t):

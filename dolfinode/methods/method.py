@@ -112,6 +112,25 @@ def element_value(values, e, tau, nodes, bary):
     return num / den
 
 
+@njit(cache=True, inline="always")
+def lagrange_weights(tau, nodes, bary, weights):
+    """weights_j = l_j(tau), the Lagrange basis on the nodes at tau (in [0, 1], or past it to
+    extrapolate; barycentric formula with weights ``bary``): U(tau) = sum_j weights_j xi_j
+    for every component at the cost of one evaluation of the basis."""
+    den = 0.0
+    for j in range(nodes.shape[0]):
+        d = tau - nodes[j]
+        if d == 0.0:  # tau is node j
+            for m in range(nodes.shape[0]):
+                weights[m] = 0.0
+            weights[j] = 1.0
+            return
+        weights[j] = bary[j] / d
+        den += weights[j]
+    for j in range(nodes.shape[0]):
+        weights[j] /= den
+
+
 def _lagrange_coefficients(nodes):
     """Monomial coefficients C[j, i] of the Lagrange basis l_j(tau) = sum_i C[j, i] tau^i."""
     n = len(nodes)

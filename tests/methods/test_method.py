@@ -187,6 +187,17 @@ def test_basis_reproduces_polynomials_of_degree_q(method):
     assert np.abs(node_polynomial).max() > 1e-8
 
 
+def test_lagrange_weights_are_the_basis(method):
+    """The compiled basis used for sampling and extrapolation: l_j(tau) at the nodes, inside
+    the element and past its end."""
+    from dolfinode.methods.method import lagrange_weights
+
+    weights = np.empty(method.q + 1)
+    for tau in [*method.nodes, 0.3, 0.77, 1.4, 2.0]:
+        lagrange_weights(tau, method.nodes, method.barycentric_weights, weights)
+        np.testing.assert_allclose(weights, method.basis(tau)[0], rtol=1e-12, atol=1e-12)
+
+
 def test_basis_accepts_a_scalar(method):
     assert method.basis(0.5).shape == (1, method.q + 1)
     np.testing.assert_allclose(method.basis(0.5)[0], method.basis(np.array([0.5, 0.7]))[0])
