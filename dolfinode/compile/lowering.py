@@ -102,9 +102,8 @@ class CompiledODE:
 
     def jacobian_matrix(self, u, t):
         """df/du at (u, t) as a scipy CSR matrix."""
-        u = self._vector(u)
         data = np.empty(self.nnz)
-        self.jacobian(u.ctypes.data, float(t), self.p.ctypes.data, data.ctypes.data)
+        call_rhs(self.jacobian.address, self._vector(u), float(t), self.p, data)
         return sps.csr_matrix((data, self.indices.copy(), self.indptr.copy()), shape=(self.N, self.N))
 
 
