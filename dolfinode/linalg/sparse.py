@@ -26,6 +26,8 @@ def wide_band(n_unknowns, band):
     N = 724, 19x at N = 3044 and 18x at N = 6964 (2.3 s against 0.13 s), on a 60 x 60
     reaction-diffusion grid (r = 4, band 488) 4.6x; see doc/benchmarks/dual_lu.md
     (benchmarks/run_dual_lu.py). The crossover, 3.5e-11 band^2 ~ 1-3 us, is at a band of
-    170-290.
+    170-290. A re-run on 2026-11-24 (same code) found the banded LU about 2x faster against
+    splu (the shared machine's state): 0.75x splu's time at N = 164, 3.8-7.1x on the larger
+    lattices, 1.6x on the reaction-diffusion grid; every choice stays the faster one.
     """
     return n_unknowns >= SPARSE_MINIMUM and band > SPARSE_BAND
