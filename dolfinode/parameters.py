@@ -45,62 +45,94 @@ def _positive(name, value, allow_none=True):
     return value
 
 
+def _required(name, value):
+    return _positive(name, value, allow_none=False)
+
+
+def _fraction(name, value):
+    value = _required(name, value)
+    if value > 1:
+        raise ValueError(f"{name} must lie in (0, 1], got {value}")
+    return value
+
+
+def _count(name, value):
+    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return value
+
+
+def _integer_from(low):
+    def check(name, value):
+        if not isinstance(value, int) or isinstance(value, bool) or value < low:
+            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        return value
+    return check
+
+
+def _switch(name, value):
+    if not isinstance(value, (bool, int)):
+        raise TypeError(f"{name} must be True or False, got {value!r}")
+    return value
+
+
+def _choice(choices):
+    def check(name, value):
+        if isinstance(value, str):
+            value = value.lower()
+        if value not in choices:
+            close = difflib.get_close_matches(str(value), choices, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise ValueError(f"unknown {name} {value!r}{hint} Choose one of {choices}")
+        return value
+    return check
+
+
+def _initial_time_step(name, value):
+    return value if isinstance(value, dict) else _positive(name, value)  # per state: by solve
+
+
+#: How each parameter is checked and normalised, ``check(name, value) -> value`` (the
+#: defaults pass their checks, so only the given names are checked).
+_CHECKS = {
+    "tolerance": _required,
+    "initial_time_step": _initial_time_step,
+    "maximum_time_step": _positive,
+    "nonlinear_solver": _choice(NONLINEAR_SOLVERS),
+    "discrete_tolerance_factor": _required,
+    "maximum_iterations": _count,
+    "safety_factor": _required,
+    "maximum_steps": _count,
+    "number_of_samples": _count,
+    "partitioning_threshold": _fraction,
+    "interval_threshold": _fraction,
+    "automatic_modeling": _switch,
+    "average_length": _positive,
+    "average_samples": _integer_from(2),
+    "average_tolerance": _required,
+    "control_points": _integer_from(0),
+    "model_tolerance": _required,
+    "rebuild_model": _switch,
+    "subgrid_model": _choice(SUBGRID_MODELS),
+}
+
+
 def check_parameters(given):
-    """Merge ``given`` into the defaults; unknown names raise with the closest valid name."""
-    for name in given:
+    """Merge ``given`` into the defaults, each given value checked (and numbers made floats);
+    unknown names raise with the closest valid name."""
+    params = dict(DEFAULTS)
+    for name, value in given.items():
         if name not in DEFAULTS:
             close = difflib.get_close_matches(name, list(DEFAULTS), n=1,
                                               cutoff=0.4)
             hint = f"; did you mean {close[0]!r}?" if close else ""
             raise ValueError(f"unknown parameter {name!r}{hint} Valid parameters: "
                              f"{', '.join(sorted(DEFAULTS))}")
-    params = dict(DEFAULTS, **given)
-    params["tolerance"] = _positive("tolerance", params["tolerance"], allow_none=False)
-    if not isinstance(params["initial_time_step"], dict):  # per state: checked by solve
-        params["initial_time_step"] = _positive("initial_time_step", params["initial_time_step"])
-    for name in ("partitioning_threshold", "interval_threshold"):
-        value = _positive(name, params[name], allow_none=False)
-        if value > 1:
-            raise ValueError(f"{name} must lie in (0, 1], got {value}")
-        params[name] = value
-    params["maximum_time_step"] = _positive("maximum_time_step", params["maximum_time_step"])
-    params["discrete_tolerance_factor"] = _positive(
-        "discrete_tolerance_factor", params["discrete_tolerance_factor"], allow_none=False)
-    params["safety_factor"] = _positive("safety_factor", params["safety_factor"], allow_none=False)
-    if isinstance(params["nonlinear_solver"], str):
-        params["nonlinear_solver"] = params["nonlinear_solver"].lower()
-    if params["nonlinear_solver"] not in NONLINEAR_SOLVERS:
-        close = difflib.get_close_matches(str(params["nonlinear_solver"]), NONLINEAR_SOLVERS, n=1)
-        hint = f"; did you mean {close[0]!r}?" if close else ""
-        raise ValueError(f"unknown nonlinear_solver {params['nonlinear_solver']!r}{hint} "
-                         f"Choose one of {NONLINEAR_SOLVERS}")
-    for name in ("maximum_iterations", "number_of_samples", "maximum_steps"):
-        value = params[name]
-        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    _check_modeling(params)
+        check = _CHECKS.get(name)
+        params[name] = value if check is None else check(name, value)
     if params["fixed_time_step"] and params["initial_time_step"] is None:
         raise ValueError("fixed_time_step=True needs the step: give initial_time_step=k")
-    return params
-
-
-def _check_modeling(params):
-    """Validate the automatic-modeling parameters in place."""
-    params["average_length"] = _positive("average_length", params["average_length"])
-    for name in ("average_tolerance", "model_tolerance"):
-        params[name] = _positive(name, params[name], allow_none=False)
-    for name, low in (("average_samples", 2), ("control_points", 0)):
-        value = params[name]
-        if not isinstance(value, int) or isinstance(value, bool) or value < low:
-            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
-    for name in ("automatic_modeling", "rebuild_model"):
-        if not isinstance(params[name], (bool, int)):
-            raise TypeError(f"{name} must be True or False, got {params[name]!r}")
-    if params["subgrid_model"] not in SUBGRID_MODELS:
-        close = difflib.get_close_matches(str(params["subgrid_model"]), SUBGRID_MODELS, n=1)
-        hint = f"; did you mean {close[0]!r}?" if close else ""
-        raise ValueError(f"unknown subgrid_model {params['subgrid_model']!r}{hint} Choose one "
-                         f"of {SUBGRID_MODELS}")
     if params["automatic_modeling"] and params["fixed_time_step"]:
         raise ValueError("automatic_modeling needs adaptive time steps: the resolved windows "
                          "and the reduced model have time scales far apart; drop fixed_time_step")
+    return params

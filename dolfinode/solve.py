@@ -140,7 +140,7 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
     x = ode.u0.copy()
     f0 = compiled.f(x, ode.t0)
-    if not np.isfinite(f0).all():
+    if not math.isfinite(f0.sum()) and not np.isfinite(f0).all():  # the sum may overflow
         bad = ode.states[int(np.flatnonzero(~np.isfinite(f0))[0])]
         raise ValueError(f"f(u0, t0) is not finite in the right-hand side of {bad}: check u0 "
                          "and the parameters")
@@ -151,9 +151,8 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
         atol, rtol, dtol = np.ones(ode.N), 1.0, 1e-15
     else:
         dtol = params["discrete_tolerance_factor"]
-    iopts = np.array([NONLINEAR_SOLVERS.index(params["nonlinear_solver"]),
-                      int(fixed), params["maximum_iterations"], int(m.family == "dG")],
-                     dtype=np.int64)
+    iopts = [NONLINEAR_SOLVERS.index(params["nonlinear_solver"]), int(fixed),
+             params["maximum_iterations"], int(m.family == "dG")]
     fopts = [rtol, ode.T, params["maximum_time_step"] or ode.T - ode.t0,
              params["safety_factor"], dtol, m.local_order]
     run = _run_multi if multi_adaptive else _run_mono
@@ -162,14 +161,15 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
     if status != ts.DONE:
         outside = ode.states[counters[ts.OUTSIDE] - 1] if counters[ts.OUTSIDE] else None
         raise SolverError(_failure_message(status, state, fixed, x, outside), t=float(state[0]))
+    counts = counters.tolist()
     stats.update({
         "method": ("m" if multi_adaptive else "") + m.name,
-        "rejected steps": int(counters[ts.REJECTED]),
-        "f evaluations": int(counters[ts.F_EVALUATIONS]),
-        "jacobian evaluations": int(counters[ts.JACOBIANS]),
-        "nonlinear iterations": int(counters[ts.ITERATIONS]),
-        "failed nonlinear solves": int(counters[ts.FAILED_SOLVES]),
-        "newton": bool(counters[ts.STIFF]) or params["nonlinear_solver"] == "newton",
+        "rejected steps": counts[ts.REJECTED],
+        "f evaluations": counts[ts.F_EVALUATIONS],
+        "jacobian evaluations": counts[ts.JACOBIANS],
+        "nonlinear iterations": counts[ts.ITERATIONS],
+        "failed nonlinear solves": counts[ts.FAILED_SOLVES],
+        "newton": bool(counts[ts.STIFF]) or params["nonlinear_solver"] == "newton",
         "compile time": compiled.compile_time,
         "solve time": time.perf_counter() - start,
     })
@@ -215,7 +215,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
     band_bytes = newton_memory(ode.N, kl, ku, m.num_stages)
     fits = (band_bytes <= _NEWTON_SMALL
             or band_bytes <= _NEWTON_MEMORY_FRACTION * _available_memory())
-    iopts = np.concatenate([iopts, [int(fits)]])
+    iopts = np.array(iopts + [int(fits)], dtype=np.int64)
     nodes = m.q + 1
 
     def buffers(capacity):
@@ -242,10 +242,9 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
             f"than {_NEWTON_MEMORY_FRACTION:g} x the {available / 2**30:.3g} GB available. "
             "Use smaller steps with fixed_time_step=True and nonlinear_solver='fixed-point', "
             "or a smaller system", t=float(state[mono.T_NOW]))
-    stats = {"time slabs": int(counters[ts.SLABS]),
-             "elements": int(counters[ts.SLABS]) * ode.N,
-             "factorizations": int(counters[ts.FACTORIZATIONS]),
-             "bandwidth": (kl, ku)}
+    slabs = int(counters[ts.SLABS])
+    stats = {"time slabs": slabs, "elements": slabs * ode.N,
+             "factorizations": int(counters[ts.FACTORIZATIONS]), "bandwidth": (kl, ku)}
     return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, stats
 
 
@@ -258,7 +257,7 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
     state = np.array([ode.t0, 0.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     _, position, kl, ku = compiled.ordering
-    iopts = np.concatenate([iopts, [kl, ku, int(ode.autonomous)]])
+    iopts = np.array(iopts + [kl, ku, int(ode.autonomous)], dtype=np.int64)
     Minv, A = np.array(m.moment_inverse), np.array(m.A)
     nodes, qweights = m.nodes.copy(), m.quadrature_weights.copy()
     bary, dend = m.barycentric_weights.copy(), m.end_derivative.copy()

@@ -239,6 +239,11 @@ def parse_method(name):
     """Split a method name such as "cG(2)", "dG(0)", "mcG(1)" into (multi_adaptive, Method)."""
     if not isinstance(name, str):
         raise TypeError(f"method must be a string such as 'cG(1)' or 'mdG(0)', got {name!r}")
+    return _parse_method(name)
+
+
+@cache
+def _parse_method(name):
     match = _METHOD_PATTERN.match(name)
     if not match:
         raise ValueError(f"unknown method {name!r}: use 'cG(q)' (q >= 1), 'dG(q)' (q >= 0), "
