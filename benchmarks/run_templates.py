@@ -11,7 +11,8 @@ there, with time.perf_counter (wall) and time.process_time (CPU of this process)
   again after clearing the in-memory library table (cached);
 * short solve (the issue's lattice, m = 1e-12, M = 100): cG(1) and dG(1), fixed-point
   iteration, 20 fixed steps k = 1e-8 (the small masses oscillate with angular frequency
-  ~1.4e6, k w = 0.014): the cost per component-element, solve / (N x steps);
+  ~1.4e6, k w = 0.014): the cost per component-element, solve / (N x steps), of a second
+  solve (the first also loads kernels and compiled loops);
 * T = 10 without modeling: the same lattice with m = 1 (no fast scale: with m = 1e-12 the
   run needs ~10^8 steps, see the report), adaptive cG(1) and dG(1) at tolerance 1e-3 with
   fixed-point iteration and maximum_time_step = 0.1: cost per component-element and the
@@ -68,20 +69,6 @@ def _maxrss_mb():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def _warm_up(dn):
-    """Solve a scalar ODE as the measured solves do: the first solve of a process loads the
-    compiled time-slab loops from numba's cache (tens of ms), which is not a cost per
-    element."""
-    import sympy as sp
-
-    u = sp.Symbol("u")
-    ode = dn.ODE({u: -u}, {u: 1.0}, T=1.0)
-    for method in METHODS:
-        dn.solve(ode, method, fixed_time_step=True, initial_time_step=0.1,
-                 nonlinear_solver="fixed-point", number_of_samples=2)
-        dn.solve(ode, method, nonlinear_solver="fixed-point", number_of_samples=2)
-
-
 def one_size(p):
     """Measure one lattice size in this process; prints a JSON record."""
     import numpy as np
@@ -90,7 +77,6 @@ def one_size(p):
     from dolfinode.compile import lower, lowering
     from dolfinode.solve import newton_memory
 
-    _warm_up(dn)
     tracemalloc.start()
     ode, build, build_cpu = _timed(dn.systems.lattice, p, T=STEPS * K)
     compiled, first_lower, first_lower_cpu = _timed(lower, ode)
@@ -109,9 +95,10 @@ def one_size(p):
         # the banded Newton matrix Newton would need (not allocated: fixed point is used)
         stages = 1 if method.startswith("cG") else 2
         record[f"newton_band_GB_{method}"] = newton_memory(ode.N, kl, ku, stages) / 2**30
-        sol, seconds, cpu = _timed(dn.solve, ode, method, fixed_time_step=True,
-                                   initial_time_step=K, nonlinear_solver="fixed-point",
-                                   number_of_samples=2)
+        short = {"fixed_time_step": True, "initial_time_step": K,
+                 "nonlinear_solver": "fixed-point", "number_of_samples": 2}
+        dn.solve(ode, method, **short)  # the first solve also loads kernels and compiled loops
+        sol, seconds, cpu = _timed(dn.solve, ode, method, **short)
         slabs = sol.stats["time slabs"]
         assert np.all(np.isfinite(sol.y)) and not sol.stats["newton"]
         record[f"solve_{method}_s"] = seconds
@@ -319,8 +306,8 @@ def _scale_tables(scale):
     lines += [
         "", (f"**Short solve** of the issue's lattice (m = 1e-12, M = 100): {STEPS} fixed steps "
              f"k = {K:g}, fixed-point iteration; us = CPU microseconds per component-element, "
-             "solve / (N x steps); each process first solves a scalar ODE with the same "
-             "methods, so that loading the compiled loops from numba's cache is not counted."), "",
+             "solve / (N x steps), of the second solve (the first also loads the kernels "
+             "and the compiled loops: up to 1.6 s at p = 5 after a cold compile)."), "",
         "| p | N | cG(1) s (wall / CPU) | cG(1) us | dG(1) s (wall / CPU) | dG(1) us |",
         "|---|---|---|---|---|---|"]
     for r in scale:
