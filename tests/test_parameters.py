@@ -205,3 +205,21 @@ def test_nonlinear_solver_is_case_insensitive():
     u = sp.Symbol("u")
     sol = dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), nonlinear_solver="Newton")
     assert sol.stats["newton"]
+
+
+def test_every_default_passes_its_check():
+    # check_parameters checks only the given names: the defaults must be valid as they are
+    from dolfinode.parameters import _CHECKS
+
+    assert set(_CHECKS) <= set(DEFAULTS)
+    for name, check in _CHECKS.items():
+        assert check(name, DEFAULTS[name]) == DEFAULTS[name], name
+
+
+@pytest.mark.parametrize("name, value, error", [
+    ("partitioning_threshold", 1.5, ValueError), ("interval_threshold", 0.0, ValueError),
+    ("rebuild_model", "yes", TypeError), ("automatic_modeling", None, TypeError),
+    ("subgrid_model", "linear", ValueError), ("average_samples", 2.0, ValueError)])
+def test_remaining_parameters_are_checked(ode, name, value, error):
+    with pytest.raises(error, match=name):
+        dn.solve(ode, **{name: value})
