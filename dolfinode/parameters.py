@@ -1,6 +1,9 @@
 """Solver parameters with DOLFIN's names, their defaults, and did-you-mean validation."""
 import difflib
 import math
+import numbers
+
+import numpy as np
 
 #: Every parameter ``solve`` accepts, with its default.
 DEFAULTS = {
@@ -56,18 +59,19 @@ def _fraction(name, value):
     return value
 
 
-def _count(name, value):
-    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return value
-
-
 def _integer_from(low):
+    """Check for an integer >= low (Python's or numpy's; not a bool), returned as an int."""
+    what = "a positive integer" if low == 1 else f"an integer >= {low}"
+
     def check(name, value):
-        if not isinstance(value, int) or isinstance(value, bool) or value < low:
-            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
-        return value
+        if (not isinstance(value, numbers.Integral) or isinstance(value, bool)
+                or value < low):
+            raise ValueError(f"{name} must be {what}, got {value!r}")
+        return int(value)
     return check
+
+
+_count = _integer_from(1)
 
 
 def _switch(name, value):
@@ -88,15 +92,19 @@ def _choice(choices):
     return check
 
 
-def _initial_time_step(name, value):
-    return value if isinstance(value, dict) else _positive(name, value)  # per state: by solve
+def _per_state_or_positive(name, value):
+    """A positive number, or values per state (a dict or a sequence: checked by solve)."""
+    if isinstance(value, dict) or not (value is None or np.isscalar(value)):
+        return value
+    return _positive(name, value)
 
 
 #: How each parameter is checked and normalised, ``check(name, value) -> value`` (the
 #: defaults pass their checks, so only the given names are checked).
 _CHECKS = {
     "tolerance": _required,
-    "initial_time_step": _initial_time_step,
+    "absolute_tolerance": _per_state_or_positive,
+    "initial_time_step": _per_state_or_positive,
     "maximum_time_step": _positive,
     "nonlinear_solver": _choice(NONLINEAR_SOLVERS),
     "discrete_tolerance_factor": _required,

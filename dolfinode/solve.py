@@ -63,14 +63,12 @@ def newton_memory(N, kl, ku, stages):
 
 
 def _absolute_tolerance(ode, value, rtol):
+    """atol per component from the parameter: None (rtol), a number (checked by
+    check_parameters) or values per state."""
     if value is None or np.isscalar(value):
-        scalar = float(rtol if value is None else value)
-        valid = math.isfinite(scalar) and scalar > 0  # Python floats: 20 us less than numpy
-        atol = np.full(ode.N, scalar)
-    else:
-        atol = _vector_by_state(value, ode.states, "absolute_tolerance")
-        valid = np.all(atol > 0) and np.all(np.isfinite(atol))
-    if not valid:
+        return np.full(ode.N, rtol if value is None else value)
+    atol = _vector_by_state(value, ode.states, "absolute_tolerance")
+    if not (np.all(atol > 0) and np.all(np.isfinite(atol))):
         raise ValueError(f"absolute_tolerance must be positive and finite, got {value!r}")
     return atol
 
@@ -160,7 +158,8 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
                                                    floor, x, f0, steps)
     if status != ts.DONE:
         outside = ode.states[counters[ts.OUTSIDE] - 1] if counters[ts.OUTSIDE] else None
-        raise SolverError(_failure_message(status, state, fixed, x, outside), t=float(state[0]))
+        raise SolverError(_failure_message(status, state, fixed, x, outside,
+                                           params["maximum_time_step"]), t=float(state[0]))
     counts = counters.tolist()
     stats.update({
         "method": ("m" if multi_adaptive else "") + m.name,
@@ -307,11 +306,13 @@ def _progress(ode, params):
                 bar_format="{l_bar}{bar}| t={n:.4g}/{total:.4g} [{elapsed}<{remaining}]")
 
 
-def _failure_message(status, state, fixed, x, outside):
+def _failure_message(status, state, fixed, x, outside, kmax):
     t, k = state
     size = f"max |u| = {np.max(np.abs(x)):.3g} there"
     if status == _STATUS_STEP_LIMIT:
-        return (f"maximum_steps was reached at t = {t:.6g} ({size}); raise maximum_steps, loosen "
+        raise_ = ("maximum_steps" if kmax is None else
+                  f"maximum_steps or maximum_time_step (the steps are capped at {kmax:.3g})")
+        return (f"maximum_steps was reached at t = {t:.6g} ({size}); raise {raise_}, loosen "
                 "the tolerance, or use a higher-order method")
     if status == ts.NONCONVERGENCE:
         if fixed:

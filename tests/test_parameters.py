@@ -223,3 +223,24 @@ def test_every_default_passes_its_check():
 def test_remaining_parameters_are_checked(ode, name, value, error):
     with pytest.raises(error, match=name):
         dn.solve(ode, **{name: value})
+
+
+@pytest.mark.parametrize("name", ["maximum_iterations", "number_of_samples", "maximum_steps"])
+def test_numpy_integers_are_integers(ode, name):
+    sol = dn.solve(ode, **{name: np.int64(5000)})
+    assert sol.parameters[name] == 5000 and type(sol.parameters[name]) is int
+
+
+@pytest.mark.parametrize("value, error", [("x", TypeError), (math.nan, ValueError),
+                                          (0.0, ValueError)])
+def test_scalar_absolute_tolerance_is_checked_with_its_name(ode, value, error):
+    with pytest.raises(error, match="absolute_tolerance must be a positive"):
+        dn.solve(ode, absolute_tolerance=value)
+
+
+def test_step_limit_message_names_a_step_cap(ode):
+    with pytest.raises(dn.SolverError, match="raise maximum_steps or maximum_time_step "
+                                             r"\(the steps are capped at 1e-06\)"):
+        dn.solve(ode, maximum_time_step=1e-6, maximum_steps=100)
+    with pytest.raises(dn.SolverError, match="raise maximum_steps, loosen the tolerance"):
+        dn.solve(ode, tolerance=1e-12, method="dG(0)", maximum_steps=100)
