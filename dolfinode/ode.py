@@ -111,8 +111,11 @@ class ODE:
         state symbols (or names), or a boolean mask (N,). The solvers reject a time step on
         which such a component falls below -atol and retry with a smaller one (raising
         :class:`~dolfinode.SolverError` when that does not help), and set accepted values in
-        [-atol, 0) to 0, as CVODE's inequality constraints. Stored as the mask
-        ``ode.nonnegative``.
+        [-atol, 0) to 0, as CVODE's inequality constraints. In a square root or other
+        non-integer power the compiled f and its Jacobian read such a component as
+        max(u_i, 0), so that they stay defined on iterates that dip below 0 (for
+        per-component expressions; the template systems of :mod:`dolfinode.systems` read it
+        as it is). Stored as the mask ``ode.nonnegative``.
 
     Raises
     ------

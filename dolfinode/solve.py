@@ -306,6 +306,11 @@ def _progress(ode, params):
                 bar_format="{l_bar}{bar}| t={n:.4g}/{total:.4g} [{elapsed}<{remaining}]")
 
 
+#: Where f may stop being defined (see ``ODE(nonnegative=...)``).
+_DOMAIN = ("a square root or other non-integer power of a component that reaches 0 is nan "
+           "below it: declare the component nonnegative=, and f reads it there as max(u, 0)")
+
+
 def _failure_message(status, state, fixed, x, outside, kmax):
     t, k = state
     size = f"max |u| = {np.max(np.abs(x)):.3g} there"
@@ -320,7 +325,7 @@ def _failure_message(status, state, fixed, x, outside, kmax):
                     f"step {k:.3g}; use a smaller initial_time_step or nonlinear_solver='newton'")
         return (f"the nonlinear solver did not converge at t = {t:.6g}, even after reducing the "
                 f"time step to {k:.3g}; try nonlinear_solver='newton', a dG(q) method, or check "
-                f"the right-hand side for a singularity near this time ({size})")
+                f"the right-hand side for a singularity near this time ({size}); {_DOMAIN}")
     if status == ts.CONSTRAINT:
         name = outside.name
         how = "" if fixed else (", or it falls below -absolute_tolerance on every step down to "
@@ -331,7 +336,8 @@ def _failure_message(status, state, fixed, x, outside, kmax):
                 + ("; with fixed_time_step, a smaller initial_time_step may help" if fixed else ""))
     if status == ts.BLOWUP:
         return (f"the solution is not finite or blows up near t = {t:.6g} (time step reduced to "
-                f"{k:.3g}; {size}): the exact solution may have a finite-time singularity there")
+                f"{k:.3g}; {size}): the exact solution may have a finite-time singularity there, "
+                f"or f is not defined past it; {_DOMAIN}")
     return (f"the time step fell to {k:.3g} at t = {t:.6g}, below what double precision "
             f"resolves ({size}): the solution may blow up near this time, or the tolerance is "
             "too tight for double precision")

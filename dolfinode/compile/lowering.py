@@ -132,6 +132,18 @@ def _remembered(store, key, make):
     return store[key]
 
 
+def _clamp_powers(expr, clamp):
+    """``expr`` with u_i**a (a not an integer: sqrt(u_i), u_i**0.5, ...) read as
+    max(u_i, 0)**a for the components in ``clamp`` (declared nonnegative): defined on iterates
+    that dip below 0, where the power is nan; a step that leaves [-atol, inf) is still cut.
+    Elsewhere u_i is read as it is: for polynomial kinetics f's own continuation below 0
+    pushes back (ROBER's y2' = ... - 1e4 y2 y3), which a constant one would not."""
+    if not clamp:
+        return expr
+    return expr.replace(lambda e: e.is_Pow and e.base in clamp and not e.exp.is_integer,
+                        lambda e: sp.Pow(clamp[e.base], e.exp, evaluate=False))
+
+
 def _derivative(expr, x):
     """d expr / dx, with the derivatives of piecewise-constant functions (sign, Heaviside,
     floor, ceiling) set to their value zero almost everywhere."""
@@ -150,7 +162,8 @@ def lower(ode):
         from dolfinode.compile.template import lower_template  # imports this module
         key, source, indptr, indices, p, data = lower_template(ode)
     else:
-        declared = (tuple(ode.states), tuple(ode.rhs), tuple(ode.parameter_symbols))
+        declared = (tuple(ode.states), tuple(ode.rhs), tuple(ode.parameter_symbols),
+                    tuple(np.flatnonzero(ode.nonnegative)))
         key, source, indptr, indices = _remembered(_lowerings, declared,
                                                    lambda: _lower_expressions(ode))
         p, data = ode.parameter_values, ()
@@ -173,7 +186,9 @@ def _lower_expressions(ode):
     subs.update({s: sp.Symbol(f"p[{j}]", real=True) for j, s in enumerate(ode.parameter_symbols)})
     subs[time_symbol] = sp.Symbol("t", real=True)
     rhs = [expr.xreplace(subs) for expr in ode.rhs]
-    key = signature(*(sp.srepr(e) for e in rhs))
+    nonnegative = [int(i) for i in np.flatnonzero(ode.nonnegative)]
+    key = signature(*(sp.srepr(e) for e in rhs),
+                    *(f"nonnegative {i} in non-integer powers" for i in nonnegative))
     index_of = {s: i for i, s in enumerate(ode.states)}
     rows = [sorted(index_of[s] for s in expr.free_symbols if s in index_of) for expr in ode.rhs]
     indptr = np.zeros(ode.N + 1, dtype=np.int64)
@@ -182,6 +197,8 @@ def _lower_expressions(ode):
 
     def source():
         jacobian_rows = [[_derivative(rhs[i], u[j]) for j in r] for i, r in enumerate(rows)]
-        return kernel_source(rhs, jacobian_rows)
+        clamp = {u[i]: sp.Symbol(f"fmax(u[{i}], 0.0)", real=True) for i in nonnegative}
+        return kernel_source([_clamp_powers(e, clamp) for e in rhs],
+                             [[_clamp_powers(e, clamp) for e in row] for row in jacobian_rows])
 
     return key, source, indptr, indices

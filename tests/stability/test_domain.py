@@ -65,3 +65,28 @@ def test_only_the_declared_components_are_constrained():
         dn.solve(ode, method="dG(1)", tolerance=1e-6)
     free = dn.ODE({u: -1, v: 1}, u0=[1.0, 1.0], T=2.0, nonnegative=[v])
     assert dn.solve(free, method="dG(1)", tolerance=1e-6)(2.0) == pytest.approx([-1.0, 3.0])
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "mcG(1)"])
+def test_a_square_root_of_a_nonnegative_component_stays_defined(method):
+    """u' = -sqrt(u), u(0) = 1: u = (1 - t/2)^2 reaches 0 at t = 2 and stays there. Iterates
+    dip below 0 near t = 2, where sqrt is nan: declared nonnegative, f reads sqrt(max(u, 0))."""
+    ode = dn.ODE({u: -sp.sqrt(u)}, u0=[1.0], T=3.0, nonnegative=[u])
+    sol = dn.solve(ode, method=method, tolerance=1e-6)
+    assert sol(1.0)[0] == pytest.approx(0.25, abs=1e-6)
+    assert sol(3.0)[0] == pytest.approx(0.0, abs=1e-6)
+    with pytest.raises(dn.SolverError, match="declare the component nonnegative="):
+        dn.solve(dn.ODE({u: -sp.sqrt(u)}, u0=[1.0], T=3.0), method=method, tolerance=1e-6)
+
+
+def test_the_compiled_right_hand_side_reads_a_nonnegative_component_at_zero():
+    from dolfinode.compile import lower
+
+    rates = {u: -sp.sqrt(u) + v - u**2, v: -v**3 - u**sp.Rational(3, 2)}
+    declared = lower(dn.ODE(rates, u0=[1.0, 1.0], T=1.0, nonnegative=[u]))
+    free = lower(dn.ODE(rates, u0=[1.0, 1.0], T=1.0))
+    # the non-integer powers read u as 0, the polynomial terms as it is
+    np.testing.assert_array_equal(declared.f([-1.0, -2.0], 0.0), [-3.0, 8.0])
+    assert np.isnan(free.f([-1.0, -2.0], 0.0)).all()
+    np.testing.assert_array_equal(declared.jacobian_matrix([4.0, 1.0], 0.0).toarray(),
+                                  free.jacobian_matrix([4.0, 1.0], 0.0).toarray())
