@@ -119,15 +119,15 @@ class Solution:
         return self.ode.states
 
     def __call__(self, t):
-        """U(t): shape (N,) for a scalar t, (N, len(t)) for an array (scipy's convention)."""
-        scalar = np.ndim(t) == 0
-        times = np.atleast_1d(np.asarray(t, dtype=float))
+        """U(t): shape (N,) for a scalar t, (N, len(t)) for a sequence (scipy's convention),
+        (N, *t.shape) for an array of any shape."""
+        shape = np.shape(t)
+        times = np.asarray(t, dtype=float).ravel()
         if times.size and (np.any(~np.isfinite(times)) or times.min() < self.ode.t0
                            or times.max() > self.ode.T):
             raise ValueError(f"the solution is defined on [{self.ode.t0}, {self.ode.T}], "
                              f"got t outside it")
-        out = self._values(times)
-        return out[:, 0] if scalar else out
+        return self._values(times).reshape(self.ode.N, *shape)
 
     def _values(self, times):
         """U at ``times`` in [t0, T], shape (N, len(times))."""

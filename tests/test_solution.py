@@ -26,6 +26,9 @@ def test_shapes_follow_scipy_convention():
     sol = dn.solve(dn.ODE({u: v, v: -u}, u0=[0, 1], T=1.0), number_of_samples=11)
     assert sol(0.5).shape == (2,)
     assert sol([0.1, 0.2, 0.3]).shape == (2, 3)
+    grid = np.array([[0.1, 0.2, 0.3], [0.4, 0.5, 0.6]])  # any shape: (N, *shape)
+    np.testing.assert_array_equal(sol(grid), sol(grid.ravel()).reshape(2, 2, 3))
+    assert sol(np.float32(0.5)).shape == (2,) and sol([]).shape == (2, 0)
     assert sol.t.shape == (11,) and sol.y.shape == (2, 11)
     assert sol.t[0] == 0.0 and sol.t[-1] == 1.0
     np.testing.assert_allclose(sol.y[:, 0], [0, 1])
