@@ -1,4 +1,5 @@
 """``dolfinode bench``: run the suite and write its tables and plots."""
+import argparse
 import os
 import time
 from pathlib import Path
@@ -24,6 +25,14 @@ def _list(text):
     return [s.strip() for s in text.split(",") if s.strip()]
 
 
+def _numbers(text):
+    try:
+        return [float(x) for x in _list(text)]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated numbers such as 1e-3,1e-6, got {text!r}") from None
+
+
 def add_arguments(parser):
     parser.add_argument("--problems", type=_list, default=None,
                         help=f"comma-separated problem names (default: all of {', '.join(PROBLEMS)}"
@@ -32,7 +41,7 @@ def add_arguments(parser):
                         help="comma-separated dolfinode methods and scipy solvers "
                              f"({', '.join(SCIPY_METHODS)}); default: "
                              f"{', '.join(DN_METHODS + SCIPY_METHODS)}")
-    parser.add_argument("--tolerances", type=lambda s: [float(x) for x in _list(s)],
+    parser.add_argument("--tolerances", type=_numbers,
                         default=None, help="comma-separated relative tolerances "
                                            "(default 1e-3, ..., 1e-10; --quick: 1e-4, 1e-7)")
     parser.add_argument("--quick", action="store_true",

@@ -49,7 +49,12 @@ def check_methods(methods):
 
     for m in methods:
         if not is_scipy(m):
-            dn.parse_method(split_modeling(m)[0])
+            try:
+                dn.parse_method(split_modeling(m)[0])
+            except ValueError as error:
+                raise ValueError(f"{error}; or a scipy solver: {', '.join(SCIPY_METHODS)} "
+                                 "(a dolfinode method with '+modeling': automatic "
+                                 "modeling)") from None
 
 
 def is_scipy(method):

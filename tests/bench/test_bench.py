@@ -201,10 +201,14 @@ def test_cli_bench_rejects_bad_input(capsys):
     assert "unknown benchmark problem" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["bench", "--methods", "Radau,eG(1)", "--no-progress"])
-    assert "eG(1)" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "eG(1)" in err and "or a scipy solver: RK45, DOP853" in err
     with pytest.raises(SystemExit):
         main(["bench", "--tolerances", "1e-4,-1", "--no-progress"])
     assert "positive" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["bench", "--tolerances", "1e-4,abc", "--no-progress"])
+    assert "expected comma-separated numbers" in capsys.readouterr().err
 
 
 def test_multiadaptive_problems_are_found_by_name_and_solve_their_odes():
