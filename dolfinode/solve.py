@@ -257,9 +257,7 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     _, position, kl, ku = compiled.ordering
     iopts = np.array(iopts + [kl, ku, int(ode.autonomous)], dtype=np.int64)
-    Minv, A = np.array(m.moment_inverse), np.array(m.A)
-    nodes, qweights = m.nodes.copy(), m.quadrature_weights.copy()
-    bary, dend = m.barycentric_weights.copy(), m.end_derivative.copy()
+    tables = multi.method_tables(m)
     kdes = steps.copy()
     frozen = np.full(ode.N, np.nan)  # since when each component is frozen (NaN: active)
 
@@ -269,9 +267,9 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
 
     def advance(out_comp, out_a, out_b, out_values):
         return multi.advance(compiled.rhs_component.address, compiled.jacobian_row.address,
-                             compiled.p, compiled.indptr, compiled.indices, position, Minv, A,
-                             nodes, qweights, bary, dend, iopts, fopts, atol, floor, x, kdes,
-                             frozen, state, counters, out_comp, out_a, out_b, out_values)
+                             compiled.p, compiled.indptr, compiled.indices, position, *tables,
+                             iopts, fopts, atol, floor, x, kdes, frozen, state, counters,
+                             out_comp, out_a, out_b, out_values)
 
     capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 22 // (m.q + 1))))
     with _progress(ode, params) as bar:

@@ -36,6 +36,7 @@ step over their oscillation (mcG(3) on the stiff chain: 15x too long steps, erro
 10^3-10^5 x tolerance), and mdG(1) reached 2600x the error of dG(1) on the template lattice.
 """
 import math
+from functools import cache
 
 import numpy as np
 from numba import njit, types
@@ -791,6 +792,17 @@ def _project(ne, comp, values, floor, projected):
                 if values[e, m] < 0.0:
                     values[e, m] = 0.0
                     projected[i] = True
+
+
+@cache
+def method_tables(method):
+    """The method's tables in the order :func:`advance` takes them (M^{-1}, A, nodes,
+    quadrature weights, barycentric weights, end derivative), as writable copies (numba
+    types read-only arrays apart); made once per method, as advance only reads them."""
+    m = method
+    tables = (m.moment_inverse, m.A, m.nodes, m.quadrature_weights, m.barycentric_weights,
+              m.end_derivative)
+    return tuple(np.array(table) for table in tables)
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
