@@ -127,17 +127,19 @@ class ODE:
         pairs = list(rhs.items()) if isinstance(rhs, Mapping) else self._pairs(rhs)
         if not pairs:
             raise ValueError("an ODE needs at least one state")
-        states = []
+        states, names = [], set()
         for state, _ in pairs:
             if not isinstance(state, sp.Symbol):
                 raise TypeError(f"states must be sympy Symbols, got {state!r} "
                                 f"({type(state).__name__})")
             if state == t or state.name == t.name:
                 raise ValueError(f"{state} is the time symbol and cannot be a state")
-            if state.name in {s.name for s in states}:
+            if state.name in names:
                 raise ValueError(f"duplicate state {state.name!r}: every state needs its own name")
             states.append(state)
+            names.add(state.name)
         self.states = tuple(states)
+        self._state_set = frozenset(states)
         self.params = self._params(params)
         self.rhs = tuple(_as_expression(expr, state) for state, expr in pairs)
         self._check_symbols()
@@ -215,8 +217,9 @@ class ODE:
         return clean
 
     def _is_state(self, symbol):
-        """Whether ``symbol`` is one of the state symbols."""
-        return symbol in self.states
+        """Whether ``symbol`` is one of the state symbols (hashed: ``in`` the tuple compares
+        with sympy's __eq__ one state at a time)."""
+        return symbol in self._state_set
 
     def _check_symbols(self):
         known = set(self.states) | set(self.params) | {t}
