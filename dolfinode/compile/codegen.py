@@ -46,8 +46,9 @@ class _KernelPrinter(C99CodePrinter):
         return super()._print_Pow(expr)
 
 
-def _print(expr):
-    return _KernelPrinter().doprint(expr)
+#: One printer for all expressions (doprint resets its state; a printer per expression made
+#: MEDAKZO's source in 3.9 s against 3.3, a chain of 1000 expressions in 3.4 against 2.5).
+_print = _KernelPrinter().doprint
 
 
 def _statements(exprs, targets, assign="="):
