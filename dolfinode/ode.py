@@ -103,7 +103,8 @@ class ODE:
     T : float
         Final time, T > t0.
     params : dict, optional
-        Parameter symbol -> value, for every other symbol in the right-hand sides.
+        Parameter symbol (or its name) -> value, for every other symbol in the right-hand
+        sides.
     t0 : float, optional
         Initial time (default 0).
     nonnegative : bool or sequence, optional
@@ -140,8 +141,8 @@ class ODE:
             names.add(state.name)
         self.states = tuple(states)
         self._state_set = frozenset(states)
-        self.params = self._params(params)
         self.rhs = tuple(_as_expression(expr, state) for state, expr in pairs)
+        self.params = self._params(params)
         self._check_symbols()
         self._set_interval(t0, T)
         self.nonnegative = self._nonnegative_mask(nonnegative)
@@ -201,8 +202,11 @@ class ODE:
             raise TypeError(f"params must be a dict {{symbol: value}}, got {type(params).__name__}")
         clean = {}
         for symbol, value in params.items():
+            if isinstance(symbol, str):
+                symbol = self._parameter_named(symbol)
             if not isinstance(symbol, sp.Symbol):
-                raise TypeError(f"parameter keys must be sympy Symbols, got {symbol!r}")
+                raise TypeError(f"parameter keys must be sympy Symbols or their names, got "
+                                f"{symbol!r}")
             if self._is_state(symbol):
                 raise ValueError(f"{symbol} is both a state and a parameter")
             if symbol == t:
@@ -215,6 +219,20 @@ class ODE:
                 raise ValueError(f"parameter {symbol} must be finite, got {value}")
             clean[symbol] = value
         return clean
+
+    def _free_symbols(self):
+        """The symbols the right-hand sides use."""
+        return set().union(*(expr.free_symbols for expr in self.rhs))
+
+    def _parameter_named(self, name):
+        """The symbol named ``name`` among those the right-hand sides use (a parameter key
+        given by name)."""
+        symbols = {s.name: s for s in self._free_symbols()
+                   if not self._is_state(s) and s != t}
+        if name not in symbols:
+            raise ValueError(f"params has {name!r}, which no right-hand side uses"
+                             f"{_suggest(name, symbols)}")
+        return symbols[name]
 
     def _is_state(self, symbol):
         """Whether ``symbol`` is one of the state symbols (hashed: ``in`` the tuple compares

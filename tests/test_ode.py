@@ -374,9 +374,26 @@ def test_state_used_as_a_parameter():
         declare(params={k: 4.0, u: 1.0})
 
 
-def test_parameter_keys_must_be_symbols():
-    with pytest.raises(TypeError, match="parameter keys must be sympy Symbols, got 'k'"):
-        declare(params={"k": 4.0})
+def test_parameter_keys_are_symbols_or_their_names():
+    assert declare(params={"k": 4.0}).params == declare(params={k: 4.0}).params
+    with pytest.raises(ValueError, match="params has 'kk', which no right-hand side uses; "
+                                         "did you mean 'k'"):
+        declare(params={"kk": 4.0})
+    with pytest.raises(ValueError, match="params has 'u', which no right-hand side uses"):
+        declare(params={"u": 4.0})  # a state, not a parameter
+    with pytest.raises(TypeError, match="parameter keys must be sympy Symbols or their names, "
+                                        "got 3"):
+        declare(params={3: 4.0})
+
+
+def test_template_parameter_keys_by_name():
+    a, b, c = sp.symbols("a b c")
+    spring = dn.Template(slots=(a, b), terms={a: c * (b - a), b: c * (a - b)},
+                         indices=[[0, 1]])
+    by_name = dn.TemplateODE(spring, u0=[1.0, 0.0], T=1.0, params={"c": 2.0})
+    assert by_name.params == {c: 2.0}
+    with pytest.raises(ValueError, match="params has 'a', which no right-hand side uses"):
+        dn.TemplateODE(spring, u0=[1.0, 0.0], T=1.0, params={"a": 2.0, "c": 2.0})
 
 
 def test_params_must_be_a_dict():

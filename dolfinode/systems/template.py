@@ -237,6 +237,11 @@ class TemplateODE(ODE):
             raise ValueError(f"u0 is not finite for {self.names[bad[0]]}: {array[bad[0]]}")
         return self._in_domain(array)
 
+    def _free_symbols(self):
+        return set().union(*(expr.free_symbols for template in self.templates
+                             for _, expr in template.terms)) - {
+            s for template in self.templates for s in (*template.slots, *template.params)}
+
     def _params(self, params):
         clean = super()._params(params)
         for template in self.templates:
