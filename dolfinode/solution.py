@@ -123,8 +123,8 @@ class Solution:
         (N, *t.shape) for an array of any shape."""
         shape = np.shape(t)
         times = np.asarray(t, dtype=float).ravel()
-        if times.size and (np.any(~np.isfinite(times)) or times.min() < self.ode.t0
-                           or times.max() > self.ode.T):
+        # a nan makes min and max nan, and the comparison false
+        if times.size and not (self.ode.t0 <= times.min() and times.max() <= self.ode.T):
             raise ValueError(f"the solution is defined on [{self.ode.t0}, {self.ode.T}], "
                              f"got t outside it")
         return self._values(times).reshape(self.ode.N, *shape)
@@ -133,7 +133,9 @@ class Solution:
         """U at ``times`` in [t0, T], shape (N, len(times))."""
         out = self._evaluate(times)
         # U(t0) is the initial value (for dG the element polynomial starts after the jump)
-        out[:, times == self.ode.t0] = self.ode.u0[:, None]
+        at_t0 = np.flatnonzero(times == self.ode.t0)
+        if at_t0.size:
+            out[:, at_t0] = self.ode.u0[:, None]
         return out
 
     def _evaluate(self, times):
