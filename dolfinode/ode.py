@@ -7,6 +7,7 @@ to compiled kernels happens in :mod:`dolfinode.compile`.
 import difflib
 import math
 from collections.abc import Mapping
+from functools import cached_property
 
 import numpy as np
 import sympy as sp
@@ -59,7 +60,8 @@ def _vector_by_state(values, states, what):
     names = {s.name: s for s in states}
     if isinstance(values, Mapping):
         values = {names.get(k, k) if isinstance(k, str) else k: v for k, v in values.items()}
-        unknown = [k for k in values if k not in states]
+        known = set(states)  # hashed: ``in states`` compared one by one, quadratic in N
+        unknown = [k for k in values if k not in known]
         if unknown:
             key = unknown[0]
             name = getattr(key, "name", str(key))
@@ -272,10 +274,20 @@ class ODE:
 
     def index(self, state):
         """Component index of a state symbol (or of its name)."""
-        for i, s in enumerate(self.states):
-            if s == state or s.name == state:
-                return i
-        raise ValueError(f"{state!r} is not a state{_suggest(str(state), [s.name for s in self.states])}")
+        positions = self._names if isinstance(state, str) else self._symbols
+        try:
+            return positions[state]
+        except (KeyError, TypeError):
+            raise ValueError(f"{state!r} is not a state"
+                             f"{_suggest(str(state), self._names)}") from None
+
+    @cached_property
+    def _symbols(self):
+        return {s: i for i, s in enumerate(self.states)}
+
+    @cached_property
+    def _names(self):
+        return {s.name: i for i, s in enumerate(self.states)}
 
     @classmethod
     def second_order(cls, accelerations, x0, v0, T, params=None, t0=0.0, velocities=None,
