@@ -136,8 +136,13 @@ def test_bad_goals_are_explained():
     ode, _ = problems.harmonic(T=1.0)
     sol = dn.solve(ode, method="cG(1)", tolerance=1e-3)
     w = sp.Symbol("w")
-    with pytest.raises(ValueError, match="not a state"):
+    with pytest.raises(ValueError, match="goal names 'w', which is not a state; states are "
+                                         rf"{ode.states[0]}, {ode.states[1]}$"):
         dn.estimate_error(sol, {"w": 1.0})
+    with pytest.raises(ValueError, match="goal names w, which is not a state"):
+        dn.estimate_error(sol, {w: 1.0})
+    by_name = dn.estimate_error(sol, {ode.states[0].name: 1.0}).value
+    assert by_name == dn.estimate_error(sol, {ode.states[0]: 1.0}).value
     with pytest.raises(ValueError, match="2 entries"):
         dn.estimate_error(sol, [1.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="zero"):

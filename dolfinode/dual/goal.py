@@ -109,14 +109,15 @@ class _Functional:
 
 def _weights(spec, ode, what):
     if isinstance(spec, Mapping):
-        names = {s.name: s for s in ode.states}
         psi = np.zeros(ode.N)
         for key, value in spec.items():
-            state = names.get(key) if isinstance(key, str) else key
-            if state not in ode.states:
+            try:
+                i = ode.index(key)  # a state symbol or its name
+            except ValueError:
+                listed = ", ".join(s.name for s in ode.states[:10])
                 raise ValueError(f"the {what} goal names {key!r}, which is not a state; states "
-                                 f"are {', '.join(names)}")
-            psi[ode.index(state)] = _number(value, what)
+                                 f"are {listed}{', ...' if ode.N > 10 else ''}") from None
+            psi[i] = _number(value, what)
     elif isinstance(spec, (Sequence, np.ndarray)) and not isinstance(spec, str):
         if np.ndim(spec) != 1 or len(spec) != ode.N:
             raise ValueError(f"the {what} goal vector must have {ode.N} entries (one per state), "
