@@ -271,7 +271,8 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
                              iopts, fopts, atol, floor, x, kdes, frozen, state, counters,
                              out_comp, out_a, out_b, out_values)
 
-    capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 22 // (m.q + 1))))
+    # values at most 2^21 doubles, as mono's: from 32 MB on, each solve would map fresh pages
+    capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 21 // (m.q + 1))))
     with _progress(ode, params) as bar:
         status, elements = _integrate(advance, buffers, capacity, counters, params,
                                       state, bar)

@@ -292,9 +292,9 @@ class TemplateODE(ODE):
         except (KeyError, TypeError):
             raise ValueError(f"{state!r} is not a state") from None
 
-    @property
+    @cached_property
     def autonomous(self):
-        """Whether f does not depend on the time t explicitly (read off the templates)."""
+        """Whether f does not depend on the time t explicitly (read off the templates, once)."""
         return not any(t in expr.free_symbols for template in self.templates
                        for _, expr in template.terms)
 
