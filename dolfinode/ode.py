@@ -142,7 +142,6 @@ class ODE:
             states.append(state)
             names.add(state.name)
         self.states = tuple(states)
-        self._state_set = frozenset(states)
         self.rhs = tuple(_as_expression(expr, state) for state, expr in pairs)
         self.params = self._params(params)
         self._check_symbols()
@@ -239,7 +238,7 @@ class ODE:
     def _is_state(self, symbol):
         """Whether ``symbol`` is one of the state symbols (hashed: ``in`` the tuple compares
         with sympy's __eq__ one state at a time)."""
-        return symbol in self._state_set
+        return symbol in self._symbols
 
     def _check_symbols(self):
         known = set(self.states) | set(self.params) | {t}
@@ -284,10 +283,12 @@ class ODE:
 
     @cached_property
     def _symbols(self):
+        """Component index by state symbol."""
         return {s: i for i, s in enumerate(self.states)}
 
     @cached_property
     def _names(self):
+        """Component index by state name."""
         return {s.name: i for i, s in enumerate(self.states)}
 
     @classmethod
