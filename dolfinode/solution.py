@@ -106,8 +106,7 @@ class Solution:
         self.t = np.arange(n) * ((T - t0) / max(n - 1, 1)) + t0
         if n > 1:
             self.t[-1] = T
-        self.y = self._evaluate(self.t)
-        self.y[:, 0] = self.ode.u0  # U(t0), as in _values; the later samples are > t0
+        self.y = self._values(self.t)
 
     @property
     def multi(self):
