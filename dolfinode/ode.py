@@ -57,6 +57,20 @@ def _as_expression(expr, state):
 
 def _vector_by_state(values, states, what):
     """Turn a dict by state symbol (or a sequence in component order) into a float vector."""
+    if (isinstance(values, np.ndarray) and values.dtype.kind in "fiu"
+            and values.shape == (len(states),)):
+        array = values.astype(float)  # a copy, without converting entry by entry
+    else:
+        array = _listed_vector(values, states, what)
+    bad = np.flatnonzero(~np.isfinite(array))
+    if bad.size:
+        raise ValueError(f"{what} is not finite for {states[bad[0]].name}: {array[bad[0]]}")
+    return array
+
+
+def _listed_vector(values, states, what):
+    """The values of a dict by state symbol (or name), or of a sequence in component order,
+    as floats in component order."""
     names = {s.name: s for s in states}
     if isinstance(values, Mapping):
         values = {names.get(k, k) if isinstance(k, str) else k: v for k, v in values.items()}
@@ -83,13 +97,9 @@ def _vector_by_state(values, states, what):
             raise ValueError(f"{what} has {len(vector)} values but the system has "
                              f"{len(states)} states ({', '.join(names)})")
     try:
-        array = np.array([float(v) for v in vector], dtype=float)
+        return np.array([float(v) for v in vector], dtype=float)
     except (TypeError, ValueError):
         raise TypeError(f"{what} must hold real numbers, got {vector!r}") from None
-    bad = np.flatnonzero(~np.isfinite(array))
-    if bad.size:
-        raise ValueError(f"{what} is not finite for {states[bad[0]].name}: {array[bad[0]]}")
-    return array
 
 
 class ODE:
