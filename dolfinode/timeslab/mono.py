@@ -103,6 +103,15 @@ def extrapolate(out_X, n, nodes, bary, k_prev, k, tau, X, weights):
             X[s * N + i] = value
 
 
+@njit(cache=True, inline="always")
+def euler_stages(x, f0, k, tau, X):
+    """X_s = x + tau_s k f0 for every stage: explicit Euler (k = 0: the constant x)."""
+    N = x.shape[0]
+    for s in range(tau.shape[0]):
+        for i in range(N):
+            X[s * N + i] = x[i] + tau[s] * k * f0[i]
+
+
 @njit(cache=True)
 def leaves_domain(X, floor):
     """The first component with a stage value X_(s N + i) below its floor (-atol_i for a
@@ -224,10 +233,8 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
         n_prev = counters[STORED] - 1
         if not use_newton and n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
             extrapolate(out_X, n_prev, nodes, bary, out_k[n_prev], k, tau, X, weights)
-        else:  # explicit Euler to every stage
-            for s in range(S):
-                for i in range(N):
-                    X[s * N + i] = x[i] + tau[s] * k * f0[i]
+        else:
+            euler_stages(x, f0, k, tau, X)
         iters = -1
         if not use_newton:
             iters = fixed_point(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter,
@@ -235,9 +242,7 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
             if iters < 0 and mode == DEFAULT:
                 counters[STIFF] = 1  # fixed point failed: treat the problem as stiff from here on
                 use_newton = True
-                for s in range(S):
-                    for i in range(N):
-                        X[s * N + i] = x[i] + tau[s] * k * f0[i]
+                euler_stages(x, f0, k, tau, X)
         if use_newton and ipiv.shape[0] == 0:
             if iopts[NEWTON_FITS] == 0:
                 state[T_NOW] = t
@@ -253,22 +258,18 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
             jac(address(x, 0), t, address(p, 0), address(jdata, 0))
             counters[JACOBIANS] += 1
             band_jacobian(jdata, indptr, indices, position, kl, ku, jb)
-            if factor_stages(jb, k, eigenvalues, kl, ku, ab_real, ab_complex, ipiv, counters):
+            factored = factor_stages(jb, k, eigenvalues, kl, ku, ab_real, ab_complex, ipiv,
+                                     counters)
+            for attempt in range(2 if factored else 0):
+                if attempt == 1:
+                    # On stiff components the Euler predictor overshoots by |k lambda| (ROBER
+                    # at k ~ t: 1e6-1e11); start once more from the constant x before reducing k.
+                    euler_stages(x, f0, 0.0, tau, X)
                 iters = newton(f, p, x, f0, t, k, A, b0, tau, transform, transform_inverse,
                                atol, rtol, dtol_k, max_iter, X, F, G, Z, ab_real, ab_complex,
                                kl, ku, ipiv, position, z_real, z_complex, w, counters)
-                if iters < 0:
-                    # On stiff components the Euler predictor overshoots by |k lambda| (ROBER
-                    # at k ~ t: 1e6-1e11); start once more from the constant x before reducing k.
-                    for s in range(S):
-                        for i in range(N):
-                            X[s * N + i] = x[i]
-                    iters = newton(f, p, x, f0, t, k, A, b0, tau, transform,
-                                   transform_inverse, atol, rtol, dtol_k, max_iter, X, F, G, Z,
-                                   ab_real, ab_complex, kl, ku, ipiv, position, z_real,
-                                   z_complex, w, counters)
-            else:
-                iters = -1
+                if iters >= 0:
+                    break
         if iters < 0:
             counters[FAILED_SOLVES] += 1
             if fixed:
