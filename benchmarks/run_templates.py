@@ -165,9 +165,10 @@ def codegen(p, expressions):
     from test_particles import dolfin_lattice
 
     ode, declare, declare_cpu = _timed(dolfin_lattice if expressions else dn.systems.lattice, p)
-    _, seconds, cpu = _timed(lower, ode)
+    compiled, seconds, cpu = _timed(lower, ode)
     print(json.dumps({"p": p, "N": ode.N, "expressions": expressions, "declare_s": declare,
-                      "declare_cpu_s": declare_cpu, "lower_s": seconds, "lower_cpu_s": cpu}))
+                      "declare_cpu_s": declare_cpu, "lower_s": seconds, "lower_cpu_s": cpu,
+                      "by_shape": expressions and bool(compiled.data)}))
 
 
 def run(arguments, cache, limit=None):
@@ -398,11 +399,15 @@ def _codegen_table(gen):
         ("Empty kernel cache per run; declare = building the ODE (sympy expressions for the "
          "per-expression lattice), lower = pattern + C generation + gcc. The per-expression "
          "series stops after the first size above a time limit. CPU times exclude gcc (a "
-         "child process)."), "",
+         "child process). Per-expression, by shape: an expression system of N >= 256 whose "
+         "right-hand sides take few shapes (the lattice's take 21) is lowered as templates, one "
+         "per shape (`dolfinode.compile.lowering.STRUCTURED_MIN`)."), "",
         "| p | N | kind | declare s (wall / CPU) | lower s (wall / CPU) |",
         "|---|---|---|---|---|"]
     for r in gen:
-        kind = "per-expression" if r["expressions"] else "template"
+        kind = "template"
+        if r["expressions"]:
+            kind = "per-expression, by shape" if r.get("by_shape") else "per-expression"
         lines.append(f"| {r['p']} | {r['N']} | {kind} | {r['declare_s']:.2f} / "
                      f"{r['declare_cpu_s']:.2f} | {r['lower_s']:.2f} / {r['lower_cpu_s']:.2f} |")
     return lines

@@ -5,6 +5,10 @@ The passes run in a fixed order:
 2. read the dependency graph off each expression's free symbols (no probing);
 3. differentiate exactly with sympy, only on the dependency pattern (the sparse Jacobian);
 4. generate C with common-subexpression elimination and compile it, cached by hash.
+
+A large system whose right-hand sides take few shapes (a stencil, a lattice declared one
+expression per component) is lowered instead as templates, one per shape (``_shapes``):
+differentiated and printed once per shape, with code that does not grow with N.
 """
 import hashlib
 import time
@@ -132,6 +136,14 @@ def _remembered(store, key, make):
     return store[key]
 
 
+#: An expression ODE of at least STRUCTURED_MIN components whose right-hand sides take at
+#: most one shape per STRUCTURED_RATIO components is lowered as templates (``_shapes``);
+#: its slots are named _SLOT0, _SLOT1, ... (a system with a parameter so named is not).
+STRUCTURED_MIN = 256
+STRUCTURED_RATIO = 8
+_SLOT = "dn_slot_"
+
+
 def _clamp_powers(expr, clamp):
     """``expr`` with u_i**a (a not an integer: sqrt(u_i), u_i**0.5, ...) read as
     max(u_i, 0)**a for the components in ``clamp`` (declared nonnegative): defined on iterates
@@ -158,15 +170,17 @@ def lower(ode):
     if getattr(ode, "_compiled", None) is not None:
         return ode._compiled.again()
     start = time.perf_counter()
+    from dolfinode.compile.template import kernel_parameters, lower_templates  # imports this
+
     if hasattr(ode, "templates"):
-        from dolfinode.compile.template import lower_template  # imports this module
-        key, source, indptr, indices, p, data = lower_template(ode)
+        lowered = lower_templates(ode.N, ode.templates, ode.parameter_symbols)
     else:
         declared = (tuple(ode.states), tuple(ode.rhs), tuple(ode.parameter_symbols),
                     tuple(np.flatnonzero(ode.nonnegative)))
-        key, source, indptr, indices = _remembered(_lowerings, declared,
-                                                   lambda: _lower_expressions(ode))
-        p, data = ode.parameter_values, ()
+        lowered = _remembered(_lowerings, declared, lambda: _lower_expressions(ode))
+    key, source, indptr, indices, header, data = lowered
+    p = ode.parameter_values if header is None else kernel_parameters(ode.parameter_values,
+                                                                     header)
     cached = key in _loaded
     if not cached:
         library, cached = load_library(key, source)
@@ -177,8 +191,46 @@ def lower(ode):
     return ode._compiled
 
 
+def _shapes(ode, rows):
+    """The right-hand sides as templates, one per shape, or None when they take more than one
+    shape per STRUCTURED_RATIO components (or the system is small, or clamps powers).
+
+    The shape of f_i is f_i with the states of its cell, the components it depends on and i
+    itself in increasing order, renamed to slots s_0, s_1, ...: the interior points of a
+    stencil share one (u_(i-1) - 2 u_i + u_(i+1) -> s_0 - 2 s_1 + s_2 on s_1). Lowered as
+    templates, each shape is differentiated and printed once and the kernels loop over its
+    cells, so neither the symbolic work nor the code grows with N.
+    """
+    n = ode.N
+    if (n < STRUCTURED_MIN or ode.nonnegative.any()
+            or any(s.name.startswith(_SLOT) for s in ode.parameter_symbols)):
+        return None
+    from dolfinode.systems.template import Template
+
+    slots = sp.symbols(f"{_SLOT}0:{max(len(r) for r in rows) + 1}", real=True)
+    shapes = {}
+    for i, (expr, row) in enumerate(zip(ode.rhs, rows)):
+        cell = row if i in row else sorted([*row, i])
+        canonical = expr.xreplace({ode.states[j]: slots[m] for m, j in enumerate(cell)})
+        cells = shapes.setdefault((canonical, cell.index(i), len(cell)), [])
+        if len(shapes) * STRUCTURED_RATIO > n:
+            return None
+        cells.append(cell)
+    return [Template(slots[:size], {slots[target]: canonical}, indices=cells)
+            for (canonical, target, size), cells in shapes.items()]
+
+
 def _lower_expressions(ode):
-    """Signature, source maker and CSR pattern of an ODE of per-component expressions."""
+    """Signature, source maker, CSR pattern, kernel header and kept arrays of an ODE of
+    per-component expressions (as :func:`dolfinode.compile.template.lower_templates`; header
+    None: ``p`` is the parameter values)."""
+    index_of = {s: i for i, s in enumerate(ode.states)}
+    rows = [sorted(index_of[s] for s in expr.free_symbols if s in index_of) for expr in ode.rhs]
+    templates = _shapes(ode, rows)
+    if templates is not None:
+        from dolfinode.compile.template import lower_templates
+
+        return lower_templates(ode.N, templates, ode.parameter_symbols, exclusive=True)
     # Real symbols named as the C array accesses they print as: real, so that sympy
     # differentiates |u|, sign(u), ... as functions of a real variable.
     u = [sp.Symbol(f"u[{i}]", real=True) for i in range(ode.N)]
@@ -189,8 +241,6 @@ def _lower_expressions(ode):
     nonnegative = [int(i) for i in np.flatnonzero(ode.nonnegative)]
     key = signature(*(sp.srepr(e) for e in rhs),
                     *(f"nonnegative {i} in non-integer powers" for i in nonnegative))
-    index_of = {s: i for i, s in enumerate(ode.states)}
-    rows = [sorted(index_of[s] for s in expr.free_symbols if s in index_of) for expr in ode.rhs]
     indptr = np.zeros(ode.N + 1, dtype=np.int64)
     indptr[1:] = np.cumsum([len(r) for r in rows])
     indices = np.array([j for r in rows for j in r], dtype=np.int64)
@@ -201,4 +251,4 @@ def _lower_expressions(ode):
         return kernel_source([_clamp_powers(e, clamp) for e in rhs],
                              [[_clamp_powers(e, clamp) for e in row] for row in jacobian_rows])
 
-    return key, source, indptr, indices
+    return key, source, indptr, indices, None, ()

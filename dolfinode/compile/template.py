@@ -1,4 +1,5 @@
-"""Lowering of a :class:`~dolfinode.systems.template.TemplateODE` to the standard kernels.
+"""Lowering of a :class:`~dolfinode.systems.template.TemplateODE` (and of a structured ODE of
+expressions, one template per shape, see ``lowering._shapes``) to the standard kernels.
 
 The kernels have the signatures of :mod:`dolfinode.compile.signatures`, so every solver
 loop uses them unchanged. The passes, in order:
@@ -119,14 +120,18 @@ def _incidence_loop(number, local, cases):
     return lines + ["        }", "      }", "    }"]
 
 
-def template_source(locals_, parameters):
-    """C source of the four kernels of :mod:`dolfinode.compile.signatures` for templates."""
+def template_source(locals_, parameters, exclusive=False):
+    """C source of the four kernels of :mod:`dolfinode.compile.signatures` for templates;
+    ``exclusive``: every component is the target of one term of one cell (so f and df/du are
+    assigned, not zeroed and summed)."""
     lines = [_PROLOGUE, _STRUCTS % (len(locals_), parameters)]
+    add = "=" if exclusive else "+="
     # f: zero, then every template scatters its terms
-    lines += ["void dn_rhs(ARGS, double *restrict out) {",
-              "    for (int64_t i = 0; i < SYSTEM->n; ++i) out[i] = 0.0;"]
+    lines += ["void dn_rhs(ARGS, double *restrict out) {"]
+    if not exclusive:
+        lines += ["    for (int64_t i = 0; i < SYSTEM->n; ++i) out[i] = 0.0;"]
     for n, local in enumerate(locals_):
-        body = _statements(local.exprs, [f"out[I[{s}]]" for s in local.targets], "+=")
+        body = _statements(local.exprs, [f"out[I[{s}]]" for s in local.targets], add)
         lines += _cell_loop(n, local, body, _used_slots(local.exprs))
     lines += ["}", ""]
     # f_i: the terms of the cells incident to i
@@ -137,11 +142,12 @@ def template_source(locals_, parameters):
     lines += ["    out[0] = f;", "}", ""]
     # df/du: zero, then every local Jacobian entry added at its CSR position
     derivatives = [[local.derivatives(m) for m in range(len(local.exprs))] for local in locals_]
-    lines += ["void dn_jacobian(ARGS, double *restrict data) {",
-              "    for (int64_t k = 0; k < SYSTEM->nnz; ++k) data[k] = 0.0;"]
+    lines += ["void dn_jacobian(ARGS, double *restrict data) {"]
+    if not exclusive:
+        lines += ["    for (int64_t k = 0; k < SYSTEM->nnz; ++k) data[k] = 0.0;"]
     for n, local in enumerate(locals_):
         flat = [d for term in derivatives[n] for d in term]
-        body = _statements(flat, [f"data[J[{k}]]" for k in range(len(flat))], "+=") if flat else []
+        body = _statements(flat, [f"data[J[{k}]]" for k in range(len(flat))], add) if flat else []
         lines += _cell_loop(n, local, body, _used_slots(flat))
     lines += ["}", ""]
     # row i of df/du: the local Jacobian rows of the terms incident to i
@@ -158,10 +164,10 @@ def template_source(locals_, parameters):
     return "\n".join(lines)
 
 
-def _pattern(ode, locals_):
+def _pattern(n, templates, locals_):
     """CSR pattern (indptr, indices) of df/du and the CSR position of every local entry."""
-    return assemble_pattern(ode.N, [(template.indices, *local.entry_slots())
-                                    for local, template in zip(locals_, ode.templates)])
+    return assemble_pattern(n, [(template.indices, *local.entry_slots())
+                                for local, template in zip(locals_, templates)])
 
 
 def _incidence(template, local, n):
@@ -173,25 +179,35 @@ def _incidence(template, local, n):
     return first, incidence
 
 
-def lower_template(ode):
-    """Signature, source maker, CSR pattern and kernel data of a TemplateODE.
+def lower_templates(n, templates, parameter_symbols, exclusive=False):
+    """Signature, source maker, CSR pattern and kernel header of templates over n components
+    with the global parameters ``parameter_symbols``.
 
-    Returns (key, source, indptr, indices, p, keep): ``source()`` generates the C code,
-    ``p`` holds the parameter values and the header, ``keep`` the arrays it points to.
+    Returns (key, source, indptr, indices, header, keep): ``source()`` generates the C code,
+    ``header`` holds the int64 words that follow the parameter values in ``p`` (see
+    :func:`kernel_parameters`), ``keep`` the arrays they point to.
     """
-    global_subs = {s: sp.Symbol(f"p[{j}]", real=True) for j, s in enumerate(ode.parameter_symbols)}
+    global_subs = {s: sp.Symbol(f"p[{j}]", real=True) for j, s in enumerate(parameter_symbols)}
     global_subs[time_symbol] = sp.Symbol("t", real=True)
-    locals_ = [_LocalTemplate(template, global_subs) for template in ode.templates]
-    key = signature("template", str(len(ode.params)), *(local.key() for local in locals_))
-    indptr, indices, positions = _pattern(ode, locals_)
-    header = [ode.N, len(indices), indptr.ctypes.data]
+    locals_ = [_LocalTemplate(template, global_subs) for template in templates]
+    count = len(parameter_symbols)
+    key = signature("template", str(count), *(local.key() for local in locals_),
+                    *(["exclusive"] if exclusive else []))
+    indptr, indices, positions = _pattern(n, templates, locals_)
+    header = [n, len(indices), indptr.ctypes.data]
     keep = [indptr, indices]
-    for template, local, position in zip(ode.templates, locals_, positions):
-        first, incidence = _incidence(template, local, ode.N)
+    for template, local, position in zip(templates, locals_, positions):
+        first, incidence = _incidence(template, local, n)
         arrays = [template.indices, template.values, first, incidence, position]
         keep += arrays
         header += [template.cells] + [a.ctypes.data for a in arrays]
-    p = np.zeros(len(ode.params) + len(header))
-    p[:len(ode.params)] = ode.parameter_values
-    p[len(ode.params):].view(np.int64)[:] = header
-    return key, lambda: template_source(locals_, len(ode.params)), indptr, indices, p, tuple(keep)
+    return (key, lambda: template_source(locals_, count, exclusive), indptr, indices,
+            np.array(header, dtype=np.int64), tuple(keep))
+
+
+def kernel_parameters(values, header):
+    """``p`` of template kernels: the global parameter values, then the header's words."""
+    p = np.zeros(len(values) + len(header))
+    p[:len(values)] = values
+    p[len(values):].view(np.int64)[:] = header
+    return p

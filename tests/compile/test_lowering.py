@@ -378,3 +378,96 @@ def test_jacobian_rows_equal_the_full_jacobian(make):
         for i in range(ode.N):
             np.testing.assert_allclose(compiled.jacobian_row_values(i, x, time),
                                        J.data[J.indptr[i]:J.indptr[i + 1]], rtol=1e-14, atol=1e-15)
+
+
+# --- structured expression systems: lowered once per shape --------------------------------------
+
+
+@pytest.fixture
+def small_structured(monkeypatch):
+    """Systems from 24 components lowered by shape (STRUCTURED_MIN is 256), so that the
+    per-expression references compile quickly; the in-process memo starts empty."""
+    from dolfinode.compile import lowering
+
+    monkeypatch.setattr(lowering, "STRUCTURED_MIN", 24)
+    monkeypatch.setattr(lowering, "_lowerings", {})
+    return lowering
+
+
+def stencil(n, nonnegative=None):
+    """u_i' = e (u_(i-1) - 2 u_i + u_(i+1)) + g u_i^2 (1 - u_i) + sin(t) on n points, mirror
+    ends: three shapes (two ends, the interior) whatever n."""
+    u = sp.symbols(f"u0:{n}")
+    e, g = sp.symbols("e g")
+    rhs = {}
+    for i in range(n):
+        left = u[i - 1] if i > 0 else u[1]
+        right = u[i + 1] if i < n - 1 else u[n - 2]
+        rhs[u[i]] = e * (left - 2 * u[i] + right) + g * u[i] ** 2 * (1 - u[i]) + sp.sin(t)
+    return dn.ODE(rhs, u0=np.linspace(0.0, 1.0, n), T=0.1, params={e: 50.0, g: 3.0},
+                  nonnegative=nonnegative)
+
+
+def per_expression(ode, lowering):
+    """A new declaration of ``ode`` lowered one expression at a time (past the memo)."""
+    saved = lowering.STRUCTURED_MIN, lowering._lowerings
+    lowering.STRUCTURED_MIN, lowering._lowerings = 10**9, {}
+    try:
+        return lower(dn.ODE(dict(zip(ode.states, ode.rhs)), u0=ode.u0, T=ode.T,
+                            params=ode.params))
+    finally:
+        lowering.STRUCTURED_MIN, lowering._lowerings = saved
+
+
+def test_structured_kernels_equal_the_per_expression_kernels(small_structured):
+    ode = stencil(40)
+    structured, reference = lower(ode), per_expression(ode, small_structured)
+    assert structured.data and not reference.data  # template arrays: lowered by shape
+    np.testing.assert_array_equal(structured.indptr, reference.indptr)
+    np.testing.assert_array_equal(structured.indices, reference.indices)
+    for x, time in random_points(2, ode.N, seed=6):
+        f = structured.f(x, time)
+        np.testing.assert_allclose(f, reference.f(x, time), rtol=1e-14, atol=1e-13)
+        J = structured.jacobian_matrix(x, time)
+        np.testing.assert_allclose(J.data, reference.jacobian_matrix(x, time).data, rtol=1e-14,
+                                   atol=1e-13)
+        for i in range(ode.N):
+            assert structured.f_component(i, x, time) == f[i]
+            np.testing.assert_array_equal(structured.jacobian_row_values(i, x, time),
+                                          J.data[J.indptr[i]:J.indptr[i + 1]])
+
+
+def test_structured_code_does_not_grow_with_n():
+    """Two sizes of one stencil (above STRUCTURED_MIN) share the kernel library: its key
+    holds the shapes, not N."""
+    small, large = lower(stencil(300)), lower(stencil(1000))
+    assert small.data and large.rhs is small.rhs
+    x = np.linspace(0.2, 0.9, 1000)
+    f = large.f(x, 0.5)
+    assert f[500] == pytest.approx(50.0 * (x[499] - 2 * x[500] + x[501])
+                                   + 3.0 * x[500] ** 2 * (1 - x[500]) + np.sin(0.5), rel=1e-12)
+    assert f[999] == pytest.approx(50.0 * (2 * x[998] - 2 * x[999])
+                                   + 3.0 * x[999] ** 2 * (1 - x[999]) + np.sin(0.5), rel=1e-12)
+
+
+def test_systems_with_many_shapes_or_clamped_powers_stay_per_expression(small_structured):
+    n = 40
+    u = sp.symbols(f"u0:{n}")
+    distinct = dn.ODE({u[i]: -(i + 1) * u[i] for i in range(n)}, u0=np.ones(n), T=1.0)
+    assert not lower(distinct).data  # one shape per component
+    assert not lower(stencil(n, nonnegative=True)).data  # nonnegative: clamped in C
+    assert not lower(stencil(20)).data  # below STRUCTURED_MIN
+    assert lower(stencil(n)).data
+
+
+def test_structured_solve_equals_the_per_expression_solve(small_structured):
+    ode = stencil(40)
+    reference = per_expression(ode, small_structured)
+    for method in ("cG(2)", "dG(1)", "mcG(2)"):
+        for solver in ("fixed-point", "newton"):
+            sol = dn.solve(ode, method, tolerance=1e-6, nonlinear_solver=solver)
+            ode._compiled = reference
+            again = dn.solve(ode, method, tolerance=1e-6, nonlinear_solver=solver)
+            ode._compiled = None
+            assert sol.stats["time slabs"] == again.stats["time slabs"]
+            np.testing.assert_allclose(sol.y, again.y, rtol=1e-10, atol=1e-12)
