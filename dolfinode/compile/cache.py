@@ -14,7 +14,7 @@ import tempfile
 from pathlib import Path
 
 #: Bump when the generated code changes meaning, so stale kernels are not reused.
-CODEGEN_VERSION = "3"
+CODEGEN_VERSION = "4"
 _FLAGS = ["-O2", "-fPIC", "-shared", "-fno-math-errno", "-std=c99"]
 
 
@@ -75,7 +75,13 @@ def load_library(key, make_source):
             command = [c_compiler(), *_FLAGS, "-o", tmp, str(source), "-lm"]
             result = subprocess.run(command, check=False, capture_output=True, text=True)
             if result.returncode != 0:
-                raise RuntimeError(f"compiling the kernels in {source} failed:\n{result.stderr}")
+                # a source that does not compile is not kept: the next run (with a fixed
+                # dolfinode) generates it again instead of failing on the same file
+                text = source.read_text()
+                source.unlink(missing_ok=True)
+                raise RuntimeError(f"compiling the kernels of {source.name} failed:\n"
+                                   f"{result.stderr}\n(source, removed from the cache:)\n"
+                                   f"{text[:4000]}")
 
         _write_atomic(library, build)
     return ctypes.CDLL(str(library)), cached

@@ -162,6 +162,9 @@ def _derivative(expr, x):
     d = sp.diff(expr, x)
     if d.has(sp.DiracDelta, sp.Derivative):
         d = d.replace(lambda e: isinstance(e, (sp.DiracDelta, sp.Derivative)), lambda e: sp.S.Zero)
+        # the chain rule through such a function of an expression, floor(3 x), leaves
+        # Subs(0, xi, 3 x): evaluated to 0 (printed, it was not C)
+        d = d.replace(lambda e: isinstance(e, sp.Subs), lambda e: e.doit())
     return d
 
 

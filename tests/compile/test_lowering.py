@@ -161,6 +161,10 @@ def test_rhs_writes_into_the_given_array():
     pytest.param(lambda x: sp.Heaviside(x), lambda x: 0.0, id="Heaviside"),
     pytest.param(lambda x: sp.floor(x), lambda x: 0.0, id="floor"),
     pytest.param(lambda x: sp.ceiling(x), lambda x: 0.0, id="ceiling"),
+    # of an expression: sympy's chain rule leaves Subs(Derivative(floor(xi), xi), xi, 3 x)
+    pytest.param(lambda x: sp.floor(3 * x), lambda x: 0.0, id="floor(3x)"),
+    pytest.param(lambda x: sp.ceiling(2 * x + 1), lambda x: 0.0, id="ceiling(2x + 1)"),
+    pytest.param(lambda x: sp.sign(x**2 - 1), lambda x: 0.0, id="sign(x^2 - 1)"),
 ])
 def test_piecewise_constant_functions_lower_with_zero_derivative(expr, derivative):
     x, y = sp.symbols("x y")
@@ -360,6 +364,25 @@ def test_disk_cache_across_processes(tmp_path):
 
     every_file = [p.name for p in tmp_path.rglob("*")]
     assert not [name for name in every_file if name.endswith(".tmp")]
+
+
+def test_a_failed_compile_leaves_nothing_in_the_cache(tmp_path, monkeypatch):
+    """A source the C compiler rejects is removed with the failure, so that it is generated
+    again next time rather than failing again from the cache."""
+    from dolfinode.compile import cache, lowering
+
+    monkeypatch.setenv("DOLFINODE_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(lowering, "_loaded", {})
+    monkeypatch.setattr(cache, "c_compiler", lambda: "false")  # exits 1, writes nothing
+    x, y = sp.symbols("x y")
+    ode = dn.ODE({x: y * sp.cos(x), y: -x}, u0=[0.5, 1.0], T=1.0)
+    with pytest.raises(RuntimeError, match="compiling the kernels of dn_.*failed"):
+        lower(ode)
+    assert not list(tmp_path.rglob("dn_*"))
+    monkeypatch.undo()
+    monkeypatch.setenv("DOLFINODE_CACHE_DIR", str(tmp_path))
+    ode._compiled = None
+    assert lower(ode).f([0.5, 1.0], 0.0)[1] == -0.5
 
 
 def test_expected_values_in_the_cache_script():
