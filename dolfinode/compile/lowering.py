@@ -195,32 +195,36 @@ def lower(ode):
 
 
 def _shapes(ode, rows):
-    """The right-hand sides as templates, one per shape, or None when they take more than one
-    shape per STRUCTURED_RATIO components (or the system is small, or clamps powers).
+    """The right-hand sides as templates, one per shape, with the slots each clamps (see
+    :func:`_clamp_powers`); None when they take more than one shape per STRUCTURED_RATIO
+    components, or the system is small.
 
     The shape of f_i is f_i with the states of its cell, the components it depends on and i
-    itself in increasing order, renamed to slots s_0, s_1, ...: the interior points of a
-    stencil share one (u_(i-1) - 2 u_i + u_(i+1) -> s_0 - 2 s_1 + s_2 on s_1). Lowered as
-    templates, each shape is differentiated and printed once and the kernels loop over its
-    cells, so neither the symbolic work nor the code grows with N.
+    itself in increasing order, renamed to slots s_0, s_1, ... (and which of them are
+    declared nonnegative): the interior points of a stencil share one
+    (u_(i-1) - 2 u_i + u_(i+1) -> s_0 - 2 s_1 + s_2 on s_1). Lowered as templates, each shape
+    is differentiated and printed once and the kernels loop over its cells, so neither the
+    symbolic work nor the code grows with N.
     """
     n = ode.N
-    if (n < STRUCTURED_MIN or ode.nonnegative.any()
-            or any(s.name.startswith(_SLOT) for s in ode.parameter_symbols)):
+    if n < STRUCTURED_MIN or any(s.name.startswith(_SLOT) for s in ode.parameter_symbols):
         return None
     from dolfinode.systems.template import Template
 
     slots = sp.symbols(f"{_SLOT}0:{max(len(r) for r in rows) + 1}", real=True)
+    nonnegative = ode.nonnegative
     shapes = {}
     for i, (expr, row) in enumerate(zip(ode.rhs, rows)):
         cell = row if i in row else sorted([*row, i])
         canonical = expr.xreplace({ode.states[j]: slots[m] for m, j in enumerate(cell)})
-        cells = shapes.setdefault((canonical, cell.index(i), len(cell)), [])
+        clamped = tuple(m for m, j in enumerate(cell) if nonnegative[j])
+        cells = shapes.setdefault((canonical, cell.index(i), len(cell), clamped), [])
         if len(shapes) * STRUCTURED_RATIO > n:
             return None
         cells.append(cell)
-    return [Template(slots[:size], {slots[target]: canonical}, indices=cells)
-            for (canonical, target, size), cells in shapes.items()]
+    templates = [Template(slots[:size], {slots[target]: canonical}, indices=cells)
+                 for (canonical, target, size, _), cells in shapes.items()]
+    return templates, [clamped for *_, clamped in shapes]
 
 
 def _lower_expressions(ode):
@@ -229,11 +233,13 @@ def _lower_expressions(ode):
     None: ``p`` is the parameter values)."""
     index_of = {s: i for i, s in enumerate(ode.states)}
     rows = [sorted(index_of[s] for s in expr.free_symbols if s in index_of) for expr in ode.rhs]
-    templates = _shapes(ode, rows)
-    if templates is not None:
+    shapes = _shapes(ode, rows)
+    if shapes is not None:
         from dolfinode.compile.template import lower_templates
 
-        return lower_templates(ode.N, templates, ode.parameter_symbols, exclusive=True)
+        templates, clamped = shapes
+        return lower_templates(ode.N, templates, ode.parameter_symbols, exclusive=True,
+                               clamped=clamped)
     # Real symbols named as the C array accesses they print as: real, so that sympy
     # differentiates |u|, sign(u), ... as functions of a real variable.
     u = [sp.Symbol(f"u[{i}]", real=True) for i in range(ode.N)]

@@ -21,15 +21,18 @@ struct. The :class:`~dolfinode.compile.lowering.CompiledODE` keeps the arrays al
 Contributions to one component are summed in the same order (template, cell, term) by the
 full and the single-component kernels, so f_i equals f[i] bit for bit.
 """
+import re
+
 import numpy as np
 import sympy as sp
 
 from dolfinode.compile.cache import signature
 from dolfinode.compile.codegen import _PROLOGUE, _statements
-from dolfinode.compile.lowering import _derivative
+from dolfinode.compile.lowering import _clamp_powers, _derivative
 from dolfinode.compile.pattern import assemble_pattern
 from dolfinode.ode import t as time_symbol
 
+_SLOT_READ = re.compile(r"\bU\[(\d+)\]")
 _STRUCTS = """\
 #include <stdint.h>
 typedef struct {
@@ -50,9 +53,11 @@ typedef struct {
 
 
 class _LocalTemplate:
-    """One template with C-named symbols: terms on target slots and their local Jacobian."""
+    """One template with C-named symbols: terms on target slots and their local Jacobian;
+    the slots in ``clamped`` (of components declared nonnegative) are read as max(U_k, 0)
+    inside non-integer powers, as :func:`dolfinode.compile.lowering._clamp_powers`."""
 
-    def __init__(self, template, global_subs):
+    def __init__(self, template, global_subs, clamped=()):
         subs = dict(global_subs)
         subs.update({s: sp.Symbol(f"U[{k}]", real=True) for k, s in enumerate(template.slots)})
         subs.update({s: sp.Symbol(f"P[{k}]", real=True) for k, s in enumerate(template.params)})
@@ -65,6 +70,9 @@ class _LocalTemplate:
                      for expr in self.exprs]
         self.offsets = np.concatenate([[0], np.cumsum([len(d) for d in self.deps])]).astype(int)
         self._local = local
+        self.clamped = tuple(clamped)
+        self._clamp = {local[k]: sp.Symbol(f"fmax(U[{k}], 0.0)", real=True) for k in clamped}
+        self.kernel_exprs = [_clamp_powers(e, self._clamp) for e in self.exprs]
 
     @property
     def entries(self):
@@ -72,10 +80,12 @@ class _LocalTemplate:
 
     def key(self):
         return "|".join([str(self.slots), str(self.params), str(self.targets)]
-                        + [sp.srepr(e) for e in self.exprs])
+                        + [sp.srepr(e) for e in self.exprs]
+                        + ([f"clamped {self.clamped}"] if self.clamped else []))
 
     def derivatives(self, m):
-        return [_derivative(self.exprs[m], self._local[r]) for r in self.deps[m]]
+        return [_clamp_powers(_derivative(self.exprs[m], self._local[r]), self._clamp)
+                for r in self.deps[m]]
 
     def entry_slots(self):
         """(rows, columns): the slots of every local Jacobian entry, in entry order."""
@@ -89,7 +99,8 @@ def _gather(slots_used):
 
 
 def _used_slots(exprs):
-    return {int(s.name[2:-1]) for e in exprs for s in e.free_symbols if s.name.startswith("U[")}
+    """The slots read by ``exprs`` (as U[k], or clamped as fmax(U[k], 0.0))."""
+    return {int(k) for e in exprs for s in e.free_symbols for k in _SLOT_READ.findall(s.name)}
 
 
 def _cell_loop(number, local, body, used):
@@ -131,13 +142,13 @@ def template_source(locals_, parameters, exclusive=False):
     if not exclusive:
         lines += ["    for (int64_t i = 0; i < SYSTEM->n; ++i) out[i] = 0.0;"]
     for n, local in enumerate(locals_):
-        body = _statements(local.exprs, [f"out[I[{s}]]" for s in local.targets], add)
-        lines += _cell_loop(n, local, body, _used_slots(local.exprs))
+        body = _statements(local.kernel_exprs, [f"out[I[{s}]]" for s in local.targets], add)
+        lines += _cell_loop(n, local, body, _used_slots(local.kernel_exprs))
     lines += ["}", ""]
     # f_i: the terms of the cells incident to i
     lines += ["void dn_rhs_component(long i, ARGS, double *restrict out) {", "    double f = 0.0;"]
     for n, local in enumerate(locals_):
-        cases = [(_used_slots([e]), _statements([e], ["f"], "+=")) for e in local.exprs]
+        cases = [(_used_slots([e]), _statements([e], ["f"], "+=")) for e in local.kernel_exprs]
         lines += _incidence_loop(n, local, cases)
     lines += ["    out[0] = f;", "}", ""]
     # df/du: zero, then every local Jacobian entry added at its CSR position
@@ -179,9 +190,10 @@ def _incidence(template, local, n):
     return first, incidence
 
 
-def lower_templates(n, templates, parameter_symbols, exclusive=False):
+def lower_templates(n, templates, parameter_symbols, exclusive=False, clamped=None):
     """Signature, source maker, CSR pattern and kernel header of templates over n components
-    with the global parameters ``parameter_symbols``.
+    with the global parameters ``parameter_symbols``; ``clamped``: per template, the slots
+    read as max(U_k, 0) in non-integer powers (see :class:`_LocalTemplate`).
 
     Returns (key, source, indptr, indices, header, keep): ``source()`` generates the C code,
     ``header`` holds the int64 words that follow the parameter values in ``p`` (see
@@ -189,7 +201,8 @@ def lower_templates(n, templates, parameter_symbols, exclusive=False):
     """
     global_subs = {s: sp.Symbol(f"p[{j}]", real=True) for j, s in enumerate(parameter_symbols)}
     global_subs[time_symbol] = sp.Symbol("t", real=True)
-    locals_ = [_LocalTemplate(template, global_subs) for template in templates]
+    locals_ = [_LocalTemplate(template, global_subs, slots)
+               for template, slots in zip(templates, clamped or [()] * len(templates))]
     count = len(parameter_symbols)
     key = signature("template", str(count), *(local.key() for local in locals_),
                     *(["exclusive"] if exclusive else []))

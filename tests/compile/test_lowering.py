@@ -417,16 +417,16 @@ def small_structured(monkeypatch):
     return lowering
 
 
-def stencil(n, nonnegative=None):
-    """u_i' = e (u_(i-1) - 2 u_i + u_(i+1)) + g u_i^2 (1 - u_i) + sin(t) on n points, mirror
-    ends: three shapes (two ends, the interior) whatever n."""
+def stencil(n, nonnegative=None, power=2):
+    """u_i' = e (u_(i-1) - 2 u_i + u_(i+1)) + g u_i^power (1 - u_i) + sin(t) on n points,
+    mirror ends: three shapes (two ends, the interior) whatever n."""
     u = sp.symbols(f"u0:{n}")
     e, g = sp.symbols("e g")
     rhs = {}
     for i in range(n):
         left = u[i - 1] if i > 0 else u[1]
         right = u[i + 1] if i < n - 1 else u[n - 2]
-        rhs[u[i]] = e * (left - 2 * u[i] + right) + g * u[i] ** 2 * (1 - u[i]) + sp.sin(t)
+        rhs[u[i]] = e * (left - 2 * u[i] + right) + g * u[i] ** power * (1 - u[i]) + sp.sin(t)
     return dn.ODE(rhs, u0=np.linspace(0.0, 1.0, n), T=0.1, params={e: 50.0, g: 3.0},
                   nonnegative=nonnegative)
 
@@ -437,7 +437,7 @@ def per_expression(ode, lowering):
     lowering.STRUCTURED_MIN, lowering._lowerings = 10**9, {}
     try:
         return lower(dn.ODE(dict(zip(ode.states, ode.rhs)), u0=ode.u0, T=ode.T,
-                            params=ode.params))
+                            params=ode.params, nonnegative=ode.nonnegative))
     finally:
         lowering.STRUCTURED_MIN, lowering._lowerings = saved
 
@@ -473,14 +473,28 @@ def test_structured_code_does_not_grow_with_n():
                                    + 3.0 * x[999] ** 2 * (1 - x[999]) + np.sin(0.5), rel=1e-12)
 
 
-def test_systems_with_many_shapes_or_clamped_powers_stay_per_expression(small_structured):
+def test_systems_with_many_shapes_stay_per_expression(small_structured):
     n = 40
     u = sp.symbols(f"u0:{n}")
     distinct = dn.ODE({u[i]: -(i + 1) * u[i] for i in range(n)}, u0=np.ones(n), T=1.0)
     assert not lower(distinct).data  # one shape per component
-    assert not lower(stencil(n, nonnegative=True)).data  # nonnegative: clamped in C
     assert not lower(stencil(20)).data  # below STRUCTURED_MIN
     assert lower(stencil(n)).data
+
+
+def test_structured_kernels_clamp_nonnegative_components_in_powers(small_structured):
+    """sqrt(u_i) of a component declared nonnegative reads max(u_i, 0), by shape as per
+    expression; the other components are read as they are."""
+    ode = stencil(40, nonnegative=[f"u{i}" for i in range(0, 40, 2)], power=sp.Rational(1, 2))
+    structured, reference = lower(ode), per_expression(ode, small_structured)
+    assert structured.data and not reference.data
+    x = np.linspace(-0.5, 1.0, 40)
+    f = structured.f(x, 0.3)
+    np.testing.assert_allclose(f, reference.f(x, 0.3), rtol=1e-14, atol=1e-13)
+    np.testing.assert_allclose(structured.jacobian_matrix(x, 0.3).data,
+                               reference.jacobian_matrix(x, 0.3).data, rtol=1e-14, atol=1e-13)
+    negative = np.flatnonzero(x < 0)
+    assert np.isfinite(f[negative[::2]]).all() and np.isnan(f[negative[1::2]]).all()
 
 
 def test_structured_solve_equals_the_per_expression_solve(small_structured):
