@@ -198,8 +198,8 @@ def test_newton_matrix_is_allocated_only_when_needed(monkeypatch):
 
 
 def test_newton_memory_formula():
-    """newton_memory bounds what the Newton solver allocates, for every method: J (later the
-    filter's matrix), one band matrix (2 kl + ku + 1 columns) per real eigenvalue of A and a
+    """newton_memory bounds what the Newton solver allocates, for every method: J, the
+    filter's matrix, one band matrix (2 kl + ku + 1 columns) per real eigenvalue of A and a
     complex one per pair, the pivots and the work vectors; within 25% of it."""
     from dolfinode.methods import make_method
     from dolfinode.solve import newton_memory
@@ -211,8 +211,49 @@ def test_newton_memory_formula():
         S = len(method.A)
         real = int(np.sum(method.stage_eigenvalues.imag == 0))
         pairs = len(method.stage_eigenvalues) - real
-        allocated = (8 * N * columns * (1 + real + 2 * pairs)  # J (filter), matrices
+        allocated = (8 * N * columns * (2 + real + 2 * pairs)  # J, filter, matrices
                      + 8 * N * (real + pairs + 1)                  # pivots
                      + 8 * N * S + 8 * N + 16 * N)                 # Z, z_real, z_complex
         bound = newton_memory(N, kl, ku, S)
         assert allocated <= bound <= 1.25 * allocated, (family, q)
+
+
+def grid_reaction_diffusion(n):
+    """u' = 2 Lap u + u (1 - u) on an n x n grid (mirror boundaries): a band of about n after
+    reordering, so that a factorization costs ~ n^4 against ~ n^3 for a solve."""
+    u = sp.symbols(f"u0:{n * n}")
+    D = sp.Symbol("D")
+
+    def at(i, j):
+        i = 1 if i < 0 else n - 2 if i > n - 1 else i
+        j = 1 if j < 0 else n - 2 if j > n - 1 else j
+        return u[i * n + j]
+
+    rhs = {at(i, j): D * (at(i - 1, j) + at(i + 1, j) + at(i, j - 1) + at(i, j + 1)
+                          - 4 * at(i, j)) + at(i, j) * (1 - at(i, j))
+           for i in range(n) for j in range(n)}
+    x, y = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
+    return dn.ODE(rhs, u0=np.exp(-20 * (x**2 + y**2)).ravel(), T=1.0,
+                  params={D: 2.0 * (n - 1) ** 2})
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)"])
+def test_newton_keeps_costly_factors_over_slabs(method, monkeypatch):
+    """With a band factorization of at least REUSE_COST multiply-adds, Newton's J and factors
+    serve several slabs: a fraction of the factorizations for the same accuracy."""
+    from dolfinode.compile import lower
+    from dolfinode.timeslab import mono
+
+    ode = grid_reaction_diffusion(20)
+    _, _, kl, ku = lower(ode).ordering
+    assert ode.N * kl * (kl + ku + 1) >= mono.REUSE_COST
+    reference = dn.solve(ode, "dG(3)", tolerance=1e-10, nonlinear_solver="newton").y[:, -1]
+    kept = dn.solve(ode, method, tolerance=1e-5, nonlinear_solver="newton")
+    monkeypatch.setattr(mono, "REUSE_COST", np.inf)
+    every = dn.solve(ode, method, tolerance=1e-5, nonlinear_solver="newton")
+    assert every.stats["jacobian evaluations"] == every.stats["time slabs"] + every.stats[
+        "rejected steps"] + every.stats["failed nonlinear solves"]
+    assert kept.stats["factorizations"] < every.stats["factorizations"] / 4
+    assert kept.stats["jacobian evaluations"] < every.stats["time slabs"] / 4
+    for sol in (kept, every):
+        assert np.abs(sol.y[:, -1] - reference).max() < 1e-5
