@@ -168,7 +168,7 @@ def codegen(p, expressions):
     compiled, seconds, cpu = _timed(lower, ode)
     print(json.dumps({"p": p, "N": ode.N, "expressions": expressions, "declare_s": declare,
                       "declare_cpu_s": declare_cpu, "lower_s": seconds, "lower_cpu_s": cpu,
-                      "by_shape": expressions and bool(compiled.data)}))
+                      "by_shape": expressions and compiled.templates > 0}))
 
 
 def run(arguments, cache, limit=None):

@@ -40,6 +40,8 @@ class CompiledODE:
     compile_time : seconds spent generating and compiling (or loading from cache)
     cached : whether the kernels came from the disk cache
     data : arrays the kernels read through ``p`` (kept alive with the kernels)
+    templates : how many templates the kernels loop over (a TemplateODE's, or the shapes of
+        an expression system lowered by shape); 0 for code per expression
     """
 
     N: int
@@ -53,6 +55,7 @@ class CompiledODE:
     compile_time: float
     cached: bool
     data: tuple = ()
+    templates: int = 0
 
     def again(self):
         """This lowering as a later ``lower`` of the same ODE returns it: loaded, no compile
@@ -173,7 +176,11 @@ def lower(ode):
     if getattr(ode, "_compiled", None) is not None:
         return ode._compiled.again()
     start = time.perf_counter()
-    from dolfinode.compile.template import kernel_parameters, lower_templates  # imports this
+    from dolfinode.compile.template import (  # it imports this module
+        kernel_parameters,
+        lower_templates,
+        templates_in,
+    )
 
     if hasattr(ode, "templates"):
         lowered = lower_templates(ode.N, ode.templates, ode.parameter_symbols)
@@ -184,13 +191,14 @@ def lower(ode):
     key, source, indptr, indices, header, data = lowered
     p = ode.parameter_values if header is None else kernel_parameters(ode.parameter_values,
                                                                      header)
+    templates = 0 if header is None else templates_in(header)
     cached = key in _loaded
     if not cached:
         library, cached = load_library(key, source)
         _loaded[key] = tuple(Kernel(library, name) for name in KERNELS)
     kernels = _loaded[key]
     ode._compiled = CompiledODE(ode.N, *kernels, indptr, indices, p,
-                                time.perf_counter() - start, cached, data)
+                                time.perf_counter() - start, cached, data, templates)
     return ode._compiled
 
 

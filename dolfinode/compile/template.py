@@ -218,6 +218,12 @@ def lower_templates(n, templates, parameter_symbols, exclusive=False, clamped=No
             np.array(header, dtype=np.int64), tuple(keep))
 
 
+def templates_in(header):
+    """How many templates a header of :func:`lower_templates` describes: three words, then
+    six per template."""
+    return (len(header) - 3) // 6
+
+
 def kernel_parameters(values, header):
     """``p`` of template kernels: the global parameter values, then the header's words."""
     p = np.zeros(len(values) + len(header))
