@@ -141,7 +141,7 @@ def _remembered(store, key, make):
 
 #: An expression ODE of at least STRUCTURED_MIN components whose right-hand sides take at
 #: most one shape per STRUCTURED_RATIO components is lowered as templates (``_shapes``);
-#: its slots are named _SLOT0, _SLOT1, ... (a system with a parameter so named is not).
+#: its slots are named dn_slot_0, dn_slot_1, ... (a system with a parameter so named is not).
 STRUCTURED_MIN = 256
 STRUCTURED_RATIO = 8
 _SLOT = "dn_slot_"

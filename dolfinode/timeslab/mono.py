@@ -196,8 +196,8 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
         if eigenvalues[j].imag == 0.0:
             n_real += 1
     columns = 2 * kl + ku + 1
-    # J in band storage; once the stage matrices are factored, the error filter's
-    # I - gamma k J and its factors (the filter is applied with Newton only)
+    # J in band storage, and the factors of the error filter's I - gamma k J (the filter is
+    # applied with Newton only)
     jb = np.zeros((0, 0))
     ab_filter = np.zeros((0, 0))
     ab_real = np.zeros((0, 0, 0))
