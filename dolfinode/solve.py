@@ -51,14 +51,15 @@ def newton_memory(N, kl, ku, stages):
     Returns
     -------
     int
-        ``8 (S + 2) N (2 kl + ku + 4)``, an upper bound: the N x N matrices I - k lambda J
+        ``8 (S + 1) N (2 kl + ku + 4)``, an upper bound: the N x N matrices I - k lambda J
         in band storage with LU fill-in (2 kl + ku + 1 columns), one real per real eigenvalue
         lambda of the stage matrix and one complex (16 bytes an entry) per complex pair (so S
-        real ones' worth), J, and the error filter (I - gamma k J)^{-1}; at most S + 2 pivot
-        vectors and S + 3 work vectors. Allocated only when the solve uses Newton's method
-        (``nonlinear_solver="newton"``, or the default once fixed-point iteration fails).
+        real ones' worth), and J, which then holds the error filter (I - gamma k J)^{-1};
+        at most S + 1 pivot vectors and S + 3 work vectors. Allocated only when the solve
+        uses Newton's method (``nonlinear_solver="newton"``, or the default once fixed-point
+        iteration fails).
     """
-    return 8 * (stages + 2) * N * (2 * kl + ku + 4)
+    return 8 * (stages + 1) * N * (2 * kl + ku + 4)
 
 
 def _absolute_tolerance(ode, value, rtol):

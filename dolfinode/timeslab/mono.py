@@ -196,10 +196,9 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
         if eigenvalues[j].imag == 0.0:
             n_real += 1
     columns = 2 * kl + ku + 1
-    # J in band storage, and the factors of the error filter's I - gamma k J (the filter is
-    # applied with Newton only)
+    # J in band storage; once the stage matrices are factored, the error filter's
+    # I - gamma k J and its factors (the filter is applied with Newton only)
     jb = np.zeros((0, 0))
-    ab_filter = np.zeros((0, 0))
     ab_real = np.zeros((0, 0, 0))
     ab_complex = np.zeros((0, 0, 0), dtype=np.complex128)
     ipiv = np.zeros((0, 0), dtype=np.int64)
@@ -210,8 +209,7 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
     reuse = iopts[REUSE] == 1
     k_factored = 0.0  # the step of the current factors (0: none)
     age = 0  # Newton slabs since the Jacobian was evaluated
-    filter_stale = True  # the filter's factors are not those of the current J and k_factored
-    filter_ok = False
+    filter_ok = False  # the error filter's factors are usable
     est = np.empty(N)
     w = np.empty(S * N)  # weights of the scaled norm (solvers' work space)
     weights = np.empty(n_nodes)  # extrapolate's work space
@@ -266,7 +264,6 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
                 state[K_NEXT] = k
                 return NEWTON_MEMORY
             jb = np.zeros((N, columns))
-            ab_filter = np.zeros((N, columns))
             ab_real = np.zeros((n_real, N, columns))
             ab_complex = np.zeros((eigenvalues.shape[0] - n_real, N, columns),
                                   dtype=np.complex128)
@@ -287,9 +284,11 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
                                              ipiv, counters)
                     k_factored = k if factored else 0.0
                     age = 0
-                    filter_stale = True
                     if not factored:
                         break
+                    # J is not needed once factored: jb takes the error filter's factors
+                    shift(jb, gamma * k, kl, ku, jb)
+                    filter_ok = factor(jb, kl, ku, ipiv_filter, counters)
                 for attempt in range(2 if fresh == 1 else 1):  # kept factors: one try
                     if attempt == 1:
                         # On stiff components the Euler predictor overshoots by |k lambda|
@@ -331,13 +330,10 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
                 kdu += end_derivative[j] * xi
             est[i] = kdu - k * fend[i]  # k R(t_n)
         if use_newton and not blowup:
-            if filter_stale:  # (I - gamma k J)^-1 with the J and step of the stage factors
-                shift(jb, gamma * k_factored, kl, ku, ab_filter)
-                filter_ok = factor(ab_filter, kl, ku, ipiv_filter, counters)
-                filter_stale = False
+            # (I - gamma k J)^-1 with the J and the step of the stage factors
             blowup = not filter_ok
             if not blowup:
-                filter_estimate(ab_filter, kl, ku, ipiv_filter, position, est, filter_rhs)
+                filter_estimate(jb, kl, ku, ipiv_filter, position, est, filter_rhs)
         eps = 0.0
         for i in range(N):
             eps = max(eps, abs(est[i]) / (atol[i] + rtol * abs(X[end + i])))

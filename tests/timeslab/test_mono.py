@@ -198,8 +198,8 @@ def test_newton_matrix_is_allocated_only_when_needed(monkeypatch):
 
 
 def test_newton_memory_formula():
-    """newton_memory bounds what the Newton solver allocates, for every method: J, the
-    filter's matrix, one band matrix (2 kl + ku + 1 columns) per real eigenvalue of A and a
+    """newton_memory bounds what the Newton solver allocates, for every method: J (later the
+    filter's matrix), one band matrix (2 kl + ku + 1 columns) per real eigenvalue of A and a
     complex one per pair, the pivots and the work vectors; within 25% of it."""
     from dolfinode.methods import make_method
     from dolfinode.solve import newton_memory
@@ -211,7 +211,7 @@ def test_newton_memory_formula():
         S = len(method.A)
         real = int(np.sum(method.stage_eigenvalues.imag == 0))
         pairs = len(method.stage_eigenvalues) - real
-        allocated = (8 * N * columns * (2 + real + 2 * pairs)  # J, filter, matrices
+        allocated = (8 * N * columns * (1 + real + 2 * pairs)  # J (filter), matrices
                      + 8 * N * (real + pairs + 1)                  # pivots
                      + 8 * N * S + 8 * N + 16 * N)                 # Z, z_real, z_complex
         bound = newton_memory(N, kl, ku, S)
