@@ -61,11 +61,11 @@ NEWTON_PROBE = 1.2
 #: Test Set problems but moved their accuracy by up to 1.9 digits either way (VDPOLM dG(3) at
 #: tolerance 1e-4: 8.8 -> 7.0 digits), a stiff component's polynomial being a poor predictor.
 EXTRAPOLATE = 2.0
-#: Newton's Jacobian and factors are kept over slabs (as RADAU5 and CVODE keep theirs) when a
-#: band factorization costs at least REUSE_COST multiply-adds, N kl (kl + ku + 1): while the
-#: step stays within a factor REUSE_RATIO of the factors' step, for at most REUSE_AGE slabs,
-#: and until a Newton iteration with them fails (then they are made afresh and the slab is
-#: solved again). A 2-D Brusselator of N = 3200 (bandwidth 80): one complex factorization
+#: The factors of one Jacobian (stage matrices, error filter) are kept over slabs, as RADAU5
+#: and CVODE keep theirs, when a band factorization costs at least REUSE_COST multiply-adds,
+#: N kl (kl + ku + 1): while the step stays within a factor REUSE_RATIO of the factors' step,
+#: for at most REUSE_AGE slabs, and until a Newton iteration with them fails (then they are
+#: made afresh and the slab is solved again). A 2-D Brusselator of N = 3200 (bandwidth 80): one complex factorization
 #: 35 ms against 2.7 ms for a solve. Small bands are factored every Newton slab, where an
 #: iteration more costs more than the factorization it saves.
 REUSE_COST = 2e5
