@@ -156,10 +156,12 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
     run = _run_multi if multi_adaptive else _run_mono
     status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
                                                    floor, x, f0, steps)
+    newton = bool(counters[ts.STIFF]) or params["nonlinear_solver"] == "newton"
     if status != ts.DONE:
         outside = ode.states[counters[ts.OUTSIDE] - 1] if counters[ts.OUTSIDE] else None
         raise SolverError(_failure_message(status, state, fixed, x, outside,
-                                           params["maximum_time_step"]), t=float(state[0]))
+                                           params["maximum_time_step"], newton,
+                                           bool(ode.nonnegative.any())), t=float(state[0]))
     counts = counters.tolist()
     stats.update({
         "method": ("m" if multi_adaptive else "") + m.name,
@@ -168,7 +170,7 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
         "jacobian evaluations": counts[ts.JACOBIANS],
         "nonlinear iterations": counts[ts.ITERATIONS],
         "failed nonlinear solves": counts[ts.FAILED_SOLVES],
-        "newton": bool(counts[ts.STIFF]) or params["nonlinear_solver"] == "newton",
+        "newton": newton,
         "compile time": compiled.compile_time,
         "solve time": time.perf_counter() - start,
     })
@@ -309,11 +311,20 @@ def _progress(ode, params):
 #: Where f may stop being defined (see ``ODE(nonnegative=...)``).
 _DOMAIN = ("a square root or other non-integer power of a component that reaches 0 is nan "
            "below it: declare the component nonnegative=, and f reads it there as max(u, 0)")
+#: The same hint when components are declared nonnegative already.
+_DOMAIN_DECLARED = ("the components declared nonnegative are read as max(u, 0) in non-integer "
+                    "powers, but sqrt(u) and the like have no bounded derivative where u reaches "
+                    "0 (Newton's Jacobian is infinite there): cG(1) and mcG(1) step through such "
+                    "a point")
 
 
-def _failure_message(status, state, fixed, x, outside, kmax):
+def _failure_message(status, state, fixed, x, outside, kmax, newton, declared):
+    """The SolverError message for a loop that stopped with ``status``; ``newton``: whether
+    Newton's method was used, ``declared``: whether components are declared nonnegative."""
     t, k = state
     size = f"max |u| = {np.max(np.abs(x)):.3g} there"
+    domain = _DOMAIN_DECLARED if declared else _DOMAIN
+    solver = "Newton's method" if newton else "the nonlinear solver"
     if status == _STATUS_STEP_LIMIT:
         raise_ = ("maximum_steps" if kmax is None else
                   f"maximum_steps or maximum_time_step (the steps are capped at {kmax:.3g})")
@@ -321,11 +332,13 @@ def _failure_message(status, state, fixed, x, outside, kmax):
                 "the tolerance, or use a higher-order method")
     if status == ts.NONCONVERGENCE:
         if fixed:
-            return (f"the nonlinear solver did not converge at t = {t:.6g} with the fixed time "
-                    f"step {k:.3g}; use a smaller initial_time_step or nonlinear_solver='newton'")
-        return (f"the nonlinear solver did not converge at t = {t:.6g}, even after reducing the "
-                f"time step to {k:.3g}; try nonlinear_solver='newton', a dG(q) method, or check "
-                f"the right-hand side for a singularity near this time ({size}); {_DOMAIN}")
+            return (f"{solver} did not converge at t = {t:.6g} with the fixed time step "
+                    f"{k:.3g}; use a smaller initial_time_step"
+                    + ("" if newton else " or nonlinear_solver='newton'"))
+        return (f"{solver} did not converge at t = {t:.6g}, even after reducing the time step "
+                f"to {k:.3g}; try " + ("" if newton else "nonlinear_solver='newton', ")
+                + f"a dG(q) method, or check the right-hand side for a singularity near this "
+                f"time ({size}); {domain}")
     if status == ts.CONSTRAINT:
         name = outside.name
         how = "" if fixed else (", or it falls below -absolute_tolerance on every step down to "
@@ -337,7 +350,7 @@ def _failure_message(status, state, fixed, x, outside, kmax):
     if status == ts.BLOWUP:
         return (f"the solution is not finite or blows up near t = {t:.6g} (time step reduced to "
                 f"{k:.3g}; {size}): the exact solution may have a finite-time singularity there, "
-                f"or f is not defined past it; {_DOMAIN}")
+                f"or f is not defined past it; {domain}")
     return (f"the time step fell to {k:.3g} at t = {t:.6g}, below what double precision "
             f"resolves ({size}): the solution may blow up near this time, or the tolerance is "
             "too tight for double precision")

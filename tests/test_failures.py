@@ -45,3 +45,16 @@ def test_no_nan_in_returned_solution():
 
 def test_solver_error_is_runtime_error():
     assert issubclass(dn.SolverError, RuntimeError)
+
+
+@pytest.mark.parametrize("solver, suggested", [("fixed-point", True), ("newton", False)])
+def test_a_fixed_step_nonconvergence_suggests_newton_unless_it_was_used(solver, suggested):
+    """u' = -1e4 (u - cos t) with steps of 0.1: fixed point cannot converge (k lambda = 1000);
+    Newton converges for this linear f, so it fails on u' = -sqrt(|u|) (infinite Jacobian at
+    0) instead."""
+    rhs = -1e4 * (u - sp.cos(dn.t)) if solver == "fixed-point" else -sp.sqrt(sp.Abs(u - 0.5))
+    ode = dn.ODE({u: rhs}, u0=[1.0], T=2.0)
+    with pytest.raises(dn.SolverError, match="did not converge") as info:
+        dn.solve(ode, method="cG(2)", fixed_time_step=True, initial_time_step=0.1,
+                 nonlinear_solver=solver)
+    assert ("nonlinear_solver='newton'" in str(info.value)) == suggested

@@ -79,6 +79,20 @@ def test_a_square_root_of_a_nonnegative_component_stays_defined(method):
         dn.solve(dn.ODE({u: -sp.sqrt(u)}, u0=[1.0], T=3.0), method=method, tolerance=1e-6)
 
 
+@pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])
+def test_a_nonconvergence_message_names_what_is_left_to_try(method):
+    """Past the non-Lipschitz point of sqrt(u) Newton's Jacobian is infinite: with Newton
+    selected and u declared nonnegative, the message suggests neither of them again, but the
+    degree-1 methods that step through it."""
+    ode = dn.ODE({u: -sp.sqrt(u)}, u0=[1.0], T=3.0, nonnegative=[u])
+    with pytest.raises(dn.SolverError) as info:
+        dn.solve(ode, method=method, tolerance=1e-6, nonlinear_solver="newton")
+    message = str(info.value)
+    assert "Newton's method did not converge" in message
+    assert "nonlinear_solver='newton'" not in message and "declare the" not in message
+    assert "cG(1) and mcG(1) step through" in message
+
+
 def test_the_compiled_right_hand_side_reads_a_nonnegative_component_at_zero():
     from dolfinode.compile import lower
 
