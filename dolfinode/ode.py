@@ -46,7 +46,7 @@ def _as_expression(expr, state):
     if not isinstance(expr, sp.Expr) or isinstance(expr, sp.MatrixBase):
         raise TypeError(f"the right-hand side of {state} must be a scalar sympy expression, "
                         f"got {type(expr).__name__}: {expr}")
-    if expr.has(sp.I) or expr.has(sp.zoo) or expr.has(sp.nan) or expr.has(sp.oo):
+    if expr.has(sp.I, sp.zoo, sp.nan, sp.oo, sp.S.NegativeInfinity):  # one traversal
         raise ValueError(f"the right-hand side of {state} is not a finite real expression: {expr}")
     for call in expr.atoms(sp.Function, sp.Derivative, sp.Integral):
         if isinstance(call, (sp.Derivative, sp.Integral)) or not isinstance(call, _ALLOWED_FUNCTIONS):

@@ -322,9 +322,12 @@ def test_complex_expression_is_rejected():
         declare(rhs={u: v, v: sp.I * u})
 
 
-def test_infinite_expression_is_rejected():
+@pytest.mark.parametrize("infinite", [sp.oo, -sp.oo, u - sp.oo, sp.Min(u, -sp.oo), sp.zoo * u,
+                                      sp.nan])
+def test_infinite_expression_is_rejected(infinite):
+    """-oo is sympy's NegativeInfinity, an atom of its own: it does not contain oo."""
     with pytest.raises(ValueError, match="right-hand side of u is not a finite real expression"):
-        declare(rhs={u: sp.oo, v: -u})
+        declare(rhs={u: infinite, v: -u})
 
 
 @pytest.mark.parametrize("make, shown", [
