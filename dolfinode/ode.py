@@ -272,7 +272,7 @@ class ODE:
     def autonomous(self):
         """Whether f does not depend on the time t explicitly (read once: a sympy traversal of
         every expression, ~20 us of each multi-adaptive solve of the seed model)."""
-        return not any(t in expr.free_symbols for expr in self.rhs)
+        return t not in self._free_symbols()
 
     @property
     def parameter_symbols(self):

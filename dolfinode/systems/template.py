@@ -238,6 +238,7 @@ class TemplateODE(ODE):
         return self._in_domain(array)
 
     def _free_symbols(self):
+        """The symbols the terms use besides their slots and cell parameters."""
         return set().union(*(expr.free_symbols for template in self.templates
                              for _, expr in template.terms)) - {
             s for template in self.templates for s in (*template.slots, *template.params)}
@@ -291,12 +292,6 @@ class TemplateODE(ODE):
             return self._positions[name]
         except (KeyError, TypeError):
             raise ValueError(f"{state!r} is not a state") from None
-
-    @cached_property
-    def autonomous(self):
-        """Whether f does not depend on the time t explicitly (read off the templates, once)."""
-        return not any(t in expr.free_symbols for template in self.templates
-                       for _, expr in template.terms)
 
     @cached_property
     def rhs(self):
