@@ -75,7 +75,7 @@ def one_size(p):
 
     import dolfinode as dn
     from dolfinode.compile import lower, lowering
-    from dolfinode.solve import newton_memory
+    from dolfinode.linalg.newton_matrix import band_structure
 
     tracemalloc.start()
     ode, build, build_cpu = _timed(dn.systems.lattice, p, T=STEPS * K)
@@ -89,12 +89,13 @@ def one_size(p):
               "build_again_s": cached_build, "build_again_cpu_s": cached_build_cpu,
               "lower_cached_s": cached_lower, "lower_cached_cpu_s": cached_lower_cpu}
     del again
-    _, _, kl, ku = compiled.ordering
+    _, position, kl, ku = compiled.ordering
     record["bandwidth"] = kl + ku
+    band = band_structure(position, kl, ku)
     for method in METHODS:
         # the banded Newton matrix Newton would need (not allocated: fixed point is used)
         stages = 1 if method.startswith("cG") else 2
-        record[f"newton_band_GB_{method}"] = newton_memory(ode.N, kl, ku, stages) / 2**30
+        record[f"newton_band_GB_{method}"] = band.memory(stages) / 2**30
         short = {"fixed_time_step": True, "initial_time_step": K,
                  "nonlinear_solver": "fixed-point", "number_of_samples": 2}
         dn.solve(ode, method, **short)  # the first solve also loads kernels and compiled loops

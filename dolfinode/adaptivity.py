@@ -32,7 +32,7 @@ from functools import cache
 import numpy as np
 from numba import njit
 
-from dolfinode.linalg.banded import band_solve
+from dolfinode.linalg.newton_matrix import lu_solve
 from dolfinode.methods import make_method
 
 #: Smallest and largest factor by which a step may change.
@@ -85,16 +85,16 @@ def _filter_constant(family, q):
 
 
 @njit(cache=True)
-def filter_estimate(ab, kl, ku, ipiv, position, v, rhs):
+def filter_estimate(ab, structure, ipiv, v, rhs):
     """Apply (I - gamma k J)^{-1} to v in place.
 
-    ``ab`` holds the LU factors of I - gamma k J (band storage ``kl``, ``ku``, pivots
-    ``ipiv``; made by :func:`dolfinode.solvers.slab.shift`) in the component
-    ordering ``position``; ``rhs`` is (N,) work space.
+    ``ab`` holds the LU factors of I - gamma k J (in the storage of ``structure``, see
+    :mod:`dolfinode.linalg.newton_matrix`; pivots ``ipiv``); ``rhs`` is (N,) work space.
     """
+    position = structure[0]
     N = position.shape[0]
     for i in range(N):
         rhs[position[i]] = v[i]
-    band_solve(ab, kl, ku, ipiv, rhs)
+    lu_solve(ab, structure, ipiv, rhs)
     for i in range(N):
         v[i] = rhs[position[i]]

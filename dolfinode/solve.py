@@ -18,7 +18,7 @@ from dolfinode.timeslab import mono
 #: Relative size (times |t|) below which a time step cannot be resolved in double precision.
 _KMIN_RELATIVE = 1e-14
 _STATUS_STEP_LIMIT = -1
-#: Fraction of the available memory the banded Newton matrices of a mono-adaptive slab may take;
+#: Fraction of the available memory the Newton matrices of a mono-adaptive slab may take;
 #: a matrix of at most _NEWTON_SMALL bytes is taken to fit without asking the system.
 _NEWTON_MEMORY_FRACTION = 0.5
 _NEWTON_SMALL = 2**26
@@ -34,32 +34,6 @@ def _available_memory():
     except OSError:
         pass
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-
-
-def newton_memory(N, kl, ku, stages):
-    """Bytes of the banded Newton matrices (and their pivots) of a mono-adaptive time slab.
-
-    Parameters
-    ----------
-    N : int
-        Number of components.
-    kl, ku : int
-        Lower and upper bandwidth of the Jacobian after reordering (``lower(ode).ordering``).
-    stages : int
-        Stages of the method: q for cG(q), q + 1 for dG(q).
-
-    Returns
-    -------
-    int
-        ``8 (S + 1) N (2 kl + ku + 4)``, an upper bound: the N x N matrices I - k lambda J
-        in band storage with LU fill-in (2 kl + ku + 1 columns), one real per real eigenvalue
-        lambda of the stage matrix and one complex (16 bytes an entry) per complex pair (so S
-        real ones' worth), and J, which then holds the error filter (I - gamma k J)^{-1};
-        at most S + 1 pivot vectors and S + 3 work vectors. Allocated only when the solve
-        uses Newton's method (``nonlinear_solver="newton"``, or the default once fixed-point
-        iteration fails).
-    """
-    return 8 * (stages + 1) * N * (2 * kl + ku + 4)
 
 
 def _absolute_tolerance(ode, value, rtol):
@@ -208,15 +182,15 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
 
 
 def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps):
-    _, position, kl, ku = compiled.ordering
+    structure = compiled.newton_structure
     tables = mono.method_tables(m)
     fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, filter_constant(m)])
     state = np.array([ode.t0, steps[0], 1.0, 1.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
-    band_bytes = newton_memory(ode.N, kl, ku, m.num_stages)
-    fits = (band_bytes <= _NEWTON_SMALL
-            or band_bytes <= _NEWTON_MEMORY_FRACTION * _available_memory())
-    reuse = ode.N * kl * (kl + ku + 1) >= mono.REUSE_COST
+    newton_bytes = structure.memory(m.num_stages)
+    fits = (newton_bytes <= _NEWTON_SMALL
+            or newton_bytes <= _NEWTON_MEMORY_FRACTION * _available_memory())
+    reuse = structure.factor_seconds >= mono.REUSE_TIME
     iopts = np.array(iopts + [int(fits), int(reuse)], dtype=np.int64)
     nodes = m.q + 1
 
@@ -226,7 +200,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
 
     def advance(out_t, out_k, out_X):
         return mono.advance(compiled.rhs.address, compiled.jacobian.address, compiled.p,
-                            compiled.indptr, compiled.indices, position, kl, ku, *tables,
+                            compiled.indptr, compiled.indices, structure.tuple, *tables,
                             iopts, fopts, atol, floor, x, f0, state, counters, out_t, out_k,
                             out_X)
 
@@ -239,14 +213,15 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
         why = ("was not selected" if params["nonlinear_solver"] == "newton" else "failed")
         raise SolverError(
             f"{m.name} needs Newton's method at t = {state[mono.T_NOW]:.6g} (fixed-point "
-            f"iteration {why}), but its banded Newton matrices ({ode.N} unknowns each, "
-            f"bandwidth {kl} + {ku} after reordering) take {band_bytes / 2**30:.3g} GB, more "
+            f"iteration {why}), but its Newton matrices ({ode.N} unknowns each, "
+            f"{structure.description}) take {newton_bytes / 2**30:.3g} GB, more "
             f"than {_NEWTON_MEMORY_FRACTION:g} x the {available / 2**30:.3g} GB available. "
             "Use smaller steps with fixed_time_step=True and nonlinear_solver='fixed-point', "
             "or a smaller system", t=float(state[mono.T_NOW]))
     slabs = int(counters[ts.SLABS])
     stats = {"time slabs": slabs, "elements": slabs * ode.N,
-             "factorizations": int(counters[ts.FACTORIZATIONS]), "bandwidth": (kl, ku)}
+             "factorizations": int(counters[ts.FACTORIZATIONS]),
+             "newton matrices": structure.description}
     return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, stats
 
 

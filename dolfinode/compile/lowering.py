@@ -23,6 +23,7 @@ from dolfinode.compile.cache import load_library, signature
 from dolfinode.compile.codegen import kernel_source
 from dolfinode.compile.signatures import KERNELS, Kernel, call_rhs
 from dolfinode.linalg import bandwidth_ordering
+from dolfinode.linalg.newton_matrix import newton_structure
 from dolfinode.ode import t as time_symbol
 
 
@@ -71,14 +72,27 @@ class CompiledODE:
         return len(self.indices)
 
     @cached_property
+    def _pattern_key(self):
+        return hashlib.blake2b(self.indptr.tobytes() + self.indices.tobytes(),
+                               digest_size=16).digest()
+
+    @cached_property
     def ordering(self):
         """(order, position, kl, ku): the component ordering that narrows the Jacobian's band
         (remembered by sparsity pattern: automatic modeling solves one pattern dozens of
         times, with new parameter values)."""
-        key = hashlib.blake2b(self.indptr.tobytes() + self.indices.tobytes(),
-                              digest_size=16).digest()
-        return _remembered(_orderings, key,
+        return _remembered(_orderings, self._pattern_key,
                            lambda: bandwidth_ordering(self.indptr, self.indices, self.N))
+
+    @cached_property
+    def newton_structure(self):
+        """The storage of the Newton matrices I - c J, banded or sparse
+        (:func:`dolfinode.linalg.newton_matrix.newton_structure`; remembered by sparsity
+        pattern)."""
+        _, position, kl, ku = self.ordering
+        return _remembered(_structures, self._pattern_key,
+                           lambda: newton_structure(self.indptr, self.indices, self.N,
+                                                    position, kl, ku))
 
     def dependencies(self):
         """Dependency graph as a CSR boolean matrix: entry (i, j) if f_i depends on u_j."""
@@ -122,10 +136,12 @@ class CompiledODE:
         return sps.csr_matrix((data, self.indices.copy(), self.indptr.copy()), shape=(self.N, self.N))
 
 
-#: How many lowerings of expression ODEs and band orderings are remembered (oldest dropped).
+#: How many lowerings of expression ODEs, band orderings and Newton structures are remembered
+#: (oldest dropped).
 REMEMBERED = 16
 _loaded = {}
 _orderings = {}
+_structures = {}
 _lowerings = {}
 
 

@@ -7,8 +7,8 @@ discrete equations (see :mod:`dolfinode.methods.method`) read
 
 * fixed-point iteration X <- X - G(X) converges when k ||A|| Lip(f) < 1 (non-stiff);
 * simplified Newton solves (I - k A (x) J) dX = -G(X) with J = df/du(x0, t), split by the
-  eigenstructure of A into N x N systems I - k lambda J, in band storage in the component
-  ordering chosen by ``bandwidth_ordering`` (stiff).
+  eigenstructure of A into N x N systems I - k lambda J, banded or sparse
+  (:mod:`dolfinode.linalg.newton_matrix`) (stiff).
 
 Increments are measured in the scaled max-norm |dX_i| w_i, w_i = 1 / (atol_i + rtol |X_i|),
 X the current iterate (Newton) or the starting guess (fixed point, see there). An iteration
@@ -21,7 +21,8 @@ import math
 from numba import njit
 
 from dolfinode.compile.signatures import NO_REFCOUNT, address
-from dolfinode.linalg.banded import _u, band_lu, band_solve
+from dolfinode.linalg.banded import _u
+from dolfinode.linalg.newton_matrix import lu_factor, lu_solve, shift
 from dolfinode.timeslab import F_EVALUATIONS, FACTORIZATIONS, ITERATIONS
 
 #: An iteration that stops contracting with scaled increments below this has reached rounding.
@@ -192,62 +193,38 @@ def fixed_point(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F
 
 
 @njit(cache=True)
-def band_jacobian(jdata, indptr, indices, position, kl, ku, jb):
-    """J (its CSR values ``jdata``) in band storage ``jb`` (2 kl + ku + 1 columns), in the
-    component ordering ``position``: scattered once per Jacobian, then shifted by
-    :func:`shift` into each matrix I - c J the slab needs."""
-    kv = kl + ku
-    jb[:, :] = 0.0
-    for i in range(position.shape[0]):
-        r = position[i]
-        for nz in range(indptr[i], indptr[i + 1]):
-            col = position[indices[nz]]
-            jb[col, kv + r - col] += jdata[nz]
-
-
-@njit(cache=True)
-def shift(jb, c, kl, ku, ab):
-    """ab = I - c J (c real or complex) from J in band storage ``jb``; the kl fill-in columns
-    are band_lu's to clear."""
-    kv = kl + ku
-    for r in range(jb.shape[0]):
-        for col in range(kl, jb.shape[1]):
-            ab[r, col] = -c * jb[r, col]
-        ab[r, kv] += 1.0
-
-
-@njit(cache=True)
-def factor(ab, kl, ku, ipiv, counters):
-    """LU-factor a band matrix in place; returns True on success."""
+def factor(ab, structure, ipiv, counters):
+    """LU-factor a Newton matrix in place; returns True on success."""
     counters[FACTORIZATIONS] += 1
-    return band_lu(ab, kl, ku, ipiv) == 0
+    return lu_factor(ab, structure, ipiv) == 0
 
 
 @njit(cache=True)
-def factor_stages(jb, k, eigenvalues, kl, ku, ab_real, ab_complex, ipiv, counters):
-    """LU factors of I - k lambda_j J (J in band storage ``jb``) for the eigenvalues of the
-    stage matrix: the real ones into ab_real[j], one per complex pair into ab_complex[c].
-    Returns True on success."""
+def factor_stages(jb, k, eigenvalues, structure, ab_real, ab_complex, ipiv, counters):
+    """LU factors of I - k lambda_j J (J in the storage ``jb`` of ``structure``, see
+    :mod:`dolfinode.linalg.newton_matrix`) for the eigenvalues of the stage matrix: the real
+    ones into ab_real[j], one per complex pair into ab_complex[c]. Returns True on success."""
     r = ab_real.shape[0]
     for j in range(r):
-        shift(jb, k * eigenvalues[j].real, kl, ku, ab_real[j])
-        if not factor(ab_real[j], kl, ku, ipiv[j], counters):
+        shift(jb, k * eigenvalues[j].real, structure, ab_real[j])
+        if not factor(ab_real[j], structure, ipiv[j], counters):
             return False
     for c in range(ab_complex.shape[0]):
-        shift(jb, k * eigenvalues[r + c], kl, ku, ab_complex[c])
-        if not factor(ab_complex[c], kl, ku, ipiv[r + c], counters):
+        shift(jb, k * eigenvalues[r + c], structure, ab_complex[c])
+        if not factor(ab_complex[c], structure, ipiv[r + c], counters):
             return False
     return True
 
 
 @njit(cache=True, **NO_REFCOUNT)
 def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_iter, X, F, G,
-           Z, ab_real, ab_complex, kl, ku, ipiv, position, z_real, z_complex, w, counters):
+           Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w, counters):
     """Simplified Newton iteration on the stages, (I - k A (x) J) dX = -G(X), with the
     factors of :func:`factor_stages`: with A = T B T^{-1} (``T``, ``T_inverse``) the system is
     (I - k B (x) J) Z = -(T^{-1} (x) I) G, dX = (T (x) I) Z, and B's blocks decouple it into
-    one N x N band solve per real eigenvalue and one complex one per pair (RADAU5's
+    one N x N solve per real eigenvalue and one complex one per pair (RADAU5's
     transformation): S N x S N with bandwidth ~S b becomes ~S/2 N x N with bandwidth b."""
+    position = structure[0]
     S = A.shape[0]
     N = x0.shape[0]
     r = ab_real.shape[0]
@@ -257,19 +234,19 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
         _residual(x0, f0, X, F, A, b0, k, G)
         for j in range(S):  # Z = (T^{-1} (x) I) G
             _stage_sum(0.0, x0, G, T_inverse, j, Z[j * N:])
-        # Z_j <- (I - k lambda_j J)^{-1} (-Z_j), in the band ordering; a complex pair's two
+        # Z_j <- (I - k lambda_j J)^{-1} (-Z_j), in the matrices' ordering; a complex pair's two
         # real blocks are the real and imaginary parts of one complex vector
         for j in range(r):
             for i in range(N):
                 z_real[position[i]] = -Z[j * N + i]
-            band_solve(ab_real[j], kl, ku, ipiv[j], z_real)
+            lu_solve(ab_real[j], structure, ipiv[j], z_real)
             for i in range(N):
                 Z[j * N + i] = z_real[position[i]]
         for c in range(ab_complex.shape[0]):
             re = (r + 2 * c) * N
             for i in range(N):
                 z_complex[position[i]] = complex(-Z[re + i], -Z[re + N + i])
-            band_solve(ab_complex[c], kl, ku, ipiv[r + c], z_complex)
+            lu_solve(ab_complex[c], structure, ipiv[r + c], z_complex)
             for i in range(N):
                 Z[re + i] = z_complex[position[i]].real
                 Z[re + N + i] = z_complex[position[i]].imag

@@ -13,15 +13,9 @@ from numba import njit, types
 
 from dolfinode.adaptivity import filter_estimate, next_step
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
+from dolfinode.linalg.newton_matrix import shift, store_jacobian
 from dolfinode.methods.method import lagrange_weights
-from dolfinode.solvers.slab import (
-    band_jacobian,
-    factor,
-    factor_stages,
-    fixed_point,
-    newton,
-    shift,
-)
+from dolfinode.solvers.slab import factor, factor_stages, fixed_point, newton
 from dolfinode.timeslab import (
     BLOWUP,
     CONSTRAINT,
@@ -48,7 +42,7 @@ from dolfinode.timeslab import (
 T_NOW, K_NEXT, EPS_PREV, HAVE_F0 = range(4)
 # Indices into the integer and float options (NEWTON_FITS: 1 if the banded Newton matrix fits
 # in memory; the driver decides, the loop returns NEWTON_MEMORY when it would need it but not;
-# REUSE: 1 if a factorization costs enough to keep it over slabs, see REUSE_COST).
+# REUSE: 1 if a factorization costs enough to keep it over slabs, see REUSE_TIME).
 SOLVER, FIXED, MAX_ITER, IS_DG, NEWTON_FITS, REUSE = range(6)
 RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, KMIN_REL, SPAN, GAMMA = range(9)
 #: After a failed nonlinear solve of length k_fail, steps stay below SOLVER_MARGIN x k_fail,
@@ -62,21 +56,24 @@ NEWTON_PROBE = 1.2
 #: tolerance 1e-4: 8.8 -> 7.0 digits), a stiff component's polynomial being a poor predictor.
 EXTRAPOLATE = 2.0
 #: The factors of one Jacobian (stage matrices, error filter) are kept over slabs, as RADAU5
-#: and CVODE keep theirs, when a band factorization costs at least REUSE_COST multiply-adds,
-#: N kl (kl + ku + 1): while the step stays within a factor REUSE_RATIO of the factors' step,
-#: for at most REUSE_AGE slabs, and until a Newton iteration with them fails (then they are
-#: made afresh and the slab is solved again). A 2-D Brusselator of N = 3200 (bandwidth 80): one complex factorization
-#: 35 ms against 2.7 ms for a solve. Small bands are factored every Newton slab, where an
-#: iteration more costs more than the factorization it saves.
-REUSE_COST = 2e5
+#: and CVODE keep theirs, when a factorization is estimated to take at least REUSE_TIME seconds
+#: (``NewtonStructure.factor_seconds``; 2e5 multiply-adds of the banded LU): while the step
+#: stays within a factor REUSE_RATIO of the factors' step, for at most REUSE_AGE slabs, and
+#: until a Newton iteration with them fails (then they are made afresh and the slab is solved
+#: again). A 2-D Brusselator of N = 3200 (bandwidth 80) in band storage: one complex
+#: factorization 35 ms against 2.7 ms for a solve. Small systems are factored every Newton
+#: slab, where an iteration more costs more than the factorization it saves.
+REUSE_TIME = 1.3e-4
 REUSE_RATIO = 1.25
 REUSE_AGE = 20
 
 _f8 = types.float64[::1]
 _i8 = types.int64[::1]
+#: (position, kl, ku, ptr, idx, diag, jmap): see :mod:`dolfinode.linalg.newton_matrix`
+_STRUCTURE = types.Tuple((_i8, types.int64, types.int64, _i8, _i8, _i8, _i8))
 _SIGNATURE = types.int64(
     types.intp, types.intp, _f8,            # addresses of f and J, p
-    _i8, _i8, _i8, types.int64, types.int64,  # indptr, indices, position, kl, ku
+    _i8, _i8, _STRUCTURE,                   # indptr, indices, Newton matrix structure
     types.float64[:, ::1], _f8, _f8,       # A, b0, tau
     types.float64[:, ::1], types.float64[:, ::1], types.complex128[::1],  # A = T B T^-1, eig B
     _f8, _f8, _f8,                           # nodes, barycentric weights, end_derivative
@@ -162,7 +159,7 @@ def drives_out(u, fu, floor, remaining):
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
-def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0, tau,
+def advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             transform, transform_inverse, eigenvalues, nodes, bary, end_derivative, iopts,
             fopts, atol, floor, x, f0, state, counters, out_t, out_k, out_X):
     """Advance (x, t) towards T, storing accepted elements in out_*; returns a status code.
@@ -189,14 +186,15 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
     filter_rhs = np.empty(N)
     fend = np.empty(N)
     jdata = np.empty(indices.shape[0])
-    # the Newton workspace (one band matrix I - k lambda J per real eigenvalue lambda of A
-    # and per complex pair) is allocated when Newton is first used (fixed point needs none)
+    # the Newton workspace (one matrix I - k lambda J per real eigenvalue lambda of A and
+    # per complex pair) is allocated when Newton is first used (fixed point needs none)
     n_real = 0
     for j in range(eigenvalues.shape[0]):
         if eigenvalues[j].imag == 0.0:
             n_real += 1
-    columns = 2 * kl + ku + 1
-    # J in band storage; once the stage matrices are factored, the error filter's
+    _, kl, ku, ptr, idx, _, _ = structure
+    rows, columns = (1, idx.shape[0]) if ptr.shape[0] > 0 else (N, 2 * kl + ku + 1)
+    # J in the structure's storage; once the stage matrices are factored, the error filter's
     # I - gamma k J and its factors (the filter is applied with Newton only)
     jb = np.zeros((0, 0))
     ab_real = np.zeros((0, 0, 0))
@@ -263,9 +261,9 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
                 state[T_NOW] = t
                 state[K_NEXT] = k
                 return NEWTON_MEMORY
-            jb = np.zeros((N, columns))
-            ab_real = np.zeros((n_real, N, columns))
-            ab_complex = np.zeros((eigenvalues.shape[0] - n_real, N, columns),
+            jb = np.zeros((rows, columns))
+            ab_real = np.zeros((n_real, rows, columns))
+            ab_complex = np.zeros((eigenvalues.shape[0] - n_real, rows, columns),
                                   dtype=np.complex128)
             ipiv = np.zeros((eigenvalues.shape[0], N), dtype=np.int64)
             ipiv_filter = np.zeros(N, dtype=np.int64)
@@ -279,16 +277,16 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
                         euler_stages(x, f0, k, tau, X)
                     jac(address(x, 0), t, address(p, 0), address(jdata, 0))
                     counters[JACOBIANS] += 1
-                    band_jacobian(jdata, indptr, indices, position, kl, ku, jb)
-                    factored = factor_stages(jb, k, eigenvalues, kl, ku, ab_real, ab_complex,
-                                             ipiv, counters)
+                    store_jacobian(jdata, indptr, indices, structure, jb)
+                    factored = factor_stages(jb, k, eigenvalues, structure, ab_real,
+                                             ab_complex, ipiv, counters)
                     k_factored = k if factored else 0.0
                     age = 0
                     if not factored:
                         break
                     # J is not needed once factored: jb takes the error filter's factors
-                    shift(jb, gamma * k, kl, ku, jb)
-                    filter_ok = factor(jb, kl, ku, ipiv_filter, counters)
+                    shift(jb, gamma * k, structure, jb)
+                    filter_ok = factor(jb, structure, ipiv_filter, counters)
                 for attempt in range(2 if fresh == 1 else 1):  # kept factors: one try
                     if attempt == 1:
                         # On stiff components the Euler predictor overshoots by |k lambda|
@@ -297,8 +295,8 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
                         euler_stages(x, f0, 0.0, tau, X)
                     iters = newton(f, p, x, f0, t, k, A, b0, tau, transform,
                                    transform_inverse, atol, rtol, dtol_k, max_iter, X, F, G, Z,
-                                   ab_real, ab_complex, kl, ku, ipiv, position, z_real,
-                                   z_complex, w, counters)
+                                   ab_real, ab_complex, structure, ipiv, z_real, z_complex,
+                                   w, counters)
                     if iters >= 0:
                         break
                 if iters >= 0:
@@ -333,7 +331,7 @@ def advance(f_address, jac_address, p, indptr, indices, position, kl, ku, A, b0,
             # (I - gamma k J)^-1 with the J and the step of the stage factors
             blowup = not filter_ok
             if not blowup:
-                filter_estimate(jb, kl, ku, ipiv_filter, position, est, filter_rhs)
+                filter_estimate(jb, structure, ipiv_filter, est, filter_rhs)
         eps = 0.0
         for i in range(N):
             eps = max(eps, abs(est[i]) / (atol[i] + rtol * abs(X[end + i])))

@@ -8,6 +8,7 @@ from numba import njit
 import dolfinode as dn
 from dolfinode.compile import lower
 from dolfinode.compile.signatures import rhs_kernel
+from dolfinode.linalg.newton_matrix import band_structure, sparse_structure, store_jacobian
 from dolfinode.methods import make_method
 from dolfinode.solvers import slab
 from dolfinode.timeslab import NUM_COUNTERS
@@ -30,22 +31,27 @@ def permuted_band_system(N=7, seed=0):
 
 @njit
 def _newton_steps(f_address, p, x0, f0, k, A, b0, tau, T, T_inverse, atol, X, F, G, Z, ab_real,
-                  ab_complex, kl, ku, ipiv, position, z_real, z_complex, w, counters, steps):
+                  ab_complex, structure, ipiv, z_real, z_complex, w, counters, steps):
     f = rhs_kernel(f_address)
     return slab.newton(f, p, x0, f0, 0.0, k, A, b0, tau, T, T_inverse, atol, 1e-6, 0.0, steps,
-                       X, F, G, Z, ab_real, ab_complex, kl, ku, ipiv, position, z_real,
-                       z_complex, w, counters)
+                       X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w,
+                       counters)
 
 
+@pytest.mark.parametrize("storage", ["banded", "sparse"])
 @pytest.mark.parametrize("family, q", METHODS, ids=[f"{f}({q})" for f, q in METHODS])
-def test_one_newton_step_solves_a_linear_stage_system(family, q):
+def test_one_newton_step_solves_a_linear_stage_system(family, q, storage):
     """On u' = M u, one simplified Newton step with J = M gives the stage values exactly,
-    whatever the start: the block-diagonalized solves equal the direct solve of
-    (I - k A (x) M) X = 1 (x) x0 + k b0 (x) M x0."""
+    whatever the start and in either storage of the Newton matrices: the block-diagonalized
+    solves equal the direct solve of (I - k A (x) M) X = 1 (x) x0 + k b0 (x) M x0."""
     ode, M = permuted_band_system()
     compiled = lower(ode)
     _, position, kl, ku = compiled.ordering
     assert kl == ku == 1  # the shuffled tridiagonal was ordered back into a band
+    if storage == "banded":
+        structure = band_structure(position, kl, ku)
+    else:
+        structure = sparse_structure(compiled.indptr, compiled.indices, ode.N)
     m = make_method(family, q)
     A, b0 = np.array(m.A), m.b0.copy()
     S, N, k = A.shape[0], ode.N, 0.05
@@ -55,18 +61,19 @@ def test_one_newton_step_solves_a_linear_stage_system(family, q):
     compiled.jacobian(x0.ctypes.data, 0.0, compiled.p.ctypes.data, jdata.ctypes.data)
     eigenvalues = m.stage_eigenvalues.copy()
     real = int(np.sum(eigenvalues.imag == 0))
-    jb = np.zeros((N, 2 * kl + ku + 1))
-    ab_real = np.zeros((real, N, jb.shape[1]))
-    ab_complex = np.zeros((len(eigenvalues) - real, N, jb.shape[1]), dtype=complex)
+    jb = np.zeros(structure.shape)
+    ab_real = np.zeros((real, *structure.shape))
+    ab_complex = np.zeros((len(eigenvalues) - real, *structure.shape), dtype=complex)
     ipiv = np.zeros((len(eigenvalues), N), dtype=np.int64)
     counters = np.zeros(NUM_COUNTERS, dtype=np.int64)
-    slab.band_jacobian(jdata, compiled.indptr, compiled.indices, position, kl, ku, jb)
-    assert slab.factor_stages(jb, k, eigenvalues, kl, ku, ab_real, ab_complex, ipiv, counters)
+    store_jacobian(jdata, compiled.indptr, compiled.indices, structure.tuple, jb)
+    assert slab.factor_stages(jb, k, eigenvalues, structure.tuple, ab_real, ab_complex, ipiv,
+                              counters)
     X = np.random.default_rng(1).standard_normal(S * N)  # any start
     work = [np.empty(S * N) for _ in range(4)]
     _newton_steps(compiled.rhs.address, compiled.p, x0, f0, k, A, b0, m.nodes[m.stages].copy(),
                   m.stage_transform.copy(), m.stage_transform_inverse.copy(), np.full(N, 1e-6),
-                  X, work[0], work[1], work[2], ab_real, ab_complex, kl, ku, ipiv, position,
+                  X, work[0], work[1], work[2], ab_real, ab_complex, structure.tuple, ipiv,
                   np.empty(N), np.empty(N, dtype=complex), work[3], counters, 1)
     expected = np.linalg.solve(np.eye(S * N) - k * np.kron(A, M),
                                np.tile(x0, S) + k * np.kron(b0, f0))

@@ -191,21 +191,22 @@ def test_newton_matrix_is_allocated_only_when_needed(monkeypatch):
     assert not sol.stats["newton"] and sol.stats["time slabs"] > 1
     ode, _ = problems.stiff_decay(lam=1000.0, T=10.0)
     for solver in ("default", "newton"):
-        with pytest.raises(dn.SolverError, match="banded Newton matrices") as info:
+        with pytest.raises(dn.SolverError, match="Newton matrices .* banded LU") as info:
             dn.solve(ode, method="cG(1)", tolerance=1e-5, nonlinear_solver=solver)
         assert info.value.t < 10.0
         assert "fixed-point" in str(info.value)
 
 
 def test_newton_memory_formula():
-    """newton_memory bounds what the Newton solver allocates, for every method: J (later the
-    filter's matrix), one band matrix (2 kl + ku + 1 columns) per real eigenvalue of A and a
-    complex one per pair, the pivots and the work vectors; within 25% of it."""
+    """NewtonStructure.memory bounds what the Newton solver allocates, for every method: J
+    (later the filter's matrix), one band matrix (2 kl + ku + 1 columns) per real eigenvalue of
+    A and a complex one per pair, the pivots and the work vectors; within 25% of it."""
+    from dolfinode.linalg.newton_matrix import band_structure
     from dolfinode.methods import make_method
-    from dolfinode.solve import newton_memory
 
     N, kl, ku = 1000, 3, 2
     columns = 2 * kl + ku + 1
+    structure = band_structure(np.arange(N), kl, ku)
     for family, q in [("cG", 1), ("cG", 2), ("cG", 5), ("dG", 0), ("dG", 1), ("dG", 6)]:
         method = make_method(family, q)
         S = len(method.A)
@@ -214,7 +215,7 @@ def test_newton_memory_formula():
         allocated = (8 * N * columns * (1 + real + 2 * pairs)  # J (filter), matrices
                      + 8 * N * (real + pairs + 1)                  # pivots
                      + 8 * N * S + 8 * N + 16 * N)                 # Z, z_real, z_complex
-        bound = newton_memory(N, kl, ku, S)
+        bound = structure.memory(S)
         assert allocated <= bound <= 1.25 * allocated, (family, q)
 
 
@@ -239,17 +240,16 @@ def grid_reaction_diffusion(n):
 
 @pytest.mark.parametrize("method", ["cG(2)", "dG(1)"])
 def test_newton_keeps_costly_factors_over_slabs(method, monkeypatch):
-    """With a band factorization of at least REUSE_COST multiply-adds, Newton's J and factors
-    serve several slabs: a fraction of the factorizations for the same accuracy."""
+    """With a factorization estimated at REUSE_TIME or more, Newton's J and factors serve
+    several slabs: a fraction of the factorizations for the same accuracy."""
     from dolfinode.compile import lower
     from dolfinode.timeslab import mono
 
     ode = grid_reaction_diffusion(20)
-    _, _, kl, ku = lower(ode).ordering
-    assert ode.N * kl * (kl + ku + 1) >= mono.REUSE_COST
+    assert lower(ode).newton_structure.factor_seconds >= mono.REUSE_TIME
     reference = dn.solve(ode, "dG(3)", tolerance=1e-10, nonlinear_solver="newton").y[:, -1]
     kept = dn.solve(ode, method, tolerance=1e-5, nonlinear_solver="newton")
-    monkeypatch.setattr(mono, "REUSE_COST", np.inf)
+    monkeypatch.setattr(mono, "REUSE_TIME", np.inf)
     every = dn.solve(ode, method, tolerance=1e-5, nonlinear_solver="newton")
     assert every.stats["jacobian evaluations"] == every.stats["time slabs"] + every.stats[
         "rejected steps"] + every.stats["failed nonlinear solves"]

@@ -1,0 +1,196 @@
+"""The N x N Newton matrices I - c J of the stage systems, in banded or sparse storage.
+
+Which storage a system gets is decided once per sparsity pattern (:func:`newton_structure`)
+from the estimated time of a factorization and of the solves that follow it; the compiled
+loops see one ``structure`` tuple and the functions below, whichever it is:
+
+``structure = (position, kl, ku, ptr, idx, diag, jmap)``: ``position[i]`` is the place of
+component i in the matrices' ordering. Banded (:mod:`dolfinode.linalg.banded`): the bandwidths
+kl, ku in the reverse Cuthill-McKee ordering, the other arrays empty, storage (N, 2 kl + ku + 1).
+Sparse (:mod:`dolfinode.linalg.sparse`): the filled pattern (ptr, idx, diag) in the minimum
+degree ordering, storage one row of its nnz values, ``jmap[nz]`` the place of J's CSR entry nz
+in it; kl = ku = 0.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sps
+from numba import njit
+
+from dolfinode.linalg.banded import band_lu, band_solve
+from dolfinode.linalg.sparse import (
+    fill_reducing_ordering,
+    lu_flops,
+    sparse_lu,
+    sparse_solve,
+    symbolic_lu,
+)
+
+#: Seconds per multiply-add of the LUs and per stored entry of their solves (complex; measured
+#: 2026-11-24 on 2-D Brusselator and 3-D Laplacian patterns, N = 72-7200): the banded LU is
+#: vectorized, the sparse one reads every entry through an index. Sparse factorizations also
+#: scatter and gather every entry of their rows.
+BAND_FLOP, BAND_ENTRY = 0.65e-9, 2.5e-9
+SPARSE_FLOP, SPARSE_ENTRY, SPARSE_SCATTER = 3.5e-9, 3.0e-9, 2.0e-9
+#: Solves per factorization in the choice: a Newton slab makes 3-5 iterations; kept factors
+#: (see :data:`dolfinode.timeslab.mono.REUSE_TIME`) see more, which only favours the sparse LU.
+SOLVES_PER_FACTORIZATION = 4
+#: The sparse LU must be estimated this much faster to be chosen, and only systems with at
+#: least SPARSE_MIN_N components and bandwidths kl + ku >= SPARSE_MIN_BAND are analysed (below,
+#: the banded LU wins: tridiagonal N = 1000 both 31 us, 2-D Brusselator N = 72 (band 12 + 12)
+#: factor 21 against 24 us, solve 5.3 against 7.2 us).
+SPARSE_MARGIN = 0.8
+SPARSE_MIN_N = 64
+SPARSE_MIN_BAND = 16
+
+
+@dataclass(frozen=True)
+class NewtonStructure:
+    """Storage of the Newton matrices of one sparsity pattern (see the module docstring)."""
+
+    position: np.ndarray
+    kl: int
+    ku: int
+    ptr: np.ndarray
+    idx: np.ndarray
+    diag: np.ndarray
+    jmap: np.ndarray
+    factor_seconds: float
+    solve_seconds: float
+
+    @property
+    def sparse(self):
+        return len(self.ptr) > 0
+
+    @property
+    def shape(self):
+        """Shape of one matrix's storage."""
+        if self.sparse:
+            return (1, len(self.idx))
+        return (len(self.position), 2 * self.kl + self.ku + 1)
+
+    @property
+    def tuple(self):
+        """What the compiled loops take."""
+        return (self.position, self.kl, self.ku, self.ptr, self.idx, self.diag, self.jmap)
+
+    @property
+    def description(self):
+        """How the matrices are stored, for statistics and messages."""
+        if self.sparse:
+            return f"sparse LU, {len(self.idx)} nonzeros in the factors"
+        return f"banded LU, bandwidth {self.kl} + {self.ku} after reordering"
+
+    def memory(self, stages):
+        """Bytes of the Newton workspace of a method with S stages (q for cG(q), q + 1 for
+        dG(q)), an upper bound: the matrices I - k lambda J, one real per real eigenvalue
+        lambda of the stage matrix and one complex (16 bytes an entry) per complex pair (so
+        at most S real ones' worth), and J, which then holds the error filter
+        (I - gamma k J)^{-1}; at most S + 1 pivot vectors and S + 3 work vectors of N entries.
+        Banded: ``8 (S + 1) N (2 kl + ku + 4)``. Allocated only when a solve uses Newton's
+        method (``nonlinear_solver="newton"``, or the default once fixed-point iteration
+        fails)."""
+        rows, columns = self.shape
+        return 8 * (stages + 1) * (rows * columns + 3 * len(self.position))
+
+def band_structure(position, kl, ku):
+    """The banded :class:`NewtonStructure` in the ordering ``position``."""
+    N = len(position)
+    empty = np.zeros(0, dtype=np.int64)
+    columns = 2 * kl + ku + 1
+    return NewtonStructure(position, kl, ku, empty, empty, empty, empty,
+                           BAND_FLOP * N * kl * (kl + ku + 1), BAND_ENTRY * N * columns)
+
+
+def sparse_structure(indptr, indices, n):
+    """The sparse :class:`NewtonStructure` of the pattern (indptr, indices) (CSR, n x n)."""
+    position = fill_reducing_ordering(indptr, indices, n)
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    permuted = sps.csr_matrix((np.ones(len(indices)), (position[rows], position[indices])),
+                              shape=(n, n))
+    symmetric = (permuted + permuted.T + sps.identity(n)).tocsr()
+    symmetric.sort_indices()
+    ptr, idx, diag = symbolic_lu(symmetric.indptr.astype(np.int64),
+                                 symmetric.indices.astype(np.int64), n)
+    # place of J's entry (i, j) in row position[i]: idx is sorted within each row
+    r, c = position[rows], position[indices]
+    jmap = np.empty(len(indices), dtype=np.int64)
+    for row in np.unique(r):
+        at = np.flatnonzero(r == row)
+        jmap[at] = ptr[row] + np.searchsorted(idx[ptr[row]:ptr[row + 1]], c[at])
+    nnz = len(idx)
+    return NewtonStructure(position, 0, 0, ptr, idx, diag, jmap,
+                           SPARSE_FLOP * lu_flops(ptr, idx, diag) + SPARSE_SCATTER * nnz,
+                           SPARSE_ENTRY * nnz)
+
+
+def newton_structure(indptr, indices, n, position, kl, ku):
+    """Banded storage in the band ordering (position, kl, ku), or sparse when its
+    factorization and SOLVES_PER_FACTORIZATION solves are estimated SPARSE_MARGIN times
+    faster (wide bands: 2-D and 3-D couplings)."""
+    band = band_structure(position, kl, ku)
+    if n < SPARSE_MIN_N or kl + ku < SPARSE_MIN_BAND:
+        return band
+    sparse = sparse_structure(indptr, indices, n)
+
+    def cost(s):
+        return s.factor_seconds + SOLVES_PER_FACTORIZATION * s.solve_seconds
+
+    return sparse if cost(sparse) < SPARSE_MARGIN * cost(band) else band
+
+
+@njit(cache=True)
+def store_jacobian(jdata, indptr, indices, structure, jb):
+    """J (its CSR values ``jdata``) into the storage ``jb``: scattered once per Jacobian,
+    then shifted by :func:`shift` into each matrix I - c J the slab needs."""
+    position, kl, ku, ptr, _, _, jmap = structure
+    jb[:, :] = 0.0
+    if ptr.shape[0] > 0:
+        for nz in range(jdata.shape[0]):
+            jb[0, jmap[nz]] = jdata[nz]
+        return
+    kv = kl + ku
+    for i in range(position.shape[0]):
+        r = position[i]
+        for nz in range(indptr[i], indptr[i + 1]):
+            col = position[indices[nz]]
+            jb[col, kv + r - col] += jdata[nz]
+
+
+@njit(cache=True)
+def shift(jb, c, structure, ab):
+    """ab = I - c J (c real or complex) from J in the storage ``jb`` (ab may be jb); the band
+    storage's kl fill-in columns are band_lu's to clear."""
+    _, kl, ku, ptr, _, diag, _ = structure
+    if ptr.shape[0] > 0:
+        for e in range(jb.shape[1]):
+            ab[0, e] = -c * jb[0, e]
+        for r in range(diag.shape[0]):
+            ab[0, diag[r]] += 1.0
+        return
+    kv = kl + ku
+    for r in range(jb.shape[0]):
+        for col in range(kl, jb.shape[1]):
+            ab[r, col] = -c * jb[r, col]
+        ab[r, kv] += 1.0
+
+
+@njit(cache=True)
+def lu_factor(ab, structure, ipiv):
+    """LU-factor I - c J in place (pivots into ``ipiv``, banded only). Returns 0 on
+    success."""
+    _, kl, ku, ptr, idx, diag, _ = structure
+    if ptr.shape[0] > 0:
+        return sparse_lu(ab[0], ptr, idx, diag)
+    return band_lu(ab, kl, ku, ipiv)
+
+
+@njit(cache=True)
+def lu_solve(ab, structure, ipiv, b):
+    """Solve (I - c J) x = b in place, b in the matrices' ordering, with the factors of
+    :func:`lu_factor`."""
+    _, kl, ku, ptr, idx, diag, _ = structure
+    if ptr.shape[0] > 0:
+        sparse_solve(ab[0], ptr, idx, diag, b)
+    else:
+        band_solve(ab, kl, ku, ipiv, b)
