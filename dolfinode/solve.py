@@ -9,6 +9,7 @@ from dolfinode import timeslab as ts
 from dolfinode.adaptivity import filter_constant, initial_step
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
+from dolfinode.linalg.newton_matrix import newton_structure
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
 from dolfinode.parameters import NONLINEAR_SOLVERS, check_parameters
@@ -182,7 +183,7 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
 
 
 def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps):
-    structure = compiled.newton_structure
+    structure = newton_structure(*compiled.newton_structures, m.stage_eigenvalues)
     tables = mono.method_tables(m)
     fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, filter_constant(m)])
     state = np.array([ode.t0, steps[0], 1.0, 1.0])
@@ -190,7 +191,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
     newton_bytes = structure.memory(m.num_stages)
     fits = (newton_bytes <= _NEWTON_SMALL
             or newton_bytes <= _NEWTON_MEMORY_FRACTION * _available_memory())
-    reuse = structure.factor_seconds >= mono.REUSE_TIME
+    reuse = structure.seconds(complex_values=True) >= mono.REUSE_TIME
     iopts = np.array(iopts + [int(fits), int(reuse)], dtype=np.int64)
     nodes = m.q + 1
 

@@ -23,7 +23,7 @@ from dolfinode.compile.cache import load_library, signature
 from dolfinode.compile.codegen import kernel_source
 from dolfinode.compile.signatures import KERNELS, Kernel, call_rhs
 from dolfinode.linalg import bandwidth_ordering
-from dolfinode.linalg.newton_matrix import newton_structure
+from dolfinode.linalg.newton_matrix import candidate_structures
 from dolfinode.ode import t as time_symbol
 
 
@@ -85,14 +85,14 @@ class CompiledODE:
                            lambda: bandwidth_ordering(self.indptr, self.indices, self.N))
 
     @cached_property
-    def newton_structure(self):
-        """The storage of the Newton matrices I - c J, banded or sparse
-        (:func:`dolfinode.linalg.newton_matrix.newton_structure`; remembered by sparsity
-        pattern)."""
+    def newton_structures(self):
+        """(banded, sparse or None): the storages of the Newton matrices I - c J worth
+        considering (:func:`dolfinode.linalg.newton_matrix.candidate_structures`; remembered
+        by sparsity pattern)."""
         _, position, kl, ku = self.ordering
         return _remembered(_structures, self._pattern_key,
-                           lambda: newton_structure(self.indptr, self.indices, self.N,
-                                                    position, kl, ku))
+                           lambda: candidate_structures(self.indptr, self.indices, self.N,
+                                                        position, kl, ku))
 
     def dependencies(self):
         """Dependency graph as a CSR boolean matrix: entry (i, j) if f_i depends on u_j."""

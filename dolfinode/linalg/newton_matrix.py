@@ -1,8 +1,9 @@
 """The N x N Newton matrices I - c J of the stage systems, in banded or sparse storage.
 
-Which storage a system gets is decided once per sparsity pattern (:func:`newton_structure`)
-from the estimated time of a factorization and of the solves that follow it; the compiled
-loops see one ``structure`` tuple and the functions below, whichever it is:
+Which storage a solve uses is decided from the sparsity pattern and the method
+(:func:`newton_structure`), by the estimated time of the factorizations and of the solves
+that follow them; the compiled loops see one ``structure`` tuple and the functions below,
+whichever it is:
 
 ``structure = (position, kl, ku, ptr, idx, diag, jmap)``: ``position[i]`` is the place of
 component i in the matrices' ordering. Banded (:mod:`dolfinode.linalg.banded`): the bandwidths
@@ -26,19 +27,22 @@ from dolfinode.linalg.sparse import (
     symbolic_lu,
 )
 
-#: Seconds per multiply-add of the LUs and per stored entry of their solves (complex; measured
-#: 2026-11-24 on 2-D Brusselator and 3-D Laplacian patterns, N = 72-7200): the banded LU is
-#: vectorized, the sparse one reads every entry through an index. Sparse factorizations also
-#: scatter and gather every entry of their rows.
-BAND_FLOP, BAND_ENTRY = 0.65e-9, 2.5e-9
-SPARSE_FLOP, SPARSE_ENTRY, SPARSE_SCATTER = 3.5e-9, 3.0e-9, 2.0e-9
+#: Seconds per multiply-add of the LUs and per stored entry read by their solves, for real and
+#: complex values (measured 2026-11-24 on 2-D Brusselator and 3-D Laplacian patterns,
+#: N = 72-7200): the banded LU is vectorized (a real multiply-add 0.15-0.2 ns, a complex one
+#: 0.65 ns), the sparse one reads every entry through an index (2 and 3.5 ns). A sparse
+#: factorization also scatters and gathers every entry of its rows.
+SECONDS = {("banded", False): (0.17e-9, 0.45e-9), ("banded", True): (0.65e-9, 2.5e-9),
+           ("sparse", False): (2.0e-9, 1.9e-9), ("sparse", True): (3.5e-9, 3.0e-9)}
+SPARSE_SCATTER = 2.0e-9
 #: Solves per factorization in the choice: a Newton slab makes 3-5 iterations; kept factors
 #: (see :data:`dolfinode.timeslab.mono.REUSE_TIME`) see more, which only favours the sparse LU.
 SOLVES_PER_FACTORIZATION = 4
 #: The sparse LU must be estimated this much faster to be chosen, and only systems with at
 #: least SPARSE_MIN_N components and bandwidths kl + ku >= SPARSE_MIN_BAND are analysed (below,
 #: the banded LU wins: tridiagonal N = 1000 both 31 us, 2-D Brusselator N = 72 (band 12 + 12)
-#: factor 21 against 24 us, solve 5.3 against 7.2 us).
+#: complex factor 21 against 24 us, solve 5.3 against 7.2 us, real 15 against 10 us, 3.5
+#: against 2.9 us).
 SPARSE_MARGIN = 0.8
 SPARSE_MIN_N = 64
 SPARSE_MIN_BAND = 16
@@ -46,7 +50,8 @@ SPARSE_MIN_BAND = 16
 
 @dataclass(frozen=True)
 class NewtonStructure:
-    """Storage of the Newton matrices of one sparsity pattern (see the module docstring)."""
+    """Storage of the Newton matrices of one sparsity pattern (see the module docstring), with
+    the multiply-adds of one factorization (``flops``) and the entries a solve reads."""
 
     position: np.ndarray
     kl: int
@@ -55,8 +60,8 @@ class NewtonStructure:
     idx: np.ndarray
     diag: np.ndarray
     jmap: np.ndarray
-    factor_seconds: float
-    solve_seconds: float
+    flops: int
+    entries: int
 
     @property
     def sparse(self):
@@ -81,6 +86,12 @@ class NewtonStructure:
             return f"sparse LU, {len(self.idx)} nonzeros in the factors"
         return f"banded LU, bandwidth {self.kl} + {self.ku} after reordering"
 
+    def seconds(self, complex_values, solves=0):
+        """Estimated time of one factorization and ``solves`` solves (see SECONDS)."""
+        flop, entry = SECONDS["sparse" if self.sparse else "banded", complex_values]
+        scatter = SPARSE_SCATTER * self.entries if self.sparse else 0.0
+        return flop * self.flops + scatter + solves * entry * self.entries
+
     def memory(self, stages):
         """Bytes of the Newton workspace of a method with S stages (q for cG(q), q + 1 for
         dG(q)), an upper bound: the matrices I - k lambda J, one real per real eigenvalue
@@ -93,13 +104,13 @@ class NewtonStructure:
         rows, columns = self.shape
         return 8 * (stages + 1) * (rows * columns + 3 * len(self.position))
 
+
 def band_structure(position, kl, ku):
     """The banded :class:`NewtonStructure` in the ordering ``position``."""
     N = len(position)
     empty = np.zeros(0, dtype=np.int64)
-    columns = 2 * kl + ku + 1
     return NewtonStructure(position, kl, ku, empty, empty, empty, empty,
-                           BAND_FLOP * N * kl * (kl + ku + 1), BAND_ENTRY * N * columns)
+                           N * kl * (kl + ku + 1), N * (2 * kl + ku + 1))
 
 
 def sparse_structure(indptr, indices, n):
@@ -118,23 +129,35 @@ def sparse_structure(indptr, indices, n):
     for row in np.unique(r):
         at = np.flatnonzero(r == row)
         jmap[at] = ptr[row] + np.searchsorted(idx[ptr[row]:ptr[row + 1]], c[at])
-    nnz = len(idx)
-    return NewtonStructure(position, 0, 0, ptr, idx, diag, jmap,
-                           SPARSE_FLOP * lu_flops(ptr, idx, diag) + SPARSE_SCATTER * nnz,
-                           SPARSE_ENTRY * nnz)
+    return NewtonStructure(position, 0, 0, ptr, idx, diag, jmap, lu_flops(ptr, idx, diag),
+                           len(idx))
 
 
-def newton_structure(indptr, indices, n, position, kl, ku):
-    """Banded storage in the band ordering (position, kl, ku), or sparse when its
-    factorization and SOLVES_PER_FACTORIZATION solves are estimated SPARSE_MARGIN times
-    faster (wide bands: 2-D and 3-D couplings)."""
+def candidate_structures(indptr, indices, n, position, kl, ku):
+    """The banded structure in the band ordering (position, kl, ku), and the sparse one where
+    it may be cheaper (at least SPARSE_MIN_N components, kl + ku >= SPARSE_MIN_BAND), else
+    None."""
     band = band_structure(position, kl, ku)
     if n < SPARSE_MIN_N or kl + ku < SPARSE_MIN_BAND:
+        return band, None
+    return band, sparse_structure(indptr, indices, n)
+
+
+def newton_structure(band, sparse, eigenvalues):
+    """The storage for a method whose stage matrix has ``eigenvalues``: sparse when one
+    factorization and SOLVES_PER_FACTORIZATION solves are estimated SPARSE_MARGIN times faster
+    (wide bands: 2-D and 3-D couplings), in complex arithmetic if the method has a complex pair
+    (its complex matrices dominate the cost), else in real, where the vectorized band holds out
+    to larger systems. Measured against this choice (2026-11-24, whole solves with Newton):
+    2-D wave equation N = 512 dG(2) sparse 0.60x the banded time, Brusselator N = 288 cG(2)
+    0.55x; real only: Brusselator N = 288 / 800 / 1800 cG(1) 1.21x / 1.08x / 0.86x, wave
+    N = 512 dG(0) 1.25x, N = 1152 cG(1) 0.94x (all kept banded)."""
+    if sparse is None:
         return band
-    sparse = sparse_structure(indptr, indices, n)
+    complex_values = bool(np.any(np.imag(eigenvalues) != 0))
 
     def cost(s):
-        return s.factor_seconds + SOLVES_PER_FACTORIZATION * s.solve_seconds
+        return s.seconds(complex_values, SOLVES_PER_FACTORIZATION)
 
     return sparse if cost(sparse) < SPARSE_MARGIN * cost(band) else band
 

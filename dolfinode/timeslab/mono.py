@@ -57,7 +57,7 @@ NEWTON_PROBE = 1.2
 EXTRAPOLATE = 2.0
 #: The factors of one Jacobian (stage matrices, error filter) are kept over slabs, as RADAU5
 #: and CVODE keep theirs, when a factorization is estimated to take at least REUSE_TIME seconds
-#: (``NewtonStructure.factor_seconds``; 2e5 multiply-adds of the banded LU): while the step
+#: (``NewtonStructure.seconds``, complex; 2e5 multiply-adds of the banded LU): while the step
 #: stays within a factor REUSE_RATIO of the factors' step, for at most REUSE_AGE slabs, and
 #: until a Newton iteration with them fails (then they are made afresh and the slab is solved
 #: again). A 2-D Brusselator of N = 3200 (bandwidth 80) in band storage: one complex
