@@ -9,7 +9,7 @@ from dolfinode import timeslab as ts
 from dolfinode.adaptivity import filter_constant, initial_step
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
-from dolfinode.linalg.newton_matrix import newton_structure
+from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
 from dolfinode.parameters import NONLINEAR_SOLVERS, check_parameters
@@ -157,11 +157,14 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
     return sol
 
 
-def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
+def _integrate(advance, make_buffers, capacity, counters, params, state, bar,
+               newton_ready=None):
     """Call a compiled time-slab loop until it reaches T, collecting its stored elements.
 
     The loop returns FULL when its output buffers are full (so results arrive in chunks, and
     progress can be shown); a FULL with nothing stored means one slab needs larger buffers.
+    It returns NEWTON_NEEDED when Newton's matrices are not ready: it goes on if
+    ``newton_ready()`` makes them so.
     """
     chunks = []
     while True:
@@ -171,6 +174,8 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
         chunks.append([b[:n] for b in buffers])
         if bar is not None:
             bar.update(state[0] - bar.n)
+        if status == ts.NEWTON_NEEDED and newton_ready is not None and newton_ready():
+            continue
         if status != ts.FULL:
             break
         if n == 0:
@@ -183,17 +188,30 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar):
 
 
 def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps):
-    structure = newton_structure(*compiled.newton_structures, m.stage_eigenvalues)
     tables = mono.method_tables(m)
     fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, filter_constant(m)])
     state = np.array([ode.t0, steps[0], 1.0, 1.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
-    newton_bytes = structure.memory(m.num_stages)
-    fits = (newton_bytes <= _NEWTON_SMALL
-            or newton_bytes <= _NEWTON_MEMORY_FRACTION * _available_memory())
-    reuse = structure.seconds(complex_values=True) >= mono.REUSE_TIME
-    iopts = np.array(iopts + [int(fits), int(reuse)], dtype=np.int64)
+    iopts = np.array(iopts + [0, 0], dtype=np.int64)
     nodes = m.q + 1
+    structure = compiled.band_structure  # until Newton is needed: see newton_ready
+    newton_bytes = 0
+
+    def newton_ready():
+        """Decide the storage of the Newton matrices (a sparse one is analysed only now);
+        whether they fit in memory."""
+        nonlocal structure, newton_bytes
+        structure = newton_structure(compiled.band_structure,
+                                     lambda: compiled.sparse_structure, m.stage_eigenvalues)
+        newton_bytes = structure.memory(m.num_stages)
+        fits = (newton_bytes <= _NEWTON_SMALL
+                or newton_bytes <= _NEWTON_MEMORY_FRACTION * _available_memory())
+        iopts[mono.NEWTON_READY] = int(fits)
+        iopts[mono.REUSE] = int(structure.seconds(complex_values=True) >= mono.REUSE_TIME)
+        return fits
+
+    if not sparse_candidate(structure):
+        newton_ready()  # nothing to analyse: decided up front, no return to the driver
 
     def buffers(capacity):
         size = min(capacity, params["maximum_steps"] - counters[ts.SLABS])
@@ -208,8 +226,8 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
     capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
     with _progress(ode, params) as bar:
         status, elements = _integrate(advance, buffers, capacity, counters, params,
-                                      state, bar)
-    if status == ts.NEWTON_MEMORY:
+                                      state, bar, newton_ready)
+    if status == ts.NEWTON_NEEDED:
         available = _available_memory()
         why = ("was not selected" if params["nonlinear_solver"] == "newton" else "failed")
         raise SolverError(
@@ -222,7 +240,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
     slabs = int(counters[ts.SLABS])
     stats = {"time slabs": slabs, "elements": slabs * ode.N,
              "factorizations": int(counters[ts.FACTORIZATIONS]),
-             "newton matrices": structure.description}
+             "newton matrices": structure.description if counters[ts.FACTORIZATIONS] else None}
     return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, stats
 
 

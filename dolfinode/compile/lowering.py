@@ -23,7 +23,7 @@ from dolfinode.compile.cache import load_library, signature
 from dolfinode.compile.codegen import kernel_source
 from dolfinode.compile.signatures import KERNELS, Kernel, call_rhs
 from dolfinode.linalg import bandwidth_ordering
-from dolfinode.linalg.newton_matrix import candidate_structures
+from dolfinode.linalg.newton_matrix import band_structure, sparse_structure
 from dolfinode.ode import t as time_symbol
 
 
@@ -85,14 +85,18 @@ class CompiledODE:
                            lambda: bandwidth_ordering(self.indptr, self.indices, self.N))
 
     @cached_property
-    def newton_structures(self):
-        """(banded, sparse or None): the storages of the Newton matrices I - c J worth
-        considering (:func:`dolfinode.linalg.newton_matrix.candidate_structures`; remembered
-        by sparsity pattern)."""
+    def band_structure(self):
+        """The banded storage of the Newton matrices I - c J in the band ordering."""
         _, position, kl, ku = self.ordering
+        return band_structure(position, kl, ku)
+
+    @cached_property
+    def sparse_structure(self):
+        """The sparse storage of the Newton matrices I - c J
+        (:func:`dolfinode.linalg.newton_matrix.sparse_structure`; remembered by sparsity
+        pattern)."""
         return _remembered(_structures, self._pattern_key,
-                           lambda: candidate_structures(self.indptr, self.indices, self.N,
-                                                        position, kl, ku))
+                           lambda: sparse_structure(self.indptr, self.indices, self.N))
 
     def dependencies(self):
         """Dependency graph as a CSR boolean matrix: entry (i, j) if f_i depends on u_j."""
@@ -136,8 +140,8 @@ class CompiledODE:
         return sps.csr_matrix((data, self.indices.copy(), self.indptr.copy()), shape=(self.N, self.N))
 
 
-#: How many lowerings of expression ODEs, band orderings and Newton structures are remembered
-#: (oldest dropped).
+#: How many lowerings of expression ODEs, band orderings and sparse Newton structures are
+#: remembered (oldest dropped).
 REMEMBERED = 16
 _loaded = {}
 _orderings = {}

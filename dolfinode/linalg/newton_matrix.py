@@ -39,7 +39,8 @@ SPARSE_SCATTER = 2.0e-9
 #: (see :data:`dolfinode.timeslab.mono.REUSE_TIME`) see more, which only favours the sparse LU.
 SOLVES_PER_FACTORIZATION = 4
 #: The sparse LU must be estimated this much faster to be chosen, and only systems with at
-#: least SPARSE_MIN_N components and bandwidths kl + ku >= SPARSE_MIN_BAND are analysed (below,
+#: least SPARSE_MIN_N components and bandwidths kl + ku >= SPARSE_MIN_BAND are analysed, when
+#: a solve first needs Newton's method (below,
 #: the banded LU wins: tridiagonal N = 1000 both 31 us, 2-D Brusselator N = 72 (band 12 + 12)
 #: complex factor 21 against 24 us, solve 5.3 against 7.2 us, real 15 against 10 us, 3.5
 #: against 2.9 us).
@@ -123,37 +124,34 @@ def sparse_structure(indptr, indices, n):
     symmetric.sort_indices()
     ptr, idx, diag = symbolic_lu(symmetric.indptr.astype(np.int64),
                                  symmetric.indices.astype(np.int64), n)
-    # place of J's entry (i, j) in row position[i]: idx is sorted within each row
-    r, c = position[rows], position[indices]
-    jmap = np.empty(len(indices), dtype=np.int64)
-    for row in np.unique(r):
-        at = np.flatnonzero(r == row)
-        jmap[at] = ptr[row] + np.searchsorted(idx[ptr[row]:ptr[row + 1]], c[at])
+    # place of J's entry (i, j) at (position[i], position[j]): the filled entries' keys
+    # row n + column increase along the storage (rows in order, idx sorted within each)
+    filled_keys = np.repeat(np.arange(n), np.diff(ptr)) * n + idx
+    jmap = np.searchsorted(filled_keys, position[rows] * n + position[indices])
     return NewtonStructure(position, 0, 0, ptr, idx, diag, jmap, lu_flops(ptr, idx, diag),
                            len(idx))
 
 
-def candidate_structures(indptr, indices, n, position, kl, ku):
-    """The banded structure in the band ordering (position, kl, ku), and the sparse one where
-    it may be cheaper (at least SPARSE_MIN_N components, kl + ku >= SPARSE_MIN_BAND), else
-    None."""
-    band = band_structure(position, kl, ku)
-    if n < SPARSE_MIN_N or kl + ku < SPARSE_MIN_BAND:
-        return band, None
-    return band, sparse_structure(indptr, indices, n)
+def sparse_candidate(band):
+    """Whether a sparse LU may beat the banded :class:`NewtonStructure` ``band``: at least
+    SPARSE_MIN_N components and kl + ku >= SPARSE_MIN_BAND (its analysis, a minimum degree
+    ordering and the filled pattern, is only made then)."""
+    return len(band.position) >= SPARSE_MIN_N and band.kl + band.ku >= SPARSE_MIN_BAND
 
 
-def newton_structure(band, sparse, eigenvalues):
-    """The storage for a method whose stage matrix has ``eigenvalues``: sparse when one
-    factorization and SOLVES_PER_FACTORIZATION solves are estimated SPARSE_MARGIN times faster
-    (wide bands: 2-D and 3-D couplings), in complex arithmetic if the method has a complex pair
-    (its complex matrices dominate the cost), else in real, where the vectorized band holds out
-    to larger systems. Measured against this choice (2026-11-24, whole solves with Newton):
-    2-D wave equation N = 512 dG(2) sparse 0.60x the banded time, Brusselator N = 288 cG(2)
-    0.55x; real only: Brusselator N = 288 / 800 / 1800 cG(1) 1.21x / 1.08x / 0.86x, wave
-    N = 512 dG(0) 1.25x, N = 1152 cG(1) 0.94x (all kept banded)."""
-    if sparse is None:
+def newton_structure(band, make_sparse, eigenvalues):
+    """The storage for a method whose stage matrix has ``eigenvalues``: ``band``, or the
+    sparse structure ``make_sparse()`` when one factorization and SOLVES_PER_FACTORIZATION
+    solves are estimated SPARSE_MARGIN times faster (wide bands: 2-D and 3-D couplings), in
+    complex arithmetic if the method has a complex pair (its complex matrices dominate the
+    cost), else in real, where the vectorized band holds out to larger systems. Measured
+    against this choice (2026-11-24, whole solves with Newton): 2-D wave equation N = 512 dG(2)
+    sparse 0.60x the banded time, Brusselator N = 288 cG(2) 0.55x; real only: Brusselator
+    N = 288 / 800 / 1800 cG(1) 1.21x / 1.08x / 0.86x, wave N = 512 dG(0) 1.25x, N = 1152
+    cG(1) 0.94x (all kept banded)."""
+    if not sparse_candidate(band):
         return band
+    sparse = make_sparse()
     complex_values = bool(np.any(np.imag(eigenvalues) != 0))
 
     def cost(s):

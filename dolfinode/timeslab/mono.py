@@ -27,7 +27,7 @@ from dolfinode.timeslab import (
     FULL,
     JACOBIANS,
     NEWTON,
-    NEWTON_MEMORY,
+    NEWTON_NEEDED,
     NONCONVERGENCE,
     OUTSIDE,
     REJECTED,
@@ -40,10 +40,11 @@ from dolfinode.timeslab import (
 
 # Indices into the float state.
 T_NOW, K_NEXT, EPS_PREV, HAVE_F0 = range(4)
-# Indices into the integer and float options (NEWTON_FITS: 1 if the banded Newton matrix fits
-# in memory; the driver decides, the loop returns NEWTON_MEMORY when it would need it but not;
+# Indices into the integer and float options (NEWTON_READY: 1 if the storage of the Newton
+# matrices is decided and fits in memory; else the loop returns NEWTON_NEEDED when it first
+# needs them, and the driver decides;
 # REUSE: 1 if a factorization costs enough to keep it over slabs, see REUSE_TIME).
-SOLVER, FIXED, MAX_ITER, IS_DG, NEWTON_FITS, REUSE = range(6)
+SOLVER, FIXED, MAX_ITER, IS_DG, NEWTON_READY, REUSE = range(6)
 RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, KMIN_REL, SPAN, GAMMA = range(9)
 #: After a failed nonlinear solve of length k_fail, steps stay below SOLVER_MARGIN x k_fail,
 #: and k_fail grows by NEWTON_PROBE per accepted step.
@@ -257,10 +258,10 @@ def advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                 use_newton = True
                 euler_stages(x, f0, k, tau, X)
         if use_newton and ipiv.shape[0] == 0:
-            if iopts[NEWTON_FITS] == 0:
+            if iopts[NEWTON_READY] == 0:
                 state[T_NOW] = t
                 state[K_NEXT] = k
-                return NEWTON_MEMORY
+                return NEWTON_NEEDED
             jb = np.zeros((rows, columns))
             ab_real = np.zeros((n_real, rows, columns))
             ab_complex = np.zeros((eigenvalues.shape[0] - n_real, rows, columns),

@@ -13,6 +13,7 @@ from dolfinode.linalg.newton_matrix import (
     lu_solve,
     newton_structure,
     shift,
+    sparse_candidate,
     sparse_structure,
     store_jacobian,
 )
@@ -81,8 +82,9 @@ def test_factor_and_solve_the_shifted_jacobian(storage, c):
 
 def chosen(ode, method):
     """The storage dn.solve takes for ``method`` on ``ode``."""
-    eigenvalues = parse_method(method)[1].stage_eigenvalues
-    return newton_structure(*lower(ode).newton_structures, eigenvalues)
+    compiled = lower(ode)
+    return newton_structure(compiled.band_structure, lambda: compiled.sparse_structure,
+                            parse_method(method)[1].stage_eigenvalues)
 
 
 def test_wide_bands_go_sparse_narrow_ones_stay_banded():
@@ -93,15 +95,16 @@ def test_wide_bands_go_sparse_narrow_ones_stay_banded():
     grid = chosen(grid_ode(12), "cG(2)")
     assert grid.sparse
     assert grid.description.startswith("sparse LU")
-    band, sparse = lower(grid_ode(12)).newton_structures
+    compiled = lower(grid_ode(12))
+    band, sparse = compiled.band_structure, compiled.sparse_structure
     assert sparse is grid
     assert sparse.seconds(True, 4) < band.seconds(True, 4)
     chain_u = sp.symbols("c0:300")
     chain = dn.ODE({chain_u[i]: chain_u[i - 1] - 2 * chain_u[i] + chain_u[(i + 1) % 300]
                     for i in range(300)}, u0=np.ones(300), T=1.0)
-    assert lower(chain).newton_structures[1] is None
+    assert not sparse_candidate(lower(chain).band_structure)
     assert chosen(chain, "cG(2)").description.startswith("banded LU, bandwidth")
-    assert lower(grid_ode(4)).newton_structures[1] is None  # N = 16 < SPARSE_MIN_N
+    assert not sparse_candidate(lower(grid_ode(4)).band_structure)  # N = 16 < SPARSE_MIN_N
     plain = grid_ode(20, coupled=False)  # band 20 + 20
     assert chosen(plain, "cG(2)").sparse
     assert not chosen(plain, "cG(1)").sparse
@@ -139,7 +142,7 @@ def test_solves_with_sparse_newton_matrices(method, monkeypatch):
                           rtol=1e-11, atol=1e-12).y[:, -1]
     assert np.abs(sol.y[:, -1] - reference).max() < 1e-5
     monkeypatch.setattr(solve_module, "newton_structure",
-                        lambda band, sparse, eigenvalues: band)
+                        lambda band, make_sparse, eigenvalues: band)
     banded = dn.solve(ode, method, tolerance=1e-6, nonlinear_solver="newton")
     assert banded.stats["newton matrices"].startswith("banded LU")
     for key in ("time slabs", "nonlinear iterations", "factorizations"):

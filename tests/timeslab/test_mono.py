@@ -246,8 +246,7 @@ def test_newton_keeps_costly_factors_over_slabs(method, monkeypatch):
     from dolfinode.timeslab import mono
 
     ode = grid_reaction_diffusion(20)
-    band, sparse = lower(ode).newton_structures
-    assert sparse.seconds(complex_values=True) >= mono.REUSE_TIME
+    assert lower(ode).sparse_structure.seconds(complex_values=True) >= mono.REUSE_TIME
     reference = dn.solve(ode, "dG(3)", tolerance=1e-10, nonlinear_solver="newton").y[:, -1]
     kept = dn.solve(ode, method, tolerance=1e-5, nonlinear_solver="newton")
     monkeypatch.setattr(mono, "REUSE_TIME", np.inf)
@@ -258,3 +257,24 @@ def test_newton_keeps_costly_factors_over_slabs(method, monkeypatch):
     assert kept.stats["jacobian evaluations"] < every.stats["time slabs"] / 4
     for sol in (kept, every):
         assert np.abs(sol.y[:, -1] - reference).max() < 1e-5
+
+
+def test_sparse_analysis_waits_for_newton(monkeypatch):
+    """The sparse structure (a minimum degree ordering and the filled pattern, seconds for a
+    large lattice) is made only when a solve first needs Newton's method: not for fixed-point
+    solves; a default solve that turns stiff decides it then and goes on."""
+    from dolfinode.compile import lower, lowering
+
+    made = []
+    make = lowering.sparse_structure
+    monkeypatch.setattr(lowering, "sparse_structure",
+                        lambda *args: made.append(1) or make(*args))
+    monkeypatch.setattr(lowering, "_structures", {})
+    ode = grid_reaction_diffusion(12)
+    assert dn.solve(ode, "cG(2)", tolerance=1e-4, nonlinear_solver="fixed-point").stats[
+        "newton matrices"] is None
+    assert not made
+    sol = dn.solve(ode, "cG(2)", tolerance=1e-4)
+    assert sol.stats["newton"] and sol.stats["newton matrices"].startswith("sparse LU")
+    assert made == [1]
+    assert lower(ode).sparse_structure is not None and made == [1]  # remembered
