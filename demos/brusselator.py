@@ -9,7 +9,8 @@ of periodic boundaries): N = 2 n^2 components, declared as sympy expressions in 
 the grid, as one would write it down. The right-hand sides take a handful of shapes (interior
 points, edges and corners of each species), so dolfinode differentiates and compiles each
 shape once (see "Compilation and cost" in the user guide) instead of N expressions. Prints
-the lowering time and the shape count, solves with cG(2) and dG(2), compares u(T) with
+the lowering time and the shape count, solves with cG(2) and dG(2) (stiff: Newton's method,
+with sparse LU factors of the Newton matrices on the larger grids), compares u(T) with
 scipy's BDF (sparse Jacobian) at a tight tolerance, and plots u at T and u, v at the centre.
 
 Run ``python demos/brusselator.py --help`` for the options.
@@ -106,10 +107,13 @@ def main(argv=None):
         seconds = time.perf_counter() - start
         error = np.abs(sol.y[:, -1] - u_ref).max()
         results[method] = {"seconds": seconds, "error": error,
-                           "steps": sol.stats["time slabs"], "newton": sol.stats["newton"]}
+                           "steps": sol.stats["time slabs"], "newton": sol.stats["newton"],
+                           "newton matrices": sol.stats["newton matrices"]}
+        matrices = sol.stats["newton matrices"]
         print(f"{method}: {seconds:.3f} s (first solve), "
-              f"{sol.stats['time slabs']} steps, newton {sol.stats['newton']}, "
-              f"max |U(T) - reference| = {error:.2e}")
+              f"{sol.stats['time slabs']} steps, newton {sol.stats['newton']}"
+              + (f" ({matrices})" if matrices else "")
+              + f", max |U(T) - reference| = {error:.2e}")
 
     args.output.mkdir(parents=True, exist_ok=True)
     plot = args.output / "brusselator.png"
