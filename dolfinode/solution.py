@@ -1,4 +1,6 @@
 """The Galerkin solution: exact piecewise polynomials, dense evaluation and samples."""
+from functools import cached_property
+
 import numpy as np
 from numba import njit
 
@@ -100,16 +102,28 @@ class Solution:
         return self
 
     def _sample(self, number_of_samples):
-        """t, y at equispaced times: np.linspace's values (t0 + i (T - t0)/(n - 1), the last
-        T), formed without its 14 us of argument handling."""
-        t0, T, n = self.ode.t0, self.ode.T, number_of_samples
-        self.t = np.arange(n) * ((T - t0) / max(n - 1, 1)) + t0
+        """Take ``number_of_samples`` equispaced samples t, y, made when first read (a small
+        solve spends ~25 us on them, 10% of its time, where only sol(T) may be wanted)."""
+        self._number_of_samples = number_of_samples
+
+    @cached_property
+    def t(self):
+        """Sample times: np.linspace's values (t0 + i (T - t0)/(n - 1), the last T), formed
+        without its 14 us of argument handling."""
+        t0, T, n = self.ode.t0, self.ode.T, self._number_of_samples
+        t = np.arange(n) * ((T - t0) / max(n - 1, 1)) + t0
         if n > 1:
-            self.t[-1] = T
-        self.y = self._evaluate(self.t)
+            t[-1] = T
+        return t
+
+    @cached_property
+    def y(self):
+        """U at the sample times, shape (N, M)."""
+        y = self._evaluate(self.t)
         # U(t0), as in _values (the later samples are > t0): through _values' search for t0
         # the samples took 34 instead of 24 us
-        self.y[:, 0] = self.ode.u0
+        y[:, 0] = self.ode.u0
+        return y
 
     @property
     def multi(self):

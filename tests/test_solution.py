@@ -34,6 +34,19 @@ def test_shapes_follow_scipy_convention():
     np.testing.assert_allclose(sol.y[:, 0], [0, 1])
 
 
+@pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])
+def test_samples_are_made_when_first_read(method):
+    """sol.t and sol.y are made on first access (not by solve), once, and are the solution at
+    the equispaced sample times."""
+    u, v = sp.symbols("u v")
+    sol = dn.solve(dn.ODE({u: v, v: -u}, u0=[0, 1], T=2.0), method, number_of_samples=7)
+    assert "t" not in vars(sol) and "y" not in vars(sol)
+    y = sol.y
+    assert sol.y is y and "t" in vars(sol)
+    np.testing.assert_array_equal(sol.t, np.linspace(0.0, 2.0, 7))
+    np.testing.assert_allclose(y, sol(sol.t), rtol=0, atol=0)
+
+
 def test_values_at_element_ends_are_nodal_values():
     u = sp.Symbol("u")
     sol = dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), method="dG(2)", tolerance=1e-6)
