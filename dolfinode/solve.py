@@ -131,7 +131,9 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
     run = _run_multi if multi_adaptive else _run_mono
     status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
                                                    floor, x, f0, steps)
-    newton = bool(counters[ts.STIFF]) or params["nonlinear_solver"] == "newton"
+    # mono-adaptive solves may return from Newton to fixed-point iteration (STIFF is then 0)
+    newton = (bool(counters[ts.STIFF]) or params["nonlinear_solver"] == "newton"
+              or stats.get("newton matrices") is not None)
     if status != ts.DONE:
         outside = ode.states[counters[ts.OUTSIDE] - 1] if counters[ts.OUTSIDE] else None
         raise SolverError(_failure_message(status, state, fixed, x, outside,
@@ -189,8 +191,9 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar,
 
 def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps):
     tables = mono.method_tables(m)
-    fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, filter_constant(m)])
-    state = np.array([ode.t0, steps[0], 1.0, 1.0])
+    fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, filter_constant(m), 0.0, 0.0])
+    # the running mean of fixed-point iterations per slab starts at a typical 6
+    state = np.array([ode.t0, steps[0], 1.0, 1.0, 0.0, 6.0, 0.0, 0.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     iopts = np.array(iopts + [0, 0], dtype=np.int64)
     nodes = m.q + 1
@@ -208,6 +211,8 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
                 or newton_bytes <= _NEWTON_MEMORY_FRACTION * _available_memory())
         iopts[mono.NEWTON_READY] = int(fits)
         iopts[mono.REUSE] = int(structure.seconds(complex_values=True) >= mono.REUSE_TIME)
+        fopts[[mono.NEWTON_UNITS, mono.FACTOR_UNITS]] = mono.newton_costs(
+            structure, m.stage_eigenvalues, ode.N, compiled.nnz, m.num_stages)
         return fits
 
     if not sparse_candidate(structure):

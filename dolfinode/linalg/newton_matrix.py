@@ -87,11 +87,19 @@ class NewtonStructure:
             return f"sparse LU, {len(self.idx)} nonzeros in the factors"
         return f"banded LU, bandwidth {self.kl} + {self.ku} after reordering"
 
+    def factor_seconds(self, complex_values):
+        """Estimated time of one factorization (see SECONDS)."""
+        flop = SECONDS["sparse" if self.sparse else "banded", complex_values][0]
+        return flop * self.flops + (SPARSE_SCATTER * self.entries if self.sparse else 0.0)
+
+    def solve_seconds(self, complex_values):
+        """Estimated time of one solve (see SECONDS)."""
+        return SECONDS["sparse" if self.sparse else "banded", complex_values][1] * self.entries
+
     def seconds(self, complex_values, solves=0):
-        """Estimated time of one factorization and ``solves`` solves (see SECONDS)."""
-        flop, entry = SECONDS["sparse" if self.sparse else "banded", complex_values]
-        scatter = SPARSE_SCATTER * self.entries if self.sparse else 0.0
-        return flop * self.flops + scatter + solves * entry * self.entries
+        """Estimated time of one factorization and ``solves`` solves."""
+        return (self.factor_seconds(complex_values)
+                + solves * self.solve_seconds(complex_values))
 
     def memory(self, stages):
         """Bytes of the Newton workspace of a method with S stages (q for cG(q), q + 1 for

@@ -25,6 +25,7 @@ from dolfinode.timeslab import (
     F_EVALUATIONS,
     FAILED_SOLVES,
     FULL,
+    ITERATIONS,
     JACOBIANS,
     NEWTON,
     NEWTON_NEEDED,
@@ -39,13 +40,20 @@ from dolfinode.timeslab import (
 )
 
 # Indices into the float state.
-T_NOW, K_NEXT, EPS_PREV, HAVE_F0 = range(4)
+# FP_STEP: the last step fixed-point iteration converged on (halved where it then failed; 0:
+# none); FP_ITERATIONS: its iterations per slab and NEWTON_COST Newton's cost per slab in f
+# evaluations (running means; 0: not measured); K_NEWTON: Newton's step when it gave way to
+# fixed-point iteration (0: it has not). See SWITCH_BACK.
+T_NOW, K_NEXT, EPS_PREV, HAVE_F0, FP_STEP, FP_ITERATIONS, NEWTON_COST, K_NEWTON = range(8)
 # Indices into the integer and float options (NEWTON_READY: 1 if the storage of the Newton
 # matrices is decided and fits in memory; else the loop returns NEWTON_NEEDED when it first
 # needs them, and the driver decides;
 # REUSE: 1 if a factorization costs enough to keep it over slabs, see REUSE_TIME).
 SOLVER, FIXED, MAX_ITER, IS_DG, NEWTON_READY, REUSE = range(6)
-RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, KMIN_REL, SPAN, GAMMA = range(9)
+# NEWTON_UNITS, FACTOR_UNITS: the cost of a Newton iteration (f at the stages and the solves)
+# and of a Jacobian with its factorizations, in f evaluations (see newton_costs).
+RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, KMIN_REL, SPAN, GAMMA, NEWTON_UNITS, FACTOR_UNITS = \
+    range(11)
 #: After a failed nonlinear solve of length k_fail, steps stay below SOLVER_MARGIN x k_fail,
 #: and k_fail grows by NEWTON_PROBE per accepted step.
 SOLVER_MARGIN = 0.8
@@ -67,6 +75,26 @@ EXTRAPOLATE = 2.0
 REUSE_TIME = 1.3e-4
 REUSE_RATIO = 1.25
 REUSE_AGE = 20
+#: With the default solver, Newton's method (taken when fixed-point iteration fails) gives way
+#: to fixed-point iteration again when that is estimated SWITCH_BACK times cheaper per unit
+#: time: its iterations per slab times the stages over the step it last converged on, against
+#: Newton's measured cost per slab (iterations, solves and factorizations in f evaluations, see
+#: newton_costs) over the step the error control asks for. A fixed-point failure then shortens
+#: the step (to the last one it converged on, at most half), as with
+#: nonlinear_solver="fixed-point", while that is still the cheaper. Mildly stiff systems
+#: (diffusion) converge by fixed-point iteration on steps a few times shorter than Newton's at
+#: a fraction of the cost per step: 2-D Brusselator N = 3200, cG(2) at 1e-5, 2.5 s with
+#: Newton for the rest of the run, 0.48 s with the way back (errors 4.4e-8 and 2.3e-9).
+SWITCH_BACK = 0.5
+#: ... only where Newton's steps have settled (the error control asks for at most
+#: SETTLED x the last step: in a transient Newton's steps grow far beyond fixed point's), and
+#: back to Newton when the error control of fixed point asks for steps below RETURN x
+#: K_NEWTON (without Newton's error filter a stiff component's estimate is far larger).
+SETTLED = 1.25
+RETURN = 0.25
+#: Seconds of one f evaluation per Jacobian nonzero and component, and per call (a model:
+#: 0.4-0.8 ns per nonzero measured on the chain and reaction-front kernels).
+F_ENTRY, F_CALL = 0.6e-9, 30e-9
 
 _f8 = types.float64[::1]
 _i8 = types.int64[::1]
@@ -159,6 +187,28 @@ def drives_out(u, fu, floor, remaining):
     return -1
 
 
+def newton_costs(structure, eigenvalues, N, nnz, stages):
+    """(NEWTON_UNITS, FACTOR_UNITS): a Newton iteration (f at the S stages, one solve per real
+    eigenvalue of the stage matrix and one complex one per pair) and a Jacobian with its
+    factorizations (the stage matrices and the error filter's), in f evaluations (estimated:
+    F_ENTRY, F_CALL and the structure's estimates)."""
+    f_seconds = F_ENTRY * (nnz + N) + F_CALL
+    real = int(np.sum(np.imag(eigenvalues) == 0))
+    pairs = len(eigenvalues) - real
+    solves = (real * structure.solve_seconds(False) + pairs * structure.solve_seconds(True))
+    factors = ((real + 1) * structure.factor_seconds(False)
+               + pairs * structure.factor_seconds(True))
+    return stages + solves / f_seconds, 1.0 + (nnz * F_ENTRY + factors) / f_seconds
+
+
+@njit(cache=True)
+def fixed_point_cheaper(k_fp, k_newton, S, state):
+    """Whether fixed-point iteration on steps k_fp is estimated SWITCH_BACK times cheaper per
+    unit time than Newton's method on steps k_newton (False before Newton was measured)."""
+    return (state[NEWTON_COST] > 0.0 and k_fp > 0.0 and state[FP_ITERATIONS] * S / k_fp
+            < SWITCH_BACK * state[NEWTON_COST] / k_newton)
+
+
 @njit(_SIGNATURE, cache=True, error_model="numpy")
 def advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             transform, transform_inverse, eigenvalues, nodes, bary, end_derivative, iopts,
@@ -220,6 +270,7 @@ def advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     # straight back into a failure (a step limited by convergence, not by accuracy).
     k_solver = math.inf
     k = state[K_NEXT]
+    k_accuracy = k  # the step the error control asks for (solver failures aside)
     if state[HAVE_F0] == 0.0:
         f(address(x, 0), t, address(p, 0), address(f0, 0))
         counters[F_EVALUATIONS] += 1
@@ -250,11 +301,23 @@ def advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         else:
             euler_stages(x, f0, k, tau, X)
         iters = -1
+        iterations_before, jacobians_before = counters[ITERATIONS], counters[JACOBIANS]
         if not use_newton:
             iters = fixed_point(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter,
                                 X, F, G, w, counters)
-            if iters < 0 and mode == DEFAULT:
-                counters[STIFF] = 1  # fixed point failed: treat the problem as stiff from here on
+            if iters >= 0:
+                state[FP_ITERATIONS] = 0.7 * state[FP_ITERATIONS] + 0.3 * iters
+                state[FP_STEP] = k
+            elif mode == DEFAULT:
+                if state[FP_STEP] >= k:  # it converged on this step before, not now
+                    state[FP_STEP] = 0.5 * k
+                k_fp = min(state[FP_STEP], 0.5 * k)
+                if fixed_point_cheaper(k_fp, k_accuracy, S, state) and k_fp >= kmin:
+                    counters[FAILED_SOLVES] += 1  # on the shorter step, as with "fixed-point"
+                    k_solver = k
+                    k = k_fp
+                    continue
+                counters[STIFF] = 1  # treat the problem as stiff
                 use_newton = True
                 euler_stages(x, f0, k, tau, X)
         if use_newton and ipiv.shape[0] == 0:
@@ -269,6 +332,7 @@ def advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             ipiv = np.zeros((eigenvalues.shape[0], N), dtype=np.int64)
             ipiv_filter = np.zeros(N, dtype=np.int64)
         if use_newton:
+            iterations_before = counters[ITERATIONS]  # not the failed fixed point's
             age += 1
             kept = (reuse and age <= REUSE_AGE and k_factored > 0.0
                     and k_factored <= REUSE_RATIO * k and k <= REUSE_RATIO * k_factored)
@@ -376,6 +440,20 @@ def advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                 x[i] = X[end + i]
                 f0[i] = fend[i]
             k_new = k if fixed else next_step(k, eps, state[EPS_PREV], order, safety, True)
+            k_accuracy = k_new
+            if use_newton and mode == DEFAULT:
+                cost = ((counters[ITERATIONS] - iterations_before) * fopts[NEWTON_UNITS]
+                        + (counters[JACOBIANS] - jacobians_before) * fopts[FACTOR_UNITS])
+                state[NEWTON_COST] = (cost if state[NEWTON_COST] == 0.0
+                                      else 0.7 * state[NEWTON_COST] + 0.3 * cost)
+                k_fp = min(state[FP_STEP], k_new)
+                if k_new <= SETTLED * k and fixed_point_cheaper(k_fp, k_new, S, state):
+                    counters[STIFF] = 0  # back to fixed point, on steps up to k_fp
+                    k_solver = k_fp / SOLVER_MARGIN
+                    state[K_NEWTON] = k_new
+            elif mode == DEFAULT and k_new < RETURN * state[K_NEWTON]:
+                counters[STIFF] = 1  # fixed point's error control throttles: Newton again
+                state[K_NEWTON] = 0.0
             k_new = min(k_new, SOLVER_MARGIN * k_solver)
             k_solver *= NEWTON_PROBE
             state[EPS_PREV] = eps
@@ -383,6 +461,7 @@ def advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         else:
             counters[REJECTED] += 1
             k = next_step(k, eps, 1.0, order, safety, False)
+            k_accuracy = k
         state[T_NOW] = t
         state[K_NEXT] = k
     state[T_NOW] = t

@@ -278,3 +278,41 @@ def test_sparse_analysis_waits_for_newton(monkeypatch):
     assert sol.stats["newton"] and sol.stats["newton matrices"].startswith("sparse LU")
     assert made == [1]
     assert lower(ode).sparse_structure is not None and made == [1]  # remembered
+
+
+def brusselator_2d(n=12, T=10.0):
+    """The 2-D Brusselator of demos/brusselator.py (mirror boundaries): mildly stiff, its
+    fixed-point iteration needs steps a little shorter than the error control's."""
+    u = sp.symbols(f"u0:{n * n}")
+    v = sp.symbols(f"v0:{n * n}")
+    alpha = 0.02 * (n - 1) ** 2
+
+    def lap(w, i, j):
+        def at(a, b):
+            a = 1 if a < 0 else n - 2 if a > n - 1 else a
+            b = 1 if b < 0 else n - 2 if b > n - 1 else b
+            return w[a * n + b]
+        return at(i - 1, j) + at(i + 1, j) + at(i, j - 1) + at(i, j + 1) - 4 * w[i * n + j]
+
+    cells = [(i, j) for i in range(n) for j in range(n)]
+    rhs = {u[i * n + j]: 1 + u[i * n + j] ** 2 * v[i * n + j] - 4.4 * u[i * n + j]
+           + alpha * lap(u, i, j) for i, j in cells}
+    rhs.update({v[i * n + j]: 3.4 * u[i * n + j] - u[i * n + j] ** 2 * v[i * n + j]
+                + alpha * lap(v, i, j) for i, j in cells})
+    x, y = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
+    return dn.ODE(rhs, u0=np.concatenate([0.5 + y.ravel(), 1 + 5 * x.ravel()]), T=T)
+
+
+def test_newton_gives_way_to_cheaper_fixed_point_iteration():
+    """The default solver turns to Newton where fixed-point iteration fails, and back when
+    fixed-point iteration on its own (shorter) steps is estimated much cheaper than Newton on
+    the error control's: on a mildly stiff 2-D Brusselator two Jacobians instead of one per
+    few slabs, and the accuracy of Newton throughout."""
+    ode = brusselator_2d()
+    reference = dn.solve(ode, "cG(3)", tolerance=1e-9).y[:, -1]
+    default = dn.solve(ode, "cG(2)", tolerance=1e-3)
+    newton = dn.solve(ode, "cG(2)", tolerance=1e-3, nonlinear_solver="newton")
+    assert default.stats["newton"] and default.stats["jacobian evaluations"] <= 3
+    assert newton.stats["jacobian evaluations"] > 10 * default.stats["jacobian evaluations"]
+    for sol in (default, newton):
+        assert np.abs(sol.y[:, -1] - reference).max() < 1e-3
