@@ -110,19 +110,23 @@ SLAB_CLIMB = 1.5
 
 @njit(cache=True, inline="always")
 def _moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea, eb, values, nodes, bary,
-             qweights, sptr, spts, dptr, dcur, cur, uw, out, mom, fend):
+             qweights, sptr, spts, dptr, dcur, cur, states, out, mom, fend):
     """Moments m_l = int_0^1 f_i(U(tau)) tau^l dtau of element e by quadrature on every
     interval between breakpoints (exact for linear f); f_i at the end of e into fend[e] (the
     last node of the last interval is the element's end). Every dependency is one polynomial
     on each interval: its element there is found by a cursor from dcur that walks its
     elements in time order, and an element that is exactly the interval is read at its nodes;
-    a frozen dependency (no element in the slab) is its constant value x_j. (The reads are
-    written out here, not in a helper: numba's reference counting of each array argument of a
-    call cost more than the reads.) Returns the f evaluations."""
+    a frozen dependency (no element in the slab) is its constant value x_j. The values at all
+    nodes of an interval go to the rows of ``states`` (row m: the state f_i reads at node m)
+    before f_i is evaluated: written just before each evaluation, as the evaluation loads
+    them, they stalled the pipeline at every node (in isolation, chain mcG(3): 119 -> 62 ns
+    per interval of 4 nodes). (The reads are written out here, not in a helper: numba's
+    reference counting of each array argument of a call cost more than the reads.) Returns
+    the f evaluations."""
     S = mom.shape[0]
     nn = nodes.shape[0]
     k = eb[e] - ea[e]
-    uwp, pp, op = uw.ctypes, p.ctypes, out.ctypes
+    pp, op = p.ctypes, out.ctypes
     for lm in range(S):
         mom[lm] = 0.0
     row0 = indptr[i]
@@ -137,35 +141,30 @@ def _moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea, eb, values, node
         mid = 0.5 * (s0 + s1)
         for r in range(degree):
             j = indices[row0 + r]
-            if j != i:
+            if j == i:
+                ej = e
+            elif cptr[j] == cptr[j + 1]:
+                for m in range(nn):
+                    states[m, j] = x[j]
+                continue
+            else:
                 c = cur[r]
                 last = cptr[j + 1] - 1
                 while c < last and eb[celems[c]] < mid:
                     c += 1
                 cur[r] = c
+                ej = celems[c]
+            if ea[ej] == s0 and eb[ej] == s1:
+                for m in range(nn):
+                    states[m, j] = values[ej, m]
+            else:
+                for m in range(nn):
+                    tj = (s0 + nodes[m] * h - ea[ej]) / (eb[ej] - ea[ej])
+                    states[m, j] = element_value(values, ej, min(max(tj, 0.0), 1.0), nodes, bary)
         for m in range(nn):
             tq = s0 + nodes[m] * h
-            if whole:
-                tau = nodes[m]
-                own = values[e, m]
-            else:
-                tau = min(max((tq - ea[e]) / k, 0.0), 1.0)
-                own = element_value(values, e, tau, nodes, bary)
-            for r in range(degree):
-                j = indices[row0 + r]
-                if j == i:
-                    uw[j] = own
-                    continue
-                if cptr[j] == cptr[j + 1]:
-                    uw[j] = x[j]
-                    continue
-                ej = celems[cur[r]]
-                if ea[ej] == s0 and eb[ej] == s1:
-                    uw[j] = values[ej, m]
-                else:
-                    tj = (tq - ea[ej]) / (eb[ej] - ea[ej])
-                    uw[j] = element_value(values, ej, min(max(tj, 0.0), 1.0), nodes, bary)
-            fi(i, uwp, tq, pp, op)
+            tau = nodes[m] if whole else min(max((tq - ea[e]) / k, 0.0), 1.0)
+            fi(i, states[m].ctypes, tq, pp, op)
             w = qweights[m] * h / k
             power = 1.0
             for lm in range(S):
@@ -258,8 +257,8 @@ def _factor_group(order, n, local, indptr, indices, jacobian, k, A, ab_ws, ipiv,
 @njit(cache=True, **NO_REFCOUNT)
 def _group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp, prev, cptr,
                   celems, ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, dptr, dcur,
-                  atol, rtol, uw, out, cur, mom, fend, local, order, ab_ws, rhs, ipiv, factored,
-                  factored_k, changed, computed, clock, small, counters):
+                  atol, rtol, states, out, cur, mom, fend, local, order, ab_ws, rhs, ipiv,
+                  factored, factored_k, changed, computed, clock, small, counters):
     """One simplified Newton step for the elements elist[:n] of one sub-slab (same interval):
     (I - k A (x) J_gg) dX = r, with r the exact Galerkin residuals and J_gg the Jacobian at
     the slab start restricted to the group's components, in band storage (components in the
@@ -302,7 +301,7 @@ def _group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp,
             values[e, 0] = xl
         counters[F_EVALUATIONS] += _moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea,
                                             eb, values, nodes, bary, qweights, sptr, spts, dptr,
-                                            dcur, cur, uw, out, mom, fend)
+                                            dcur, cur, states, out, mom, fend)
         row = local[i] * S
         for s_ in range(S):
             acc = 0.0
@@ -394,9 +393,9 @@ def _stale(e, i, indptr, indices, changed, computed):
 @njit(cache=True, **NO_REFCOUNT)
 def _converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, indptr, indices,
               position, jacobian, comp, prev, cptr, celems, ea, eb, values, nodes, bary,
-              qweights, Minv, A, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw,
-              out, cur, mom, fend, D, delta, local, order, elist, ab_ws, rhs, ipiv, factored,
-              factored_k, changed, computed, clock, counters):
+              qweights, Minv, A, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol,
+              states, out, cur, mom, fend, D, delta, local, order, elist, ab_ws, rhs, ipiv,
+              factored, factored_k, changed, computed, clock, counters):
     """Gauss-Seidel sweeps over the element ranges starts[r]..starts[r+1] (the last up to
     end), one range after the other, each swept until its largest scaled increment is below
     ``limit`` (``iterate``) or once. A sweep goes sub-slab by sub-slab (elements on one
@@ -457,10 +456,10 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, ind
                         d = max(d, _group_newton(elist, n, fi, p, x, indptr, indices,
                                                  position, jacobian, comp, prev, cptr, celems,
                                                  ea, eb, values, nodes, bary, qweights, Minv, A,
-                                                 sptr, spts, dptr, dcur, atol, rtol, uw, out,
-                                                 cur, mom, fend, local, order, ab_ws, rhs, ipiv,
-                                                 factored, factored_k, changed, computed, clock,
-                                                 small, counters))
+                                                 sptr, spts, dptr, dcur, atol, rtol, states,
+                                                 out, cur, mom, fend, local, order, ab_ws, rhs,
+                                                 ipiv, factored, factored_k, changed, computed,
+                                                 clock, small, counters))
                     e = e1
                     continue
                 for ep in range(e, e1):
@@ -472,8 +471,8 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, ind
                         values[ep, 0] = xl
                     counters[F_EVALUATIONS] += _moments(fi, p, x, i, ep, indptr, indices, cptr,
                                                         celems, ea, eb, values, nodes, bary,
-                                                        qweights, sptr, spts, dptr, dcur, cur, uw,
-                                                        out, mom, fend)
+                                                        qweights, sptr, spts, dptr, dcur, cur,
+                                                        states, out, mom, fend)
                     for s in range(S):
                         acc = 0.0
                         for lm in range(S):
@@ -861,6 +860,7 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, nodes
     factored = np.zeros(N + 3, dtype=np.int64)  # the factorization in ab_ws (_group_newton)
     factored_k = np.zeros(1)
     uw = x.copy()
+    states = np.empty((nn, N))  # the states at an interval's nodes (``_moments``)
     out = np.empty(1)
     jrow = np.empty(max(1, indices.shape[0]))
     jacobian = np.empty(max(1, indices.shape[0]))  # df/du at the slab start (CSR values)
@@ -1003,8 +1003,8 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, nodes
             d, resolved = _converge(windows, nwin, ne, predict, True, sweep_limit, fi, p, x,
                                     indptr, indices, position, jacobian, comp, prev, cptr, celems,
                                     ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts,
-                                    dptr, dcur, jdiag, coupling, stiff, atol, rtol, uw, out, cur,
-                                    mom, fend, D, delta, local, group_order, elist, ab_ws,
+                                    dptr, dcur, jdiag, coupling, stiff, atol, rtol, states, out,
+                                    cur, mom, fend, D, delta, local, group_order, elist, ab_ws,
                                     newton_rhs, newton_ipiv, factored, factored_k, changed,
                                     computed, clock, counters)
             if not resolved:
@@ -1016,8 +1016,8 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, nodes
                                      x, indptr, indices, position, jacobian, comp, prev, cptr,
                                      celems, ea, eb, values, nodes, bary, qweights, Minv, A,
                                      sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol,
-                                     uw, out, cur, mom, fend, D, delta, local, group_order, elist,
-                                     ab_ws, newton_rhs, newton_ipiv, factored, factored_k,
+                                     states, out, cur, mom, fend, D, delta, local, group_order,
+                                     elist, ab_ws, newton_rhs, newton_ipiv, factored, factored_k,
                                      changed, computed, clock, counters)
             d = max(d, top)
             if nwin > 0 and not settled:
