@@ -187,8 +187,10 @@ def dependency_structure(ne, comp, indptr, indices, cptr, celems, ea, eb):
                     buf = grow_float(buf, 2 * count)
                 buf[count] = tb
                 count += 1
-        _sort(buf, count)
-        spts = grow_float(spts, sptr[e] + count + 2)
+        if count > 1:
+            _sort(buf, count)
+        if sptr[e] + count + 2 > spts.shape[0]:
+            spts = grow_float(spts, sptr[e] + count + 2)
         base = sptr[e]
         spts[base] = a
         n = 1
