@@ -510,7 +510,7 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, ind
     return first, settled
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def _windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol, rtol, x, K,
                      dtol, change, mark, frozen):
     """Whether the windows, converged against the top-level values before its last sweeps,
@@ -547,7 +547,7 @@ def _windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def _guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues, nodes,
                 bary):
     """Initial values of a slab rebuilt after a rejection: every element of component i
@@ -572,7 +572,7 @@ def _guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb,
                 values[e, m] = element_value(ovalues, eo, tau, nodes, bary)
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def _propagate(kdes, rows, frozen, indptr, indices, jacobian):
     """Small steps travel along strong dependencies: k_j <= k_i when f_i reacts to u_j within
     one step of i (|J_ij| k_i > 1; DOLFIN's "poor man's dual weighting", restricted to the
@@ -607,7 +607,7 @@ def _propagate(kdes, rows, frozen, indptr, indices, jacobian):
             return
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def _grade(kdes, rows, frozen, indptr, indices, jacobian):
     """Grade the steps along strong couplings, k_i <= max(GRADING k_j, 1 / |df_i/du_j|):
     a component that reacts to u_j within its own step may not step far beyond j, so that
@@ -632,7 +632,7 @@ def _grade(kdes, rows, frozen, indptr, indices, jacobian):
             return
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def _store_constant(i, a, b, x, counters, out_comp, out_a, out_b, out_values):
     """Store the constant element U_i = x_i on [a, b]: component i was frozen there."""
     if b <= a:
@@ -660,7 +660,7 @@ def _drift(change, rate, tau, mu):
     return abs(change) + abs(rate) * tau * growth
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def _freeze(b, k, active, checked, indptr, indices, drift, atol, rtol, umax, x, frozen, kdes,
             last_a, last_b, quiet, uw, counters, out_comp, out_a, out_b, out_values):
     """Freeze and wake components at the end b of an accepted slab of length k, from the
@@ -725,7 +725,7 @@ def _readers(indptr, indices, N):
     return rptr, readers
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def _slab_limit(kslab, kmax, K, converged, nwin, cost, climb):
     """The next slab length limit. A slab with windows costs its top-level elements about
     once (lazy sweeps) and its window elements once per global iteration: a longer slab
@@ -764,7 +764,7 @@ _SIGNATURE = types.int64(
 )
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def _leaves_domain(ne, comp, values, floor, kdes, kact):
     """The first component with a nodal value below its floor (-atol_i for a component
     declared nonnegative, -inf for the others), or -1; the steps of all such components are
@@ -780,7 +780,7 @@ def _leaves_domain(ne, comp, values, floor, kdes, kact):
     return first
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def _project(ne, comp, values, floor, projected):
     """Set the nodal values of the nonnegative components in [floor, 0) to 0, marking those
     components in ``projected``."""
