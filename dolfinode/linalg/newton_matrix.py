@@ -40,10 +40,9 @@ SPARSE_SCATTER = 2.0e-9
 SOLVES_PER_FACTORIZATION = 4
 #: The sparse LU must be estimated this much faster to be chosen, and only systems with at
 #: least SPARSE_MIN_N components and bandwidths kl + ku >= SPARSE_MIN_BAND are analysed, when
-#: a solve first needs Newton's method (below,
-#: the banded LU wins: tridiagonal N = 1000 both 31 us, 2-D Brusselator N = 72 (band 12 + 12)
-#: complex factor 21 against 24 us, solve 5.3 against 7.2 us, real 15 against 10 us, 3.5
-#: against 2.9 us).
+#: a solve first needs Newton's method (below, the banded LU wins: tridiagonal N = 1000 both
+#: 31 us, 2-D Brusselator N = 72 (band 12 + 12) complex factor 21 against 24 us, solve 5.3
+#: against 7.2 us, real 15 against 10 us, 3.5 against 2.9 us).
 SPARSE_MARGIN = 0.8
 SPARSE_MIN_N = 64
 SPARSE_MIN_BAND = 16
