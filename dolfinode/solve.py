@@ -189,6 +189,22 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar,
     return status, join_elements(chunks)
 
 
+def _newton_plan(compiled, m):
+    """(structure, bytes, costs) of the Newton matrices of method ``m`` on the pattern of
+    ``compiled``: their storage (:func:`newton_structure`; a sparse one is analysed only now),
+    its memory and the cost units of :func:`mono.newton_costs`. Made once per pattern and
+    method: they took 25 of the ~110 us of a small solve (the seed model, cG(5))."""
+    plan = compiled.newton_plans.get(m.name)
+    if plan is None:
+        structure = newton_structure(compiled.band_structure,
+                                     lambda: compiled.sparse_structure, m.stage_eigenvalues)
+        plan = (structure, structure.memory(m.num_stages),
+                mono.newton_costs(structure, m.stage_eigenvalues, compiled.N, compiled.nnz,
+                                  m.num_stages))
+        compiled.newton_plans[m.name] = plan
+    return plan
+
+
 def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps):
     tables = mono.method_tables(m)
     fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, filter_constant(m), 0.0, 0.0])
@@ -204,15 +220,12 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
         """Decide the storage of the Newton matrices (a sparse one is analysed only now);
         whether they fit in memory."""
         nonlocal structure, newton_bytes
-        structure = newton_structure(compiled.band_structure,
-                                     lambda: compiled.sparse_structure, m.stage_eigenvalues)
-        newton_bytes = structure.memory(m.num_stages)
+        structure, newton_bytes, costs = _newton_plan(compiled, m)
         fits = (newton_bytes <= _NEWTON_SMALL
                 or newton_bytes <= _NEWTON_MEMORY_FRACTION * _available_memory())
         iopts[mono.NEWTON_READY] = int(fits)
         iopts[mono.REUSE] = int(structure.seconds(complex_values=True) >= mono.REUSE_TIME)
-        fopts[[mono.NEWTON_UNITS, mono.FACTOR_UNITS]] = mono.newton_costs(
-            structure, m.stage_eigenvalues, ode.N, compiled.nnz, m.num_stages)
+        fopts[[mono.NEWTON_UNITS, mono.FACTOR_UNITS]] = costs
         return fits
 
     if not sparse_candidate(structure):

@@ -12,7 +12,7 @@ differentiated and printed once per shape, with code that does not grow with N.
 """
 import hashlib
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -43,6 +43,8 @@ class CompiledODE:
     data : arrays the kernels read through ``p`` (kept alive with the kernels)
     templates : how many templates the kernels loop over (a TemplateODE's, or the shapes of
         an expression system lowered by shape); 0 for code per expression
+    newton_plans : the Newton matrices' storage and cost estimates per method, made by the
+        first solve that asks (:func:`dolfinode.solve._newton_plan`)
     """
 
     N: int
@@ -57,6 +59,7 @@ class CompiledODE:
     cached: bool
     data: tuple = ()
     templates: int = 0
+    newton_plans: dict = field(default_factory=dict)
 
     def again(self):
         """This lowering as a later ``lower`` of the same ODE returns it: loaded, no compile

@@ -143,8 +143,27 @@ def test_solves_with_sparse_newton_matrices(method, monkeypatch):
     assert np.abs(sol.y[:, -1] - reference).max() < 1e-5
     monkeypatch.setattr(solve_module, "newton_structure",
                         lambda band, make_sparse, eigenvalues: band)
+    compiled.newton_plans.clear()  # the first solve's choice is kept per method
     banded = dn.solve(ode, method, tolerance=1e-6, nonlinear_solver="newton")
     assert banded.stats["newton matrices"].startswith("banded LU")
     for key in ("time slabs", "nonlinear iterations", "factorizations"):
         assert sol.stats[key] == banded.stats[key]
     np.testing.assert_allclose(sol.y, banded.y, rtol=0, atol=1e-11)
+
+
+def test_the_storage_is_decided_once_per_pattern_and_method(monkeypatch):
+    """Later solves of the same ODE with the same method reuse the first one's choice of
+    storage and cost estimates (they were a quarter of a small solve's time); another method
+    decides its own."""
+    solve_module = importlib.import_module("dolfinode.solve")
+    decided = []
+    decide = solve_module.newton_structure
+    monkeypatch.setattr(solve_module, "newton_structure",
+                        lambda *args: decided.append(1) or decide(*args))
+    ode = grid_ode(3)
+    first = dn.solve(ode, "cG(2)", tolerance=1e-5)
+    again = dn.solve(ode, "cG(2)", tolerance=1e-5)
+    assert len(decided) == 1
+    np.testing.assert_array_equal(first.y, again.y)
+    dn.solve(ode, "dG(1)", tolerance=1e-5)
+    assert len(decided) == 2
