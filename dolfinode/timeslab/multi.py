@@ -16,8 +16,9 @@ windows' response to the top level's change is below the discrete tolerance. The
 limit climbs on the measured cost per unit time (``_slab_limit``). When Gauss-Seidel fails
 or converges too slowly the problem is treated as stiff, and the elements of each sub-slab
 (one interval, several components) are updated together by a simplified Newton step with the
-sparse sympy Jacobian at the slab start restricted to them, factored once for all the
-sub-slabs and sweeps with the same components and step.
+sparse sympy Jacobian at the slab start restricted to them, split by the eigenstructure of
+the stage matrix into n x n band systems as in the mono-adaptive loop, and factored once for
+all the sub-slabs and sweeps with the same components and step.
 
 Components at rest are frozen (``_freeze``): no elements, the constant x_i for the others,
 until they drift; then their constant element over the whole span is stored. After a slab the
@@ -217,11 +218,9 @@ def _group_order(elist, n, comp, position, order, local):
 
 
 @njit(cache=True, inline="always")
-def _factor_group(order, n, local, indptr, indices, jacobian, k, A, ab_ws, ipiv, counters):
-    """Factor I - k A (x) J_gg in band storage in ab_ws, J_gg the rows ``jacobian`` (CSR
-    values) of the components order[:n] restricted to them (``local``, see
-    ``_group_order``). Returns its band widths and band_lu's info (0: regular)."""
-    S = A.shape[0]
+def _group_band(order, n, local, indptr, indices):
+    """The band widths (kl, ku) of J_gg, the rows of the components order[:n] restricted to
+    them, in their order (``local``, see ``_group_order``)."""
     kl = 0
     ku = 0
     for r_ in range(n):
@@ -231,44 +230,127 @@ def _factor_group(order, n, local, indptr, indices, jacobian, k, A, ab_ws, ipiv,
             if local[j] >= 0:
                 kl = max(kl, local[i] - local[j])
                 ku = max(ku, local[j] - local[i])
-    klS = kl * S + S - 1
-    kuS = ku * S + S - 1
-    kv = klS + kuS
-    ab = ab_ws[:n * S, :2 * klS + kuS + 1]  # the workspace fits: local bands <= global ones
+    return kl, ku
+
+
+@njit(cache=True)
+def _assemble_group(order, n, local, indptr, indices, jacobian, c, kl, ku, ab):
+    """I - c J_gg into the band storage ab (n rows, real or complex c), J_gg as in
+    ``_group_band``."""
+    kv = kl + ku
     ab[:, :] = 0.0
     for r_ in range(n):
         i = order[r_]
-        row = r_ * S
         for nz in range(indptr[i], indptr[i + 1]):
             j = indices[nz]
-            if local[j] < 0:
-                continue
-            col = local[j] * S
-            value = -k * jacobian[nz]
-            for s_ in range(S):
-                for m_ in range(S):
-                    ab[col + m_, kv + row + s_ - col - m_] += value * A[s_, m_]
-    for r_ in range(n * S):
+            if local[j] >= 0:
+                ab[local[j], kv + r_ - local[j]] -= c * jacobian[nz]
+    for r_ in range(n):
         ab[r_, kv] += 1.0
-    counters[FACTORIZATIONS] += 1
-    return klS, kuS, band_lu(ab, klS, kuS, ipiv)
+
+
+@njit(cache=True)
+def _factor_group(order, n, local, indptr, indices, jacobian, k, eigenvalues, newton,
+                  counters):
+    """Factor I - k lambda J_gg (``_group_band``) in band storage for every eigenvalue lambda
+    of the stage matrix: the real ones into the real matrices of the workspace ``newton``,
+    one complex matrix per complex pair (see ``_group_newton``). Returns the band widths and
+    0, or band_lu's info of a singular matrix."""
+    ab_real, ab_complex, ipiv = newton[0], newton[1], newton[2]
+    kl, ku = _group_band(order, n, local, indptr, indices)
+    width = 2 * kl + ku + 1  # the workspace fits: local bands <= global ones
+    real = 0
+    for lam in eigenvalues:
+        if lam.imag == 0.0:
+            real += 1
+    for j in range(real):
+        counters[FACTORIZATIONS] += 1
+        _assemble_group(order, n, local, indptr, indices, jacobian, k * eigenvalues[j].real,
+                        kl, ku, ab_real[j, :n, :width])
+        info = band_lu(ab_real[j, :n, :width], kl, ku, ipiv[j])
+        if info != 0:
+            return kl, ku, info
+    for j in range(real, eigenvalues.shape[0]):
+        counters[FACTORIZATIONS] += 1
+        _assemble_group(order, n, local, indptr, indices, jacobian, k * eigenvalues[j], kl, ku,
+                        ab_complex[j - real, :n, :width])
+        info = band_lu(ab_complex[j - real, :n, :width], kl, ku, ipiv[j])
+        if info != 0:
+            return kl, ku, info
+    return kl, ku, 0
+
+
+@njit(cache=True, inline="always")
+def _solve_group(n, kl, ku, stages, newton):
+    """(I - k A (x) J_gg) dX = r for the stage-major residuals r = rhs[s n + r_] (in place),
+    with the factors of ``_factor_group``: A = T B T^{-1} (``stages`` = (T, T^{-1}, the
+    eigenvalues)) turns it into (I - k B (x) J_gg) Z = (T^{-1} (x) I) r, one n x n system per
+    real eigenvalue and one complex per pair (whose two real blocks are the real and imaginary
+    parts of one complex vector), and dX = (T (x) I) Z: RADAU5's transformation, as in the
+    mono-adaptive loop. A group of n components with band b costs ~S/2 n x n band
+    factorizations of O(n b^2) instead of one S n x S n of O(n (S b)^2)."""
+    T, T_inverse, eigenvalues = stages
+    ab_real, ab_complex, ipiv, rhs, z_real, z_complex, Z = newton
+    S = T.shape[0]
+    width = 2 * kl + ku + 1
+    for j in range(S):  # Z = (T^{-1} (x) I) r
+        for r_ in range(n):
+            acc = 0.0
+            for s_ in range(S):
+                acc += T_inverse[j, s_] * rhs[s_ * n + r_]
+            Z[j, r_] = acc
+    real = 0
+    for lam in eigenvalues:
+        if lam.imag == 0.0:
+            real += 1
+    for j in range(real):
+        for r_ in range(n):
+            z_real[r_] = Z[j, r_]
+        band_solve(ab_real[j, :n, :width], kl, ku, ipiv[j], z_real[:n])
+        for r_ in range(n):
+            Z[j, r_] = z_real[r_]
+    for c in range(eigenvalues.shape[0] - real):
+        re = real + 2 * c
+        for r_ in range(n):
+            z_complex[r_] = complex(Z[re, r_], Z[re + 1, r_])
+        band_solve(ab_complex[c, :n, :width], kl, ku, ipiv[real + c], z_complex[:n])
+        for r_ in range(n):
+            Z[re, r_] = z_complex[r_].real
+            Z[re + 1, r_] = z_complex[r_].imag
+    for s_ in range(S):  # dX = (T (x) I) Z
+        for r_ in range(n):
+            acc = 0.0
+            for j in range(S):
+                acc += T[s_, j] * Z[j, r_]
+            rhs[s_ * n + r_] = acc
+
+
+@njit(cache=True)
+def _newton_workspace(real, pairs, S, rows, width):
+    """The workspace of ``_group_newton`` for groups of up to ``rows`` components: (real band
+    matrices, complex ones, pivots, rhs, real vector, complex vector, Z)."""
+    return (np.zeros((real, rows, width)), np.zeros((pairs, rows, width), dtype=np.complex128),
+            np.zeros((max(real, S), rows), dtype=np.int64), np.empty(S * rows), np.empty(rows),
+            np.empty(rows, dtype=np.complex128), np.empty((S, rows)))
 
 
 @njit(cache=True, **NO_REFCOUNT)
 def _group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp, prev, cptr,
-                  celems, ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts, dptr, dcur,
-                  atol, rtol, states, out, cur, mom, fend, local, order, ab_ws, rhs, ipiv,
-                  factored, factored_k, changed, computed, clock, small, counters):
+                  celems, ea, eb, values, nodes, bary, qweights, Minv, stages, sptr, spts, dptr,
+                  dcur, atol, rtol, states, out, cur, mom, fend, local, order, newton, factored,
+                  factored_k, changed, computed, clock, small, counters):
     """One simplified Newton step for the elements elist[:n] of one sub-slab (same interval):
     (I - k A (x) J_gg) dX = r, with r the exact Galerkin residuals and J_gg the Jacobian at
-    the slab start restricted to the group's components, in band storage (components in the
-    global bandwidth ordering); the other components of the sub-slab keep their values.
+    the slab start restricted to the group's components (in the global bandwidth ordering),
+    solved by the stage transformation (``_solve_group``); the other components of the
+    sub-slab keep their values. ``newton`` = (real and complex band matrices, pivots, rhs,
+    real and complex vectors, Z): the workspace, sized for the largest group.
 
-    The factorization stays in ``ab_ws`` and serves the next groups with the same components
-    and step (the sub-slabs of a window, and every sweep over them): ``factored`` holds its
-    n, band widths and components, ``factored_k`` its step (n = 0: none; reset at every slab
-    start). Records the update in ``computed`` and ``changed`` (see ``_converge``). Returns
-    the largest scaled increment (inf on failure)."""
+    The factors stay in ``newton`` and serve the next groups with the same components and
+    step (the sub-slabs of a window, and every sweep over them): ``factored`` holds their
+    n, band widths and components, ``factored_k`` their step (n = 0: none; reset at every
+    slab start). Records the update in ``computed`` and ``changed`` (see ``_converge``).
+    Returns the largest scaled increment (inf on failure)."""
     S = Minv.shape[0]
     nn = nodes.shape[0]
     first_stage = nn - S
@@ -281,18 +363,17 @@ def _group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp,
         reuse = factored[3 + r_] == order[r_]
     if not reuse:
         factored[0] = 0
-        klS, kuS, info = _factor_group(order, n, local, indptr, indices, jacobian, k, A, ab_ws,
-                                       ipiv, counters)
+        kl, ku, info = _factor_group(order, n, local, indptr, indices, jacobian, k, stages[2],
+                                     newton, counters)
         if info != 0:
             for r_ in range(n):
                 local[order[r_]] = -1
             return math.inf
-        factored[0], factored[1], factored[2] = n, klS, kuS
+        factored[0], factored[1], factored[2] = n, kl, ku
         factored_k[0] = k
         for r_ in range(n):
             factored[3 + r_] = order[r_]
-    klS, kuS = factored[1], factored[2]
-    ab = ab_ws[:n * S, :2 * klS + kuS + 1]
+    rhs = newton[3]
     for r_ in range(n):
         e = elist[r_]
         i = comp[e]
@@ -302,13 +383,12 @@ def _group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp,
         counters[F_EVALUATIONS] += _moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea,
                                             eb, values, nodes, bary, qweights, sptr, spts, dptr,
                                             dcur, cur, states, out, mom, fend)
-        row = local[i] * S
         for s_ in range(S):
             acc = 0.0
             for lm in range(S):
                 acc += Minv[s_, lm] * mom[lm]
-            rhs[row + s_] = xl + k * acc - values[e, first_stage + s_]
-    band_solve(ab, klS, kuS, ipiv, rhs)
+            rhs[s_ * n + local[i]] = xl + k * acc - values[e, first_stage + s_]
+    _solve_group(n, factored[1], factored[2], stages, newton)
     d = 0.0
     stamp = clock[0]
     clock[0] += 1  # changes after the step: a significant one makes its readers stale
@@ -317,7 +397,7 @@ def _group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp,
         i = comp[e]
         di = 0.0
         for s_ in range(S):
-            delta = rhs[local[i] * S + s_]
+            delta = rhs[s_ * n + local[i]]
             values[e, first_stage + s_] += delta
             scaled = abs(delta) / (atol[i] + rtol * abs(values[e, first_stage + s_]))
             if not scaled <= di:
@@ -333,15 +413,16 @@ def _group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp,
 
 @njit(cache=True, **NO_REFCOUNT)
 def _filter_residuals(ne, comp, ea, eb, res, position, indptr, indices, jacobian, jdiag,
-                      coupling, G, elist, order, local, ab_ws, rhs, ipiv, counters):
+                      coupling, gamma, elist, order, local, newton, counters):
     """The local error estimates of the elements from their residuals k R(t_e) (``res``, in
     place): (I - gamma k J_gg)^{-1} k R on every sub-slab, its elements together (J_gg the
-    Jacobian at the slab start restricted to their components, G = [[gamma]]), as in the
+    Jacobian at the slab start restricted to their components), as in the
     mono-adaptive loop (:mod:`dolfinode.adaptivity`): k R on components that are not stiff
     on their step, the distance from the quasi-steady state on those that are. A sub-slab
     with gamma k max_i sum_j |J_ij| <= FILTER_NEGLIGIBLE (the filter would change its
-    estimates by at most that fraction) or a singular matrix keeps its residuals."""
-    gamma = G[0, 0]
+    estimates by at most that fraction) or a singular matrix keeps its residuals. ``gamma``:
+    [gamma] (the filter's one real eigenvalue, see ``_factor_group``)."""
+    ab_real, ipiv, rhs = newton[0], newton[2], newton[3]
     e = 0
     while e < ne:
         e1 = e + 1
@@ -351,26 +432,26 @@ def _filter_residuals(ne, comp, ea, eb, res, position, indptr, indices, jacobian
         k = eb[e] - ea[e]
         if n == 1:
             i = comp[e]
-            if 1.0 - gamma * k * jdiag[i] != 0.0:
-                res[e] /= 1.0 - gamma * k * jdiag[i]
+            if 1.0 - gamma[0].real * k * jdiag[i] != 0.0:
+                res[e] /= 1.0 - gamma[0].real * k * jdiag[i]
             e = e1
             continue
         row_sum = 0.0
         for r in range(n):
             i = comp[e + r]
             row_sum = max(row_sum, abs(jdiag[i]) + coupling[i])
-        if gamma * k * row_sum <= FILTER_NEGLIGIBLE:
+        if gamma[0].real * k * row_sum <= FILTER_NEGLIGIBLE:
             e = e1
             continue
         for r in range(n):
             elist[r] = e + r
         _group_order(elist, n, comp, position, order, local)
-        klS, kuS, info = _factor_group(order, n, local, indptr, indices, jacobian, k, G, ab_ws,
-                                       ipiv, counters)
+        kl, ku, info = _factor_group(order, n, local, indptr, indices, jacobian, k, gamma,
+                                     newton, counters)
         if info == 0:
             for r in range(n):
                 rhs[local[comp[e + r]]] = res[e + r]
-            band_solve(ab_ws[:n, :2 * klS + kuS + 1], klS, kuS, ipiv, rhs)
+            band_solve(ab_real[0, :n, :2 * kl + ku + 1], kl, ku, ipiv[0], rhs[:n])
             for r in range(n):
                 res[e + r] = rhs[local[comp[e + r]]]
         for r in range(n):
@@ -393,8 +474,8 @@ def _stale(e, i, indptr, indices, changed, computed):
 @njit(cache=True, **NO_REFCOUNT)
 def _converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, indptr, indices,
               position, jacobian, comp, prev, cptr, celems, ea, eb, values, nodes, bary,
-              qweights, Minv, A, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol,
-              states, out, cur, mom, fend, D, delta, local, order, elist, ab_ws, rhs, ipiv,
+              qweights, Minv, A, stages, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol,
+              rtol, states, out, cur, mom, fend, D, delta, local, order, elist, newton,
               factored, factored_k, changed, computed, clock, counters):
     """Gauss-Seidel sweeps over the element ranges starts[r]..starts[r+1] (the last up to
     end), one range after the other, each swept until its largest scaled increment is below
@@ -455,11 +536,11 @@ def _converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, ind
                     if n > 0:
                         d = max(d, _group_newton(elist, n, fi, p, x, indptr, indices,
                                                  position, jacobian, comp, prev, cptr, celems,
-                                                 ea, eb, values, nodes, bary, qweights, Minv, A,
-                                                 sptr, spts, dptr, dcur, atol, rtol, states,
-                                                 out, cur, mom, fend, local, order, ab_ws, rhs,
-                                                 ipiv, factored, factored_k, changed, computed,
-                                                 clock, small, counters))
+                                                 ea, eb, values, nodes, bary, qweights, Minv,
+                                                 stages, sptr, spts, dptr, dcur, atol, rtol,
+                                                 states, out, cur, mom, fend, local, order,
+                                                 newton, factored, factored_k, changed,
+                                                 computed, clock, small, counters))
                     e = e1
                     continue
                 for ep in range(e, e1):
@@ -756,6 +837,8 @@ _SIGNATURE = types.int64(
     types.intp, types.intp, _f8,                   # addresses of f_i and J_i, p
     _i8, _i8, _i8,                                 # indptr, indices, bandwidth position
     types.float64[:, ::1], types.float64[:, ::1],  # M^{-1}, A
+    types.float64[:, ::1], types.float64[:, ::1],  # A = T B T^-1
+    types.complex128[::1],                         # the eigenvalues of B
     _f8, _f8, _f8,                                 # nodes, quadrature weights, bary
     _f8,                                           # end_derivative
     _i8, _f8, _f8, _f8,                            # iopts, fopts, atol, floor
@@ -795,19 +878,21 @@ def _project(ne, comp, values, floor, projected):
 
 @cache
 def method_tables(method):
-    """The method's tables in the order :func:`advance` takes them (M^{-1}, A, nodes,
-    quadrature weights, barycentric weights, end derivative), as writable copies (numba
-    types read-only arrays apart); made once per method, as advance only reads them."""
+    """The method's tables in the order :func:`advance` takes them (M^{-1}, A, T, T^{-1},
+    eigenvalues, nodes, quadrature weights, barycentric weights, end derivative), as writable
+    copies (numba types read-only arrays apart); made once per method, as advance only reads
+    them."""
     m = method
-    tables = (m.moment_inverse, m.A, m.nodes, m.quadrature_weights, m.barycentric_weights,
+    tables = (m.moment_inverse, m.A, m.stage_transform, m.stage_transform_inverse,
+              m.stage_eigenvalues, m.nodes, m.quadrature_weights, m.barycentric_weights,
               m.end_derivative)
     return tuple(np.array(table) for table in tables)
 
 
 @njit(_SIGNATURE, cache=True, error_model="numpy")
-def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, nodes, qweights, bary,
-            end_derivative, iopts, fopts, atol, floor, x, kdes, frozen, state, counters, out_comp,
-            out_a, out_b, out_values):
+def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, transform,
+            transform_inverse, eigenvalues, nodes, qweights, bary, end_derivative, iopts, fopts,
+            atol, floor, x, kdes, frozen, state, counters, out_comp, out_a, out_b, out_values):
     """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status.
     ``frozen[i]`` is the time since which component i is frozen (NaN: active). A slab on
     which a value leaves the declared domain is rejected (``_leaves_domain``); an accepted
@@ -823,7 +908,8 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, nodes
     max_iter = iopts[MAX_ITER]
     rtol, T, kmax, safety, dtol = fopts[RTOL], fopts[T_END], fopts[KMAX], fopts[SAFETY], fopts[DTOL]
     order, theta, beta = fopts[ORDER], fopts[THETA], fopts[BETA]
-    G = np.full((1, 1), fopts[GAMMA])  # the error filter's (1, 1) stage matrix
+    gamma = np.full(1, fopts[GAMMA] + 0j)  # the error filter's (1, 1) stage matrix
+    stages = (transform, transform_inverse, eigenvalues)
     efloor = (safety / 5.0) ** order
     # sweeps stop a tenth below the discrete tolerance, but not below the rounding level
     # (fixed steps iterate to dtol = 1e-15 of |U| + 1: Gauss-Seidel stalls above 1e-16)
@@ -852,12 +938,15 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, nodes
     last_a = np.zeros(N)  # each component's last element of the previous slab
     last_b = np.zeros(N)
     last_values = np.empty((N, nn))
-    # Newton workspace for sub-slab groups, grown to the largest group (band: the global one)
-    band_width = 2 * (iopts[BAND_LOWER] + 1) * S + (iopts[BAND_UPPER] + 1) * S
-    ab_ws = np.zeros((S, band_width))
-    newton_rhs = np.empty(S)
-    newton_ipiv = np.empty(S, dtype=np.int64)
-    factored = np.zeros(N + 3, dtype=np.int64)  # the factorization in ab_ws (_group_newton)
+    # Newton workspace for sub-slab groups (_group_newton), grown to the largest group (band:
+    # the global one); at least one real matrix, which the error filter uses
+    band_width = 2 * iopts[BAND_LOWER] + iopts[BAND_UPPER] + 1
+    n_real = 0
+    for lam in eigenvalues:
+        if lam.imag == 0.0:
+            n_real += 1
+    newton = _newton_workspace(max(n_real, 1), eigenvalues.shape[0] - n_real, S, 1, band_width)
+    factored = np.zeros(N + 3, dtype=np.int64)  # the factors in ``newton`` (_group_newton)
     factored_k = np.zeros(1)
     uw = x.copy()
     states = np.empty((nn, N))  # the states at an interval's nodes (``_moments``)
@@ -965,10 +1054,9 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, nodes
         for e in range(1, ne):
             run = run + 1 if ea[e] == ea[e - 1] and eb[e] == eb[e - 1] else 1
             largest = max(largest, run)
-        if largest * S > ab_ws.shape[0]:
-            ab_ws = np.zeros((largest * S, band_width))
-            newton_rhs = np.empty(largest * S)
-            newton_ipiv = np.empty(largest * S, dtype=np.int64)
+        if largest > newton[0].shape[1]:
+            newton = _newton_workspace(max(n_real, 1), eigenvalues.shape[0] - n_real, S,
+                                       largest, band_width)
         # initial guess: each component's first element continues its last polynomial of the
         # previous slab (at most two element lengths ahead); later elements continue their
         # predecessor when the sweep reaches them
@@ -1002,11 +1090,11 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, nodes
             predict = it == 0 and not retry
             d, resolved = _converge(windows, nwin, ne, predict, True, sweep_limit, fi, p, x,
                                     indptr, indices, position, jacobian, comp, prev, cptr, celems,
-                                    ea, eb, values, nodes, bary, qweights, Minv, A, sptr, spts,
-                                    dptr, dcur, jdiag, coupling, stiff, atol, rtol, states, out,
-                                    cur, mom, fend, D, delta, local, group_order, elist, ab_ws,
-                                    newton_rhs, newton_ipiv, factored, factored_k, changed,
-                                    computed, clock, counters)
+                                    ea, eb, values, nodes, bary, qweights, Minv, A, stages, sptr,
+                                    spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol, states,
+                                    out, cur, mom, fend, D, delta, local, group_order, elist,
+                                    newton, factored, factored_k, changed, computed, clock,
+                                    counters)
             if not resolved:
                 d = math.inf
             for e in range(nroot):
@@ -1015,10 +1103,10 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, nodes
             top, settled = _converge(top_start, 1, nroot, False, nwin > 0, sweep_limit, fi, p,
                                      x, indptr, indices, position, jacobian, comp, prev, cptr,
                                      celems, ea, eb, values, nodes, bary, qweights, Minv, A,
-                                     sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol,
-                                     states, out, cur, mom, fend, D, delta, local, group_order,
-                                     elist, ab_ws, newton_rhs, newton_ipiv, factored, factored_k,
-                                     changed, computed, clock, counters)
+                                     stages, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol,
+                                     rtol, states, out, cur, mom, fend, D, delta, local,
+                                     group_order, elist, newton, factored, factored_k, changed,
+                                     computed, clock, counters)
             d = max(d, top)
             if nwin > 0 and not settled:
                 d = math.inf
@@ -1077,8 +1165,8 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, nodes
                 kdu += end_derivative[j] * values[e, j]
             resid[e] = kdu - (eb[e] - ea[e]) * fend[e]  # k R(t_e), f_i(U(t_e)) from the last sweep
         _filter_residuals(ne, comp, ea, eb, resid, position, indptr, indices, jacobian, jdiag,
-                          coupling, G, elist, group_order, local, ab_ws, newton_rhs, newton_ipiv,
-                          counters)  # (overwrites ab_ws: ``factored`` is reset at every slab start)
+                          coupling, gamma, elist, group_order, local, newton,
+                          counters)  # (overwrites newton: ``factored`` is reset at every slab start)
         for e in range(ne):
             i = comp[e]
             k = eb[e] - ea[e]
