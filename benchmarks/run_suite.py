@@ -9,6 +9,7 @@ Usage::
     .venv/bin/python benchmarks/run_suite.py            # full run
     .venv/bin/python benchmarks/run_suite.py --quick    # about a minute
 """
+import os
 import sys
 from pathlib import Path
 
@@ -18,5 +19,6 @@ sys.path.insert(0, str(ROOT))
 from dolfinode.cli import main
 
 if __name__ == "__main__":
-    sys.exit(main(["bench", "--output", str(ROOT / "doc" / "benchmarks"),
-                   "--update-readme", str(ROOT / "README.md"), *sys.argv[1:]]))
+    # relative paths: the tables record the command, which should not name this checkout
+    sys.exit(main(["bench", "--output", os.path.relpath(ROOT / "doc" / "benchmarks"),
+                   "--update-readme", os.path.relpath(ROOT / "README.md"), *sys.argv[1:]]))
