@@ -1,6 +1,8 @@
 """Automatic modeling on the seed paper's simple model (closed-form solution for any kappa:
 u1 = (1 - cos t)/4 + A (cos(2 sqrt(kappa) t) - cos t), A = -1/(4 (4 kappa - 1)))."""
 
+import warnings
+
 import numpy as np
 import pytest
 import sympy as sp
@@ -89,6 +91,19 @@ def test_control_points_must_fit():
     with pytest.raises(ValueError, match="control_points"):
         dn.solve(simple_model(1e4, T=10.0), automatic_modeling=True, average_length=1.0,
                  control_points=5)
+
+
+def test_windows_covering_most_of_the_interval_warn():
+    """Where the resolved windows cover more than half of [t0, T], modeling cannot save much
+    of a full solve: the solve says so, and reports the fraction resolved; where they cover
+    little it is silent."""
+    with pytest.warns(UserWarning, match="66% of \\[t0, T\\].*without automatic_modeling"):
+        sol = dn.solve(simple_model(1e4, T=10.0), average_length=0.3, **SETTINGS)
+    assert sol.stats["resolved fraction"] == pytest.approx(0.66)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sol = dn.solve(simple_model(1e8, T=10.0), average_length=3e-3, **SETTINGS)
+    assert sol.stats["resolved fraction"] == pytest.approx(22 * 3e-3 / 10.0)
 
 
 def test_modeling_error_from_the_dual_of_the_reduced_problem():
