@@ -96,6 +96,17 @@ class Method:
 
 
 @njit(cache=True, inline="always")
+def real_eigenvalues(eigenvalues):
+    """How many of the stage matrix's eigenvalues (``Method.stage_eigenvalues``: the real ones,
+    then one per complex pair) are real: the Newton step's real systems."""
+    real = 0
+    for lam in eigenvalues:
+        if lam.imag == 0.0:
+            real += 1
+    return real
+
+
+@njit(cache=True, inline="always")
 def element_value(values, e, tau, nodes, bary):
     """The polynomial of element e at tau (in [0, 1], or past it to extrapolate) from its
     nodal values ``values[e, j]`` at ``nodes`` (barycentric Lagrange formula, weights

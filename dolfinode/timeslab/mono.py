@@ -14,7 +14,7 @@ from numba import njit, types
 from dolfinode.adaptivity import filter_estimate, next_step
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
 from dolfinode.linalg.newton_matrix import shift, store_jacobian
-from dolfinode.methods.method import lagrange_weights
+from dolfinode.methods.method import lagrange_weights, real_eigenvalues
 from dolfinode.solvers.slab import factor, factor_stages, fixed_point, newton
 from dolfinode.timeslab import (
     BLOWUP,
@@ -239,10 +239,7 @@ def advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     jdata = np.empty(indices.shape[0])
     # the Newton workspace (one matrix I - k lambda J per real eigenvalue lambda of A and
     # per complex pair) is allocated when Newton is first used (fixed point needs none)
-    n_real = 0
-    for j in range(eigenvalues.shape[0]):
-        if eigenvalues[j].imag == 0.0:
-            n_real += 1
+    n_real = real_eigenvalues(eigenvalues)
     _, kl, ku, ptr, idx, _, _ = structure
     rows, columns = (1, idx.shape[0]) if ptr.shape[0] > 0 else (N, 2 * kl + ku + 1)
     # J in the structure's storage; once the stage matrices are factored, the error filter's

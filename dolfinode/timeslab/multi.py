@@ -44,7 +44,7 @@ from numba import njit, types
 
 from dolfinode.compile.signatures import NO_REFCOUNT, component_kernel
 from dolfinode.linalg.banded import band_lu, band_solve
-from dolfinode.methods.method import element_value
+from dolfinode.methods.method import element_value, real_eigenvalues
 from dolfinode.timeslab import (
     BLOWUP,
     CONSTRAINT,
@@ -259,10 +259,7 @@ def _factor_group(order, n, local, indptr, indices, jacobian, k, eigenvalues, ne
     ab_real, ab_complex, ipiv = newton[0], newton[1], newton[2]
     kl, ku = _group_band(order, n, local, indptr, indices)
     width = 2 * kl + ku + 1  # the workspace fits: local bands <= global ones
-    real = 0
-    for lam in eigenvalues:
-        if lam.imag == 0.0:
-            real += 1
+    real = real_eigenvalues(eigenvalues)
     for j in range(real):
         counters[FACTORIZATIONS] += 1
         _assemble_group(order, n, local, indptr, indices, jacobian, k * eigenvalues[j].real,
@@ -299,10 +296,7 @@ def _solve_group(n, kl, ku, stages, newton):
             for s_ in range(S):
                 acc += T_inverse[j, s_] * rhs[s_ * n + r_]
             Z[j, r_] = acc
-    real = 0
-    for lam in eigenvalues:
-        if lam.imag == 0.0:
-            real += 1
+    real = real_eigenvalues(eigenvalues)
     for j in range(real):
         for r_ in range(n):
             z_real[r_] = Z[j, r_]
@@ -423,6 +417,7 @@ def _filter_residuals(ne, comp, ea, eb, res, position, indptr, indices, jacobian
     estimates by at most that fraction) or a singular matrix keeps its residuals. ``gamma``:
     [gamma] (the filter's one real eigenvalue, see ``_factor_group``)."""
     ab_real, ipiv, rhs = newton[0], newton[2], newton[3]
+    g = gamma[0].real
     e = 0
     while e < ne:
         e1 = e + 1
@@ -432,15 +427,15 @@ def _filter_residuals(ne, comp, ea, eb, res, position, indptr, indices, jacobian
         k = eb[e] - ea[e]
         if n == 1:
             i = comp[e]
-            if 1.0 - gamma[0].real * k * jdiag[i] != 0.0:
-                res[e] /= 1.0 - gamma[0].real * k * jdiag[i]
+            if 1.0 - g * k * jdiag[i] != 0.0:
+                res[e] /= 1.0 - g * k * jdiag[i]
             e = e1
             continue
         row_sum = 0.0
         for r in range(n):
             i = comp[e + r]
             row_sum = max(row_sum, abs(jdiag[i]) + coupling[i])
-        if gamma[0].real * k * row_sum <= FILTER_NEGLIGIBLE:
+        if g * k * row_sum <= FILTER_NEGLIGIBLE:
             e = e1
             continue
         for r in range(n):
@@ -908,7 +903,7 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, trans
     max_iter = iopts[MAX_ITER]
     rtol, T, kmax, safety, dtol = fopts[RTOL], fopts[T_END], fopts[KMAX], fopts[SAFETY], fopts[DTOL]
     order, theta, beta = fopts[ORDER], fopts[THETA], fopts[BETA]
-    gamma = np.full(1, fopts[GAMMA] + 0j)  # the error filter's (1, 1) stage matrix
+    gamma = np.full(1, fopts[GAMMA] + 0j)  # the error filter's stage eigenvalue
     stages = (transform, transform_inverse, eigenvalues)
     efloor = (safety / 5.0) ** order
     # sweeps stop a tenth below the discrete tolerance, but not below the rounding level
@@ -941,10 +936,7 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, trans
     # Newton workspace for sub-slab groups (_group_newton), grown to the largest group (band:
     # the global one); at least one real matrix, which the error filter uses
     band_width = 2 * iopts[BAND_LOWER] + iopts[BAND_UPPER] + 1
-    n_real = 0
-    for lam in eigenvalues:
-        if lam.imag == 0.0:
-            n_real += 1
+    n_real = real_eigenvalues(eigenvalues)
     newton = _newton_workspace(max(n_real, 1), eigenvalues.shape[0] - n_real, S, 1, band_width)
     factored = np.zeros(N + 3, dtype=np.int64)  # the factors in ``newton`` (_group_newton)
     factored_k = np.zeros(1)
