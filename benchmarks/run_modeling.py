@@ -25,6 +25,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 import dolfinode as dn
+from dolfinode.bench.report import machine_info
 from dolfinode.compile import lower
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "demos"))
@@ -101,9 +102,13 @@ def main(argv=None):
     ax.legend()
     fig.tight_layout()
     fig.savefig(args.output / "modeling.png", dpi=110)
+    meta = machine_info()
     lines = ["# Automatic modeling: cost of the simple model against kappa", "",
-             ("`python benchmarks/run_modeling.py` (cG(2), tolerance 1e-4, tau = 100/sqrt(kappa); "
-              f"scipy rtol 1e-6, atol 1e-9, capped at {args.cap:g} s; '-' = not finished)."), "",
+             f"Measured {meta['date']} (git {meta['git_commit']}) on {meta['cpu']}, "
+             f"{meta['cpu_count']} CPUs.", "",
+             ("`python benchmarks/run_modeling.py` (cG(2), tolerance 1e-4, tau = 100/sqrt(kappa), "
+              f"best of {args.repeat}; scipy rtol 1e-6, atol 1e-9, capped at {args.cap:g} s; "
+              "'-' = not finished)."), "",
              ("| kappa | modeling wall [s] | elements | max err U1 | DOP853 wall [s] | DOP853 steps "
               "| LSODA wall [s] | LSODA steps |"), "|---|---|---|---|---|---|---|---|"]
     fmt = lambda v, f: "-" if v is None else format(v, f)
