@@ -15,7 +15,7 @@ DEFAULTS = {
     "nonlinear_solver": "default",  # "default" | "fixed-point" | "newton"
     "discrete_tolerance_factor": 1e-3,  # nonlinear tolerance relative to the indicator's
     "maximum_iterations": 30,      # per nonlinear solve
-    "safety_factor": 0.9,
+    "safety_factor": 0.9,          # in (0, 1]
     "maximum_steps": 10_000_000,   # time slabs before giving up (SolverError)
     "number_of_samples": 101,      # output samples sol.t, sol.y
     "progress": False,             # tqdm progress bar
@@ -106,12 +106,14 @@ _CHECKS = {
     "absolute_tolerance": _per_state_or_positive,
     "initial_time_step": _per_state_or_positive,
     "maximum_time_step": _positive,
+    "fixed_time_step": _switch,
     "nonlinear_solver": _choice(NONLINEAR_SOLVERS),
     "discrete_tolerance_factor": _required,
     "maximum_iterations": _count,
-    "safety_factor": _required,
+    "safety_factor": _fraction,
     "maximum_steps": _count,
     "number_of_samples": _count,
+    "progress": _switch,
     "partitioning_threshold": _fraction,
     "interval_threshold": _fraction,
     "automatic_modeling": _switch,

@@ -101,6 +101,21 @@ def test_integer_parameters_must_be_positive_integers(ode, name, value):
         dn.solve(ode, **{name: value})
 
 
+@pytest.mark.parametrize("value", [1.5, 5.0])
+def test_safety_factor_above_one_is_rejected(ode, value):
+    # with a safety factor > 1 the solve of u' = -u gave no result within 30 s (it hung)
+    with pytest.raises(ValueError, match=r"safety_factor must lie in \(0, 1\]"):
+        dn.solve(ode, safety_factor=value)
+
+
+@pytest.mark.parametrize("name", ["fixed_time_step", "progress"])
+@pytest.mark.parametrize("value", ["yes", "no", None, 0.5])
+def test_switches_must_be_booleans(ode, name, value):
+    # progress="no" showed a progress bar; fixed_time_step="yes" was taken as True
+    with pytest.raises(TypeError, match=f"{name} must be True or False"):
+        dn.solve(ode, initial_time_step=0.1, **{name: value})
+
+
 @pytest.mark.parametrize("typo, meant", [("newtn", "newton"), ("fixedpoint", "fixed-point"),
                                          ("fixed_point", "fixed-point")])
 def test_unknown_nonlinear_solver_suggests_the_closest(ode, typo, meant):
@@ -178,6 +193,14 @@ def test_method_must_be_a_string(name):
 def test_make_method_needs_a_valid_degree(family, q):
     with pytest.raises(ValueError, match=r"needs an integer q >= [01]"):
         dn.make_method(family, q)
+
+
+@pytest.mark.parametrize("name", ["cG(21)", "mdG(40)", "cG(99999999999999999999)"])
+def test_degree_above_the_maximum_is_rejected(ode, name):
+    # above q = 20 the step error estimate is rounding noise (cG(24): 1971 slabs for what
+    # cG(20) does in 23, q >= 30: maximum_steps reached); q = 10**20 hung building the nodes
+    with pytest.raises(ValueError, match=r"q <= 20"):
+        dn.solve(ode, name)
 
 
 @pytest.mark.parametrize("q", [1.0, np.float64(1)], ids=["float", "numpy-float"])
