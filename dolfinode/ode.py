@@ -27,9 +27,24 @@ def _suggest(name, candidates):
     return f"; did you mean {match[0]!r}?" if match else ""
 
 
+def _to_float(value):
+    """``float(value)``, with a number too large for a double (an int such as 10**400, for
+    which float raises OverflowError) read as +-inf, so that the finiteness checks report it.
+
+    Raises
+    ------
+    TypeError, ValueError
+        As ``float`` does for what is not a real number.
+    """
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
+
+
 def _check_time(value, what):
     try:
-        value = float(value)
+        value = _to_float(value)
     except (TypeError, ValueError):
         raise TypeError(f"{what} must be a real number, got {value!r}") from None
     if not math.isfinite(value):
@@ -97,7 +112,7 @@ def _listed_vector(values, states, what):
             raise ValueError(f"{what} has {len(vector)} values but the system has "
                              f"{len(states)} states ({', '.join(names)})")
     try:
-        return np.array([float(v) for v in vector], dtype=float)
+        return np.array([_to_float(v) for v in vector], dtype=float)
     except (TypeError, ValueError):
         raise TypeError(f"{what} must hold real numbers, got {vector!r}") from None
 
@@ -223,7 +238,7 @@ class ODE:
             if symbol == t:
                 raise ValueError("dn.t is the time and cannot be a parameter")
             try:
-                value = float(value)
+                value = _to_float(value)
             except (TypeError, ValueError):
                 raise TypeError(f"parameter {symbol} must be a real number, got {value!r}") from None
             if not math.isfinite(value):

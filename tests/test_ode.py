@@ -180,6 +180,16 @@ def test_non_finite_u0_in_a_dict_names_the_state():
         declare(u0={u: float("nan"), v: 0.0})
 
 
+def test_integer_too_large_for_a_double_is_reported_as_not_finite():
+    # float(10**400) raises OverflowError, which escaped as neither ValueError nor TypeError
+    with pytest.raises(ValueError, match="u0 is not finite for u: inf"):
+        declare(u0=[10**400, 0.0])
+    with pytest.raises(ValueError, match="T must be finite, got inf"):
+        declare(T=10**400)
+    with pytest.raises(ValueError, match="parameter k must be finite, got -inf"):
+        declare(params={k: -10**400})
+
+
 @pytest.mark.parametrize("values", [[1.0], [1.0, 2.0, 3.0], []])
 def test_wrongly_sized_u0_gives_both_sizes(values):
     with pytest.raises(ValueError) as info:
