@@ -166,7 +166,9 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar,
     The loop returns FULL when its output buffers are full (so results arrive in chunks, and
     progress can be shown); a FULL with nothing stored means one slab needs larger buffers.
     It returns NEWTON_NEEDED when Newton's matrices are not ready: it goes on if
-    ``newton_ready()`` makes them so.
+    ``newton_ready()`` makes them so. More than ``maximum_steps`` slabs stop it with
+    _STATUS_STEP_LIMIT: the mono-adaptive buffers hold no more slabs than are left, the
+    multi-adaptive loop (whose buffers count elements) is checked after each chunk.
     """
     chunks = []
     while True:
@@ -176,6 +178,9 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar,
         chunks.append([b[:n] for b in buffers])
         if bar is not None:
             bar.update(state[0] - bar.n)
+        if counters[ts.SLABS] > params["maximum_steps"]:
+            status = _STATUS_STEP_LIMIT
+            break
         if status == ts.NEWTON_NEEDED and newton_ready is not None and newton_ready():
             continue
         if status != ts.FULL:

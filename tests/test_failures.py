@@ -33,6 +33,14 @@ def test_maximum_steps():
                  maximum_steps=100)
 
 
+@pytest.mark.parametrize("method", ["mcG(1)", "mdG(0)"])
+def test_maximum_steps_multi_adaptive(method):
+    # the multi-adaptive loop ignored maximum_steps: mcG(1) returned 1078 slabs for 2
+    with pytest.raises(dn.SolverError, match="maximum_steps was reached"):
+        dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), method=method, tolerance=1e-8,
+                 maximum_steps=2)
+
+
 def test_nonfinite_initial_rhs():
     with pytest.raises(ValueError, match="not finite"):
         dn.solve(dn.ODE({u: 1 / u}, u0=[0.0], T=1.0))
