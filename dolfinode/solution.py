@@ -137,8 +137,13 @@ class Solution:
     def __call__(self, t):
         """U(t): shape (N,) for a scalar t, (N, len(t)) for a sequence (scipy's convention),
         (N, *t.shape) for an array of any shape."""
-        shape = np.shape(t)
-        times = np.asarray(t, dtype=float).ravel()
+        try:
+            times = np.asarray(t, dtype=float)
+        except (TypeError, ValueError):
+            raise TypeError(f"the solution is evaluated at real times t (a number or an array "
+                            f"of them), got {t!r}") from None
+        shape = times.shape
+        times = times.ravel()
         # a nan makes min and max nan, and the comparison false
         if times.size and not (self.ode.t0 <= times.min() and times.max() <= self.ode.T):
             raise ValueError(f"the solution is defined on [{self.ode.t0}, {self.ode.T}], "
@@ -174,7 +179,14 @@ class Solution:
         if component is None:
             raise ValueError("a multi-adaptive solution has one partition per component: "
                              "give the component (index or state)")
-        i = component if isinstance(component, (int, np.integer)) else self.ode.index(component)
+        if isinstance(component, (int, np.integer)):
+            N = self.ode.N
+            if not -N <= component < N:
+                raise ValueError(f"component index {component} is out of range: {N} components, "
+                                 f"indices 0..{N - 1} (or -{N}..-1)")
+            i = int(component) % N
+        else:
+            i = self.ode.index(component)
         span = slice(self._component_ptr[i], self._component_ptr[i + 1])
         return self.t_start[span].copy(), self.k[span].copy()
 

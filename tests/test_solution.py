@@ -63,6 +63,27 @@ def test_outside_interval_raises():
         sol(np.nan)
 
 
+@pytest.mark.parametrize("t", ["a", 1j, [0.5, "b"]])
+def test_time_that_is_not_a_real_number_raises_type_error(t):
+    # sol("a") raised numpy's "could not convert string to float", sol(1j) float()'s message
+    u = sp.Symbol("u")
+    sol = dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0))
+    with pytest.raises(TypeError, match="the solution is evaluated at real times t"):
+        sol(t)
+
+
+def test_time_steps_of_a_component_index_out_of_range():
+    # a multi-adaptive solution's time_steps(99) raised a bare IndexError and time_steps(-1)
+    # returned empty arrays
+    u, v = sp.symbols("u v")
+    sol = dn.solve(dn.ODE({u: -u, v: -10 * v}, u0=[1.0, 1.0], T=1.0), "mcG(1)")
+    for bad in (2, 99, -3):
+        with pytest.raises(ValueError, match="component index .* out of range: 2 components"):
+            sol.time_steps(bad)
+    start, k = sol.time_steps(-1)
+    assert np.array_equal(start, sol.time_steps(v)[0]) and len(k) > 0
+
+
 @pytest.mark.parametrize("method", ["dG(0)", "dG(2)", "cG(2)"])
 def test_initial_time_gives_initial_value(method):
     u = sp.Symbol("u")
