@@ -243,6 +243,9 @@ class ODE:
                 raise TypeError(f"parameter {symbol} must be a real number, got {value!r}") from None
             if not math.isfinite(value):
                 raise ValueError(f"parameter {symbol} must be finite, got {value}")
+            if symbol in clean:
+                raise ValueError(f"parameter {symbol} is given twice (by its symbol and by its "
+                                 "name): give it once")
             clean[symbol] = value
         return clean
 
@@ -272,6 +275,9 @@ class ODE:
             for symbol in sorted(expr.free_symbols - known, key=lambda s: s.name):
                 if symbol.name == t.name:
                     hint = "; use dn.t for the time"
+                elif symbol.name in names:
+                    hint = (f": a different symbol named {symbol.name!r} is declared, with other "
+                            "assumptions (such as positive=True); use the same Symbol in both")
                 else:
                     hint = _suggest(symbol.name, names) + (
                         f" (if {symbol.name} is a parameter, give its value in params=)")

@@ -409,6 +409,20 @@ def test_template_parameter_keys_by_name():
         dn.TemplateODE(spring, u0=[1.0, 0.0], T=1.0, params={"a": 2.0, "c": 2.0})
 
 
+def test_parameter_given_by_symbol_and_by_name_raises():
+    # {k: 4.0, "k": 5.0} silently kept the last value
+    with pytest.raises(ValueError, match="parameter k is given twice"):
+        declare(params={k: 4.0, "k": 5.0})
+
+
+def test_symbol_with_other_assumptions_than_the_parameter_says_so():
+    # the message was "unknown symbol 'a' ...; did you mean 'a'?"
+    a = sp.Symbol("a", positive=True)
+    with pytest.raises(ValueError, match="other assumptions") as info:
+        dn.ODE({u: -a * u}, u0=[1.0], T=1.0, params={sp.Symbol("a"): 1.0})
+    assert "did you mean 'a'" not in str(info.value)
+
+
 def test_params_must_be_a_dict():
     with pytest.raises(TypeError, match="params must be a dict"):
         declare(params=[4.0])
