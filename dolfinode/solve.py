@@ -48,6 +48,15 @@ def _absolute_tolerance(ode, value, rtol):
     return atol
 
 
+def _check_resolvable(ode, name, k, t):
+    """Raise ValueError if the step ``k`` (a number or per state) is below what double
+    precision resolves at the time ``t`` (the loops' bound: _KMIN_RELATIVE max(|t|, 1e-6 |T|))."""
+    kmin = _KMIN_RELATIVE * max(abs(t), abs(ode.T) * 1e-6)
+    if np.min(k) < kmin:
+        raise ValueError(f"{name} = {np.min(k):.3g} is below what double precision resolves at "
+                         f"t = {t:.6g} ({kmin:.3g}); give a larger {name}")
+
+
 def _initial_steps(ode, given, f0, atol, rtol, multi_adaptive):
     """The first step: a number, or per state (dict/sequence) for multi-adaptive methods."""
     span = ode.T - ode.t0
@@ -118,6 +127,11 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
         raise ValueError(f"f(u0, t0) is not finite in the right-hand side of {bad}: check u0 "
                          "and the parameters")
     steps = _initial_steps(ode, params["initial_time_step"], f0, atol, rtol, multi_adaptive)
+    if params["initial_time_step"] is not None:
+        _check_resolvable(ode, "initial_time_step", steps, ode.t0)
+    if params["maximum_time_step"] is not None:
+        _check_resolvable(ode, "maximum_time_step", params["maximum_time_step"],
+                          max(abs(ode.t0), abs(ode.T)))
     floor = np.where(ode.nonnegative, -atol, -np.inf)  # the domain of the values
     fixed = bool(params["fixed_time_step"])
     if fixed:  # no error control: iterate to rounding level, relative to the solution size

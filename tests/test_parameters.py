@@ -116,6 +116,15 @@ def test_switches_must_be_booleans(ode, name, value):
         dn.solve(ode, initial_time_step=0.1, **{name: value})
 
 
+@pytest.mark.parametrize("name", ["initial_time_step", "maximum_time_step"])
+@pytest.mark.parametrize("method", ["cG(1)", "mcG(1)"])
+def test_steps_below_double_precision_are_rejected(ode, name, method):
+    # a SolverError said "the solution may blow up" at t = 0 (and for maximum_time_step on
+    # cG(1) named the step 0.00125)
+    with pytest.raises(ValueError, match=f"{name} = 1e-300 is below what double precision"):
+        dn.solve(ode, method, **{name: 1e-300})
+
+
 @pytest.mark.parametrize("typo, meant", [("newtn", "newton"), ("fixedpoint", "fixed-point"),
                                          ("fixed_point", "fixed-point")])
 def test_unknown_nonlinear_solver_suggests_the_closest(ode, typo, meant):
