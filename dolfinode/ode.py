@@ -329,7 +329,8 @@ class ODE:
 
         Components are all positions, then all velocities. Velocity symbols default to
         ``Symbol(name + "_dot")``; pass ``velocities={x: xdot}`` to choose them (and use them
-        in the accelerations). ``nonnegative`` is as for :class:`ODE`, over all 2n components.
+        in the accelerations); ``v0`` is keyed by positions or by their velocity symbols.
+        ``nonnegative`` is as for :class:`ODE`, over all 2n components.
         """
         if not isinstance(accelerations, Mapping):
             raise TypeError("accelerations must be a dict {position symbol: expression}")
@@ -343,6 +344,9 @@ class ODE:
                 raise ValueError(f"velocities names {x!r}, which is not a position")
         vel = [velocities.get(x, sp.Symbol(f"{x.name}_dot")) for x in positions]
         rhs = list(zip(positions, vel)) + [(v, accelerations[x]) for x, v in zip(positions, vel)]
+        if isinstance(v0, Mapping):  # keyed by positions, or by their velocity symbols
+            position_of = {key: x for x, v in zip(positions, vel) for key in (v, v.name)}
+            v0 = {position_of.get(key, key): value for key, value in v0.items()}
         u0 = np.concatenate([_vector_by_state(x0, positions, "x0"),
                              _vector_by_state(v0, positions, "v0")])
         ode = cls(rhs, u0=u0, T=T, params=params, t0=t0, nonnegative=nonnegative)

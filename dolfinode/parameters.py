@@ -40,6 +40,8 @@ def _positive(name, value, allow_none=True):
     if value is None and allow_none:
         return None
     try:
+        if isinstance(value, bool):  # (True would be read as 1.0)
+            raise TypeError
         value = float(value)
     except (TypeError, ValueError):
         raise TypeError(f"{name} must be a positive number, got {value!r}") from None

@@ -1,4 +1,5 @@
 """The Galerkin solution: exact piecewise polynomials, dense evaluation and samples."""
+import math
 from functools import cached_property
 
 import numpy as np
@@ -138,16 +139,20 @@ class Solution:
         """U(t): shape (N,) for a scalar t, (N, len(t)) for a sequence (scipy's convention),
         (N, *t.shape) for an array of any shape."""
         try:
-            times = np.asarray(t, dtype=float)
+            times = None if t is None else np.asarray(t, dtype=float)  # (None would be nan)
         except (TypeError, ValueError):
+            times = None
+        if times is None:
             raise TypeError(f"the solution is evaluated at real times t (a number or an array "
-                            f"of them), got {t!r}") from None
+                            f"of them), got {t!r}")
         shape = times.shape
         times = times.ravel()
-        # a nan makes min and max nan, and the comparison false
-        if times.size and not (self.ode.t0 <= times.min() and times.max() <= self.ode.T):
+        outside = ~((times >= self.ode.t0) & (times <= self.ode.T))  # (True for nan)
+        if outside.any():
+            bad = times[outside][0]
+            what = " (not a number)" if math.isnan(bad) else ""
             raise ValueError(f"the solution is defined on [{self.ode.t0}, {self.ode.T}], "
-                             f"got t outside it")
+                             f"got t = {bad:.17g}{what}")
         return self._values(times).reshape(self.ode.N, *shape)
 
     def _values(self, times):

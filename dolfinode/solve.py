@@ -19,6 +19,10 @@ from dolfinode.timeslab import mono
 #: Relative size (times |t|) below which a time step cannot be resolved in double precision.
 _KMIN_RELATIVE = 1e-14
 _STATUS_STEP_LIMIT = -1
+#: A solve stopped by maximum_steps is said to approach a blow-up when its last step is below
+#: _BLOWUP_STEP (T - t0) and max |u| grew _BLOWUP_GROWTH-fold since t0 (dG(0) on u' = u^2,
+#: u(0) = 1: 10^7 steps, down to 3.1e-10, with |u| = 2.3e3 at t = 0.99956).
+_BLOWUP_STEP, _BLOWUP_GROWTH = 1e-6, 100.0
 #: Fraction of the available memory the Newton matrices of a mono-adaptive slab may take;
 #: a matrix of at most _NEWTON_SMALL bytes is taken to fit without asking the system.
 _NEWTON_MEMORY_FRACTION = 0.5
@@ -151,8 +155,8 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
     if status != ts.DONE:
         outside = ode.states[counters[ts.OUTSIDE] - 1] if counters[ts.OUTSIDE] else None
         raise SolverError(_failure_message(status, state, fixed, x, outside,
-                                           params["maximum_time_step"], newton,
-                                           bool(ode.nonnegative.any())), t=float(state[0]))
+                                           params["maximum_time_step"], newton, ode),
+                          t=float(state[0]))
     counts = counters.tolist()
     stats.update({
         "method": ("m" if multi_adaptive else "") + m.name,
@@ -349,18 +353,22 @@ _DOMAIN_DECLARED = ("the components declared nonnegative are read as max(u, 0) i
                     "a point")
 
 
-def _failure_message(status, state, fixed, x, outside, kmax, newton, declared):
-    """The SolverError message for a loop that stopped with ``status``; ``newton``: whether
-    Newton's method was used, ``declared``: whether components are declared nonnegative."""
+def _failure_message(status, state, fixed, x, outside, kmax, newton, ode):
+    """The SolverError message for a loop that stopped with ``status`` (state: t and the
+    last step) with the solution x; ``newton``: whether Newton's method was used."""
     t, k = state
     size = f"max |u| = {np.max(np.abs(x)):.3g} there"
-    domain = _DOMAIN_DECLARED if declared else _DOMAIN
+    domain = _DOMAIN_DECLARED if ode.nonnegative.any() else _DOMAIN
     solver = "Newton's method" if newton else "the nonlinear solver"
     if status == _STATUS_STEP_LIMIT:
         raise_ = ("maximum_steps" if kmax is None else
                   f"maximum_steps or maximum_time_step (the steps are capped at {kmax:.3g})")
-        return (f"maximum_steps was reached at t = {t:.6g} ({size}); raise {raise_}, loosen "
-                "the tolerance, or use a higher-order method")
+        growth = np.max(np.abs(x)) / max(np.max(np.abs(ode.u0)), np.finfo(float).tiny)
+        blowup = (f"; the steps shrank to {k:.3g} while max |u| grew {growth:.3g}-fold since t0: "
+                  "the solution may blow up near this time"
+                  if k < _BLOWUP_STEP * (ode.T - ode.t0) and growth > _BLOWUP_GROWTH else "")
+        return (f"maximum_steps was reached at t = {t:.6g} ({size}){blowup}; raise {raise_}, "
+                "loosen the tolerance, or use a higher-order method")
     if status == ts.NONCONVERGENCE:
         if fixed:
             return (f"{solver} did not converge at t = {t:.6g} with the fixed time step "

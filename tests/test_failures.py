@@ -28,9 +28,20 @@ def test_fixed_step_through_singularity_reports_time():
 
 
 def test_maximum_steps():
-    with pytest.raises(dn.SolverError, match="maximum_steps"):
+    with pytest.raises(dn.SolverError, match="maximum_steps") as info:
         dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), method="dG(0)", tolerance=1e-12,
                  maximum_steps=100)
+    assert "blow up" not in str(info.value)
+
+
+def test_maximum_steps_near_a_blowup_says_so():
+    # dG(0) creeps towards the singularity of u' = u^2 at t = 1 until maximum_steps (it gave
+    # only "raise maximum_steps, loosen the tolerance, ...")
+    with pytest.raises(dn.SolverError, match=r"maximum_steps was reached at t = 0\.99.*the steps "
+                       r"shrank to .* while max \|u\| grew .*-fold since t0: the solution may "
+                       r"blow up near this time; raise maximum_steps"):
+        dn.solve(dn.ODE({u: u**2}, u0=[1.0], T=2.0), method="dG(0)", tolerance=1e-3,
+                 maximum_steps=20000)
 
 
 @pytest.mark.parametrize("method", ["mcG(1)", "mdG(0)"])

@@ -102,6 +102,16 @@ def test_second_order_custom_velocity_symbols():
     np.testing.assert_array_equal(ode.u0, [1.0, 2.0, 3.0, 4.0])
 
 
+def test_second_order_v0_by_velocity_symbols():
+    # (keyed by velocity symbols, v0 raised "x_dot ... is not a state")
+    x, y, p, q = sp.symbols("x y p q")
+    ode = dn.ODE.second_order({x: -p, y: -x * q}, x0=[1.0, 2.0], v0={p: 3.0, "q": 4.0},
+                              T=1.0, velocities={x: p, y: q})
+    np.testing.assert_array_equal(ode.u0, [1.0, 2.0, 3.0, 4.0])
+    ode = dn.ODE.second_order({x: -x}, x0=[1.0], v0={sp.Symbol("x_dot"): 2.0}, T=1.0)
+    np.testing.assert_array_equal(ode.u0, [1.0, 2.0])
+
+
 def test_velocity_of_a_first_order_system_raises():
     with pytest.raises(ValueError, match="not a position of a second-order system"):
         declare().velocity(u)

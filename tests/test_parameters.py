@@ -80,8 +80,9 @@ def test_tolerance_must_be_positive_and_finite(ode, value):
         dn.solve(ode, tolerance=value)
 
 
-@pytest.mark.parametrize("value", ["small", None])
+@pytest.mark.parametrize("value", ["small", None, True])
 def test_tolerance_must_be_a_number(ode, value):
+    # (True was read as a tolerance of 1.0)
     with pytest.raises(TypeError, match="tolerance must be a positive number"):
         dn.solve(ode, tolerance=value)
 

@@ -59,11 +59,13 @@ def test_outside_interval_raises():
     sol = dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0))
     with pytest.raises(ValueError, match="defined on"):
         sol(1.5)
-    with pytest.raises(ValueError, match="defined on"):
+    with pytest.raises(ValueError, match=r"defined on \[0.0, 1.0\], got t = nan \(not a number\)"):
         sol(np.nan)
+    with pytest.raises(ValueError, match=r"got t = 1.5$"):
+        sol([0.5, 1.5, 0.2])
 
 
-@pytest.mark.parametrize("t", ["a", 1j, [0.5, "b"]])
+@pytest.mark.parametrize("t", ["a", 1j, [0.5, "b"], None])
 def test_time_that_is_not_a_real_number_raises_type_error(t):
     # sol("a") raised numpy's "could not convert string to float", sol(1j) float()'s message
     u = sp.Symbol("u")
