@@ -23,6 +23,11 @@ _STATUS_STEP_LIMIT = -1
 #: _BLOWUP_STEP (T - t0) and max |u| grew _BLOWUP_GROWTH-fold since t0 (dG(0) on u' = u^2,
 #: u(0) = 1: 10^7 steps, down to 3.1e-10, with |u| = 2.3e3 at t = 0.99956).
 _BLOWUP_STEP, _BLOWUP_GROWTH = 1e-6, 100.0
+#: The smallest tolerance without an absolute_tolerance (scipy's solve_ivp bound, 100 machine
+#: epsilons): below it the step error estimate is rounding (tolerance=1e-300 failed with
+#: "Newton's method did not converge at t = 0 ... check the right-hand side for a
+#: singularity"). With absolute_tolerance given, a smaller one means absolute error control.
+MIN_TOLERANCE = 100 * np.finfo(float).eps
 #: Fraction of the available memory the Newton matrices of a mono-adaptive slab may take;
 #: a matrix of at most _NEWTON_SMALL bytes is taken to fit without asking the system.
 _NEWTON_MEMORY_FRACTION = 0.5
@@ -115,6 +120,11 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
 
         others = {name: value for name, value in parameters.items() if name != "tolerance"}
         return solve_for_goal(solve, ode, method, goal, params["tolerance"], others)
+    if params["tolerance"] < MIN_TOLERANCE and params["absolute_tolerance"] is None:
+        raise ValueError(f"tolerance must be at least {MIN_TOLERANCE:.2g} (100 machine epsilons, "
+                         f"as in scipy's solve_ivp), got {params['tolerance']:g}: below it the "
+                         "error estimate is rounding (a smaller one with absolute_tolerance given "
+                         "controls the absolute error alone)")
     multi_adaptive, m = parse_method(method)
     if params["automatic_modeling"]:
         from dolfinode.modeling import solve_with_modeling

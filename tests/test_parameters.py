@@ -80,6 +80,26 @@ def test_tolerance_must_be_positive_and_finite(ode, value):
         dn.solve(ode, tolerance=value)
 
 
+@pytest.mark.parametrize("value", [1e-300, 1e-15])
+def test_tolerance_below_rounding_is_rejected(ode, value):
+    # (1e-300 failed at t = 0 pointing at a singularity of f; 1e-15 ran into maximum_steps)
+    with pytest.raises(ValueError, match=r"tolerance must be at least 2.2e-14 \(100 machine"):
+        dn.solve(ode, tolerance=value)
+
+
+def test_a_tolerance_below_rounding_with_absolute_tolerance_controls_the_absolute_error(ode):
+    sol = dn.solve(ode, "cG(2)", tolerance=1e-20, absolute_tolerance=1e-8)
+    assert abs(sol(1.0)[0] - math.exp(-1)) < 1e-7
+
+
+def test_a_goal_tolerance_may_be_below_rounding():
+    # with a goal the tolerance bounds the output's absolute error, which may be tiny
+    w = sp.Symbol("w")
+    sol = dn.solve(dn.ODE({w: -w}, u0=[1e-12], T=1.0), "cG(2)", goal={w: 1.0},
+                   tolerance=1e-20)
+    assert abs(sol(1.0)[0] - 1e-12 * math.exp(-1)) < 1e-20
+
+
 @pytest.mark.parametrize("value", ["small", None, True])
 def test_tolerance_must_be_a_number(ode, value):
     # (True was read as a tolerance of 1.0)
