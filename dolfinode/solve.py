@@ -141,6 +141,11 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
         raise ValueError(f"f(u0, t0) is not finite in the right-hand side of {bad}: check u0 "
                          "and the parameters")
     steps = _initial_steps(ode, params["initial_time_step"], f0, atol, rtol, multi_adaptive)
+    span = ode.T - ode.t0
+    if span < _KMIN_RELATIVE * max(abs(ode.t0), abs(ode.T)):
+        raise ValueError(f"[t0, T] = [{ode.t0:.17g}, {ode.T:.17g}] is shorter than the smallest "
+                         f"step double precision resolves there ({_KMIN_RELATIVE:g} |t|): shift "
+                         f"the time origin, e.g. t0 = 0 and T = {span:.17g}")
     if params["initial_time_step"] is not None:
         _check_resolvable(ode, "initial_time_step", steps, ode.t0)
     if params["maximum_time_step"] is not None:

@@ -77,3 +77,11 @@ def test_a_fixed_step_nonconvergence_suggests_newton_unless_it_was_used(solver, 
         dn.solve(ode, method="cG(2)", fixed_time_step=True, initial_time_step=0.1,
                  nonlinear_solver=solver)
     assert ("nonlinear_solver='newton'" in str(info.value)) == suggested
+
+
+def test_an_interval_too_short_for_double_precision_at_its_times_raises():
+    # (t0 = 1e15, T = 1e15 + 1 raised SolverError "tolerance too tight" from the loop)
+    ode = dn.ODE({u: -u}, u0=[1.0], t0=1e15, T=1e15 + 1)
+    with pytest.raises(ValueError, match=r"shorter than the smallest step double precision "
+                       r"resolves there .* t0 = 0 and T = 1$"):
+        dn.solve(ode)
