@@ -57,10 +57,15 @@ def _absolute_tolerance(ode, value, rtol):
     return atol
 
 
+def _smallest_step(ode, t):
+    """The smallest step double precision resolves at the time t (the loops' bound)."""
+    return _KMIN_RELATIVE * max(abs(t), abs(ode.T) * 1e-6)
+
+
 def _check_resolvable(ode, name, k, t):
-    """Raise ValueError if the step ``k`` (a number or per state) is below what double
-    precision resolves at the time ``t`` (the loops' bound: _KMIN_RELATIVE max(|t|, 1e-6 |T|))."""
-    kmin = _KMIN_RELATIVE * max(abs(t), abs(ode.T) * 1e-6)
+    """Raise ValueError if the step ``k`` (a number or per state) is below
+    :func:`_smallest_step` at the time ``t``."""
+    kmin = _smallest_step(ode, t)
     if np.min(k) < kmin:
         raise ValueError(f"{name} = {np.min(k):.3g} is below what double precision resolves at "
                          f"t = {t:.6g} ({kmin:.3g}); give a larger {name}")
@@ -141,16 +146,15 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
         raise ValueError(f"f(u0, t0) is not finite in the right-hand side of {bad}: check u0 "
                          "and the parameters")
     steps = _initial_steps(ode, params["initial_time_step"], f0, atol, rtol, multi_adaptive)
-    span = ode.T - ode.t0
-    if span < _KMIN_RELATIVE * max(abs(ode.t0), abs(ode.T)):
+    span, latest = ode.T - ode.t0, max(abs(ode.t0), abs(ode.T))
+    if span < _smallest_step(ode, latest):
         raise ValueError(f"[t0, T] = [{ode.t0:.17g}, {ode.T:.17g}] is shorter than the smallest "
                          f"step double precision resolves there ({_KMIN_RELATIVE:g} |t|): shift "
                          f"the time origin, e.g. t0 = 0 and T = {span:.17g}")
     if params["initial_time_step"] is not None:
         _check_resolvable(ode, "initial_time_step", steps, ode.t0)
     if params["maximum_time_step"] is not None:
-        _check_resolvable(ode, "maximum_time_step", params["maximum_time_step"],
-                          max(abs(ode.t0), abs(ode.T)))
+        _check_resolvable(ode, "maximum_time_step", params["maximum_time_step"], latest)
     floor = np.where(ode.nonnegative, -atol, -np.inf)  # the domain of the values
     fixed = bool(params["fixed_time_step"])
     if fixed:  # no error control: iterate to rounding level, relative to the solution size
