@@ -11,7 +11,7 @@ from dolfinode.ensemble import solve_ensemble, vary
 from dolfinode.errors import SolverError
 from dolfinode.methods import Method, make_method, parse_method
 from dolfinode.ode import ODE, t
-from dolfinode.parameters import DEFAULTS as default_parameters
+from dolfinode.parameters import READ_ONLY_DEFAULTS as default_parameters
 from dolfinode.solution import Solution
 from dolfinode.solve import solve
 from dolfinode.systems import ParticleSystem, Template, TemplateODE

@@ -74,7 +74,7 @@ def _solve_variation(ode, method, parameters, reduce):
 
 
 def solve_ensemble(ode, variations, executor=None, reduce=None, progress=False,
-                   method="cG(1)", **parameters):
+                   method="cG(1)", return_exceptions=False, **parameters):
     """Solve ``ode`` once per variation, in parallel through ``executor``.
 
     Parameters
@@ -86,7 +86,8 @@ def solve_ensemble(ode, variations, executor=None, reduce=None, progress=False,
     executor : concurrent.futures.Executor or dask.distributed.Client, optional
         Where the runs go (default: one after another in this process). With a process pool
         or a cluster, ``reduce`` must be picklable (a module-level function, not a lambda).
-        For a cluster: ``Client("tcp://scheduler:8786")``.
+        For a cluster: ``Client("tcp://scheduler:8786")``. On a dask cluster the runs of a
+        worker that dies are resubmitted by the scheduler (up to its ``allowed_failures``).
     reduce : callable, optional
         Solution -> value computed where the run happened (only the value comes back),
         e.g. ``lambda sol: sol(sol.ode.T)`` in process.
@@ -94,17 +95,25 @@ def solve_ensemble(ode, variations, executor=None, reduce=None, progress=False,
         Show a tqdm bar over the runs.
     method, **parameters
         As for :func:`dolfinode.solve`; checked before any run starts.
+    return_exceptions : bool, default False
+        True: a run that fails takes its place in the result as its exception (the
+        convention of ``asyncio.gather``), and every other run completes. False: the first
+        failure is raised.
 
     Returns
     -------
     list
-        Solutions (or reduced values), in the order of ``variations``.
+        Solutions (or reduced values), in the order of ``variations``; with
+        ``return_exceptions=True`` failed runs are their exceptions (a
+        :class:`~dolfinode.SolverError` has ``status`` -1 and ``success`` False, like the
+        solutions' ``status`` 0 or 1 and ``success`` True).
 
     Raises
     ------
     TypeError, ValueError
-        For bad variations or parameters, before anything runs. An error in a run is
-        raised again here, with a note naming the variation.
+        For bad variations or parameters, before anything runs. Unless
+        ``return_exceptions``, an error in a run is raised again here, with a note naming the
+        variation (the runs not yet finished are cancelled).
     """
     if isinstance(variations, (Mapping, str)) or not isinstance(variations, Sequence):
         raise TypeError("variations must be a sequence (list) of dicts, one per run, got "
@@ -117,14 +126,19 @@ def solve_ensemble(ode, variations, executor=None, reduce=None, progress=False,
     check_parameters(parameters)
     runs = [vary(ode, variation) for variation in variations]
     if executor is None:
-        return _collect(runs, progress, lambda run: _solve_variation(run, method, parameters, reduce))
+        return _collect(runs, progress, return_exceptions,
+                        lambda run: _solve_variation(run, method, parameters, reduce))
     futures = [executor.submit(_solve_variation, run, method, parameters, reduce) for run in runs]
-    return _collect(futures, progress, lambda future: future.result())
+    try:
+        return _collect(futures, progress, return_exceptions, lambda future: future.result())
+    finally:
+        for future in futures:  # after a failure: do not leave the rest running
+            future.cancel()
 
 
-def _collect(items, progress, result):
-    """``result(item)`` for every item in order, with a progress bar; a failure names its
-    variation."""
+def _collect(items, progress, return_exceptions, result):
+    """``result(item)`` for every item in order, with a progress bar; a failure is kept in
+    place (``return_exceptions``) or raised with a note naming its variation."""
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -137,7 +151,9 @@ def _collect(items, progress, result):
             except Exception as error:
                 if hasattr(error, "add_note"):  # Python >= 3.11
                     error.add_note(f"(in variation {number} of solve_ensemble)")
-                raise
+                if not return_exceptions:
+                    raise
+                out.append(error)
             if bar is not None:
                 bar.update()
     finally:

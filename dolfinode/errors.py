@@ -8,8 +8,17 @@ class SolverError(RuntimeError):
     ----------
     t : float
         The time reached when the solver stopped.
+    success, status, message : False, -1 and the message, as a failed ``solve_ivp`` result
+        (so that the members of ``solve_ensemble(..., return_exceptions=True)`` all have them).
     """
+
+    success = False
+    status = -1
 
     def __init__(self, message, t=None):
         super().__init__(message)
         self.t = t
+
+    @property
+    def message(self):
+        return str(self)

@@ -2,6 +2,7 @@
 import difflib
 import math
 import numbers
+from types import MappingProxyType
 
 import numpy as np
 
@@ -29,6 +30,23 @@ DEFAULTS = {
     "model_tolerance": 0.02,       # rebuild when |g~ - g-bar| > model_tolerance max |g-bar|
     "rebuild_model": True,         # False: build once, only measure the defect at control points
     "subgrid_model": "auto",       # "constant" | "affine" in the slow state | "auto": affine after a rebuild
+}
+
+#: The defaults as users see them (``dn.default_parameters``): read-only, so that a change
+#: cannot leak into every later solve.
+READ_ONLY_DEFAULTS = MappingProxyType(DEFAULTS)
+
+#: Names users bring from scipy's solve_ivp: dolfinode's parameter, or where the thing lives.
+_FOREIGN_NAMES = {
+    "atol": "absolute_tolerance",
+    "rtol": "tolerance",
+    "t_eval": "sample_times",
+    "max_step": "maximum_time_step",
+    "first_step": "initial_time_step",
+    "y0": "u0 of the ODE (dn.ODE(..., u0=...))",
+    "t_span": "t0 and T of the ODE (dn.ODE(..., T=..., t0=...))",
+    "args": "params of the ODE (dn.ODE(..., params=...)) or dn.solve_ensemble",
+    "jac": "nothing: the exact sparse Jacobian is derived from the declaration",
 }
 
 NONLINEAR_SOLVERS = ("default", "fixed-point", "newton")
@@ -129,16 +147,25 @@ _CHECKS = {
 }
 
 
+def _suggestion(name):
+    """'; did you mean ...?' for an unknown parameter name: scipy's names first, then the
+    closest of dolfinode's."""
+    if name in _FOREIGN_NAMES:
+        meant = _FOREIGN_NAMES[name]
+        if " " in meant:
+            return f" (scipy's name): in dolfinode that is {meant}."
+        return f"; did you mean {meant!r}? ({name!r} is scipy's name)"
+    close = difflib.get_close_matches(name, list(DEFAULTS), n=1, cutoff=0.4)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
 def check_parameters(given):
     """Merge ``given`` into the defaults, each given value checked (and numbers made floats);
     unknown names raise with the closest valid name."""
     params = dict(DEFAULTS)
     for name, value in given.items():
         if name not in DEFAULTS:
-            close = difflib.get_close_matches(name, list(DEFAULTS), n=1,
-                                              cutoff=0.4)
-            hint = f"; did you mean {close[0]!r}?" if close else ""
-            raise ValueError(f"unknown parameter {name!r}{hint} Valid parameters: "
+            raise ValueError(f"unknown parameter {name!r}{_suggestion(name)} Valid parameters: "
                              f"{', '.join(sorted(DEFAULTS))}")
         check = _CHECKS.get(name)
         params[name] = value if check is None else check(name, value)

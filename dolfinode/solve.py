@@ -1,4 +1,4 @@
-"""The driver: ``solve(ode, method, **parameters) -> Solution``."""
+"""The driver: ``solve(ode, method, tolerance=..., **parameters) -> Solution``."""
 import math
 import os
 import time
@@ -12,7 +12,7 @@ from dolfinode.errors import SolverError
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
-from dolfinode.parameters import NONLINEAR_SOLVERS, check_parameters
+from dolfinode.parameters import DEFAULTS, NONLINEAR_SOLVERS, check_parameters
 from dolfinode.solution import Solution, join_elements
 from dolfinode.timeslab import mono
 
@@ -87,36 +87,98 @@ def _initial_steps(ode, given, f0, atol, rtol, multi_adaptive):
     return steps
 
 
-def solve(ode, method="cG(1)", goal=None, **parameters):
-    """Solve the ODE with a Galerkin method.
+def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **parameters):
+    """Solve the ODE u' = f(u, t) on [t0, T], u(t0) = u0, with a Galerkin method.
+
+    The time steps are chosen so that the Galerkin residual R = U' - f(U, t), scaled to a
+    local error estimate, stays below ``absolute_tolerance + tolerance |U|`` componentwise
+    (the weighted norm of scipy's solve_ivp).
 
     Parameters
     ----------
     ode : ODE
-    method : str
-        "cG(q)" (q >= 1) or "dG(q)" (q >= 0): one time step shared by all components;
-        "mcG(q)" or "mdG(q)": individual time steps per component (multi-adaptive).
+        The declaration (:class:`dolfinode.ODE` or a template system).
+    method : str, default "cG(1)"
+        "cG(q)" (q >= 1, nodal order 2q, A-stable) or "dG(q)" (q >= 0, order 2q + 1,
+        L-stable): one time step shared by all components; "mcG(q)" or "mdG(q)": individual
+        time steps per component (multi-adaptive).
+    tolerance : float, default 1e-6
+        Relative tolerance (rtol) of the local error estimate. With ``goal``: the bound on
+        the estimated error in that output.
     goal : optional
-        An output of the solution (see :class:`dolfinode.Goal`): then ``tolerance`` bounds the
-        estimated error in that output, and primal and dual problems are solved in turn until
-        it is met (:func:`dolfinode.dual.adaptivity.solve_for_goal`); the solution carries
-        ``sol.error_estimate``.
-    **parameters
-        See :data:`dolfinode.parameters.DEFAULTS` (DOLFIN's names).
+        An output of the solution (see :class:`dolfinode.Goal`, e.g. ``{u: 1.0}`` for u(T)):
+        primal and dual problems are then solved in turn until the estimated error in it is
+        below ``tolerance``; the solution carries ``sol.error_estimate``.
+    absolute_tolerance : float, dict or sequence, optional
+        atol, a number or one per state; default: equal to ``tolerance``.
+    initial_time_step : float, dict or sequence, optional
+        The first step (per state for mcG/mdG); default: chosen from f(u0, t0).
+    maximum_time_step : float, optional
+        Upper bound on every step; default T - t0.
+    fixed_time_step : bool, default False
+        True: uniform steps equal to ``initial_time_step``, no error control.
+    nonlinear_solver : {"default", "fixed-point", "newton"}, default "default"
+        "default" starts with fixed-point iteration and switches to Newton's method with the
+        exact sparse Jacobian when the problem turns out stiff.
+    discrete_tolerance_factor : float, default 1e-3
+        Tolerance of the nonlinear solver relative to the step error indicator.
+    maximum_iterations : int, default 30
+        Nonlinear iterations per time slab before the step is reduced.
+    safety_factor : float, default 0.9
+        Factor in (0, 1] on each new step size.
+    maximum_steps : int, default 10000000
+        Time slabs before the solve stops with :class:`~dolfinode.SolverError`.
+    number_of_samples : int, default 101
+        Equispaced output samples ``sol.t``, ``sol.y`` (``sol(t)`` is exact at any t, and
+        ``sol.time_steps()`` gives the element ends).
+    progress : bool, default False
+        Show a tqdm progress bar over [t0, T].
+    partitioning_threshold : float, default 0.5
+        mcG/mdG: components whose step is at least this fraction of the largest share a
+        sub-slab.
+    interval_threshold : float, default 0.9
+        mcG/mdG: a step at least this fraction of what is left of the interval is stretched
+        to its end.
+    automatic_modeling : bool, default False
+        Replace fast time scales that need not be resolved by a subgrid model g~ built
+        from averages over resolved windows (see :mod:`dolfinode.modeling`).
+    average_length : float, optional
+        tau, the length of the averaging window; default ``100 / max |lambda|`` over the
+        eigenvalues of df/du(u0).
+    average_samples : int, default 1000
+        Samples per half averaging window.
+    average_tolerance : float, default 0.1
+        Components whose average drifts less than this over a window are inactivated.
+    control_points : int, default 10
+        Checks of the reduced model against the full model over (t_c, T].
+    model_tolerance : float, default 0.02
+        Rebuild the model where ``|g~ - g-bar| > model_tolerance max |g-bar|``.
+    rebuild_model : bool, default True
+        False: build the model once and only measure its defect at the control points.
+    subgrid_model : {"auto", "constant", "affine"}, default "auto"
+        g~ constant, affine in the slow state, or affine after the first rebuild.
 
     Returns
     -------
     Solution
-        With ``automatic_modeling=True`` also ``sol.model``, the
-        :class:`~dolfinode.modeling.ReducedModel` (see :mod:`dolfinode.modeling`).
+        Callable at any t in [t0, T]; ``sol.success``, ``sol.status`` and ``sol.message`` say
+        how the solve ended, ``sol.stats`` counts its work, ``sol.parameters`` holds the
+        parameters it used; with ``automatic_modeling=True`` also ``sol.model``, the
+        :class:`~dolfinode.modeling.ReducedModel`.
 
     Raises
     ------
     ValueError, TypeError
-        For invalid parameters (with the closest valid name).
+        For invalid parameters (an unknown name is answered with the closest valid one, and
+        scipy's names such as ``atol`` with dolfinode's).
     SolverError
-        When the solver cannot continue; the message names the time reached.
+        When the solver cannot continue; the message names the time reached and what to try.
+
+    Notes
+    -----
+    The defaults are ``dolfinode.default_parameters`` (DOLFIN's names).
     """
+    parameters["tolerance"] = tolerance
     if not isinstance(ode, ODE):
         raise TypeError(f"solve expects a dolfinode.ODE, got {type(ode).__name__}")
     params = check_parameters(parameters)
@@ -134,7 +196,9 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
     if params["automatic_modeling"]:
         from dolfinode.modeling import solve_with_modeling
 
-        return solve_with_modeling(ode, method, params, solve)
+        sol = solve_with_modeling(ode, method, params, solve)
+        sol.parameters = params
+        return sol
     compiled = lower(ode)
     start = time.perf_counter()
     rtol = params["tolerance"]

@@ -117,3 +117,62 @@ def test_progress_bar_counts_the_runs(capsys):
     dn.solve_ensemble(oscillator(), VARIATIONS, reduce=final_value, progress=True,
                       method="cG(2)", tolerance=1e-8)
     assert "4/4" in capsys.readouterr().err
+
+
+def blowup_ensemble(**options):
+    """Runs 0 and 2 reach T; run 1 (T = 2) meets the blow-up of u = 1/(1 - t) at t = 1."""
+    x = sp.Symbol("x")
+    ode = dn.ODE({x: x**2}, u0=[1.0], T=0.5)
+    return dn.solve_ensemble(ode, [{}, {"T": 2.0}, {"T": 0.9}], return_exceptions=True,
+                             tolerance=1e-6, **options)
+
+
+@pytest.mark.parametrize("pool", [None, ThreadPoolExecutor])
+def test_return_exceptions_keeps_every_member_in_place(pool):
+    if pool is None:
+        runs = blowup_ensemble()
+    else:
+        with pool(max_workers=2) as executor:
+            runs = blowup_ensemble(executor=executor)
+    assert [type(run).__name__ for run in runs] == ["Solution", "SolverError", "Solution"]
+    assert [run.status for run in runs] == [0, -1, 0]
+    assert [run.success for run in runs] == [True, False, True]
+    assert 0.9 < runs[1].t <= 1.0 and runs[1].message == str(runs[1])
+    assert "variation 1" in "".join(runs[1].__notes__)
+    # the completed members are the solutions u = 1/(1 - t)
+    for run, T in ((runs[0], 0.5), (runs[2], 0.9)):
+        assert run(T)[0] == pytest.approx(1.0 / (1.0 - T), rel=1e-4)
+
+
+def kill_worker_once(solution, marker):
+    """The reduce of the killed-worker test: the first run that gets here kills its worker
+    process (as an out-of-memory kill would), the others return u(T)."""
+    import os
+    import signal
+    if not os.path.exists(marker):
+        open(marker, "w").close()
+        os.kill(os.getpid(), signal.SIGKILL)
+    return solution(solution.ode.T)
+
+
+def test_dask_survives_a_killed_worker(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    import functools
+    import sys
+
+    import cloudpickle
+
+    # the workers cannot import this test module: send the reduce function by value
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    try:
+        reduce = functools.partial(kill_worker_once, marker=str(tmp_path / "killed"))
+        with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                      dashboard_address=None) as cluster, \
+                distributed.Client(cluster, timeout=120) as client:
+            values = dn.solve_ensemble(oscillator(), VARIATIONS, executor=client,
+                                       reduce=reduce, method="cG(2)", tolerance=1e-8,
+                                       return_exceptions=True)
+    finally:
+        cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
+    assert (tmp_path / "killed").exists()  # a worker did die
+    np.testing.assert_array_equal(values, expected_final_values())

@@ -22,7 +22,9 @@ def ode():
 def test_no_parameters_gives_the_defaults():
     params = check_parameters({})
     assert params == DEFAULTS
-    assert dn.default_parameters is DEFAULTS
+    assert dn.default_parameters == DEFAULTS
+    with pytest.raises(TypeError):
+        dn.default_parameters["tolerance"] = 1.0
 
 
 def test_given_parameters_override_defaults_and_are_normalised():
@@ -58,6 +60,51 @@ def test_unknown_parameter_suggests_the_closest_name(ode, typo, meant):
     message = str(info.value)
     assert f"unknown parameter {typo!r}" in message
     assert f"did you mean {meant!r}?" in message
+
+
+@pytest.mark.parametrize("scipy_name, meant", [
+    ("atol", "absolute_tolerance"),
+    ("rtol", "tolerance"),
+    ("t_eval", "sample_times"),
+    ("max_step", "maximum_time_step"),
+    ("first_step", "initial_time_step"),
+])
+def test_scipy_names_suggest_dolfinodes(ode, scipy_name, meant):
+    with pytest.raises(ValueError, match=f"did you mean {meant!r}\\? \\({scipy_name!r} is scipy"):
+        dn.solve(ode, **{scipy_name: 1e-3})
+
+
+def test_scipy_arguments_without_a_parameter_say_where_they_live(ode):
+    with pytest.raises(ValueError, match="'y0' .*scipy's name.*u0 of the ODE"):
+        dn.solve(ode, y0=[1.0])
+    with pytest.raises(ValueError, match="exact sparse Jacobian is derived"):
+        dn.solve(ode, jac=None)
+
+
+def test_tolerance_is_keyword_only(ode):
+    with pytest.raises(TypeError, match="positional"):
+        dn.solve(ode, "dG(2)", 1e-6)
+    sol = dn.solve(ode, "dG(2)", tolerance=1e-6)
+    assert sol.parameters["tolerance"] == 1e-6
+
+
+def test_solve_documents_every_parameter_with_its_default():
+    import ast
+    import inspect
+
+    from numpydoc.docscrape import FunctionDoc
+
+    documented = {p.name: p for p in FunctionDoc(dn.solve)["Parameters"]}
+    signature = inspect.signature(dn.solve)
+    for name, default in DEFAULTS.items():
+        assert name in documented, f"solve's docstring does not describe {name}"
+        if name in signature.parameters:
+            assert signature.parameters[name].default == default
+        what = documented[name].type
+        if default is None:
+            assert what.endswith("optional"), f"{name}: {what!r} should say optional"
+        else:
+            assert ast.literal_eval(what.split("default ")[1]) == default, name
 
 
 def test_unknown_parameter_without_a_close_name_lists_the_valid_ones(ode):
@@ -297,3 +344,12 @@ def test_step_limit_message_names_a_step_cap(ode):
         dn.solve(ode, maximum_time_step=1e-6, maximum_steps=100)
     with pytest.raises(dn.SolverError, match="raise maximum_steps, loosen the tolerance"):
         dn.solve(ode, tolerance=1e-12, method="dG(0)", maximum_steps=100)
+
+
+@pytest.mark.parametrize("scipy_method, galerkin", [("RK45", "cG(2)"), ("Radau", "dG(2)"),
+                                                    ("BDF", "dG(1)")])
+def test_scipy_method_names_suggest_a_galerkin_method(ode, scipy_method, galerkin):
+    with pytest.raises(ValueError) as info:
+        dn.solve(ode, scipy_method)
+    assert f"is scipy's; a Galerkin method of similar order and stability is {galerkin!r}" in str(
+        info.value)

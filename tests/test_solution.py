@@ -117,3 +117,21 @@ def test_join_elements_concatenates_and_empties_the_chunks():
     assert chunks == []
     for a, b in zip(joined, expected):
         assert np.array_equal(a, b)
+
+
+def test_a_solve_that_reaches_T_says_so_as_solve_ivp():
+    x = sp.Symbol("x")
+    sol = dn.solve(dn.ODE({x: -x}, u0=[1.0], T=1.0), "cG(1)", tolerance=1e-4)
+    assert (sol.success, sol.status) == (True, 0)
+    assert sol.message == "The solver successfully reached the end of the integration interval."
+    # set at construction, with nothing attached afterwards
+    assert sol.parameters["tolerance"] == 1e-4
+    assert sol.model is None and sol.error_estimate is None
+
+
+def test_a_failed_solve_raises_an_error_with_failure_status():
+    x = sp.Symbol("x")
+    with pytest.raises(dn.SolverError) as info:
+        dn.solve(dn.ODE({x: x**2}, u0=[1.0], T=2.0), "cG(1)", tolerance=1e-4)
+    assert (info.value.success, info.value.status) == (False, -1)
+    assert info.value.message == str(info.value)

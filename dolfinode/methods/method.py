@@ -23,6 +23,10 @@ from dolfinode.methods.quadrature import _DPS, lobatto, radau
 #: is rounding noise (cG(24): 1971 slabs at tolerance 1e-8, cG(20): 23; q >= 30: no progress).
 MAX_DEGREE = 20
 _METHOD_PATTERN = re.compile(r"^\s*(m?)(cG|dG)\(\s*(\d+)\s*\)\s*$", re.IGNORECASE)
+#: scipy's solve_ivp methods and the Galerkin method of the same order and stability
+#: (cG(q): nodal order 2q, A-stable; dG(q): order 2q + 1, L-stable, dG(2) is Radau IIA).
+_SCIPY_METHODS = {"rk23": "cG(1)", "rk45": "cG(2)", "dop853": "cG(4)", "radau": "dG(2)",
+                  "bdf": "dG(1)", "lsoda": "dG(1)"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -265,8 +269,11 @@ def parse_method(name):
 def _parse_method(name):
     match = _METHOD_PATTERN.match(name)
     if not match:
-        raise ValueError(f"unknown method {name!r}: use 'cG(q)' (q >= 1), 'dG(q)' (q >= 0), "
-                         "or 'mcG(q)', 'mdG(q)' for individual time steps per component")
+        similar = _SCIPY_METHODS.get(name.strip().lower())
+        hint = (f" ({name!r} is scipy's; a Galerkin method of similar order and stability is "
+                f"{similar!r})" if similar else "")
+        raise ValueError(f"unknown method {name!r}{hint}: use 'cG(q)' (q >= 1), 'dG(q)' "
+                         "(q >= 0), or 'mcG(q)', 'mdG(q)' for individual time steps per component")
     multi, family, q = match.groups()
     family = "cG" if family.lower() == "cg" else "dG"
     return bool(multi), make_method(family, int(q))
