@@ -27,7 +27,8 @@ from dolfinode.cli import main
 PRESET = ["--problems", "oscillators,chain-stiff,reaction-500",
           "--methods", "mcG(1),mcG(2),mdG(1),mdG(2),cG(1),cG(2),dG(1),dG(2),DOP853,LSODA,Radau,BDF",
           "--tolerances", "1e-3,1e-4,1e-5,1e-6",
-          "--name", "multiadaptive", "--output", os.path.relpath(ROOT / "doc" / "benchmarks")]
+          "--name", "multiadaptive", "--output", os.path.relpath(ROOT / "doc" / "benchmarks"),
+          "--force"]
 
 if __name__ == "__main__":
     sys.exit(main(["bench", *PRESET, *sys.argv[1:]]))

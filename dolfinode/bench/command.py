@@ -1,6 +1,7 @@
 """``dolfinode bench``: run the suite and write its tables and plots."""
 import argparse
 import os
+import subprocess
 import time
 from pathlib import Path
 
@@ -19,6 +20,11 @@ DN_METHODS = ("cG(1)", "cG(2)", "cG(3)", "dG(1)", "dG(2)", "dG(3)", "cG(2)+model
 FULL_TOLERANCES = tuple(10.0 ** -e for e in range(3, 11))
 QUICK = {"methods": ("cG(2)", "dG(2)", "dG(3)", "DOP853", "Radau", "BDF", "LSODA"),
          "tolerances": (1e-4, 1e-7), "repeats": 1, "time_limit": 3.0}
+REPEATS = 3
+#: The default output folder, new for every run, in the current directory.
+OUTPUT_PATTERN = "dolfinode-bench-%Y%m%d-%H%M%S"
+#: The files a run writes into the output folder, per stem.
+OUTPUT_SUFFIXES = (".csv", ".json", ".png", ".md")
 
 
 def _list(text):
@@ -40,47 +46,95 @@ def add_arguments(parser):
     parser.add_argument("--methods", type=_list, default=None,
                         help="comma-separated dolfinode methods and scipy solvers "
                              f"({', '.join(SCIPY_METHODS)}); default: "
-                             f"{', '.join(DN_METHODS + SCIPY_METHODS)}")
+                             f"{', '.join(DN_METHODS + SCIPY_METHODS)}; --quick: "
+                             f"{', '.join(QUICK['methods'])}")
     parser.add_argument("--tolerances", type=_numbers,
                         default=None, help="comma-separated relative tolerances "
                                            "(default 1e-3, ..., 1e-10; --quick: 1e-4, 1e-7)")
     parser.add_argument("--quick", action="store_true",
                         help="four problems, seven methods, two tolerances, one timed repeat "
-                             "(about a minute)")
+                             "(about a minute; default: off)")
     parser.add_argument("--repeats", type=int, default=None,
-                        help="timed repeats per run, median (default 3; --quick: 1)")
+                        help=f"timed repeats per run, median (default {REPEATS}; --quick: "
+                             f"{QUICK['repeats']})")
     parser.add_argument("--time-limit", type=float, default=None,
-                        help="CPU seconds after which a scipy run is abandoned (default 20; "
-                             "--quick: 3)")
+                        help=f"CPU seconds after which a scipy run is abandoned (default "
+                             f"{TIME_LIMIT:g}; --quick: {QUICK['time_limit']:g})")
     parser.add_argument("--maximum-steps", type=int, default=None,
-                        help="dolfinode's maximum_steps for every run (default 200000; it "
-                             "also bounds the memory of a stored solution)")
-    parser.add_argument("--output", default="doc/benchmarks", help="output folder")
-    parser.add_argument("--name", default="suite", help="file stem of the outputs")
+                        help=f"dolfinode's maximum_steps for every run (default {MAXIMUM_STEPS}; "
+                             "it also bounds the memory of a stored solution)")
+    parser.add_argument("--output", default=None,
+                        help="output folder (default: a new folder "
+                             "dolfinode-bench-YYYYMMDD-HHMMSS in the current directory)")
+    parser.add_argument("--name", default="suite",
+                        help="file stem of the outputs (default: suite)")
+    parser.add_argument("--force", action="store_true",
+                        help="allow overwriting files that git tracks, such as the committed "
+                             "records in doc/benchmarks (default: refuse)")
     parser.add_argument("--merge", action="store_true",
                         help="merge into the existing record OUTPUT/NAME.json: the problems run "
-                             "replace theirs, the others are kept; all outputs are rewritten")
+                             "replace theirs, the others are kept; all outputs are rewritten "
+                             "(default: off)")
     parser.add_argument("--report-only", action="store_true",
                         help="run nothing: rewrite the tables, plot and README section from the "
-                             "record OUTPUT/NAME.json (after a change of the report)")
+                             "record OUTPUT/NAME.json (after a change of the report; default: "
+                             "off)")
     parser.add_argument("--update-readme", metavar="README", default=None,
-                        help="rewrite the benchmark-suite section of this README.md")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+                        help="rewrite the benchmark-suite section of this README.md (default: "
+                             "none)")
+    parser.add_argument("--no-progress", action="store_true",
+                        help="no progress bar (default: a progress bar)")
+
+
+def tracked_files(paths):
+    """The existing files among ``paths`` that git tracks (none outside a git work tree or
+    without git)."""
+    tracked = []
+    for path in map(Path, paths):
+        if not path.is_file():
+            continue
+        try:
+            listed = subprocess.run(["git", "ls-files", "--error-unmatch", "--", path.name],
+                                    cwd=path.parent, capture_output=True, timeout=30)
+        except (OSError, subprocess.SubprocessError):
+            return []
+        if listed.returncode == 0:
+            tracked.append(path)
+    return tracked
+
+
+def _check_overwrite(args):
+    """Refuse to write over files git tracks unless ``--force``."""
+    out = Path(args.output)
+    paths = [out / f"{args.name}{suffix}" for suffix in OUTPUT_SUFFIXES]
+    if args.update_readme:
+        paths.append(Path(args.update_readme))
+    tracked = tracked_files(paths)
+    if tracked and not args.force:
+        raise ValueError(f"refusing to overwrite {', '.join(map(str, tracked))}: git tracks "
+                         "them (committed records). Write elsewhere with --output, or pass "
+                         "--force to overwrite them")
 
 
 def plan(args):
     """The problems, methods, tolerances and runner options the arguments ask for; None for
-    ``--report-only``.
+    ``--report-only``. Sets the default ``args.output``.
 
     Raises
     ------
     ValueError
-        For an unknown problem or method, a non-positive number, or a missing record for
-        ``--merge`` or ``--report-only``.
+        For an unknown problem or method, a non-positive number, a missing record for
+        ``--merge`` or ``--report-only``, or outputs that would overwrite files git tracks
+        without ``--force``.
     """
+    if args.output is None:
+        if args.merge or args.report_only:
+            raise ValueError("--merge and --report-only need the --output folder of the record")
+        args.output = time.strftime(OUTPUT_PATTERN)
     record = Path(args.output) / f"{args.name}.json"
     if (args.merge or args.report_only) and not record.exists():
         raise ValueError(f"there is no record {record} to merge into or report from")
+    _check_overwrite(args)
     if args.report_only:
         return None
     names = args.problems or (QUICK_PROBLEMS if args.quick else list(PROBLEMS))
@@ -92,7 +146,7 @@ def plan(args):
                                           else FULL_TOLERANCES))
     if not tolerances or any(not tol > 0 for tol in tolerances):
         raise ValueError(f"tolerances must be positive, got {tolerances}")
-    options = {"repeats": args.repeats or (QUICK["repeats"] if args.quick else 3)}
+    options = {"repeats": args.repeats or (QUICK["repeats"] if args.quick else REPEATS)}
     if options["repeats"] < 1:
         raise ValueError(f"--repeats must be at least 1, got {args.repeats}")
     if args.quick:

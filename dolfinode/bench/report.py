@@ -388,18 +388,23 @@ def target_section(heads):
     on every stiff problem at >= TARGET_LEVEL digits, and by orders of magnitude (ratio <=
     MULTISCALE_RATIO) on the multiscale problems, compared with the modeling runs where the
     problem has them; where it is met and where not, with the measured ratios."""
-    lines = [(f"Stiff problems (target: faster than scipy's fastest solver at every mescd >= "
-              f"{TARGET_LEVEL} both sides reached):"), ""]
+    lines = []
+    if any(h["stiff"] for h in heads.values()):
+        lines += [(f"Stiff problems (target: faster than scipy's fastest solver at every mescd >= "
+                   f"{TARGET_LEVEL} both sides reached):"), ""]
     for name, h in heads.items():
         if h["stiff"]:
             worst, text = _span([e for e in h["table"] if e["level"] >= TARGET_LEVEL])
             verdict = "not compared" if worst is None else "met" if worst < 1 else "**not met**"
             lines.append(f"* {name}: {verdict} ({text})")
-    lines += ["", (f"Multiscale problems (target: orders of magnitude, here ratio <= "
-                   f"{MULTISCALE_RATIO:g} at every mescd >= {TARGET_LEVEL}; on a problem with "
-                   "automatic-modeling runs, those runs against scipy at every level both "
-                   "reached, since modeling reaches a few digits only; < = upper bound, every "
-                   "scipy solver over the time limit):"), ""]
+    if not any(h.get("multiscale") for h in heads.values()):
+        return "\n".join(lines or ["No stiff or multiscale problem in this run."])
+    lines += [""] * bool(lines) + [
+        (f"Multiscale problems (target: orders of magnitude, here ratio <= "
+         f"{MULTISCALE_RATIO:g} at every mescd >= {TARGET_LEVEL}; on a problem with "
+         "automatic-modeling runs, those runs against scipy at every level both "
+         "reached, since modeling reaches a few digits only; < = upper bound, every "
+         "scipy solver over the time limit):"), ""]
     for name, h in heads.items():
         if h.get("multiscale"):
             worst, text = _span(_multiscale_entries(h))
@@ -487,7 +492,8 @@ def write_markdown(path, meta, rows, problems, heads, png_name, title="Benchmark
            f"(git {meta['git_commit'] or '?'})  "),
            f"Command: `{meta['command']}` ({meta['total_seconds']:.0f} s)  ",
            (f"Tolerances: {', '.join(f'{x:g}' for x in meta['tolerances'])}; "
-           f"{meta['repeats']} timed repeats (median)"
+           + ("1 timed run" if meta["repeats"] == 1
+              else f"{meta['repeats']} timed repeats (median)")
            + (f"; {meta['settings']}" if meta.get("settings") else "") + "  "),
            *meta.get("notes", []), *_merged_lines(meta), "",
            "## Equal accuracy, at the tightest level both sides reached", "",

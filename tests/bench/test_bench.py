@@ -79,16 +79,8 @@ def test_unknown_problem_suggests_a_name():
         P.get_problem("ROBBER")
 
 
-def _tiny():
-    u, lam = sp.symbols("u lam")
-    ode = dn.ODE({u: -lam * u}, u0=[1.0], T=1.0, params={lam: 2.0})
-    return P.Problem("decay", ode, stiff=False, final=np.array([np.exp(-2.0)]),
-                     exact=lambda s: np.atleast_2d(np.exp(-2.0 * np.asarray(s))),
-                     reference="exact")
-
-
-def test_runner_on_a_tiny_problem():
-    rows, cases = run_suite([_tiny()], ["dG(1)", "cG(2)", "Radau", "RK45"], [1e-3, 1e-6],
+def test_runner_on_a_tiny_problem(tiny):
+    rows, cases = run_suite([tiny()], ["dG(1)", "cG(2)", "Radau", "RK45"], [1e-3, 1e-6],
                             repeats=2, progress=False)
     assert len(rows) == 8 and all(set(r) == set(ROW_FIELDS) for r in rows)
     for r in rows:
@@ -125,11 +117,11 @@ def test_large_systems_get_sparse_jacobians_and_lsoda_a_dense_one():
         assert r["mescd"] > 3
 
 
-def test_bad_runner_input_is_rejected():
+def test_bad_runner_input_is_rejected(tiny):
     with pytest.raises(ValueError, match="at least one"):
         run_suite([], ["dG(1)"], [1e-3], progress=False)
     with pytest.raises(ValueError):
-        run_suite([_tiny()], ["xG(1)"], [1e-3], progress=False)
+        run_suite([tiny()], ["xG(1)"], [1e-3], progress=False)
 
 
 def test_equal_accuracy_interpolates_on_the_pareto_front():
@@ -176,10 +168,7 @@ def test_headline_verdicts():
     assert "| r | yes | 6-7 | 0.5 (2x faster; 6, dG(2) vs Radau)" in table
 
 
-def test_cli_bench_writes_every_output(tmp_path, capsys, monkeypatch):
-    from dolfinode.bench import problems
-
-    monkeypatch.setitem(problems.PROBLEMS, "decay", _tiny)
+def test_cli_bench_writes_every_output(tmp_path, capsys, tiny_registered):
     readme = tmp_path / "README.md"
     readme.write_text("# x\n\n## Benchmarks\n\n## Documentation\n")
     assert main(["bench", "--problems", "decay", "--methods", "dG(1),LSODA", "--tolerances",
@@ -241,13 +230,13 @@ def test_target_section_states_met_and_missed_with_ratios():
 
 # the seed model at kappa = 1e4 resolves 66% of [t0, T]: modeling warns that it saves little
 @pytest.mark.filterwarnings("ignore:automatic modeling resolves")
-def test_modeling_variant_runs_where_declared_and_is_scored_on_x1():
+def test_modeling_variant_runs_where_declared_and_is_scored_on_x1(tiny):
     """cG(2)+modeling runs on a seed model (its declared average_length) and not on a problem
     without modeling parameters; the seed models are scored on x1 alone."""
     seed = P.seed_model(1e6, T=1.0)
     assert seed.modeling == {"average_length": pytest.approx(0.03)} and seed.scored == (0,)
     assert P.seed_model(1e2).modeling is None
-    rows, cases = run_suite([seed, _tiny()], ["cG(2)+modeling", "cG(2)"], [1e-3], repeats=1,
+    rows, cases = run_suite([seed, tiny()], ["cG(2)+modeling", "cG(2)"], [1e-3], repeats=1,
                             progress=False)
     assert [(r["problem"], r["method"]) for r in rows] == [
         (seed.name, "cG(2)+modeling"), (seed.name, "cG(2)"), ("decay", "cG(2)")]
@@ -317,15 +306,15 @@ def test_multiscale_target_uses_the_modeling_runs():
     assert "(s): met on s." in readme
 
 
-def test_cli_bench_merges_a_run_into_the_record_and_rewrites_it(tmp_path, monkeypatch):
+def test_cli_bench_merges_a_run_into_the_record_and_rewrites_it(tmp_path, monkeypatch,
+                                                                 tiny_registered):
     from dolfinode.bench import problems
 
     def renamed():
-        problem = _tiny()
+        problem = tiny_registered()
         problem.name = "decay2"
         return problem
 
-    monkeypatch.setitem(problems.PROBLEMS, "decay", _tiny)
     monkeypatch.setitem(problems.PROBLEMS, "decay2", renamed)
     common = ["--methods", "dG(1),LSODA", "--tolerances", "1e-3", "--repeats", "1",
               "--output", str(tmp_path), "--no-progress"]
