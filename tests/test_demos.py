@@ -1,5 +1,7 @@
 """Run every demo in quick mode and check its plot and its key numbers."""
 import importlib.util
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -12,9 +14,15 @@ def run_demo(name, tmp_path):
     spec = importlib.util.spec_from_file_location(f"demo_{name}", DEMOS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    result = module.main(["--quick", "--output", str(tmp_path)])
+    old = os.umask(0o022)
+    try:
+        result = module.main(["--quick", "--output", str(tmp_path)])
+    finally:
+        os.umask(old)
     assert Path(result["plot"]).parent == tmp_path
     assert Path(result["plot"]).stat().st_size > 10_000
+    for path in tmp_path.iterdir():  # every output (plots, XDMF) readable as any other file
+        assert stat.S_IMODE(path.stat().st_mode) == 0o644, path.name
     return result
 
 

@@ -52,15 +52,15 @@ class ErrorEstimate:
     value : float
         Estimate of M(U) - M(u) (for a linear final-time goal, (psi, U(T) - u(T))).
     bound : float
-        Upper bound of |value| from |R| |phi - pi phi| (see the module docstring).
+        Upper bound of ``|value|`` from ``|R| |phi - pi phi|`` (see the module docstring).
     contributions : ndarray (N,)
         Share of each component (state order) in ``value``: sum over its elements of eta_in.
     bound_contributions : ndarray (N,)
         Share of each component in ``bound`` (without the orthogonality defect).
     orthogonality_defect : float
-        |sum (R, pi phi) + [U] pi phi|: zero for an exact Galerkin solution.
+        ``|sum (R, pi phi) + [U] pi phi|``: zero for an exact Galerkin solution.
     dual_error : float
-        |value - value with the dual of one degree lower|: a (pessimistic) measure of the dual's
+        ``|value - value with the dual of one degree lower|``: a (pessimistic) measure of the dual's
         discretisation error in ``value``.
     stability_factors : dict
         "S0" = int ||phi|| dt and "S1" = int ||phi'|| dt.

@@ -15,6 +15,13 @@ import meshio
 import numpy as np
 
 
+def _umask():
+    """The process's file-creation mask (reading it means setting it: set it back)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def write_trajectory(filename, points, springs, times, positions):
     """Write masses and springs moving in time.
 
@@ -57,6 +64,7 @@ def write_trajectory(filename, points, springs, times, positions):
                 current = np.hstack([positions[:, :, j], pad])
                 writer.write_data(float(tj), point_data={
                     "position": current, "displacement": current - np.hstack([points, pad])})
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes it 0600; an output is 0644
         os.replace(tmp, filename)
     except BaseException:
         os.unlink(tmp)

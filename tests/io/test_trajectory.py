@@ -1,4 +1,7 @@
 """XDMF trajectories: written atomically, read back exactly."""
+import os
+import stat
+
 import numpy as np
 import pytest
 
@@ -17,6 +20,20 @@ def test_round_trip(tmp_path):
     assert np.allclose(T, times)
     assert np.allclose(X[:, :2], positions)
     assert list(tmp_path.iterdir()) == [path]  # no temporary file left
+
+
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600)])
+def test_file_mode_follows_the_umask_as_other_outputs(tmp_path, umask, mode):
+    points = np.array([[0.0, 0.0], [1.0, 0.0]])
+    old = os.umask(umask)
+    try:
+        path = write_trajectory(tmp_path / "traj.xdmf", points, [[0, 1]], [0.0],
+                                points[:, :, None])
+        plain = tmp_path / "plain.txt"
+        plain.write_text("x")  # how Python's open() creates a file
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(path.stat().st_mode) == mode == stat.S_IMODE(plain.stat().st_mode)
 
 
 def test_failure_leaves_nothing_behind(tmp_path):

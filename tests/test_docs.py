@@ -1,0 +1,86 @@
+"""The documentation: the Sphinx site builds without warnings, every public object has an API
+page, the README's example runs, and the README's figures match the benchmark records."""
+import json
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import dolfinode as dn
+from dolfinode.bench import report
+
+ROOT = Path(__file__).parents[1]
+README = (ROOT / "README.md").read_text()
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    """The HTML site built with warnings as errors from a copy of doc/ (the build writes the
+    API pages next to its sources)."""
+    work = tmp_path_factory.mktemp("docs")
+    shutil.copytree(ROOT / "doc", work / "doc", ignore=shutil.ignore_patterns("_build",
+                                                                            "generated"))
+    shutil.copy(ROOT / "CHANGELOG.md", work)
+    build = subprocess.run([sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q",
+                            "-b", "html", str(work / "doc"), str(work / "html")],
+                           capture_output=True, text=True, timeout=900)
+    assert build.returncode == 0, build.stderr[-5000:]
+    return work / "html"
+
+
+def test_the_site_builds_without_warnings(site):
+    for page in ("index", "getting-started", "guide/modeling", "gallery", "changelog",
+                 "design/index", "api/index"):
+        assert (site / f"{page}.html").is_file(), page
+
+
+def test_every_public_object_has_an_api_page(site):
+    for name in dn.__all__:
+        page = site / "api" / "generated" / f"{name}.html"
+        assert page.is_file(), f"no API page for dolfinode.{name}"
+        text = page.read_text()
+        assert f"dolfinode.{name}" in text
+    solve = (site / "api" / "generated" / "solve.html").read_text()
+    for parameter in dn.default_parameters:  # documented, not just listed in a dict
+        assert f"<strong>{parameter}</strong>" in solve, parameter
+
+
+def test_readme_is_short_and_undated():
+    assert len(README.splitlines()) <= 120
+    assert not re.search(r"20\d\d-\d\d-\d\d", README)
+    assert not re.search(r"\b[0-9a-f]{7,40}\b", README)  # no commit hashes
+    # .ci/run cites this command
+    assert ("python3 -m venv .venv && .venv/bin/pip install -e '.[test]' && "
+            ".venv/bin/python -m pytest -q") in README
+
+
+def test_readme_example_runs(capsys):
+    blocks = re.findall(r"```python\n(.*?)```", README, re.S)
+    assert len(blocks) == 1
+    exec(compile(blocks[0], "README.md", "exec"), {})
+    printed = capsys.readouterr().out
+    assert "successfully reached the end" in printed
+    deviation = float(re.search(r"max \|u1 - \(1 - cos t\)/4\| = (\S+)", printed).group(1))
+    assert deviation < 1e-4  # the README says about 1.4e-5
+    bound = float(re.search(r"modeling error bound: (\S+)", printed).group(1))
+    assert 0 < bound < 1e-5  # the README says about 1e-6
+
+
+def _ratio_range(names, table="table"):
+    """The README's form of the range of time ratios over the given suite problems."""
+    heads = json.loads((ROOT / "doc" / "benchmarks" / "suite.json").read_text())["headline"]
+    entries = [e for n in names for e in (heads[n][table] if table != "table"
+                                          else report._compared(heads[n]))]
+    return report._range(entries)
+
+
+def test_readme_figures_match_the_benchmark_records():
+    stiff = ["HIRES", "ROBER", "VDPOL", "VDPOLM", "POLLU", "MEDAKZO"]
+    assert f"takes {_ratio_range(stiff)} of the CPU time" in README
+    assert f"{_ratio_range(['seed k=1e+08'], 'modeling_table')} of the CPU time" in README
+    front = (ROOT / "doc" / "benchmarks" / "reaction_front.md").read_text()
+    figure = re.search(r"N = 16000: (\S+) \(errors 1e-05 \.\.\. 1e-09\)", front).group(1)
+    assert f"mcG(3) takes {figure} of the CPU time" in README.replace("\n  ", " ")
