@@ -1,9 +1,11 @@
 """dolfinode: variational (Galerkin) time integration of ODE systems declared in sympy.
 
-Public surface (see shared/API.md): ``ODE``, ``t``, ``solve``, ``Solution``, ``SolverError``,
-``estimate_error``, ``Goal``, ``ErrorEstimate``; structured systems ``Template``,
-``TemplateODE``, ``ParticleSystem`` (``dolfinode.systems``); ensembles ``solve_ensemble``,
-``vary``.
+The public surface is this package's namespace (``__all__``): declarations ``ODE``, ``t`` and
+the structured systems ``Template``, ``TemplateODE``, ``ParticleSystem`` (``systems``);
+``solve``, its ``Solution`` and ``SolverError``; error estimates ``estimate_error``, ``Goal``,
+``ErrorEstimate``; ensembles ``solve_ensemble``, ``vary``; the methods ``Method``,
+``make_method``, ``parse_method``; ``default_parameters``. The documentation's API reference
+has a page for each.
 """
 from dolfinode import systems
 from dolfinode.dual import ErrorEstimate, Goal, estimate_error

@@ -292,7 +292,7 @@ class ODE:
     @cached_property
     def autonomous(self):
         """Whether f does not depend on the time t explicitly (read once: a sympy traversal of
-        every expression, ~20 us of each multi-adaptive solve of the seed model)."""
+        every expression, which small multi-adaptive solves would otherwise repeat)."""
         return t not in self._free_symbols()
 
     @property

@@ -299,7 +299,7 @@ def _newton_plan(compiled, m):
     """(structure, bytes, costs) of the Newton matrices of method ``m`` on the pattern of
     ``compiled``: their storage (:func:`newton_structure`; a sparse one is analysed only now),
     its memory and the cost units of :func:`mono.newton_costs`. Made once per pattern and
-    method: they took 25 of the ~110 us of a small solve (the seed model, cG(5))."""
+    method: a small solve would otherwise spend a fifth of its time on them."""
     plan = compiled.newton_plans.get(m.name)
     if plan is None:
         structure = newton_structure(compiled.band_structure,

@@ -1,5 +1,6 @@
 """The dolfinode command and the progress bar."""
 import numpy as np
+import pytest
 import sympy as sp
 
 import dolfinode as dn
@@ -21,3 +22,15 @@ def test_progress_bar_does_not_change_the_solution(capsys):
     shown = dn.solve(ode, method="dG(1)", tolerance=1e-8, progress=True)
     np.testing.assert_array_equal(plain.values, shown.values)
     assert "dolfinode" in capsys.readouterr().err
+
+
+def test_version_and_help(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"dolfinode {dn.__version__}"
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    text = capsys.readouterr().out
+    assert "bench" in text and "info" in text and "--version" in text
+    assert "``" not in text and "`" not in text  # plain text, not reStructuredText

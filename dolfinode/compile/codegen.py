@@ -22,8 +22,8 @@ _PROLOGUE = """\
 #define M_E 2.7182818284590452354
 #endif
 #define ARGS const double *restrict u, double t, const double *restrict p
-/* Chunks stay functions of their own: inlined into their one caller they made one function
-   of the whole system again (gcc -O2: 10 s instead of 2 s for 1000 small expressions). */
+/* Chunks stay functions of their own: inlined into their one caller they make one function
+   of the whole system again, which gcc -O2 compiles several times slower. */
 #if defined(__GNUC__)
 #define CHUNK_FUNCTION static __attribute__((noinline)) void
 #else
@@ -54,8 +54,8 @@ class _KernelPrinter(C99CodePrinter):
         return super()._print_Pow(expr)
 
 
-#: One printer for all expressions (doprint resets its state; a printer per expression made
-#: MEDAKZO's source in 3.9 s against 3.3, a chain of 1000 expressions in 3.4 against 2.5).
+#: One printer for all expressions (doprint resets its state; making a printer per expression
+#: is a sizeable part of code generation).
 _print = _KernelPrinter().doprint
 
 

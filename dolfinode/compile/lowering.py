@@ -63,8 +63,8 @@ class CompiledODE:
 
     def again(self):
         """This lowering as a later ``lower`` of the same ODE returns it: loaded, no compile
-        time; the band ordering, once computed, is kept (a shallow copy: copy.copy's
-        protocol took 4 of a small solve's ~150 us)."""
+        time; the band ordering, once computed, is kept (a shallow copy without copy.copy's
+        protocol, which a small solve notices)."""
         again = object.__new__(CompiledODE)
         again.__dict__.update(self.__dict__)
         again.compile_time, again.cached = 0.0, True

@@ -3,8 +3,8 @@
 The time-stepping loops take the kernels' addresses (integers) and make them functions of
 these fixed types (:func:`rhs_kernel`, :func:`component_kernel`), so they compile once (and are
 cached by numba) whatever the ODE; arrays are passed as data pointers. A kernel passed as a
-first-class function object instead costs ~40 us per call of a loop from Python (numba types it
-and unpickles its signature, twice, on every call): 10% of a small solve.
+first-class function object instead is typed and its signature unpickled, twice, on every
+call of a loop from Python: a large share of a small solve.
 """
 import ctypes
 
@@ -24,7 +24,7 @@ def _no_refcount():
 #: njit options of the slab iterations, which allocate nothing: no reference counting (numba's
 #: private ``_nrt`` option; plain njit where a numba version lacks it, slower but the same).
 #: numba increfs and decrefs, with atomic instructions, the arrays passed to every helper
-#: call: 15-20% of the seed problem's time (N = 4, cG(3): solve 3.9 -> 3.3 ms).
+#: call, a sizeable part of the time of a small system's solve.
 NO_REFCOUNT = _no_refcount()
 
 #: f(u, t, p, out): the full right-hand side, written into out; also
@@ -89,8 +89,7 @@ def address(typingctx, array, index):
     to pass a kernel part of an array.
 
     Unlike ``array.ctypes`` (or a slice) it makes no array object, whose atomic reference
-    counting numba pays on each call (with the copies it saved in the fixed-point iteration:
-    seed problem, N = 4, cG(3), 4.6 -> 3.6 ms per solve).
+    counting numba pays on each call (and it spares the fixed-point iteration its copies).
     """
     def codegen(context, builder, signature, args):
         data = context.make_array(signature.args[0])(context, builder, args[0]).data
@@ -103,5 +102,6 @@ def address(typingctx, array, index):
 @njit(cache=True)
 def call_rhs(kernel_address, u, t, p, out):
     """out = f(u, t) (or the Jacobian's values) through the kernel at ``kernel_address``:
-    from Python ~1 us, against ~13 us through ctypes (which makes an object per pointer)."""
+    from Python an order of magnitude cheaper than through ctypes, which makes an object per
+    pointer."""
     rhs_kernel(kernel_address)(address(u, 0), t, address(p, 0), address(out, 0))

@@ -28,8 +28,8 @@ from dolfinode.linalg.sparse import (
 )
 
 #: Seconds per multiply-add of the LUs and per stored entry read by their solves, for real and
-#: complex values (measured 2026-11-24 on 2-D Brusselator and 3-D Laplacian patterns,
-#: N = 72-7200): the banded LU is vectorized (a real multiply-add 0.15-0.2 ns, a complex one
+#: complex values (fitted on 2-D Brusselator and 3-D Laplacian patterns, N = 72-7200): the
+#: banded LU is vectorized (a real multiply-add 0.15-0.2 ns, a complex one
 #: 0.65 ns), the sparse one reads every entry through an index (2 and 3.5 ns). A sparse
 #: factorization also scatters and gathers every entry of its rows.
 SECONDS = {("banded", False): (0.17e-9, 0.45e-9), ("banded", True): (0.65e-9, 2.5e-9),
@@ -40,9 +40,8 @@ SPARSE_SCATTER = 2.0e-9
 SOLVES_PER_FACTORIZATION = 4
 #: The sparse LU must be estimated this much faster to be chosen, and only systems with at
 #: least SPARSE_MIN_N components and bandwidths kl + ku >= SPARSE_MIN_BAND are analysed, when
-#: a solve first needs Newton's method (below, the banded LU wins: tridiagonal N = 1000 both
-#: 31 us, 2-D Brusselator N = 72 (band 12 + 12) complex factor 21 against 24 us, solve 5.3
-#: against 7.2 us, real 15 against 10 us, 3.5 against 2.9 us).
+#: a solve first needs Newton's method (below these, the banded LU is as fast or faster, and
+#: the analysis would not pay).
 SPARSE_MARGIN = 0.8
 SPARSE_MIN_N = 64
 SPARSE_MIN_BAND = 16
@@ -151,11 +150,8 @@ def newton_structure(band, make_sparse, eigenvalues):
     sparse structure ``make_sparse()`` when one factorization and SOLVES_PER_FACTORIZATION
     solves are estimated SPARSE_MARGIN times faster (wide bands: 2-D and 3-D couplings), in
     complex arithmetic if the method has a complex pair (its complex matrices dominate the
-    cost), else in real, where the vectorized band holds out to larger systems. Measured
-    against this choice (2026-11-24, whole solves with Newton): 2-D wave equation N = 512 dG(2)
-    sparse 0.60x the banded time, Brusselator N = 288 cG(2) 0.55x; real only: Brusselator
-    N = 288 / 800 / 1800 cG(1) 1.21x / 1.08x / 0.86x, wave N = 512 dG(0) 1.25x, N = 1152
-    cG(1) 0.94x (all kept banded)."""
+    cost), else in real, where the vectorized band holds out to larger systems (whole
+    solves with Newton confirm the choice on 2-D wave and Brusselator systems)."""
     if not sparse_candidate(band):
         return band
     sparse = make_sparse()

@@ -31,8 +31,8 @@ def kernel_weights(samples):
     ``2 samples + 1`` equispaced points s_j of [-1, 1]: w_j = (a + b s_j^2) cos^6(pi s_j / 2)
     with the discrete moments sum w_j = 1 and sum w_j s_j^2 = 0 (the kernel vanishes with
     five derivatives at both ends, so the trapezoidal rule is spectrally accurate for
-    smooth integrands). Made once per ``samples`` (read-only): 0.4 ms per window, about
-    12% of automatic modeling on the seed model."""
+    smooth integrands). Made once per ``samples`` (read-only): recomputed per window they
+    were a noticeable part of a small modeling solve."""
     s = np.linspace(-1.0, 1.0, 2 * samples + 1)
     base = np.cos(0.5 * np.pi * s) ** 6
     m0, m2, m4 = (base @ s**k for k in (0, 2, 4))

@@ -63,10 +63,9 @@ class WindowModel:
         absolute time ``shift``.
 
         The expressions are declared (and checked by sympy) once, later declarations vary
-        the first (:func:`~dolfinode.vary`; 11 of the 60 ms of the seed problem's automatic
-        modeling went to re-declaring). Declarations of one window (the same shift) share
-        their lowering, kernels and band ordering (about 0.3 s to redo at N = 4 10^5, for
-        each piece of a window)."""
+        the first (:func:`~dolfinode.vary`: re-declaring is a sizeable part of a small
+        modeling solve). Declarations of one window (the same shift) share their lowering,
+        kernels and band ordering, which are costly to redo for each piece on large systems."""
         u0 = _admissible(self.ode, u0)
         if self._last is not None:
             ode = vary(self._last, {self.shift: float(shift), "u0": u0, "t0": t0, "T": T})

@@ -50,8 +50,8 @@ def fast_time_scale(compiled, u, t):
     (largest magnitude) otherwise, from a fixed start vector (ARPACK's own is random, and the
     windows' step bound, so every element of a modeling solve, would vary from run to run) to
     a relative accuracy of SPECTRAL_TOLERANCE (to machine precision, a tight cluster of fast
-    eigenvalues, as the lattice's 9,604 small masses at p = 50, took 28,074 iterations from
-    one start vector).
+    eigenvalues, as the lattice's small masses, takes ARPACK tens of thousands of
+    iterations).
     """
     J = compiled.jacobian_matrix(u, t)
     if J.shape[0] <= 500:

@@ -112,9 +112,8 @@ def _stage_sum(c, f0, F, A, s, out):
     stage of a transformation F -> (A (x) I) F), in blocks of 8 and then 4
     components whose sums stay in registers over m (stored once; the compiler packs them
     into vector registers), the rest one by one; unsigned indices, see
-    dolfinode.linalg.banded. Against axpys over all components per m, the sums of a sweep
-    took 1.8-2.5 -> 1.5 us for S = 6, N = 100 and 146 -> 56 ns for S = 5, N = 4 (same
-    order of summation, same results)."""
+    dolfinode.linalg.banded. Blocked, the sums cost a fraction of axpys over all components
+    per m, in the same order of summation (the same results)."""
     N = f0.shape[0]
     S = A.shape[0]
     i = 0
@@ -167,8 +166,7 @@ def fixed_point(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F
     for it in range(max_iter):
         counters[F_EVALUATIONS] += stage_rhs(f, p, X, t, k, tau, F)
         # stage by stage: the quadrature sum (_stage_sum), then X -= G and d = |G| w in one
-        # pass (chain, cG(5), N = 100: 3.8 -> 2.1 us per sweep with the weights and the
-        # sums as axpys, before they were blocked)
+        # pass, so that each stage's values are read once per sweep
         d = 0.0
         for s in range(S):
             _stage_sum(b0[s], f0, F, A, s, G)

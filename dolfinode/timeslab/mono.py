@@ -69,9 +69,9 @@ EXTRAPOLATE = 2.0
 #: (``NewtonStructure.seconds``, complex; 2e5 multiply-adds of the banded LU): while the step
 #: stays within a factor REUSE_RATIO of the factors' step, for at most REUSE_AGE slabs, and
 #: until a Newton iteration with them fails (then they are made afresh and the slab is solved
-#: again). A 2-D Brusselator of N = 3200 (bandwidth 80) in band storage: one complex
-#: factorization 35 ms against 2.7 ms for a solve. Small systems are factored every Newton
-#: slab, where an iteration more costs more than the factorization it saves.
+#: again). On wide bands a factorization costs ten or more solves, so keeping it pays; small
+#: systems are factored every Newton slab, where an iteration more costs more than the
+#: factorization it saves.
 REUSE_TIME = 1.3e-4
 REUSE_RATIO = 1.25
 REUSE_AGE = 20
@@ -92,8 +92,8 @@ SWITCH_BACK = 0.5
 #: K_NEWTON (without Newton's error filter a stiff component's estimate is far larger).
 SETTLED = 1.25
 RETURN = 0.25
-#: Seconds of one f evaluation per Jacobian nonzero and component, and per call (a model:
-#: 0.4-0.8 ns per nonzero measured on the chain and reaction-front kernels).
+#: Seconds of one f evaluation per Jacobian nonzero and component, and per call (a model,
+#: fitted to the chain and reaction-front kernels).
 F_ENTRY, F_CALL = 0.6e-9, 30e-9
 
 _f8 = types.float64[::1]

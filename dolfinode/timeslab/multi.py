@@ -30,8 +30,8 @@ estimate of :mod:`dolfinode.adaptivity` (order q + 1 for mcG(q) and mdG(q)), fil
 sub-slab, (I - gamma k J_gg)^{-1} k R (``_filter_residuals``), and scaled by
 atol + rtol max |U_i| over the slab; the slab is accepted when all are <= ACCEPTANCE_MARGIN,
 and each component gets its own next step. Unfiltered, k |R| of a stiff component is
-k |lambda| times its distance from the quasi-steady state: mcG(2) took 3.9 million slabs on
-ROBER to 1e11 (25 s; 1323 slabs and 9 ms filtered). DOLFIN's indicators k^q |R| (mcG) and
+k |lambda| times its distance from the quasi-steady state: mcG(2) needs millions of slabs on
+ROBER to 1e11 without the filter, about a thousand with it. DOLFIN's indicators k^q |R| (mcG) and
 k^(q+1) |R| (mdG) depend on the unit of time: for q >= 2 and k < 1 they let fast components
 step over their oscillation (mcG(3) on the stiff chain: 15x too long steps, errors
 10^3-10^5 x tolerance), and mdG(1) reached 2600x the error of dG(1) on the template lattice.
@@ -120,8 +120,7 @@ def _moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea, eb, values, node
     a frozen dependency (no element in the slab) is its constant value x_j. The values at all
     nodes of an interval go to the rows of ``states`` (row m: the state f_i reads at node m)
     before f_i is evaluated: written just before each evaluation, as the evaluation loads
-    them, they stalled the pipeline at every node (in isolation, chain mcG(3): 119 -> 62 ns
-    per interval of 4 nodes). (The reads are written out here, not in a helper: numba's
+    them, they stalled the pipeline at every node. (The reads are written out here, not in a helper: numba's
     reference counting of each array argument of a call cost more than the reads.) Returns
     the f evaluations."""
     S = mom.shape[0]
