@@ -168,10 +168,12 @@ def test_dask_survives_a_killed_worker(tmp_path):
         reduce = functools.partial(kill_worker_once, marker=str(tmp_path / "killed"))
         with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                       dashboard_address=None) as cluster, \
-                distributed.Client(cluster, timeout=120) as client:
-            values = dn.solve_ensemble(oscillator(), VARIATIONS, executor=client,
-                                       reduce=reduce, method="cG(2)", tolerance=1e-8,
-                                       return_exceptions=True)
+                distributed.Client(cluster, timeout=120) as client, \
+                ThreadPoolExecutor(max_workers=1) as waiting:
+            run = waiting.submit(dn.solve_ensemble, oscillator(), VARIATIONS, executor=client,
+                                 reduce=reduce, method="cG(2)", tolerance=1e-8,
+                                 return_exceptions=True)
+            values = run.result(timeout=300)  # a bound instead of a hang if dask stalls
     finally:
         cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
     assert (tmp_path / "killed").exists()  # a worker did die
