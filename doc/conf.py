@@ -84,7 +84,7 @@ def write_api_pages(app=None):
         title = f"dolfinode.{name}"
         pages[f"{name}.rst"] = (f"{title}\n{'=' * len(title)}\n\n.. {directive}:: {target}"
                                 f"{options}\n")
-    for stale in set(p.name for p in API.iterdir()) - set(pages):
+    for stale in {p.name for p in API.iterdir()} - set(pages):
         (API / stale).unlink()
     for file, text in pages.items():
         path = API / file

@@ -9,6 +9,7 @@ import sys
 
 import dolfinode
 
+
 def main(argv=None):
     given = sys.argv[1:] if argv is None else list(argv)
     parser = argparse.ArgumentParser(prog="dolfinode", description=dolfinode.__doc__.split("\n")[0])

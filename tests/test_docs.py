@@ -26,7 +26,7 @@ def site(tmp_path_factory):
     shutil.copy(ROOT / "CHANGELOG.md", work)
     build = subprocess.run([sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q",
                             "-b", "html", str(work / "doc"), str(work / "html")],
-                           capture_output=True, text=True, timeout=900)
+                           capture_output=True, text=True, timeout=900, check=False)
     assert build.returncode == 0, build.stderr[-5000:]
     return work / "html"
 
@@ -58,9 +58,9 @@ def test_readme_is_short_and_undated():
 
 
 def test_readme_example_runs(capsys):
-    blocks = re.findall(r"```python\n(.*?)```", README, re.S)
+    blocks = re.findall(r"```python\n(.*?)```", README, re.DOTALL)
     assert len(blocks) == 1
-    exec(compile(blocks[0], "README.md", "exec"), {})
+    exec(compile(blocks[0], "README.md", "exec"), {})  # noqa: S102 (the README's own code)
     printed = capsys.readouterr().out
     assert "successfully reached the end" in printed
     deviation = float(re.search(r"max \|u1 - \(1 - cos t\)/4\| = (\S+)", printed).group(1))

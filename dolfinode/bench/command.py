@@ -95,7 +95,7 @@ def tracked_files(paths):
             continue
         try:
             listed = subprocess.run(["git", "ls-files", "--error-unmatch", "--", path.name],
-                                    cwd=path.parent, capture_output=True, timeout=30)
+                                    cwd=path.parent, capture_output=True, timeout=30, check=False)
         except (OSError, subprocess.SubprocessError):
             return []
         if listed.returncode == 0:
