@@ -150,7 +150,9 @@ def _collect(items, progress, return_exceptions, result):
                 out.append(result(item))
             except Exception as error:
                 if hasattr(error, "add_note"):  # Python >= 3.11
-                    error.add_note(f"(in variation {number} of solve_ensemble)")
+                    error.add_note(f"(in variation {number} of solve_ensemble"
+                                   + (")" if return_exceptions else
+                                      "; return_exceptions=True keeps the other runs)"))
                 if not return_exceptions:
                     raise
                 out.append(error)

@@ -100,7 +100,8 @@ def test_a_failing_run_names_its_variation():
     blowup = dn.ODE({x: x**2}, u0=[1.0], T=0.5)
     with pytest.raises(dn.SolverError) as info:
         dn.solve_ensemble(blowup, [{}, {"T": 2.0}])
-    assert "variation 1" in "".join(getattr(info.value, "__notes__", []))
+    notes = "".join(getattr(info.value, "__notes__", []))
+    assert "variation 1" in notes and "return_exceptions=True keeps the other runs" in notes
 
 
 def test_runs_and_solutions_pickle_for_process_pools_and_clusters():
