@@ -77,6 +77,16 @@ class Solution:
     """
 
     model = None
+    #: Per event, the crossing times and the states there (arrays, as solve_ivp's); None
+    #: without events=.
+    t_events = y_events = None
+    #: How the solve ended (solve_ivp's codes): 0 at T, 1 at a terminal event.
+    status = 0
+    message = "The solver successfully reached the end of the integration interval."
+
+    @property
+    def success(self):
+        return self.status >= 0
 
     def __init__(self, ode, method, t_start, k, values, stats, number_of_samples):
         self.ode = ode

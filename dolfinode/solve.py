@@ -5,6 +5,7 @@ import time
 
 import numpy as np
 
+from dolfinode import events as ev
 from dolfinode import timeslab as ts
 from dolfinode.adaptivity import filter_constant, initial_step
 from dolfinode.compile import lower
@@ -19,6 +20,9 @@ from dolfinode.timeslab import mono
 #: Relative size (times |t|) below which a time step cannot be resolved in double precision.
 _KMIN_RELATIVE = 1e-14
 _STATUS_STEP_LIMIT = -1
+#: Slabs (elements: multi-adaptive) per loop call of a solve with events or switches: what a
+#: terminal event or a switch in the chunk makes the loop redo.
+_EVENT_CHUNK = 256
 #: A solve stopped by maximum_steps is said to approach a blow-up when its last step is below
 #: _BLOWUP_STEP (T - t0) and max |u| grew _BLOWUP_GROWTH-fold since t0 (dG(0) on u' = u^2,
 #: u(0) = 1: 10^7 steps, down to 3.1e-10, with |u| = 2.3e3 at t = 0.99956).
@@ -132,14 +136,21 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
                          "controls the absolute error alone)")
     multi_adaptive, m = parse_method(method)
     if params["automatic_modeling"]:
+        if params["events"] is not None or params["breakpoints"] is not None:
+            raise ValueError("events and breakpoints are not supported with automatic_modeling")
         from dolfinode.modeling import solve_with_modeling
 
         return solve_with_modeling(ode, method, params, solve)
-    compiled = lower(ode)
+    smooth, switches = ev.switched(ode)
+    plan = ev.Plan.make(ode, switches, params["breakpoints"], params["events"], m)
+    compiled = lower(smooth)
     start = time.perf_counter()
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
     x = ode.u0.copy()
+    if plan is not None:
+        sigma = compiled.p[len(ode.params):]  # (a view: the branches at t0 set in place)
+        plan.initial_branches(sigma, x, ode.t0, ode.T)
     f0 = compiled.f(x, ode.t0)
     if not math.isfinite(f0.sum()) and not np.isfinite(f0).all():  # the sum may overflow
         bad = ode.states[int(np.flatnonzero(~np.isfinite(f0))[0])]
@@ -167,7 +178,7 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
              params["safety_factor"], dtol, m.local_order]
     run = _run_multi if multi_adaptive else _run_mono
     status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
-                                                   floor, x, f0, steps)
+                                                   floor, x, f0, steps, plan)
     # mono-adaptive solves may return from Newton to fixed-point iteration (STIFF is then 0)
     newton = (bool(counters[ts.STIFF]) or params["nonlinear_solver"] == "newton"
               or stats.get("newton matrices") is not None)
@@ -188,17 +199,20 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
         "compile time": compiled.compile_time,
         "solve time": time.perf_counter() - start,
     })
+    solved = ode if plan is None else plan.solved_ode(ode)
     if multi_adaptive:
-        sol = Solution.multi_adaptive(ode, m, *elements, stats, params["number_of_samples"])
+        sol = Solution.multi_adaptive(solved, m, *elements, stats, params["number_of_samples"])
     else:
-        sol = Solution(ode, m, *elements, stats, params["number_of_samples"])
+        sol = Solution(solved, m, *elements, stats, params["number_of_samples"])
     sol.parameters = params
+    if plan is not None:
+        plan.report(sol)
     return sol
 
 
-def _integrate(advance, make_buffers, capacity, counters, params, state, bar,
-               newton_ready=None):
-    """Call a compiled time-slab loop until it reaches T, collecting its stored elements.
+def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newton_ready=None):
+    """Call a compiled time-slab loop until it reaches T, yielding (status, stored elements)
+    after each call.
 
     The loop returns FULL when its output buffers are full (so results arrive in chunks, and
     progress can be shown); a FULL with nothing stored means one slab needs larger buffers.
@@ -207,28 +221,42 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar,
     _STATUS_STEP_LIMIT: the mono-adaptive buffers hold no more slabs than are left, the
     multi-adaptive loop (whose buffers count elements) is checked after each chunk.
     """
-    chunks = []
     while True:
         buffers = make_buffers(capacity)
         status = advance(*buffers)
         n = counters[ts.STORED]
-        chunks.append([b[:n] for b in buffers])
+        chunk = [b[:n] for b in buffers]
+        del buffers
         if bar is not None:
             bar.update(state[0] - bar.n)
         if counters[ts.SLABS] > params["maximum_steps"]:
             status = _STATUS_STEP_LIMIT
-            break
-        if status == ts.NEWTON_NEEDED and newton_ready is not None and newton_ready():
-            continue
+        elif status == ts.NEWTON_NEEDED and newton_ready is not None and newton_ready():
+            status = ts.FULL
+        elif status == ts.FULL:
+            if n == 0:
+                capacity *= 2
+            if counters[ts.SLABS] >= params["maximum_steps"]:
+                status = _STATUS_STEP_LIMIT
+        yield status, chunk
         if status != ts.FULL:
-            break
-        if n == 0:
-            capacity *= 2
-        if counters[ts.SLABS] >= params["maximum_steps"]:
-            status = _STATUS_STEP_LIMIT
-            break
-    del buffers
-    return status, join_elements(chunks)
+            return
+
+
+def _integrate(chunks, plan, pieces, ode):
+    """Run the loop's ``chunks()`` to T, or piece by piece with ``plan`` (events,
+    breakpoints, switches: :func:`dolfinode.events.march` through ``pieces``); (status, the
+    elements joined)."""
+    if plan is None:
+        stored = []
+        for status, chunk in chunks():
+            stored.append(chunk)
+    else:
+        status, stored, *plan.outcome = ev.march(plan, pieces, ode.t0, ode.T)
+        plan.terminated = status == ev.TERMINATED
+        if plan.terminated:
+            status = ts.DONE
+    return status, join_elements(stored)
 
 
 def _newton_plan(compiled, m):
@@ -247,7 +275,13 @@ def _newton_plan(compiled, m):
     return plan
 
 
-def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps):
+def _step_guess(ode, compiled, atol, rtol):
+    """The first step of a fresh start at (x, t) (after a jump of f, the last step says
+    nothing about the next)."""
+    return lambda x, t: initial_step(compiled.f(x, t), x, atol, rtol, ode.T - ode.t0)
+
+
+def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan):
     tables = mono.method_tables(m)
     fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, filter_constant(m), 0.0, 0.0])
     # the running mean of fixed-point iterations per slab starts at a typical 6
@@ -284,9 +318,17 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
                             out_X)
 
     capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
+    if plan is not None:  # a terminal event or a switch re-integrates what follows it
+        capacity = min(capacity, _EVENT_CHUNK)
     with _progress(ode, params) as bar:
-        status, elements = _integrate(advance, buffers, capacity, counters, params,
-                                      state, bar, newton_ready)
+        def chunks():
+            return _chunks(advance, buffers, capacity, counters, params, state, bar,
+                           newton_ready)
+
+        pieces = plan and ev.MonoPieces(
+            ode, m, chunks, fopts, state, x, compiled.p, len(ode.params),
+            _step_guess(ode, compiled, atol, fopts[mono.RTOL]), f0=f0, f=compiled.f)
+        status, elements = _integrate(chunks, plan, pieces, ode)
     if status == ts.NEWTON_NEEDED:
         available = _available_memory()
         why = ("was not selected" if params["nonlinear_solver"] == "newton" else "failed")
@@ -304,7 +346,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
     return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, stats
 
 
-def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps):
+def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan):
     # imported on first use: compiling its loop (once per installation) takes ~30 s
     from dolfinode.timeslab import multi
 
@@ -330,9 +372,17 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
 
     # values at most 2^21 doubles, as mono's: from 32 MB on, each solve would map fresh pages
     capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 21 // (m.q + 1))))
+    if plan is not None:
+        capacity = min(capacity, max(4 * ode.N, _EVENT_CHUNK))
     with _progress(ode, params) as bar:
-        status, elements = _integrate(advance, buffers, capacity, counters, params,
-                                      state, bar)
+        def chunks():
+            return _chunks(advance, buffers, capacity, counters, params, state, bar)
+
+        pieces = plan and ev.MultiPieces(
+            ode, m, chunks, fopts, state, x, compiled.p, len(ode.params),
+            _step_guess(ode, compiled, atol, fopts[multi.RTOL]), kdes=kdes, frozen=frozen,
+            components=plan.detector.components)
+        status, elements = _integrate(chunks, plan, pieces, ode)
     per_component = np.bincount(elements[0], minlength=ode.N)
     total = int(counters[ts.ELEMENTS])
     stats = {"time slabs": int(counters[ts.SLABS]),

@@ -1,0 +1,518 @@
+"""Discontinuities and events: breakpoints of f(t), switches on the state, and events g(u, t).
+
+A right-hand side with a non-smooth function (Piecewise, Heaviside, sign, Abs, Min, Max,
+floor, ceiling) is rewritten as a smooth one whose branch is a parameter sigma_j
+(:func:`switched`): Heaviside(g) -> sigma_j, Abs(g) -> sigma_j g, a condition g < 0 ->
+sigma_j > 1/2, and so on. On each piece of [t0, T] where no switching function g_j changes
+sign, the solver integrates this smooth f with sigma fixed: no element straddles a jump and
+every stage (for dG also the end node) is on the branch of its piece, which a loop evaluating
+the original f at t_n + k would not be. Switching functions of t alone give the breakpoints
+(their roots, solved by sympy, plus the user's ``breakpoints=``); those on the state are
+located like events, on the Galerkin polynomial, and the element is re-integrated to the
+crossing where the next piece starts on the other branch.
+
+Events g(u, t) (:class:`Event`) are located on the Galerkin polynomials of each chunk the
+compiled loop returns: g is sampled at 2q + 2 points per element, and every sign change is
+refined by Brent's method on the polynomial to rounding. A terminal event ends the solve at
+the crossing (the element containing it is re-integrated to end there).
+"""
+import copy
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import sympy as sp
+from scipy.optimize import brentq
+
+from dolfinode.ode import ODE
+from dolfinode.ode import t as time_symbol
+
+#: Consecutive switches less than SLIDING_SPAN x (T - t0) apart after which a state switch is
+#: taken as a sliding mode (the flow on both sides pushes towards g = 0).
+SLIDING_SWITCHES, SLIDING_SPAN = 50, 1e-9
+#: Most breakpoints of a floor/ceiling of t (each one ends a piece of the integration).
+MAX_BREAKPOINTS = 100_000
+_SWITCH = "dn_switch_"
+
+
+class Event:
+    """An event: a zero crossing of g(u, t), located on the Galerkin solution.
+
+    Parameters
+    ----------
+    g : sympy expression
+        In the states, ``dn.t`` and the ODE's parameters.
+    terminal : bool
+        Whether the solve ends at the first crossing (``sol.status == 1``).
+    direction : {0, 1, -1}
+        Only crossings where g increases (1) or decreases (-1); 0: both (as solve_ivp).
+    """
+
+    def __init__(self, g, terminal=False, direction=0):
+        try:
+            self.g = sp.sympify(g)
+        except (sp.SympifyError, TypeError):
+            raise TypeError(f"an event is a sympy expression g(u, t), got {g!r}") from None
+        if not isinstance(self.g, sp.Expr):
+            raise TypeError(f"an event is a sympy expression g(u, t), got {g!r}")
+        if not isinstance(terminal, (bool, np.bool_)):
+            raise TypeError(f"terminal must be True or False, got {terminal!r}")
+        if direction not in (0, 1, -1):
+            raise ValueError(f"direction must be 0, 1 or -1, got {direction!r}")
+        self.terminal, self.direction = bool(terminal), int(direction)
+
+    def __repr__(self):
+        return f"Event({self.g}, terminal={self.terminal}, direction={self.direction})"
+
+
+@dataclass
+class Switch:
+    """A switching function g of f and the parameter sigma that holds its branch: sigma is
+    ``positive`` where g > 0, ``negative`` where g < 0 and ``at_zero`` where g = 0 (the
+    original function's value there). ``floor``: sigma is floor(g) (a floor or ceiling of
+    t: ceiling(g) = -floor(-g))."""
+
+    g: sp.Expr
+    symbol: sp.Symbol
+    positive: float = 1.0
+    negative: float = 0.0
+    at_zero: float = 1.0
+    floor: bool = False
+
+    def value(self, g):
+        if self.floor:
+            return float(math.floor(g))
+        return self.positive if g > 0 else self.negative if g < 0 else self.at_zero
+
+
+def _relational(rel, symbol):
+    """(switch, replacement) of a condition lhs < rhs etc.: g = lhs - rhs, sigma its truth."""
+    g = rel.lhs - rel.rhs
+    truth = {sp.StrictLessThan: (0.0, 1.0, 0.0), sp.LessThan: (0.0, 1.0, 1.0),
+             sp.StrictGreaterThan: (1.0, 0.0, 0.0), sp.GreaterThan: (1.0, 0.0, 1.0)}[type(rel)]
+    return Switch(g, symbol, *truth), sp.StrictGreaterThan(symbol, sp.Rational(1, 2))
+
+
+def _replacement(atom, symbol):
+    """(switch, smooth replacement) of one non-smooth function, or None."""
+    if isinstance(atom, (sp.StrictLessThan, sp.LessThan, sp.StrictGreaterThan,
+                         sp.GreaterThan)):
+        return _relational(atom, symbol)
+    if isinstance(atom, sp.Heaviside):
+        h0 = atom.args[1] if len(atom.args) > 1 else sp.S.Half
+        return Switch(atom.args[0], symbol, 1.0, 0.0, float(h0)), symbol
+    if isinstance(atom, sp.sign):
+        return Switch(atom.args[0], symbol, 1.0, -1.0, 0.0), symbol
+    if isinstance(atom, sp.Abs):
+        return Switch(atom.args[0], symbol, 1.0, -1.0, 0.0), symbol * atom.args[0]
+    if isinstance(atom, (sp.Min, sp.Max)) and len(atom.args) == 2:
+        a, b = atom.args
+        larger = 1.0 if isinstance(atom, sp.Max) else 0.0  # sigma = 1 selects a
+        return (Switch(a - b, symbol, larger, 1.0 - larger, 1.0),
+                symbol * a + (1 - symbol) * b)
+    if isinstance(atom, sp.floor):
+        return Switch(atom.args[0], symbol, floor=True), symbol
+    if isinstance(atom, sp.ceiling):
+        return Switch(-atom.args[0], symbol, floor=True), -symbol
+    return None
+
+
+def _binary(expr):
+    """Min/Max of more than two arguments as nested pairs."""
+    def nest(e):
+        return e.func(e.args[0], e.func(*e.args[1:], evaluate=False), evaluate=False)
+    return expr.replace(lambda e: isinstance(e, (sp.Min, sp.Max)) and len(e.args) > 2, nest)
+
+
+def switched(ode):
+    """The ODE with every non-smooth function of f replaced by a smooth one of a branch
+    parameter, and its :class:`Switch` es; (ode, []) when there is none.
+
+    The parameters are named dn_switch_0, dn_switch_1, ... and follow the ODE's own, so that
+    ``compiled.p[len(ode.params) + j]`` holds sigma_j.
+    """
+    if hasattr(ode, "templates") or not any(e.has(*_NON_SMOOTH) for e in ode.rhs):
+        return ode, []
+    switches, done = [], {}
+    for expr in ode.rhs:
+        # innermost first: a switch inside another's argument is smooth when that one is
+        for atom in sorted(_binary(expr).atoms(*_NON_SMOOTH, sp.Rel), key=sp.count_ops):
+            symbol = sp.Symbol(f"{_SWITCH}{len(switches)}", real=True)
+            made = None if atom in done else _replacement(atom, symbol)
+            if made is not None:
+                # g in the original functions (evaluated as such); f smooth in sigma
+                switches.append(made[0])
+                done[atom] = _replacement(atom.xreplace(done), symbol)[1]
+    rhs = [_binary(expr).xreplace(done) for expr in ode.rhs]
+    if not switches:
+        return ode, []
+    params = dict(ode.params)
+    params.update({s.symbol: s.value(0.0) for s in switches})
+    smooth = ODE(dict(zip(ode.states, rhs)), ode.u0, ode.T, params, ode.t0, ode.nonnegative)
+    return smooth, switches
+
+
+_NON_SMOOTH = (sp.Piecewise, sp.Heaviside, sp.sign, sp.Abs, sp.Min, sp.Max, sp.floor,
+               sp.ceiling)
+
+
+def _numeric(expr, ode):
+    """``expr`` with the parameter values substituted (the switches' own are left)."""
+    return sp.sympify(expr).xreplace({s: sp.Float(v) for s, v in ode.params.items()})
+
+
+def _roots_in(g, t0, T):
+    """The real roots of g(t) in (t0, T), sorted; ValueError when sympy cannot solve it."""
+    try:
+        roots = sp.solveset(g, time_symbol, sp.Interval.open(t0, T))
+    except (NotImplementedError, ValueError, TypeError):
+        roots = None
+    if not isinstance(roots, sp.FiniteSet):
+        raise ValueError(f"the breakpoints of f where {g} changes sign could not be solved for "
+                         "in closed form: give them as breakpoints=[...]")
+    return sorted(float(r) for r in roots if r.is_real)
+
+
+def breakpoints(ode, switches, given):
+    """Sorted breakpoints in (t0, T): roots of the switching functions of t alone and the
+    user's ``given`` (times outside (t0, T) are dropped)."""
+    t0, T = ode.t0, ode.T
+    times = [float(b) for b in given]
+    for s in switches:
+        g = _numeric(s.g, ode)
+        if g.free_symbols - {time_symbol}:
+            continue
+        if not s.floor:
+            times += _roots_in(g, t0, T)
+            continue
+        grid = np.linspace(t0, T, 1001)
+        values = sp.lambdify(time_symbol, g, "numpy")(grid) * np.ones_like(grid)
+        low, high = math.floor(np.min(values)) - 1, math.ceil(np.max(values)) + 1
+        if high - low > MAX_BREAKPOINTS:
+            raise ValueError(f"floor/ceiling of {s.g} jumps more than {MAX_BREAKPOINTS} times "
+                             "on [t0, T]: smooth it, or split the solve")
+        for n in range(low, high + 1):
+            times += _roots_in(g - n, t0, T)
+    times = np.unique(np.array(times, dtype=float))
+    return times[(times > t0) & (times < T)]
+
+
+class Detector:
+    """Sign changes of functions g_j(u, t) on the Galerkin solution, chunk by chunk.
+
+    ``last[j]`` is the sign of g_j before the next chunk (0: not yet known, as at t0 where
+    a zero is not an event).
+    """
+
+    def __init__(self, ode, functions, directions, method):
+        self.ode = ode
+        exprs = [_numeric(g, ode) for g in functions]
+        used = sorted(set().union(*(e.free_symbols for e in exprs)) & set(ode.states),
+                      key=ode.index)
+        unknown = set().union(*(e.free_symbols for e in exprs)) - set(used) - {time_symbol}
+        if unknown:
+            raise ValueError(f"unknown symbol {sorted(map(str, unknown))[0]!r} in an event or "
+                             "switch: events are functions of the states and dn.t")
+        self.components = [ode.index(s) for s in used]
+        self._g = [sp.lambdify([time_symbol, *used], e, "numpy") for e in exprs]
+        self.directions = np.array(directions)
+        self.tau = np.arange(1, 2 * method.q + 3) / (2 * method.q + 2)
+        self.last = np.zeros(len(exprs))
+
+    def values(self, times, U):
+        """g_j at the times, U the solution there (N, M): shape (n_g, M)."""
+        args = [U[i] for i in self.components]
+        return np.array([g(times, *args) * np.ones_like(times)
+                         for g in self._g]).reshape(len(self._g), times.size)
+
+    def start(self, t, u):
+        self.last = np.sign(self.values(np.array([t]), u[:, None])[:, 0])
+
+    def crossings(self, sol, begin, times):
+        """(time, j, sign after) of every crossing on ``sol`` (a chunk from ``begin``) at
+        the sample ``times`` (sorted, after ``begin``), in time order; updates ``last``."""
+        G = self.values(times, sol._evaluate(times))
+        found = []
+        for j in range(G.shape[0]):
+            s = np.sign(G[j])
+            before = np.concatenate([[self.last[j]], s])
+            index = np.where(before != 0, np.arange(before.size), 0)
+            previous = before[np.maximum.accumulate(index)]  # last nonzero sign so far
+            hits = np.flatnonzero((s != 0) & (s == -previous[:-1]))
+            for h in hits:
+                if self.directions[j] * s[h] >= 0:
+                    a = times[h - 1] if h > 0 else begin
+                    found.append((self._root(sol, j, a, times[h]), j, s[h]))
+            nonzero = np.flatnonzero(s)
+            if nonzero.size:
+                self.last[j] = s[nonzero[-1]]
+        return sorted(found)
+
+    def _root(self, sol, j, a, b):
+        """The crossing of g_j in [a, b] on the polynomial, to rounding; a when g_j does not
+        change sign there (a crossing straight after a restart at a)."""
+        def g(t):
+            return self.values(np.array([t]), sol._evaluate(np.array([t])))[j, 0]
+        ga, gb = g(a), g(b)
+        if ga == 0 or np.sign(ga) == np.sign(gb):
+            return a
+        return brentq(g, a, b, xtol=4 * np.finfo(float).eps * max(abs(a), abs(b)) + 1e-300,
+                      rtol=4 * np.finfo(float).eps)
+
+
+@dataclass
+class Plan:
+    """What a solve with discontinuities or events needs: the switches of f (in the order of
+    their parameters after the ODE's own), the breakpoints, the user's events, and one
+    :class:`Detector` for the events followed by the switches on the state."""
+
+    switches: list
+    breakpoints: np.ndarray
+    events: list
+    state_switches: list
+    detector: Detector
+    t_switches: Detector
+
+    @classmethod
+    def make(cls, ode, switches, given_breakpoints, events, method):
+        """The plan of a solve, or None when there is nothing to watch (the plain loop)."""
+        events = events or []
+        times = breakpoints(ode, switches, () if given_breakpoints is None else given_breakpoints)
+        if not (switches or events or times.size):
+            return None
+        t_only = [s for s in switches if not (_numeric(s.g, ode).free_symbols - {time_symbol})]
+        on_state = [s for s in switches if not any(s is o for o in t_only)]
+        detector = Detector(ode, [e.g for e in events] + [s.g for s in on_state],
+                            [e.direction for e in events] + [0] * len(on_state), method)
+        return cls(switches, times, events, on_state, detector,
+                   Detector(ode, [s.g for s in t_only], [0] * len(t_only), method))
+
+    terminated = False
+    outcome = None  # (t_events, y_events, end) from march
+
+    def solved_ode(self, ode):
+        """The ODE on the interval solved: [t0, t_event] after a terminal event."""
+        if not self.terminated:
+            return ode
+        ended = copy.copy(ode)
+        ended.__dict__.pop("_compiled", None)
+        ended._set_interval(ode.t0, self.outcome[2])
+        return ended
+
+    def report(self, sol):
+        """Set sol.t_events, sol.y_events (per event, as solve_ivp), status and message."""
+        t_events, y_events, end = self.outcome
+        if self.events:
+            sol.t_events = [np.array(times) for times in t_events]
+            sol.y_events = [np.array(ys).reshape(-1, sol.ode.N) for ys in y_events]
+        if self.terminated:
+            sol.status = TERMINATED
+            sol.message = f"A termination event occurred at t = {end:.17g}."
+
+    def initial_branches(self, sigma, u0, t0, T):
+        """sigma at t0 (the state switches from g(u0, t0), the t-only ones on the first
+        piece)."""
+        n_events = len(self.events)
+        g = self.detector.values(np.array([t0]), u0[:, None])[n_events:, 0]
+        for s, value in zip(self.state_switches, g):
+            sigma[self.switches.index(s)] = s.value(value)
+        self.branches(sigma, t0, self.breakpoints[0] if self.breakpoints.size else T)
+
+    def branches(self, sigma, begin, end):
+        """sigma on the piece (begin, end): the t-only switches from g at its midpoint, the
+        state switches as they are."""
+        mid = np.array([0.5 * (begin + end)])
+        values = self.t_switches.values(mid, np.zeros((0, 1)))[:, 0]
+        t_only = [s for s in self.switches if not any(s is o for o in self.state_switches)]
+        for s, g in zip(t_only, values):
+            sigma[self.switches.index(s)] = s.value(g)
+
+
+#: solve_ivp's status of a solve ended by a terminal event.
+TERMINATED = 1
+
+
+def march(plan, loop, t0, T):
+    """Integrate piece by piece between the breakpoints, locating events and state switches.
+
+    ``loop`` runs the compiled loop (:class:`MonoPieces` or :class:`MultiPieces`). Returns
+    (status, element chunks, t_events, y_events, end): status a loop status or TERMINATED,
+    end the time the solution reaches.
+    """
+    n_events = len(plan.events)
+    t_events = [[] for _ in range(n_events)]
+    y_events = [[] for _ in range(n_events)]
+    sigma = loop.sigma()
+    plan.detector.start(t0, loop.x)
+    elements, recent = [], []
+    for end in [*plan.breakpoints, T]:
+        plan.branches(sigma, loop.t(), end)
+        loop.restart(sigma)
+        while loop.t() < end:
+            for status, chunk in loop.chunks(end):
+                if status not in (loop.DONE, loop.FULL):
+                    return status, elements, t_events, y_events, loop.t()
+                if len(chunk[0]) == 0:
+                    continue
+                sol, begin, times = loop.view(chunk)
+                found = plan.detector.crossings(sol, begin, times)
+                stop = next((c for c in found if c[1] >= n_events
+                             or plan.events[c[1]].terminal), None)
+                for te, j, _ in found:
+                    if j < n_events and (stop is None or te < stop[0]):
+                        t_events[j].append(te)
+                        y_events[j].append(sol(te) if te > t0 else loop.x.copy())
+                if stop is None:
+                    elements.append(chunk)
+                    continue
+                te, j, after = stop
+                elements.append(loop.truncate(chunk, te))
+                for status, rest in loop.chunks(te):
+                    if status not in (loop.DONE, loop.FULL):
+                        return status, elements, t_events, y_events, loop.t()
+                    elements.append(rest)
+                plan.detector.start(te, loop.x)
+                plan.detector.last[j] = after
+                if j < n_events:
+                    t_events[j].append(te)
+                    y_events[j].append(loop.x.copy())
+                    return TERMINATED, elements, t_events, y_events, te
+                switch = plan.state_switches[j - n_events]
+                sigma[plan.switches.index(switch)] = switch.value(after)
+                _check_sliding(recent, te, switch, t0, T)
+                loop.restart(sigma)
+                break
+    return loop.DONE, elements, t_events, y_events, T
+
+
+def _check_sliding(recent, te, switch, t0, T):
+    """Raise SolverError when the last SLIDING_SWITCHES switches came within
+    SLIDING_SPAN (T - t0) of each other: a sliding mode, which switching cannot follow."""
+    from dolfinode.errors import SolverError
+
+    recent.append(te)
+    del recent[:-SLIDING_SWITCHES]
+    if len(recent) == SLIDING_SWITCHES and recent[-1] - recent[0] < SLIDING_SPAN * (T - t0):
+        raise SolverError(f"the switch on {switch.g} changes branch {SLIDING_SWITCHES} times "
+                          f"between t = {recent[0]:.9g} and {recent[-1]:.9g}: the solution slides "
+                          f"along {switch.g} = 0, where f is discontinuous (on both sides f points "
+                          "towards it). Replace the switch by a smooth one (e.g. tanh(g / eps)), "
+                          "or model the sliding motion", t=te)
+
+
+class _Pieces:
+    """What :func:`march` needs of a compiled loop: its time, state and branch parameters,
+    chunks up to a given end, a view of a chunk as a Solution, and truncation at a time.
+
+    ``run_chunks()`` starts the loop's chunk generator (``solve._chunks``); ``p`` and
+    ``n_params`` locate sigma in the kernels' parameters; ``step_guess(x, t)`` is the first
+    step of a fresh start (after a jump of f the old step says nothing)."""
+
+    from dolfinode.timeslab import DONE, FULL
+
+    def __init__(self, ode, method, run_chunks, fopts, state, x, p, n_params, step_guess):
+        self.ode, self.method, self.run_chunks = ode, method, run_chunks
+        self.fopts, self.state, self.x, self.p, self.n_params = fopts, state, x, p, n_params
+        self.step_guess = step_guess
+        self.tau = np.arange(1, 2 * method.q + 3) / (2 * method.q + 2)
+
+    def t(self):
+        return float(self.state[0])
+
+    def sigma(self):
+        return self.p[self.n_params:].copy()
+
+    def chunks(self, end):
+        """The loop's chunks up to ``end``, with the state at each chunk's start kept."""
+        self.fopts[self.T_END] = end
+        run = self.run_chunks()
+        while True:
+            self.saved = self.save()
+            try:
+                status, chunk = next(run)
+            except StopIteration:
+                return
+            yield status, chunk
+
+
+class MonoPieces(_Pieces):
+    from dolfinode.timeslab.mono import EPS_PREV, HAVE_F0, K_NEXT, T_END, T_NOW
+
+    def __init__(self, *args, f0, f):
+        super().__init__(*args)
+        self.f0, self.f = f0, f  # f(x, t) with the kernels' current parameters
+
+    def save(self):
+        return self.x.copy()
+
+    def restart(self, sigma):
+        """A fresh start at the current time with the branches sigma."""
+        self.p[self.n_params:] = sigma
+        self.f0[:] = self.f(self.x, self.t())
+        self.state[[self.HAVE_F0, self.EPS_PREV]] = 1.0
+        self.state[self.K_NEXT] = min(self.state[self.K_NEXT], self.step_guess(self.x, self.t()))
+
+    def view(self, chunk):
+        from dolfinode.solution import Solution
+
+        t_start, k, values = chunk
+        sol = Solution(self.ode, self.method, t_start, k, values, {}, 2)
+        return sol, t_start[0], (t_start[:, None] + k[:, None] * self.tau).ravel()
+
+    def truncate(self, chunk, te):
+        """The chunk's elements before the one containing te; the loop restarts at its
+        start (with U(t_n^-)), or at te when an element ends there."""
+        t_start, k, values = chunk
+        n = min(int(np.searchsorted(t_start + k, te)), len(k) - 1)
+        if t_start[n] + k[n] <= te:
+            keep, t, x = n + 1, te, values[n, -1]
+        elif self.method.family == "cG":
+            keep, t, x = n, t_start[n], values[n, 0]
+        else:
+            keep, t, x = n, t_start[n], values[n - 1, -1] if n > 0 else self.saved
+        self.x[:] = x
+        self.state[[self.T_NOW, self.K_NEXT, self.HAVE_F0]] = t, k[n], 0.0
+        return [a[:keep] for a in chunk]
+
+
+class MultiPieces(_Pieces):
+    def __init__(self, *args, kdes, frozen, components):
+        super().__init__(*args)
+        from dolfinode.timeslab.multi import T_END  # (imported by the loop already)
+
+        self.T_END = T_END
+        self.kdes, self.frozen, self.components = kdes, frozen, components
+
+    def save(self):
+        return self.state.copy(), self.x.copy(), self.kdes.copy(), self.frozen.copy()
+
+    def restart(self, sigma):
+        self.p[self.n_params:] = sigma
+        self.kdes[:] = np.minimum(self.kdes, self.step_guess(self.x, self.t()))
+
+    def view(self, chunk):
+        """The chunk as a Solution, the frozen components as constants since they froze."""
+        from dolfinode.solution import Solution
+
+        comp, a, b, values = chunk
+        frozen = np.flatnonzero(~np.isnan(self.frozen))
+        begin = float(self.saved[0][0])
+        if self.components:
+            mine = np.isin(comp, self.components)
+            times = (a[mine, None] + (b - a)[mine, None] * self.tau).ravel()
+        else:
+            times = (a[:, None] + (b - a)[:, None] * self.tau).ravel()
+        times = np.unique(times[times > begin])
+        comp = np.concatenate([comp, frozen])
+        a = np.concatenate([a, self.frozen[frozen]])
+        b = np.concatenate([b, np.full(frozen.size, self.t())])
+        values = np.concatenate([values, np.repeat(self.x[frozen, None], values.shape[1], 1)])
+        sol = Solution.multi_adaptive(self.ode, self.method, comp, a, b, values, {}, 2)
+        return sol, begin, times
+
+    def truncate(self, chunk, te):
+        """Nothing of the chunk: the loop restarts at its start (a slab boundary, where all
+        components meet)."""
+        state, x, kdes, frozen = self.saved
+        self.state[:], self.x[:], self.kdes[:], self.frozen[:] = state, x, kdes, frozen
+        return [a[:0] for a in chunk]
