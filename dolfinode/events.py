@@ -26,6 +26,7 @@ from scipy.optimize import brentq
 
 from dolfinode.ode import ODE
 from dolfinode.ode import t as time_symbol
+from dolfinode.timeslab import smallest_step
 
 #: Consecutive switches less than SLIDING_SPAN x (T - t0) apart after which a state switch is
 #: taken as a sliding mode (the flow on both sides pushes towards g = 0).
@@ -167,6 +168,8 @@ def _roots_in(g, t0, T):
         roots = sp.solveset(g, time_symbol, sp.Interval.open(t0, T))
     except (NotImplementedError, ValueError, TypeError):
         roots = None
+    if roots is sp.S.EmptySet:
+        return []
     if not isinstance(roots, sp.FiniteSet):
         raise ValueError(f"the breakpoints of f where {g} changes sign could not be solved for "
                          "in closed form: give them as breakpoints=[...]")
@@ -288,6 +291,7 @@ class Plan:
                    Detector(ode, [s.g for s in t_only], [0] * len(t_only), method))
 
     terminated = False
+    switched = 0  # crossings of switches on the state
     outcome = None  # (t_events, y_events, end) from march
 
     def solved_ode(self, ode):
@@ -302,6 +306,8 @@ class Plan:
     def report(self, sol):
         """Set sol.t_events, sol.y_events (per event, as solve_ivp), status and message."""
         t_events, y_events, end = self.outcome
+        sol.stats["breakpoints"] = self.breakpoints.size
+        sol.stats["state switches"] = self.switched
         if self.events:
             sol.t_events = [np.array(times) for times in t_events]
             sol.y_events = [np.array(ys).reshape(-1, sol.ode.N) for ys in y_events]
@@ -358,15 +364,17 @@ def march(plan, loop, t0, T):
                 found = plan.detector.crossings(sol, begin, times)
                 stop = next((c for c in found if c[1] >= n_events
                              or plan.events[c[1]].terminal), None)
-                for te, j, _ in found:
-                    if j < n_events and (stop is None or te < stop[0]):
+                for c in found:  # those up to a terminal one, as solve_ivp
+                    te, j, _ = c
+                    if j < n_events and (stop is None or (te <= stop[0] and c is not stop)):
                         t_events[j].append(te)
                         y_events[j].append(sol(te) if te > t0 else loop.x.copy())
                 if stop is None:
                     elements.append(chunk)
                     continue
-                te, j, after = stop
-                elements.append(loop.truncate(chunk, te))
+                kept, te = loop.truncate(chunk, stop[0])
+                j, after = stop[1:]
+                elements.append(kept)
                 for status, rest in loop.chunks(te):
                     if status not in (loop.DONE, loop.FULL):
                         return status, elements, t_events, y_events, loop.t()
@@ -378,6 +386,7 @@ def march(plan, loop, t0, T):
                     y_events[j].append(loop.x.copy())
                     return TERMINATED, elements, t_events, y_events, te
                 switch = plan.state_switches[j - n_events]
+                plan.switched += 1
                 sigma[plan.switches.index(switch)] = switch.value(after)
                 _check_sliding(recent, te, switch, t0, T)
                 loop.restart(sigma)
@@ -460,19 +469,25 @@ class MonoPieces(_Pieces):
         return sol, t_start[0], (t_start[:, None] + k[:, None] * self.tau).ravel()
 
     def truncate(self, chunk, te):
-        """The chunk's elements before the one containing te; the loop restarts at its
-        start (with U(t_n^-)), or at te when an element ends there."""
+        """The chunk's elements before the one containing te, and te; the loop restarts at
+        its start (with U(t_n^-)), or at te when an element ends there. A te a few ulp past
+        an element start (a crossing in a dG jump) is taken as the start."""
         t_start, k, values = chunk
-        n = min(int(np.searchsorted(t_start + k, te)), len(k) - 1)
-        if t_start[n] + k[n] <= te:
-            keep, t, x = n + 1, te, values[n, -1]
-        elif self.method.family == "cG":
-            keep, t, x = n, t_start[n], values[n, 0]
+        t_end = t_start + k
+        n = min(int(np.searchsorted(t_end, te)), len(k) - 1)
+        if self.method.family == "cG":
+            left = values[n, 0]
         else:
-            keep, t, x = n, t_start[n], values[n - 1, -1] if n > 0 else self.saved
+            left = values[n - 1, -1] if n > 0 else self.saved
+        if te - t_start[n] < smallest_step(te, self.ode.T - self.ode.t0):
+            keep, t, te, x = n, t_start[n], t_start[n], left
+        elif t_end[n] <= te:
+            keep, t, te, x = n + 1, t_end[n], t_end[n], values[n, -1]
+        else:
+            keep, t, x = n, t_start[n], left
         self.x[:] = x
         self.state[[self.T_NOW, self.K_NEXT, self.HAVE_F0]] = t, k[n], 0.0
-        return [a[:keep] for a in chunk]
+        return [a[:keep] for a in chunk], te
 
 
 class MultiPieces(_Pieces):
@@ -511,8 +526,10 @@ class MultiPieces(_Pieces):
         return sol, begin, times
 
     def truncate(self, chunk, te):
-        """Nothing of the chunk: the loop restarts at its start (a slab boundary, where all
-        components meet)."""
+        """Nothing of the chunk, and te: the loop restarts at its start (a slab boundary,
+        where all components meet), which is te when te is a few ulp past it."""
         state, x, kdes, frozen = self.saved
         self.state[:], self.x[:], self.kdes[:], self.frozen[:] = state, x, kdes, frozen
-        return [a[:0] for a in chunk]
+        if te - state[0] < smallest_step(te, self.ode.T - self.ode.t0):
+            te = float(state[0])
+        return [a[:0] for a in chunk], te

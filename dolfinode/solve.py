@@ -17,8 +17,6 @@ from dolfinode.parameters import NONLINEAR_SOLVERS, check_parameters
 from dolfinode.solution import Solution, join_elements
 from dolfinode.timeslab import mono
 
-#: Relative size (times |t|) below which a time step cannot be resolved in double precision.
-_KMIN_RELATIVE = 1e-14
 _STATUS_STEP_LIMIT = -1
 #: Slabs (elements: multi-adaptive) per loop call of a solve with events or switches: what a
 #: terminal event or a switch in the chunk makes the loop redo.
@@ -63,7 +61,7 @@ def _absolute_tolerance(ode, value, rtol):
 
 def _smallest_step(ode, t):
     """The smallest step double precision resolves at the time t (the loops' bound)."""
-    return _KMIN_RELATIVE * max(abs(t), abs(ode.T) * 1e-6)
+    return ts.smallest_step(t, ode.T - ode.t0)
 
 
 def _check_resolvable(ode, name, k, t):
@@ -160,7 +158,7 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
     span, latest = ode.T - ode.t0, max(abs(ode.t0), abs(ode.T))
     if span < _smallest_step(ode, latest):
         raise ValueError(f"[t0, T] = [{ode.t0:.17g}, {ode.T:.17g}] is shorter than the smallest "
-                         f"step double precision resolves there ({_KMIN_RELATIVE:g} |t|): shift "
+                         f"step double precision resolves there ({ts.ROUNDING:g} |t|): shift "
                          f"the time origin, e.g. t0 = 0 and T = {span:.17g}")
     if params["initial_time_step"] is not None:
         _check_resolvable(ode, "initial_time_step", steps, ode.t0)
@@ -283,7 +281,7 @@ def _step_guess(ode, compiled, atol, rtol):
 
 def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan):
     tables = mono.method_tables(m)
-    fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, filter_constant(m), 0.0, 0.0])
+    fopts = np.array(fopts + [ode.T - ode.t0, filter_constant(m), 0.0, 0.0])
     # the running mean of fixed-point iterations per slab starts at a typical 6
     state = np.array([ode.t0, steps[0], 1.0, 1.0, 0.0, 6.0, 0.0, 0.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
@@ -351,7 +349,7 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
     from dolfinode.timeslab import multi
 
     fopts = np.array(fopts + [params["partitioning_threshold"], params["interval_threshold"],
-                              filter_constant(m)])
+                              filter_constant(m), ode.T - ode.t0])
     state = np.array([ode.t0, 0.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     _, position, kl, ku = compiled.ordering
