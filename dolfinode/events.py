@@ -1,7 +1,7 @@
 """Discontinuities and events: breakpoints of f(t), switches on the state, and events g(u, t).
 
-A right-hand side with a non-smooth function (Piecewise, Heaviside, sign, Abs, Min, Max,
-floor, ceiling) is rewritten as a smooth one whose branch is a parameter sigma_j
+A right-hand side with a non-smooth function (Piecewise, Heaviside, sign, floor, ceiling;
+Abs, Min, Max of t alone) is rewritten as a smooth one whose branch is a parameter sigma_j
 (:func:`switched`): Heaviside(g) -> sigma_j, Abs(g) -> sigma_j g, a condition g < 0 ->
 sigma_j > 1/2, and so on. On each piece of [t0, T] where no switching function g_j changes
 sign, the solver integrates this smooth f with sigma fixed: no element straddles a jump and
@@ -134,12 +134,13 @@ def switched(ode):
     """
     if hasattr(ode, "templates") or not any(e.has(*_NON_SMOOTH) for e in ode.rhs):
         return ode, []
-    switches, done = [], {}
+    switches, done, states = [], {}, set(ode.states)
     for expr in ode.rhs:
         # innermost first: a switch inside another's argument is smooth when that one is
         for atom in sorted(_binary(expr).atoms(*_NON_SMOOTH, sp.Rel), key=sp.count_ops):
             symbol = sp.Symbol(f"{_SWITCH}{len(switches)}", real=True)
-            made = None if atom in done else _replacement(atom, symbol)
+            kink = isinstance(atom, _KINKS) and atom.free_symbols & states
+            made = None if atom in done or kink else _replacement(atom, symbol)
             if made is not None:
                 # g in the original functions (evaluated as such); f smooth in sigma
                 switches.append(made[0])
@@ -153,6 +154,10 @@ def switched(ode):
     return smooth, switches
 
 
+#: Continuous functions with a kink: of t they give breakpoints; of the state they are left
+#: to the step control (a kink costs a few short steps), as the smooth continuation sigma g
+#: past the kink may leave f's domain (sqrt(|u - a|) would be sqrt of a negative number).
+_KINKS = (sp.Abs, sp.Min, sp.Max)
 _NON_SMOOTH = (sp.Piecewise, sp.Heaviside, sp.sign, sp.Abs, sp.Min, sp.Max, sp.floor,
                sp.ceiling)
 

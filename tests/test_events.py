@@ -87,7 +87,7 @@ def test_state_switch_forms(rhs):
     assert abs(sol(2.0)[0] - 4.0) <= 1e-5
 
 
-def test_switch_in_min_max_follows_the_branch():
+def test_kink_on_the_state_within_tolerance():
     # x' = 1 until x = 1 (t = 1), then x' = 3 x - 2: x = 2/3 + exp(3 (t - 1)) / 3
     sol = dn.solve(dn.ODE({x: sp.Max(1, 3 * x - 2)}, u0=[0.0], T=1.5), method="cG(2)",
                    tolerance=1e-8)
