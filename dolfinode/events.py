@@ -132,8 +132,25 @@ def switched(ode):
     The parameters are named dn_switch_0, dn_switch_1, ... and follow the ODE's own, so that
     ``compiled.p[len(ode.params) + j]`` holds sigma_j.
     """
-    if hasattr(ode, "templates") or not any(e.has(*_NON_SMOOTH) for e in ode.rhs):
+    if hasattr(ode, "templates"):
         return ode, []
+    # made once per declaration (a sympy traversal of every right-hand side)
+    cached = ode.__dict__.get("_smooth")
+    if cached is None or cached[0] is not ode.rhs:
+        cached = ode._smooth = (ode.rhs, *_smooth(ode))
+    _, rhs, switches = cached
+    if not switches:
+        return ode, []
+    params = dict(ode.params)
+    params.update({s.symbol: s.value(0.0) for s in switches})
+    smooth = ODE(dict(zip(ode.states, rhs)), ode.u0, ode.T, params, ode.t0, ode.nonnegative)
+    return smooth, switches
+
+
+def _smooth(ode):
+    """(right-hand sides, switches) of :func:`switched`."""
+    if not any(e.has(*_NON_SMOOTH) for e in ode.rhs):
+        return ode.rhs, []
     switches, done, states = [], {}, set(ode.states)
     for expr in ode.rhs:
         # innermost first: a switch inside another's argument is smooth when that one is
@@ -145,13 +162,7 @@ def switched(ode):
                 # g in the original functions (evaluated as such); f smooth in sigma
                 switches.append(made[0])
                 done[atom] = _replacement(atom.xreplace(done), symbol)[1]
-    rhs = [_binary(expr).xreplace(done) for expr in ode.rhs]
-    if not switches:
-        return ode, []
-    params = dict(ode.params)
-    params.update({s.symbol: s.value(0.0) for s in switches})
-    smooth = ODE(dict(zip(ode.states, rhs)), ode.u0, ode.T, params, ode.t0, ode.nonnegative)
-    return smooth, switches
+    return [_binary(expr).xreplace(done) for expr in ode.rhs], switches
 
 
 #: Continuous functions with a kink: of t they give breakpoints; of the state they are left
