@@ -12,8 +12,9 @@ located like events, on the Galerkin polynomial, and the element is re-integrate
 crossing where the next piece starts on the other branch.
 
 Events g(u, t) (:class:`Event`) are located on the Galerkin polynomials of each chunk the
-compiled loop returns: g is sampled at 2q + 2 points per element, and every sign change is
-refined by Brent's method on the polynomial to rounding. A terminal event ends the solve at
+compiled loop returns: g is sampled at the element ends (of the components it depends on),
+as solve_ivp samples it at its steps, and every sign change is refined by Brent's method on
+the polynomial to rounding (two crossings inside one element are not seen). A terminal event ends the solve at
 the crossing (the element containing it is re-integrated to end there).
 """
 import copy
@@ -149,12 +150,12 @@ def switched(ode):
 
 def _smooth(ode):
     """(right-hand sides, switches) of :func:`switched`."""
-    if not any(e.has(*_NON_SMOOTH) for e in ode.rhs):
+    if not any(e.has(*NON_SMOOTH) for e in ode.rhs):
         return ode.rhs, []
     switches, done, states = [], {}, set(ode.states)
     for expr in ode.rhs:
         # innermost first: a switch inside another's argument is smooth when that one is
-        for atom in sorted(_binary(expr).atoms(*_NON_SMOOTH, sp.Rel), key=sp.count_ops):
+        for atom in sorted(_binary(expr).atoms(*NON_SMOOTH, sp.Rel), key=sp.count_ops):
             symbol = sp.Symbol(f"{_SWITCH}{len(switches)}", real=True)
             kink = isinstance(atom, _KINKS) and atom.free_symbols & states
             made = None if atom in done or kink else _replacement(atom, symbol)
@@ -169,7 +170,7 @@ def _smooth(ode):
 #: to the step control (a kink costs a few short steps), as the smooth continuation sigma g
 #: past the kink may leave f's domain (sqrt(|u - a|) would be sqrt of a negative number).
 _KINKS = (sp.Abs, sp.Min, sp.Max)
-_NON_SMOOTH = (sp.Piecewise, sp.Heaviside, sp.sign, sp.Abs, sp.Min, sp.Max, sp.floor,
+NON_SMOOTH = (sp.Piecewise, sp.Heaviside, sp.sign, sp.Abs, sp.Min, sp.Max, sp.floor,
                sp.ceiling)
 
 
@@ -235,7 +236,6 @@ class Detector:
         self.components = [ode.index(s) for s in used]
         self._g = [sp.lambdify([time_symbol, *used], e, "numpy") for e in exprs]
         self.directions = np.array(directions)
-        self.tau = np.arange(1, 2 * method.q + 3) / (2 * method.q + 2)
         self.last = np.zeros(len(exprs))
 
     def values(self, times, U):
@@ -247,10 +247,11 @@ class Detector:
     def start(self, t, u):
         self.last = np.sign(self.values(np.array([t]), u[:, None])[:, 0])
 
-    def crossings(self, sol, begin, times):
-        """(time, j, sign after) of every crossing on ``sol`` (a chunk from ``begin``) at
-        the sample ``times`` (sorted, after ``begin``), in time order; updates ``last``."""
-        G = self.values(times, sol._evaluate(times))
+    def crossings(self, sol, begin, times, U):
+        """(time, j, sign after) of every crossing on ``sol`` (a chunk from ``begin``) seen
+        at the sample ``times`` (sorted, after ``begin``; U the solution there), in time
+        order; updates ``last``."""
+        G = self.values(times, U)
         found = []
         for j in range(G.shape[0]):
             s = np.sign(G[j])
@@ -331,6 +332,11 @@ class Plan:
             sol.status = TERMINATED
             sol.message = f"A termination event occurred at t = {end:.17g}."
 
+    @property
+    def truncates(self):
+        """Whether a crossing can end a chunk early (a terminal event or a state switch)."""
+        return bool(self.state_switches) or any(e.terminal for e in self.events)
+
     def initial_branches(self, sigma, u0, t0, T):
         """sigma at t0 (the state switches from g(u0, t0), the t-only ones on the first
         piece)."""
@@ -376,8 +382,8 @@ def march(plan, loop, t0, T):
                     return status, elements, t_events, y_events, loop.t()
                 if len(chunk[0]) == 0:
                     continue
-                sol, begin, times = loop.view(chunk)
-                found = plan.detector.crossings(sol, begin, times)
+                sol, *samples = loop.view(chunk)
+                found = plan.detector.crossings(sol, *samples)
                 stop = next((c for c in found if c[1] >= n_events
                              or plan.events[c[1]].terminal), None)
                 for c in found:  # those up to a terminal one, as solve_ivp
@@ -439,7 +445,6 @@ class _Pieces:
         self.ode, self.method, self.run_chunks = ode, method, run_chunks
         self.fopts, self.state, self.x, self.p, self.n_params = fopts, state, x, p, n_params
         self.step_guess = step_guess
-        self.tau = np.arange(1, 2 * method.q + 3) / (2 * method.q + 2)
 
     def t(self):
         return float(self.state[0])
@@ -482,7 +487,7 @@ class MonoPieces(_Pieces):
 
         t_start, k, values = chunk
         sol = Solution(self.ode, self.method, t_start, k, values, {}, 2)
-        return sol, t_start[0], (t_start[:, None] + k[:, None] * self.tau).ravel()
+        return sol, t_start[0], t_start + k, values[:, -1, :].T
 
     def truncate(self, chunk, te):
         """The chunk's elements before the one containing te, and te; the loop restarts at
@@ -528,18 +533,14 @@ class MultiPieces(_Pieces):
         comp, a, b, values = chunk
         frozen = np.flatnonzero(~np.isnan(self.frozen))
         begin = float(self.saved[0][0])
-        if self.components:
-            mine = np.isin(comp, self.components)
-            times = (a[mine, None] + (b - a)[mine, None] * self.tau).ravel()
-        else:
-            times = (a[:, None] + (b - a)[:, None] * self.tau).ravel()
+        times = b[np.isin(comp, self.components)] if self.components else b
         times = np.unique(times[times > begin])
         comp = np.concatenate([comp, frozen])
         a = np.concatenate([a, self.frozen[frozen]])
         b = np.concatenate([b, np.full(frozen.size, self.t())])
         values = np.concatenate([values, np.repeat(self.x[frozen, None], values.shape[1], 1)])
         sol = Solution.multi_adaptive(self.ode, self.method, comp, a, b, values, {}, 2)
-        return sol, begin, times
+        return sol, begin, times, sol._evaluate(times)
 
     def truncate(self, chunk, te):
         """Nothing of the chunk, and te: the loop restarts at its start (a slab boundary,

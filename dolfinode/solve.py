@@ -4,6 +4,7 @@ import os
 import time
 
 import numpy as np
+import sympy as sp
 
 from dolfinode import events as ev
 from dolfinode import timeslab as ts
@@ -20,7 +21,7 @@ from dolfinode.timeslab import mono
 _STATUS_STEP_LIMIT = -1
 #: Slabs (elements: multi-adaptive) per loop call of a solve with events or switches: what a
 #: terminal event or a switch in the chunk makes the loop redo.
-_EVENT_CHUNK = 256
+_EVENT_CHUNK = 1024
 #: A solve stopped by maximum_steps is said to approach a blow-up when its last step is below
 #: _BLOWUP_STEP (T - t0) and max |u| grew _BLOWUP_GROWTH-fold since t0 (dG(0) on u' = u^2,
 #: u(0) = 1: 10^7 steps, down to 3.1e-10, with |u| = 2.3e3 at t = 0.99956), and the last
@@ -36,6 +37,8 @@ MIN_TOLERANCE = 100 * np.finfo(float).eps
 #: Fraction of the available memory the Newton matrices of a mono-adaptive slab may take;
 #: a matrix of at most _NEWTON_SMALL bytes is taken to fit without asking the system.
 _NEWTON_MEMORY_FRACTION = 0.5
+#: Largest system whose quasi-positivity is checked (see _keeps_nonnegative).
+_QUASI_POSITIVE_N = 200
 _NEWTON_SMALL = 2**26
 
 
@@ -65,6 +68,31 @@ def _absolute_tolerance(ode, value, rtol):
 def _smallest_step(ode, t):
     """The smallest step double precision resolves at the time t (the loops' bound)."""
     return ts.smallest_step(t, ode.T - ode.t0)
+
+
+def _keeps_nonnegative(ode):
+    """Whether f keeps every component >= 0 from u0 >= 0 (the exact solution stays in the
+    nonnegative orthant): f_i >= 0 where u_i = 0 and the other components are >= 0, for every
+    i (quasi-positivity, decided by sympy's sign assumptions with the parameter values; t-
+    dependent or undecidable terms count as no). Then the step control keeps the values
+    >= -atol as for components declared nonnegative: ROBER to 1e11 at tolerance 1e-3
+    (absolute tolerance 1e-3 by default) let y2 ~ 1e-5 dip below -3e-4, where
+    y2' = -3e7 y2^2 - 1e4 y2 y3 + ... diverges, and returned y1 = -4.3e7 (mdG(1)), -4.8e7
+    (cG(1)) as a success. Checked for systems of at most _QUASI_POSITIVE_N components (sympy
+    takes ~1 ms per component), once per declaration and parameter values."""
+    if (hasattr(ode, "templates") or ode.N > _QUASI_POSITIVE_N or np.any(ode.u0 < 0)
+            or any(f.has(*ev.NON_SMOOTH) for f in ode.rhs)):  # (a jump at u_i = 0: sign(u))
+        return False
+    key = (ode.rhs, tuple(ode.params.values()))
+    cached = ode.__dict__.get("_keeps_nonnegative")
+    if cached is None or cached[0] != key:
+        values = {p: sp.Float(value) for p, value in ode.params.items()}
+        nonnegative = {s: sp.Symbol(s.name, nonnegative=True) for s in ode.states}
+        at_zero = (sp.sympify(f).xreplace(values).xreplace(nonnegative)
+                   .xreplace({nonnegative[s]: sp.S.Zero}) for s, f in zip(ode.states, ode.rhs))
+        keeps = all(f.is_nonnegative for f in at_zero)
+        cached = ode._keeps_nonnegative = (key, bool(keeps))
+    return cached[1]
 
 
 def _check_resolvable(ode, name, k, t):
@@ -167,7 +195,9 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
         _check_resolvable(ode, "initial_time_step", steps, ode.t0)
     if params["maximum_time_step"] is not None:
         _check_resolvable(ode, "maximum_time_step", params["maximum_time_step"], latest)
-    floor = np.where(ode.nonnegative, -atol, -np.inf)  # the domain of the values
+    # the domain of the values: declared, or kept by f (with a loose absolute tolerance a
+    # small concentration dips below 0 and polynomial kinetics then diverge from there)
+    floor = np.where(ode.nonnegative | _keeps_nonnegative(ode), -atol, -np.inf)
     fixed = bool(params["fixed_time_step"])
     if fixed:  # no error control: iterate to rounding level, relative to the solution size
         atol, rtol, dtol = np.ones(ode.N), 1.0, 1e-15
@@ -320,7 +350,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
                             out_X)
 
     capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
-    if plan is not None:  # a terminal event or a switch re-integrates what follows it
+    if plan is not None and plan.truncates:  # a terminal event or a switch redoes the rest
         capacity = min(capacity, _EVENT_CHUNK)
     with _progress(ode, params) as bar:
         def chunks():
@@ -374,7 +404,7 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
 
     # values at most 2^21 doubles, as mono's: from 32 MB on, each solve would map fresh pages
     capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 21 // (m.q + 1))))
-    if plan is not None:
+    if plan is not None and plan.truncates:
         capacity = min(capacity, max(4 * ode.N, _EVENT_CHUNK))
     with _progress(ode, params) as bar:
         def chunks():
@@ -463,7 +493,8 @@ def _failure_message(status, state, fixed, x, outside, kmax, newton, ode, slabs)
         name = outside.name
         how = "" if fixed else (", or it falls below -absolute_tolerance on every step down to "
                                 f"{k:.3g}")
-        return (f"{name}, declared nonnegative, leaves [0, inf) at t = {t:.6g} (the right-hand "
+        declared = "declared" if ode.nonnegative.any() else "kept by f (u0 >= 0)"
+        return (f"{name}, {declared} nonnegative, leaves [0, inf) at t = {t:.6g} (the right-hand "
                 f"side drives it below zero from {name} = 0{how}). Check that f keeps {name} >= 0 "
                 f"(f >= 0 where {name} = 0), or drop {name} from nonnegative="
                 + ("; with fixed_time_step, a smaller initial_time_step may help" if fixed else ""))
