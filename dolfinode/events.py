@@ -13,8 +13,8 @@ crossing where the next piece starts on the other branch.
 
 Events g(u, t) (:class:`Event`) are located on the Galerkin polynomials of each chunk the
 compiled loop returns: g is sampled at the element ends (of the components it depends on),
-as solve_ivp samples it at its steps, and every sign change is refined by Brent's method on
-the polynomial to rounding (two crossings inside one element are not seen). A terminal event ends the solve at
+as solve_ivp samples it at its steps, and every sign change is refined by the Illinois method
+on the polynomial to rounding (two crossings inside one element are not seen). A terminal event ends the solve at
 the crossing (the element containing it is re-integrated to end there).
 """
 import copy
@@ -23,7 +23,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import sympy as sp
-from scipy.optimize import brentq
 
 from dolfinode.ode import ODE
 from dolfinode.ode import t as time_symbol
@@ -32,6 +31,10 @@ from dolfinode.timeslab import smallest_step
 #: Consecutive switches less than SLIDING_SPAN x (T - t0) apart after which a state switch is
 #: taken as a sliding mode (the flow on both sides pushes towards g = 0).
 SLIDING_SWITCHES, SLIDING_SPAN = 50, 1e-9
+#: Most Illinois iterations locating an event (it converges superlinearly; a crossing in a
+#: dG jump, where g is discontinuous, takes longest), and the relative width to reach.
+_ROOT_ITERATIONS = 200
+_EPS4 = 4 * np.finfo(float).eps
 #: Most breakpoints of a floor/ceiling of t (each one ends a piece of the integration).
 MAX_BREAKPOINTS = 100_000
 _SWITCH = "dn_switch_"
@@ -252,32 +255,57 @@ class Detector:
         at the sample ``times`` (sorted, after ``begin``; U the solution there), in time
         order; updates ``last``."""
         G = self.values(times, U)
-        found = []
+        a, b, which, after = [np.empty(0)], [np.empty(0)], [np.empty(0, int)], [np.empty(0)]
         for j in range(G.shape[0]):
             s = np.sign(G[j])
             before = np.concatenate([[self.last[j]], s])
             index = np.where(before != 0, np.arange(before.size), 0)
             previous = before[np.maximum.accumulate(index)]  # last nonzero sign so far
             hits = np.flatnonzero((s != 0) & (s == -previous[:-1]))
-            for h in hits:
-                if self.directions[j] * s[h] >= 0:
-                    a = times[h - 1] if h > 0 else begin
-                    found.append((self._root(sol, j, a, times[h]), j, s[h]))
+            hits = hits[self.directions[j] * s[hits] >= 0]
+            a.append(np.where(hits > 0, times[hits - 1], begin))
+            b.append(times[hits])
+            which.append(np.full(hits.size, j))
+            after.append(s[hits])
             nonzero = np.flatnonzero(s)
             if nonzero.size:
                 self.last[j] = s[nonzero[-1]]
-        return sorted(found)
+        which = np.concatenate(which)
+        roots = self._roots(sol, np.concatenate(a), np.concatenate(b), which)
+        return sorted(zip(roots.tolist(), which.tolist(), np.concatenate(after).tolist()))
 
-    def _root(self, sol, j, a, b):
-        """The crossing of g_j in [a, b] on the polynomial, to rounding; a when g_j does not
-        change sign there (a crossing straight after a restart at a)."""
-        def g(t):
-            return self.values(np.array([t]), sol._evaluate(np.array([t])))[j, 0]
-        ga, gb = g(a), g(b)
-        if ga == 0 or np.sign(ga) == np.sign(gb):
-            return a
-        return brentq(g, a, b, xtol=4 * np.finfo(float).eps * max(abs(a), abs(b)) + 1e-300,
-                      rtol=4 * np.finfo(float).eps)
+    def _roots(self, sol, a, b, which):
+        """The crossings of g_which[r] in [a_r, b_r] on the polynomials, to rounding, by the
+        Illinois method (regula falsi, the end kept twice has its value halved) on all
+        brackets at once; a_r where g does not change sign (a crossing straight after a
+        restart at a_r)."""
+        roots = a.copy()
+        if a.size == 0:
+            return roots
+        ga, gb = self._at(sol, a, which), self._at(sol, b, which)
+        live = np.flatnonzero((ga != 0) & (np.sign(ga) != np.sign(gb)))
+        lo, hi, glo, ghi, rows = a[live], b[live], ga[live], gb[live], which[live]
+        side = np.zeros(live.size)
+        for _ in range(_ROOT_ITERATIONS):
+            i = np.flatnonzero(hi - lo > _EPS4 * np.maximum(abs(lo), abs(hi)) + 1e-300)
+            if i.size == 0:
+                break
+            m = (lo[i] * ghi[i] - hi[i] * glo[i]) / (ghi[i] - glo[i])
+            m = np.where(np.isfinite(m) & (m > lo[i]) & (m < hi[i]), m, 0.5 * (lo[i] + hi[i]))
+            gm = self._at(sol, m, rows[i])
+            right = np.sign(gm) == np.sign(glo[i])  # the crossing is in [m, hi]
+            ghi[i] = np.where(right & (side[i] == 1), 0.5 * ghi[i], ghi[i])
+            glo[i] = np.where(~right & (side[i] == -1), 0.5 * glo[i], glo[i])
+            lo[i], glo[i] = np.where(right, m, lo[i]), np.where(right, gm, glo[i])
+            hi[i], ghi[i] = np.where(right, hi[i], m), np.where(right, ghi[i], gm)
+            side[i] = np.where(right, 1, -1)
+            lo[i] = np.where(gm == 0, m, lo[i])  # a zero on a node: done
+        roots[live] = hi
+        return roots
+
+    def _at(self, sol, t, rows):
+        """g_rows[r] at t_r on the solution."""
+        return self.values(t, sol._evaluate(t))[rows, np.arange(t.size)]
 
 
 @dataclass
@@ -386,11 +414,14 @@ def march(plan, loop, t0, T):
                 found = plan.detector.crossings(sol, *samples)
                 stop = next((c for c in found if c[1] >= n_events
                              or plan.events[c[1]].terminal), None)
-                for c in found:  # those up to a terminal one, as solve_ivp
-                    te, j, _ = c
-                    if j < n_events and (stop is None or (te <= stop[0] and c is not stop)):
+                recorded = [c for c in found  # those up to a terminal one, as solve_ivp
+                            if c[1] < n_events and (stop is None or (c[0] <= stop[0]
+                                                                     and c is not stop))]
+                if recorded:
+                    states = sol._evaluate(np.array([c[0] for c in recorded]))
+                    for (te, j, _), y in zip(recorded, states.T):
                         t_events[j].append(te)
-                        y_events[j].append(sol(te) if te > t0 else loop.x.copy())
+                        y_events[j].append(y.copy())
                 if stop is None:
                     elements.append(chunk)
                     continue
