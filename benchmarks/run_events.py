@@ -29,13 +29,14 @@ REPEATS = 7
 
 
 def median_time(run):
-    """Median wall time of ``run()`` over REPEATS calls (after one warm-up call)."""
+    """Median CPU time of ``run()`` over REPEATS calls (after one warm-up call): the machine
+    is shared, and wall times varied by 2x between runs."""
     run()
     times = []
     for _ in range(REPEATS):
-        start = time.perf_counter()
+        start = time.process_time()
         run()
-        times.append(time.perf_counter() - start)
+        times.append(time.process_time() - start)
     return float(np.median(times))
 
 
@@ -95,7 +96,7 @@ def main():
     parser.add_argument("--output", default="doc/benchmarks")
     args = parser.parse_args()
     lines = ["# Events and breakpoints: cost", "",
-             "Made by `benchmarks/run_events.py` (median wall time of "
+             "Made by `benchmarks/run_events.py` (median CPU time of "
              f"{REPEATS} calls, compiled kernels cached).", "",
              "## Overhead of events= on a long oscillator run", "",
              "u'' = -u on [0, 1000], tolerance 1e-8, `events=[u, v - 0.5]` against none.", "",

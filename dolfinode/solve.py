@@ -80,17 +80,19 @@ def _keeps_nonnegative(ode):
     y2' = -3e7 y2^2 - 1e4 y2 y3 + ... diverges, and returned y1 = -4.3e7 (mdG(1)), -4.8e7
     (cG(1)) as a success. Checked for systems of at most _QUASI_POSITIVE_N components (sympy
     takes ~1 ms per component), once per declaration and parameter values."""
-    if (hasattr(ode, "templates") or ode.N > _QUASI_POSITIVE_N or np.any(ode.u0 < 0)
-            or any(f.has(*ev.NON_SMOOTH) for f in ode.rhs)):  # (a jump at u_i = 0: sign(u))
+    if hasattr(ode, "templates") or ode.N > _QUASI_POSITIVE_N or ode.u0.min() < 0:
         return False
     key = (ode.rhs, tuple(ode.params.values()))
     cached = ode.__dict__.get("_keeps_nonnegative")
     if cached is None or cached[0] != key:
-        values = {p: sp.Float(value) for p, value in ode.params.items()}
-        nonnegative = {s: sp.Symbol(s.name, nonnegative=True) for s in ode.states}
-        at_zero = (sp.sympify(f).xreplace(values).xreplace(nonnegative)
-                   .xreplace({nonnegative[s]: sp.S.Zero}) for s, f in zip(ode.states, ode.rhs))
-        keeps = all(f.is_nonnegative for f in at_zero)
+        keeps = not any(f.has(*ev.NON_SMOOTH) for f in ode.rhs)  # (a jump at u_i = 0: sign(u))
+        if keeps:
+            values = {p: sp.Float(value) for p, value in ode.params.items()}
+            nonnegative = {s: sp.Symbol(s.name, nonnegative=True) for s in ode.states}
+            at_zero = (sp.sympify(f).xreplace(values).xreplace(nonnegative)
+                       .xreplace({nonnegative[s]: sp.S.Zero})
+                       for s, f in zip(ode.states, ode.rhs))
+            keeps = all(f.is_nonnegative for f in at_zero)
         cached = ode._keeps_nonnegative = (key, bool(keeps))
     return cached[1]
 
