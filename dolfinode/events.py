@@ -252,10 +252,9 @@ class Detector:
     def start(self, t, u):
         self.last = np.sign(self.values(np.array([t]), u[:, None])[:, 0])
 
-    def crossings(self, sol, begin, times, U):
-        """(time, j, sign after) of every crossing on ``sol`` (a chunk from ``begin``) seen
-        at the sample ``times`` (sorted, after ``begin``; U the solution there), in time
-        order; updates ``last``."""
+    def brackets(self, begin, times, U):
+        """(a, b, j, sign after) of every crossing seen at the sample ``times`` (sorted, after
+        ``begin``; U the solution there): g_j changes sign in [a, b]; updates ``last``."""
         G = self.values(times, U)
         a, b, which, after = [np.empty(0)], [np.empty(0)], [np.empty(0, int)], [np.empty(0)]
         for j in range(G.shape[0]):
@@ -272,16 +271,13 @@ class Detector:
             nonzero = np.flatnonzero(s)
             if nonzero.size:
                 self.last[j] = s[nonzero[-1]]
-        which = np.concatenate(which)
-        roots = self._roots(sol, np.concatenate(a), np.concatenate(b), which)
-        return sorted(zip(roots.tolist(), which.tolist(), np.concatenate(after).tolist()))
+        return tuple(np.concatenate(x) for x in (a, b, which, after))
 
-    def _roots(self, sol, a, b, which):
+    def roots(self, sol, a, b, which):
         """The crossings of g_which[r] in [a_r, b_r] on the polynomials, to _ROOT_RTOL, by the
         Illinois method (regula falsi, the end kept twice has its value halved) on all
-        brackets at once; a_r where g does not change sign (a crossing straight after a
-        restart at a_r)."""
-        roots = a.copy()
+        brackets at once; NaN where g does not change sign there."""
+        roots = np.full(a.size, np.nan)
         if a.size == 0:
             return roots
         ga, gb = self._at(sol, a, which), self._at(sol, b, which)
@@ -341,7 +337,14 @@ class Plan:
 
     terminated = False
     switched = 0  # crossings of switches on the state
-    outcome = None  # (t_events, y_events, end) from march
+    end = None  # the time the solution reaches (from march)
+    terminal = None  # (t, j, state) of the terminal event
+
+    def __post_init__(self):
+        self.pending = []  # brackets (a, b, j) of events to locate on the final solution
+        self.located = []  # (times, j, states) of those located before a stop
+        self.stops = np.array([e.terminal for e in self.events]
+                              + [True] * len(self.state_switches), dtype=bool)
 
     def solved_ode(self, ode):
         """The ODE on the interval solved: [t0, t_event] after a terminal event."""
@@ -349,20 +352,31 @@ class Plan:
             return ode
         ended = copy.copy(ode)
         ended.__dict__.pop("_compiled", None)
-        ended._set_interval(ode.t0, self.outcome[2])
+        ended._set_interval(ode.t0, self.end)
         return ended
 
     def report(self, sol):
         """Set sol.t_events, sol.y_events (per event, as solve_ivp), status and message."""
-        t_events, y_events, end = self.outcome
         sol.stats["breakpoints"] = self.breakpoints.size
         sol.stats["state switches"] = self.switched
         if self.events:
-            sol.t_events = [np.array(times) for times in t_events]
-            sol.y_events = [np.array(ys).reshape(-1, sol.ode.N) for ys in y_events]
+            a, b, which = (np.concatenate(x) for x in zip((np.empty(0), np.empty(0),
+                                                          np.empty(0, int)), *self.pending))
+            times = self.detector.roots(sol, a, b, which)
+            found = ~np.isnan(times)
+            located = [(times[found], which[found], sol._evaluate(times[found]).T),
+                       *self.located]
+            if self.terminal is not None:
+                te, j, state = self.terminal
+                located.append((np.array([te]), np.array([j]), state[None, :]))
+            times, which, states = (np.concatenate(x) for x in zip(*located))
+            order = np.argsort(times, kind="stable")
+            times, which, states = times[order], which[order], states[order]
+            sol.t_events = [times[which == j] for j in range(len(self.events))]
+            sol.y_events = [states[which == j] for j in range(len(self.events))]
         if self.terminated:
             sol.status = TERMINATED
-            sol.message = f"A termination event occurred at t = {end:.17g}."
+            sol.message = f"A termination event occurred at t = {self.end:.17g}."
 
     @property
     def truncates(self):
@@ -396,12 +410,11 @@ def march(plan, loop, t0, T):
     """Integrate piece by piece between the breakpoints, locating events and state switches.
 
     ``loop`` runs the compiled loop (:class:`MonoPieces` or :class:`MultiPieces`). Returns
-    (status, element chunks, t_events, y_events, end): status a loop status or TERMINATED,
-    end the time the solution reaches.
+    (status, element chunks, end): status a loop status or TERMINATED, end the time the
+    solution reaches. The brackets of the events that do not stop it are left in
+    ``plan.pending``, the terminal event in ``plan.terminal``.
     """
     n_events = len(plan.events)
-    t_events = [[] for _ in range(n_events)]
-    y_events = [[] for _ in range(n_events)]
     sigma = loop.sigma()
     plan.detector.start(t0, loop.x)
     elements, recent = [], []
@@ -411,21 +424,22 @@ def march(plan, loop, t0, T):
         while loop.t() < end:
             for status, chunk in loop.chunks(end):
                 if status not in (loop.DONE, loop.FULL):
-                    return status, elements, t_events, y_events, loop.t()
+                    return status, elements, loop.t()
                 if len(chunk[0]) == 0:
                     continue
                 sol, *samples = loop.view(chunk)
-                found = plan.detector.crossings(sol, *samples)
-                stop = next((c for c in found if c[1] >= n_events
-                             or plan.events[c[1]].terminal), None)
-                recorded = [c for c in found  # those up to a terminal one, as solve_ivp
-                            if c[1] < n_events and (stop is None or (c[0] <= stop[0]
-                                                                     and c is not stop))]
-                if recorded:
-                    states = sol._evaluate(np.array([c[0] for c in recorded]))
-                    for (te, j, _), y in zip(recorded, states.T):
-                        t_events[j].append(te)
-                        y_events[j].append(y.copy())
+                a, b, which, after = plan.detector.brackets(*samples)
+                stop = _first_stop(plan, sol, a, b, which, after)
+                # the other events are located on the final solution (in one pass, see
+                # Plan.report), those whose bracket holds the stop here, before it is redone
+                te = np.inf if stop is None else stop[0]
+                later = plan.stops[which] | (a >= te)
+                now = ~later & (b >= te)
+                plan.pending.append((a[~later & ~now], b[~later & ~now], which[~later & ~now]))
+                times = plan.detector.roots(sol, a[now], b[now], which[now])
+                located = times <= te  # (not NaN)
+                plan.located.append((times[located], which[now][located],
+                                     sol._evaluate(times[located]).T))
                 if stop is None:
                     elements.append(chunk)
                     continue
@@ -434,21 +448,33 @@ def march(plan, loop, t0, T):
                 elements.append(kept)
                 for status, rest in loop.chunks(te):
                     if status not in (loop.DONE, loop.FULL):
-                        return status, elements, t_events, y_events, loop.t()
+                        return status, elements, loop.t()
                     elements.append(rest)
                 plan.detector.start(te, loop.x)
                 plan.detector.last[j] = after
                 if j < n_events:
-                    t_events[j].append(te)
-                    y_events[j].append(loop.x.copy())
-                    return TERMINATED, elements, t_events, y_events, te
+                    plan.terminal = (te, j, loop.x.copy())
+                    return TERMINATED, elements, te
                 switch = plan.state_switches[j - n_events]
                 plan.switched += 1
                 sigma[plan.switches.index(switch)] = switch.value(after)
                 _check_sliding(recent, te, switch, t0, T)
                 loop.restart(sigma)
                 break
-    return loop.DONE, elements, t_events, y_events, T
+    return loop.DONE, elements, T
+
+
+def _first_stop(plan, sol, a, b, which, after):
+    """(time, j, sign after) of the first crossing of a terminal event or a state switch
+    among the brackets, or None; a crossing right after a restart at a is at a."""
+    stops = np.flatnonzero(plan.stops[which])
+    if stops.size == 0:
+        return None
+    first = stops[a[stops] < b[stops].min()]  # those that can come first
+    roots = plan.detector.roots(sol, a[first], b[first], which[first])
+    roots = np.where(np.isnan(roots), a[first], roots)
+    k = int(np.argmin(roots))
+    return float(roots[k]), int(which[first][k]), float(after[first][k])
 
 
 def _check_sliding(recent, te, switch, t0, T):

@@ -286,7 +286,7 @@ def _integrate(chunks, plan, pieces, ode):
         for status, chunk in chunks():
             stored.append(chunk)
     else:
-        status, stored, *plan.outcome = ev.march(plan, pieces, ode.t0, ode.T)
+        status, stored, plan.end = ev.march(plan, pieces, ode.t0, ode.T)
         plan.terminated = status == ev.TERMINATED
         if plan.terminated:
             status = ts.DONE

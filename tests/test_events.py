@@ -179,3 +179,20 @@ def test_event_validation(oscillator):
         dn.solve(oscillator, breakpoints=[1.0, np.nan])
     with pytest.raises(ValueError, match="automatic_modeling"):
         dn.solve(oscillator, events=[u], automatic_modeling=True)
+
+
+@pytest.mark.parametrize("method", ["mcG(1)", "mdG(1)"])
+def test_multi_adaptive_events_with_frozen_and_slow_components(method):
+    # w is at rest (frozen, no elements until the end), z decays slowly to a terminal event
+    w, z = sp.symbols("w z")
+    ode = dn.ODE({u: v, v: -u, w: 0 * u, z: -1e-3 * z}, u0=[1.0, 0.0, 2.0, 1.0], T=50.0)
+    sol = dn.solve(ode, method=method, tolerance=1e-8,
+                   events=[u, w - 1, dn.Event(z - 0.97, terminal=True)])
+    te = -math.log(0.97) / 1e-3
+    assert sol.status == 1 and abs(sol.t_events[2][0] - te) < 1e-4  # |z'| = 1e-3
+    np.testing.assert_allclose(sol.t_events[0], np.pi / 2 + np.pi * np.arange(10), atol=1e-7)
+    assert sol.t_events[1].size == 0
+    assert sol.stats["elements per component"][2] <= 2
+    est = dn.estimate_error(sol, goal={u: 1.0})
+    error = sol(sol.ode.T)[0] - math.cos(sol.ode.T)
+    assert abs(est.value - error) <= 0.5 * abs(error) + 1e-12
