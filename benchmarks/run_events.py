@@ -16,6 +16,7 @@ Usage::
 import argparse
 import math
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -44,10 +45,10 @@ def overhead():
     ode = dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=1000.0)
     rows = []
     for method in ("cG(2)", "mcG(2)"):
-        plain = median_time(lambda: dn.solve(ode, method=method, tolerance=1e-8))
+        plain = median_time(partial(dn.solve, ode, method=method, tolerance=1e-8))
         sol = dn.solve(ode, method=method, tolerance=1e-8, events=[u, v - 0.5])
-        with_events = median_time(lambda: dn.solve(ode, method=method, tolerance=1e-8,
-                                                   events=[u, v - 0.5]))
+        with_events = median_time(partial(dn.solve, ode, method=method, tolerance=1e-8,
+                                          events=[u, v - 0.5]))
         rows.append((method, sol.stats["time slabs"], len(sol.t_events[0]), plain,
                      with_events, with_events / plain - 1))
     return rows
@@ -80,12 +81,12 @@ def jumps():
         for tol in (1e-4, 1e-8):
             for method in ("dG(1)", "cG(2)", "mdG(1)"):
                 sol = dn.solve(ode, method=method, tolerance=tol)
-                seconds = median_time(lambda: dn.solve(ode, method=method, tolerance=tol))
+                seconds = median_time(partial(dn.solve, ode, method=method, tolerance=tol))
                 rows.append((name, tol, method, sol.stats["time slabs"],
                              abs(sol(1.0)[0] - exact), seconds))
             for method in ("RK45", "Radau"):
                 steps, end = scipy_split(f, u0, jump, tol, method)
-                seconds = median_time(lambda: scipy_split(f, u0, jump, tol, method))
+                seconds = median_time(partial(scipy_split, f, u0, jump, tol, method))
                 rows.append((name, tol, f"solve_ivp {method} (split)", steps, abs(end - exact),
                              seconds))
     return rows
@@ -96,8 +97,8 @@ def main():
     parser.add_argument("--output", default="doc/benchmarks")
     args = parser.parse_args()
     lines = ["# Events and breakpoints: cost", "",
-             "Made by `benchmarks/run_events.py` (median CPU time of "
-             f"{REPEATS} calls, compiled kernels cached).", "",
+             ("Made by `benchmarks/run_events.py` (median CPU time of "
+              f"{REPEATS} calls, compiled kernels cached)."), "",
              "## Overhead of events= on a long oscillator run", "",
              "u'' = -u on [0, 1000], tolerance 1e-8, `events=[u, v - 0.5]` against none.", "",
              "| method | slabs | crossings of u | time without (s) | time with (s) | overhead |",
@@ -105,8 +106,8 @@ def main():
     for method, slabs, crossings, plain, with_events, ratio in overhead():
         lines.append(f"| {method} | {slabs} | {crossings} | {plain:.4f} | {with_events:.4f} "
                      f"| {100 * ratio:.1f}% |")
-    lines += ["", "## Jumps in f(t): dolfinode (breakpoints from the declaration) against "
-              "solve_ivp split at the jump by hand", "",
+    lines += ["", ("## Jumps in f(t): dolfinode (breakpoints from the declaration) against "
+                   "solve_ivp split at the jump by hand"), "",
               "| problem | tolerance | method | steps | error at t = 1 | time (s) |",
               "|---|---|---|---|---|---|"]
     for name, tol, method, steps, error, seconds in jumps():

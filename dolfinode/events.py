@@ -11,11 +11,13 @@ the original f at t_n + k would not be. Switching functions of t alone give the 
 located like events, on the Galerkin polynomial, and the element is re-integrated to the
 crossing where the next piece starts on the other branch.
 
-Events g(u, t) (:class:`Event`) are located on the Galerkin polynomials of each chunk the
-compiled loop returns: g is sampled at the element ends (of the components it depends on),
-as solve_ivp samples it at its steps, and every sign change is refined by the Illinois method
-on the polynomial to rounding (two crossings inside one element are not seen). A terminal event ends the solve at
-the crossing (the element containing it is re-integrated to end there).
+Events g(u, t) (:class:`Event`) are located on the Galerkin polynomials: g is sampled at the
+element ends (of the components it depends on) of each chunk the compiled loop returns, as
+solve_ivp samples it at its steps (two crossings inside one element are not seen), and each
+sign change is refined by the Illinois method on the polynomials to 1e-13 relative. The first
+crossing of a terminal event or a state switch is located at once: a terminal event ends the
+solve there (the element containing it is re-integrated to end there). The others are
+located after the solve, on the final solution, all at once.
 """
 import copy
 import math
@@ -192,10 +194,10 @@ def _roots_in(g, t0, T):
         roots = None
     if roots is sp.S.EmptySet:
         return []
-    if not isinstance(roots, sp.FiniteSet):
-        raise ValueError(f"the breakpoints of f where {g} changes sign could not be solved for "
-                         "in closed form: give them as breakpoints=[...]")
-    return sorted(float(r) for r in roots if r.is_real)
+    if isinstance(roots, sp.FiniteSet):
+        return sorted(float(r) for r in roots if r.is_real)
+    raise ValueError(f"the breakpoints of f where {g} changes sign could not be solved for in "
+                     "closed form: give them as breakpoints=[...]")
 
 
 def breakpoints(ode, switches, given):
@@ -229,14 +231,13 @@ class Detector:
     a zero is not an event).
     """
 
-    def __init__(self, ode, functions, directions, method):
-        self.ode = ode
+    def __init__(self, ode, functions, directions):
         exprs = [_numeric(g, ode) for g in functions]
         used = sorted(set().union(*(e.free_symbols for e in exprs)) & set(ode.states),
                       key=ode.index)
         unknown = set().union(*(e.free_symbols for e in exprs)) - set(used) - {time_symbol}
         if unknown:
-            raise ValueError(f"unknown symbol {sorted(map(str, unknown))[0]!r} in an event or "
+            raise ValueError(f"unknown symbol {min(map(str, unknown))!r} in an event or "
                              "switch: events are functions of the states and dn.t")
         self.components = [ode.index(s) for s in used]
         self._g = [sp.lambdify([time_symbol, *used], e, "numpy") for e in exprs]
@@ -320,20 +321,21 @@ class Plan:
     t_switches: Detector
 
     @classmethod
-    def make(cls, ode, switches, given_breakpoints, events, method):
+    def make(cls, ode, switches, given_breakpoints, events):
         """The plan of a solve, or None when there is nothing to watch (the plain loop)."""
         if not (switches or events or given_breakpoints is not None):
             return None
         events = events or []
-        times = breakpoints(ode, switches, () if given_breakpoints is None else given_breakpoints)
+        times = breakpoints(ode, switches, [] if given_breakpoints is None
+                            else given_breakpoints)
         if not (switches or events or times.size):
             return None
         t_only = [s for s in switches if not (_numeric(s.g, ode).free_symbols - {time_symbol})]
         on_state = [s for s in switches if not any(s is o for o in t_only)]
         detector = Detector(ode, [e.g for e in events] + [s.g for s in on_state],
-                            [e.direction for e in events] + [0] * len(on_state), method)
+                            [e.direction for e in events] + [0] * len(on_state))
         return cls(switches, times, events, on_state, detector,
-                   Detector(ode, [s.g for s in t_only], [0] * len(t_only), method))
+                   Detector(ode, [s.g for s in t_only], [0] * len(t_only)))
 
     terminated = False
     switched = 0  # crossings of switches on the state

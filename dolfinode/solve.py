@@ -137,11 +137,18 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
         it is met (:func:`dolfinode.dual.adaptivity.solve_for_goal`); the solution carries
         ``sol.error_estimate``.
     **parameters
-        See :data:`dolfinode.parameters.DEFAULTS` (DOLFIN's names).
+        See :data:`dolfinode.parameters.DEFAULTS` (DOLFIN's names). ``events=[g, ...]``
+        (sympy expressions in the states and t, or :class:`dolfinode.Event`) and
+        ``breakpoints=[t, ...]``: see :mod:`dolfinode.events`; jumps of f in t and switches
+        on the state are found from the declaration. When f keeps every component >= 0 from
+        u0 >= 0 (f_i >= 0 where u_i = 0: mass-action kinetics), the values are kept >= -atol
+        as for components declared nonnegative.
 
     Returns
     -------
     Solution
+        With events, ``sol.t_events`` and ``sol.y_events``; ``sol.status`` is 1 after a
+        terminal event (the solution then ends there: ``sol.ode.T``).
         With ``automatic_modeling=True`` also ``sol.model``, the
         :class:`~dolfinode.modeling.ReducedModel` (see :mod:`dolfinode.modeling`).
 
@@ -173,7 +180,7 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
 
         return solve_with_modeling(ode, method, params, solve)
     smooth, switches = ev.switched(ode)
-    plan = ev.Plan.make(ode, switches, params["breakpoints"], params["events"], m)
+    plan = ev.Plan.make(ode, switches, params["breakpoints"], params["events"])
     compiled = lower(smooth)
     start = time.perf_counter()
     rtol = params["tolerance"]
