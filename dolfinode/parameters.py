@@ -5,6 +5,7 @@ import numbers
 from types import MappingProxyType
 
 import numpy as np
+import sympy
 
 #: Every parameter ``solve`` accepts, with its default.
 DEFAULTS = {
@@ -30,6 +31,8 @@ DEFAULTS = {
     "model_tolerance": 0.02,       # rebuild when |g~ - g-bar| > model_tolerance max |g-bar|
     "rebuild_model": True,         # False: build once, only measure the defect at control points
     "subgrid_model": "auto",       # "constant" | "affine" in the slow state | "auto": affine after a rebuild
+    "events": None,                # g(u, t) expressions or dn.Event: zero crossings located
+    "breakpoints": None,           # times where f(t) is not smooth that the declaration hides
 }
 
 #: The defaults as users see them (``dn.default_parameters``): read-only, so that a change
@@ -119,6 +122,30 @@ def _per_state_or_positive(name, value):
     return _positive(name, value)
 
 
+def _events(name, value):
+    """A sequence of events (a single one is accepted), as a list."""
+    from dolfinode.events import Event
+
+    if value is None:
+        return None
+    if isinstance(value, (Event, sympy.Basic)) or not np.iterable(value):
+        value = [value]
+    return [e if isinstance(e, Event) else Event(e) for e in value]
+
+
+def _times(name, value):
+    """A sequence of finite times, as a float array."""
+    if value is None:
+        return None
+    try:
+        times = np.atleast_1d(np.asarray(value, dtype=float))
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a sequence of times, got {value!r}") from None
+    if times.ndim != 1 or not np.all(np.isfinite(times)):
+        raise ValueError(f"{name} must be a sequence of finite times, got {value!r}")
+    return times
+
+
 #: How each parameter is checked and normalised, ``check(name, value) -> value`` (the
 #: defaults pass their checks, so only the given names are checked).
 _CHECKS = {
@@ -144,6 +171,8 @@ _CHECKS = {
     "model_tolerance": _required,
     "rebuild_model": _switch,
     "subgrid_model": _choice(SUBGRID_MODELS),
+    "events": _events,
+    "breakpoints": _times,
 }
 
 

@@ -88,6 +88,9 @@ class Solution:
     parameters = None
     model = None
     error_estimate = None
+    #: Per event, the crossing times and the states there (arrays, as solve_ivp's); None
+    #: without events=.
+    t_events = y_events = None
 
     @property
     def success(self):

@@ -85,3 +85,22 @@ def test_an_interval_too_short_for_double_precision_at_its_times_raises():
     with pytest.raises(ValueError, match=r"shorter than the smallest step double precision "
                        r"resolves there .* t0 = 0 and T = 1$"):
         dn.solve(ode)
+
+
+def test_maximum_steps_from_zero_gives_no_ratio_to_zero():
+    # u' = 1 + u^2 from u0 = 0 (tan t, singular at pi / 2): "grew 3.28e+306-fold" before
+    with pytest.raises(dn.SolverError, match=r"grew from 0 at t0 to .*blow up") as info:
+        dn.solve(dn.ODE({u: 1 + u**2}, u0=[0.0], T=2.0), method="dG(0)", tolerance=1e-3,
+                 maximum_steps=20000)
+    assert "fold" not in str(info.value)
+
+
+def test_unresolved_fast_oscillation_is_not_called_a_blowup():
+    x1, x2, kappa = sp.symbols("x1 x2 kappa")
+    ode = dn.ODE.second_order({x1: -x1 + x2**2 / 2, x2: -kappa * x2}, x0={x1: 0.0, x2: 1.0},
+                              v0={x1: 0.0, x2: 0.0}, T=100.0, params={kappa: 1e12})
+    with pytest.raises(dn.SolverError, match="maximum_steps") as info:
+        dn.solve(ode, method="cG(1)", tolerance=1e-3, maximum_steps=2000)
+    message = str(info.value)
+    assert "blow up" not in message and "fold" not in message
+    assert "automatic_modeling=True" in message and "nonlinear_solver='newton'" in message
