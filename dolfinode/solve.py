@@ -188,10 +188,11 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
         "compile time": compiled.compile_time,
         "solve time": time.perf_counter() - start,
     })
+    solved = ode._snapshot()  # the declaration as solved: later changes to ode do not reach sol
     if multi_adaptive:
-        sol = Solution.multi_adaptive(ode, m, *elements, stats, params["number_of_samples"])
+        sol = Solution.multi_adaptive(solved, m, *elements, stats, params["number_of_samples"])
     else:
-        sol = Solution(ode, m, *elements, stats, params["number_of_samples"])
+        sol = Solution(solved, m, *elements, stats, params["number_of_samples"])
     sol.parameters = params
     return sol
 
