@@ -1,6 +1,5 @@
 """The driver: ``solve(ode, method, **parameters) -> Solution``."""
 import math
-import os
 import time
 
 import numpy as np
@@ -10,10 +9,10 @@ from dolfinode.adaptivity import filter_constant, initial_step
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
+from dolfinode.memory import available_memory
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
 from dolfinode.parameters import NONLINEAR_SOLVERS, check_parameters
-from dolfinode.solution import Solution, join_elements
 from dolfinode.timeslab import mono
 
 #: Relative size (times |t|) below which a time step cannot be resolved in double precision.
@@ -32,18 +31,6 @@ MIN_TOLERANCE = 100 * np.finfo(float).eps
 #: a matrix of at most _NEWTON_SMALL bytes is taken to fit without asking the system.
 _NEWTON_MEMORY_FRACTION = 0.5
 _NEWTON_SMALL = 2**26
-
-
-def _available_memory():
-    """Bytes of memory available to this process (MemAvailable on Linux, else physical memory)."""
-    try:
-        with open("/proc/meminfo") as meminfo:
-            for line in meminfo:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
 def _absolute_tolerance(ode, value, rtol):
@@ -123,6 +110,15 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
     if goal is not None:
         from dolfinode.dual.adaptivity import solve_for_goal
 
+        if params["dense_output"] is not True:
+            raise ValueError("a solve for a goal estimates its error from the dual problem, "
+                             "which needs the history: drop dense_output (or set it True)")
+        if params["automatic_modeling"]:
+            raise ValueError("goal= cannot be combined with automatic_modeling=True: the error "
+                             "estimate of a reduced solution is not available (see "
+                             "sol.model.modeling_error()); solve for the goal without "
+                             "automatic_modeling, or with automatic_modeling and no goal")
+
         others = {name: value for name, value in parameters.items() if name != "tolerance"}
         return solve_for_goal(solve, ode, method, goal, params["tolerance"], others)
     if params["tolerance"] < MIN_TOLERANCE and params["absolute_tolerance"] is None:
@@ -165,9 +161,12 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
              params["maximum_iterations"], int(m.family == "dG")]
     fopts = [rtol, ode.T, params["maximum_time_step"] or ode.T - ode.t0,
              params["safety_factor"], dtol, m.local_order]
+    from dolfinode.io import history  # (imported here: dolfinode.io imports meshio)
+
+    sink = history.sink(ode, m, multi_adaptive, params)
     run = _run_multi if multi_adaptive else _run_mono
     status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
-                                                   floor, x, f0, steps)
+                                                   floor, x, f0, steps, sink)
     # mono-adaptive solves may return from Newton to fixed-point iteration (STIFF is then 0)
     newton = (bool(counters[ts.STIFF]) or params["nonlinear_solver"] == "newton"
               or stats.get("newton matrices") is not None)
@@ -188,18 +187,17 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
         "compile time": compiled.compile_time,
         "solve time": time.perf_counter() - start,
     })
-    solved = ode._snapshot()  # the declaration as solved: later changes to ode do not reach sol
-    if multi_adaptive:
-        sol = Solution.multi_adaptive(solved, m, *elements, stats, params["number_of_samples"])
-    else:
-        sol = Solution(solved, m, *elements, stats, params["number_of_samples"])
+    # the declaration as solved: later changes to ode do not reach sol
+    sol = sink.solution(ode._snapshot(), m, elements, stats, x)
     sol.parameters = params
     return sol
 
 
-def _integrate(advance, make_buffers, capacity, counters, params, state, bar,
+def _integrate(advance, make_buffers, capacity, counters, params, state, bar, sink,
                newton_ready=None):
-    """Call a compiled time-slab loop until it reaches T, collecting its stored elements.
+    """Call a compiled time-slab loop until it reaches T, handing its stored elements to
+    ``sink`` chunk by chunk (:mod:`dolfinode.io.history`); returns the status and what
+    ``sink.finish()`` returns.
 
     The loop returns FULL when its output buffers are full (so results arrive in chunks, and
     progress can be shown); a FULL with nothing stored means one slab needs larger buffers.
@@ -208,12 +206,11 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar,
     _STATUS_STEP_LIMIT: the mono-adaptive buffers hold no more slabs than are left, the
     multi-adaptive loop (whose buffers count elements) is checked after each chunk.
     """
-    chunks = []
     while True:
         buffers = make_buffers(capacity)
         status = advance(*buffers)
         n = counters[ts.STORED]
-        chunks.append([b[:n] for b in buffers])
+        sink.add([b[:n] for b in buffers], float(state[0]))
         if bar is not None:
             bar.update(state[0] - bar.n)
         if counters[ts.SLABS] > params["maximum_steps"]:
@@ -229,7 +226,7 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar,
             status = _STATUS_STEP_LIMIT
             break
     del buffers
-    return status, join_elements(chunks)
+    return status, sink.finish()
 
 
 def _newton_plan(compiled, m):
@@ -248,7 +245,7 @@ def _newton_plan(compiled, m):
     return plan
 
 
-def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps):
+def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, sink):
     tables = mono.method_tables(m)
     fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, filter_constant(m), 0.0, 0.0])
     # the running mean of fixed-point iterations per slab starts at a typical 6
@@ -265,7 +262,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
         nonlocal structure, newton_bytes
         structure, newton_bytes, costs = _newton_plan(compiled, m)
         fits = (newton_bytes <= _NEWTON_SMALL
-                or newton_bytes <= _NEWTON_MEMORY_FRACTION * _available_memory())
+                or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
         iopts[mono.NEWTON_READY] = int(fits)
         iopts[mono.REUSE] = int(structure.seconds(complex_values=True) >= mono.REUSE_TIME)
         fopts[[mono.NEWTON_UNITS, mono.FACTOR_UNITS]] = costs
@@ -287,9 +284,9 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
     capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
     with _progress(ode, params) as bar:
         status, elements = _integrate(advance, buffers, capacity, counters, params,
-                                      state, bar, newton_ready)
+                                      state, bar, sink, newton_ready)
     if status == ts.NEWTON_NEEDED:
-        available = _available_memory()
+        available = available_memory()
         why = ("was not selected" if params["nonlinear_solver"] == "newton" else "failed")
         raise SolverError(
             f"{m.name} needs Newton's method at t = {state[mono.T_NOW]:.6g} (fixed-point "
@@ -305,7 +302,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
     return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, stats
 
 
-def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps):
+def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, sink):
     # imported on first use: compiling its loop (once per installation) takes ~30 s
     from dolfinode.timeslab import multi
 
@@ -333,8 +330,8 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
     capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 21 // (m.q + 1))))
     with _progress(ode, params) as bar:
         status, elements = _integrate(advance, buffers, capacity, counters, params,
-                                      state, bar)
-    per_component = np.bincount(elements[0], minlength=ode.N)
+                                      state, bar, sink)
+    per_component = sink.per_component
     total = int(counters[ts.ELEMENTS])
     stats = {"time slabs": int(counters[ts.SLABS]),
              "sub-slabs": int(counters[ts.SUBSLABS]),

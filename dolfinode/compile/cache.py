@@ -105,8 +105,8 @@ def _writable(folder):
     """``folder``, created if needed, or the reason it cannot hold new files."""
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        probe = tempfile.NamedTemporaryFile(dir=folder, prefix="dn_probe.", suffix=".tmp")
-        probe.close()
+        with tempfile.NamedTemporaryFile(dir=folder, prefix="dn_probe.", suffix=".tmp"):
+            pass
     except OSError as exc:
         return f"{type(exc).__name__}: {exc.strerror or exc}"
     return None

@@ -90,7 +90,7 @@ def test_cache_files_are_readable_by_all(built):
 
 
 def test_cache_info_and_clear(built, tmp_path, monkeypatch, capsys):
-    root, library = damaged_copy(built, tmp_path, "emptied")
+    root, _ = damaged_copy(built, tmp_path, "emptied")
     (root / "kernels" / "notes.txt").write_text("not the cache's")
     monkeypatch.setenv("DOLFINODE_CACHE_DIR", str(root))
     assert main(["cache", "info"]) == 0
