@@ -3,6 +3,7 @@ import math
 import time
 
 import numpy as np
+import sympy as sp
 
 from dolfinode import timeslab as ts
 from dolfinode.adaptivity import filter_constant, initial_step
@@ -12,6 +13,7 @@ from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
 from dolfinode.memory import available_memory
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
+from dolfinode.ode import t as dn_t
 from dolfinode.parameters import NONLINEAR_SOLVERS, check_parameters
 from dolfinode.timeslab import mono
 
@@ -172,8 +174,10 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
               or stats.get("newton matrices") is not None)
     if status != ts.DONE:
         outside = ode.states[counters[ts.OUTSIDE] - 1] if counters[ts.OUTSIDE] else None
-        raise SolverError(_failure_message(status, state, fixed, x, outside,
-                                           params["maximum_time_step"], newton, ode),
+        undefined = (_undefined(ode, compiled, x, float(state[0]), float(state[1]))
+                     if status in (ts.NONCONVERGENCE, ts.BLOWUP) else None)
+        raise SolverError(undefined or _failure_message(status, state, fixed, x, outside,
+                                                        params["maximum_time_step"], newton, ode),
                           t=float(state[0]))
     counts = counters.tolist()
     stats.update({
@@ -368,6 +372,55 @@ _DOMAIN_DECLARED = ("the components declared nonnegative are read as max(u, 0) i
                     "powers, but sqrt(u) and the like have no bounded derivative where u reaches "
                     "0 (Newton's Jacobian is infinite there): cG(1) and mcG(1) step through such "
                     "a point")
+
+
+#: Functions not defined on the whole real line, with their domain as a test on the argument.
+_PARTIAL = {sp.log: ("log", lambda a: a > 0), sp.asin: ("asin", lambda a: abs(a) <= 1),
+            sp.acos: ("acos", lambda a: abs(a) <= 1), sp.acosh: ("acosh", lambda a: a >= 1),
+            sp.atanh: ("atanh", lambda a: abs(a) < 1)}
+
+
+def _undefined(ode, compiled, x, t, k):
+    """Why f is not finite a little past the time t where a step from the state x failed
+    (after the last step k, up to 10^4 k, with x moved along f(x, t)), if it is not (else
+    None): the argument outside its function's domain and whether it depends on t alone
+    (then no method or step helps) or on components."""
+    if hasattr(ode, "templates"):  # a template system's rhs takes O(N) to build
+        return None
+    with np.errstate(all="ignore"):
+        slope = np.nan_to_num(compiled.f(x, t), nan=0.0, posinf=0.0, neginf=0.0)
+        for step in k * np.logspace(0, 4, 5):
+            step = min(step, ode.T - t)
+            moved = x + step * slope
+            bad = np.flatnonzero(~np.isfinite(compiled.f(moved, t + step)))
+            if bad.size:
+                break
+        else:
+            return None
+    i, t = int(bad[0]), float(t + step)
+    values = {**dict(zip(ode.states, moved.tolist())), **ode.params, dn_t: t}
+    for part in sp.preorder_traversal(ode.rhs[i]):
+        if part.is_Pow and not part.exp.is_integer:
+            name, argument, inside = "a non-integer power", part.base, lambda a: a >= 0
+        elif type(part) in _PARTIAL:
+            (name, inside), argument = _PARTIAL[type(part)], part.args[0]
+        else:
+            continue
+        try:
+            value = float(argument.subs(values))
+        except (TypeError, ValueError):
+            continue
+        if inside(value):
+            continue
+        where = f"{name} in the right-hand side of {ode.states[i].name} gets {argument} = {value:.3g}"
+        if not argument.free_symbols & set(ode.states):
+            return (f"f is not defined past t = {t:.6g}: {where}, which depends on t alone, so "
+                    "no method or step size can continue; end the interval there (smaller T) "
+                    "or change the expression")
+        components = ", ".join(sorted(s.name for s in argument.free_symbols & set(ode.states)))
+        return (f"f is not defined at t = {t:.6g}: {where} from the values of {components}; "
+                + (_DOMAIN_DECLARED if ode.nonnegative.any() else _DOMAIN))
+    return None
 
 
 def _failure_message(status, state, fixed, x, outside, kmax, newton, ode):

@@ -85,3 +85,26 @@ def test_an_interval_too_short_for_double_precision_at_its_times_raises():
     with pytest.raises(ValueError, match=r"shorter than the smallest step double precision "
                        r"resolves there .* t0 = 0 and T = 1$"):
         dn.solve(ode)
+
+
+@pytest.mark.parametrize("method", ["dG(1)", "cG(1)", "mcG(1)"])
+def test_a_right_hand_side_undefined_past_a_time_is_blamed_on_t(method):
+    """Issue 32: sqrt(2 - t) under dG(1) was reported as a Newton failure suggesting a dG(q)
+    method and a nonnegative component."""
+    y = sp.Symbol("y")
+    with pytest.raises(dn.SolverError) as info:
+        dn.solve(dn.ODE({y: sp.sqrt(2 - dn.t)}, u0=[0.0], T=3.0), method)
+    message = str(info.value)
+    assert message.startswith("f is not defined past t = 2: a non-integer power in the "
+                              "right-hand side of y gets 2 - t = -")
+    assert "depends on t alone" in message and "smaller T" in message
+    assert "dG(q)" not in message and "nonnegative" not in message
+
+
+def test_a_right_hand_side_undefined_for_a_state_names_the_component():
+    y, z = sp.symbols("y z")
+    with pytest.raises(dn.SolverError) as info:
+        dn.solve(dn.ODE({y: 1, z: sp.log(1.5 - y)}, u0=[0.0, 0.0], T=3.0), "cG(1)")
+    message = str(info.value)
+    assert "log in the right-hand side of z gets 1.5 - y = -" in message
+    assert "from the values of y" in message
