@@ -46,6 +46,25 @@ def _absolute_tolerance(ode, value, rtol):
     return atol
 
 
+def _check_resolvable_tolerance(ode, atol, rtol):
+    """Raise ValueError if the tolerance atol_i + rtol |u0_i| of a component is below
+    MIN_TOLERANCE |u0_i|, what double precision resolves at its initial size: the step error
+    estimate is rounding there, and the steps shrink until maximum_steps or memory runs out
+    (tolerance = absolute_tolerance = 1e-20: 10^7 cG(2) slabs). Components starting at 0
+    have no scale yet and are not judged."""
+    scale = np.abs(ode.u0)
+    below = np.flatnonzero(atol + rtol * scale < MIN_TOLERANCE * scale)
+    if below.size:
+        i = int(below[np.argmax(scale[below])])
+        raise ValueError(
+            f"the tolerance of {ode.states[i].name} (absolute_tolerance {atol[i]:.3g} + tolerance "
+            f"{rtol:.3g} x |u0| = {scale[i]:.3g}) is below what double precision resolves at "
+            f"that size ({MIN_TOLERANCE:.2g} |u0| = {MIN_TOLERANCE * scale[i]:.3g}): the error "
+            "estimate would be rounding; give a tolerance of at least "
+            f"{MIN_TOLERANCE:.2g} or an absolute_tolerance of at least "
+            f"{MIN_TOLERANCE * scale[i]:.3g} for it")
+
+
 def _smallest_step(ode, t):
     """The smallest step double precision resolves at the time t (the loops' bound)."""
     return _KMIN_RELATIVE * max(abs(t), abs(ode.T) * 1e-6)
@@ -137,6 +156,8 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
     start = time.perf_counter()
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
+    if not params["fixed_time_step"]:
+        _check_resolvable_tolerance(ode, atol, rtol)
     x = ode.u0.copy()
     f0 = compiled.f(x, ode.t0)
     if not math.isfinite(f0.sum()) and not np.isfinite(f0).all():  # the sum may overflow

@@ -108,3 +108,15 @@ def test_a_right_hand_side_undefined_for_a_state_names_the_component():
     message = str(info.value)
     assert "log in the right-hand side of z gets 1.5 - y = -" in message
     assert "from the values of y" in message
+
+
+def test_a_tolerance_below_double_precision_at_the_solution_size_is_refused():
+    """Issue 32: tolerance = absolute_tolerance = 1e-20 ground through 10^7 cG(2) slabs."""
+    y, z = sp.symbols("y z")
+    ode = dn.ODE({y: -y, z: -z}, u0=[1.0, 1e-30], T=1.0)
+    with pytest.raises(ValueError, match="tolerance of y .* is below what double precision "
+                                         "resolves at that size"):
+        dn.solve(ode, "cG(2)", tolerance=1e-20, absolute_tolerance=1e-20)
+    # a tiny absolute tolerance for tiny values is resolvable: allowed
+    sol = dn.solve(ode, "cG(2)", tolerance=1e-6, absolute_tolerance={y: 1e-8, z: 1e-36})
+    assert sol(1.0)[1] == pytest.approx(1e-30 * np.exp(-1.0), rel=1e-5)
