@@ -1,7 +1,7 @@
 """dolfinode: variational (Galerkin) time integration of ODE systems declared in sympy.
 
 Public surface (see shared/API.md): ``ODE``, ``t``, ``solve``, ``Solution``, ``SolverError``,
-``estimate_error``, ``Goal``, ``ErrorEstimate``; structured systems ``Template``,
+``estimate_error``, ``Goal``, ``ErrorEstimate``, ``load_solution``; structured systems ``Template``,
 ``TemplateODE``, ``ParticleSystem`` (``dolfinode.systems``); ensembles ``solve_ensemble``,
 ``vary``.
 """
@@ -9,6 +9,7 @@ from dolfinode import systems
 from dolfinode.dual import ErrorEstimate, Goal, estimate_error
 from dolfinode.ensemble import solve_ensemble, vary
 from dolfinode.errors import SolverError
+from dolfinode.io.stored import load_solution
 from dolfinode.methods import Method, make_method, parse_method
 from dolfinode.ode import ODE, t
 from dolfinode.parameters import DEFAULTS as default_parameters
@@ -20,4 +21,4 @@ __version__ = "0.1.0"
 
 __all__ = ["ODE", "ErrorEstimate", "Goal", "Method", "ParticleSystem", "Solution",
            "SolverError", "Template", "TemplateODE", "default_parameters", "estimate_error",
-           "make_method", "parse_method", "solve", "solve_ensemble", "systems", "t", "vary"]
+           "load_solution", "make_method", "parse_method", "solve", "solve_ensemble", "systems", "t", "vary"]

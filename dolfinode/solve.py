@@ -9,6 +9,7 @@ from dolfinode import timeslab as ts
 from dolfinode.adaptivity import filter_constant, initial_step
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
+from dolfinode.io import history
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
 from dolfinode.memory import available_memory
 from dolfinode.methods import parse_method
@@ -184,8 +185,6 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
              params["maximum_iterations"], int(m.family == "dG")]
     fopts = [rtol, ode.T, params["maximum_time_step"] or ode.T - ode.t0,
              params["safety_factor"], dtol, m.local_order]
-    from dolfinode.io import history  # (imported here: dolfinode.io imports meshio)
-
     sink = history.sink(ode, m, multi_adaptive, params)
     run = _run_multi if multi_adaptive else _run_mono
     status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
@@ -222,7 +221,7 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar, si
                newton_ready=None):
     """Call a compiled time-slab loop until it reaches T, handing its stored elements to
     ``sink`` chunk by chunk (:mod:`dolfinode.io.history`); returns the status and what
-    ``sink.finish()`` returns.
+    ``sink.finish(completed)`` returns.
 
     The loop returns FULL when its output buffers are full (so results arrive in chunks, and
     progress can be shown); a FULL with nothing stored means one slab needs larger buffers.
@@ -251,7 +250,7 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar, si
             status = _STATUS_STEP_LIMIT
             break
     del buffers
-    return status, sink.finish()
+    return status, sink.finish(status == ts.DONE)
 
 
 def _newton_plan(compiled, m):

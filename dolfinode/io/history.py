@@ -8,7 +8,9 @@ and, at the end, asks the sink for the :class:`~dolfinode.Solution`. The paramet
   available to the process after each chunk, so that a history that would not fit stops
   with a SolverError naming ``dense_output`` instead of numpy's MemoryError or the OOM killer;
 - False (:class:`Samples`): each chunk is evaluated at the sample times it covers and
-  dropped; the memory does not grow with the number of steps.
+  dropped; the memory does not grow with the number of steps;
+- a path "run.h5" (:class:`dolfinode.io.stored.ToFile`): each chunk is appended to an HDF5
+  file, which :func:`dolfinode.load_solution` opens lazily.
 
 A chunk is ``[t_start (n,), k (n,), values (n, q + 1, N)]`` from a mono-adaptive loop (a
 shared partition) and ``[comp (n,), t_start (n,), t_end (n,), values (n, q + 1)]`` from a
@@ -51,8 +53,10 @@ def sink(ode, method, multi_adaptive, params):
     if params["dense_output"] is True:
         return InMemory(ode, multi_adaptive, params["number_of_samples"] if times is None
                         else times)
-    raise NotImplementedError("dense_output as an HDF5 path is not available yet: use "
-                              "dense_output=False with sample_times=")
+    from dolfinode.io.stored import ToFile
+
+    return ToFile(params["dense_output"], ode, method, multi_adaptive,
+                  params["number_of_samples"] if times is None else times)
 
 
 class InMemory:
@@ -102,9 +106,12 @@ class InMemory:
             "available memory, its cgroup limit and RLIMIT_AS). Solve with dense_output=False to keep only the samples (choose them with "
             "sample_times=) and the final state", t=t)
 
-    def finish(self):
+    def finish(self, completed):
         """The joined elements: [t_start, k, values] as Solution takes them, or (multi-
         adaptive) [ptr, t_start, t_end, values] as Solution.grouped does."""
+        if not completed:  # a failed solve: the elements are not used
+            self.chunks.clear()
+            return None
         if not self.multi_adaptive:
             return join_elements(self.chunks)
         ptr = np.zeros(self.ode.N + 1, dtype=np.int64)
@@ -225,7 +232,7 @@ class Samples:
             _evaluate_shared(t_start, t_end, values, nodes, bary, self.times[first:last], out)
             self.y[:, first:last] = out
 
-    def finish(self):
+    def finish(self, completed):
         return None
 
     def solution(self, ode, method, elements, stats, final):

@@ -101,11 +101,11 @@ _BUILD = textwrap.dedent("""
     ode = mass_spring_chain(100)[0]
     method = dn.parse_method("mcG(1)")[1]
     small = stored_history(ode, 10, 5)  # compiles the join's kernels
-    small.solution(ode, method, small.finish(), {}, None)
+    small.solution(ode, method, small.finish(True), {}, None)
     base = rss("VmRSS:")
     sink = stored_history(ode, 40_000, 5_000)  # 8 chunks of 40 MB
     stored = sink.bytes
-    sol = sink.solution(ode, method, sink.finish(), {}, None)
+    sol = sink.solution(ode, method, sink.finish(True), {}, None)
     assert sol.multi and sol(0.5).shape == (ode.N,)
     print(stored, rss("VmHWM:") - base)
 """)
