@@ -1,9 +1,7 @@
 """A solution history streamed to HDF5 (dense_output="run.h5") and read back lazily."""
 import os
-import signal
 import stat
 import textwrap
-import time
 
 import numpy as np
 import pytest
@@ -78,21 +76,7 @@ _LONG = textwrap.dedent("""
 """)
 
 
-def test_a_killed_streaming_solve_leaves_no_file(tmp_path):
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        filter(None, [str(Path(dn.__file__).parents[1]), os.environ.get("PYTHONPATH")])))
-    process = subprocess.Popen([sys.executable, "-c", _LONG, str(tmp_path)], env=env)
-    try:
-        deadline = time.monotonic() + 120
-        while not (tmp_path / "started").exists() and time.monotonic() < deadline:
-            time.sleep(0.1)
-        time.sleep(3.0)  # streaming by now: 10^7 slabs take minutes
-        assert process.poll() is None
-    finally:
-        process.send_signal(signal.SIGKILL)
-        process.wait()
+def test_a_killed_streaming_solve_leaves_no_file(tmp_path, kill_python):
+    # streaming by 3 s after the start: 10^7 slabs take minutes
+    kill_python(_LONG, tmp_path, started=tmp_path / "started", seconds=3.0)
     assert os.listdir(tmp_path) == ["started"]
