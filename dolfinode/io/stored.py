@@ -34,6 +34,18 @@ def _h5py():
     return h5py
 
 
+def bound_metadata_cache(h5, size=2**21):
+    """Fix HDF5's metadata cache of the open file ``h5`` at ``size`` bytes: by default it
+    grows with the datasets and chunks written (4.7 kB per dataset), so that the memory of
+    a long write grows with its steps; fixed, it levels off (near 15 MB for 20000
+    datasets)."""
+    config = h5.id.get_mdc_config()
+    config.set_initial_size, config.initial_size = True, size // 2
+    config.min_size, config.max_size = size // 2, size
+    config.incr_mode = config.decr_mode = config.flash_incr_mode = 0  # (off)
+    h5.id.set_mdc_config(config)
+
+
 class ToFile:
     """``dense_output="run.h5"``: each chunk appended to the file; the Solution reads it
     back lazily (memory: one chunk, whatever the number of steps)."""
@@ -47,15 +59,19 @@ class ToFile:
         # sink is collected, or at exit
         self._finalizer = weakref.finalize(self, _drop, self._writing)
         self.h5 = _h5py().File(file, "w")
+        bound_metadata_cache(self.h5)
         self.h5.attrs.update(format=FORMAT, version=VERSION, complete=False,
                              method=("m" if multi_adaptive else "") + method.name)
         self.datasets = None
 
     def add(self, chunk, t):
         if self.datasets is None:
-            self.datasets = [self.h5.create_dataset(name, shape=(0, *part.shape[1:]),
-                                                    maxshape=(None, *part.shape[1:]),
-                                                    dtype=part.dtype, chunks=True)
+            # chunks of about 1 MB: h5py's guess for a dataset that starts empty is small,
+            # and the chunk index grows with their number
+            self.datasets = [self.h5.create_dataset(
+                name, shape=(0, *part.shape[1:]), maxshape=(None, *part.shape[1:]),
+                dtype=part.dtype,
+                chunks=(max(1, 2**20 // (part[:1].nbytes or 1)), *part.shape[1:]))
                              for name, part in zip(_MULTI if self.multi_adaptive else _MONO,
                                                    chunk)]
         for dataset, part in zip(self.datasets, chunk):

@@ -15,6 +15,7 @@ import meshio
 import numpy as np
 
 from dolfinode.io.atomic import new_file
+from dolfinode.io.stored import bound_metadata_cache
 
 
 def write_trajectory(filename, points, springs, times, positions):
@@ -58,6 +59,7 @@ def write_trajectory(filename, points, springs, times, positions):
     start = np.hstack([points, np.zeros((n, 3 - dim))])
     # the data are named first, as the inner file
     with new_file(filename) as xdmf, new_file(heavy) as data, h5py.File(data, "w") as h5:
+        bound_metadata_cache(h5)  # 4.7 kB per dataset written otherwise: 28 MB at 3000 steps
         h5["data0"], h5["data1"] = start, springs
         xdmf.write(_HEAD.encode())
         current = start.copy()
