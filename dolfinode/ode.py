@@ -207,6 +207,12 @@ class Parameters(MutableMapping):
     def __iter__(self):
         return iter(self._values)
 
+    def values(self):
+        return self._values.values()  # (the Mapping default looks each key up again)
+
+    def items(self):
+        return self._values.items()
+
     def __len__(self):
         return len(self._values)
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import dolfinode as dn
+from dolfinode.io.atomic import _umask
 from dolfinode.problems import mass_spring_chain
 
 
@@ -35,12 +36,6 @@ def test_streamed_history_reads_back_equal_to_the_in_memory_one(chain, tmp_path,
     streamed.close()
 
 
-def _umask():
-    current = os.umask(0)
-    os.umask(current)
-    return current
-
-
 def test_an_error_estimate_of_a_loaded_solution_equals_the_in_memory_one(chain, tmp_path):
     goal = {chain.states[3]: 1.0}
     dense = dn.solve(chain, "cG(1)", tolerance=1e-4)
@@ -67,7 +62,8 @@ _LONG = textwrap.dedent("""
     import sys
     from pathlib import Path
     import dolfinode as dn
-    from dolfinode.problems import mass_spring_chain
+    from dolfinode.io.atomic import _umask
+from dolfinode.problems import mass_spring_chain
 
     ode, _ = mass_spring_chain(100, T=1000.0)
     Path(sys.argv[1], "started").touch()

@@ -1,10 +1,12 @@
 """XDMF trajectories: written atomically, read back exactly."""
+import stat
 import textwrap
 
 import numpy as np
 import pytest
 
 from dolfinode.io import read_trajectory, write_trajectory
+from dolfinode.io.atomic import _umask
 
 
 def test_round_trip(tmp_path):
@@ -18,8 +20,10 @@ def test_round_trip(tmp_path):
     assert np.array_equal(S, springs)
     assert np.allclose(T, times)
     assert np.allclose(X[:, :2], positions)
-    # the heavy data beside it, no temporary file left
+    # the heavy data beside it, no temporary file left, both readable by all
     assert sorted(tmp_path.iterdir()) == [tmp_path / "traj.h5", path]
+    for written in tmp_path.iterdir():
+        assert stat.S_IMODE(written.stat().st_mode) == 0o644 & ~_umask()
 
 
 def test_failure_leaves_nothing_behind(tmp_path):
