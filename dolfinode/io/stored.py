@@ -6,12 +6,13 @@ The file holds the elements as the loop stored them: ``t_start``, ``k`` (M,) and
 (E, q + 1) of a multi-adaptive one, and the declaration as solved (pickled: open only files
 you trust, as with any pickle). It is written without a name and named when complete
 (:func:`dolfinode.io.atomic.new_file`): a failed or killed solve leaves no file.
-:func:`load_solution` keeps the element times in memory and reads only the nodal values that
-an evaluation needs.
+:func:`load_solution` reads the element times at the first evaluation and only the nodal values
+that an evaluation needs.
 """
 import contextlib
 import pickle
 import weakref
+from functools import cached_property
 
 import numpy as np
 
@@ -111,7 +112,8 @@ def _drop(writing):
 def load_solution(path, number_of_samples=101):
     """Open a solution history written by ``solve(..., dense_output=path)``.
 
-    The element times are read now, the nodal values when an evaluation needs them:
+    The element times are read at the first evaluation, the nodal values when an
+    evaluation needs them:
     ``sol(t)``, ``sol.y`` read the elements around their times only; ``sol.values``,
     ``elements()`` and error estimates read them all.
 
@@ -141,23 +143,42 @@ def load_solution(path, number_of_samples=101):
         raise
     sol = StoredSolution.__new__(StoredSolution)
     sol.ode, sol.method, sol.stats, sol.path, sol._h5 = ode, method, stats, str(path), h5
-    sol._stored = h5["values"]
-    if multi:
-        comp, t_start, t_end = (h5[name][()] for name in _MULTI[:3])
-        sol._rows = np.lexsort((t_start, comp))  # file row of each element, grouped
-        sol.t_start, sol._t_end = t_start[sol._rows], t_end[sol._rows]
-        sol.k = sol._t_end - sol.t_start
-        sol._component_ptr = np.searchsorted(comp[sol._rows], np.arange(ode.N + 1))
-    else:
-        sol.t_start, sol.k = h5["t_start"][()], h5["k"][()]
-        sol._component_ptr = None
+    sol._stored, sol._multi = h5["values"], multi
     sol._sample(number_of_samples)
     return sol
 
 
 class StoredSolution(Solution):
-    """A :class:`~dolfinode.Solution` whose nodal values stay in an HDF5 file until needed
-    (see :func:`load_solution`)."""
+    """A :class:`~dolfinode.Solution` whose elements stay in an HDF5 file until needed (see
+    :func:`load_solution`): the element times are read at the first evaluation, the nodal
+    values only where an evaluation needs them."""
+
+    @property
+    def multi(self):
+        return self._multi
+
+    @cached_property
+    def _times(self):
+        """The element times (and, multi-adaptive, the file row of each element grouped by
+        component, and the component pointer)."""
+        h5 = self._h5
+        if not self._multi:
+            t_start, k = h5["t_start"][()], h5["k"][()]
+            return {"t_start": t_start, "k": k, "_t_end": None, "_rows": None,
+                    "_component_ptr": None}
+        comp = h5["comp"][()]
+        rows = np.lexsort((h5["t_start"][()], comp))  # file row of each element, grouped
+        ptr = np.searchsorted(comp[rows], np.arange(self.ode.N + 1))
+        del comp
+        t_start, t_end = h5["t_start"][()][rows], h5["t_end"][()][rows]
+        return {"t_start": t_start, "k": t_end - t_start, "_t_end": t_end, "_rows": rows,
+                "_component_ptr": ptr}
+
+    t_start = property(lambda self: self._times["t_start"])
+    k = property(lambda self: self._times["k"])
+    _t_end = property(lambda self: self._times["_t_end"])
+    _rows = property(lambda self: self._times["_rows"])
+    _component_ptr = property(lambda self: self._times["_component_ptr"])
 
     @property
     def values(self):
