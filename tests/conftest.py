@@ -42,7 +42,8 @@ def _kill_python(script, *args, started, seconds):
                                env=_environment())
     try:
         deadline = time.monotonic() + 120
-        while not os.path.exists(started) and time.monotonic() < deadline:
+        while (not os.path.exists(started) and process.poll() is None
+               and time.monotonic() < deadline):
             time.sleep(0.05)
         time.sleep(seconds)
         assert process.poll() is None, "the process ended before it was killed"

@@ -561,3 +561,14 @@ def test_complex_values_of_a_template_system_are_rejected():
     with pytest.raises(TypeError, match="values is complex"):
         dn.Template(slots=(x,), terms={x: -c * x}, indices=[[0]], params=(c,),
                     values=np.array([1j]))
+
+
+def test_a_parameter_of_a_template_system_changed_after_a_solve_is_honoured():
+    x, rate = sp.symbols("x rate")
+    decay = dn.Template(slots=(x,), terms={x: -rate * x}, indices=[[0], [1]])
+    ode = dn.TemplateODE(decay, u0=[1.0, 2.0], T=1.0, params={rate: 1.0})
+    first = dn.solve(ode, "cG(2)", tolerance=1e-8)(1.0)
+    ode.params[rate] = 2.0
+    np.testing.assert_allclose(first, [np.exp(-1.0), 2 * np.exp(-1.0)], rtol=1e-6)
+    np.testing.assert_allclose(dn.solve(ode, "cG(2)", tolerance=1e-8)(1.0),
+                               [np.exp(-2.0), 2 * np.exp(-2.0)], rtol=1e-6)

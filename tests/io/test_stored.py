@@ -62,8 +62,7 @@ _LONG = textwrap.dedent("""
     import sys
     from pathlib import Path
     import dolfinode as dn
-    from dolfinode.io.atomic import _umask
-from dolfinode.problems import mass_spring_chain
+    from dolfinode.problems import mass_spring_chain
 
     ode, _ = mass_spring_chain(100, T=1000.0)
     Path(sys.argv[1], "started").touch()
