@@ -155,19 +155,8 @@ def _read_only(array):
     return array
 
 
-class _Fixed:
-    """An attribute fixed by the declaration: the compiled kernels are built from it."""
-
-    def __init__(self, name):
-        self.name = name
-
-    def __get__(self, ode, owner=None):
-        return self if ode is None else ode.__dict__[self.name]
-
-    def __set__(self, ode, value):
-        raise AttributeError(f"ode.{self.name} is fixed by the declaration (the compiled kernels "
-                             f"are built from it): declare a new dn.ODE; parameter values, u0, "
-                             "t0 and T may be set, or varied with dn.vary")
+#: What the compiled kernels are built from: fixed once declared.
+_FIXED = ("states", "rhs", "nonnegative")
 
 
 class Parameters(MutableMapping):
@@ -280,71 +269,51 @@ class ODE:
     # be set, are checked as in the declaration and are honoured by the next solve (the
     # compiled kernels read the parameter values anew each time, see
     # dolfinode.compile.lower); what the kernels are built from (states, rhs, nonnegative,
-    # the parameter symbols) is fixed: a new one needs a new ODE.
-    states = _Fixed("states")
-    rhs = _Fixed("rhs")
-    nonnegative = _Fixed("nonnegative")
+    # the parameter symbols) is fixed: a new one needs a new ODE. They are plain instance
+    # attributes, read at dict speed (a solve reads them dozens of times); this method
+    # checks the assignments.
+    def __setattr__(self, name, value):
+        if name in _FIXED:
+            raise AttributeError(f"ode.{name} is fixed by the declaration (the compiled kernels "
+                                 f"are built from it): declare a new dn.ODE; parameter values, "
+                                 "u0, t0 and T may be set, or varied with dn.vary")
+        if name == "params":
+            self._set_params(value)
+        elif name == "u0":
+            self.__dict__["u0"] = _read_only(self._initial_vector(value))
+        elif name in ("t0", "T"):
+            times = {"t0": self.t0, "T": self.T, name: value}
+            self._set_interval(times["t0"], times["T"])
+        else:
+            object.__setattr__(self, name, value)
 
-    @property
-    def params(self):
-        """Parameter symbol -> value (a :class:`Parameters` mapping: values may be changed,
-        checked, and honoured by the next solve)."""
-        return self._parameters
-
-    @params.setter
-    def params(self, params):
+    def _set_params(self, params):
+        """``ode.params = {...}``: a :class:`Parameters` mapping of the checked values (its
+        values may be changed, checked, and are honoured by the next solve)."""
         clean = self._params(params)
-        before = self.__dict__.get("_parameters")
-        self._parameters = Parameters(clean)
+        before = self.__dict__.get("params")
+        self.__dict__["params"] = Parameters(clean)
         if before is None or list(before) != list(clean):
             try:
                 self._check_symbols()
             except (TypeError, ValueError):
-                self._parameters = before
+                self.__dict__["params"] = before
                 raise
             self.__dict__.pop("_compiled", None)  # its parameter vector has other slots
-
-    @property
-    def u0(self):
-        """Initial values in component order (read-only array; assign ``ode.u0 = ...`` to
-        change them, checked as in the declaration)."""
-        return self._u0
-
-    @u0.setter
-    def u0(self, u0):
-        self._u0 = _read_only(self._initial_vector(u0))
-
-    @property
-    def t0(self):
-        """Initial time (may be set; t0 < T is checked)."""
-        return self._t0
-
-    @t0.setter
-    def t0(self, t0):
-        self._set_interval(t0, self._T)
-
-    @property
-    def T(self):
-        """Final time (may be set; T > t0 is checked)."""
-        return self._T
-
-    @T.setter
-    def T(self, T):
-        self._set_interval(self._t0, T)
 
     def _set_interval(self, t0, T):
         """Set a validated finite t0 < T."""
         t0, T = _check_time(t0, "t0"), _check_time(T, "T")
         if not T > t0:
             raise ValueError(f"the final time T = {T} must be larger than t0 = {t0}")
-        self._t0, self._T = t0, T
+        self.__dict__.update(t0=t0, T=T)
 
     def _snapshot(self):
         """This declaration as it is now, for a Solution to keep: later changes of the
         values on ``self`` do not reach it (a shallow copy with its own parameter values)."""
         snapshot = object.__new__(type(self))
         snapshot.__dict__.update(self.__dict__)
-        snapshot._parameters = Parameters(self._parameters)
+        snapshot.__dict__["params"] = Parameters(self.params)
         return snapshot
 
     def _initial_vector(self, u0):
@@ -526,7 +495,7 @@ class ODE:
         # from its disk cache when it has one; a copy gets its own parameter values
         state = self.__dict__.copy()
         state.pop("_compiled", None)
-        state["_parameters"] = Parameters(self._parameters)
+        state["params"] = Parameters(self.params)
         return state
 
     def __repr__(self):

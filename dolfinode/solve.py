@@ -157,7 +157,7 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
     start = time.perf_counter()
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
-    if not params["fixed_time_step"]:
+    if rtol < MIN_TOLERANCE and not params["fixed_time_step"]:  # (else atol + rtol |u0| is)
         _check_resolvable_tolerance(ode, atol, rtol)
     x = ode.u0.copy()
     f0 = compiled.f(x, ode.t0)

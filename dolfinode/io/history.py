@@ -116,13 +116,15 @@ class InMemory:
             return join_elements(self.chunks)
         ptr = np.zeros(self.ode.N + 1, dtype=np.int64)
         np.cumsum(self.per_component, out=ptr[1:])
-        joined = [_small_pages((ptr[-1], *part.shape[1:]), part.dtype)
-                  for part in self.chunks[0][1:]]
+        large = self.bytes >= CHECK_FROM  # (a small join is not worth the system calls)
+        empty = _small_pages if large else np.empty
+        joined = [empty((ptr[-1], *part.shape[1:]), part.dtype) for part in self.chunks[0][1:]]
         cursor = ptr[:-1].copy()
         self.chunks.reverse()
         while self.chunks:  # each chunk released once copied
             _scatter_by_component(*self.chunks.pop(), cursor, *joined)
-            _return_freed_memory()
+            if large:
+                _return_freed_memory()
         return [ptr, *joined]
 
     def solution(self, ode, method, elements, stats, final):
