@@ -2,6 +2,7 @@
 import difflib
 import math
 import numbers
+import os
 from types import MappingProxyType
 
 import numpy as np
@@ -20,6 +21,9 @@ DEFAULTS = {
     "safety_factor": 0.9,          # in (0, 1]
     "maximum_steps": 10_000_000,   # time slabs before giving up (SolverError)
     "number_of_samples": 101,      # output samples sol.t, sol.y
+    "sample_times": None,          # explicit sample times in [t0, T] (solve_ivp's t_eval)
+    "dense_output": True,          # True: history in memory; False: samples and the end only;
+                                   # a path "run.h5": the history streamed to an HDF5 file
     "progress": False,             # tqdm progress bar
     "partitioning_threshold": 0.5,  # mcG/mdG: components with k >= theta max k share a sub-slab
     "interval_threshold": 0.9,     # mcG/mdG: a step >= beta times what is left is stretched to it
@@ -134,15 +138,44 @@ def _events(name, value):
 
 
 def _times(name, value):
-    """A sequence of finite times, as a float array."""
+    """None, or a sequence of finite real times as a float array."""
     if value is None:
         return None
+    from dolfinode.ode import _reject_complex
+
+    _reject_complex(np.asarray(value), name)
     try:
         times = np.atleast_1d(np.asarray(value, dtype=float))
     except (TypeError, ValueError):
         raise TypeError(f"{name} must be a sequence of times, got {value!r}") from None
     if times.ndim != 1 or not np.all(np.isfinite(times)):
-        raise ValueError(f"{name} must be a sequence of finite times, got {value!r}")
+        raise ValueError(f"{name} must be a 1-D sequence of finite times, got {value!r}")
+    return times
+
+
+def _dense_output(name, value):
+    """True, False, or the path of an HDF5 file (a str or os.PathLike) as a str."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (str, os.PathLike)) and os.fspath(value):
+        path = os.fspath(value)
+        if not path.endswith((".h5", ".hdf5")):
+            raise ValueError(f"{name} as a path names an HDF5 file ending in .h5 or .hdf5, got "
+                             f"{path!r}")
+        return path
+    raise TypeError(f"{name} must be True (history in memory), False (samples only) or the path "
+                    f"of an HDF5 file such as 'run.h5', got {value!r}")
+
+
+def _sample_times(name, value):
+    """None, or increasing finite times as a float array (their range is checked by solve)."""
+    times = _times(name, value)
+    if times is None:
+        return None
+    if times.size == 0:
+        raise ValueError(f"{name} must be a non-empty sequence of times")
+    if np.any(np.diff(times) <= 0):
+        raise ValueError(f"{name} must be finite and strictly increasing, as solve_ivp's t_eval")
     return times
 
 
@@ -160,6 +193,8 @@ _CHECKS = {
     "safety_factor": _fraction,
     "maximum_steps": _count,
     "number_of_samples": _count,
+    "sample_times": _sample_times,
+    "dense_output": _dense_output,
     "progress": _switch,
     "partitioning_threshold": _fraction,
     "interval_threshold": _fraction,
@@ -203,4 +238,7 @@ def check_parameters(given):
     if params["automatic_modeling"] and params["fixed_time_step"]:
         raise ValueError("automatic_modeling needs adaptive time steps: the resolved windows "
                          "and the reduced model have time scales far apart; drop fixed_time_step")
+    if params["automatic_modeling"] and params["dense_output"] is not True:
+        raise ValueError("automatic_modeling joins the histories of its windows and checks the "
+                         "reduced model on them: it needs dense_output=True")
     return params

@@ -1,6 +1,5 @@
 """The driver: ``solve(ode, method, tolerance=..., **parameters) -> Solution``."""
 import math
-import os
 import time
 
 import numpy as np
@@ -11,11 +10,13 @@ from dolfinode import timeslab as ts
 from dolfinode.adaptivity import filter_constant, initial_step
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
+from dolfinode.io import history
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
+from dolfinode.memory import available_memory
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
+from dolfinode.ode import t as dn_t
 from dolfinode.parameters import DEFAULTS, NONLINEAR_SOLVERS, check_parameters
-from dolfinode.solution import Solution, join_elements
 from dolfinode.timeslab import mono
 
 _STATUS_STEP_LIMIT = -1
@@ -42,18 +43,6 @@ _QUASI_POSITIVE_N = 200
 _NEWTON_SMALL = 2**26
 
 
-def _available_memory():
-    """Bytes of memory available to this process (MemAvailable on Linux, else physical memory)."""
-    try:
-        with open("/proc/meminfo") as meminfo:
-            for line in meminfo:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-
-
 def _absolute_tolerance(ode, value, rtol):
     """atol per component from the parameter: None (rtol), a number (checked by
     check_parameters) or values per state."""
@@ -63,6 +52,25 @@ def _absolute_tolerance(ode, value, rtol):
     if not (np.all(atol > 0) and np.all(np.isfinite(atol))):
         raise ValueError(f"absolute_tolerance must be positive and finite, got {value!r}")
     return atol
+
+
+def _check_resolvable_tolerance(ode, atol, rtol):
+    """Raise ValueError if the tolerance atol_i + rtol |u0_i| of a component is below
+    MIN_TOLERANCE |u0_i|, what double precision resolves at its initial size: the step error
+    estimate is rounding there, and the steps shrink until maximum_steps or memory runs out
+    (tolerance = absolute_tolerance = 1e-20: 10^7 cG(2) slabs). Components starting at 0
+    have no scale yet and are not judged."""
+    scale = np.abs(ode.u0)
+    below = np.flatnonzero(atol + rtol * scale < MIN_TOLERANCE * scale)
+    if below.size:
+        i = int(below[np.argmax(scale[below])])
+        raise ValueError(
+            f"the tolerance of {ode.states[i].name} (absolute_tolerance {atol[i]:.3g} + tolerance "
+            f"{rtol:.3g} x |u0| = {scale[i]:.3g}) is below what double precision resolves at "
+            f"that size ({MIN_TOLERANCE:.2g} |u0| = {MIN_TOLERANCE * scale[i]:.3g}): the error "
+            "estimate would be rounding; give a tolerance of at least "
+            f"{MIN_TOLERANCE:.2g} or an absolute_tolerance of at least "
+            f"{MIN_TOLERANCE * scale[i]:.3g} for it")
 
 
 def _smallest_step(ode, t):
@@ -166,6 +174,15 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     number_of_samples : int, default 101
         Equispaced output samples ``sol.t``, ``sol.y`` (``sol(t)`` is exact at any t, and
         ``sol.time_steps()`` gives the element ends).
+    sample_times : array_like, optional
+        Explicit increasing sample times in [t0, T] for ``sol.t``, ``sol.y`` (solve_ivp's
+        ``t_eval``); default: ``number_of_samples`` equispaced ones.
+    dense_output : bool or str, default True
+        True: the whole history (every element) is kept in memory, so ``sol(t)`` and
+        :func:`~dolfinode.estimate_error` work anywhere; False: only the samples and the final
+        state (memory independent of the number of steps); a path ``"run.h5"``: the history is
+        streamed to that HDF5 file (:func:`dolfinode.load_solution` opens it). A dense solve
+        whose history would outgrow the memory left stops with SolverError naming this.
     progress : bool, default False
         Show a tqdm progress bar over [t0, T].
     partitioning_threshold : float, default 0.5
@@ -231,6 +248,15 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     if goal is not None:
         from dolfinode.dual.adaptivity import solve_for_goal
 
+        if params["dense_output"] is not True:
+            raise ValueError("a solve for a goal estimates its error from the dual problem, "
+                             "which needs the history: drop dense_output (or set it True)")
+        if params["automatic_modeling"]:
+            raise ValueError("goal= cannot be combined with automatic_modeling=True: the error "
+                             "estimate of a reduced solution is not available (see "
+                             "sol.model.modeling_error()); solve for the goal without "
+                             "automatic_modeling, or with automatic_modeling and no goal")
+
         others = {name: value for name, value in parameters.items() if name != "tolerance"}
         return solve_for_goal(solve, ode, method, goal, params["tolerance"], others)
     if params["tolerance"] < MIN_TOLERANCE and params["absolute_tolerance"] is None:
@@ -253,6 +279,8 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     start = time.perf_counter()
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
+    if rtol < MIN_TOLERANCE and not params["fixed_time_step"]:  # (else atol + rtol |u0| is)
+        _check_resolvable_tolerance(ode, atol, rtol)
     x = ode.u0.copy()
     if plan is not None:
         sigma = compiled.p[len(ode.params):]  # (a view: the branches at t0 set in place)
@@ -284,17 +312,23 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
              params["maximum_iterations"], int(m.family == "dG")]
     fopts = [rtol, ode.T, params["maximum_time_step"] or ode.T - ode.t0,
              params["safety_factor"], dtol, m.local_order]
+    if plan is not None and plan.events and params["dense_output"] is False:
+        raise ValueError("events are located on the solution's history: give "
+                         "dense_output=True or a file name with events=")
+    sink = history.sink(ode, m, multi_adaptive, params)
     run = _run_multi if multi_adaptive else _run_mono
     status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
-                                                   floor, x, f0, steps, plan)
+                                                   floor, x, f0, steps, plan, sink)
     # mono-adaptive solves may return from Newton to fixed-point iteration (STIFF is then 0)
     newton = (bool(counters[ts.STIFF]) or params["nonlinear_solver"] == "newton"
               or stats.get("newton matrices") is not None)
     if status != ts.DONE:
         outside = ode.states[counters[ts.OUTSIDE] - 1] if counters[ts.OUTSIDE] else None
-        raise SolverError(_failure_message(status, state, fixed, x, outside,
-                                           params["maximum_time_step"], newton, ode,
-                                           counters[ts.SLABS]),
+        undefined = (_undefined(ode, compiled, x, float(state[0]), float(state[1]))
+                     if status in (ts.NONCONVERGENCE, ts.BLOWUP) else None)
+        raise SolverError(undefined or _failure_message(
+            status, state, fixed, x, outside, params["maximum_time_step"], newton, ode,
+            counters[ts.SLABS]),
                           t=float(state[0]))
     counts = counters.tolist()
     stats.update({
@@ -308,11 +342,9 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         "compile time": compiled.compile_time,
         "solve time": time.perf_counter() - start,
     })
-    solved = ode if plan is None else plan.solved_ode(ode)
-    if multi_adaptive:
-        sol = Solution.multi_adaptive(solved, m, *elements, stats, params["number_of_samples"])
-    else:
-        sol = Solution(solved, m, *elements, stats, params["number_of_samples"])
+    # the declaration as solved: later changes to ode do not reach sol
+    solved = ode._snapshot() if plan is None else plan.solved_ode(ode._snapshot())
+    sol = sink.solution(solved, m, elements, stats, x)
     sol.parameters = params
     if plan is not None:
         plan.report(sol)
@@ -352,20 +384,22 @@ def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newto
             return
 
 
-def _integrate(chunks, plan, pieces, ode):
+def _integrate(chunks, plan, pieces, ode, state, sink):
     """Run the loop's ``chunks()`` to T, or piece by piece with ``plan`` (events,
-    breakpoints, switches: :func:`dolfinode.events.march` through ``pieces``); (status, the
-    elements joined)."""
+    breakpoints, switches: :func:`dolfinode.events.march` through ``pieces``), handing the
+    stored elements to ``sink`` (:mod:`dolfinode.io.history`); (status, what
+    ``sink.finish(completed)`` returns)."""
     if plan is None:
-        stored = []
         for status, chunk in chunks():
-            stored.append(chunk)
-    else:
+            sink.add(chunk, float(state[0]))
+    else:  # a terminal event or a switch may redo a chunk: the sink takes the final ones
         status, stored, plan.end = ev.march(plan, pieces, ode.t0, ode.T)
         plan.terminated = status == ev.TERMINATED
         if plan.terminated:
             status = ts.DONE
-    return status, join_elements(stored) if stored else None
+        for chunk in stored:
+            sink.add(chunk, plan.end)
+    return status, sink.finish(status == ts.DONE)
 
 
 def _newton_plan(compiled, m):
@@ -390,7 +424,7 @@ def _step_guess(ode, compiled, atol, rtol):
     return lambda x, t: initial_step(compiled.f(x, t), x, atol, rtol, ode.T - ode.t0)
 
 
-def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan):
+def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):
     tables = mono.method_tables(m)
     fopts = np.array(fopts + [ode.T - ode.t0, filter_constant(m), 0.0, 0.0])
     # the running mean of fixed-point iterations per slab starts at a typical 6
@@ -407,7 +441,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
         nonlocal structure, newton_bytes
         structure, newton_bytes, costs = _newton_plan(compiled, m)
         fits = (newton_bytes <= _NEWTON_SMALL
-                or newton_bytes <= _NEWTON_MEMORY_FRACTION * _available_memory())
+                or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
         iopts[mono.NEWTON_READY] = int(fits)
         iopts[mono.REUSE] = int(structure.seconds(complex_values=True) >= mono.REUSE_TIME)
         fopts[[mono.NEWTON_UNITS, mono.FACTOR_UNITS]] = costs
@@ -437,9 +471,9 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
         pieces = plan and ev.MonoPieces(
             ode, m, chunks, fopts, state, x, compiled.p, len(ode.params),
             _step_guess(ode, compiled, atol, fopts[mono.RTOL]), f0=f0, f=compiled.f)
-        status, elements = _integrate(chunks, plan, pieces, ode)
+        status, elements = _integrate(chunks, plan, pieces, ode, state, sink)
     if status == ts.NEWTON_NEEDED:
-        available = _available_memory()
+        available = available_memory()
         why = ("was not selected" if params["nonlinear_solver"] == "newton" else "failed")
         raise SolverError(
             f"{m.name} needs Newton's method at t = {state[mono.T_NOW]:.6g} (fixed-point "
@@ -455,7 +489,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
     return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, stats
 
 
-def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan):
+def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):
     # imported on first use: compiling its loop (once per installation) takes ~30 s
     from dolfinode.timeslab import multi
 
@@ -491,8 +525,8 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
             ode, m, chunks, fopts, state, x, compiled.p, len(ode.params),
             _step_guess(ode, compiled, atol, fopts[multi.RTOL]), kdes=kdes, frozen=frozen,
             components=plan.detector.components)
-        status, elements = _integrate(chunks, plan, pieces, ode)
-    per_component = np.bincount(elements[0], minlength=ode.N)
+        status, elements = _integrate(chunks, plan, pieces, ode, state, sink)
+    per_component = sink.per_component
     total = int(counters[ts.ELEMENTS])
     stats = {"time slabs": int(counters[ts.SLABS]),
              "sub-slabs": int(counters[ts.SUBSLABS]),
@@ -529,6 +563,55 @@ _DOMAIN_DECLARED = ("the components declared nonnegative are read as max(u, 0) i
                     "powers, but sqrt(u) and the like have no bounded derivative where u reaches "
                     "0 (Newton's Jacobian is infinite there): cG(1) and mcG(1) step through such "
                     "a point")
+
+
+#: Functions not defined on the whole real line, with their domain as a test on the argument.
+_PARTIAL = {sp.log: ("log", lambda a: a > 0), sp.asin: ("asin", lambda a: abs(a) <= 1),
+            sp.acos: ("acos", lambda a: abs(a) <= 1), sp.acosh: ("acosh", lambda a: a >= 1),
+            sp.atanh: ("atanh", lambda a: abs(a) < 1)}
+
+
+def _undefined(ode, compiled, x, t, k):
+    """Why f is not finite a little past the time t where a step from the state x failed
+    (after the last step k, up to 10^4 k, with x moved along f(x, t)), if it is not (else
+    None): the argument outside its function's domain and whether it depends on t alone
+    (then no method or step helps) or on components."""
+    if hasattr(ode, "templates"):  # a template system's rhs takes O(N) to build
+        return None
+    with np.errstate(all="ignore"):
+        slope = np.nan_to_num(compiled.f(x, t), nan=0.0, posinf=0.0, neginf=0.0)
+        for step in k * np.logspace(0, 4, 5):
+            step = min(step, ode.T - t)
+            moved = x + step * slope
+            bad = np.flatnonzero(~np.isfinite(compiled.f(moved, t + step)))
+            if bad.size:
+                break
+        else:
+            return None
+    i, t = int(bad[0]), float(t + step)
+    values = {**dict(zip(ode.states, moved.tolist())), **ode.params, dn_t: t}
+    for part in sp.preorder_traversal(ode.rhs[i]):
+        if part.is_Pow and not part.exp.is_integer:
+            name, argument, inside = "a non-integer power", part.base, lambda a: a >= 0
+        elif type(part) in _PARTIAL:
+            (name, inside), argument = _PARTIAL[type(part)], part.args[0]
+        else:
+            continue
+        try:
+            value = float(argument.subs(values))
+        except (TypeError, ValueError):
+            continue
+        if inside(value):
+            continue
+        where = f"{name} in the right-hand side of {ode.states[i].name} gets {argument} = {value:.3g}"
+        if not argument.free_symbols & set(ode.states):
+            return (f"f is not defined past t = {t:.6g}: {where}, which depends on t alone, so "
+                    "no method or step size can continue; end the interval there (smaller T) "
+                    "or change the expression")
+        components = ", ".join(sorted(s.name for s in argument.free_symbols & set(ode.states)))
+        return (f"f is not defined at t = {t:.6g}: {where} from the values of {components}; "
+                + (_DOMAIN_DECLARED if ode.nonnegative.any() else _DOMAIN))
+    return None
 
 
 def _failure_message(status, state, fixed, x, outside, kmax, newton, ode, slabs):

@@ -104,3 +104,38 @@ def test_unresolved_fast_oscillation_is_not_called_a_blowup():
     message = str(info.value)
     assert "blow up" not in message and "fold" not in message
     assert "automatic_modeling=True" in message and "nonlinear_solver='newton'" in message
+
+
+@pytest.mark.parametrize("method", ["dG(1)", "cG(1)", "mcG(1)"])
+def test_a_right_hand_side_undefined_past_a_time_is_blamed_on_t(method):
+    """Issue 32: sqrt(2 - t) under dG(1) was reported as a Newton failure suggesting a dG(q)
+    method and a nonnegative component."""
+    y = sp.Symbol("y")
+    with pytest.raises(dn.SolverError) as info:
+        dn.solve(dn.ODE({y: sp.sqrt(2 - dn.t)}, u0=[0.0], T=3.0), method)
+    message = str(info.value)
+    assert message.startswith("f is not defined past t = 2: a non-integer power in the "
+                              "right-hand side of y gets 2 - t = -")
+    assert "depends on t alone" in message and "smaller T" in message
+    assert "dG(q)" not in message and "nonnegative" not in message
+
+
+def test_a_right_hand_side_undefined_for_a_state_names_the_component():
+    y, z = sp.symbols("y z")
+    with pytest.raises(dn.SolverError) as info:
+        dn.solve(dn.ODE({y: 1, z: sp.log(1.5 - y)}, u0=[0.0, 0.0], T=3.0), "cG(1)")
+    message = str(info.value)
+    assert "log in the right-hand side of z gets 1.5 - y = -" in message
+    assert "from the values of y" in message
+
+
+def test_a_tolerance_below_double_precision_at_the_solution_size_is_refused():
+    """Issue 32: tolerance = absolute_tolerance = 1e-20 ground through 10^7 cG(2) slabs."""
+    y, z = sp.symbols("y z")
+    ode = dn.ODE({y: -y, z: -z}, u0=[1.0, 1e-30], T=1.0)
+    with pytest.raises(ValueError, match="tolerance of y .* is below what double precision "
+                                         "resolves at that size"):
+        dn.solve(ode, "cG(2)", tolerance=1e-20, absolute_tolerance=1e-20)
+    # a tiny absolute tolerance for tiny values is resolvable: allowed
+    sol = dn.solve(ode, "cG(2)", tolerance=1e-6, absolute_tolerance={y: 1e-8, z: 1e-36})
+    assert sol(1.0)[1] == pytest.approx(1e-30 * np.exp(-1.0), rel=1e-5)
