@@ -8,7 +8,7 @@ Public surface (see shared/API.md): ``ODE``, ``t``, ``solve``, ``Solution``, ``S
 from dolfinode import systems
 from dolfinode.dual import ErrorEstimate, Goal, estimate_error
 from dolfinode.ensemble import solve_ensemble, vary
-from dolfinode.errors import SolverError
+from dolfinode.errors import ModelingWarning, SolverError
 from dolfinode.methods import Method, make_method, parse_method
 from dolfinode.ode import ODE, t
 from dolfinode.parameters import DEFAULTS as default_parameters
@@ -18,6 +18,6 @@ from dolfinode.systems import ParticleSystem, Template, TemplateODE
 
 __version__ = "0.1.0"
 
-__all__ = ["ODE", "ErrorEstimate", "Goal", "Method", "ParticleSystem", "Solution",
+__all__ = ["ODE", "ErrorEstimate", "Goal", "Method", "ModelingWarning", "ParticleSystem", "Solution",
            "SolverError", "Template", "TemplateODE", "default_parameters", "estimate_error",
            "make_method", "parse_method", "solve", "solve_ensemble", "systems", "t", "vary"]

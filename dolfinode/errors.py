@@ -13,3 +13,9 @@ class SolverError(RuntimeError):
     def __init__(self, message, t=None):
         super().__init__(message)
         self.t = t
+
+
+class ModelingWarning(UserWarning):
+    """Automatic modeling whose reduced model may not represent the full one: its a posteriori
+    error estimate exceeds the tolerance, or its last control point found a defect above
+    model_tolerance (see :mod:`dolfinode.modeling.validity`)."""

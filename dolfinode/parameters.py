@@ -26,9 +26,10 @@ DEFAULTS = {
     "average_samples": 1000,       # samples per half averaging window
     "average_tolerance": 0.1,      # inactivate components whose average drifts less than this
     "control_points": 10,          # checks of the reduced model against the full model
-    "model_tolerance": 0.02,       # rebuild when |g~ - g-bar| > model_tolerance max |g-bar|
+    "model_tolerance": 0.02,       # rebuild when |g~ - g-bar| > model_tolerance (max |g-bar| + tol)
     "rebuild_model": True,         # False: build once, only measure the defect at control points
     "subgrid_model": "auto",       # "constant" | "affine" in the slow state | "auto": affine after a rebuild
+    "strict": False,               # automatic modeling: raise instead of a ModelingWarning
 }
 
 NONLINEAR_SOLVERS = ("default", "fixed-point", "newton")
@@ -126,6 +127,7 @@ _CHECKS = {
     "model_tolerance": _required,
     "rebuild_model": _switch,
     "subgrid_model": _choice(SUBGRID_MODELS),
+    "strict": _switch,
 }
 
 

@@ -36,12 +36,13 @@ from dolfinode.modeling.reduced import (
     fast_time_scale,
     inactive_components,
 )
+from dolfinode.modeling.validity import check_validity
 from dolfinode.solution import Solution, join_elements
 
 #: Solver parameters that configure the modeling, not the inner solves.
 MODELING_PARAMETERS = ("automatic_modeling", "average_length", "average_samples",
                        "average_tolerance", "control_points", "model_tolerance",
-                       "rebuild_model", "subgrid_model")
+                       "rebuild_model", "subgrid_model", "strict")
 #: Bytes of elements a piece of a resolved window should hold (its length is set from the
 #: last piece's step density; the first from the window step).
 WINDOW_PIECE_BYTES = 2**26
@@ -196,8 +197,10 @@ def solve_with_modeling(ode, method, params, solve):
         u_start = model.state(segment(t_now - tau)) + np.where(model.active, 0.0, fluctuation)
         elements, averages = resolve(u_start, t_now)
         defect = model.defect(compiled, averages)
-        scale = np.max(np.abs(np.where(model.active, averages.g_bar, 0.0)))
-        relative = np.max(np.abs(defect)) / scale if scale > 0 else np.inf
+        # + tolerance: g-bar vanishes where the fast components sit on their average
+        # (1e-19 on Michaelis-Menten), and the defect is then not relative to anything
+        g_bar = np.where(model.active, averages.g_bar, 0.0)
+        relative = np.max(np.abs(defect)) / (np.max(np.abs(g_bar)) + params["tolerance"])
         rebuild = params["rebuild_model"] and relative > params["model_tolerance"]
         if rebuild:
             # g~ is refitted; the inactive set stays that of the first build, so that the
@@ -209,7 +212,7 @@ def solve_with_modeling(ode, method, params, solve):
             fluctuation = averages.fluctuation
         model.control_points.append(ControlPoint(t_now, float(np.linalg.norm(defect)),
                                                  float(relative), bool(rebuild),
-                                                 int(elements)))
+                                                 int(elements), defect, g_bar))
     del segment
     model.reduced = _concatenate(model.declaration(*reduced_start, ode.T), segments, 2)
     if keep_start:
@@ -224,6 +227,9 @@ def solve_with_modeling(ode, method, params, solve):
     sol.stats = _total_stats(runs, model, time.perf_counter() - start_time)
     sol.stats["resolved fraction"] = resolved
     sol.model = model
+    model.estimate = check_validity(model, params["tolerance"], params["model_tolerance"],
+                                    params["strict"])
+    sol.stats["modeling error estimate"] = model.estimate.total if model.estimate else np.nan
     return sol
 
 

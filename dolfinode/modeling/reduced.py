@@ -26,6 +26,7 @@ from itertools import pairwise
 import numpy as np
 from scipy import sparse
 
+from dolfinode.modeling import validity
 from dolfinode.modeling.declaration import ReducedDeclaration
 from dolfinode.ode import ODE
 
@@ -85,7 +86,8 @@ def inactive_components(ode, compiled, tau, drift, average_tolerance):
     One of a pair frozen at its average while its partner evolves makes the partner drift
     (x' = v, v' = -kappa x with x frozen at a nonzero average: v grows linearly); on the
     seed model with tau = 1.6 fast periods v's average moved and the reduced model blew up.
-    Raises ValueError when fast components exist but none can be inactivated."""
+    Raises ValueError when fast components exist but none can be inactivated, or when all
+    would be."""
     J = compiled.jacobian_matrix(ode.u0, ode.t0)
     fast = component_frequencies(J) * tau >= 2 * np.pi
     inactive = fast & (drift < average_tolerance)
@@ -105,6 +107,13 @@ def inactive_components(ode, compiled, tau, drift, average_tolerance):
             f"only with its fast partners; average_length = {tau:.3g} may be too short for "
             "the average to settle: use at least two periods of the fastest scale, or a "
             "larger average_tolerance")
+    if inactive.all():
+        raise ValueError(
+            "automatic modeling would inactivate every component: all of them are fast "
+            f"(omega_i average_length >= 2 pi, average_length = {tau:.3g}) and no slow "
+            "component is left to solve for; the slow variables are combinations of the "
+            "components (as the centres of stiff springs), which a reduced model of "
+            "inactivated components cannot represent: solve without automatic_modeling")
     return inactive
 
 
@@ -119,7 +128,8 @@ class ControlPoint:
     the reduced right-hand side at the window average (active components A) and the model's
     frozen values (inactive components I) against the average of the full one: the integrand
     of the modeling-error term of the error representation. ``relative_defect`` is its max
-    norm over max |g-bar|.
+    norm over max |g-bar| + tolerance (a scale that cannot vanish). ``defects`` and ``g_bar``
+    are the vectors g~ - g-bar and g-bar (zero on inactive components).
     """
 
     time: float
@@ -127,25 +137,8 @@ class ControlPoint:
     relative_defect: float
     rebuilt: bool
     elements: int
-
-
-@dataclass
-class ModelingError:
-    """The modeling-error estimate of :meth:`ReducedModel.modeling_error`.
-
-    Attributes
-    ----------
-    bound : S0 * largest_defect, the bound of the modeling error in the goal
-    S0 : int ||phi||_l2 dt of the reduced model's dual problem
-    largest_defect : max over the control points of ||g~ - g-bar||_l2
-    discretization : the dual estimate of the reduced solution's own discretisation error in
-        the goal (against the exact reduced solution u~)
-    """
-
-    bound: float
-    S0: float
-    largest_defect: float
-    discretization: float
+    defects: np.ndarray = None
+    g_bar: np.ndarray = None
 
 
 def affine_pattern(jacobian, active):
@@ -199,6 +192,8 @@ class ReducedModel:
     control_points : list of :class:`ControlPoint`
     reduced : the reduced solution on (t_c, T] (a :class:`~dolfinode.Solution` of the
         reduced ODE; set by the solver)
+    estimate : the :class:`~dolfinode.modeling.validity.ModelingError` of the default goal,
+        checked after the solve (None without control points)
     subgrid_model : "auto", "constant" or "affine" (the ``subgrid_model`` parameter)
     affine : whether g~ is affine in the slow state (from the start for "affine", from the
         first rebuild for "auto")
@@ -211,6 +206,7 @@ class ReducedModel:
     built: list = field(default_factory=list)
     control_points: list = field(default_factory=list)
     reduced: object = None
+    estimate: object = None
     subgrid_model: str = "constant"
     affine: bool = False
 
@@ -318,28 +314,20 @@ class ReducedModel:
         return max((c.defect for c in self.control_points), default=0.0)
 
     def modeling_error(self, goal=None):
-        """The modeling-error bound of the paper's error estimate for a goal.
-
-        The error of the reduced solution U in the average u-bar, measured by a goal M, has
-        the modeling term  int (phi, g~ - g-bar) dt, hence (the seed paper, "Error analysis")
-
-            |M(U) - M(u-bar)| <= S1 max ||k R~(U)||  +  S0 max_[t_c, T] ||g~ - g-bar||_l2,
-
-        with S0 = int_{t_c}^T ||phi||_l2 dt of the dual problem of the reduced model,
-        -phi' = (df~/du)^T phi, linearised at U (its discretisation part is
-        ``discretization``, from :func:`dolfinode.estimate_error`, with the residual taken
-        against the model as last built). max ||g~ - g-bar|| is the largest defect found at
-        the control points.
+        """The error estimate of the reduced solution against the average of the full model
+        in a goal: the modeling part int (|phi|, |g~ - g-bar|) dt (at most the paper's
+        S0 max ||g~ - g-bar||) and the discretisation part, see
+        :mod:`dolfinode.modeling.validity`.
 
         Parameters
         ----------
         goal : any goal form of :func:`dolfinode.estimate_error`, optional
-            Default: the final-time output (psi, u(T)) with psi_i = 1 on every active
-            component (inactive components are frozen averages, not outputs of the model).
+            Default: each active (slow) component at T on its own, the largest estimate
+            (inactive components are frozen averages, not outputs of the model).
 
         Returns
         -------
-        ModelingError
+        :class:`~dolfinode.modeling.validity.ModelingError`
         """
         if self.reduced is None:
             raise ValueError("the reduced model has not been solved yet: modeling_error is "
@@ -348,14 +336,7 @@ class ReducedModel:
         if not self.control_points:
             raise ValueError("no control points: max |g~ - g-bar| is unknown; solve with "
                              "control_points >= 1")
-        from dolfinode.dual import estimate_error
-
-        estimate = estimate_error(self.reduced,
-                                  self._active.astype(float) if goal is None else goal)
-        S0 = estimate.stability_factors["S0"]
-        return ModelingError(bound=S0 * self.largest_defect, S0=S0,
-                             largest_defect=self.largest_defect,
-                             discretization=estimate.value)
+        return validity.modeling_error(self, goal)
 
     def __repr__(self):
         return (f"ReducedModel(tau={self.average_length:.3g}, "

@@ -1,0 +1,143 @@
+"""A posteriori validity of a reduced model: the modeling-error estimate and its warning.
+
+The error of the reduced solution U against the average u-bar of the full model, in a goal
+M(u) = (psi, u(T)), is (Jansson, Johnson & Logg 2005, "Error analysis")
+
+    M(U) - M(u-bar) = (discretisation residual, phi)  +  int_{t_c}^T (phi, g~ - g-bar) dt,
+
+with phi the dual solution of the reduced problem (-phi' = (df~/du)^T phi, phi(T) = psi). The
+defect d = g~ - g-bar is measured at the control points; a model (re)built at t_k has d = 0
+there (g~ = g-bar of that window), so between two checks |d_i| is interpolated linearly from 0
+after a build, or from the last check's |d_i|, to the next check's (and held at the last
+check's up to T):
+
+    modeling part  ~  int_{t_c}^T sum_i |phi_i(t)| |d_i(t)| dt,
+
+at most the paper's bound S0 max ||g~ - g-bar||. The default goal
+is every slow (active) component at T, each on its own (one dual per component, up to
+DUAL_COMPONENTS of them; the sum of the active components beyond).
+"""
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from dolfinode.errors import ModelingWarning, SolverError
+
+#: Up to this many active components the default goal takes one dual per component (each slow
+#: component at T is an output); beyond, one dual for their sum.
+DUAL_COMPONENTS = 8
+#: Gauss points per dual interval for the integral of |phi| |d|.
+GAUSS_POINTS = 4
+
+
+@dataclass
+class ModelingError:
+    """The error estimate of a reduced solution in a goal (:meth:`ReducedModel.modeling_error`).
+
+    Attributes
+    ----------
+    bound : the modeling part: int sum_i |phi_i| |g~_i - g-bar_i| dt over (t_c, T] (module
+        docstring)
+    S0 : int ||phi||_l2 dt of the reduced model's dual problem
+    largest_defect : max over the control points of ||g~ - g-bar||_l2
+    discretization : the dual estimate of the reduced solution's own discretisation error in
+        the goal (against the exact reduced solution u~, residual of the model as last built)
+    goal : the output estimated (for the default goal, the slow component of largest total)
+    worst_time, worst_state : the control point and the state of the largest relative defect
+    """
+
+    bound: float
+    S0: float
+    largest_defect: float
+    discretization: float
+    goal: str = "the goal"
+    worst_time: float = np.nan
+    worst_state: object = None
+
+    @property
+    def total(self):
+        """bound + |discretization|: the estimate of |M(U) - M(u-bar)|."""
+        return self.bound + abs(self.discretization)
+
+
+def modeling_error(model, goal=None):
+    """:class:`ModelingError` of ``model`` (a solved :class:`ReducedModel`) in ``goal``."""
+    from dolfinode.dual import estimate_error
+
+    active = np.flatnonzero(model.active)
+    if goal is not None:
+        goals = {"the goal": goal}
+    elif len(active) <= DUAL_COMPONENTS:
+        goals = {f"{model.ode.states[i]}(T)": np.eye(model.ode.N)[i] for i in active}
+    else:
+        goals = {"the sum of the slow components at T": model.active.astype(float)}
+    worst = None
+    for name, psi in goals.items():
+        estimate = estimate_error(model.reduced, psi)
+        part = ModelingError(_weighted_defect(estimate.dual, model),
+                             estimate.stability_factors["S0"], model.largest_defect,
+                             estimate.value, name)
+        if worst is None or part.total > worst.total:
+            worst = part
+    point = max(model.control_points, key=lambda c: c.relative_defect)
+    worst.worst_time = float(point.time)
+    worst.worst_state = model.ode.states[int(np.argmax(np.abs(point.defects)))]
+    return worst
+
+
+def _weighted_defect(phi, model):
+    """int sum_i |phi_i(t)| |d_i(t)| dt over (t_c, T], |d| interpolated as in the module
+    docstring."""
+    checks = model.control_points
+    times = [model.reduced.ode.t0] + [c.time for c in checks] + [model.reduced.ode.T]
+    ends = [np.abs(c.defects) for c in checks] + [np.abs(checks[-1].defects)]
+    starts = [np.zeros_like(ends[0])] + [
+        np.zeros_like(d) if c.rebuilt else d for c, d in zip(checks, ends)]
+    x, w = np.polynomial.legendre.leggauss(GAUSS_POINTS)
+    total = 0.0
+    for a, b, start, end in zip(times[:-1], times[1:], starts, ends):
+        if b <= a:
+            continue
+        nodes = np.concatenate([[a], phi.grid[(phi.grid > a) & (phi.grid < b)], [b]])
+        mid, half = (nodes[1:] + nodes[:-1]) / 2, (nodes[1:] - nodes[:-1]) / 2
+        s = (mid[:, None] + half[:, None] * x).ravel()
+        weights = (half[:, None] * w).ravel()
+        theta = (s - a) / (b - a)
+        size = np.abs(phi(s))  # (N, points)
+        total += float(weights @ ((1 - theta) * (start @ size) + theta * (end @ size)))
+    return total
+
+
+def check_validity(model, tolerance, model_tolerance, strict):
+    """Warn (``ModelingWarning``), or raise SolverError when ``strict``, when the reduced
+    model's error estimate in the default goal exceeds ``tolerance``, or when the last two
+    control points both
+    found a relative defect above ``model_tolerance`` (rebuilding did not help). Returns the
+    :class:`ModelingError` (None without control points)."""
+    if not model.control_points:
+        return None
+    estimate = modeling_error(model)
+    problems = []
+    if estimate.total > tolerance:
+        problems.append(
+            f"its error estimate {estimate.total:.3g} in {estimate.goal} (modeling "
+            f"{estimate.bound:.3g}, discretisation {abs(estimate.discretization):.3g}) "
+            f"exceeds the tolerance {tolerance:g}")
+    failed = [c for c in model.control_points[-2:] if c.relative_defect > model_tolerance]
+    if len(failed) == 2:
+        problems.append(
+            f"the last two control points (t = {failed[0].time:.4g}, {failed[1].time:.4g}) "
+            f"found relative defects {failed[0].relative_defect:.3g}, "
+            f"{failed[1].relative_defect:.3g} above model_tolerance = {model_tolerance:g} "
+            "although the model was rebuilt")
+    if problems:
+        message = (f"the reduced model may not represent the full one: {'; '.join(problems)}; "
+                   f"largest relative defect at t = {estimate.worst_time:.4g} in "
+                   f"{estimate.worst_state}. Try a longer average_length, more "
+                   "control_points, subgrid_model='affine', or solve without "
+                   "automatic_modeling")
+        if strict:
+            raise SolverError("automatic modeling: " + message, t=estimate.worst_time)
+        warnings.warn(message, ModelingWarning, stacklevel=4)
+    return estimate

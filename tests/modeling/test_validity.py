@@ -1,0 +1,98 @@
+"""Automatic modeling is right or says it is not (issue 28): on four classes of multiscale
+systems (dolfinode.bench.multiscale, scale separation 1e4), against the full model resolved by
+scipy and averaged with the modeling kernel, the slow components are within 1e-2 of their
+range, or a ModelingWarning fires whose estimate is at least the error; on the seed model,
+whose reduced model is right, nothing fires."""
+import warnings
+
+import numpy as np
+import pytest
+
+import dolfinode as dn
+from dolfinode.bench import multiscale
+from dolfinode.bench.problems import seed_model
+
+SETTINGS = {"method": "cG(2)", "tolerance": 1e-4, "automatic_modeling": True}
+CLASSES = ("adiabatic", "michaelis_menten", "proportional")
+
+
+@pytest.fixture(scope="module", params=CLASSES)
+def modeled(request):
+    """(ode, slow, solution, warnings, times, averaged reference) for one class."""
+    ode, slow = multiscale.CLASSES[request.param]()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sol = dn.solve(ode, **SETTINGS)
+    tau = sol.model.average_length
+    times = np.linspace(3 * tau, ode.T, 120)
+    stiff = request.param == "michaelis_menten"
+    reference = multiscale.averaged_reference(ode, times, tau, "Radau" if stiff else "DOP853",
+                                              rtol=1e-9)
+    fired = [w for w in caught if issubclass(w.category, dn.ModelingWarning)]
+    return ode, slow, sol, fired, times, reference
+
+
+def test_slow_components_right_or_warned_with_an_estimate_above_the_error(modeled):
+    ode, slow, sol, fired, times, reference = modeled
+    U = sol(times)
+    relative = max(np.max(np.abs(U[i] - reference[i])) / np.ptp(reference[i]) for i in slow)
+    error_T = max(abs(U[i, -1] - reference[i, -1]) for i in slow)
+    if not fired:
+        assert relative < 1e-2
+        return
+    assert len(fired) == 1
+    message = str(fired[0].message)
+    assert "tolerance" in message and f"{sol.model.estimate.total:.3g}" in message
+    assert sol.model.estimate.total >= error_T
+    assert sol.stats["modeling error estimate"] == sol.model.estimate.total
+
+
+def test_effectivity_in_each_slow_component(modeled):
+    """modeling_error(goal) + |discretisation| >= 0.5 |U(T) - u-bar(T)| (measured effectivities
+    of 5 to 40: the interpolated defect and |phi| make it a bound rather than an estimate)."""
+    ode, slow, sol, fired, times, reference = modeled
+    for i in slow:
+        estimate = sol.model.modeling_error({ode.states[i]: 1.0})
+        assert estimate.goal == "the goal"
+        assert estimate.bound <= estimate.S0 * estimate.largest_defect * (1 + 1e-9)
+        assert estimate.total >= 0.5 * abs(sol(ode.T)[i] - reference[i, -1])
+
+
+def test_relative_defects_are_relative_to_a_scale_that_cannot_vanish():
+    """On Michaelis-Menten with c frozen, max |g-bar| is ~1e-19 (c sits on its average);
+    the defect is relative to max |g-bar| + tolerance (it was 1e13 relative to g-bar)."""
+    ode, _ = multiscale.michaelis_menten()
+    with pytest.warns(dn.ModelingWarning):
+        sol = dn.solve(ode, **SETTINGS)
+    assert max(c.relative_defect for c in sol.model.control_points) < 1e4
+
+
+def test_strict_raises_where_it_would_warn():
+    ode, _ = multiscale.michaelis_menten()
+    with pytest.raises(dn.SolverError, match="automatic modeling: the reduced model may not"):
+        dn.solve(ode, strict=True, **SETTINGS)
+
+
+def test_stiff_springs_of_moving_centres_raise():
+    """Fermi-Pasta-Ulam: every component is fast (the slow variables are the centres of the
+    stiff springs, combinations of components); the averages move, so no component can be
+    inactivated, and with a loose average_tolerance all would be: both raise."""
+    ode, _ = multiscale.fermi_pasta_ulam()
+    with pytest.raises(ValueError, match="can inactivate none"):
+        dn.solve(ode, **SETTINGS)
+    with pytest.raises(ValueError, match="would inactivate every component"):
+        dn.solve(ode, average_tolerance=1.0, **SETTINGS)
+
+
+@pytest.mark.parametrize("kappa", [1e8, 1e18])
+def test_seed_model_is_not_warned_and_its_estimate_bounds_the_error(kappa):
+    """The seed model's reduced model is exact up to the averaging: no ModelingWarning, and
+    the estimate of x1(T) lies above the error (measured 8.6e-6 against 4.7e-6)."""
+    ode = seed_model(kappa, T=100.0).ode
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ModelingWarning)
+        sol = dn.solve(ode, **SETTINGS)
+    assert sol.model.estimate.total < SETTINGS["tolerance"]
+    error = abs(sol(100.0)[0] - (1 - np.cos(100.0)) / 4)
+    estimate = sol.model.modeling_error({ode.states[0]: 1.0})
+    assert 0.5 * error <= estimate.total < 10 * SETTINGS["tolerance"]
