@@ -141,13 +141,19 @@ class ControlPoint:
     g_bar: np.ndarray = None
 
 
-def affine_pattern(jacobian, active):
-    """Entries (i, j), i and j active, of the pattern J_AI (J_II)^* J_IA: the active
-    variables j that move the inactive (fast) variables that f_i depends on. g-bar_i is an
-    average over those fast variables, so these are the j it depends on."""
-    J = (sparse.csr_matrix(jacobian) != 0).astype(np.int8)
+def affine_pattern(jacobian, active, perturbed=None):
+    """Entries (i, j), i and j active, on which g-bar_i may depend on u_j:
+
+    - the pattern J_AI (J_II)^* J_IA: the active variables j that move the inactive (fast)
+      variables that f_i depends on (g-bar_i is an average over those fast variables);
+    - with ``perturbed``, df/du at the same slow state with the fast components moved: the
+      entries of J_AA that the fast components change, the mixed second derivatives
+      d^2 f_i / du_j du_I (y' = -y x^2 with x fast: g-bar = -y avg(x^2 - x-bar^2) is
+      proportional to y although x does not depend on y).
+    """
     inactive = ~active
     A, I = np.flatnonzero(active), np.flatnonzero(inactive)
+    J = (sparse.csr_matrix(jacobian) != 0).astype(np.int8)
     J_AI, J_IA, J_II = J[A][:, I], J[I][:, A], J[I][:, I]
     reach = J_IA.copy()
     while True:  # reach = (I + J_II + J_II^2 + ...) J_IA, by fixed point
@@ -155,7 +161,11 @@ def affine_pattern(jacobian, active):
         if grown.nnz == reach.nnz:
             break
         reach = grown
-    B = (J_AI @ reach).tocoo()
+    B = J_AI @ reach
+    if perturbed is not None:
+        mixed = sparse.csr_matrix(perturbed) - sparse.csr_matrix(jacobian)
+        B = B + (abs(mixed[A][:, A]) > 0).astype(np.int8)
+    B = sparse.coo_matrix(B != 0)
     order = np.lexsort((B.col, B.row))
     return A[B.row[order]], A[B.col[order]]
 
@@ -249,9 +259,10 @@ class ReducedModel:
         follow); at the newest window y = g-bar."""
         if not self.built:
             self._active = ~inactive_mask
-            self._pattern = affine_pattern(compiled.jacobian_matrix(averages.u_bar,
-                                                                    averages.center),
-                                           self._active)
+            moved = averages.u_bar + np.where(inactive_mask, averages.fluctuation, 0.0)
+            self._pattern = affine_pattern(
+                compiled.jacobian_matrix(averages.u_bar, averages.center), self._active,
+                compiled.jacobian_matrix(moved, averages.center))
         elif self.subgrid_model == "auto":
             self.affine = True  # the constant model needed a rebuild
         self._frozen = np.where(inactive_mask, averages.u_bar, 0.0)
