@@ -28,7 +28,9 @@ from scipy import sparse
 
 from dolfinode.modeling import validity
 from dolfinode.modeling.declaration import ReducedDeclaration
+from dolfinode.modeling.manifold import project
 from dolfinode.ode import ODE
+from dolfinode.systems.template import TemplateODE
 
 #: tau = AVERAGE_PERIODS / |lambda|_max when average_length is not given: about 16 periods of
 #: the fastest oscillation in each half of the window, where the average of its oscillation
@@ -67,14 +69,36 @@ def fast_time_scale(compiled, u, t):
 
 
 def component_frequencies(J):
-    """omega_i = sqrt(|(J^2)_ii|) of the sparse Jacobian J = df/du: the time scale 1/omega_i
-    on which component i moves by itself.
+    """omega_i of the sparse Jacobian J = df/du: the time scale 1/omega_i on which component i
+    moves by itself,
 
-    For a second-order system x' = v, v' = a(x), J^2 = diag(da/dx, da/dx), so omega_i^2 is
-    the stiffness over the mass acting on the coordinate (and on its velocity); for
-    u' = -lambda u, omega = |lambda|. (J^2)_ii = sum_k J_ik J_ki.
+        omega_i^2 = J_ii^2 + |sum_{k != i, J_ik J_ki < 0} J_ik J_ki|,
+
+    its own rate and its oscillatory couplings. For a second-order system x' = v, v' = a(x),
+    J_xv J_vx = da/dx < 0 is the stiffness over the mass acting on the coordinate (and on its
+    velocity); for u' = -lambda u, omega = |lambda|. A coupling of positive product is not
+    an oscillation: in Michaelis-Menten, s' = -s + (s + K - lam) c with eps c' = s - (s + K) c,
+    J_sc J_cs ~ 1/eps would make the slow substrate s fast.
     """
-    return np.sqrt(np.abs(np.asarray(J.multiply(J.T).sum(axis=1)).ravel()))
+    J = sparse.csr_matrix(J)
+    products = J.multiply(J.T).tocsr()
+    diagonal = products.diagonal()
+    products.data = np.minimum(products.data, 0.0)  # the diagonal J_ii^2 drops out too
+    return np.sqrt(diagonal + np.abs(np.asarray(products.sum(axis=1)).ravel()))
+
+
+def slaving_possible(ode):
+    """Whether relaxing components can be put on their slow manifold: the rates of the
+    manifold are derived per expression, so not for a TemplateODE."""
+    return not isinstance(ode, TemplateODE)
+
+
+def relaxing_components(J, inactive):
+    """The inactive components that relax rather than oscillate: J_ii < 0 carries at least
+    half of omega_i^2 (:func:`component_frequencies`); see :mod:`dolfinode.modeling.manifold`.
+    """
+    diagonal = sparse.csr_matrix(J).diagonal()
+    return inactive & (diagonal < 0) & (diagonal**2 >= 0.5 * component_frequencies(J)**2)
 
 
 def inactive_components(ode, compiled, tau, drift, average_tolerance):
@@ -86,11 +110,15 @@ def inactive_components(ode, compiled, tau, drift, average_tolerance):
     One of a pair frozen at its average while its partner evolves makes the partner drift
     (x' = v, v' = -kappa x with x frozen at a nonzero average: v grows linearly); on the
     seed model with tau = 1.6 fast periods v's average moved and the reduced model blew up.
+    Relaxing fast components (:func:`relaxing_components`) are inactivated whatever their
+    drift: the reduced model puts them on their slow manifold.
     Raises ValueError when fast components exist but none can be inactivated, or when all
     would be."""
     J = compiled.jacobian_matrix(ode.u0, ode.t0)
     fast = component_frequencies(J) * tau >= 2 * np.pi
-    inactive = fast & (drift < average_tolerance)
+    # a relaxing component follows its slow manifold, however far the manifold moves
+    relaxing = relaxing_components(J, fast) if slaving_possible(ode) else np.zeros_like(fast)
+    inactive = fast & ((drift < average_tolerance) | relaxing)
     mutual = (abs(J).multiply(abs(J.T)) > 0).astype(float)
     while True:
         blocked = (mutual @ (fast & ~inactive).astype(float)) > 0
@@ -209,6 +237,8 @@ class ReducedModel:
         first rebuild for "auto")
     G : scipy.sparse matrix (N, N), the slope of the affine model as last built (zero for
         the constant model)
+    slaved : tuple of the inactive states that relax to their slow manifold and follow it
+        (:mod:`dolfinode.modeling.manifold`) instead of being frozen; made on first use
     """
 
     ode: ODE
@@ -228,6 +258,8 @@ class ReducedModel:
         self._pattern = (np.zeros(0, dtype=np.int64),) * 2
         self._active = np.ones(N, dtype=bool)
         self._frozen = np.zeros(N)
+        self._slaved = np.zeros(N, dtype=bool)
+        self._compiled = None
         self._g_inactive = np.zeros(N)  # -f_i(u-bar) of the last build
         self._windows = []           # (u-bar, g-bar) of every window, for the affine fit
         self._declarations = {}
@@ -259,6 +291,10 @@ class ReducedModel:
         follow); at the newest window y = g-bar."""
         if not self.built:
             self._active = ~inactive_mask
+            self._compiled = compiled
+            if slaving_possible(self.ode):
+                self._slaved = relaxing_components(
+                    compiled.jacobian_matrix(averages.u_bar, averages.center), inactive_mask)
             moved = averages.u_bar + np.where(inactive_mask, averages.fluctuation, 0.0)
             self._pattern = affine_pattern(
                 compiled.jacobian_matrix(averages.u_bar, averages.center), self._active,
@@ -270,7 +306,8 @@ class ReducedModel:
         self._reference = averages.u_bar.copy()
         if self.affine:
             recent = self._windows[-AFFINE_SAMPLES:]
-            targets = [w.f_bar - compiled.f(self.state(w.u_bar), w.center) for w in recent]
+            targets = [w.f_bar - compiled.f(self.state(w.u_bar, w.center), w.center)
+                       for w in recent]
             self._G = fit_affine(self._pattern, [w.u_bar for w in recent], targets)
         self._g_inactive = -(averages.f_bar - averages.g_bar)  # -f(u-bar, t_c)
         self.built.append(float(time))
@@ -287,9 +324,15 @@ class ReducedModel:
         return tuple(self.ode.states[i] for i in np.flatnonzero(~self._active)) \
             if self.built else ()
 
-    def state(self, u):
-        """u with its inactive components replaced by their frozen averages."""
-        return np.where(self._active, u, self._frozen)
+    @property
+    def slaved(self):
+        return tuple(self.ode.states[i] for i in np.flatnonzero(self._slaved))
+
+    def state(self, u, time=None):
+        """u with its frozen components replaced by their frozen averages, and, given the
+        time, its slaved components projected onto their slow manifold."""
+        u = np.where(self._active | self._slaved, u, self._frozen)
+        return u if time is None else project(self._compiled, u, time, self._slaved)
 
     def subgrid(self, u):
         """g~(u) on the active components (zero elsewhere)."""
@@ -299,23 +342,26 @@ class ReducedModel:
         return np.where(self._active, g, 0.0)
 
     def declaration(self, u0, t0, T):
-        """The reduced ODE on [t0, T]: f_i + g~_i(u) for active i, 0 for inactive i.
+        """The reduced ODE on [t0, T] from u0 (slaved components projected onto their
+        manifold): f_i + g~_i(u) for active i, the manifold's rates for slaved i, 0 for
+        frozen i.
 
         g~ (and G) enter as parameters, so a rebuilt model reuses the compiled kernels.
         """
         if self.affine not in self._declarations:
             self._declarations[self.affine] = ReducedDeclaration(
-                self.ode, self._active, self._pattern if self.affine else None)
+                self.ode, self._active, self._pattern if self.affine else None, self._slaved)
         declarer = self._declarations[self.affine]
+        u0 = self.state(u0, t0)
         if not self.affine:
-            return declarer.declaration(self.state(u0), t0, T, self._g)
+            return declarer.declaration(u0, t0, T, self._g)
         # g + G (u - r) = (g - G r) + G u
         constant = self._g - self.G @ self.state(self._reference)
-        return declarer.declaration(self.state(u0), t0, T, constant, self._G)
+        return declarer.declaration(u0, t0, T, constant, self._G)
 
     def defect(self, compiled, averages):
         """g~ - g-bar on the active components (zero elsewhere), see :class:`ControlPoint`."""
-        u = self.state(averages.u_bar)
+        u = self.state(averages.u_bar, averages.center)
         reduced_rhs = compiled.f(u, averages.center) + self.subgrid(u)
         return np.where(self._active, reduced_rhs - averages.f_bar, 0.0)
 

@@ -112,33 +112,29 @@ def _weighted_defect(phi, model):
 
 def check_validity(model, tolerance, model_tolerance, strict):
     """Warn (``ModelingWarning``), or raise SolverError when ``strict``, when the reduced
-    model's error estimate in the default goal exceeds ``tolerance``, or when the last two
-    control points both
-    found a relative defect above ``model_tolerance`` (rebuilding did not help). Returns the
-    :class:`ModelingError` (None without control points)."""
+    model's error estimate in the default goal exceeds ``tolerance``; the message says too
+    when the last two control points both found a relative defect above ``model_tolerance``
+    (rebuilding did not help). Returns the :class:`ModelingError` (None without control
+    points)."""
     if not model.control_points:
         return None
     estimate = modeling_error(model)
-    problems = []
-    if estimate.total > tolerance:
-        problems.append(
-            f"its error estimate {estimate.total:.3g} in {estimate.goal} (modeling "
-            f"{estimate.bound:.3g}, discretisation {abs(estimate.discretization):.3g}) "
-            f"exceeds the tolerance {tolerance:g}")
+    if estimate.total <= tolerance:
+        return estimate
+    message = (f"the reduced model may not represent the full one: its error estimate "
+               f"{estimate.total:.3g} in {estimate.goal} (modeling {estimate.bound:.3g}, "
+               f"discretisation {abs(estimate.discretization):.3g}) exceeds the tolerance "
+               f"{tolerance:g}; largest relative defect at t = {estimate.worst_time:.4g} in "
+               f"{estimate.worst_state}")
     failed = [c for c in model.control_points[-2:] if c.relative_defect > model_tolerance]
     if len(failed) == 2:
-        problems.append(
-            f"the last two control points (t = {failed[0].time:.4g}, {failed[1].time:.4g}) "
-            f"found relative defects {failed[0].relative_defect:.3g}, "
-            f"{failed[1].relative_defect:.3g} above model_tolerance = {model_tolerance:g} "
-            "although the model was rebuilt")
-    if problems:
-        message = (f"the reduced model may not represent the full one: {'; '.join(problems)}; "
-                   f"largest relative defect at t = {estimate.worst_time:.4g} in "
-                   f"{estimate.worst_state}. Try a longer average_length, more "
-                   "control_points, subgrid_model='affine', or solve without "
-                   "automatic_modeling")
-        if strict:
-            raise SolverError("automatic modeling: " + message, t=estimate.worst_time)
-        warnings.warn(message, ModelingWarning, stacklevel=4)
+        message += (f"; the last two control points (t = {failed[0].time:.4g}, "
+                    f"{failed[1].time:.4g}) found relative defects "
+                    f"{failed[0].relative_defect:.3g}, {failed[1].relative_defect:.3g} above "
+                    f"model_tolerance = {model_tolerance:g} although the model was rebuilt")
+    message += (". Try a longer average_length, more control_points, "
+                "subgrid_model='affine', or solve without automatic_modeling")
+    if strict:
+        raise SolverError("automatic modeling: " + message, t=estimate.worst_time)
+    warnings.warn(message, ModelingWarning, stacklevel=4)
     return estimate

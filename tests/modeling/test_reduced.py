@@ -63,3 +63,30 @@ def test_too_short_average_length_is_a_clear_error():
     with pytest.raises(ValueError, match="average_tolerance"):
         dn.solve(problem.ode, method="cG(2)", tolerance=1e-4, automatic_modeling=True,
                  average_length=10.0 / 100.0)
+
+
+def test_relaxation_is_fast_for_the_relaxing_component_only():
+    """Michaelis-Menten: J_sc J_cs ~ kappa > 0 is no oscillation, so s is slow (omega ~ 1)
+    and c fast (omega = kappa (s + K)); c relaxes, the seed model's fast pair oscillates."""
+    from dolfinode.bench.multiscale import michaelis_menten
+    from dolfinode.modeling.reduced import component_frequencies, relaxing_components
+
+    ode, _ = michaelis_menten(kappa=1e4)
+    J = lower(ode).jacobian_matrix(ode.u0, 0.0)
+    omega = component_frequencies(J)
+    assert omega[0] == pytest.approx(1.0) and omega[1] == pytest.approx(2e4)
+    assert list(relaxing_components(J, omega > 100)) == [False, True]
+    seed = seed_model(1e4).ode
+    J = lower(seed).jacobian_matrix(seed.u0, 0.0)
+    np.testing.assert_allclose(component_frequencies(J), [1.0, 100.0, 1.0, 100.0])
+    assert not relaxing_components(J, np.ones(4, dtype=bool)).any()
+
+
+def test_manifold_rates_differentiate_the_constraint():
+    """F = k (s - (s + K) c) = 0 along s' = r: c' = (1 - c) r / (s + K)."""
+    from dolfinode.modeling.manifold import manifold_rates
+
+    s, c, k, K, r = sp.symbols("s c k K r")
+    rate, = manifold_rates((s, c), [k * (s - (s + K) * c)], [r, sp.S.Zero],
+                           np.array([False, True]))
+    assert sp.simplify(rate - (1 - c) * r / (s + K)) == 0
