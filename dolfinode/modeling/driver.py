@@ -33,6 +33,7 @@ from dolfinode.modeling.reduced import (
     AVERAGE_PERIODS,
     ControlPoint,
     ReducedModel,
+    adiabatic_scaling,
     fast_time_scale,
     inactive_components,
 )
@@ -179,6 +180,7 @@ def solve_with_modeling(ode, method, params, solve):
                                    params["average_tolerance"])
     model.build(averages, inactive, averages.center, compiled)
     fluctuation = averages.fluctuation
+    fluctuation_jacobian = _end_jacobian(compiled, model, averages, tau)
     segments = []
     # the reduced solution starts at t_c = t0 + tau from u-bar(t_c): the output is the full
     # solution on [t0, t_c] and the reduced one on (t_c, T] (left-continuous, as for dG)
@@ -193,8 +195,12 @@ def solve_with_modeling(ode, method, params, solve):
         step = {"initial_time_step": _last_step(segment)}
         if t_now >= ode.T or t_now == ode.t0 + 2 * tau:
             continue
-        # control point at t_now: full model from t_now - tau, perturbed by the fast fluctuation
-        u_start = model.state(segment(t_now - tau)) + np.where(model.active, 0.0, fluctuation)
+        # control point at t_now: full model from t_now - tau, perturbed by the fast
+        # fluctuation of the last build carried to the current slow state (its action kept)
+        u_slow = model.state(segment(t_now - tau))
+        scaling = adiabatic_scaling(fluctuation_jacobian,
+                                    compiled.jacobian_matrix(u_slow, t_now - tau))
+        u_start = u_slow + np.where(model.active, 0.0, scaling * fluctuation)
         elements, averages = resolve(u_start, t_now)
         defect = model.defect(compiled, averages)
         # + tolerance: g-bar vanishes where the fast components sit on their average
@@ -210,6 +216,7 @@ def solve_with_modeling(ode, method, params, solve):
             # chained only through rebuilds, so that the energy errors of the resolved
             # windows do not accumulate over the checks of one model
             fluctuation = averages.fluctuation
+            fluctuation_jacobian = _end_jacobian(compiled, model, averages, tau)
         model.control_points.append(ControlPoint(t_now, float(np.linalg.norm(defect)),
                                                  float(relative), bool(rebuild),
                                                  int(elements), defect, g_bar))
@@ -350,6 +357,14 @@ def _pieces(solve, window_model, u, stops, shift, step, pace):
             pace["length"] = (b - a) * WINDOW_PIECE_BYTES / piece.values.nbytes
             u, step["initial_time_step"], a = piece(b), _last_step(piece), b
             del piece
+
+
+def _end_jacobian(compiled, model, averages, tau):
+    """df/du at the slow state where the fluctuation was recorded, the window's end
+    t_c + tau (u-bar + fluctuation on the active components, the fast ones at their
+    average): the slow state moves over the window."""
+    return compiled.jacobian_matrix(model.state(averages.u_bar + averages.fluctuation),
+                                    averages.center + tau)
 
 
 def _conservative(method):
