@@ -30,10 +30,10 @@ from dolfinode.methods import parse_method
 from dolfinode.modeling.averaging import WindowAverager
 from dolfinode.modeling.declaration import WindowModel
 from dolfinode.modeling.reduced import (
-    AVERAGE_PERIODS,
     ControlPoint,
     ReducedModel,
     adiabatic_scaling,
+    default_average_length,
     fast_time_scale,
     inactive_components,
 )
@@ -79,7 +79,7 @@ def solve_with_modeling(ode, method, params, solve):
     # damps it, the indicator may alias it): at least 8 pi = 25 steps per period
     window_step = min(fastest / 4, params["maximum_time_step"] or np.inf)
     if tau is None:
-        tau = AVERAGE_PERIODS * fastest
+        tau = default_average_length(compiled, ode.u0, ode.t0)
         if not 4 * tau < span:
             raise ValueError(f"automatic modeling found no fast time scale in [t0, T]: the "
                              f"fastest one, {fastest:.3g}, gives average_length "

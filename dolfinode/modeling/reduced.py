@@ -37,6 +37,13 @@ from dolfinode.systems.template import TemplateODE
 #: is below 1e-9 (the kernel's transform decays like (|lambda| tau)^-7, see
 #: :mod:`dolfinode.modeling.averaging`).
 AVERAGE_PERIODS = 100.0
+#: The default tau is also at most SLOW_FRACTION of the slow time scale (the kernel's bias of
+#: a slow component is m_4 (tau / slow scale)^4 / 24), but not below MINIMUM_PERIODS /
+#: |lambda|_max (the average of the fast oscillation below 1.3e-5).
+SLOW_FRACTION = 0.2
+MINIMUM_PERIODS = 30.0
+#: Eigenvalues at least this factor below |lambda|_max are the slow ones.
+SCALE_SEPARATION = 100.0
 #: Relative accuracy of the spectral radius (a time scale: a few digits suffice).
 SPECTRAL_TOLERANCE = 1e-6
 #: Windows (the last build and the checks and builds before it) fitted by the affine model.
@@ -66,6 +73,22 @@ def fast_time_scale(compiled, u, t):
         radius = np.max(np.abs(eigs(J.astype(float), k=1, which="LM", v0=start,
                                     tol=SPECTRAL_TOLERANCE, return_eigenvectors=False)))
     return 1.0 / radius if radius > 0 else np.inf
+
+
+def default_average_length(compiled, u, t):
+    """tau from both scales of df/du at (u, t): AVERAGE_PERIODS / |lambda|_max, shortened
+    towards SLOW_FRACTION / |lambda_slow| (the largest |lambda| at least SCALE_SEPARATION
+    below |lambda|_max) but not below MINIMUM_PERIODS / |lambda|_max. Systems of more than
+    500 components look at the fast scale only (ARPACK gives |lambda|_max alone)."""
+    fastest = fast_time_scale(compiled, u, t)
+    tau = AVERAGE_PERIODS * fastest
+    J = compiled.jacobian_matrix(u, t)
+    if J.shape[0] <= 500 and np.isfinite(fastest):
+        moduli = np.abs(np.linalg.eigvals(J.toarray()))
+        slow = moduli[(moduli > 0) & (moduli * fastest <= 1 / SCALE_SEPARATION)]
+        if slow.size:
+            tau = min(tau, max(SLOW_FRACTION / slow.max(), MINIMUM_PERIODS * fastest))
+    return tau
 
 
 def component_frequencies(J):

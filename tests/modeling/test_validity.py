@@ -42,7 +42,7 @@ def test_slow_components_right_or_warned_with_an_estimate_above_the_error(modele
         return
     assert len(fired) == 1
     message = str(fired[0].message)
-    assert "tolerance" in message and f"{sol.model.estimate.total:.3g}" in message
+    assert "above the tolerance" in message or "exceeds the tolerance" in message
     assert sol.model.estimate.total >= error_T
     assert sol.stats["modeling error estimate"] == sol.model.estimate.total
 
