@@ -28,7 +28,7 @@ DEFAULTS = {
     "control_points": 10,          # checks of the reduced model against the full model
     "model_tolerance": 0.02,       # rebuild when |g~ - g-bar| > model_tolerance (max |g-bar| + tol)
     "rebuild_model": True,         # False: build once, only measure the defect at control points
-    "subgrid_model": "auto",       # "constant" | "affine" in the slow state | "auto": affine after a rebuild
+    "subgrid_model": "auto",       # "constant" | "affine" in the slow state | "auto": affine when the first window or a rebuild asks
     "strict": False,               # automatic modeling: raise instead of a ModelingWarning
 }
 

@@ -98,7 +98,9 @@ def solve_with_modeling(ode, method, params, solve):
                       f"it saves at most {1 - resolved:.0%} of a full solve and adds the "
                       "averaging; solving without automatic_modeling is likely faster (or use "
                       "fewer control_points or a shorter average_length)", stacklevel=3)
-    model = ReducedModel(ode, tau, subgrid_model=params["subgrid_model"])
+    model = ReducedModel(ode, tau, subgrid_model=params["subgrid_model"], spacing=spacing,
+                         tolerance=params["tolerance"],
+                         model_tolerance=params["model_tolerance"])
     runs = []
 
     def solve_piece(declaration, method=method, **extra):
