@@ -90,3 +90,13 @@ def test_manifold_rates_differentiate_the_constraint():
     rate, = manifold_rates((s, c), [k * (s - (s + K) * c)], [r, sp.S.Zero],
                            np.array([False, True]))
     assert sp.simplify(rate - (1 - c) * r / (s + K)) == 0
+
+
+def test_default_average_length_looks_at_both_scales():
+    """Seed model: |lambda| = 1 (slow) and sqrt(kappa) (fast). tau = 100 / sqrt(kappa) unless
+    that exceeds 0.2 slow time units, then 0.2, but at least 30 fast time units."""
+    from dolfinode.modeling.reduced import default_average_length
+
+    for kappa, tau in [(1e4, 0.3), (1e5, 0.2), (1e6, 0.1)]:
+        ode = seed_model(kappa).ode
+        assert default_average_length(lower(ode), ode.u0, 0.0) == pytest.approx(tau, rel=1e-6)

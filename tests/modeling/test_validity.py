@@ -14,6 +14,9 @@ from dolfinode.bench.problems import seed_model
 
 SETTINGS = {"method": "cG(2)", "tolerance": 1e-4, "automatic_modeling": True}
 CLASSES = ("adiabatic", "michaelis_menten", "proportional")
+#: The classes that come out right (measured max error / range: 1.6e-5 and 1.5e-5); the
+#: adiabatic one (fast frequency depending on the slow state) is off by 0.039 and warned.
+RIGHT = ("michaelis_menten", "proportional")
 
 
 @pytest.fixture(scope="module", params=CLASSES)
@@ -29,14 +32,17 @@ def modeled(request):
     reference = multiscale.averaged_reference(ode, times, tau, "Radau" if stiff else "DOP853",
                                               rtol=1e-9)
     fired = [w for w in caught if issubclass(w.category, dn.ModelingWarning)]
-    return ode, slow, sol, fired, times, reference
+    return request.param, ode, slow, sol, fired, times, reference
 
 
 def test_slow_components_right_or_warned_with_an_estimate_above_the_error(modeled):
-    ode, slow, sol, fired, times, reference = modeled
+    name, ode, slow, sol, fired, times, reference = modeled
     U = sol(times)
     relative = max(np.max(np.abs(U[i] - reference[i])) / np.ptp(reference[i]) for i in slow)
     error_T = max(abs(U[i, -1] - reference[i, -1]) for i in slow)
+    assert sol.model.estimate.total >= error_T
+    if name in RIGHT:
+        assert not fired and relative < 1e-3
     if not fired:
         assert relative < 1e-2
         return
@@ -50,7 +56,7 @@ def test_slow_components_right_or_warned_with_an_estimate_above_the_error(modele
 def test_effectivity_in_each_slow_component(modeled):
     """modeling_error(goal) + |discretisation| >= 0.5 |U(T) - u-bar(T)| (measured effectivities
     of 5 to 40: the interpolated defect and |phi| make it a bound rather than an estimate)."""
-    ode, slow, sol, fired, times, reference = modeled
+    _, ode, slow, sol, fired, times, reference = modeled
     for i in slow:
         estimate = sol.model.modeling_error({ode.states[i]: 1.0})
         assert estimate.goal == "the goal"
