@@ -133,13 +133,12 @@ def adiabatic_scaling(J_old, J_new):
     """
     J_old, J_new = sparse.csr_matrix(J_old), sparse.csr_matrix(J_new)
     products = J_old.multiply(J_old.T).tocoo()
-    partner = np.full(J_old.shape[0], -1)
-    strongest = np.zeros(J_old.shape[0])
-    for i, j, p in zip(products.row, products.col, products.data):
-        if i != j and p < strongest[i]:
-            partner[i], strongest[i] = j, p
-    rows = np.flatnonzero(partner >= 0)
-    cols = partner[rows]
+    oscillatory = (products.row != products.col) & (products.data < 0)
+    row, col, data = products.row[oscillatory], products.col[oscillatory], products.data[oscillatory]
+    first = np.lexsort((data, row))  # per row, the most negative product first
+    row, col = row[first], col[first]
+    keep = np.r_[True, row[1:] != row[:-1]]
+    rows, cols = row[keep], col[keep]
     factor = np.ones(J_old.shape[0])
     if not rows.size:
         return factor
