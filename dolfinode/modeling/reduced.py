@@ -137,7 +137,7 @@ def adiabatic_scaling(J_old, J_new):
     row, col, data = products.row[oscillatory], products.col[oscillatory], products.data[oscillatory]
     first = np.lexsort((data, row))  # per row, the most negative product first
     row, col = row[first], col[first]
-    keep = np.r_[True, row[1:] != row[:-1]]
+    keep = np.r_[True, row[1:] != row[:-1]][:row.size]
     rows, cols = row[keep], col[keep]
     factor = np.ones(J_old.shape[0])
     if not rows.size:
