@@ -17,5 +17,6 @@ class SolverError(RuntimeError):
 
 class ModelingWarning(UserWarning):
     """Automatic modeling whose reduced model may not represent the full one: its a posteriori
-    error estimate exceeds the tolerance, or its last control point found a defect above
-    model_tolerance (see :mod:`dolfinode.modeling.validity`)."""
+    error estimate, or a defect found at a control point times the span it acted on, exceeds
+    the tolerance (see :mod:`dolfinode.modeling.validity`; ``strict=True`` raises
+    :class:`SolverError` instead)."""

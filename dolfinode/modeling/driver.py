@@ -151,7 +151,9 @@ def solve_with_modeling(ode, method, params, solve):
                 record_first(piece)
             del piece
         averages = averager.averages()
-        averages.center = center
+        averages.center = center  # from the window's local time
+        for half in averages.halves:
+            half.center += center - tau
         model.record(averages)
         return elements, averages
 
