@@ -199,9 +199,12 @@ def inactive_components(ode, compiled, tau, drift, average_tolerance):
             f"the averages of {len(moving)} of them ({ode.states[int(moving[0])]} first) move by "
             f"more than average_tolerance = {average_tolerance:g} over the window (largest "
             f"drift {float(np.max(drift[fast])):.3g}), and each fast component is inactivated "
-            f"only with its fast partners; average_length = {tau:.3g} may be too short for "
-            "the average to settle: use at least two periods of the fastest scale, or a "
-            "larger average_tolerance")
+            f"only with its fast partners. Either average_length = {tau:.3g} is too short for "
+            "the average to settle (use at least two periods of the fastest scale, or a "
+            "larger average_tolerance), or the averages really move: the slow variables are "
+            "combinations of fast components (the centre of a stiff spring whose ends "
+            "oscillate, as in the Fermi-Pasta-Ulam problem), which inactivating components "
+            "cannot represent; then solve without automatic_modeling")
     if inactive.all():
         raise ValueError(
             "automatic modeling would inactivate every component: all of them are fast "

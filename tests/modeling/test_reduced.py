@@ -52,7 +52,7 @@ def test_fast_pairs_are_inactivated_together():
     inactive = inactive_components(ode, compiled, 0.1, drift, 0.1)
     assert {s for s in ode.states if inactive[index[s]]} == {x[2], v[2]}
     drift[index[v[2]]] = 1.0
-    with pytest.raises(ValueError, match="average_length = 0.1 may be too short"):
+    with pytest.raises(ValueError, match="average_length = 0.1 is too short"):
         inactive_components(ode, compiled, 0.1, drift, 0.1)
 
 
