@@ -207,7 +207,7 @@ def classes(output, cap, kappas=(1e4, 1e6, 1e8)):
                     sol = dn.solve(ode, **settings)
                     row["modeling CPU [s]"] = time.process_time() - start
             except ValueError as error:
-                row["outcome"] = f"ValueError: {str(error)[:60]}..."
+                row["outcome"] = "ValueError: " + str(error).split(":")[0]
                 print(row, flush=True)
                 rows.append(row)
                 continue
@@ -238,6 +238,13 @@ def classes(output, cap, kappas=(1e4, 1e6, 1e8)):
             row["resolving steps"] = None if full is None else full.t.size
             print(row, flush=True)
             rows.append(row)
+    write_classes(rows, output, cap)
+
+
+def write_classes(rows, output, cap):
+    """doc/benchmarks/modeling_classes.{csv,png,md} from the rows of :func:`classes`."""
+    from dolfinode.bench import multiscale
+
     output.mkdir(parents=True, exist_ok=True)
     names = list(dict.fromkeys(k for r in rows for k in r))
     with open(output / "modeling_classes.csv", "w", newline="") as fh:
@@ -279,12 +286,23 @@ def classes(output, cap, kappas=(1e4, 1e6, 1e8)):
         resolving = next((k for k in r if k.startswith("resolving (")), None)
         star = "*" if r.get("reference") else ""
         lines.append(f"| {r['class']} | {r['scale separation']:.0e} | {r['outcome']} | "
-                     f"{fmt(r, 'modeling CPU [s]', '.2f')} | "
+                     f"{fmt(r, 'modeling CPU [s]', '.2g')} | "
                      f"{fmt(r, 'max error / range', '.1e')}{star} "
                      f"| {fmt(r, 'error at T', '.1e')} | {fmt(r, 'estimate', '.1e')} | "
-                     f"{fmt(r, resolving, '.2f') if resolving else '-'} | "
+                     f"{fmt(r, resolving, '.2g') if resolving else '-'} | "
                      f"{fmt(r, 'resolving steps', 'd')} |")
-    lines += ["", "![CPU time against the scale separation](modeling_classes.png)", ""]
+    lines += ["", "![CPU time against the scale separation](modeling_classes.png)", "",
+              "Classes (dolfinode/bench/multiscale.py): adiabatic, x1'' = -x1 + x2^2/2, "
+              "x2'' = -kappa (1 + x1) x2, T = 50; fermi_pasta_ulam, m = 2 stiff springs of "
+              "frequency sqrt(kappa), T = 50; michaelis_menten, s' = -s + (s + 0.5) c, "
+              "c' = kappa (s - (s + 1) c), T = 5; proportional, y' = cos t - y x^2, "
+              "x'' = -kappa x, T = 50. Michaelis-Menten is stiff, not oscillatory: an implicit "
+              "resolving solver (LSODA) needs about 130 steps whatever kappa, so modeling is "
+              "slower there; it is right and checked. The adiabatic class is wrong by 4-17% of "
+              "the range and warned (estimate above the error at T): the affine subgrid model "
+              "in x1 lets x1 drift in phase; a flow-averaged (HMM) model is not built. "
+              "Fermi-Pasta-Ulam raises: its slow variables (the stiff springs' centres) are "
+              "not components.", ""]
     (output / "modeling_classes.md").write_text("\n".join(lines))
 
 
