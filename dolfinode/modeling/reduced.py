@@ -61,6 +61,10 @@ AFFINE_RCOND = 0.1
 #: model tolerances (see ReducedModel._constant_fails; set between the lattice, 18, and
 #: class 1 of issue 28, 38).
 AFFINE_START = 25.0
+#: ... and only when the first control point is at most this many half windows away: the
+#: fit's error over the baseline tau / 2 grows with the extrapolation (the lattice with
+#: m = 1e-12, tau = 1e-4, control points 2 apart, 4e4 half windows: the reduced model blew up).
+AFFINE_EXTRAPOLATION = 1000.0
 
 
 def fast_time_scale(compiled, u, t):
@@ -397,12 +401,15 @@ class ReducedModel:
     def _constant_fails(self, averages, compiled):
         """Whether a constant g~ would be off at the first control point by more than
         AFFINE_START model tolerances, extrapolating the change of g-bar between the two
-        half windows: then "auto" is affine from the start, fitted to the half windows. Their
+        half windows, and the check is at most AFFINE_EXTRAPOLATION half windows away: then
+        "auto" is affine from the start, fitted to the half windows. Their
         short baseline tau / 2 makes that fit noisy: on the lattice (predicted 0.37 for
         model_tolerance 0.02) starting affine raised the error in D at T from 9.4e-4 to
         4.1e-3, so the bar is high; class 4 of issue 28 (y' = cos t - y x^2, predicted 27)
         and class 1 (0.76) start affine (their error from 0.53 and 0.13 of the range to
         1.5e-5 and 0.039)."""
+        if self.spacing > AFFINE_EXTRAPOLATION * self.average_length / 2:
+            return False
         first, second = (h.f_bar - compiled.f(self.state(h.u_bar, h.center), h.center)
                          for h in averages.halves)
         rate = np.abs(second - first)[self._active] / (self.average_length / 2)

@@ -110,3 +110,15 @@ def test_template_and_per_expression_reduced_models_agree():
     # average of the small mass, 1.4e-3)
     t = np.linspace(0.0, 12.0, 241)
     np.testing.assert_allclose(template(t), expression(t), rtol=1e-6, atol=1e-7)
+
+
+def test_demo_setting_with_tiny_average_length_does_not_start_affine():
+    """m = 1e-12, tau = 1e-4, control points 2 apart (the demo's and run_templates.py's
+    setting): the first check is 4e4 half windows away, too far to extrapolate a fit to the
+    half windows (starting affine there blew the reduced model up at t = 1.69). 'auto' starts
+    constant and the run completes, the lattice contracting."""
+    ode = dn.systems.lattice(5, T=10.0)
+    sol = dn.solve(ode, method="cG(2)", tolerance=1e-4, automatic_modeling=True,
+                   average_length=1e-4, control_points=4)
+    assert len(sol.model.built) >= 1 and np.all(np.isfinite(sol.y))
+    assert sol.model.built[0] == pytest.approx(1e-4)
