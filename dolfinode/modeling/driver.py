@@ -3,18 +3,22 @@
 The pipeline (Jansson, Johnson & Logg 2005, sections 3-7, made automatic and checked):
 
 1. resolve the full model on [t0, t0 + 2 tau]; average it around t_c = t0 + tau;
-2. inactivate the fast components (omega_i tau >= 2 pi, omega_i^2 = |(J^2)_ii|) whose average
-   does not move (drift < average_tolerance), and
-   build the reduced model f~ = f + g~ with g~ = g-bar;
+2. inactivate the fast components (omega_i tau >= 2 pi, omega_i^2 = J_ii^2 + the oscillatory
+   couplings) whose average does not move (drift < average_tolerance), and the relaxing ones
+   (put on their slow manifold, see :mod:`dolfinode.modeling.manifold`), and build the
+   reduced model f~ = f + g~ with g~ = g-bar (affine in the slow state from the start for
+   ``subgrid_model="auto"`` when the half windows show g-bar moving);
 3. solve the reduced model from u-bar(t_c); its solution is the output on (t_c, T] (the
    resolved full solution on [t0, t_c]): the model is built once [t0, t0 + 2 tau] is
    resolved, as in the paper, but the reduced solution starts at the window's centre;
 4. at ``control_points`` equispaced times t_k, restart the full model at t_k - tau from the
-   reduced state plus the fast fluctuation measured when the model was built (a
-   perturbation of the size of the fast oscillation), average it around t_k, record the
-   defect g~ - g-bar, and rebuild the model when it exceeds model_tolerance * max |g-bar|
-   (with ``subgrid_model="auto"`` the rebuilt model is affine in the slow state, see
-   :mod:`dolfinode.modeling.reduced`).
+   reduced state plus the fast fluctuation measured when the model was built, carried to the
+   current slow state by its action (:func:`~dolfinode.modeling.reduced.adiabatic_scaling`),
+   average it around t_k, record the defect g~ - g-bar, and rebuild the model when it
+   exceeds model_tolerance (max |g-bar| + tolerance) (with ``subgrid_model="auto"`` the
+   rebuilt model is affine in the slow state, see :mod:`dolfinode.modeling.reduced`);
+5. check the result a posteriori (:mod:`dolfinode.modeling.validity`): a ModelingWarning,
+   or with ``strict=True`` a SolverError, when the error estimate exceeds the tolerance.
 
 Windows are resolved with a cG method (cG(q) for dG(q), mcG(q) for mdG(q)), see
 ``_conservative``.

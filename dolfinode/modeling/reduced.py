@@ -298,7 +298,7 @@ class ReducedModel:
     average_length : tau (given or chosen from the fast time scale)
     g : dict state -> subgrid model value g~ as last built (for an inactive state,
         g~_i = -f_i(u-bar), the paper's inactivation); made on first use
-    inactive : tuple of the inactivated states; made on first use
+    inactive : tuple of the inactivated states (frozen or slaved); made on first use
     built : times at which the model was built (the first is t_c = t0 + tau, the centre of
         the first resolved window [t0, t0 + 2 tau], where the reduced solution starts)
     control_points : list of :class:`ControlPoint`
