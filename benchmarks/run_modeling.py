@@ -298,7 +298,7 @@ def write_classes(rows, output, cap):
               "c' = kappa (s - (s + 1) c), T = 5; proportional, y' = cos t - y x^2, "
               "x'' = -kappa x, T = 50. Michaelis-Menten is stiff, not oscillatory: an implicit "
               "resolving solver (LSODA) needs about 130 steps whatever kappa, so modeling is "
-              "slower there; it is right and checked. The adiabatic class is wrong by 4-17% of "
+              "slower there; it is right and checked. The adiabatic class is wrong by 13-17% of "
               "the range and warned (estimate above the error at T): the affine subgrid model "
               "in x1 lets x1 drift in phase; a flow-averaged (HMM) model is not built. "
               "Fermi-Pasta-Ulam raises: its slow variables (the stiff springs' centres) are "
