@@ -22,3 +22,10 @@ class SolverError(RuntimeError):
     @property
     def message(self):
         return str(self)
+
+
+class ModelingWarning(UserWarning):
+    """Automatic modeling whose reduced model may not represent the full one: its a posteriori
+    error estimate, or a defect found at a control point times the span it acted on, exceeds
+    the tolerance (see :mod:`dolfinode.modeling.validity`; ``strict=True`` raises
+    :class:`SolverError` instead)."""

@@ -28,13 +28,14 @@ DEFAULTS = {
     "partitioning_threshold": 0.5,  # mcG/mdG: components with k >= theta max k share a sub-slab
     "interval_threshold": 0.9,     # mcG/mdG: a step >= beta times what is left is stretched to it
     "automatic_modeling": False,   # build a reduced model for unresolvable fast time scales
-    "average_length": None,        # tau of the averages; None: 100 / |lambda|_max of df/du(u0)
+    "average_length": None,        # tau of the averages; None: from the fast and slow scales of df/du(u0)
     "average_samples": 1000,       # samples per half averaging window
     "average_tolerance": 0.1,      # inactivate components whose average drifts less than this
     "control_points": 10,          # checks of the reduced model against the full model
-    "model_tolerance": 0.02,       # rebuild when |g~ - g-bar| > model_tolerance max |g-bar|
+    "model_tolerance": 0.02,       # rebuild when |g~ - g-bar| > model_tolerance (max |g-bar| + tol)
     "rebuild_model": True,         # False: build once, only measure the defect at control points
-    "subgrid_model": "auto",       # "constant" | "affine" in the slow state | "auto": affine after a rebuild
+    "subgrid_model": "auto",       # "constant" | "affine" in the slow state | "auto": affine when the first window or a rebuild asks
+    "strict": False,               # automatic modeling: raise instead of a ModelingWarning
     "events": None,                # g(u, t) expressions or dn.Event: zero crossings located
     "breakpoints": None,           # times where f(t) is not smooth that the declaration hides
 }
@@ -208,6 +209,7 @@ _CHECKS = {
     "subgrid_model": _choice(SUBGRID_MODELS),
     "events": _events,
     "breakpoints": _times,
+    "strict": _switch,
 }
 
 

@@ -208,7 +208,12 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     rebuild_model : bool, default True
         False: build the model once and only measure its defect at the control points.
     subgrid_model : {"auto", "constant", "affine"}, default "auto"
-        g~ constant, affine in the slow state, or affine after the first rebuild.
+        g~ constant, affine in the slow state, or affine when the first window or a rebuild
+        shows g-bar moving with the slow state.
+    strict : bool, default False
+        Automatic modeling: raise :class:`~dolfinode.SolverError` where the a posteriori
+        check of the reduced model would issue a :class:`~dolfinode.ModelingWarning` (its
+        estimate exceeds the tolerance).
     events : list, optional
         Zero crossings g(u, t) = 0 to locate: sympy expressions in the states and t, or
         :class:`dolfinode.Event` (terminal, direction); found in ``sol.t_events`` and

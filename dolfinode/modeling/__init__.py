@@ -1,7 +1,8 @@
 """Automatic modeling: reduced models of systems with unresolvable fast time scales."""
 from dolfinode.modeling.averaging import WindowAverages, average_window, kernel_weights
 from dolfinode.modeling.driver import MODELING_PARAMETERS, ModelingSolution, solve_with_modeling
-from dolfinode.modeling.reduced import ControlPoint, ModelingError, ReducedModel, fast_time_scale
+from dolfinode.modeling.reduced import ControlPoint, ReducedModel, fast_time_scale
+from dolfinode.modeling.validity import ModelingError
 
 __all__ = [
            "MODELING_PARAMETERS",

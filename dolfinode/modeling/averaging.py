@@ -56,6 +56,8 @@ class WindowAverages:
         change of the average relative to the oscillation (DOLFIN's activity test)
     fluctuation : u(t_c + tau) - u-bar(t_c): a point on the fast orbit, used as the
         perturbation that restarts the full model at control points
+    halves : the averages of the two half windows, :class:`HalfWindow` about t_c -+ tau / 2
+        (two more samples of the slow state and the force for the affine model's first fit)
     """
 
     center: float
@@ -64,6 +66,16 @@ class WindowAverages:
     g_bar: np.ndarray
     drift: np.ndarray
     fluctuation: np.ndarray
+    halves: tuple = ()
+
+
+@dataclass
+class HalfWindow:
+    """u-bar and f-bar over a half window, centred at ``center`` (length tau / 2)."""
+
+    center: float
+    u_bar: np.ndarray
+    f_bar: np.ndarray
 
 
 def window_times(center, tau, samples, t0, T):
@@ -105,11 +117,14 @@ class WindowAverager:
         self.compiled, self.center = compiled, center
         times, first_times, second_times = window_times(center, tau, samples, t0, T)
         half = kernel_weights(samples // 2)
-        # per set of times: the times, their weights, the row of _sums, the first time unread
-        self._reads = [[times, kernel_weights(samples), 0, 0], [first_times, half, 2, 0],
-                       [second_times, half, 3, 0]]
-        # u-bar, f-bar and the averages of the two half windows; the range of u; u at the end
-        self._sums = np.zeros((4, compiled.N))
+        self.tau = tau
+        # per set of times: the times, their weights, the rows of _sums (u, f), the first
+        # time unread
+        self._reads = [[times, kernel_weights(samples), (0, 1), 0],
+                       [first_times, half, (2, 4), 0], [second_times, half, (3, 5), 0]]
+        # u-bar, f-bar, the u-bar and f-bar of the two half windows; the range of u; u at
+        # the end
+        self._sums = np.zeros((6, compiled.N))
         self._max, self._min = np.full(compiled.N, -np.inf), np.full(compiled.N, np.inf)
         self._last = None
 
@@ -117,32 +132,34 @@ class WindowAverager:
         """Add the averaging times in a piece of the window (a solution on a sub-interval;
         pieces are recorded in time order)."""
         for read in self._reads:
-            times, weights, row, start = read
+            times, weights, (row, f_row), start = read
             end = np.searchsorted(times, piece.ode.T, side="right")
             if end == start:
                 continue
             read[3] = end
             values = piece(times[start:end])
             self._sums[row] += values @ weights[start:end]
+            states = np.ascontiguousarray(values.T)
+            f_values = np.empty_like(states)
+            _rhs_at(self.compiled.rhs.address, self.compiled.p, states,
+                    np.ascontiguousarray(times[start:end]), f_values)
+            self._sums[f_row] += weights[start:end] @ f_values
             if row == 0:
-                states = np.ascontiguousarray(values.T)
-                f_values = np.empty_like(states)
-                _rhs_at(self.compiled.rhs.address, self.compiled.p, states,
-                        np.ascontiguousarray(times[start:end]), f_values)
-                self._sums[1] += weights[start:end] @ f_values
                 np.maximum(self._max, values.max(axis=1), out=self._max)
                 np.minimum(self._min, values.min(axis=1), out=self._min)
                 self._last = values[:, -1].copy()
 
     def averages(self):
         """The :class:`WindowAverages` once every piece is recorded."""
-        u_bar, f_bar, first, second = self._sums
+        u_bar, f_bar, first, second, f_first, f_second = self._sums
         spread = self._max - self._min
         with np.errstate(divide="ignore", invalid="ignore"):
             drift = np.where(spread > 0, np.abs(second - first) / spread, np.inf)
+        halves = (HalfWindow(self.center - self.tau / 2, first, f_first),
+                  HalfWindow(self.center + self.tau / 2, second, f_second))
         return WindowAverages(self.center, u_bar, f_bar,
                               f_bar - self.compiled.f(u_bar, self.center), drift,
-                              self._last - u_bar)
+                              self._last - u_bar, halves)
 
 
 def average_window(solution, compiled, center, tau, samples):

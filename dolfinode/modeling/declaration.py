@@ -10,6 +10,7 @@ import numpy as np
 import sympy as sp
 
 from dolfinode.ensemble import vary
+from dolfinode.modeling.manifold import manifold_rates
 from dolfinode.ode import ODE, t
 from dolfinode.systems.template import Template, TemplateODE
 
@@ -86,16 +87,20 @@ class WindowModel:
 
 class ReducedDeclaration:
     """The reduced ODE  u~_i' = f_i(u~) + c_i + sum_j G_ij u~_j  (active i),  u~_i' = 0
-    (inactive i), with c and the entries of G on a fixed pattern as parameters.
+    (frozen i), the rates of the slow manifold f_S = 0 (slaved i, see
+    :mod:`dolfinode.modeling.manifold`), with c and the entries of G on a fixed pattern as
+    parameters.
 
     Parameters
     ----------
     ode : ODE or TemplateODE, the full model
     active : bool array (N,)
     pattern : (rows, cols) int arrays of the entries of G, or None for a constant g~
+    slaved : bool array (N,) of inactive components on their manifold (none for a
+        TemplateODE), or None
     """
 
-    def __init__(self, ode, active, pattern=None):
+    def __init__(self, ode, active, pattern=None, slaved=None):
         self.ode, self.active = ode, np.asarray(active, dtype=bool)
         self.pattern = pattern
         taken = _taken(ode)
@@ -123,6 +128,10 @@ class ReducedDeclaration:
                     G = _fresh(f"G_{i}_{j}", taken)
                     self._G.append(G)
                     rhs[i] = rhs[i] + G * ode.states[j]
+            if slaved is not None and np.any(slaved):
+                rates = iter(manifold_rates(ode.states, [e for e, s in zip(ode.rhs, slaved) if s],
+                                            rhs, slaved))
+                rhs = [next(rates) if s else e for e, s in zip(rhs, slaved)]
             self._rhs = dict(zip(ode.states, rhs))
             self._declared = None
 

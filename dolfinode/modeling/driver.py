@@ -3,18 +3,22 @@
 The pipeline (Jansson, Johnson & Logg 2005, sections 3-7, made automatic and checked):
 
 1. resolve the full model on [t0, t0 + 2 tau]; average it around t_c = t0 + tau;
-2. inactivate the fast components (omega_i tau >= 2 pi, omega_i^2 = |(J^2)_ii|) whose average
-   does not move (drift < average_tolerance), and
-   build the reduced model f~ = f + g~ with g~ = g-bar;
+2. inactivate the fast components (omega_i tau >= 2 pi, omega_i^2 = J_ii^2 + the oscillatory
+   couplings) whose average does not move (drift < average_tolerance), and the relaxing ones
+   (put on their slow manifold, see :mod:`dolfinode.modeling.manifold`), and build the
+   reduced model f~ = f + g~ with g~ = g-bar (affine in the slow state from the start for
+   ``subgrid_model="auto"`` when the half windows show g-bar moving);
 3. solve the reduced model from u-bar(t_c); its solution is the output on (t_c, T] (the
    resolved full solution on [t0, t_c]): the model is built once [t0, t0 + 2 tau] is
    resolved, as in the paper, but the reduced solution starts at the window's centre;
 4. at ``control_points`` equispaced times t_k, restart the full model at t_k - tau from the
-   reduced state plus the fast fluctuation measured when the model was built (a
-   perturbation of the size of the fast oscillation), average it around t_k, record the
-   defect g~ - g-bar, and rebuild the model when it exceeds model_tolerance * max |g-bar|
-   (with ``subgrid_model="auto"`` the rebuilt model is affine in the slow state, see
-   :mod:`dolfinode.modeling.reduced`).
+   reduced state plus the fast fluctuation measured when the model was built, carried to the
+   current slow state by its action (:func:`~dolfinode.modeling.reduced.adiabatic_scaling`),
+   average it around t_k, record the defect g~ - g-bar, and rebuild the model when it
+   exceeds model_tolerance (max |g-bar| + tolerance) (with ``subgrid_model="auto"`` the
+   rebuilt model is affine in the slow state, see :mod:`dolfinode.modeling.reduced`);
+5. check the result a posteriori (:mod:`dolfinode.modeling.validity`): a ModelingWarning,
+   or with ``strict=True`` a SolverError, when the error estimate exceeds the tolerance.
 
 Windows are resolved with a cG method (cG(q) for dG(q), mcG(q) for mdG(q)), see
 ``_conservative``.
@@ -30,18 +34,20 @@ from dolfinode.methods import parse_method
 from dolfinode.modeling.averaging import WindowAverager
 from dolfinode.modeling.declaration import WindowModel
 from dolfinode.modeling.reduced import (
-    AVERAGE_PERIODS,
     ControlPoint,
     ReducedModel,
+    adiabatic_scaling,
+    default_average_length,
     fast_time_scale,
     inactive_components,
 )
+from dolfinode.modeling.validity import check_validity
 from dolfinode.solution import Solution, join_elements
 
 #: Solver parameters that configure the modeling, not the inner solves.
 MODELING_PARAMETERS = ("automatic_modeling", "average_length", "average_samples",
                        "average_tolerance", "control_points", "model_tolerance",
-                       "rebuild_model", "subgrid_model")
+                       "rebuild_model", "subgrid_model", "strict")
 #: Bytes of elements a piece of a resolved window should hold (its length is set from the
 #: last piece's step density; the first from the window step).
 WINDOW_PIECE_BYTES = 2**26
@@ -76,7 +82,7 @@ def solve_with_modeling(ode, method, params, solve):
     # damps it, the indicator may alias it): at least 8 pi = 25 steps per period
     window_step = min(fastest / 4, params["maximum_time_step"] or np.inf)
     if tau is None:
-        tau = AVERAGE_PERIODS * fastest
+        tau = default_average_length(compiled, ode.u0, ode.t0)
         if not 4 * tau < span:
             raise ValueError(f"automatic modeling found no fast time scale in [t0, T]: the "
                              f"fastest one, {fastest:.3g}, gives average_length "
@@ -95,7 +101,9 @@ def solve_with_modeling(ode, method, params, solve):
                       f"it saves at most {1 - resolved:.0%} of a full solve and adds the "
                       "averaging; solving without automatic_modeling is likely faster (or use "
                       "fewer control_points or a shorter average_length)", stacklevel=3)
-    model = ReducedModel(ode, tau, subgrid_model=params["subgrid_model"])
+    model = ReducedModel(ode, tau, subgrid_model=params["subgrid_model"], spacing=spacing,
+                         tolerance=params["tolerance"],
+                         model_tolerance=params["model_tolerance"])
     runs = []
 
     def solve_piece(declaration, method=method, **extra):
@@ -146,7 +154,9 @@ def solve_with_modeling(ode, method, params, solve):
                 record_first(piece)
             del piece
         averages = averager.averages()
-        averages.center = center
+        averages.center = center  # from the window's local time
+        for half in averages.halves:
+            half.center += center - tau
         model.record(averages)
         return elements, averages
 
@@ -177,6 +187,7 @@ def solve_with_modeling(ode, method, params, solve):
                                    params["average_tolerance"])
     model.build(averages, inactive, averages.center, compiled)
     fluctuation = averages.fluctuation
+    fluctuation_jacobian = _end_jacobian(compiled, model, averages, tau)
     segments = []
     # the reduced solution starts at t_c = t0 + tau from u-bar(t_c): the output is the full
     # solution on [t0, t_c] and the reduced one on (t_c, T] (left-continuous, as for dG)
@@ -191,12 +202,18 @@ def solve_with_modeling(ode, method, params, solve):
         step = {"initial_time_step": _last_step(segment)}
         if t_now >= ode.T or t_now == ode.t0 + 2 * tau:
             continue
-        # control point at t_now: full model from t_now - tau, perturbed by the fast fluctuation
-        u_start = model.state(segment(t_now - tau)) + np.where(model.active, 0.0, fluctuation)
+        # control point at t_now: full model from t_now - tau, perturbed by the fast
+        # fluctuation of the last build carried to the current slow state (its action kept)
+        u_slow = model.state(segment(t_now - tau))
+        scaling = adiabatic_scaling(fluctuation_jacobian,
+                                    compiled.jacobian_matrix(u_slow, t_now - tau))
+        u_start = u_slow + np.where(model.active, 0.0, scaling * fluctuation)
         elements, averages = resolve(u_start, t_now)
         defect = model.defect(compiled, averages)
-        scale = np.max(np.abs(np.where(model.active, averages.g_bar, 0.0)))
-        relative = np.max(np.abs(defect)) / scale if scale > 0 else np.inf
+        # + tolerance: g-bar vanishes where the fast components sit on their average
+        # (1e-19 on Michaelis-Menten), and the defect is then not relative to anything
+        g_bar = np.where(model.active, averages.g_bar, 0.0)
+        relative = np.max(np.abs(defect)) / (np.max(np.abs(g_bar)) + params["tolerance"])
         rebuild = params["rebuild_model"] and relative > params["model_tolerance"]
         if rebuild:
             # g~ is refitted; the inactive set stays that of the first build, so that the
@@ -206,9 +223,10 @@ def solve_with_modeling(ode, method, params, solve):
             # chained only through rebuilds, so that the energy errors of the resolved
             # windows do not accumulate over the checks of one model
             fluctuation = averages.fluctuation
+            fluctuation_jacobian = _end_jacobian(compiled, model, averages, tau)
         model.control_points.append(ControlPoint(t_now, float(np.linalg.norm(defect)),
                                                  float(relative), bool(rebuild),
-                                                 int(elements)))
+                                                 int(elements), defect, g_bar))
     del segment
     model.reduced = _concatenate(model.declaration(*reduced_start, ode.T), segments, 2)
     if keep_start:
@@ -223,6 +241,9 @@ def solve_with_modeling(ode, method, params, solve):
     sol.stats = _total_stats(runs, model, time.perf_counter() - start_time)
     sol.stats["resolved fraction"] = resolved
     sol.model = model
+    model.estimate = check_validity(model, params["tolerance"], params["model_tolerance"],
+                                    params["strict"])
+    sol.stats["modeling error estimate"] = model.estimate.total if model.estimate else np.nan
     return sol
 
 
@@ -343,6 +364,14 @@ def _pieces(solve, window_model, u, stops, shift, step, pace):
             pace["length"] = (b - a) * WINDOW_PIECE_BYTES / piece.values.nbytes
             u, step["initial_time_step"], a = piece(b), _last_step(piece), b
             del piece
+
+
+def _end_jacobian(compiled, model, averages, tau):
+    """df/du at the slow state where the fluctuation was recorded, the window's end
+    t_c + tau (u-bar + fluctuation on the active components, the fast ones at their
+    average): the slow state moves over the window."""
+    return compiled.jacobian_matrix(model.state(averages.u_bar + averages.fluctuation),
+                                    averages.center + tau)
 
 
 def _conservative(method):

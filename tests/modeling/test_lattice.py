@@ -44,8 +44,12 @@ def figure5():
     lat = demo.lattice(5, m=1e-4, T=100.0)
     settings = {"method": "cG(2)", "tolerance": 1e-4, "automatic_modeling": True,
                 "average_length": 1.0}
-    rebuilt = dn.solve(lat.ode, **settings)
-    once = dn.solve(lat.ode, subgrid_model="constant", rebuild_model=False, **settings)
+    # both warn: their error in D (measured 9.4e-4 and 7.3e-3 at T) exceeds the tolerance
+    with pytest.warns(dn.ModelingWarning, match="relative defects .* although the model was "
+                      "rebuilt"):
+        rebuilt = dn.solve(lat.ode, **settings)
+    with pytest.warns(dn.ModelingWarning, match="exceeds the tolerance 0.0001"):
+        once = dn.solve(lat.ode, subgrid_model="constant", rebuild_model=False, **settings)
     return lat, times, D_bar, rebuilt, once
 
 
@@ -71,10 +75,9 @@ def test_rebuilt_model_follows_the_averaged_full_model_and_a_model_built_once_dr
 
 
 def test_modeling_error_bounds_the_error_in_the_diameter(figure5):
-    """S0 max ||g~ - g-bar|| (sol.model.modeling_error) for the goal D(T) lies above the
-    actual error |D(U(T)) - D-bar(T)| of both reduced models (measured: bounds 0.13 and
-    0.20 against errors 9.4e-4 and 7.3e-3; loose, as S0 comes from a dual over 100 time
-    units)."""
+    """The modeling part of sol.model.modeling_error for the goal D(T), int |phi| |g~ - g-bar|
+    dt (below S0 max ||g~ - g-bar||), lies above the actual error |D(U(T)) - D-bar(T)| of
+    both reduced models (measured: 8.3e-3 and 4.1e-2 against errors 9.4e-4 and 7.3e-3)."""
     lat, _, D_bar, rebuilt, once = figure5
     s = lat.ode.states
     last = len(lat.points) - len(lat.small) - 1
@@ -84,7 +87,7 @@ def test_modeling_error_bounds_the_error_in_the_diameter(figure5):
         estimate = sol.model.modeling_error(goal)
         error = abs(lat.diameter(sol(100.0)[:, None])[0] - D_bar[-1])
         assert estimate.bound >= error > 0
-        assert estimate.bound == pytest.approx(estimate.S0 * sol.model.largest_defect)
+        assert estimate.bound <= estimate.S0 * sol.model.largest_defect
         errors.append(error)
     assert errors[0] < errors[1] / 3  # the rebuilt model is the better one at T too
 
@@ -107,3 +110,15 @@ def test_template_and_per_expression_reduced_models_agree():
     # average of the small mass, 1.4e-3)
     t = np.linspace(0.0, 12.0, 241)
     np.testing.assert_allclose(template(t), expression(t), rtol=1e-6, atol=1e-7)
+
+
+def test_demo_setting_with_tiny_average_length_does_not_start_affine():
+    """m = 1e-12, tau = 1e-4, control points 2 apart (the demo's and run_templates.py's
+    setting): the first check is 4e4 half windows away, too far to extrapolate a fit to the
+    half windows (starting affine there blew the reduced model up at t = 1.69). 'auto' starts
+    constant and the run completes, the lattice contracting."""
+    ode = dn.systems.lattice(5, T=10.0)
+    sol = dn.solve(ode, method="cG(2)", tolerance=1e-4, automatic_modeling=True,
+                   average_length=1e-4, control_points=4)
+    assert len(sol.model.built) >= 1 and np.all(np.isfinite(sol.y))
+    assert sol.model.built[0] == pytest.approx(1e-4)

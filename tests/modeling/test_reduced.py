@@ -52,7 +52,7 @@ def test_fast_pairs_are_inactivated_together():
     inactive = inactive_components(ode, compiled, 0.1, drift, 0.1)
     assert {s for s in ode.states if inactive[index[s]]} == {x[2], v[2]}
     drift[index[v[2]]] = 1.0
-    with pytest.raises(ValueError, match="average_length = 0.1 may be too short"):
+    with pytest.raises(ValueError, match="average_length = 0.1 is too short"):
         inactive_components(ode, compiled, 0.1, drift, 0.1)
 
 
@@ -63,3 +63,40 @@ def test_too_short_average_length_is_a_clear_error():
     with pytest.raises(ValueError, match="average_tolerance"):
         dn.solve(problem.ode, method="cG(2)", tolerance=1e-4, automatic_modeling=True,
                  average_length=10.0 / 100.0)
+
+
+def test_relaxation_is_fast_for_the_relaxing_component_only():
+    """Michaelis-Menten: J_sc J_cs ~ kappa > 0 is no oscillation, so s is slow (omega ~ 1)
+    and c fast (omega = kappa (s + K)); c relaxes, the seed model's fast pair oscillates."""
+    from dolfinode.bench.multiscale import michaelis_menten
+    from dolfinode.modeling.reduced import component_frequencies, relaxing_components
+
+    ode, _ = michaelis_menten(kappa=1e4)
+    J = lower(ode).jacobian_matrix(ode.u0, 0.0)
+    omega = component_frequencies(J)
+    assert omega[0] == pytest.approx(1.0) and omega[1] == pytest.approx(2e4)
+    assert list(relaxing_components(J, omega > 100)) == [False, True]
+    seed = seed_model(1e4).ode
+    J = lower(seed).jacobian_matrix(seed.u0, 0.0)
+    np.testing.assert_allclose(component_frequencies(J), [1.0, 100.0, 1.0, 100.0])
+    assert not relaxing_components(J, np.ones(4, dtype=bool)).any()
+
+
+def test_manifold_rates_differentiate_the_constraint():
+    """F = k (s - (s + K) c) = 0 along s' = r: c' = (1 - c) r / (s + K)."""
+    from dolfinode.modeling.manifold import manifold_rates
+
+    s, c, k, K, r = sp.symbols("s c k K r")
+    rate, = manifold_rates((s, c), [k * (s - (s + K) * c)], [r, sp.S.Zero],
+                           np.array([False, True]))
+    assert sp.simplify(rate - (1 - c) * r / (s + K)) == 0
+
+
+def test_default_average_length_looks_at_both_scales():
+    """Seed model: |lambda| = 1 (slow) and sqrt(kappa) (fast). tau = 100 / sqrt(kappa) unless
+    that exceeds 0.2 slow time units, then 0.2, but at least 30 fast time units."""
+    from dolfinode.modeling.reduced import default_average_length
+
+    for kappa, tau in [(1e4, 0.3), (1e5, 0.2), (1e6, 0.1)]:
+        ode = seed_model(kappa).ode
+        assert default_average_length(lower(ode), ode.u0, 0.0) == pytest.approx(tau, rel=1e-6)

@@ -1,0 +1,162 @@
+"""A posteriori validity of a reduced model: the modeling-error estimate and its warning.
+
+The error of the reduced solution U against the average u-bar of the full model, in a goal
+M(u) = (psi, u(T)), is (Jansson, Johnson & Logg 2005, "Error analysis")
+
+    M(U) - M(u-bar) = (discretisation residual, phi)  +  int_{t_c}^T (phi, g~ - g-bar) dt,
+
+with phi the dual solution of the reduced problem (-phi' = (df~/du)^T phi, phi(T) = psi). The
+defect d = g~ - g-bar of a model is measured at the control points between its build and
+its rebuild (the check that rebuilds it measures it last); on that span |d_i| is bounded by the
+largest of those measurements (it varies between checks: an explicit time dependence of f
+leaves a bias of the kernel, avg cos t = 0.9997 cos t at tau = 1, that the checks sample). A
+model built at the last control point, not yet checked, is taken to have the last defect:
+
+    modeling part  ~  int_{t_c}^T sum_i |phi_i(t)| |d_i(t)| dt,
+
+at most the paper's bound S0 max ||g~ - g-bar||. A goal at T misses what a dissipative system
+forgets: a model wrong until the first check (then rebuilt) leaves an error on that span
+only; ``local`` = max over the spans between checks of max |d| times the span's length is
+that error before the dynamics propagate it, and is checked against the tolerance too. The
+default goal
+is every slow (active) component at T, each on its own (one dual per component, up to
+DUAL_COMPONENTS of them; the sum of the active components beyond).
+"""
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from dolfinode.errors import ModelingWarning, SolverError
+
+#: Up to this many active components the default goal takes one dual per component (each slow
+#: component at T is an output); beyond, one dual for their sum.
+DUAL_COMPONENTS = 8
+#: Gauss points per dual interval for the integral of |phi| |d|.
+GAUSS_POINTS = 4
+
+
+@dataclass
+class ModelingError:
+    """The error estimate of a reduced solution in a goal (:meth:`ReducedModel.modeling_error`).
+
+    Attributes
+    ----------
+    bound : the modeling part: int sum_i |phi_i| |g~_i - g-bar_i| dt over (t_c, T] (module
+        docstring)
+    S0 : int ||phi||_l2 dt of the reduced model's dual problem
+    largest_defect : max over the control points of ||g~ - g-bar||_l2
+    discretization : the dual estimate of the reduced solution's own discretisation error in
+        the goal (against the exact reduced solution u~, residual of the model as last built)
+    local : max over the spans between the start and the checks of max_i |d_i| (span length):
+        the error a defect leaves on its span before the dynamics propagate it
+    goal : the output estimated (for the default goal, the slow component of largest total)
+    worst_time, worst_state : the control point and the state of the largest relative defect
+    """
+
+    bound: float
+    S0: float
+    largest_defect: float
+    discretization: float
+    local: float = 0.0
+    goal: str = "the goal"
+    worst_time: float = np.nan
+    worst_state: object = None
+
+    @property
+    def total(self):
+        """bound + |discretization|: the estimate of |M(U) - M(u-bar)|."""
+        return self.bound + abs(self.discretization)
+
+
+def modeling_error(model, goal=None):
+    """:class:`ModelingError` of ``model`` (a solved :class:`ReducedModel`) in ``goal``."""
+    from dolfinode.dual import estimate_error
+
+    active = np.flatnonzero(model.active)
+    if goal is not None:
+        goals = {"the goal": goal}
+    elif len(active) <= DUAL_COMPONENTS:
+        goals = {f"{model.ode.states[i]}(T)": np.eye(model.ode.N)[i] for i in active}
+    else:
+        goals = {"the sum of the slow components at T": model.active.astype(float)}
+    worst = None
+    for name, psi in goals.items():
+        estimate = estimate_error(model.reduced, psi)
+        part = ModelingError(_weighted_defect(estimate.dual, model),
+                             estimate.stability_factors["S0"], model.largest_defect,
+                             estimate.value, float(_local_defect(model)), name)
+        if worst is None or part.total > worst.total:
+            worst = part
+    point = max(model.control_points, key=lambda c: c.relative_defect)
+    worst.worst_time = float(point.time)
+    worst.worst_state = model.ode.states[int(np.argmax(np.abs(point.defects)))]
+    return worst
+
+
+def _local_defect(model):
+    """max over the spans (t_{k-1}, t_k] between the reduced solution's start and the checks
+    of max_i |d_{k,i}| (t_k - t_{k-1})."""
+    times = [model.reduced.ode.t0] + [c.time for c in model.control_points]
+    return max(float(np.max(np.abs(c.defects))) * (b - a)
+               for a, b, c in zip(times[:-1], times[1:], model.control_points))
+
+
+def _weighted_defect(phi, model):
+    """int sum_i |phi_i(t)| |d_i(t)| dt over (t_c, T], |d| bounded on the span of each
+    model as in the module docstring."""
+    checks = model.control_points
+    times = [model.reduced.ode.t0] + [c.time for c in checks] + [model.reduced.ode.T]
+    # model k is used from the k-th build on, and measured by the checks up to its rebuild
+    built = np.cumsum([0] + [c.rebuilt for c in checks])  # the model used up to each check
+    largest = {}
+    for model_index, check in zip(built, checks):
+        largest[model_index] = np.maximum(largest.get(model_index, 0.0), np.abs(check.defects))
+    x, w = np.polynomial.legendre.leggauss(GAUSS_POINTS)
+    total = 0.0
+    for a, b, model_index in zip(times[:-1], times[1:], built):
+        if b <= a:
+            continue
+        d = largest.get(model_index, np.abs(checks[-1].defects))
+        nodes = np.concatenate([[a], phi.grid[(phi.grid > a) & (phi.grid < b)], [b]])
+        mid, half = (nodes[1:] + nodes[:-1]) / 2, (nodes[1:] - nodes[:-1]) / 2
+        s = (mid[:, None] + half[:, None] * x).ravel()
+        total += float((half[:, None] * w).ravel() @ (d @ np.abs(phi(s))))
+    return total
+
+
+def check_validity(model, tolerance, model_tolerance, strict):
+    """Warn (``ModelingWarning``), or raise SolverError when ``strict``, when the reduced
+    model's error estimate in the default goal, or its ``local`` part, exceeds ``tolerance``;
+    the message says too when the last two control points both found a relative defect above
+    ``model_tolerance`` (rebuilding did not help). Returns the :class:`ModelingError` (None
+    without control points)."""
+    if not model.control_points:
+        return None
+    estimate = modeling_error(model)
+    problems = []
+    if estimate.total > tolerance:
+        problems.append(f"its error estimate {estimate.total:.3g} in {estimate.goal} (modeling "
+                        f"{estimate.bound:.3g}, discretisation "
+                        f"{abs(estimate.discretization):.3g}) exceeds the tolerance {tolerance:g}")
+    if estimate.local > tolerance:
+        problems.append(f"a defect found at a control point, times the span before it, is "
+                        f"{estimate.local:.3g}, above the tolerance {tolerance:g} (the solution "
+                        "on that span may be off by as much)")
+    if not problems:
+        return estimate
+    message = (f"the reduced model may not represent the full one: {'; '.join(problems)}; "
+               f"largest relative defect at t = {estimate.worst_time:.4g} in "
+               f"{estimate.worst_state}")
+    failed = [c for c in model.control_points[-2:] if c.relative_defect > model_tolerance]
+    if len(failed) == 2:
+        message += (f"; the last two control points (t = {failed[0].time:.4g}, "
+                    f"{failed[1].time:.4g}) found relative defects "
+                    f"{failed[0].relative_defect:.3g}, {failed[1].relative_defect:.3g} above "
+                    f"model_tolerance = {model_tolerance:g} although the model was rebuilt")
+    message += (". Try a longer average_length, more control_points, "
+                "subgrid_model='affine', or solve without automatic_modeling")
+    if strict:
+        raise SolverError("automatic modeling: " + message, t=estimate.worst_time)
+    warnings.warn(message, ModelingWarning, stacklevel=4)
+    return estimate
