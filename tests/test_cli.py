@@ -21,3 +21,10 @@ def test_progress_bar_does_not_change_the_solution(capsys):
     shown = dn.solve(ode, method="dG(1)", tolerance=1e-8, progress=True)
     np.testing.assert_array_equal(plain.values, shown.values)
     assert "dolfinode" in capsys.readouterr().err
+
+
+def test_compile_fills_the_caches(capsys):
+    assert main(["compile"]) == 0
+    printed = capsys.readouterr().err
+    for what in ("cG(2)", "dG(1)", "mcG(2)", "estimate_error"):
+        assert f"{what}: compiled" in printed
