@@ -43,7 +43,8 @@ def vary(ode, variation):
                         f"{type(variation).__name__}: {variation!r}")
     by_name = {s.name: s for s in ode.params}
     params = dict(ode.params)
-    new = copy.copy(ode)
+    new = object.__new__(type(ode))  # copy.copy's protocol took 5 us of a prepared solve
+    new.__dict__.update(ode.__dict__)
     new.__dict__.pop("_compiled", None)
     for key, value in variation.items():
         if key in _FIELDS:

@@ -125,17 +125,28 @@ def solve(ode, method="cG(1)", goal=None, **parameters):
 
         others = {name: value for name, value in parameters.items() if name != "tolerance"}
         return solve_for_goal(solve, ode, method, goal, params["tolerance"], others)
-    if params["tolerance"] < MIN_TOLERANCE and params["absolute_tolerance"] is None:
-        raise ValueError(f"tolerance must be at least {MIN_TOLERANCE:.2g} (100 machine epsilons, "
-                         f"as in scipy's solve_ivp), got {params['tolerance']:g}: below it the "
-                         "error estimate is rounding (a smaller one with absolute_tolerance given "
-                         "controls the absolute error alone)")
+    check_tolerance(params)
     multi_adaptive, m = parse_method(method)
     if params["automatic_modeling"]:
         from dolfinode.modeling import solve_with_modeling
 
         return solve_with_modeling(ode, method, params, solve)
-    compiled = lower(ode)
+    return solve_lowered(ode, lower(ode), multi_adaptive, m, params)
+
+
+def check_tolerance(params):
+    """Raise ValueError for a tolerance below MIN_TOLERANCE without an absolute_tolerance."""
+    if params["tolerance"] < MIN_TOLERANCE and params["absolute_tolerance"] is None:
+        raise ValueError(f"tolerance must be at least {MIN_TOLERANCE:.2g} (100 machine epsilons, "
+                         f"as in scipy's solve_ivp), got {params['tolerance']:g}: below it the "
+                         "error estimate is rounding (a smaller one with absolute_tolerance given "
+                         "controls the absolute error alone)")
+
+
+def solve_lowered(ode, compiled, multi_adaptive, m, params):
+    """:func:`solve` of ``ode`` with its kernels ``compiled`` (whose ``p`` holds the parameter
+    values), the parsed method and the checked parameters (:func:`check_parameters`,
+    :func:`check_tolerance`): the part of a solve that :class:`dolfinode.Solver` repeats."""
     start = time.perf_counter()
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
@@ -278,7 +289,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
         return np.empty(size), np.empty(size), np.empty((size, nodes, ode.N))
 
     def advance(out_t, out_k, out_X):
-        return mono.advance(compiled.rhs.address, compiled.jacobian.address, compiled.p,
+        return mono.advance.unchecked(compiled.rhs.address, compiled.jacobian.address, compiled.p,
                             compiled.indptr, compiled.indices, structure.tuple, *tables,
                             iopts, fopts, atol, floor, x, f0, state, counters, out_t, out_k,
                             out_X)
@@ -323,7 +334,7 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
                 np.empty((capacity, m.q + 1)))
 
     def advance(out_comp, out_a, out_b, out_values):
-        return multi.advance(compiled.rhs_component.address, compiled.jacobian_row.address,
+        return multi.advance.unchecked(compiled.rhs_component.address, compiled.jacobian_row.address,
                              compiled.p, compiled.indptr, compiled.indices, position, *tables,
                              iopts, fopts, atol, floor, x, kdes, frozen, state, counters,
                              out_comp, out_a, out_b, out_values)

@@ -47,6 +47,8 @@ def first_use(dispatcher, what, seconds):
 class Loop:
     """A numba function compiled for one ``signature`` on its first call.
 
+    ``Loop.checked = True`` makes :meth:`unchecked` calls type-checked (for tests).
+
     Parameters
     ----------
     py_func : callable
@@ -60,6 +62,8 @@ class Loop:
         numba ``njit`` options (``cache=True`` is added).
     """
 
+    checked = False
+
     def __init__(self, py_func, signature, what, seconds, **options):
         self.py_func = py_func
         self.signature = signature
@@ -67,6 +71,7 @@ class Loop:
         self.seconds = seconds
         self.options = dict(options, cache=True)
         self._dispatcher = None
+        self._entry = None
         self.__doc__ = py_func.__doc__
 
     @property
@@ -86,3 +91,15 @@ class Loop:
 
     def __call__(self, *args):
         return (self._dispatcher or self.compile())(*args)
+
+    def unchecked(self, *args):
+        """Call the compiled code without numba's type dispatch (which typed the ~26 arguments
+        of a loop in ~10 us, most of a small solve). Its wrapper does not check dtypes: for
+        callers that build every argument with the signature's types (the drivers; tests run
+        them through the checked call with ``Loop.checked = True``)."""
+        if self._entry is None or Loop.checked:
+            dispatcher = self.compile()
+            if Loop.checked:
+                return dispatcher(*args)
+            self._entry = dispatcher.overloads[self.signature.args].entry_point
+        return self._entry(*args)
