@@ -1327,5 +1327,5 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
         state[T_NOW] = t
 
 
-advance = Loop(_advance, _SIGNATURE, "the multi-adaptive loop (mcG(q), mdG(q))", 60,
+advance = Loop(_advance, _SIGNATURE, "the multi-adaptive loop (mcG(q), mdG(q))", 50,
                error_model="numpy")
