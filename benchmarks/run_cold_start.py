@@ -87,6 +87,9 @@ def main():
     lines.append(f"| total | {sum(cold.values()):.1f} | {sum(warm.values()):.2f} |")
     lines += ["", "Notices printed on stderr with empty caches:", ""]
     lines += [f"    {line}" for line in record["notices"]] or ["    (none)"]
+    lines += ["", "They go to the `dolfinode` logger (WARNING); silence them with "
+              "`logging.getLogger(\"dolfinode\").setLevel(logging.ERROR)`. `dolfinode compile` "
+              "fills the caches ahead (images, CI)."]
     (output / "cold_start.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

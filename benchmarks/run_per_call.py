@@ -12,7 +12,7 @@ Writes per_call.json and per_call.md to the output folder.
 
 Usage::
 
-    python benchmarks/run_per_call.py [--output doc/benchmarks] [--repeats 15]
+    python benchmarks/run_per_call.py [--output doc/benchmarks] [--repeats 60] [--number 50]
 """
 import argparse
 import json
@@ -73,8 +73,8 @@ def measure(calls, repeats, number):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--output", default=str(ROOT / "doc" / "benchmarks"))
-    parser.add_argument("--repeats", type=int, default=15)
-    parser.add_argument("--number", type=int, default=500)
+    parser.add_argument("--repeats", type=int, default=60)
+    parser.add_argument("--number", type=int, default=50)
     args = parser.parse_args()
     best = measure(variants(), args.repeats, args.number)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,

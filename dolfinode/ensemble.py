@@ -50,7 +50,7 @@ def vary(ode, variation):
         if key in _FIELDS:
             continue
         symbol = by_name.get(key.name if isinstance(key, sp.Symbol) else key)
-        if symbol is None or (isinstance(key, sp.Symbol) and key != symbol):
+        if symbol is None or (key is not symbol and isinstance(key, sp.Symbol) and key != symbol):
             name = getattr(key, "name", str(key))
             match = difflib.get_close_matches(name, [*by_name, *_FIELDS], n=1, cutoff=0.5)
             hint = f"; did you mean {match[0]!r}?" if match else ""
