@@ -2,7 +2,7 @@
 
 The public surface is this package's namespace (``__all__``): declarations ``ODE``, ``t`` and
 the structured systems ``Template``, ``TemplateODE``, ``ParticleSystem`` (``systems``);
-``solve``, its ``Solution``, ``SolverError`` and ``ModelingWarning``; error estimates
+``solve`` and ``Solver`` (many small solves), their ``Solution``, ``SolverError`` and ``ModelingWarning``; error estimates
 ``estimate_error``, ``Goal``, ``ErrorEstimate``; events ``Event``; stored solutions
 ``load_solution``; ensembles ``solve_ensemble``, ``vary``; the methods ``Method``,
 ``make_method``, ``parse_method``; ``default_parameters``. The documentation's API reference
@@ -19,11 +19,12 @@ from dolfinode.ode import ODE, t
 from dolfinode.parameters import READ_ONLY_DEFAULTS as default_parameters
 from dolfinode.solution import Solution
 from dolfinode.solve import solve
+from dolfinode.solver import Solver
 from dolfinode.systems import ParticleSystem, Template, TemplateODE
 
 __version__ = "0.1.0"
 
 __all__ = ["ODE", "ErrorEstimate", "Event", "Goal", "Method", "ModelingWarning", "ParticleSystem",
-           "Solution", "SolverError", "Template", "TemplateODE", "default_parameters", "estimate_error",
-           "load_solution", "make_method", "parse_method", "solve", "solve_ensemble", "systems",
-           "t", "vary"]
+           "Solution", "Solver", "SolverError", "Template", "TemplateODE", "default_parameters",
+           "estimate_error", "load_solution", "make_method", "parse_method", "solve",
+           "solve_ensemble", "systems", "t", "vary"]

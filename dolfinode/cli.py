@@ -1,8 +1,9 @@
 """The dolfinode command.
 
 ``dolfinode info`` prints the default parameters; ``dolfinode cache info|clear`` shows or
-empties the kernel cache; ``dolfinode bench`` runs the benchmark suite (see
-:mod:`dolfinode.bench`).
+empties the kernel cache; ``dolfinode compile`` compiles every time-slab loop and the
+error estimate's kernels into the caches (NUMBA_CACHE_DIR, DOLFINODE_CACHE_DIR), for
+images and CI; ``dolfinode bench`` runs the benchmark suite (see :mod:`dolfinode.bench`).
 """
 import argparse
 import shlex
@@ -21,6 +22,7 @@ def main(argv=None):
     cache = sub.add_parser("cache", help="the compiled kernel cache ($DOLFINODE_CACHE_DIR)")
     cache.add_argument("action", choices=("info", "clear"),
                        help="info: its folder, libraries and size; clear: remove its files")
+    sub.add_parser("compile", help="compile and cache every loop ahead of the first solve")
     bench_parser = sub.add_parser("bench", help="run the benchmark suite: work-precision "
                                                 "against scipy, tables and plots")
     if given[:1] == ["bench"]:  # its options need the benchmark library, imported only then
@@ -36,6 +38,8 @@ def main(argv=None):
             print(f"{name:<{width}}  {value!r}")
     elif args.command == "cache":
         _cache(args.action)
+    elif args.command == "compile":
+        _compile_everything()
     elif args.command == "bench":
         try:
             planned = bench.plan(args)
@@ -57,6 +61,24 @@ def _cache(action):
     print(f"libraries  {info['libraries']} ({info['valid']} valid; an invalid one is rebuilt "
           "when next used)")
     print(f"size       {info['bytes'] / 2**20:.2f} MiB")
+
+
+def _compile_everything():
+    """Compile (or load from the caches) the mono- and multi-adaptive loops, the dual's and
+    the solution's kernels: a small oscillator solved with cG(2), dG(1), mcG(2) and its
+    error estimated, each path once."""
+    import sympy as sp
+
+    import dolfinode as dn
+
+    u, v = sp.symbols("u v")
+    ode = dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=1.0)
+    for method in ("cG(2)", "dG(1)", "mcG(2)"):
+        sol = dn.solve(ode, method=method, tolerance=1e-4)
+        sol(0.5)
+        print(f"{method}: compiled", file=sys.stderr)
+    dn.estimate_error(dn.solve(ode, method="cG(2)", tolerance=1e-4), goal={u: 1.0})
+    print("estimate_error: compiled", file=sys.stderr)
 
 
 if __name__ == "__main__":

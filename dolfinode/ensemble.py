@@ -43,13 +43,15 @@ def vary(ode, variation):
                         f"{type(variation).__name__}: {variation!r}")
     by_name = {s.name: s for s in ode.params}
     params = dict(ode.params)
-    new = copy.copy(ode)
-    new.__dict__.pop("_compiled", None)
+    # a shallow copy without copy.copy's protocol (a prepared solve notices it); the kernels
+    # are shared: lower() makes their p from the copy's values
+    new = object.__new__(type(ode))
+    new.__dict__.update(ode.__dict__)
     for key, value in variation.items():
         if key in _FIELDS:
             continue
         symbol = by_name.get(key.name if isinstance(key, sp.Symbol) else key)
-        if symbol is None or (isinstance(key, sp.Symbol) and key != symbol):
+        if symbol is None or (key is not symbol and isinstance(key, sp.Symbol) and key != symbol):
             name = getattr(key, "name", str(key))
             match = difflib.get_close_matches(name, [*by_name, *_FIELDS], n=1, cutoff=0.5)
             hint = f"; did you mean {match[0]!r}?" if match else ""

@@ -12,6 +12,7 @@ import sympy
 DEFAULTS = {
     "tolerance": 1e-6,             # rtol of the step error estimate (DOLFIN: TOL)
     "absolute_tolerance": None,    # atol, scalar or per state; None: equal to tolerance
+    "calibrate_tolerance": False,  # True: tolerances aim at the error at T (solve's Notes)
     "initial_time_step": None,     # None: chosen from f(u0)
     "maximum_time_step": None,     # None: T - t0
     "fixed_time_step": False,      # True: uniform steps of initial_time_step, no adaptivity
@@ -188,6 +189,7 @@ _CHECKS = {
     "initial_time_step": _per_state_or_positive,
     "maximum_time_step": _positive,
     "fixed_time_step": _switch,
+    "calibrate_tolerance": _switch,
     "nonlinear_solver": _choice(NONLINEAR_SOLVERS),
     "discrete_tolerance_factor": _required,
     "maximum_iterations": _count,

@@ -51,3 +51,10 @@ def test_bench_rejects_empty_lists_and_values_out_of_range(tmp_path, capsys, arg
         main(["bench", *arguments, "--output", str(tmp_path / "out")])
     assert words in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_compile_fills_the_caches(capsys):
+    assert main(["compile"]) == 0
+    printed = capsys.readouterr().err
+    for what in ("cG(2)", "dG(1)", "mcG(2)", "estimate_error"):
+        assert f"{what}: compiled" in printed

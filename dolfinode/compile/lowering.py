@@ -13,7 +13,6 @@ differentiated and printed once per shape, with code that does not grow with N.
 import hashlib
 import time
 from dataclasses import dataclass, field
-from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sps
@@ -47,6 +46,7 @@ class CompiledODE:
         first solve that asks (:func:`dolfinode.solve._newton_plan`)
     header : the template header that follows the parameter values in ``p`` (None: ``p``
         is the parameter values)
+    derived : the orderings and structures derived from the pattern (see ``_derived``)
     """
 
     N: int
@@ -63,6 +63,7 @@ class CompiledODE:
     templates: int = 0
     newton_plans: dict = field(default_factory=dict)
     header: np.ndarray = None
+    derived: dict = field(default_factory=dict)
 
     def again(self, values):
         """This lowering as a later ``lower`` of the same ODE returns it: loaded, no compile
@@ -79,32 +80,42 @@ class CompiledODE:
     def nnz(self):
         return len(self.indices)
 
-    @cached_property
-    def _pattern_key(self):
-        return hashlib.blake2b(self.indptr.tobytes() + self.indices.tobytes(),
-                               digest_size=16).digest()
+    def _derived(self, name, make):
+        """A value derived from the pattern, made once and shared with every :meth:`again`
+        copy (a cached_property of a copy was lost with it: each small solve made its band
+        structure afresh)."""
+        if name not in self.derived:
+            self.derived[name] = make()
+        return self.derived[name]
 
-    @cached_property
+    @property
+    def _pattern_key(self):
+        return self._derived("pattern key", lambda: hashlib.blake2b(
+            self.indptr.tobytes() + self.indices.tobytes(), digest_size=16).digest())
+
+    @property
     def ordering(self):
         """(order, position, kl, ku): the component ordering that narrows the Jacobian's band
         (remembered by sparsity pattern: automatic modeling solves one pattern dozens of
         times, with new parameter values)."""
-        return _remembered(_orderings, self._pattern_key,
-                           lambda: bandwidth_ordering(self.indptr, self.indices, self.N))
+        return self._derived("ordering", lambda: _remembered(
+            _orderings, self._pattern_key,
+            lambda: bandwidth_ordering(self.indptr, self.indices, self.N)))
 
-    @cached_property
+    @property
     def band_structure(self):
         """The banded storage of the Newton matrices I - c J in the band ordering."""
         _, position, kl, ku = self.ordering
-        return band_structure(position, kl, ku)
+        return self._derived("band structure", lambda: band_structure(position, kl, ku))
 
-    @cached_property
+    @property
     def sparse_structure(self):
         """The sparse storage of the Newton matrices I - c J
         (:func:`dolfinode.linalg.newton_matrix.sparse_structure`; remembered by sparsity
         pattern)."""
-        return _remembered(_structures, self._pattern_key,
-                           lambda: sparse_structure(self.indptr, self.indices, self.N))
+        return self._derived("sparse structure", lambda: _remembered(
+            _structures, self._pattern_key,
+            lambda: sparse_structure(self.indptr, self.indices, self.N)))
 
     def dependencies(self):
         """Dependency graph as a CSR boolean matrix: entry (i, j) if f_i depends on u_j."""

@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit
 
 from dolfinode.compile import lower
+from dolfinode.compile.jit import first_use
 from dolfinode.compile.signatures import rhs_kernel
 from dolfinode.dual.goal import resolve
 from dolfinode.dual.problem import (
@@ -221,10 +222,12 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None,
     q = method.q
     r = _positive_int(dual_degree, "dual_degree", max(q + 2, 2), minimum=2)
     gauss = _positive_int(quadrature_points, "quadrature_points", q + r + 2)
-    dual, primal = solve_dual(sol, final, integral, r, linear_solver=linear_solver)
-    parts = _error_representation(sol, primal, dual, gauss)
-    coarse, _ = solve_dual(sol, final, integral, r - 1, primal, linear_solver)
-    dual_error = abs(parts["value"] - _error_representation(sol, primal, coarse, gauss)["value"])
+    with first_use(advance_forward, "the error estimate's kernels", 10):
+        dual, primal = solve_dual(sol, final, integral, r, linear_solver=linear_solver)
+        parts = _error_representation(sol, primal, dual, gauss)
+        coarse, _ = solve_dual(sol, final, integral, r - 1, primal, linear_solver)
+        coarse_value = _error_representation(sol, primal, coarse, gauss)["value"]
+    dual_error = abs(parts["value"] - coarse_value)
     return ErrorEstimate(value=parts["value"],
                          bound=float(parts["bound_contributions"].sum() + parts["defect"]
                                      + dual_error),

@@ -12,6 +12,7 @@ import numpy as np
 from numba import njit, types
 
 from dolfinode.adaptivity import filter_estimate, next_step
+from dolfinode.compile.jit import Loop
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
 from dolfinode.linalg.newton_matrix import shift, store_jacobian
 from dolfinode.methods.method import lagrange_weights, real_eigenvalues
@@ -209,8 +210,7 @@ def fixed_point_cheaper(k_fp, k_newton, S, state):
             < SWITCH_BACK * state[NEWTON_COST] / k_newton)
 
 
-@njit(_SIGNATURE, cache=True, error_model="numpy")
-def advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
+def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             transform, transform_inverse, eigenvalues, nodes, bary, end_derivative, iopts,
             fopts, atol, floor, x, f0, state, counters, out_t, out_k, out_X):
     """Advance (x, t) towards T, storing accepted elements in out_*; returns a status code.
@@ -464,3 +464,7 @@ def advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     state[T_NOW] = t
     state[K_NEXT] = k
     return DONE if t >= T else FULL
+
+
+advance = Loop(_advance, _SIGNATURE, "the mono-adaptive loop (cG(q), dG(q))", 20,
+               error_model="numpy")

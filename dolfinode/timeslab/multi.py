@@ -42,6 +42,7 @@ from functools import cache
 import numpy as np
 from numba import njit, types
 
+from dolfinode.compile.jit import Loop
 from dolfinode.compile.signatures import NO_REFCOUNT, component_kernel
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.methods.method import element_value, real_eigenvalues
@@ -883,8 +884,7 @@ def method_tables(method):
     return tuple(np.array(table) for table in tables)
 
 
-@njit(_SIGNATURE, cache=True, error_model="numpy")
-def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, transform,
+def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, transform,
             transform_inverse, eigenvalues, nodes, qweights, bary, end_derivative, iopts, fopts,
             atol, floor, x, kdes, frozen, state, counters, out_comp, out_a, out_b, out_values):
     """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status.
@@ -1324,3 +1324,7 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, trans
             regroup = True
         t = b
         state[T_NOW] = t
+
+
+advance = Loop(_advance, _SIGNATURE, "the multi-adaptive loop (mcG(q), mdG(q))", 50,
+               error_model="numpy")
