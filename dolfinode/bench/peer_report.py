@@ -164,8 +164,9 @@ HOW = (
     "exact Jacobian called from the Python callbacks scikit-sundae requires (a few us per "
     "call); band linear solver where the Jacobian is banded and N >= 50, dense otherwise.",
     "diffrax (Kvaerno5 on the stiff problems, Tsit5 on the others), JAX CPU in double "
-    "precision, PID step control with default coefficients; the right-hand side lambdified "
-    "to JAX; the whole solve jit-compiled once per problem (N <= 400).",
+    "precision, PID step control with default coefficients, first step 1e-8 for Kvaerno5; "
+    "the right-hand side lambdified to JAX; the whole solve jit-compiled once per problem "
+    "(Kvaerno5 for N <= 100, Tsit5 for N <= 400).",
     "scipy (DOP853, Radau, BDF, LSODA): lambdified NumPy right-hand sides and exact Jacobians, "
     "as in the benchmark suite; abandoned at the time limit.",
     "Accuracy: mescd = min_i -log10(|y_i(T) - ref_i| / (atol/rtol + |ref_i|)) (Test Set), over "
