@@ -156,7 +156,9 @@ HOW = (
     "Time: CPU time (`time.process_time`, all threads of the process) of one whole solve "
     "with output at 100 points, the **minimum** of the timed repeats, taken in interleaved "
     "rounds (one call of every run per round) after an untimed run; compile and build times "
-    "are excluded (table above).",
+    "are excluded (table above; a peer's build is its code generation and compile plus one "
+    "warm-up solve at rtol 1e-3, and includes numbalsoda's driver compile on its first "
+    "problem and JAX tracing).",
     "numbalsoda (C++ LSODA, DOP853): a numba cfunc right-hand side generated from the same "
     "sympy expressions (`dolfinode.bench.peers.numba_rhs_source`); LSODA forms its Jacobian by "
     "finite differences and factors it dense (run for N <= 400); f evals counted by the cfunc.",

@@ -513,8 +513,9 @@ QUICK_PROBLEMS = ("HIRES", "ROBER", "VDPOLM", "Arenstorf")
 
 
 def get_problem(name):
-    """Build a problem of :data:`PROBLEMS` or of the multi-adaptive set
-    (:data:`dolfinode.bench.multirate.MULTIADAPTIVE_PROBLEMS`) or of :data:`PEER_PROBLEMS` by name (case-insensitive)."""
+    """Build a problem of :data:`PROBLEMS`, of the multi-adaptive set
+    (:data:`dolfinode.bench.multirate.MULTIADAPTIVE_PROBLEMS`) or of :data:`PEER_PROBLEMS` by
+    name (case-insensitive)."""
     from dolfinode.bench.multirate import MULTIADAPTIVE_PROBLEMS
 
     known = {**PROBLEMS, **MULTIADAPTIVE_PROBLEMS, **PEER_PROBLEMS}

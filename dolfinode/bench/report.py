@@ -243,6 +243,10 @@ def plot(path, rows, problems, key="time_median_s",
     style = {sm: dict(zip(("marker", "linestyle"), marks.get(sm[0], ("^", ":"))),
                       color=colors[i % 20])
              for i, sm in enumerate(methods)}
+
+    def label(sm):   # a compiled peer's label names its package already
+        return f"{sm[0]} {sm[1]}" if sm[0] in marks else sm[1]
+
     ncol = min(3, len(problems))
     nrow = math.ceil(len(problems) / ncol)
     fig, axes = plt.subplots(nrow, ncol, figsize=(5.2 * ncol, 4.2 * nrow + 0.8), squeeze=False)
@@ -252,7 +256,7 @@ def plot(path, rows, problems, key="time_median_s",
                           == sm and r["status"] == "ok"), key=lambda r: -r["tolerance"])
             if pts:
                 ax.loglog([10.0 ** -r["mescd"] for r in pts], [r[key] for r in pts],
-                          markersize=4, linewidth=1.3, label=f"{sm[0]} {sm[1]}", **style[sm])
+                          markersize=4, linewidth=1.3, label=label(sm), **style[sm])
         bound = scipy_lower_bound([r for r in rows if r["problem"] == name])
         if bound is not None:
             ax.axhline(bound, color="gray", linestyle=":", label="every scipy solver over the "
@@ -270,8 +274,8 @@ def plot(path, rows, problems, key="time_median_s",
     for ax in axes.ravel():
         for h, lab in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(lab, h)
-    fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=6, fontsize=8,
-               frameon=False)
+    fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=2 * ncol,
+               fontsize=8, frameon=False)
     fig.suptitle(f"{title} (right = more accurate, lower = faster)", fontsize=11)
     fig.tight_layout(rect=(0, 0.8 / (4.2 * nrow + 0.8) + 0.03, 1, 0.97))
     save_figure(fig, path)
