@@ -132,7 +132,7 @@ def test_peers_option_plans_the_groups(monkeypatch):
     assert names == [n for g, *_ in command.PEER_GROUPS for n in g]
     assert all("CVODE-BDF" in ms for _, ms, _ in groups)
     assert any("mcG(2)" in ms for _, ms, _ in groups)
-    assert groups[0][2] == list(command.FULL_TOLERANCES) and groups[-1][2][-1] == 1e-8
+    assert groups[0][2] == list(command.FULL_TOLERANCES) and groups[-1][2][-1] == 1e-11
     args = parser.parse_args(["--peers", "--problems", "HIRES", "--methods", "dG(2)",
                               "--tolerances", "1e-4"])
     assert command.plan(args)[0] == [(["HIRES"], ["dG(2)", "CVODE-BDF"], [1e-4])]
