@@ -175,6 +175,10 @@ HOW = (
     "the scored components. rtol = tolerance, atol = rtol x the problem's atol/rtol for every "
     "solver. A time at a level is read off the method's Pareto front, log-linearly "
     "interpolated in mescd; * = below the method's loosest run (its fastest time).",
+    "The fastest peer at a level is the fastest among those whose sweep reached it: where a "
+    "fast peer's tightest tolerance fell short of a level (LSODA and DOP853 deliver fewer "
+    "digits than their rtol), the ratio there is against a slower peer and flatters "
+    "dolfinode.",
 )
 
 
@@ -188,7 +192,7 @@ def write_markdown(path, meta, rows, problems, heads, png_name):
            (f"Tolerances: {', '.join(f'{x:g}' for x in meta['tolerances'])}; up to "
             f"{meta['repeats']} timed repeats (minimum); {meta.get('settings', '')}; load "
             f"average {meta.get('load_end', float('nan')):.1f} at the end  "),
-           *meta.get("notes", []), "",
+           *meta.get("notes", []), *report._merged_lines(meta), "",
            "## dolfinode's fastest method / the fastest peer, at equal accuracy", "",
            summary_table(heads), "",
            ("Cells: time ratio (> 1: dolfinode slower) at 4/6/8/10 digits (mescd at T), with the "
