@@ -5,7 +5,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from dolfinode.bench import report
+from dolfinode.bench import peer_report, peers, report
 from dolfinode.bench.problems import PROBLEMS, QUICK_PROBLEMS, get_problem
 from dolfinode.bench.runner import (
     MAXIMUM_STEPS,
@@ -18,6 +18,23 @@ from dolfinode.bench.runner import (
 #: dolfinode's methods of a full run; "+modeling" runs only on problems that declare modeling.
 DN_METHODS = ("cG(1)", "cG(2)", "cG(3)", "dG(1)", "dG(2)", "dG(3)", "cG(2)+modeling")
 FULL_TOLERANCES = tuple(10.0 ** -e for e in range(3, 11))
+#: ``--peers``: (problems, dolfinode methods, scipy solvers, tolerances or None: the full
+#: sweep) groups, each run with the installed compiled peers. Multi-adaptive methods where
+#: components' time scales differ; no first- and second-order methods on the Brusselator (at
+#: n = 1000, rtol 1e-10: cG(2) 6.8 s and 14,072 slabs, cG(3) 0.8 s), nor first-order ones on
+#: the oscillating problems; no scipy on the Brusselator (lambdified f of 8000 expressions).
+PEER_GROUPS = (
+    (("HIRES", "ROBER", "VDPOL", "POLLU", "MEDAKZO"),
+     ("cG(1)", "cG(2)", "cG(3)", "dG(1)", "dG(2)", "dG(3)"),
+     ("Radau", "BDF", "LSODA"), None),
+    (("bruss-1000", "bruss-4000"), ("cG(3)", "dG(3)"), (), None),
+    (("seed k=1e2", "seed k=1e4"), ("cG(2)", "cG(3)", "dG(2)", "dG(3)", "mcG(2)", "mdG(2)"),
+     ("DOP853", "Radau", "LSODA"), None),
+    # to 1e-11: numbalsoda's DOP853 reached only 5.3 digits at 1e-8 on the chains
+    (("chain-1e4", "chain-stiff"), ("cG(2)", "cG(3)", "mcG(2)", "mcG(3)", "mdG(2)"),
+     ("DOP853", "Radau", "LSODA"), tuple(10.0 ** -e for e in range(3, 12))),
+)
+PEER_SCIPY = ("DOP853", "Radau", "BDF", "LSODA")
 QUICK = {"methods": ("cG(2)", "dG(2)", "dG(3)", "DOP853", "Radau", "BDF", "LSODA"),
          "tolerances": (1e-4, 1e-7), "repeats": 1, "time_limit": 3.0}
 REPEATS = 3
@@ -71,11 +88,18 @@ def add_arguments(parser):
     parser.add_argument("--maximum-steps", type=int, default=None,
                         help=f"dolfinode's maximum_steps for every run (default {MAXIMUM_STEPS}; "
                              "it also bounds the memory of a stored solution)")
+    parser.add_argument("--peers", action="store_true",
+                        help="add the compiled peers that are installed (numbalsoda LSODA and "
+                             "DOP853, CVODE through scikit-sundae, diffrax Kvaerno5 and Tsit5; "
+                             "pip install dolfinode[bench]) and compare dolfinode with the best "
+                             "peer; default problems: "
+                             + "; ".join(", ".join(g) for g, *_ in PEER_GROUPS)
+                             + "; the outputs are named peers.*")
     parser.add_argument("--output", default=None,
                         help="output folder (default: a new folder "
                              "dolfinode-bench-YYYYMMDD-HHMMSS in the current directory)")
-    parser.add_argument("--name", default="suite",
-                        help="file stem of the outputs (default: suite)")
+    parser.add_argument("--name", default=None,
+                        help="file stem of the outputs (default: suite; --peers: peers)")
     parser.add_argument("--force", action="store_true",
                         help="allow overwriting files that git tracks, such as the committed "
                              "records in doc/benchmarks (default: refuse)")
@@ -125,8 +149,9 @@ def _check_overwrite(args):
 
 
 def plan(args):
-    """The problems, methods, tolerances and runner options the arguments ask for; None for
-    ``--report-only``. Sets the default ``args.output``.
+    """(groups, runner options) the arguments ask for, a group being (problems, methods,
+    tolerances), run by one call of :func:`run_suite`; None for ``--report-only``. Sets the
+    defaults of ``args.output`` and ``args.name``.
 
     Raises
     ------
@@ -139,21 +164,22 @@ def plan(args):
         if args.merge or args.report_only:
             raise ValueError("--merge and --report-only need the --output folder of the record")
         args.output = time.strftime(OUTPUT_PATTERN)
+    if args.name is None:
+        args.name = "peers" if args.peers else "suite"
     record = Path(args.output) / f"{args.name}.json"
     if (args.merge or args.report_only) and not record.exists():
         raise ValueError(f"there is no record {record} to merge into or report from")
     _check_overwrite(args)
     if args.report_only:
         return None
-    names = args.problems or (QUICK_PROBLEMS if args.quick else list(PROBLEMS))
-    problems = [get_problem(n) for n in names]
-    methods = list(args.methods or (QUICK["methods"] if args.quick
-                                    else DN_METHODS + SCIPY_METHODS))
-    check_methods(methods)
     tolerances = list(args.tolerances or (QUICK["tolerances"] if args.quick
                                           else FULL_TOLERANCES))
     if not tolerances or any(not tol > 0 for tol in tolerances):
         raise ValueError(f"tolerances must be positive, got {tolerances}")
+    groups = [([get_problem(n) for n in names], list(ms),
+               list(args.tolerances or tols or tolerances))
+              for names, ms, tols in _groups(args)]
+    check_methods({m for _, ms, _ in groups for m in ms})
     options = {"repeats": (QUICK["repeats"] if args.quick else REPEATS) if args.repeats is None
                else args.repeats}
     if options["repeats"] < 1:
@@ -168,7 +194,24 @@ def plan(args):
         if not args.time_limit > 0:
             raise ValueError(f"--time-limit must be positive, got {args.time_limit}")
         options["time_limit"] = args.time_limit
-    return problems, methods, tolerances, options
+    return groups, options
+
+
+def _groups(args):
+    """[(problem names, methods, tolerances or None)]: one group, or with ``--peers`` and
+    neither ``--problems`` nor ``--methods`` the groups of :data:`PEER_GROUPS`; with
+    ``--peers`` the installed compiled peers join every group."""
+    names = args.problems or (QUICK_PROBLEMS if args.quick else list(PROBLEMS))
+    if not args.peers:
+        return [(names, args.methods or (QUICK["methods"] if args.quick
+                                         else DN_METHODS + SCIPY_METHODS), None)]
+    installed, _ = peers.available()
+    if args.methods:
+        return [(args.problems or [n for g, *_ in PEER_GROUPS for n in g],
+                 list(args.methods) + installed, None)]
+    if args.problems:
+        return [(args.problems, DN_METHODS[:-1] + PEER_SCIPY + tuple(installed), None)]
+    return [(g, ms + scipy + tuple(installed), tols) for g, ms, scipy, tols in PEER_GROUPS]
 
 
 def settings(options):
@@ -192,11 +235,21 @@ def run(args, planned, command="dolfinode bench"):
     if planned is None:
         meta, rows, infos = report.read_record(record)
     else:
-        problems, methods, tolerances, options = planned
+        groups, options = planned
+        methods = list(dict.fromkeys(m for _, ms, _ in groups for m in ms))
+        problems = [p for group, *_ in groups for p in group]
+        tolerances = sorted({tol for *_, tols in groups for tol in tols}, reverse=True)
         meta = report.machine_info()   # before the run: the commit whose code is measured
         meta["settings"] = settings(options)
-        rows, cases = run_suite(problems, methods, tolerances, progress=not args.no_progress,
-                                **options)
+        if args.peers:
+            meta["notes"] = peer_report.notes()
+        rows, cases = [], []
+        for group, group_methods, group_tolerances in groups:
+            more_rows, more_cases = run_suite(group, group_methods, group_tolerances,
+                                              progress=not args.no_progress, **options)
+            rows += more_rows
+            cases += more_cases
+        meta["load_end"] = os.getloadavg()[0]
         meta.update(command=command, quick=bool(args.quick), tolerances=list(tolerances),
                     repeats=options["repeats"], methods=methods,
                     problems=[p.name for p in problems],
@@ -204,6 +257,12 @@ def run(args, planned, command="dolfinode bench"):
         infos = report.problem_info(cases)
         if args.merge:
             meta, rows, infos = report.merge(report.read_record(record), meta, rows, infos)
+    if args.peers:
+        heads = peer_report.write_outputs(out, args.name, meta, rows, infos)
+        print(peer_report.summary_table(heads))
+        print(f"wrote {out}/{args.name}.{{csv,json,png,md}} in "
+              f"{time.perf_counter() - start:.0f} s")
+        return heads
     heads = report.write_outputs(out, args.name, meta, rows, infos)
     print(report.summary_table(heads))
     print(f"wrote {out}/{args.name}.{{csv,json,png,md}} in "

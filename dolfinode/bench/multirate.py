@@ -40,5 +40,8 @@ MULTIADAPTIVE_PROBLEMS = {
     # alone ran for over 9 minutes at tolerance 1e-4
     "chain-stiff": lambda: _renamed(mass_spring_chain(n=200, stiffness=1e6, stiff_springs=10,
                                                       T=0.1), "chain-stiff"),
+    # the same chain with springs 1e4 times stiffer: T = 1 holds the same 22 fast periods
+    "chain-1e4": lambda: _renamed(mass_spring_chain(n=200, stiffness=1e4, stiff_springs=10,
+                                                    T=1.0), "chain-1e4"),
     "reaction-500": lambda: _renamed(reaction_front(n=500, T=0.05), "reaction-500"),
 }

@@ -386,6 +386,33 @@ def reaction_front(n=200, T=0.05, eps=0.01, gamma=1000.0):
                    description=f"reaction front, N = {n}, T = {T:g}")
 
 
+def brusselator(n=1000, T=10.0, alpha=1.0 / 50.0):
+    """The 1-D Brusselator BRUSS of Hairer-Wanner II (Section IV.1) on n interior points:
+
+        u_i' = 1 + u_i^2 v_i - 4 u_i + alpha (n + 1)^2 (u_(i-1) - 2 u_i + u_(i+1)),
+        v_i' = 3 u_i - u_i^2 v_i + alpha (n + 1)^2 (v_(i-1) - 2 v_i + v_(i+1)),
+
+    u_0 = u_(n+1) = 1, v_0 = v_(n+1) = 3, u_i(0) = 1 + sin(2 pi x_i), v_i(0) = 3,
+    x_i = i / (n + 1), t in [0, T]; components interleaved (u_1, v_1, u_2, ...), so the
+    Jacobian has bandwidth 2. No published reference: the runner computes one."""
+    u = sp.symbols(f"u1:{n + 1}")
+    v = sp.symbols(f"v1:{n + 1}")
+    c = sp.Symbol("c")   # alpha (n + 1)^2
+    rhs = {}
+    for i in range(n):
+        ul, ur = (u[i - 1] if i > 0 else 1), (u[i + 1] if i < n - 1 else 1)
+        vl, vr = (v[i - 1] if i > 0 else 3), (v[i + 1] if i < n - 1 else 3)
+        rhs[u[i]] = 1 + u[i] ** 2 * v[i] - 4 * u[i] + c * (ul - 2 * u[i] + ur)
+        rhs[v[i]] = 3 * u[i] - u[i] ** 2 * v[i] + c * (vl - 2 * v[i] + vr)
+    x = np.arange(1, n + 1) / (n + 1)
+    u0 = np.column_stack([1 + np.sin(2 * np.pi * x), np.full(n, 3.0)]).ravel()
+    ode = ODE(rhs, u0=u0, T=T, params={c: alpha * (n + 1) ** 2})
+    return Problem(f"bruss-{n}", ode, stiff=True, final=None,
+                   reference="scipy Radau at rtol = 1e-11 (computed)",
+                   description=f"1-D Brusselator (Hairer-Wanner II), n = {n} points "
+                               f"(N = {2 * n}), alpha = {alpha:g}, T = {T:g}")
+
+
 def mass_spring_chain(n=50, stiffness=1e4, stiff_springs=2, T=10.0):
     """Chain of n unit masses between two walls, unit springs, ``stiff_springs`` evenly spaced
     springs ``stiffness`` times stiffer; x_i(0) = sin(pi i / (n + 1)), v(0) = 0. Linear: the
@@ -474,16 +501,24 @@ PROBLEMS = {
     "seed k=1e8": lambda: seed_model(1e8, T=10.0),
 }
 
+#: Problems of the compiled-peer comparison outside the default suite (``dolfinode bench
+#: --peers``): the Brusselator, whose Jacobian is banded.
+PEER_PROBLEMS = {
+    "bruss-1000": lambda: brusselator(1000),
+    "bruss-4000": lambda: brusselator(4000),
+}
+
 #: The problems of a ``--quick`` run.
 QUICK_PROBLEMS = ("HIRES", "ROBER", "VDPOLM", "Arenstorf")
 
 
 def get_problem(name):
-    """Build a problem of :data:`PROBLEMS` or of the multi-adaptive set
-    (:data:`dolfinode.bench.multirate.MULTIADAPTIVE_PROBLEMS`) by name (case-insensitive)."""
+    """Build a problem of :data:`PROBLEMS`, of the multi-adaptive set
+    (:data:`dolfinode.bench.multirate.MULTIADAPTIVE_PROBLEMS`) or of :data:`PEER_PROBLEMS` by
+    name (case-insensitive)."""
     from dolfinode.bench.multirate import MULTIADAPTIVE_PROBLEMS
 
-    known = {**PROBLEMS, **MULTIADAPTIVE_PROBLEMS}
+    known = {**PROBLEMS, **MULTIADAPTIVE_PROBLEMS, **PEER_PROBLEMS}
     for key, build in known.items():
         if key.lower() == name.lower():
             return build()

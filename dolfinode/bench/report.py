@@ -228,18 +228,25 @@ def merge(record, meta, rows, problems):
     return merged, rows, problems
 
 
-def plot(path, rows, problems):
+def plot(path, rows, problems, key="time_median_s",
+         title="Work-precision: dolfinode vs scipy solve_ivp"):
     """Work-precision: one log-log panel per problem (``problems``: name -> :func:`problem_info`
-    entry), error 10^-mescd at T against time."""
+    entry), error 10^-mescd at T against time (``key``: median or minimum)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     methods = list(dict.fromkeys((r["solver"], r["method"]) for r in rows))
     colors = plt.get_cmap("tab20").colors
-    style = {sm: {"color": colors[i % 20], "marker": "o" if sm[0] == "dolfinode" else "s",
-                      "linestyle": "-" if sm[0] == "dolfinode" else "--"}
+    # dolfinode: circles, solid; scipy: squares, dashed; compiled peers: triangles, dotted
+    marks = {"dolfinode": ("o", "-"), "scipy": ("s", "--")}
+    style = {sm: dict(zip(("marker", "linestyle"), marks.get(sm[0], ("^", ":"))),
+                      color=colors[i % 20])
              for i, sm in enumerate(methods)}
+
+    def label(sm):   # a compiled peer's label names its package already
+        return f"{sm[0]} {sm[1]}" if sm[0] in marks else sm[1]
+
     ncol = min(3, len(problems))
     nrow = math.ceil(len(problems) / ncol)
     fig, axes = plt.subplots(nrow, ncol, figsize=(5.2 * ncol, 4.2 * nrow + 0.8), squeeze=False)
@@ -248,8 +255,8 @@ def plot(path, rows, problems):
             pts = sorted((r for r in rows if r["problem"] == name and (r["solver"], r["method"])
                           == sm and r["status"] == "ok"), key=lambda r: -r["tolerance"])
             if pts:
-                ax.loglog([10.0 ** -r["mescd"] for r in pts], [r["time_median_s"] for r in pts],
-                          markersize=4, linewidth=1.3, label=f"{sm[0]} {sm[1]}", **style[sm])
+                ax.loglog([10.0 ** -r["mescd"] for r in pts], [r[key] for r in pts],
+                          markersize=4, linewidth=1.3, label=label(sm), **style[sm])
         bound = scipy_lower_bound([r for r in rows if r["problem"] == name])
         if bound is not None:
             ax.axhline(bound, color="gray", linestyle=":", label="every scipy solver over the "
@@ -267,10 +274,9 @@ def plot(path, rows, problems):
     for ax in axes.ravel():
         for h, lab in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(lab, h)
-    fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=6, fontsize=8,
-               frameon=False)
-    fig.suptitle("Work-precision: dolfinode vs scipy solve_ivp (right = more accurate, "
-                 "lower = faster)", fontsize=11)
+    fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=2 * ncol,
+               fontsize=8, frameon=False)
+    fig.suptitle(f"{title} (right = more accurate, lower = faster)", fontsize=11)
     fig.tight_layout(rect=(0, 0.8 / (4.2 * nrow + 0.8) + 0.03, 1, 0.97))
     save_figure(fig, path)
 
@@ -453,8 +459,9 @@ def level_table(table):
     return "\n".join(lines)
 
 
-def runs_table(rows, problem):
-    head = ["solver", "method", "tol", "time (median)", "reps", "mescd", "L2 (100 pts)",
+def runs_table(rows, problem, key="time_median_s"):
+    """The runs of ``problem``, one line each, timed by ``key`` (median or minimum)."""
+    head = ["solver", "method", "tol", f"time ({key.split('_')[1]})", "reps", "mescd", "L2 (100 pts)",
             "f evals", "Jac", "LU", "steps", "rejected", "elements"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
 
@@ -468,7 +475,7 @@ def runs_table(rows, problem):
         if r["status"] != "ok":
             cells += [f"{r['status']}: {r['note']}".replace("|", "/")] + [""] * (len(head) - 4)
         else:
-            cells += [fmt_s(r["time_median_s"]), str(r["repeats"]), f"{r['mescd']:.2f}",
+            cells += [fmt_s(r[key]), str(r["repeats"]), f"{r['mescd']:.2f}",
                       f"{r['err_L2']:.2e}", n(r["f_evals"]), n(r["jacobians"]),
                       n(r["factorizations"]), n(r["steps"]), n(r["rejected"]),
                       n(r.get("elements"))]

@@ -18,9 +18,11 @@ Scores (Test Set and SciMLBenchmarks conventions):
 import math
 import time
 import warnings
+from functools import cached_property
 
 import numpy as np
 
+from dolfinode.bench import peers
 from dolfinode.bench.numpy_functions import SPARSE_FROM, numpy_functions
 from dolfinode.bench.problems import mescd
 
@@ -44,15 +46,17 @@ ROW_FIELDS = ("problem", "solver", "method", "tolerance", "atol", "status", "not
 
 
 def check_methods(methods):
-    """Raise ValueError for a name that is neither a scipy solver nor a dolfinode method."""
+    """Raise ValueError for a name that is neither a scipy solver, a compiled peer
+    (:data:`dolfinode.bench.peers.PEERS`) nor a dolfinode method."""
     import dolfinode as dn
 
     for m in methods:
-        if not is_scipy(m):
+        if not is_scipy(m) and not peers.is_peer(m):
             try:
                 dn.parse_method(split_modeling(m)[0])
             except ValueError as error:
-                raise ValueError(f"{error}; or a scipy solver: {', '.join(SCIPY_METHODS)} "
+                raise ValueError(f"{error}; or a scipy solver: {', '.join(SCIPY_METHODS)}; "
+                                 f"or a compiled peer: {', '.join(peers.PEERS)} "
                                  "(a dolfinode method with '+modeling': automatic "
                                  "modeling)") from None
 
@@ -71,7 +75,10 @@ def split_modeling(method):
 
 def applies(problem, method):
     """Whether the runner runs ``method`` on ``problem``: a modeling variant only on a problem
-    that declares modeling parameters."""
+    that declares modeling parameters, a compiled peer only where it is installed and suited
+    (:meth:`dolfinode.bench.peers.Peer.unsuitable`)."""
+    if peers.is_peer(method):
+        return peers.installed(method) and peers.PEERS[method][0].unsuitable(problem) is None
     return not split_modeling(method)[1] or problem.modeling is not None
 
 
@@ -105,7 +112,6 @@ class Case:
     def __init__(self, problem):
         self.problem = problem
         self.ode = problem.ode
-        self.fun, self.jac = numpy_functions(problem.ode)
         self.t_eval = np.linspace(self.ode.t0, self.ode.T, N_EVAL)
         start = time.perf_counter()
         if problem.exact is not None:
@@ -118,19 +124,48 @@ class Case:
         self.ref_y[:, -1] = problem.final
         self.reference_seconds = time.perf_counter() - start
         self.compile = None
+        self.peers = {}
+
+    @cached_property
+    def _numpy_functions(self):
+        return numpy_functions(self.ode)
+
+    @property
+    def fun(self):
+        """scipy's right-hand side f(t, y) (lambdified on first use: O(N) sympy work)."""
+        return self._numpy_functions[0]
+
+    @property
+    def jac(self):
+        """scipy's Jacobian J(t, y) (see :func:`numpy_functions`)."""
+        return self._numpy_functions[1]
 
     def _reference_trajectory(self):
         """The solution at the 100 points from scipy at a tight tolerance (Radau for stiff
-        problems, DOP853 otherwise)."""
+        problems, DOP853 otherwise), with dolfinode's compiled f and exact Jacobian: the
+        same equations as the lambdified ones, and fast for large N."""
         from scipy.integrate import solve_ivp
+
+        from dolfinode.compile.lowering import lower
 
         p = self.problem
         method, rtol = ("Radau", 1e-11) if p.stiff else ("DOP853", 1e-13)
         atol = rtol * p.atol_ratio * 1e-2
-        kwargs = {"jac": self.jac} if method == "Radau" else {}
+        compiled = lower(self.ode)
+        if self.ode.N > SPARSE_FROM:
+            def jac(s, y):
+                return compiled.jacobian_matrix(y, s).tocsc()
+        else:
+            def jac(s, y):
+                return compiled.jacobian_matrix(y, s).toarray()
+
+        def fun(s, y):
+            return compiled.f(y, s)
+
+        kwargs = {"jac": jac} if method == "Radau" else {}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            res = solve_ivp(self.fun, (self.ode.t0, self.ode.T), self.ode.u0, method=method,
+            res = solve_ivp(fun, (self.ode.t0, self.ode.T), self.ode.u0, method=method,
                             rtol=rtol, atol=atol, t_eval=self.t_eval, **kwargs)
         if not res.success:
             raise RuntimeError(f"{p.name}: reference trajectory failed: {res.message}")
@@ -153,7 +188,9 @@ class Case:
 
 def _row(case, method, tol):
     row = dict.fromkeys(ROW_FIELDS)
-    row.update(problem=case.problem.name, solver="scipy" if is_scipy(method) else "dolfinode",
+    solver = ("scipy" if is_scipy(method) else peers.PEERS[method][0].solver
+              if peers.is_peer(method) else "dolfinode")
+    row.update(problem=case.problem.name, solver=solver,
                method=method, tolerance=tol, atol=tol * case.problem.atol_ratio, status="ok",
                note="", repeats=0)
     return row
@@ -292,6 +329,33 @@ def run_scipy(case, method, tol, time_limit):
     return row, timed
 
 
+def run_peer(case, method, tol):
+    """One untimed run of a compiled peer (built on its first run on the problem, the build
+    time stored in ``case.compile["peers"]``): errors and counts. Returns (row, timed call
+    or None)."""
+    row = _row(case, method, tol)
+    peer = case.peers.get(method)
+    if peer is None:
+        peer = case.peers[method] = peers.make_peer(method, case.ode, case.t_eval)
+        case.compile.setdefault("peers", {})[method] = peer.build()
+    try:
+        start = clock()
+        y, counts = peer.solve(tol, row["atol"])
+        row["first_call_s"] = clock() - start
+    except peers.PeerFailed as exc:
+        row.update(status="failed", note=str(exc))
+        return row, None
+    if not np.all(np.isfinite(y)):
+        row.update(status="failed", note=f"{method} returned a non-finite solution")
+        return row, None
+    row.update(case.score(y[:, -1], y), note=peer.note, **counts)
+
+    def timed():
+        peer.solve(tol, row["atol"])
+
+    return row, timed
+
+
 def time_interleaved(jobs, repeats, budget, bar=None):
     """Time every (row, call) in rounds of one call each: ``repeats`` calls, fewer once a
     run's calls add up to ``budget`` seconds (at least one); stores the median and the minimum
@@ -331,8 +395,9 @@ def run_suite(problems, methods, tolerances, *, repeats=3, budget=2.0, time_limi
     problems : list of Problem
     methods : list of str
         dolfinode methods ("cG(2)", "mdG(1)", ...), their automatic-modeling variants
-        ("cG(2)+modeling", run only on problems that declare ``modeling``) and scipy solvers
-        (:data:`SCIPY_METHODS`).
+        ("cG(2)+modeling", run only on problems that declare ``modeling``), scipy solvers
+        (:data:`SCIPY_METHODS`) and compiled peers (:data:`dolfinode.bench.peers.PEERS`,
+        run only where installed and suited).
     tolerances : list of float
         Relative tolerances; the absolute tolerance is ``problem.atol_ratio`` times each.
     repeats : int
@@ -389,6 +454,8 @@ def run_suite(problems, methods, tolerances, *, repeats=3, budget=2.0, time_limi
                         call = None
                     elif is_scipy(method):
                         row, call = run_scipy(case, method, tol, time_limit)
+                    elif peers.is_peer(method):
+                        row, call = run_peer(case, method, tol)
                     else:
                         row, call = run_dolfinode(case, method, tol, maximum_steps)
                     failures = failures + 1 if row["status"] == "failed" else 0
