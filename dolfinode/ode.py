@@ -494,7 +494,9 @@ class ODE:
         # compiled kernels (ctypes) do not pickle: a receiving process compiles its own,
         # from its disk cache when it has one; a copy gets its own parameter values
         state = self.__dict__.copy()
-        state.pop("_compiled", None)
+        # nor do the events' caches (lambdified switching functions): remade on demand
+        for derived in ("_compiled", "_smooth", "_plan"):
+            state.pop(derived, None)
         state["params"] = Parameters(self.params)
         return state
 

@@ -84,3 +84,18 @@ def test_readme_figures_match_the_benchmark_records():
     front = (ROOT / "doc" / "benchmarks" / "reaction_front.md").read_text()
     figure = re.search(r"N = 16000: (\S+) \(errors 1e-05 \.\.\. 1e-09\)", front).group(1)
     assert f"mcG(3) takes {figure} of the CPU time" in README.replace("\n  ", " ")
+
+
+def test_readme_peer_figures_match_the_peers_record():
+    """The LSODA ratios the README quotes are the range of the record's table at 6 and 8
+    digits over HIRES, ROBER, VDPOL and POLLU."""
+    record = (ROOT / "doc" / "benchmarks" / "peers" / "peers.md").read_text()
+    ratios = {6: [], 8: []}
+    for name in ("HIRES", "ROBER", "VDPOL", "POLLU"):
+        cells = re.search(rf"^\| {name} \|(.*)$", record, re.MULTILINE).group(1).split("|")
+        for digits, cell in zip((6, 8), cells[1:3]):
+            assert "numbalsoda-LSODA" in cell
+            ratios[digits].append(float(cell.split()[0]))
+    text = README.replace("\n  ", " ")
+    assert (f"{min(ratios[8]):g}-{max(ratios[8]):g}x its time at 8 digits" in text
+            and f"{min(ratios[6]):g}-{max(ratios[6]):g}x at 6" in text)

@@ -56,10 +56,14 @@ class ToFile:
         self.per_component = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
         self._writing = new_file(path)
         file = self._writing.__enter__()
+        try:
+            self.h5 = _h5py().File(file, "w")
+        except BaseException:
+            _drop(self._writing)
+            raise
         # an exception in the loop (KeyboardInterrupt, MemoryError) drops the file when the
-        # sink is collected, or at exit
-        self._finalizer = weakref.finalize(self, _drop, self._writing)
-        self.h5 = _h5py().File(file, "w")
+        # sink is collected, or at exit: HDF5 closed first, then the file under it
+        self._finalizer = weakref.finalize(self, _drop, self._writing, self.h5)
         bound_metadata_cache(self.h5)
         self.h5.attrs.update(format=FORMAT, version=VERSION, complete=False,
                              method=("m" if multi_adaptive else "") + method.name)
@@ -88,23 +92,29 @@ class ToFile:
 
     def solution(self, ode, method, elements, stats, final):
         """Complete the file (with the declaration and stats) and open it lazily."""
-        self.h5.create_dataset("declaration", data=np.void(pickle.dumps(ode)))
-        self.h5.create_dataset("stats", data=np.void(pickle.dumps(stats)))
-        self.h5.attrs["complete"] = True
-        self.h5.close()
+        try:
+            self.h5.create_dataset("declaration", data=np.void(pickle.dumps(ode)))
+            self.h5.create_dataset("stats", data=np.void(pickle.dumps(stats)))
+            self.h5.attrs["complete"] = True
+            self.h5.close()
+        except BaseException:
+            self.abandon()
+            raise
         self._finalizer.detach()
         self._writing.__exit__(None, None, None)
         return load_solution(self.path, self.samples)
 
     def abandon(self):
         """Close and drop the unfinished file (a failed solve)."""
-        with contextlib.suppress(Exception):
-            self.h5.close()
         self._finalizer()
 
 
-def _drop(writing):
-    """Leave the file of :func:`new_file` unnamed (or remove its temporary name)."""
+def _drop(writing, h5=None):
+    """Close ``h5`` and leave the file of :func:`new_file` under it unnamed (or remove its
+    temporary name)."""
+    if h5 is not None:
+        with contextlib.suppress(Exception):
+            h5.close()
     with contextlib.suppress(Exception):
         writing.__exit__(RuntimeError, RuntimeError("the solve did not complete"), None)
 

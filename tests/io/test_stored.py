@@ -75,3 +75,22 @@ def test_a_killed_streaming_solve_leaves_no_file(tmp_path, kill_python):
     # streaming by 3 s after the start: 10^7 slabs take minutes
     kill_python(_LONG, tmp_path, started=tmp_path / "started", seconds=3.0)
     assert os.listdir(tmp_path) == ["started"]
+
+
+def test_a_declaration_with_events_streams_and_pickles(tmp_path):
+    """The events' caches on the declaration (lambdified switching functions) are not stored:
+    a history written after a solve with events pickles its declaration."""
+    import pickle
+
+    import sympy as sp
+
+    u, v = sp.symbols("u v")
+    ode = dn.ODE({u: v, v: -u + sp.Heaviside(dn.t - 1.5)}, u0=[1.0, 0.0], T=3.0)
+    dense = dn.solve(ode, "cG(2)", tolerance=1e-8, events=[u])
+    path = tmp_path / "run.h5"
+    stored = dn.solve(ode, "cG(2)", tolerance=1e-8, events=[u], dense_output=str(path))
+    assert np.array_equal(stored.t_events[0], dense.t_events[0])
+    assert np.allclose(dn.load_solution(path)(2.7), dense(2.7), rtol=0, atol=1e-14)
+    again = pickle.loads(pickle.dumps(ode))
+    assert np.allclose(dn.solve(again, "cG(2)", tolerance=1e-8)(3.0), dense(3.0))
+    assert sorted(os.listdir(tmp_path)) == ["run.h5"]
