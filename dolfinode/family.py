@@ -1,0 +1,136 @@
+"""``method="auto"``: the mono- or multi-adaptive variant of a method, chosen from pilot solves.
+
+A multi-adaptive element costs several mono-adaptive component-steps (its own moments,
+sweeps and partition), so mcG(q)/mdG(q) pay off only where the components' steps spread
+widely; which variant is cheaper on a given problem is measured, not guessed. Both variants
+race over growing pilot intervals [t0, t0 + H] (H doubles from PILOT_START (T - t0)), the
+one that has spent less CPU time running next, until the faster has covered PILOT_END
+(T - t0) and each has run twice. A variant's cost of the rest is its marginal rate,
+
+    rate = (c(H) - c(H / 2)) / (H / 2),
+
+the CPU time c of its last two pilots differenced, so that the fixed cost per call (and a
+first call's loading of compiled code) cancels. The cheaper rate wins and solves [t0, T]
+from the start: the result is that method's own solve. The pilots cost a few percent of
+the winner's solve (the race keeps the loser's CPU time near the winner's). The choice is
+made once, from the first pilots; a problem whose spread of steps changes later in [t0, T]
+keeps it.
+"""
+import copy
+import re
+import time
+
+from dolfinode.compile import lower
+from dolfinode.errors import SolverError
+
+#: "auto" is "auto:cG(2)"; "auto:cG(q)" and "auto:dG(q)" race cG(q)/mcG(q), dG(q)/mdG(q).
+_AUTO_PATTERN = re.compile(r"^\s*auto\s*(?::\s*((?:cG|dG)\(\s*\d+\s*\)))?\s*$", re.IGNORECASE)
+DEFAULT_BASE = "cG(2)"
+#: The first pilot interval and the one the faster variant reaches, as fractions of T - t0.
+PILOT_START, PILOT_END = 1e-3, 1e-2
+#: Parameters a pilot overrides: output, progress and modeling are the final solve's business.
+_PILOT_PARAMETERS = {"number_of_samples": 2, "progress": False, "automatic_modeling": False}
+
+
+def auto_base(method):
+    """The base method name ("cG(q)" or "dG(q)") of an "auto" method name, else None."""
+    if not isinstance(method, str):
+        return None
+    match = _AUTO_PATTERN.match(method)
+    if match is None:
+        return None
+    base = match.group(1) or DEFAULT_BASE
+    return base[0].lower() + base[1].upper() + base[2:].replace(" ", "")
+
+
+def choose_family(solve, ode, base, parameters):
+    """Race the mono- and multi-adaptive variants of ``base`` on pilot intervals of ``ode``.
+
+    Parameters
+    ----------
+    solve : the driver, ``solve(ode, method, **parameters)``
+    ode : ODE
+    base : "cG(q)" or "dG(q)"
+    parameters : the solve's parameters (the goal and automatic modeling apart)
+
+    Returns
+    -------
+    method : str
+        ``base`` or ``"m" + base``, whichever has the smaller rate.
+    evidence : dict
+        For ``sol.stats["family choice"]``: the chosen method, and per variant its pilot
+        horizons, CPU times, elements, the marginal rate (CPU s per unit time) and the
+        predicted time over [t0, T]; for the multi-adaptive variant the efficiency index of its
+        last pilot (mono elements / elements); a variant whose pilot failed has its error.
+    """
+    lower(ode)  # compiled once, shared by the pilots (a copy would compile again)
+    span = ode.T - ode.t0
+    variants = {base: _Pilots(), "m" + base: _Pilots()}
+    pilot_parameters = {**parameters, **_PILOT_PARAMETERS}
+    while True:
+        running = [name for name, p in variants.items() if p.error is None]
+        if len(running) < 2:  # a variant that fails on a pilot is out (both: the solve says why)
+            chosen = running[0] if running else base
+            return chosen, _evidence(chosen, variants, span)
+        timed = [name for name in running if len(variants[name].horizons) >= 2]
+        far = [name for name in timed if variants[name].horizons[-1] >= PILOT_END * span]
+        if len(timed) == 2:
+            best = min(timed, key=lambda name: variants[name].rate())
+            if best in far:
+                return best, _evidence(best, variants, span)
+        if far and len(timed) < 2:  # one is far enough: the other completes its two pilots
+            name = next(name for name in running if name not in timed)
+        else:  # the race: the variant that has spent less runs next
+            name = min(running, key=lambda name: variants[name].spent())
+        variants[name].run(solve, ode, name, pilot_parameters, PILOT_START * span)
+
+
+class _Pilots:
+    """The pilot solves of one variant over growing intervals [t0, t0 + H]."""
+
+    def __init__(self):
+        self.horizons, self.times, self.elements = [], [], []
+        self.efficiency = None
+        self.error = None
+
+    def spent(self):
+        return sum(self.times)
+
+    def rate(self):
+        """Marginal CPU time per unit time of [t0, T], from the last two pilots."""
+        dt = self.times[-1] - self.times[-2]
+        dh = self.horizons[-1] - self.horizons[-2]
+        # timing noise may make the difference negative: then the mean rate bounds it
+        return dt / dh if dt > 0 else self.times[-1] / self.horizons[-1]
+
+    def run(self, solve, ode, method, parameters, start):
+        horizon = 2 * self.horizons[-1] if self.horizons else start
+        pilot = copy.copy(ode)
+        pilot._compiled = ode._compiled
+        pilot.T = min(ode.t0 + horizon, ode.T)
+        clock = time.process_time()
+        try:
+            sol = solve(pilot, method, **parameters)
+        except SolverError as error:
+            self.error = str(error)
+            return
+        self.times.append(time.process_time() - clock)
+        self.horizons.append(horizon)
+        self.elements.append(sol.stats["elements"])
+        self.efficiency = sol.stats.get("efficiency index")
+
+
+def _evidence(chosen, variants, span):
+    evidence = {"method": chosen}
+    for name, p in variants.items():
+        entry = {"pilot horizons": list(p.horizons), "pilot cpu times": list(p.times),
+                 "pilot elements": list(p.elements)}
+        if len(p.horizons) >= 2:
+            entry["rate"] = p.rate()
+            entry["predicted time"] = p.rate() * span
+        if p.efficiency is not None:
+            entry["efficiency index"] = p.efficiency
+        if p.error is not None:
+            entry["error"] = p.error
+        evidence[name] = entry
+    return evidence
