@@ -3,18 +3,21 @@
 A multi-adaptive element costs several mono-adaptive component-steps (its own moments,
 sweeps and partition), so mcG(q)/mdG(q) pay off only where the components' steps spread
 widely; which variant is cheaper on a given problem is measured, not guessed. Both variants
-race over growing pilot intervals [t0, t0 + H] (H doubles from PILOT_START (T - t0)), the
-one that has spent less CPU time running next, until the faster has covered PILOT_END
-(T - t0) and each has run twice. A variant's cost of the rest is its marginal rate,
+solve growing pilot intervals [t0, t0 + H] (H doubles from PILOT_START (T - t0)) until
+H >= PILOT_END (T - t0), in a race: the variant that has spent less CPU time runs next (its
+first pilot, which also builds the method's tables, not counted). A variant's cost over
+[t0, T] is predicted by its marginal rate,
 
     rate = (c(H) - c(H / 2)) / (H / 2),
 
-the CPU time c of its last two pilots differenced, so that the fixed cost per call (and a
-first call's loading of compiled code) cancels. The cheaper rate wins and solves [t0, T]
-from the start: the result is that method's own solve. The pilots cost a few percent of
-the winner's solve (the race keeps the loser's CPU time near the winner's). The choice is
-made once, from the first pilots; a problem whose spread of steps changes later in [t0, T]
-keeps it.
+the CPU time c of its last two pilots differenced, so that the fixed cost per call cancels.
+When both reach PILOT_END the smaller rate wins; a variant whose pilots have cost more than
+ABANDON x the other's predicted time loses before. The winner solves [t0, T] from the start,
+so the result is that method's own solve; the pilots cost a few percent of it.
+
+Limitation: the choice is made once, from the first percent of [t0, T]. A problem whose fast
+scale appears later (a chain whose stiff springs are excited slowly) keeps the variant that
+was cheaper at its start.
 """
 import copy
 import re
@@ -28,6 +31,9 @@ _AUTO_PATTERN = re.compile(r"^\s*auto\s*(?::\s*((?:cG|dG)\(\s*\d+\s*\)))?\s*$", 
 DEFAULT_BASE = "cG(2)"
 #: The first pilot interval and the one the faster variant reaches, as fractions of T - t0.
 PILOT_START, PILOT_END = 1e-3, 1e-2
+#: A variant whose pilots cost more than ABANDON x the predicted time of the other (that has
+#: reached PILOT_END) loses without reaching it: the pilots stay a small part of the solve.
+ABANDON = 0.05
 #: Parameters a pilot overrides: output, progress and modeling are the final solve's business.
 _PILOT_PARAMETERS = {"number_of_samples": 2, "progress": False, "automatic_modeling": False}
 
@@ -63,6 +69,8 @@ def choose_family(solve, ode, base, parameters):
         predicted time over [t0, T]; for the multi-adaptive variant the efficiency index of its
         last pilot (mono elements / elements); a variant whose pilot failed has its error.
     """
+    from dolfinode.timeslab import multi  # noqa: F401  (loaded now, not inside a pilot's time)
+
     lower(ode)  # compiled once, shared by the pilots (a copy would compile again)
     span = ode.T - ode.t0
     variants = {base: _Pilots(), "m" + base: _Pilots()}
@@ -72,16 +80,17 @@ def choose_family(solve, ode, base, parameters):
         if len(running) < 2:  # a variant that fails on a pilot is out (both: the solve says why)
             chosen = running[0] if running else base
             return chosen, _evidence(chosen, variants, span)
-        timed = [name for name in running if len(variants[name].horizons) >= 2]
-        far = [name for name in timed if variants[name].horizons[-1] >= PILOT_END * span]
-        if len(timed) == 2:
-            best = min(timed, key=lambda name: variants[name].rate())
-            if best in far:
-                return best, _evidence(best, variants, span)
-        if far and len(timed) < 2:  # one is far enough: the other completes its two pilots
-            name = next(name for name in running if name not in timed)
-        else:  # the race: the variant that has spent less runs next
-            name = min(running, key=lambda name: variants[name].spent())
+        done = [name for name in running if variants[name].covered(PILOT_END * span)]
+        if len(done) == 2:
+            best = min(done, key=lambda name: variants[name].rate())
+            return best, _evidence(best, variants, span)
+        for name, other in (running, running[::-1]):
+            if other in done and variants[name].spent() > ABANDON * variants[other].rate() * span:
+                variants[name].abandoned = True
+                return other, _evidence(other, variants, span)
+        # the race: of those still short of PILOT_END, the one that has spent less runs next
+        name = min((name for name in running if name not in done),
+                   key=lambda name: variants[name].spent())
         variants[name].run(solve, ode, name, pilot_parameters, PILOT_START * span)
 
 
@@ -92,9 +101,15 @@ class _Pilots:
         self.horizons, self.times, self.elements = [], [], []
         self.efficiency = None
         self.error = None
+        self.abandoned = False
+
+    def covered(self, horizon):
+        """Whether two pilots ran and the last reached ``horizon``."""
+        return len(self.horizons) >= 2 and self.horizons[-1] >= horizon
 
     def spent(self):
-        return sum(self.times)
+        """CPU time of the pilots but the first, which also builds the method's tables."""
+        return sum(self.times[1:])
 
     def rate(self):
         """Marginal CPU time per unit time of [t0, T], from the last two pilots."""
@@ -132,5 +147,8 @@ def _evidence(chosen, variants, span):
             entry["efficiency index"] = p.efficiency
         if p.error is not None:
             entry["error"] = p.error
+        if p.abandoned:
+            entry["abandoned"] = (f"its pilots cost more than {ABANDON:g} x the predicted time "
+                                  f"of {chosen}")
         evidence[name] = entry
     return evidence
