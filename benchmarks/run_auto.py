@@ -90,8 +90,9 @@ def main(argv=None):
         lines.append(f"| {r['problem']} | {r['tolerance']:g} | {r['minima'][base]:.3g} | "
                      f"{r['minima'][multi]:.3g} | {r['minima'][auto]:.3g} | {chosen} | "
                      f"{r['ratio']:.2f}x |")
-    lines += ["", ("auto races the two variants over pilot intervals [t0, t0 + H] (H doubling "
-                   "from 0.1 % of [t0, T] until the faster covers 1 %), then solves [t0, T] from "
+    lines += ["", ("auto races the two variants over pilot intervals [t0, t0 + H] (H growing "
+                   "4-fold from 0.1 % of [t0, T] until both cover 1 %, or one has cost 5 % of "
+                   "the other's predicted time), then solves [t0, T] from "
                    "the start with the variant of the smaller marginal CPU rate: its time is "
                    "that solve plus the pilots. The evidence of each choice is in "
                    "`sol.stats[\"family choice\"]` (auto.json: the last one per problem).")]
