@@ -91,8 +91,8 @@ def main(argv=None):
                      f"{r['minima'][multi]:.3g} | {r['minima'][auto]:.3g} | {chosen} | "
                      f"{r['ratio']:.2f}x |")
     lines += ["", ("auto races the two variants over pilot intervals [t0, t0 + H] (H growing "
-                   "4-fold from 0.1 % of [t0, T] until both cover 1 %, or one has cost 5 % of "
-                   "the other's predicted time), then solves [t0, T] from "
+                   "4-fold from 0.1 % of [t0, T] until both cover 1 %, or one with its next pilot "
+                   "would cost 10 % of the other's predicted time), then solves [t0, T] from "
                    "the start with the variant of the smaller marginal CPU rate: its time is "
                    "that solve plus the pilots. The evidence of each choice is in "
                    "`sol.stats[\"family choice\"]` (auto.json: the last one per problem).")]

@@ -11,8 +11,8 @@ first pilot, which also builds the method's tables, not counted). A variant's co
     rate = (c(H) - c(H / GROWTH)) / (H - H / GROWTH),
 
 the CPU time c of its last two pilots differenced, so that the fixed cost per call cancels.
-When both reach PILOT_END the smaller rate wins; a variant whose pilots have cost more than
-ABANDON x the other's predicted time loses before. The winner solves [t0, T] from the start,
+When both reach PILOT_END the smaller rate wins; a variant whose pilots, with its next one,
+would cost more than ABANDON x the other's predicted time loses before. The winner solves [t0, T] from the start,
 so the result is that method's own solve; the pilots cost a few percent of it.
 
 Limitation: the choice is made once, from the first percent of [t0, T]. A problem whose fast
@@ -34,9 +34,10 @@ PILOT_START, PILOT_END = 1e-3, 1e-2
 #: Growth of the pilot intervals: few pilots, since each costs a call's fixed time (a solve of
 #: 13 ms, the reaction front, paid 1.44x with doubling intervals, 5 pilots per variant).
 GROWTH = 4
-#: A variant whose pilots cost more than ABANDON x the predicted time of the other (that has
-#: reached PILOT_END) loses without reaching it: the pilots stay a small part of the solve.
-ABANDON = 0.05
+#: A variant whose pilots, with its next one, would cost more than ABANDON x the predicted time
+#: of the other (that has reached PILOT_END) loses without them: the pilots stay a small part
+#: of the solve.
+ABANDON = 0.1
 #: Parameters a pilot overrides: output, progress and modeling are the final solve's business.
 _PILOT_PARAMETERS = {"number_of_samples": 2, "progress": False, "automatic_modeling": False}
 
@@ -88,7 +89,7 @@ def choose_family(solve, ode, base, parameters):
             best = min(done, key=lambda name: variants[name].rate())
             return best, _evidence(best, variants, span)
         for name, other in (running, running[::-1]):
-            if other in done and variants[name].spent() > ABANDON * variants[other].rate() * span:
+            if other in done and variants[name].next_spent() > ABANDON * variants[other].rate() * span:
                 variants[name].abandoned = True
                 return other, _evidence(other, variants, span)
         # the race: of those still short of PILOT_END, the one that has spent less runs next
@@ -113,6 +114,10 @@ class _Pilots:
     def spent(self):
         """CPU time of the pilots but the first, which also builds the method's tables."""
         return sum(self.times[1:])
+
+    def next_spent(self):
+        """spent() after the next pilot, whose time is taken GROWTH x the last one's."""
+        return self.spent() + GROWTH * self.times[-1] if self.times else 0.0
 
     def rate(self):
         """Marginal CPU time per unit time of [t0, T], from the last two pilots."""
@@ -151,7 +156,7 @@ def _evidence(chosen, variants, span):
         if p.error is not None:
             entry["error"] = p.error
         if p.abandoned:
-            entry["abandoned"] = (f"its pilots cost more than {ABANDON:g} x the predicted time "
-                                  f"of {chosen}")
+            entry["abandoned"] = (f"its pilots with the next would cost more than {ABANDON:g} x "
+                                  f"the predicted time of {chosen}")
         evidence[name] = entry
     return evidence
