@@ -68,10 +68,11 @@ def choose_family(solve, ode, base, parameters):
     method : str
         ``base`` or ``"m" + base``, whichever has the smaller rate.
     evidence : dict
-        For ``sol.stats["family choice"]``: the chosen method, and per variant its pilot
-        horizons, CPU times, elements, the marginal rate (CPU s per unit time) and the
-        predicted time over [t0, T]; for the multi-adaptive variant the efficiency index of its
-        last pilot (mono elements / elements); a variant whose pilot failed has its error.
+        For ``sol.stats["family choice"]``: the chosen method, the CPU time of all pilots,
+        and per variant its pilot horizons, CPU times, elements, the marginal rate (CPU s per
+        unit time) and the predicted time over [t0, T]; for the multi-adaptive variant the
+        efficiency index of its last pilot (mono elements / elements); a variant whose pilot
+        failed has its error, one abandoned says so.
     """
     from dolfinode.timeslab import multi  # noqa: F401  (loaded now, not inside a pilot's time)
 
@@ -144,7 +145,8 @@ class _Pilots:
 
 
 def _evidence(chosen, variants, span):
-    evidence = {"method": chosen}
+    evidence = {"method": chosen,
+                "pilot cpu time": sum(sum(p.times) for p in variants.values())}
     for name, p in variants.items():
         entry = {"pilot horizons": list(p.horizons), "pilot cpu times": list(p.times),
                  "pilot elements": list(p.elements)}

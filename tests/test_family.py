@@ -38,6 +38,7 @@ def test_uniform_chain_picks_mono():
     pilots = choice["cG(2)"]
     assert len(pilots["pilot horizons"]) >= 2 and pilots["predicted time"] > 0
     assert pilots["pilot horizons"][-1] >= 0.01 * 200.0
+    assert choice["pilot cpu time"] >= sum(pilots["pilot cpu times"])
     _same_solution(sol, dn.solve(ode, "cG(2)", tolerance=1e-6))
 
 
