@@ -3,14 +3,17 @@
 The public surface is this package's namespace (``__all__``): declarations ``ODE``, ``t`` and
 the structured systems ``Template``, ``TemplateODE``, ``ParticleSystem`` (``systems``);
 ``solve``, its ``Solution`` and ``SolverError``; error estimates ``estimate_error``, ``Goal``,
-``ErrorEstimate``; ensembles ``solve_ensemble``, ``vary``; the methods ``Method``,
-``make_method``, ``parse_method``; ``default_parameters``. The documentation's API reference
+``ErrorEstimate``; events ``Event``; stored solutions ``load_solution``; ensembles
+``solve_ensemble``, ``vary``; the methods ``Method``, ``make_method``, ``parse_method``;
+``default_parameters``. The documentation's API reference
 has a page for each.
 """
 from dolfinode import systems
 from dolfinode.dual import ErrorEstimate, Goal, estimate_error
 from dolfinode.ensemble import solve_ensemble, vary
 from dolfinode.errors import SolverError
+from dolfinode.events import Event
+from dolfinode.io.stored import load_solution
 from dolfinode.methods import Method, make_method, parse_method
 from dolfinode.ode import ODE, t
 from dolfinode.parameters import READ_ONLY_DEFAULTS as default_parameters
@@ -20,6 +23,7 @@ from dolfinode.systems import ParticleSystem, Template, TemplateODE
 
 __version__ = "0.1.0"
 
-__all__ = ["ODE", "ErrorEstimate", "Goal", "Method", "ParticleSystem", "Solution",
+__all__ = ["ODE", "ErrorEstimate", "Event", "Goal", "Method", "ParticleSystem", "Solution",
            "SolverError", "Template", "TemplateODE", "default_parameters", "estimate_error",
-           "make_method", "parse_method", "solve", "solve_ensemble", "systems", "t", "vary"]
+           "load_solution", "make_method", "parse_method", "solve", "solve_ensemble", "systems",
+           "t", "vary"]

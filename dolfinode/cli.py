@@ -1,7 +1,8 @@
 """The dolfinode command.
 
-``dolfinode info`` prints the default parameters; ``dolfinode bench`` runs the benchmark suite
-(see :mod:`dolfinode.bench`).
+``dolfinode info`` prints the default parameters; ``dolfinode cache info|clear`` shows or
+empties the kernel cache; ``dolfinode bench`` runs the benchmark suite (see
+:mod:`dolfinode.bench`).
 """
 import argparse
 import shlex
@@ -17,6 +18,9 @@ def main(argv=None):
                         version=f"dolfinode {dolfinode.__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("info", help="print the solver parameters and their defaults")
+    cache = sub.add_parser("cache", help="the compiled kernel cache ($DOLFINODE_CACHE_DIR)")
+    cache.add_argument("action", choices=("info", "clear"),
+                       help="info: its folder, libraries and size; clear: remove its files")
     bench_parser = sub.add_parser("bench", help="run the benchmark suite: work-precision "
                                                 "against scipy, tables and plots")
     if given[:1] == ["bench"]:  # its options need the benchmark library, imported only then
@@ -30,6 +34,8 @@ def main(argv=None):
         width = max(len(name) for name in DEFAULTS)
         for name, value in DEFAULTS.items():
             print(f"{name:<{width}}  {value!r}")
+    elif args.command == "cache":
+        _cache(args.action)
     elif args.command == "bench":
         try:
             planned = bench.plan(args)
@@ -37,6 +43,20 @@ def main(argv=None):
             parser.error(str(exc))
         bench.run(args, planned, command="dolfinode " + shlex.join(given))
     return 0
+
+
+def _cache(action):
+    """``dolfinode cache info`` or ``dolfinode cache clear``."""
+    from dolfinode.compile import cache
+
+    if action == "clear":
+        print(f"removed {cache.clear_cache()} files from {cache.cache_directory()}")
+        return
+    info = cache.cache_info()
+    print(f"folder     {info['folder']} (set DOLFINODE_CACHE_DIR to move it)")
+    print(f"libraries  {info['libraries']} ({info['valid']} valid; an invalid one is rebuilt "
+          "when next used)")
+    print(f"size       {info['bytes'] / 2**20:.2f} MiB")
 
 
 if __name__ == "__main__":

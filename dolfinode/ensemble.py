@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 import sympy as sp
 
 from dolfinode.methods import parse_method
-from dolfinode.ode import ODE, _check_time
+from dolfinode.ode import ODE
 from dolfinode.parameters import check_parameters
 
 #: Keys of a variation besides parameter symbols.
@@ -56,13 +56,10 @@ def vary(ode, variation):
             raise ValueError(f"variation key {key!r} is neither a parameter of the ODE nor one of "
                              f"{', '.join(_FIELDS)}{hint}")
         params[symbol] = value
-    new.params = ode._params(params)
+    new.params = params
     if "u0" in variation:
-        new.u0 = ode._initial_vector(variation["u0"])
-    new.t0 = _check_time(variation.get("t0", ode.t0), "t0")
-    new.T = _check_time(variation.get("T", ode.T), "T")
-    if not new.T > new.t0:
-        raise ValueError(f"the final time T = {new.T} must be larger than t0 = {new.t0}")
+        new.u0 = variation["u0"]
+    new._set_interval(variation.get("t0", ode.t0), variation.get("T", ode.T))
     return new
 
 

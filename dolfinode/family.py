@@ -38,8 +38,10 @@ GROWTH = 4
 #: of the other (that has reached PILOT_END) loses without them: the pilots stay a small part
 #: of the solve.
 ABANDON = 0.1
-#: Parameters a pilot overrides: output, progress and modeling are the final solve's business.
-_PILOT_PARAMETERS = {"number_of_samples": 2, "progress": False, "automatic_modeling": False}
+#: Parameters a pilot overrides: output, progress, modeling and events are the final solve's
+#: business (sample times and a history file refer to [t0, T]).
+_PILOT_PARAMETERS = {"number_of_samples": 2, "sample_times": None, "dense_output": True,
+                     "progress": False, "automatic_modeling": False, "events": None}
 
 
 def auto_base(method):

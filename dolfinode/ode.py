@@ -6,7 +6,7 @@ to compiled kernels happens in :mod:`dolfinode.compile`.
 """
 import difflib
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, MutableMapping
 from functools import cached_property
 
 import numpy as np
@@ -27,15 +27,31 @@ def _suggest(name, candidates):
     return f"; did you mean {match[0]!r}?" if match else ""
 
 
-def _to_float(value):
+class ComplexValueError(TypeError):
+    """A complex number given where dolfinode needs a real one."""
+
+
+def _reject_complex(value, what):
+    """Raise ComplexValueError if ``value`` (a number or an array) is complex: float() and
+    astype(float) of a numpy complex drop the imaginary part with only a ComplexWarning."""
+    if isinstance(value, (complex, np.complexfloating)) or getattr(
+            getattr(value, "dtype", None), "kind", "") == "c":
+        raise ComplexValueError(f"{what} is complex ({value!r}); dolfinode solves real systems: "
+                                "write the real and imaginary parts as separate states or "
+                                "parameters")
+
+
+def _to_float(value, what="a value"):
     """``float(value)``, with a number too large for a double (an int such as 10**400, for
     which float raises OverflowError) read as +-inf, so that the finiteness checks report it.
 
     Raises
     ------
     TypeError, ValueError
-        As ``float`` does for what is not a real number.
+        As ``float`` does for what is not a real number; ComplexValueError (a TypeError,
+        naming ``what``) for a complex one.
     """
+    _reject_complex(value, what)
     try:
         return float(value)
     except OverflowError:
@@ -44,7 +60,9 @@ def _to_float(value):
 
 def _check_time(value, what):
     try:
-        value = _to_float(value)
+        value = _to_float(value, what)
+    except ComplexValueError:
+        raise
     except (TypeError, ValueError):
         raise TypeError(f"{what} must be a real number, got {value!r}") from None
     if not math.isfinite(value):
@@ -112,9 +130,83 @@ def _listed_vector(values, states, what):
             raise ValueError(f"{what} has {len(vector)} values but the system has "
                              f"{len(states)} states ({', '.join(names)})")
     try:
-        return np.array([_to_float(v) for v in vector], dtype=float)
+        return np.array([_to_float(v, what) for v in vector], dtype=float)
+    except ComplexValueError:
+        raise
     except (TypeError, ValueError):
         raise TypeError(f"{what} must hold real numbers, got {vector!r}") from None
+
+
+def _parameter_value(symbol, value):
+    """The value of parameter ``symbol`` as a checked finite float."""
+    try:
+        value = _to_float(value, f"parameter {symbol}")
+    except ComplexValueError:
+        raise
+    except (TypeError, ValueError):
+        raise TypeError(f"parameter {symbol} must be a real number, got {value!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"parameter {symbol} must be finite, got {value}")
+    return value
+
+
+def _read_only(array):
+    array.flags.writeable = False
+    return array
+
+
+#: What the compiled kernels are built from: fixed once declared.
+_FIXED = ("states", "rhs", "nonnegative")
+
+
+class Parameters(MutableMapping):
+    """The parameter values of an ODE, by symbol (or name): a value set here is checked as
+    in the declaration and honoured by the next solve. The symbols are fixed: the compiled
+    kernels read the values in their order."""
+
+    def __init__(self, values):
+        self._values = dict(values)
+
+    def _symbol(self, key):
+        if key in self._values:
+            return key
+        for symbol in self._values:
+            if getattr(key, "name", key) == symbol.name:
+                return symbol
+        raise KeyError(key)
+
+    def __getitem__(self, key):
+        return self._values[self._symbol(key)]
+
+    def __setitem__(self, key, value):
+        try:
+            symbol = self._symbol(key)
+        except KeyError:
+            names = [s.name for s in self._values]
+            raise KeyError(f"{key!r} is not a parameter of this ODE"
+                           f"{_suggest(str(getattr(key, 'name', key)), names)} (its parameters: "
+                           f"{', '.join(names) or 'none'}); a new parameter needs a new ODE, or "
+                           "assign ode.params = {...}") from None
+        self._values[symbol] = _parameter_value(symbol, value)
+
+    def __delitem__(self, key):
+        raise TypeError("a parameter cannot be removed from an ODE (its right-hand sides may use "
+                        "it); assign ode.params = {...} or declare a new ODE")
+
+    def __iter__(self):
+        return iter(self._values)
+
+    def values(self):
+        return self._values.values()  # (the Mapping default looks each key up again)
+
+    def items(self):
+        return self._values.items()
+
+    def __len__(self):
+        return len(self._values)
+
+    def __repr__(self):
+        return repr(self._values)
 
 
 class ODE:
@@ -166,20 +258,63 @@ class ODE:
                 raise ValueError(f"duplicate state {state.name!r}: every state needs its own name")
             states.append(state)
             names.add(state.name)
-        self.states = tuple(states)
-        self.rhs = tuple(_as_expression(expr, state) for state, expr in pairs)
-        self.params = self._params(params)
-        self._check_symbols()
+        self.__dict__["states"] = tuple(states)
+        self.__dict__["rhs"] = tuple(_as_expression(expr, state) for state, expr in pairs)
+        self.params = params
         self._set_interval(t0, T)
-        self.nonnegative = self._nonnegative_mask(nonnegative)
-        self.u0 = self._initial_vector(u0)
+        self.__dict__["nonnegative"] = _read_only(self._nonnegative_mask(nonnegative))
+        self.u0 = u0
+
+    # One rule for what a user can reach after declaring: the values (params, u0, t0, T) may
+    # be set, are checked as in the declaration and are honoured by the next solve (the
+    # compiled kernels read the parameter values anew each time, see
+    # dolfinode.compile.lower); what the kernels are built from (states, rhs, nonnegative,
+    # the parameter symbols) is fixed: a new one needs a new ODE. They are plain instance
+    # attributes, read at dict speed (a solve reads them dozens of times); this method
+    # checks the assignments.
+    def __setattr__(self, name, value):
+        if name in _FIXED:
+            raise AttributeError(f"ode.{name} is fixed by the declaration (the compiled kernels "
+                                 f"are built from it): declare a new dn.ODE; parameter values, "
+                                 "u0, t0 and T may be set, or varied with dn.vary")
+        if name == "params":
+            self._set_params(value)
+        elif name == "u0":
+            self.__dict__["u0"] = _read_only(self._initial_vector(value))
+        elif name in ("t0", "T"):
+            times = {"t0": self.t0, "T": self.T, name: value}
+            self._set_interval(times["t0"], times["T"])
+        else:
+            object.__setattr__(self, name, value)
+
+    def _set_params(self, params):
+        """``ode.params = {...}``: a :class:`Parameters` mapping of the checked values (its
+        values may be changed, checked, and are honoured by the next solve)."""
+        clean = self._params(params)
+        before = self.__dict__.get("params")
+        self.__dict__["params"] = Parameters(clean)
+        if before is None or list(before) != list(clean):
+            try:
+                self._check_symbols()
+            except (TypeError, ValueError):
+                self.__dict__["params"] = before
+                raise
+            self.__dict__.pop("_compiled", None)  # its parameter vector has other slots
 
     def _set_interval(self, t0, T):
-        """Validated finite t0 < T."""
-        self.t0 = _check_time(t0, "t0")
-        self.T = _check_time(T, "T")
-        if not self.T > self.t0:
-            raise ValueError(f"the final time T = {self.T} must be larger than t0 = {self.t0}")
+        """Set a validated finite t0 < T."""
+        t0, T = _check_time(t0, "t0"), _check_time(T, "T")
+        if not T > t0:
+            raise ValueError(f"the final time T = {T} must be larger than t0 = {t0}")
+        self.__dict__.update(t0=t0, T=T)
+
+    def _snapshot(self):
+        """This declaration as it is now, for a Solution to keep: later changes of the
+        values on ``self`` do not reach it (a shallow copy with its own parameter values)."""
+        snapshot = object.__new__(type(self))
+        snapshot.__dict__.update(self.__dict__)
+        snapshot.__dict__["params"] = Parameters(self.params)
+        return snapshot
 
     def _initial_vector(self, u0):
         """u0 as a validated float vector in component order (dict by state or sequence)."""
@@ -237,12 +372,7 @@ class ODE:
                 raise ValueError(f"{symbol} is both a state and a parameter")
             if symbol == t:
                 raise ValueError("dn.t is the time and cannot be a parameter")
-            try:
-                value = _to_float(value)
-            except (TypeError, ValueError):
-                raise TypeError(f"parameter {symbol} must be a real number, got {value!r}") from None
-            if not math.isfinite(value):
-                raise ValueError(f"parameter {symbol} must be finite, got {value}")
+            value = _parameter_value(symbol, value)
             if symbol in clean:
                 raise ValueError(f"parameter {symbol} is given twice (by its symbol and by its "
                                  "name): give it once")
@@ -362,9 +492,10 @@ class ODE:
 
     def __getstate__(self):
         # compiled kernels (ctypes) do not pickle: a receiving process compiles its own,
-        # from its disk cache when it has one
+        # from its disk cache when it has one; a copy gets its own parameter values
         state = self.__dict__.copy()
         state.pop("_compiled", None)
+        state["params"] = Parameters(self.params)
         return state
 
     def __repr__(self):

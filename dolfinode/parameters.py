@@ -2,9 +2,11 @@
 import difflib
 import math
 import numbers
+import os
 from types import MappingProxyType
 
 import numpy as np
+import sympy
 
 #: Every parameter ``solve`` accepts, with its default.
 DEFAULTS = {
@@ -19,6 +21,9 @@ DEFAULTS = {
     "safety_factor": 0.9,          # in (0, 1]
     "maximum_steps": 10_000_000,   # time slabs before giving up (SolverError)
     "number_of_samples": 101,      # output samples sol.t, sol.y
+    "sample_times": None,          # explicit sample times in [t0, T] (solve_ivp's t_eval)
+    "dense_output": True,          # True: history in memory; False: samples and the end only;
+                                   # a path "run.h5": the history streamed to an HDF5 file
     "progress": False,             # tqdm progress bar
     "partitioning_threshold": 0.5,  # mcG/mdG: components with k >= theta max k share a sub-slab
     "interval_threshold": 0.9,     # mcG/mdG: a step >= beta times what is left is stretched to it
@@ -30,6 +35,8 @@ DEFAULTS = {
     "model_tolerance": 0.02,       # rebuild when |g~ - g-bar| > model_tolerance max |g-bar|
     "rebuild_model": True,         # False: build once, only measure the defect at control points
     "subgrid_model": "auto",       # "constant" | "affine" in the slow state | "auto": affine after a rebuild
+    "events": None,                # g(u, t) expressions or dn.Event: zero crossings located
+    "breakpoints": None,           # times where f(t) is not smooth that the declaration hides
 }
 
 #: The defaults as users see them (``dn.default_parameters``): read-only, so that a change
@@ -119,6 +126,59 @@ def _per_state_or_positive(name, value):
     return _positive(name, value)
 
 
+def _events(name, value):
+    """A sequence of events (a single one is accepted), as a list."""
+    from dolfinode.events import Event
+
+    if value is None:
+        return None
+    if isinstance(value, (Event, sympy.Basic)) or not np.iterable(value):
+        value = [value]
+    return [e if isinstance(e, Event) else Event(e) for e in value]
+
+
+def _times(name, value):
+    """None, or a sequence of finite real times as a float array."""
+    if value is None:
+        return None
+    from dolfinode.ode import _reject_complex
+
+    _reject_complex(np.asarray(value), name)
+    try:
+        times = np.atleast_1d(np.asarray(value, dtype=float))
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a sequence of times, got {value!r}") from None
+    if times.ndim != 1 or not np.all(np.isfinite(times)):
+        raise ValueError(f"{name} must be a 1-D sequence of finite times, got {value!r}")
+    return times
+
+
+def _dense_output(name, value):
+    """True, False, or the path of an HDF5 file (a str or os.PathLike) as a str."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (str, os.PathLike)) and os.fspath(value):
+        path = os.fspath(value)
+        if not path.endswith((".h5", ".hdf5")):
+            raise ValueError(f"{name} as a path names an HDF5 file ending in .h5 or .hdf5, got "
+                             f"{path!r}")
+        return path
+    raise TypeError(f"{name} must be True (history in memory), False (samples only) or the path "
+                    f"of an HDF5 file such as 'run.h5', got {value!r}")
+
+
+def _sample_times(name, value):
+    """None, or increasing finite times as a float array (their range is checked by solve)."""
+    times = _times(name, value)
+    if times is None:
+        return None
+    if times.size == 0:
+        raise ValueError(f"{name} must be a non-empty sequence of times")
+    if np.any(np.diff(times) <= 0):
+        raise ValueError(f"{name} must be finite and strictly increasing, as solve_ivp's t_eval")
+    return times
+
+
 #: How each parameter is checked and normalised, ``check(name, value) -> value`` (the
 #: defaults pass their checks, so only the given names are checked).
 _CHECKS = {
@@ -133,6 +193,8 @@ _CHECKS = {
     "safety_factor": _fraction,
     "maximum_steps": _count,
     "number_of_samples": _count,
+    "sample_times": _sample_times,
+    "dense_output": _dense_output,
     "progress": _switch,
     "partitioning_threshold": _fraction,
     "interval_threshold": _fraction,
@@ -144,6 +206,8 @@ _CHECKS = {
     "model_tolerance": _required,
     "rebuild_model": _switch,
     "subgrid_model": _choice(SUBGRID_MODELS),
+    "events": _events,
+    "breakpoints": _times,
 }
 
 
@@ -174,4 +238,7 @@ def check_parameters(given):
     if params["automatic_modeling"] and params["fixed_time_step"]:
         raise ValueError("automatic_modeling needs adaptive time steps: the resolved windows "
                          "and the reduced model have time scales far apart; drop fixed_time_step")
+    if params["automatic_modeling"] and params["dense_output"] is not True:
+        raise ValueError("automatic_modeling joins the histories of its windows and checks the "
+                         "reduced model on them: it needs dense_output=True")
     return params

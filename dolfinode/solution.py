@@ -37,6 +37,24 @@ def _evaluate_shared(t_start, t_end, values, nodes, bary, times, out):
             out[i, m] = value
 
 
+@njit(cache=True)
+def _grouped(comp, t_start):
+    """Whether the elements are sorted by component and, within one, by start time."""
+    for e in range(1, comp.shape[0]):
+        if comp[e] < comp[e - 1] or (comp[e] == comp[e - 1] and t_start[e] < t_start[e - 1]):
+            return False
+    return True
+
+
+def equispaced(t0, T, n):
+    """np.linspace(t0, T, n) (with the last time exactly T), formed without its 14 us of
+    argument handling."""
+    times = np.arange(n) * ((T - t0) / max(n - 1, 1)) + t0
+    if n > 1:
+        times[-1] = T
+    return times
+
+
 def join_elements(chunks):
     """np.concatenate of element arrays given in chunks, [[t_start, k, values], ...], per array.
 
@@ -88,6 +106,11 @@ class Solution:
     parameters = None
     model = None
     error_estimate = None
+    #: Whether the solution holds its history (its elements): False for dense_output=False.
+    dense = True
+    #: Per event, the crossing times and the states there (arrays, as solve_ivp's); None
+    #: without events=.
+    t_events = y_events = None
 
     @property
     def success(self):
@@ -106,39 +129,46 @@ class Solution:
 
     @classmethod
     def multi_adaptive(cls, ode, method, comp, t_start, t_end, values, stats, number_of_samples):
-        """A solution whose component i has its own elements (comp == i), in any order."""
-        order = np.lexsort((t_start, comp))
+        """A solution whose component i has its own elements (comp == i), in any order
+        (already grouped by component and in time, they are not sorted or copied)."""
+        if not _grouped(comp, t_start):
+            order = np.lexsort((t_start, comp))
+            comp, t_start, t_end, values = comp[order], t_start[order], t_end[order], values[order]
+        return cls.grouped(ode, method, np.searchsorted(comp, np.arange(ode.N + 1)), t_start,
+                           t_end, values, stats, number_of_samples)
+
+    @classmethod
+    def grouped(cls, ode, method, ptr, t_start, t_end, values, stats, number_of_samples):
+        """A multi-adaptive solution whose component i owns the elements ptr[i]:ptr[i + 1],
+        in time order (the arrays are kept, not copied)."""
         self = cls.__new__(cls)
         self.ode, self.method, self.stats = ode, method, stats
-        self.t_start = t_start[order]
-        self.k = t_end[order] - self.t_start
-        self.values = values[order]
-        self._component_ptr = np.searchsorted(comp[order], np.arange(ode.N + 1))
-        self._t_end = t_end[order]
+        self.t_start, self._t_end, self.values = t_start, t_end, values
+        self.k = t_end - t_start
+        self._component_ptr = ptr
         self._sample(number_of_samples)
         return self
 
-    def _sample(self, number_of_samples):
-        """Take ``number_of_samples`` equispaced samples t, y, made when first read (a small
-        solve often wants only sol(T))."""
-        self._number_of_samples = number_of_samples
+    def _sample(self, samples):
+        """Take ``samples`` equispaced samples t, y (or samples at the given times), made
+        when first read (a small solve often wants only sol(T))."""
+        if isinstance(samples, np.ndarray):
+            self.__dict__["t"] = samples
+        else:
+            self._number_of_samples = samples
 
     @cached_property
     def t(self):
-        """Sample times: np.linspace's values (t0 + i (T - t0)/(n - 1), the last T), formed
-        without its argument handling, which a small solve notices."""
-        t0, T, n = self.ode.t0, self.ode.T, self._number_of_samples
-        t = np.arange(n) * ((T - t0) / max(n - 1, 1)) + t0
-        if n > 1:
-            t[-1] = T
-        return t
+        """Sample times: np.linspace's values (t0 + i (T - t0)/(n - 1), the last T)."""
+        return equispaced(self.ode.t0, self.ode.T, self._number_of_samples)
 
     @cached_property
     def y(self):
         """U at the sample times, shape (N, M)."""
         y = self._evaluate(self.t)
-        # U(t0), as in _values, set directly: only the first sample is t0
-        y[:, 0] = self.ode.u0
+        # U(t0), as in _values, set directly: only the first sample can be t0
+        if self.t[0] == self.ode.t0:
+            y[:, 0] = self.ode.u0
         return y
 
     @property

@@ -1,29 +1,36 @@
 """The driver: ``solve(ode, method, tolerance=..., **parameters) -> Solution``."""
 import math
-import os
 import time
 
 import numpy as np
+import sympy as sp
 
+from dolfinode import events as ev
 from dolfinode import timeslab as ts
 from dolfinode.adaptivity import filter_constant, initial_step
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
 from dolfinode.family import auto_base, choose_family
+from dolfinode.io import history
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
+from dolfinode.memory import available_memory
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
+from dolfinode.ode import t as dn_t
 from dolfinode.parameters import DEFAULTS, NONLINEAR_SOLVERS, check_parameters
-from dolfinode.solution import Solution, join_elements
 from dolfinode.timeslab import mono
 
-#: Relative size (times |t|) below which a time step cannot be resolved in double precision.
-_KMIN_RELATIVE = 1e-14
 _STATUS_STEP_LIMIT = -1
+#: Slabs (elements: multi-adaptive) per loop call of a solve with events or switches: what a
+#: terminal event or a switch in the chunk makes the loop redo.
+_EVENT_CHUNK = 1024
 #: A solve stopped by maximum_steps is said to approach a blow-up when its last step is below
 #: _BLOWUP_STEP (T - t0) and max |u| grew _BLOWUP_GROWTH-fold since t0 (dG(0) on u' = u^2,
-#: u(0) = 1: 10^7 steps, down to 3.1e-10, with |u| = 2.3e3 at t = 0.99956).
-_BLOWUP_STEP, _BLOWUP_GROWTH = 1e-6, 100.0
+#: u(0) = 1: 10^7 steps, down to 3.1e-10, with |u| = 2.3e3 at t = 0.99956), and the last
+#: step is below _STEADY times the mean step; steps near their mean resolve a fast time
+#: scale instead (the seed model at kappa = 1e12: 3e-8 steps, |u| = 1e6 the amplitude of
+#: the fast velocity).
+_BLOWUP_STEP, _BLOWUP_GROWTH, _STEADY = 1e-6, 100.0, 0.1
 #: The smallest tolerance without an absolute_tolerance (scipy's solve_ivp bound, 100 machine
 #: epsilons): below it the step error estimate is rounding (tolerance=1e-300 failed with
 #: "Newton's method did not converge at t = 0 ... check the right-hand side for a
@@ -32,19 +39,9 @@ MIN_TOLERANCE = 100 * np.finfo(float).eps
 #: Fraction of the available memory the Newton matrices of a mono-adaptive slab may take;
 #: a matrix of at most _NEWTON_SMALL bytes is taken to fit without asking the system.
 _NEWTON_MEMORY_FRACTION = 0.5
+#: Largest system whose quasi-positivity is checked (see _keeps_nonnegative).
+_QUASI_POSITIVE_N = 200
 _NEWTON_SMALL = 2**26
-
-
-def _available_memory():
-    """Bytes of memory available to this process (MemAvailable on Linux, else physical memory)."""
-    try:
-        with open("/proc/meminfo") as meminfo:
-            for line in meminfo:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
 def _absolute_tolerance(ode, value, rtol):
@@ -58,9 +55,55 @@ def _absolute_tolerance(ode, value, rtol):
     return atol
 
 
+def _check_resolvable_tolerance(ode, atol, rtol):
+    """Raise ValueError if the tolerance atol_i + rtol |u0_i| of a component is below
+    MIN_TOLERANCE |u0_i|, what double precision resolves at its initial size: the step error
+    estimate is rounding there, and the steps shrink until maximum_steps or memory runs out
+    (tolerance = absolute_tolerance = 1e-20: 10^7 cG(2) slabs). Components starting at 0
+    have no scale yet and are not judged."""
+    scale = np.abs(ode.u0)
+    below = np.flatnonzero(atol + rtol * scale < MIN_TOLERANCE * scale)
+    if below.size:
+        i = int(below[np.argmax(scale[below])])
+        raise ValueError(
+            f"the tolerance of {ode.states[i].name} (absolute_tolerance {atol[i]:.3g} + tolerance "
+            f"{rtol:.3g} x |u0| = {scale[i]:.3g}) is below what double precision resolves at "
+            f"that size ({MIN_TOLERANCE:.2g} |u0| = {MIN_TOLERANCE * scale[i]:.3g}): the error "
+            "estimate would be rounding; give a tolerance of at least "
+            f"{MIN_TOLERANCE:.2g} or an absolute_tolerance of at least "
+            f"{MIN_TOLERANCE * scale[i]:.3g} for it")
+
+
 def _smallest_step(ode, t):
     """The smallest step double precision resolves at the time t (the loops' bound)."""
-    return _KMIN_RELATIVE * max(abs(t), abs(ode.T) * 1e-6)
+    return ts.smallest_step(t, ode.T - ode.t0)
+
+
+def _keeps_nonnegative(ode):
+    """Whether f keeps every component >= 0 from u0 >= 0 (the exact solution stays in the
+    nonnegative orthant): f_i >= 0 where u_i = 0 and the other components are >= 0, for every
+    i (quasi-positivity, decided by sympy's sign assumptions with the parameter values; t-
+    dependent or undecidable terms count as no). Then the step control keeps the values
+    >= -atol as for components declared nonnegative: ROBER to 1e11 at tolerance 1e-3
+    (absolute tolerance 1e-3 by default) let y2 ~ 1e-5 dip below -3e-4, where
+    y2' = -3e7 y2^2 - 1e4 y2 y3 + ... diverges, and returned y1 = -4.3e7 (mdG(1)), -4.8e7
+    (cG(1)) as a success. Checked for systems of at most _QUASI_POSITIVE_N components (sympy
+    takes ~1 ms per component), once per declaration and parameter values."""
+    if hasattr(ode, "templates") or ode.N > _QUASI_POSITIVE_N or ode.u0.min() < 0:
+        return False
+    key = (ode.rhs, tuple(ode.params.values()))
+    cached = ode.__dict__.get("_keeps_nonnegative")
+    if cached is None or cached[0] != key:
+        keeps = not any(f.has(*ev.NON_SMOOTH) for f in ode.rhs)  # (a jump at u_i = 0: sign(u))
+        if keeps:
+            values = {p: sp.Float(value) for p, value in ode.params.items()}
+            nonnegative = {s: sp.Symbol(s.name, nonnegative=True) for s in ode.states}
+            at_zero = (sp.sympify(f).xreplace(values).xreplace(nonnegative)
+                       .xreplace({nonnegative[s]: sp.S.Zero})
+                       for s, f in zip(ode.states, ode.rhs))
+            keeps = all(f.is_nonnegative for f in at_zero)
+        cached = ode._keeps_nonnegative = (key, bool(keeps))
+    return cached[1]
 
 
 def _check_resolvable(ode, name, k, t):
@@ -135,6 +178,15 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     number_of_samples : int, default 101
         Equispaced output samples ``sol.t``, ``sol.y`` (``sol(t)`` is exact at any t, and
         ``sol.time_steps()`` gives the element ends).
+    sample_times : array_like, optional
+        Explicit increasing sample times in [t0, T] for ``sol.t``, ``sol.y`` (solve_ivp's
+        ``t_eval``); default: ``number_of_samples`` equispaced ones.
+    dense_output : bool or str, default True
+        True: the whole history (every element) is kept in memory, so ``sol(t)`` and
+        :func:`~dolfinode.estimate_error` work anywhere; False: only the samples and the final
+        state (memory independent of the number of steps); a path ``"run.h5"``: the history is
+        streamed to that HDF5 file (:func:`dolfinode.load_solution` opens it). A dense solve
+        whose history would outgrow the memory left stops with SolverError naming this.
     progress : bool, default False
         Show a tqdm progress bar over [t0, T].
     partitioning_threshold : float, default 0.5
@@ -161,6 +213,15 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         False: build the model once and only measure its defect at the control points.
     subgrid_model : {"auto", "constant", "affine"}, default "auto"
         g~ constant, affine in the slow state, or affine after the first rebuild.
+    events : list, optional
+        Zero crossings g(u, t) = 0 to locate: sympy expressions in the states and t, or
+        :class:`dolfinode.Event` (terminal, direction); found in ``sol.t_events`` and
+        ``sol.y_events``. See :mod:`dolfinode.events`.
+    breakpoints : sequence of float, optional
+        Times where f jumps that the declaration does not show; jumps of f in t and
+        switches on the state written in f are found from the declaration. When f keeps
+        every component >= 0 from u0 >= 0 (f_i >= 0 where u_i = 0: mass-action kinetics),
+        the values are kept >= -atol as for components declared nonnegative.
 
     Returns
     -------
@@ -169,6 +230,8 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         how the solve ended, ``sol.stats`` counts its work, ``sol.parameters`` holds the
         parameters it used; with ``automatic_modeling=True`` also ``sol.model``, the
         :class:`~dolfinode.modeling.ReducedModel`.
+        With events, ``sol.t_events`` and ``sol.y_events``; ``sol.status`` is 1 after a
+        terminal event (the solution then ends there: ``sol.ode.T``).
 
     Raises
     ------
@@ -195,6 +258,15 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     if goal is not None:
         from dolfinode.dual.adaptivity import solve_for_goal
 
+        if params["dense_output"] is not True:
+            raise ValueError("a solve for a goal estimates its error from the dual problem, "
+                             "which needs the history: drop dense_output (or set it True)")
+        if params["automatic_modeling"]:
+            raise ValueError("goal= cannot be combined with automatic_modeling=True: the error "
+                             "estimate of a reduced solution is not available (see "
+                             "sol.model.modeling_error()); solve for the goal without "
+                             "automatic_modeling, or with automatic_modeling and no goal")
+
         others = {name: value for name, value in parameters.items() if name != "tolerance"}
         return solve_for_goal(solve, ode, method, goal, params["tolerance"], others)
     if params["tolerance"] < MIN_TOLERANCE and params["absolute_tolerance"] is None:
@@ -204,16 +276,25 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
                          "controls the absolute error alone)")
     multi_adaptive, m = parse_method(method)
     if params["automatic_modeling"]:
+        if params["events"] is not None or params["breakpoints"] is not None:
+            raise ValueError("events and breakpoints are not supported with automatic_modeling")
         from dolfinode.modeling import solve_with_modeling
 
         sol = solve_with_modeling(ode, method, params, solve)
         sol.parameters = params
         return sol
-    compiled = lower(ode)
+    smooth, switches = ev.switched(ode)
+    plan = ev.Plan.make(ode, switches, params["breakpoints"], params["events"])
+    compiled = lower(smooth)
     start = time.perf_counter()
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
+    if rtol < MIN_TOLERANCE and not params["fixed_time_step"]:  # (else atol + rtol |u0| is)
+        _check_resolvable_tolerance(ode, atol, rtol)
     x = ode.u0.copy()
+    if plan is not None:
+        sigma = compiled.p[len(ode.params):]  # (a view: the branches at t0 set in place)
+        plan.initial_branches(sigma, x, ode.t0, ode.T)
     f0 = compiled.f(x, ode.t0)
     if not math.isfinite(f0.sum()) and not np.isfinite(f0).all():  # the sum may overflow
         bad = ode.states[int(np.flatnonzero(~np.isfinite(f0))[0])]
@@ -223,13 +304,15 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     span, latest = ode.T - ode.t0, max(abs(ode.t0), abs(ode.T))
     if span < _smallest_step(ode, latest):
         raise ValueError(f"[t0, T] = [{ode.t0:.17g}, {ode.T:.17g}] is shorter than the smallest "
-                         f"step double precision resolves there ({_KMIN_RELATIVE:g} |t|): shift "
+                         f"step double precision resolves there ({ts.ROUNDING:g} |t|): shift "
                          f"the time origin, e.g. t0 = 0 and T = {span:.17g}")
     if params["initial_time_step"] is not None:
         _check_resolvable(ode, "initial_time_step", steps, ode.t0)
     if params["maximum_time_step"] is not None:
         _check_resolvable(ode, "maximum_time_step", params["maximum_time_step"], latest)
-    floor = np.where(ode.nonnegative, -atol, -np.inf)  # the domain of the values
+    # the domain of the values: declared, or kept by f (with a loose absolute tolerance a
+    # small concentration dips below 0 and polynomial kinetics then diverge from there)
+    floor = np.where(ode.nonnegative | _keeps_nonnegative(ode), -atol, -np.inf)
     fixed = bool(params["fixed_time_step"])
     if fixed:  # no error control: iterate to rounding level, relative to the solution size
         atol, rtol, dtol = np.ones(ode.N), 1.0, 1e-15
@@ -239,16 +322,23 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
              params["maximum_iterations"], int(m.family == "dG")]
     fopts = [rtol, ode.T, params["maximum_time_step"] or ode.T - ode.t0,
              params["safety_factor"], dtol, m.local_order]
+    if plan is not None and plan.events and params["dense_output"] is False:
+        raise ValueError("events are located on the solution's history: give "
+                         "dense_output=True or a file name with events=")
+    sink = history.sink(ode, m, multi_adaptive, params)
     run = _run_multi if multi_adaptive else _run_mono
     status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
-                                                   floor, x, f0, steps)
+                                                   floor, x, f0, steps, plan, sink)
     # mono-adaptive solves may return from Newton to fixed-point iteration (STIFF is then 0)
     newton = (bool(counters[ts.STIFF]) or params["nonlinear_solver"] == "newton"
               or stats.get("newton matrices") is not None)
     if status != ts.DONE:
         outside = ode.states[counters[ts.OUTSIDE] - 1] if counters[ts.OUTSIDE] else None
-        raise SolverError(_failure_message(status, state, fixed, x, outside,
-                                           params["maximum_time_step"], newton, ode),
+        undefined = (_undefined(ode, compiled, x, float(state[0]), float(state[1]))
+                     if status in (ts.NONCONVERGENCE, ts.BLOWUP) else None)
+        raise SolverError(undefined or _failure_message(
+            status, state, fixed, x, outside, params["maximum_time_step"], newton, ode,
+            counters[ts.SLABS]),
                           t=float(state[0]))
     counts = counters.tolist()
     stats.update({
@@ -262,17 +352,18 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         "compile time": compiled.compile_time,
         "solve time": time.perf_counter() - start,
     })
-    if multi_adaptive:
-        sol = Solution.multi_adaptive(ode, m, *elements, stats, params["number_of_samples"])
-    else:
-        sol = Solution(ode, m, *elements, stats, params["number_of_samples"])
+    # the declaration as solved: later changes to ode do not reach sol
+    solved = ode._snapshot() if plan is None else plan.solved_ode(ode._snapshot())
+    sol = sink.solution(solved, m, elements, stats, x)
     sol.parameters = params
+    if plan is not None:
+        plan.report(sol)
     return sol
 
 
-def _integrate(advance, make_buffers, capacity, counters, params, state, bar,
-               newton_ready=None):
-    """Call a compiled time-slab loop until it reaches T, collecting its stored elements.
+def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newton_ready=None):
+    """Call a compiled time-slab loop until it reaches T, yielding (status, stored elements)
+    after each call.
 
     The loop returns FULL when its output buffers are full (so results arrive in chunks, and
     progress can be shown); a FULL with nothing stored means one slab needs larger buffers.
@@ -281,28 +372,44 @@ def _integrate(advance, make_buffers, capacity, counters, params, state, bar,
     _STATUS_STEP_LIMIT: the mono-adaptive buffers hold no more slabs than are left, the
     multi-adaptive loop (whose buffers count elements) is checked after each chunk.
     """
-    chunks = []
     while True:
         buffers = make_buffers(capacity)
         status = advance(*buffers)
         n = counters[ts.STORED]
-        chunks.append([b[:n] for b in buffers])
+        chunk = [b[:n] for b in buffers]
+        del buffers
         if bar is not None:
             bar.update(state[0] - bar.n)
         if counters[ts.SLABS] > params["maximum_steps"]:
             status = _STATUS_STEP_LIMIT
-            break
-        if status == ts.NEWTON_NEEDED and newton_ready is not None and newton_ready():
-            continue
+        elif status == ts.NEWTON_NEEDED and newton_ready is not None and newton_ready():
+            status = ts.FULL
+        elif status == ts.FULL:
+            if n == 0:
+                capacity *= 2
+            if counters[ts.SLABS] >= params["maximum_steps"]:
+                status = _STATUS_STEP_LIMIT
+        yield status, chunk
         if status != ts.FULL:
-            break
-        if n == 0:
-            capacity *= 2
-        if counters[ts.SLABS] >= params["maximum_steps"]:
-            status = _STATUS_STEP_LIMIT
-            break
-    del buffers
-    return status, join_elements(chunks)
+            return
+
+
+def _integrate(chunks, plan, pieces, ode, state, sink):
+    """Run the loop's ``chunks()`` to T, or piece by piece with ``plan`` (events,
+    breakpoints, switches: :func:`dolfinode.events.march` through ``pieces``), handing the
+    stored elements to ``sink`` (:mod:`dolfinode.io.history`); (status, what
+    ``sink.finish(completed)`` returns)."""
+    if plan is None:
+        for status, chunk in chunks():
+            sink.add(chunk, float(state[0]))
+    else:  # a terminal event or a switch may redo a chunk: the sink takes the final ones
+        status, stored, plan.end = ev.march(plan, pieces, ode.t0, ode.T)
+        plan.terminated = status == ev.TERMINATED
+        if plan.terminated:
+            status = ts.DONE
+        for chunk in stored:
+            sink.add(chunk, plan.end)
+    return status, sink.finish(status == ts.DONE)
 
 
 def _newton_plan(compiled, m):
@@ -321,9 +428,15 @@ def _newton_plan(compiled, m):
     return plan
 
 
-def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps):
+def _step_guess(ode, compiled, atol, rtol):
+    """The first step of a fresh start at (x, t) (after a jump of f, the last step says
+    nothing about the next)."""
+    return lambda x, t: initial_step(compiled.f(x, t), x, atol, rtol, ode.T - ode.t0)
+
+
+def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):
     tables = mono.method_tables(m)
-    fopts = np.array(fopts + [_KMIN_RELATIVE, ode.T - ode.t0, filter_constant(m), 0.0, 0.0])
+    fopts = np.array(fopts + [ode.T - ode.t0, filter_constant(m), 0.0, 0.0])
     # the running mean of fixed-point iterations per slab starts at a typical 6
     state = np.array([ode.t0, steps[0], 1.0, 1.0, 0.0, 6.0, 0.0, 0.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
@@ -338,7 +451,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
         nonlocal structure, newton_bytes
         structure, newton_bytes, costs = _newton_plan(compiled, m)
         fits = (newton_bytes <= _NEWTON_SMALL
-                or newton_bytes <= _NEWTON_MEMORY_FRACTION * _available_memory())
+                or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
         iopts[mono.NEWTON_READY] = int(fits)
         iopts[mono.REUSE] = int(structure.seconds(complex_values=True) >= mono.REUSE_TIME)
         fopts[[mono.NEWTON_UNITS, mono.FACTOR_UNITS]] = costs
@@ -358,11 +471,19 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
                             out_X)
 
     capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
+    if plan is not None and plan.truncates:  # a terminal event or a switch redoes the rest
+        capacity = min(capacity, _EVENT_CHUNK)
     with _progress(ode, params) as bar:
-        status, elements = _integrate(advance, buffers, capacity, counters, params,
-                                      state, bar, newton_ready)
+        def chunks():
+            return _chunks(advance, buffers, capacity, counters, params, state, bar,
+                           newton_ready)
+
+        pieces = plan and ev.MonoPieces(
+            ode, m, chunks, fopts, state, x, compiled.p, len(ode.params),
+            _step_guess(ode, compiled, atol, fopts[mono.RTOL]), f0=f0, f=compiled.f)
+        status, elements = _integrate(chunks, plan, pieces, ode, state, sink)
     if status == ts.NEWTON_NEEDED:
-        available = _available_memory()
+        available = available_memory()
         why = ("was not selected" if params["nonlinear_solver"] == "newton" else "failed")
         raise SolverError(
             f"{m.name} needs Newton's method at t = {state[mono.T_NOW]:.6g} (fixed-point "
@@ -378,12 +499,12 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps)
     return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, stats
 
 
-def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps):
+def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):
     # imported on first use: compiling its loop (once per installation) takes ~30 s
     from dolfinode.timeslab import multi
 
     fopts = np.array(fopts + [params["partitioning_threshold"], params["interval_threshold"],
-                              filter_constant(m)])
+                              filter_constant(m), ode.T - ode.t0])
     state = np.array([ode.t0, 0.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     _, position, kl, ku = compiled.ordering
@@ -404,10 +525,18 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
 
     # values at most 2^21 doubles, as mono's: from 32 MB on, each solve would map fresh pages
     capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 21 // (m.q + 1))))
+    if plan is not None and plan.truncates:
+        capacity = min(capacity, max(4 * ode.N, _EVENT_CHUNK))
     with _progress(ode, params) as bar:
-        status, elements = _integrate(advance, buffers, capacity, counters, params,
-                                      state, bar)
-    per_component = np.bincount(elements[0], minlength=ode.N)
+        def chunks():
+            return _chunks(advance, buffers, capacity, counters, params, state, bar)
+
+        pieces = plan and ev.MultiPieces(
+            ode, m, chunks, fopts, state, x, compiled.p, len(ode.params),
+            _step_guess(ode, compiled, atol, fopts[multi.RTOL]), kdes=kdes, frozen=frozen,
+            components=plan.detector.components)
+        status, elements = _integrate(chunks, plan, pieces, ode, state, sink)
+    per_component = sink.per_component
     total = int(counters[ts.ELEMENTS])
     stats = {"time slabs": int(counters[ts.SLABS]),
              "sub-slabs": int(counters[ts.SUBSLABS]),
@@ -446,9 +575,59 @@ _DOMAIN_DECLARED = ("the components declared nonnegative are read as max(u, 0) i
                     "a point")
 
 
-def _failure_message(status, state, fixed, x, outside, kmax, newton, ode):
+#: Functions not defined on the whole real line, with their domain as a test on the argument.
+_PARTIAL = {sp.log: ("log", lambda a: a > 0), sp.asin: ("asin", lambda a: abs(a) <= 1),
+            sp.acos: ("acos", lambda a: abs(a) <= 1), sp.acosh: ("acosh", lambda a: a >= 1),
+            sp.atanh: ("atanh", lambda a: abs(a) < 1)}
+
+
+def _undefined(ode, compiled, x, t, k):
+    """Why f is not finite a little past the time t where a step from the state x failed
+    (after the last step k, up to 10^4 k, with x moved along f(x, t)), if it is not (else
+    None): the argument outside its function's domain and whether it depends on t alone
+    (then no method or step helps) or on components."""
+    if hasattr(ode, "templates"):  # a template system's rhs takes O(N) to build
+        return None
+    with np.errstate(all="ignore"):
+        slope = np.nan_to_num(compiled.f(x, t), nan=0.0, posinf=0.0, neginf=0.0)
+        for step in k * np.logspace(0, 4, 5):
+            step = min(step, ode.T - t)
+            moved = x + step * slope
+            bad = np.flatnonzero(~np.isfinite(compiled.f(moved, t + step)))
+            if bad.size:
+                break
+        else:
+            return None
+    i, t = int(bad[0]), float(t + step)
+    values = {**dict(zip(ode.states, moved.tolist())), **ode.params, dn_t: t}
+    for part in sp.preorder_traversal(ode.rhs[i]):
+        if part.is_Pow and not part.exp.is_integer:
+            name, argument, inside = "a non-integer power", part.base, lambda a: a >= 0
+        elif type(part) in _PARTIAL:
+            (name, inside), argument = _PARTIAL[type(part)], part.args[0]
+        else:
+            continue
+        try:
+            value = float(argument.subs(values))
+        except (TypeError, ValueError):
+            continue
+        if inside(value):
+            continue
+        where = f"{name} in the right-hand side of {ode.states[i].name} gets {argument} = {value:.3g}"
+        if not argument.free_symbols & set(ode.states):
+            return (f"f is not defined past t = {t:.6g}: {where}, which depends on t alone, so "
+                    "no method or step size can continue; end the interval there (smaller T) "
+                    "or change the expression")
+        components = ", ".join(sorted(s.name for s in argument.free_symbols & set(ode.states)))
+        return (f"f is not defined at t = {t:.6g}: {where} from the values of {components}; "
+                + (_DOMAIN_DECLARED if ode.nonnegative.any() else _DOMAIN))
+    return None
+
+
+def _failure_message(status, state, fixed, x, outside, kmax, newton, ode, slabs):
     """The SolverError message for a loop that stopped with ``status`` (state: t and the
-    last step) with the solution x; ``newton``: whether Newton's method was used."""
+    last step) with the solution x after ``slabs`` time slabs; ``newton``: whether Newton's
+    method was used."""
     t, k = state
     size = f"max |u| = {np.max(np.abs(x)):.3g} there"
     domain = _DOMAIN_DECLARED if ode.nonnegative.any() else _DOMAIN
@@ -456,11 +635,20 @@ def _failure_message(status, state, fixed, x, outside, kmax, newton, ode):
     if status == _STATUS_STEP_LIMIT:
         raise_ = ("maximum_steps" if kmax is None else
                   f"maximum_steps or maximum_time_step (the steps are capped at {kmax:.3g})")
-        growth = np.max(np.abs(x)) / max(np.max(np.abs(ode.u0)), np.finfo(float).tiny)
-        blowup = (f"; the steps shrank to {k:.3g} while max |u| grew {growth:.3g}-fold since t0: "
-                  "the solution may blow up near this time"
-                  if k < _BLOWUP_STEP * (ode.T - ode.t0) and growth > _BLOWUP_GROWTH else "")
-        return (f"maximum_steps was reached at t = {t:.6g} ({size}){blowup}; raise {raise_}, "
+        start, now = np.max(np.abs(ode.u0)), np.max(np.abs(x))
+        grew = now > _BLOWUP_GROWTH * (start if start > 0 else 1.0)
+        growth = f"{now / start:.3g}-fold since t0" if start > 0 else f"from 0 at t0 to {now:.3g}"
+        mean = (t - ode.t0) / max(slabs, 1)
+        hint = ""
+        if k < _BLOWUP_STEP * (ode.T - ode.t0) and k < _STEADY * mean and grew:
+            hint = (f"; the steps shrank to {k:.3g} while max |u| grew {growth}: the solution "
+                    "may blow up near this time")
+        elif k < _BLOWUP_STEP * (ode.T - ode.t0) and k >= _STEADY * mean:
+            hint = (f"; the steps stayed near {k:.3g} (their mean since t0: {mean:.3g}), a time "
+                    "scale far shorter than T - t0: for a fast oscillation automatic_modeling="
+                    "True averages it, for a fast decay (stiff) a dG(q) method with "
+                    "nonlinear_solver='newton' steps over it")
+        return (f"maximum_steps was reached at t = {t:.6g} ({size}){hint}; raise {raise_}, "
                 "loosen the tolerance, or use a higher-order method")
     if status == ts.NONCONVERGENCE:
         if fixed:
@@ -475,7 +663,8 @@ def _failure_message(status, state, fixed, x, outside, kmax, newton, ode):
         name = outside.name
         how = "" if fixed else (", or it falls below -absolute_tolerance on every step down to "
                                 f"{k:.3g}")
-        return (f"{name}, declared nonnegative, leaves [0, inf) at t = {t:.6g} (the right-hand "
+        declared = "declared" if ode.nonnegative.any() else "kept by f (u0 >= 0)"
+        return (f"{name}, {declared} nonnegative, leaves [0, inf) at t = {t:.6g} (the right-hand "
                 f"side drives it below zero from {name} = 0{how}). Check that f keeps {name} >= 0 "
                 f"(f >= 0 where {name} = 0), or drop {name} from nonnegative="
                 + ("; with fixed_time_step, a smaller initial_time_step may help" if fixed else ""))

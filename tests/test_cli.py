@@ -34,3 +34,20 @@ def test_version_and_help(capsys):
     text = capsys.readouterr().out
     assert "bench" in text and "info" in text and "--version" in text
     assert "``" not in text and "`" not in text  # plain text, not reStructuredText
+
+
+@pytest.mark.parametrize("arguments, words", [
+    (["--problems", ""], "argument --problems: expected a comma-separated list"),
+    (["--methods", " , "], "argument --methods: expected a comma-separated list"),
+    (["--tolerances", ""], "argument --tolerances: expected a comma-separated list"),
+    (["--tolerances", "1e-4,inf"], "tolerances must lie in (0, 1), got inf"),
+    (["--tolerances", "2"], "tolerances must lie in (0, 1), got 2"),
+    (["--tolerances", "0"], "tolerances must lie in (0, 1), got 0"),
+    (["--repeats", "0"], "--repeats must be at least 1, got 0"),
+])
+def test_bench_rejects_empty_lists_and_values_out_of_range(tmp_path, capsys, arguments, words):
+    # each of these ran the whole default suite (or 3 repeats) into the output folder
+    with pytest.raises(SystemExit):
+        main(["bench", *arguments, "--output", str(tmp_path / "out")])
+    assert words in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

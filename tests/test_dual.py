@@ -268,3 +268,21 @@ def test_unknown_linear_solver_is_rejected():
     sol = dn.solve(dn.ODE({sp.Symbol("u"): -sp.Symbol("u")}, u0=[1.0], T=1.0))
     with pytest.raises(ValueError, match="linear_solver must be"):
         dn.estimate_error(sol, [1.0], linear_solver="dense")
+
+
+def _seed_model(T):
+    """The seed paper's simple model, u1'' = -u1 + u2^2/2, u2'' = -kappa u2, kappa = 1e12."""
+    u1, u2, kappa = sp.symbols("u1 u2 kappa")
+    return dn.ODE.second_order({u1: -u1 + u2 ** 2 / 2, u2: -kappa * u2}, x0={u1: 0.0, u2: 1.0},
+                               v0={u1: 0.0, u2: 0.0}, T=T, params={kappa: 1e12})
+
+
+def test_an_automatic_modeling_solution_is_not_estimated_as_a_discretisation():
+    """Issue 32: its residual in the full model is the subgrid model's defect (0.461 for a
+    true error of 6.0e-7); the refusal names what to call instead."""
+    ode = _seed_model(T=5.0)
+    sol = dn.solve(ode, "cG(2)", tolerance=1e-4, automatic_modeling=True, average_length=1e-4)
+    with pytest.raises(ValueError, match=r"sol.model.modeling_error\(\)"):
+        dn.estimate_error(sol, {ode.states[0]: 1.0})
+    with pytest.raises(ValueError, match="goal= cannot be combined with automatic_modeling"):
+        dn.solve(ode, "cG(2)", tolerance=1e-4, automatic_modeling=True, goal={ode.states[0]: 1.0})

@@ -85,3 +85,57 @@ def test_an_interval_too_short_for_double_precision_at_its_times_raises():
     with pytest.raises(ValueError, match=r"shorter than the smallest step double precision "
                        r"resolves there .* t0 = 0 and T = 1$"):
         dn.solve(ode)
+
+
+def test_maximum_steps_from_zero_gives_no_ratio_to_zero():
+    # u' = 1 + u^2 from u0 = 0 (tan t, singular at pi / 2): "grew 3.28e+306-fold" before
+    with pytest.raises(dn.SolverError, match=r"grew from 0 at t0 to .*blow up") as info:
+        dn.solve(dn.ODE({u: 1 + u**2}, u0=[0.0], T=2.0), method="dG(0)", tolerance=1e-3,
+                 maximum_steps=20000)
+    assert "fold" not in str(info.value)
+
+
+def test_unresolved_fast_oscillation_is_not_called_a_blowup():
+    x1, x2, kappa = sp.symbols("x1 x2 kappa")
+    ode = dn.ODE.second_order({x1: -x1 + x2**2 / 2, x2: -kappa * x2}, x0={x1: 0.0, x2: 1.0},
+                              v0={x1: 0.0, x2: 0.0}, T=100.0, params={kappa: 1e12})
+    with pytest.raises(dn.SolverError, match="maximum_steps") as info:
+        dn.solve(ode, method="cG(1)", tolerance=1e-3, maximum_steps=2000)
+    message = str(info.value)
+    assert "blow up" not in message and "fold" not in message
+    assert "automatic_modeling=True" in message and "nonlinear_solver='newton'" in message
+
+
+@pytest.mark.parametrize("method", ["dG(1)", "cG(1)", "mcG(1)"])
+def test_a_right_hand_side_undefined_past_a_time_is_blamed_on_t(method):
+    """Issue 32: sqrt(2 - t) under dG(1) was reported as a Newton failure suggesting a dG(q)
+    method and a nonnegative component."""
+    y = sp.Symbol("y")
+    with pytest.raises(dn.SolverError) as info:
+        dn.solve(dn.ODE({y: sp.sqrt(2 - dn.t)}, u0=[0.0], T=3.0), method)
+    message = str(info.value)
+    assert message.startswith("f is not defined past t = 2: a non-integer power in the "
+                              "right-hand side of y gets 2 - t = -")
+    assert "depends on t alone" in message and "smaller T" in message
+    assert "dG(q)" not in message and "nonnegative" not in message
+
+
+def test_a_right_hand_side_undefined_for_a_state_names_the_component():
+    y, z = sp.symbols("y z")
+    with pytest.raises(dn.SolverError) as info:
+        dn.solve(dn.ODE({y: 1, z: sp.log(1.5 - y)}, u0=[0.0, 0.0], T=3.0), "cG(1)")
+    message = str(info.value)
+    assert "log in the right-hand side of z gets 1.5 - y = -" in message
+    assert "from the values of y" in message
+
+
+def test_a_tolerance_below_double_precision_at_the_solution_size_is_refused():
+    """Issue 32: tolerance = absolute_tolerance = 1e-20 ground through 10^7 cG(2) slabs."""
+    y, z = sp.symbols("y z")
+    ode = dn.ODE({y: -y, z: -z}, u0=[1.0, 1e-30], T=1.0)
+    with pytest.raises(ValueError, match="tolerance of y .* is below what double precision "
+                                         "resolves at that size"):
+        dn.solve(ode, "cG(2)", tolerance=1e-20, absolute_tolerance=1e-20)
+    # a tiny absolute tolerance for tiny values is resolvable: allowed
+    sol = dn.solve(ode, "cG(2)", tolerance=1e-6, absolute_tolerance={y: 1e-8, z: 1e-36})
+    assert sol(1.0)[1] == pytest.approx(1e-30 * np.exp(-1.0), rel=1e-5)

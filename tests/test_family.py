@@ -42,6 +42,15 @@ def test_uniform_chain_picks_mono():
     _same_solution(sol, dn.solve(ode, "cG(2)", tolerance=1e-6))
 
 
+def test_output_parameters_are_the_final_solves(tmp_path):
+    """Sample times and a history file refer to [t0, T]: the pilots leave them alone."""
+    ode = mass_spring_chain(10, T=20.0)[0]
+    sol = dn.solve(ode, "auto", sample_times=[5.0, 20.0], dense_output=False)
+    np.testing.assert_array_equal(sol.t, [5.0, 20.0])
+    direct = dn.solve(ode, sol.stats["method"], sample_times=[5.0, 20.0], dense_output=False)
+    np.testing.assert_array_equal(sol.y, direct.y)
+
+
 def test_scale_separation_picks_multi():
     """One oscillator 1000x faster than 50 others: mcG(2)'s elements are far fewer."""
     ode = oscillator_bank(n=50, w=1000.0, T=1.0).ode

@@ -217,7 +217,7 @@ def test_u0_that_is_not_a_vector_raises_type_error(values):
 
 def test_u0_with_non_numbers_raises_type_error():
     with pytest.raises(TypeError, match="u0 must hold real numbers"):
-        declare(u0=[1.0, 1j])
+        declare(u0=[1.0, "one"])
 
 
 def test_u0_dict_missing_a_state():
@@ -476,3 +476,99 @@ def test_second_order_nonnegative_counts_positions_then_velocities():
     ode = dn.ODE.second_order({x1: -x1, x2: -x2}, x0=[1.0, 2.0], v0=[0.0, 0.0], T=1.0,
                               nonnegative=[x2])
     assert ode.nonnegative.tolist() == [False, True, False, False]
+
+
+# --- values set after a solve are honoured; what the kernels are built from is fixed ------
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])
+def test_a_parameter_changed_after_a_solve_is_honoured(method):
+    ode = declare(T=1.0)
+    first = dn.solve(ode, method, tolerance=1e-8)
+    ode.params[k] = 9.0  # issue 32: the parameter vector of the first solve was reused
+    second = dn.solve(ode, method, tolerance=1e-8)
+    assert first(1.0)[0] == pytest.approx(np.cos(2.0), abs=1e-6)
+    assert second(1.0)[0] == pytest.approx(np.cos(3.0), abs=1e-6)
+    assert first.ode.params[k] == 4.0 and second.ode.params[k] == 9.0  # as solved
+
+
+def test_u0_t0_and_T_set_after_a_solve_are_honoured():
+    ode = declare()
+    dn.solve(ode, "cG(2)", tolerance=1e-8)
+    ode.params["k"] = 1.0
+    ode.u0 = [2.0, 0.0]
+    ode.T, ode.t0 = 3.0, 1.0
+    sol = dn.solve(ode, "cG(2)", tolerance=1e-8)
+    assert sol.t[0] == 1.0 and sol.t[-1] == 3.0
+    assert sol(3.0)[0] == pytest.approx(2.0 * np.cos(2.0), abs=1e-6)
+
+
+def test_values_set_on_an_ode_are_checked_as_declared():
+    ode = declare()
+    with pytest.raises(ValueError, match="parameter k must be finite"):
+        ode.params[k] = np.inf
+    with pytest.raises(KeyError, match="a new parameter needs a new ODE"):
+        ode.params[sp.Symbol("c")] = 1.0
+    with pytest.raises(TypeError, match="cannot be removed"):
+        del ode.params[k]
+    with pytest.raises(ValueError, match="T = -0.5 must be larger than t0 = 0.0"):
+        ode.T = -0.5
+    with pytest.raises(ValueError, match="read-only"):
+        ode.u0[0] = 3.0  # in place it would skip the checks: assign ode.u0 instead
+    with pytest.raises(ValueError, match="u0 is not finite for u"):
+        ode.u0 = [np.nan, 0.0]
+    assert ode.params == {k: 4.0} and ode.u0.tolist() == [1.0, 0.0]
+
+
+@pytest.mark.parametrize("name", ["states", "rhs", "nonnegative"])
+def test_what_the_kernels_are_built_from_cannot_be_set(name):
+    ode = declare()
+    with pytest.raises(AttributeError, match=f"ode.{name} is fixed by the declaration"):
+        setattr(ode, name, getattr(ode, name))
+
+
+def test_copies_and_solutions_have_their_own_parameter_values():
+    import copy
+    import pickle
+
+    ode = declare()
+    for other in (copy.copy(ode), pickle.loads(pickle.dumps(ode)), dn.vary(ode, {k: 2.0})):
+        other.params[k] = 7.0
+    assert ode.params[k] == 4.0
+
+
+# --- complex values -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("where, value, words", [
+    ("params", {k: np.complex128(4.0)}, "parameter k is complex"),
+    ("u0", [1.0, np.complex64(0.0)], "u0 is complex"),
+    ("u0", np.array([1.0, 2.0j]), "u0 is complex"),
+    ("T", np.complex128(1.0), "T is complex"),
+])
+def test_complex_values_are_rejected_not_truncated(where, value, words):
+    # float() of a numpy complex drops the imaginary part with only a warning
+    with pytest.raises(TypeError, match=words):
+        declare(**{where: value})
+
+
+def test_complex_values_of_a_template_system_are_rejected():
+    x, c = sp.symbols("x c")
+    decay = dn.Template(slots=(x,), terms={x: -c * x}, indices=[[0], [1]], params=(c,),
+                        values=[1.0, 2.0])
+    with pytest.raises(TypeError, match="u0 is complex"):
+        dn.TemplateODE(decay, u0=np.array([1.0, 1j]), T=1.0)
+    with pytest.raises(TypeError, match="values is complex"):
+        dn.Template(slots=(x,), terms={x: -c * x}, indices=[[0]], params=(c,),
+                    values=np.array([1j]))
+
+
+def test_a_parameter_of_a_template_system_changed_after_a_solve_is_honoured():
+    x, rate = sp.symbols("x rate")
+    decay = dn.Template(slots=(x,), terms={x: -rate * x}, indices=[[0], [1]])
+    ode = dn.TemplateODE(decay, u0=[1.0, 2.0], T=1.0, params={rate: 1.0})
+    first = dn.solve(ode, "cG(2)", tolerance=1e-8)(1.0)
+    ode.params[rate] = 2.0
+    np.testing.assert_allclose(first, [np.exp(-1.0), 2 * np.exp(-1.0)], rtol=1e-6)
+    np.testing.assert_allclose(dn.solve(ode, "cG(2)", tolerance=1e-8)(1.0),
+                               [np.exp(-2.0), 2 * np.exp(-2.0)], rtol=1e-6)

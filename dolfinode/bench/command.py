@@ -28,15 +28,23 @@ OUTPUT_SUFFIXES = (".csv", ".json", ".png", ".md")
 
 
 def _list(text):
-    return [s.strip() for s in text.split(",") if s.strip()]
+    items = [s.strip() for s in text.split(",") if s.strip()]
+    if not items:  # an empty list ran the whole default suite
+        raise argparse.ArgumentTypeError(f"expected a comma-separated list, got {text!r}; "
+                                         "leave the option out for the default")
+    return items
 
 
 def _numbers(text):
     try:
-        return [float(x) for x in _list(text)]
+        numbers = [float(x) for x in _list(text)]
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"expected comma-separated numbers such as 1e-3,1e-6, got {text!r}") from None
+    outside = [x for x in numbers if not 0 < x < 1]
+    if outside:
+        raise argparse.ArgumentTypeError(f"tolerances must lie in (0, 1), got {outside[0]:g}")
+    return numbers
 
 
 def add_arguments(parser):
@@ -146,7 +154,8 @@ def plan(args):
                                           else FULL_TOLERANCES))
     if not tolerances or any(not tol > 0 for tol in tolerances):
         raise ValueError(f"tolerances must be positive, got {tolerances}")
-    options = {"repeats": args.repeats or (QUICK["repeats"] if args.quick else REPEATS)}
+    options = {"repeats": (QUICK["repeats"] if args.quick else REPEATS) if args.repeats is None
+               else args.repeats}
     if options["repeats"] < 1:
         raise ValueError(f"--repeats must be at least 1, got {args.repeats}")
     if args.quick:

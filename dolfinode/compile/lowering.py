@@ -45,6 +45,8 @@ class CompiledODE:
         an expression system lowered by shape); 0 for code per expression
     newton_plans : the Newton matrices' storage and cost estimates per method, made by the
         first solve that asks (:func:`dolfinode.solve._newton_plan`)
+    header : the template header that follows the parameter values in ``p`` (None: ``p``
+        is the parameter values)
     """
 
     N: int
@@ -60,14 +62,17 @@ class CompiledODE:
     data: tuple = ()
     templates: int = 0
     newton_plans: dict = field(default_factory=dict)
+    header: np.ndarray = None
 
-    def again(self):
+    def again(self, values):
         """This lowering as a later ``lower`` of the same ODE returns it: loaded, no compile
-        time; the band ordering, once computed, is kept (a shallow copy without copy.copy's
+        time, with ``p`` made from the parameter values as they are now (they may have been
+        set since); the band ordering, once computed, is kept (a shallow copy without copy.copy's
         protocol, which a small solve notices)."""
         again = object.__new__(CompiledODE)
         again.__dict__.update(self.__dict__)
         again.compile_time, again.cached = 0.0, True
+        again.p = _parameter_vector(values, self.header)
         return again
 
     @property
@@ -197,13 +202,9 @@ def _derivative(expr, x):
 def lower(ode):
     """Compile ``ode`` to kernels (memoised on the declaration, and on disk by signature)."""
     if getattr(ode, "_compiled", None) is not None:
-        return ode._compiled.again()
+        return ode._compiled.again(ode.parameter_values)
     start = time.perf_counter()
-    from dolfinode.compile.template import (  # it imports this module
-        kernel_parameters,
-        lower_templates,
-        templates_in,
-    )
+    from dolfinode.compile.template import lower_templates, templates_in  # it imports this module
 
     if hasattr(ode, "templates"):
         lowered = lower_templates(ode.N, ode.templates, ode.parameter_symbols)
@@ -212,8 +213,7 @@ def lower(ode):
                     tuple(np.flatnonzero(ode.nonnegative)))
         lowered = _remembered(_lowerings, declared, lambda: _lower_expressions(ode))
     key, source, indptr, indices, header, data = lowered
-    p = ode.parameter_values if header is None else kernel_parameters(ode.parameter_values,
-                                                                     header)
+    p = _parameter_vector(ode.parameter_values, header)
     templates = 0 if header is None else templates_in(header)
     cached = key in _loaded
     if not cached:
@@ -221,8 +221,18 @@ def lower(ode):
         _loaded[key] = tuple(Kernel(library, name) for name in KERNELS)
     kernels = _loaded[key]
     ode._compiled = CompiledODE(ode.N, *kernels, indptr, indices, p,
-                                time.perf_counter() - start, cached, data, templates)
+                                time.perf_counter() - start, cached, data, templates,
+                                header=header)
     return ode._compiled
+
+
+def _parameter_vector(values, header):
+    """``p`` of the kernels: the parameter values, followed by the template header if any."""
+    if header is None:
+        return values
+    from dolfinode.compile.template import kernel_parameters  # it imports this module
+
+    return kernel_parameters(values, header)
 
 
 def _shapes(ode, rows):

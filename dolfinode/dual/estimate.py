@@ -188,13 +188,34 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None,
     Raises
     ------
     TypeError, ValueError
-        For a solution that is not a :class:`~dolfinode.Solution` or an invalid goal.
+        For a solution that is not a :class:`~dolfinode.Solution` or an invalid goal, a
+        solution without history (``dense_output=False``), one of automatic modeling,
+        and one that crossed a switch on the state (see :mod:`dolfinode.events`; jumps
+        of f in t are accounted for: the elements end at them).
     SolverError
         If the dual's stage matrix is singular on an interval (h J with an eigenvalue that
         cG(r) cannot step over).
     """
     if not isinstance(sol, Solution):
         raise TypeError(f"estimate_error expects a dolfinode Solution, got {type(sol).__name__}")
+    if not sol.dense:
+        raise ValueError("estimate_error needs the history of the solution (the dual problem "
+                         "is integrated against its elements), and this one kept only its "
+                         "samples: solve with dense_output=True")
+    if sol.model is not None:
+        # the dual of the full model against the reduced solution reads the subgrid
+        # model's defect as a residual, and bounds nothing
+        raise ValueError("estimate_error cannot estimate the error of an automatic-modeling "
+                         "solution: its residual in the full model is the subgrid model's "
+                         "defect, not a discretisation error. Use sol.model.modeling_error() "
+                         "for the error the reduced model adds, and solve without "
+                         "automatic_modeling for an estimate of the discretisation error")
+    if sol.stats.get("state switches"):
+        raise ValueError(f"the solution crossed {sol.stats['state switches']} switches on the "
+                         "state (Piecewise/Heaviside/Abs/sign/Min/Max of a state in f): the "
+                         "dual linearised at U misses the jump of the sensitivity where the "
+                         "switching time moves with the solution, so the estimate could fall "
+                         "below the error. Estimate on a smooth (regularised) model instead")
     ode, method = sol.ode, sol.method
     final, integral = resolve(goal, ode)
     q = method.q

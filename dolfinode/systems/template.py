@@ -17,7 +17,7 @@ from functools import cached_property
 import numpy as np
 import sympy as sp
 
-from dolfinode.ode import ODE, _as_expression, _suggest, t
+from dolfinode.ode import ODE, _as_expression, _read_only, _reject_complex, _suggest, t
 
 
 def _symbols(values, what):
@@ -111,6 +111,7 @@ class Template:
                 raise ValueError(f"the template parameters {', '.join(s.name for s in self.params)} "
                                  "need values= (one row per cell)")
             return np.zeros((cells, 0))
+        _reject_complex(np.asarray(values), "values")
         try:
             array = np.array(values, dtype=float)
         except (TypeError, ValueError):
@@ -217,15 +218,15 @@ class TemplateODE(ODE):
         self._n = len(names)
         if self._n == 0:
             raise ValueError("an ODE needs at least one state")
-        self.params = self._params(params)
-        self._check_templates()
+        self.params = params
         self._set_interval(t0, T)
-        self.nonnegative = self._nonnegative_mask(nonnegative)
-        self.u0 = self._initial_vector(u0)
+        self.__dict__["nonnegative"] = _read_only(self._nonnegative_mask(nonnegative))
+        self.u0 = u0
 
     def _initial_vector(self, u0):
         if isinstance(u0, Mapping):
             return super()._initial_vector(u0)
+        _reject_complex(np.asarray(u0), "u0")
         try:
             array = np.array(u0, dtype=float)
         except (TypeError, ValueError):
@@ -251,7 +252,7 @@ class TemplateODE(ODE):
                     raise ValueError(f"{s} is both a global parameter and a symbol of {template}")
         return clean
 
-    def _check_templates(self):
+    def _check_symbols(self):
         known = set(self.params) | {t}
         for number, template in enumerate(self.templates):
             local = known | set(template.slots) | set(template.params)

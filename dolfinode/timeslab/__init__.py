@@ -3,6 +3,7 @@
 The constants below are shared by the mono- and multi-adaptive loops, the nonlinear solvers
 and the driver, so every counter and status code has one index.
 """
+from numba import njit
 
 # Indices into the integer counters (kept across calls by the driver). OUTSIDE: the component
 # that left its declared domain (see CONSTRAINT), plus one.
@@ -18,5 +19,15 @@ DONE, FULL, NONCONVERGENCE, BLOWUP, UNDERFLOW, NEWTON_NEEDED, CONSTRAINT = range
 DEFAULT, FIXED_POINT, NEWTON = range(3)
 #: Relative size of the smallest increment an iteration still resolves (about 50 ulp).
 ROUNDING = 1e-14
+#: A step collapsing near t = 0 (where every step is resolvable) stops at STEP_FLOOR
+#: min(span, 1): far below any step a problem needs (kinetics on [0, 1e13] start at 1e-9).
+STEP_FLOOR = 1e-20
+
+
+@njit(cache=True)
+def smallest_step(t, span):
+    """The smallest step double precision resolves at the time t: ROUNDING |t| (t + k must
+    differ from t by some 50 ulp), plus the floor STEP_FLOOR min(span, 1) near t = 0."""
+    return ROUNDING * abs(t) + STEP_FLOOR * min(span, 1.0)
 #: Factor by which a step is shortened when a component leaves its declared domain.
 CONSTRAINT_CUT = 0.5

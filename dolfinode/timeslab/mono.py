@@ -37,6 +37,7 @@ from dolfinode.timeslab import (
     STIFF,
     STORED,
     UNDERFLOW,
+    smallest_step,
 )
 
 # Indices into the float state.
@@ -52,8 +53,7 @@ T_NOW, K_NEXT, EPS_PREV, HAVE_F0, FP_STEP, FP_ITERATIONS, NEWTON_COST, K_NEWTON 
 SOLVER, FIXED, MAX_ITER, IS_DG, NEWTON_READY, REUSE = range(6)
 # NEWTON_UNITS, FACTOR_UNITS: the cost of a Newton iteration (f at the stages and the solves)
 # and of a Jacobian with its factorizations, in f evaluations (see newton_costs).
-RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, KMIN_REL, SPAN, GAMMA, NEWTON_UNITS, FACTOR_UNITS = \
-    range(11)
+RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, SPAN, GAMMA, NEWTON_UNITS, FACTOR_UNITS = range(10)
 #: After a failed nonlinear solve of length k_fail, steps stay below SOLVER_MARGIN x k_fail,
 #: and k_fail grows by NEWTON_PROBE per accepted step.
 SOLVER_MARGIN = 0.8
@@ -281,7 +281,7 @@ def advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             k = min(k, kmax)
         if k >= remaining * (1.0 - 1e-9) or (not fixed and 1.1 * k >= remaining):
             k = remaining  # also absorbs the rounding of t0 + n k in fixed steps
-        kmin = fopts[KMIN_REL] * max(abs(t), abs(T) * 1e-6)
+        kmin = smallest_step(t, fopts[SPAN])
         if k < kmin and k < remaining:
             return UNDERFLOW
         # Each slab's discrete (iteration) error adds up over the (T - t0)/k slabs, and for

@@ -68,6 +68,7 @@ from dolfinode.timeslab import (
     STORED,
     SUBSLABS,
     UNDERFLOW,
+    smallest_step,
 )
 from dolfinode.timeslab.partition import (
     build_slab,
@@ -81,8 +82,7 @@ from dolfinode.timeslab.partition import (
 T_NOW, MONO_ELEMENTS = range(2)
 # Integer and float options.
 SOLVER, FIXED, MAX_ITER, IS_DG, BAND_LOWER, BAND_UPPER, AUTONOMOUS = range(7)
-RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, THETA, BETA, GAMMA = range(9)
-_KMIN_RELATIVE = 1e-14
+RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, THETA, BETA, GAMMA, SPAN = range(10)
 #: A slab holds many elements of a fast component and one indicator above the margin rejects
 #: them all; steps are still chosen for indicators of 1 (DOLFIN G1 accepted up to 2 TOL too).
 ACCEPTANCE_MARGIN = 2.0
@@ -1027,7 +1027,7 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, trans
         if ne + nfrozen > capacity - counters[STORED]:
             # (room for the frozen components' elements too, stored when they wake up)
             return FULL  # with nothing stored: the driver grows the buffers
-        if b - t < _KMIN_RELATIVE * max(abs(t), abs(T) * 1e-6) and b < T:
+        if b - t < smallest_step(t, fopts[SPAN]) and b < T:
             return CONSTRAINT if outside >= 0 else UNDERFLOW
         if values.shape[0] < ne:
             values = np.empty((max(ne, 2 * values.shape[0]), nn))
@@ -1137,7 +1137,7 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, trans
             # a shorter slab: only the steps longer than a quarter of it change
             for i in range(N):
                 kdes[i] = min(kdes[i], 0.25 * (b - t))
-            if (b - t) * 0.25 < _KMIN_RELATIVE * max(abs(t), abs(T) * 1e-6):
+            if (b - t) * 0.25 < smallest_step(t, fopts[SPAN]):
                 return NONCONVERGENCE
             continue
         # residual-based indicator of every component: its largest local error estimate in
@@ -1221,7 +1221,7 @@ def advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, trans
             for i in range(N):
                 kdes[i] *= 0.25
             counters[REJECTED] += 1
-            if (b - t) * 0.25 < _KMIN_RELATIVE * max(abs(t), abs(T) * 1e-6):
+            if (b - t) * 0.25 < smallest_step(t, fopts[SPAN]):
                 return BLOWUP
             continue
         accept = True

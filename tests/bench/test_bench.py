@@ -194,7 +194,7 @@ def test_cli_bench_rejects_bad_input(capsys):
     assert "eG(1)" in err and "or a scipy solver: RK45, DOP853" in err
     with pytest.raises(SystemExit):
         main(["bench", "--tolerances", "1e-4,-1", "--no-progress"])
-    assert "positive" in capsys.readouterr().err
+    assert "tolerances must lie in (0, 1), got -1" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["bench", "--tolerances", "1e-4,abc", "--no-progress"])
     assert "expected comma-separated numbers" in capsys.readouterr().err

@@ -1,11 +1,7 @@
 """Lowering of ODE declarations to kernels: f, f_i and the sparse Jacobian against sympy,
 the dependency graph, constants, and the on-disk kernel cache."""
 import json
-import os
-import subprocess
-import sys
 import textwrap
-from pathlib import Path
 
 import mpmath as mp
 import numpy as np
@@ -329,12 +325,8 @@ _CACHE_SCRIPT = textwrap.dedent("""
 """)
 
 
-def run_fresh(cache_dir, *systems):
-    env = dict(os.environ, DOLFINODE_CACHE_DIR=str(cache_dir),
-               PYTHONPATH=os.pathsep.join(filter(None, [str(Path(dn.__file__).parents[1]),
-                                                        os.environ.get("PYTHONPATH")])))
-    result = subprocess.run([sys.executable, "-c", _CACHE_SCRIPT, *systems], env=env,
-                            capture_output=True, text=True, timeout=300, check=False)
+def run_fresh(run_python, cache_dir, *systems):
+    result = run_python(_CACHE_SCRIPT, *systems, env={"DOLFINODE_CACHE_DIR": str(cache_dir)})
     assert result.returncode == 0, result.stderr
     return json.loads(result.stdout.strip().splitlines()[-1])
 
@@ -343,12 +335,12 @@ def kernel_files(files):
     return sorted(name for name in files if name.startswith("dn_") and name.endswith(".so"))
 
 
-def test_disk_cache_across_processes(tmp_path):
-    (first,) = run_fresh(tmp_path, "A")
+def test_disk_cache_across_processes(tmp_path, run_python):
+    (first,) = run_fresh(run_python, tmp_path, "A")
     assert first["cached"] is False
     assert len(kernel_files(first["files"])) == 1
 
-    again, params, other = run_fresh(tmp_path, "A", "A-params", "B")
+    again, params, other = run_fresh(run_python, tmp_path, "A", "A-params", "B")
     # same expressions in a fresh process: loaded, nothing generated, compiled or rewritten
     assert again["cached"] is True
     assert again["files"] == first["files"]

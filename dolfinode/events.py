@@ -1,0 +1,633 @@
+"""Discontinuities and events: breakpoints of f(t), switches on the state, and events g(u, t).
+
+A right-hand side with a non-smooth function (Piecewise, Heaviside, sign, floor, ceiling;
+Abs, Min, Max of t alone) is rewritten as a smooth one whose branch is a parameter sigma_j
+(:func:`switched`): Heaviside(g) -> sigma_j, Abs(g) -> sigma_j g, a condition g < 0 ->
+sigma_j > 1/2, and so on. On each piece of [t0, T] where no switching function g_j changes
+sign, the solver integrates this smooth f with sigma fixed: no element straddles a jump and
+every stage (for dG also the end node) is on the branch of its piece, which a loop evaluating
+the original f at t_n + k would not be. Switching functions of t alone give the breakpoints
+(their roots, solved by sympy, plus the user's ``breakpoints=``); those on the state are
+located like events, on the Galerkin polynomial, and the element is re-integrated to the
+crossing where the next piece starts on the other branch.
+
+Events g(u, t) (:class:`Event`) are located on the Galerkin polynomials: g is sampled at the
+element ends (of the components it depends on) of each chunk the compiled loop returns, as
+solve_ivp samples it at its steps (two crossings inside one element are not seen), and each
+sign change is refined by the Illinois method on the polynomials to 1e-13 relative. The first
+crossing of a terminal event or a state switch is located at once: a terminal event ends the
+solve there (the element containing it is re-integrated to end there). The others are
+located after the solve, on the final solution, all at once.
+"""
+import copy
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import sympy as sp
+
+from dolfinode.ode import ODE
+from dolfinode.ode import t as time_symbol
+from dolfinode.timeslab import smallest_step
+
+#: Consecutive switches less than SLIDING_SPAN x (T - t0) apart after which a state switch is
+#: taken as a sliding mode (the flow on both sides pushes towards g = 0).
+SLIDING_SWITCHES, SLIDING_SPAN = 50, 1e-9
+#: Most Illinois iterations locating an event (it converges superlinearly; a crossing in a
+#: dG jump, where g is discontinuous, takes longest), and the relative width to reach: some
+#: 500 ulp, where g's rounding starts to decide its sign (to 4 ulp, a third of the roots
+#: of the oscillator took 20-40 iterations instead of 5-10).
+_ROOT_ITERATIONS = 200
+_ROOT_RTOL = 1e-13
+#: Most breakpoints of a floor/ceiling of t (each one ends a piece of the integration).
+MAX_BREAKPOINTS = 100_000
+_SWITCH = "dn_switch_"
+
+
+class Event:
+    """An event: a zero crossing of g(u, t), located on the Galerkin solution.
+
+    Parameters
+    ----------
+    g : sympy expression
+        In the states, ``dn.t`` and the ODE's parameters.
+    terminal : bool
+        Whether the solve ends at the first crossing (``sol.status == 1``).
+    direction : {0, 1, -1}
+        Only crossings where g increases (1) or decreases (-1); 0: both (as solve_ivp).
+    """
+
+    def __init__(self, g, terminal=False, direction=0):
+        try:
+            self.g = sp.sympify(g)
+        except (sp.SympifyError, TypeError):
+            raise TypeError(f"an event is a sympy expression g(u, t), got {g!r}") from None
+        if not isinstance(self.g, sp.Expr):
+            raise TypeError(f"an event is a sympy expression g(u, t), got {g!r}")
+        if not isinstance(terminal, (bool, np.bool_)):
+            raise TypeError(f"terminal must be True or False, got {terminal!r}")
+        if direction not in (0, 1, -1):
+            raise ValueError(f"direction must be 0, 1 or -1, got {direction!r}")
+        self.terminal, self.direction = bool(terminal), int(direction)
+
+    def __repr__(self):
+        return f"Event({self.g}, terminal={self.terminal}, direction={self.direction})"
+
+
+@dataclass
+class Switch:
+    """A switching function g of f and the parameter sigma that holds its branch: sigma is
+    ``positive`` where g > 0, ``negative`` where g < 0 and ``at_zero`` where g = 0 (the
+    original function's value there). ``floor``: sigma is floor(g) (a floor or ceiling of
+    t: ceiling(g) = -floor(-g))."""
+
+    g: sp.Expr
+    symbol: sp.Symbol
+    positive: float = 1.0
+    negative: float = 0.0
+    at_zero: float = 1.0
+    floor: bool = False
+
+    def value(self, g):
+        if self.floor:
+            return float(math.floor(g))
+        return self.positive if g > 0 else self.negative if g < 0 else self.at_zero
+
+
+def _relational(rel, symbol):
+    """(switch, replacement) of a condition lhs < rhs etc.: g = lhs - rhs, sigma its truth."""
+    g = rel.lhs - rel.rhs
+    truth = {sp.StrictLessThan: (0.0, 1.0, 0.0), sp.LessThan: (0.0, 1.0, 1.0),
+             sp.StrictGreaterThan: (1.0, 0.0, 0.0), sp.GreaterThan: (1.0, 0.0, 1.0)}[type(rel)]
+    return Switch(g, symbol, *truth), sp.StrictGreaterThan(symbol, sp.Rational(1, 2))
+
+
+def _replacement(atom, symbol):
+    """(switch, smooth replacement) of one non-smooth function, or None."""
+    if isinstance(atom, (sp.StrictLessThan, sp.LessThan, sp.StrictGreaterThan,
+                         sp.GreaterThan)):
+        return _relational(atom, symbol)
+    if isinstance(atom, sp.Heaviside):
+        h0 = atom.args[1] if len(atom.args) > 1 else sp.S.Half
+        return Switch(atom.args[0], symbol, 1.0, 0.0, float(h0)), symbol
+    if isinstance(atom, sp.sign):
+        return Switch(atom.args[0], symbol, 1.0, -1.0, 0.0), symbol
+    if isinstance(atom, sp.Abs):
+        return Switch(atom.args[0], symbol, 1.0, -1.0, 0.0), symbol * atom.args[0]
+    if isinstance(atom, (sp.Min, sp.Max)) and len(atom.args) == 2:
+        a, b = atom.args
+        larger = 1.0 if isinstance(atom, sp.Max) else 0.0  # sigma = 1 selects a
+        return (Switch(a - b, symbol, larger, 1.0 - larger, 1.0),
+                symbol * a + (1 - symbol) * b)
+    if isinstance(atom, sp.floor):
+        return Switch(atom.args[0], symbol, floor=True), symbol
+    if isinstance(atom, sp.ceiling):
+        return Switch(-atom.args[0], symbol, floor=True), -symbol
+    return None
+
+
+def _binary(expr):
+    """Min/Max of more than two arguments as nested pairs."""
+    def nest(e):
+        return e.func(e.args[0], e.func(*e.args[1:], evaluate=False), evaluate=False)
+    return expr.replace(lambda e: isinstance(e, (sp.Min, sp.Max)) and len(e.args) > 2, nest)
+
+
+def switched(ode):
+    """The ODE with every non-smooth function of f replaced by a smooth one of a branch
+    parameter, and its :class:`Switch` es; (ode, []) when there is none.
+
+    The parameters are named dn_switch_0, dn_switch_1, ... and follow the ODE's own, so that
+    ``compiled.p[len(ode.params) + j]`` holds sigma_j.
+    """
+    if hasattr(ode, "templates"):
+        return ode, []
+    # made once per declaration (a sympy traversal of every right-hand side)
+    cached = ode.__dict__.get("_smooth")
+    if cached is None or cached[0] is not ode.rhs:
+        cached = ode._smooth = (ode.rhs, *_smooth(ode))
+    _, rhs, switches = cached
+    if not switches:
+        return ode, []
+    params = dict(ode.params)
+    params.update({s.symbol: s.value(0.0) for s in switches})
+    smooth = ODE(dict(zip(ode.states, rhs)), ode.u0, ode.T, params, ode.t0, ode.nonnegative)
+    return smooth, switches
+
+
+def _smooth(ode):
+    """(right-hand sides, switches) of :func:`switched`."""
+    if not any(e.has(*NON_SMOOTH) for e in ode.rhs):
+        return ode.rhs, []
+    switches, done, states = [], {}, set(ode.states)
+    for expr in ode.rhs:
+        # innermost first: a switch inside another's argument is smooth when that one is
+        for atom in sorted(_binary(expr).atoms(*NON_SMOOTH, sp.Rel), key=sp.count_ops):
+            symbol = sp.Symbol(f"{_SWITCH}{len(switches)}", real=True)
+            kink = isinstance(atom, _KINKS) and atom.free_symbols & states
+            made = None if atom in done or kink else _replacement(atom, symbol)
+            if made is not None:
+                # g in the original functions (evaluated as such); f smooth in sigma
+                switches.append(made[0])
+                done[atom] = _replacement(atom.xreplace(done), symbol)[1]
+    return [_binary(expr).xreplace(done) for expr in ode.rhs], switches
+
+
+#: Continuous functions with a kink: of t they give breakpoints; of the state they are left
+#: to the step control (a kink costs a few short steps), as the smooth continuation sigma g
+#: past the kink may leave f's domain (sqrt(|u - a|) would be sqrt of a negative number).
+_KINKS = (sp.Abs, sp.Min, sp.Max)
+NON_SMOOTH = (sp.Piecewise, sp.Heaviside, sp.sign, sp.Abs, sp.Min, sp.Max, sp.floor,
+               sp.ceiling)
+
+
+def _numeric(expr, ode):
+    """``expr`` with the parameter values substituted (the switches' own are left)."""
+    return sp.sympify(expr).xreplace({s: sp.Float(v) for s, v in ode.params.items()})
+
+
+def _roots_in(g, t0, T):
+    """The real roots of g(t) in (t0, T), sorted; ValueError when sympy cannot solve it."""
+    try:
+        roots = sp.solveset(g, time_symbol, sp.Interval.open(t0, T))
+    except (NotImplementedError, ValueError, TypeError):
+        roots = None
+    if roots is sp.S.EmptySet:
+        return []
+    if isinstance(roots, sp.FiniteSet):
+        return sorted(float(r) for r in roots if r.is_real)
+    raise ValueError(f"the breakpoints of f where {g} changes sign could not be solved for in "
+                     "closed form: give them as breakpoints=[...]")
+
+
+def breakpoints(ode, switches, given):
+    """Sorted breakpoints in (t0, T): roots of the switching functions of t alone and the
+    user's ``given`` (times outside (t0, T) are dropped)."""
+    t0, T = ode.t0, ode.T
+    times = [float(b) for b in given]
+    for s in switches:
+        g = _numeric(s.g, ode)
+        if g.free_symbols - {time_symbol}:
+            continue
+        if not s.floor:
+            times += _roots_in(g, t0, T)
+            continue
+        grid = np.linspace(t0, T, 1001)
+        values = sp.lambdify(time_symbol, g, "numpy")(grid) * np.ones_like(grid)
+        low, high = math.floor(np.min(values)) - 1, math.ceil(np.max(values)) + 1
+        if high - low > MAX_BREAKPOINTS:
+            raise ValueError(f"floor/ceiling of {s.g} jumps more than {MAX_BREAKPOINTS} times "
+                             "on [t0, T]: smooth it, or split the solve")
+        for n in range(low, high + 1):
+            times += _roots_in(g - n, t0, T)
+    times = np.unique(np.array(times, dtype=float))
+    return times[(times > t0) & (times < T)]
+
+
+class Detector:
+    """Sign changes of functions g_j(u, t) on the Galerkin solution, chunk by chunk.
+
+    ``last[j]`` is the sign of g_j before the next chunk (0: not yet known, as at t0 where
+    a zero is not an event).
+    """
+
+    def __init__(self, ode, functions, directions):
+        exprs = [_numeric(g, ode) for g in functions]
+        used = sorted(set().union(*(e.free_symbols for e in exprs)) & set(ode.states),
+                      key=ode.index)
+        unknown = set().union(*(e.free_symbols for e in exprs)) - set(used) - {time_symbol}
+        if unknown:
+            raise ValueError(f"unknown symbol {min(map(str, unknown))!r} in an event or "
+                             "switch: events are functions of the states and dn.t")
+        self.components = [ode.index(s) for s in used]
+        self._g = [sp.lambdify([time_symbol, *used], e, "numpy") for e in exprs]
+        self.directions = np.array(directions)
+        self.last = np.zeros(len(exprs))
+
+    def values(self, times, U):
+        """g_j at the times, U the solution there (N, M): shape (n_g, M)."""
+        args = [U[i] for i in self.components]
+        return np.array([g(times, *args) * np.ones_like(times)
+                         for g in self._g]).reshape(len(self._g), times.size)
+
+    def start(self, t, u):
+        self.last = np.sign(self.values(np.array([t]), u[:, None])[:, 0])
+
+    def brackets(self, begin, times, U):
+        """(a, b, j, sign after) of every crossing seen at the sample ``times`` (sorted, after
+        ``begin``; U the solution there): g_j changes sign in [a, b]; updates ``last``."""
+        G = self.values(times, U)
+        a, b, which, after = [np.empty(0)], [np.empty(0)], [np.empty(0, int)], [np.empty(0)]
+        for j in range(G.shape[0]):
+            s = np.sign(G[j])
+            before = np.concatenate([[self.last[j]], s])
+            index = np.where(before != 0, np.arange(before.size), 0)
+            previous = before[np.maximum.accumulate(index)]  # last nonzero sign so far
+            hits = np.flatnonzero((s != 0) & (s == -previous[:-1]))
+            hits = hits[self.directions[j] * s[hits] >= 0]
+            a.append(np.where(hits > 0, times[hits - 1], begin))
+            b.append(times[hits])
+            which.append(np.full(hits.size, j))
+            after.append(s[hits])
+            nonzero = np.flatnonzero(s)
+            if nonzero.size:
+                self.last[j] = s[nonzero[-1]]
+        return tuple(np.concatenate(x) for x in (a, b, which, after))
+
+    def roots(self, sol, a, b, which):
+        """The crossings of g_which[r] in [a_r, b_r] on the polynomials, to _ROOT_RTOL, by the
+        Illinois method (regula falsi, the end kept twice has its value halved) on all
+        brackets at once; NaN where g does not change sign there."""
+        roots = np.full(a.size, np.nan)
+        if a.size == 0:
+            return roots
+        ga, gb = self._at(sol, a, which), self._at(sol, b, which)
+        live = np.flatnonzero((ga != 0) & (np.sign(ga) != np.sign(gb)))
+        lo, hi, glo, ghi, rows = a[live], b[live], ga[live], gb[live], which[live]
+        side = np.zeros(live.size)
+        for _ in range(_ROOT_ITERATIONS):
+            i = np.flatnonzero(hi - lo > _ROOT_RTOL * np.maximum(abs(lo), abs(hi)) + 1e-300)
+            if i.size == 0:
+                break
+            m = (lo[i] * ghi[i] - hi[i] * glo[i]) / (ghi[i] - glo[i])
+            m = np.where(np.isfinite(m) & (m > lo[i]) & (m < hi[i]), m, 0.5 * (lo[i] + hi[i]))
+            gm = self._at(sol, m, rows[i])
+            right = np.sign(gm) == np.sign(glo[i])  # the crossing is in [m, hi]
+            ghi[i] = np.where(right & (side[i] == 1), 0.5 * ghi[i], ghi[i])
+            glo[i] = np.where(~right & (side[i] == -1), 0.5 * glo[i], glo[i])
+            lo[i], glo[i] = np.where(right, m, lo[i]), np.where(right, gm, glo[i])
+            hi[i], ghi[i] = np.where(right, hi[i], m), np.where(right, ghi[i], gm)
+            side[i] = np.where(right, 1, -1)
+            lo[i] = np.where(gm == 0, m, lo[i])  # a zero on a node: done
+        roots[live] = hi
+        return roots
+
+    def _at(self, sol, t, rows):
+        """g_rows[r] at t_r on the solution."""
+        return self.values(t, sol._evaluate(t))[rows, np.arange(t.size)]
+
+
+@dataclass
+class Plan:
+    """What a solve with discontinuities or events needs: the switches of f (in the order of
+    their parameters after the ODE's own), the breakpoints, the user's events, and one
+    :class:`Detector` for the events followed by the switches on the state."""
+
+    switches: list
+    breakpoints: np.ndarray
+    events: list
+    state_switches: list
+    detector: Detector
+    t_switches: Detector
+
+    @classmethod
+    def make(cls, ode, switches, given_breakpoints, events):
+        """The plan of a solve, or None when there is nothing to watch (the plain loop)."""
+        if not (switches or events or given_breakpoints is not None):
+            return None
+        events = events or []
+        # made once per declaration, parameter values, interval and events (sympy's solveset
+        # and lambdify took 17 of a small solve's 20 ms)
+        key = (ode.rhs, tuple(ode.params.values()), ode.t0, ode.T,
+               () if given_breakpoints is None else tuple(given_breakpoints),
+               tuple((e.g, e.terminal, e.direction) for e in events))
+        cached = ode.__dict__.get("_plan")
+        if cached is None or cached[0] != key:
+            cached = ode._plan = (key, cls._parts(ode, switches, given_breakpoints, events))
+        times, on_state, detector, t_detector = cached[1]
+        if not (switches or events or times.size):
+            return None
+        return cls(switches, times, events, on_state, detector, t_detector)
+
+    @staticmethod
+    def _parts(ode, switches, given_breakpoints, events):
+        """The breakpoints, the switches on the state and the two detectors of a plan."""
+        times = breakpoints(ode, switches, [] if given_breakpoints is None
+                            else given_breakpoints)
+        t_only = [s for s in switches if not (_numeric(s.g, ode).free_symbols - {time_symbol})]
+        on_state = [s for s in switches if not any(s is o for o in t_only)]
+        detector = Detector(ode, [e.g for e in events] + [s.g for s in on_state],
+                            [e.direction for e in events] + [0] * len(on_state))
+        return times, on_state, detector, Detector(ode, [s.g for s in t_only], [0] * len(t_only))
+
+    terminated = False
+    switched = 0  # crossings of switches on the state
+    end = None  # the time the solution reaches (from march)
+    terminal = None  # (t, j, state) of the terminal event
+
+    def __post_init__(self):
+        self.pending = []  # brackets (a, b, j) of events to locate on the final solution
+        self.located = []  # (times, j, states) of those located before a stop
+        self.stops = np.array([e.terminal for e in self.events]
+                              + [True] * len(self.state_switches), dtype=bool)
+
+    def solved_ode(self, ode):
+        """The ODE on the interval solved: [t0, t_event] after a terminal event."""
+        if not self.terminated:
+            return ode
+        ended = copy.copy(ode)
+        ended.__dict__.pop("_compiled", None)
+        ended._set_interval(ode.t0, self.end)
+        return ended
+
+    def report(self, sol):
+        """Set sol.t_events, sol.y_events (per event, as solve_ivp), status and message."""
+        sol.stats["breakpoints"] = self.breakpoints.size
+        sol.stats["state switches"] = self.switched
+        if self.events:
+            a, b, which = (np.concatenate(x) for x in zip((np.empty(0), np.empty(0),
+                                                          np.empty(0, int)), *self.pending))
+            times = self.detector.roots(sol, a, b, which)
+            found = ~np.isnan(times)
+            located = [(times[found], which[found], sol._evaluate(times[found]).T),
+                       *self.located]
+            if self.terminal is not None:
+                te, j, state = self.terminal
+                located.append((np.array([te]), np.array([j]), state[None, :]))
+            times, which, states = (np.concatenate(x) for x in zip(*located))
+            order = np.argsort(times, kind="stable")
+            times, which, states = times[order], which[order], states[order]
+            sol.t_events = [times[which == j] for j in range(len(self.events))]
+            sol.y_events = [states[which == j] for j in range(len(self.events))]
+        if self.terminated:
+            sol.status = TERMINATED
+            sol.message = f"A termination event occurred at t = {self.end:.17g}."
+
+    @property
+    def truncates(self):
+        """Whether a crossing can end a chunk early (a terminal event or a state switch)."""
+        return bool(self.state_switches) or any(e.terminal for e in self.events)
+
+    def initial_branches(self, sigma, u0, t0, T):
+        """sigma at t0 (the state switches from g(u0, t0), the t-only ones on the first
+        piece)."""
+        n_events = len(self.events)
+        g = self.detector.values(np.array([t0]), u0[:, None])[n_events:, 0]
+        for s, value in zip(self.state_switches, g):
+            sigma[self.switches.index(s)] = s.value(value)
+        self.branches(sigma, t0, self.breakpoints[0] if self.breakpoints.size else T)
+
+    def branches(self, sigma, begin, end):
+        """sigma on the piece (begin, end): the t-only switches from g at its midpoint, the
+        state switches as they are."""
+        mid = np.array([0.5 * (begin + end)])
+        values = self.t_switches.values(mid, np.zeros((0, 1)))[:, 0]
+        t_only = [s for s in self.switches if not any(s is o for o in self.state_switches)]
+        for s, g in zip(t_only, values):
+            sigma[self.switches.index(s)] = s.value(g)
+
+
+#: solve_ivp's status of a solve ended by a terminal event.
+TERMINATED = 1
+
+
+def march(plan, loop, t0, T):
+    """Integrate piece by piece between the breakpoints, locating events and state switches.
+
+    ``loop`` runs the compiled loop (:class:`MonoPieces` or :class:`MultiPieces`). Returns
+    (status, element chunks, end): status a loop status or TERMINATED, end the time the
+    solution reaches. The brackets of the events that do not stop it are left in
+    ``plan.pending``, the terminal event in ``plan.terminal``.
+    """
+    n_events = len(plan.events)
+    sigma = loop.sigma()
+    plan.detector.start(t0, loop.x)
+    elements, recent = [], []
+    for end in [*plan.breakpoints, T]:
+        plan.branches(sigma, loop.t(), end)
+        loop.restart(sigma)
+        while loop.t() < end:
+            for status, chunk in loop.chunks(end):
+                if status not in (loop.DONE, loop.FULL):
+                    return status, elements, loop.t()
+                if len(chunk[0]) == 0:
+                    continue
+                sol, *samples = loop.view(chunk)
+                a, b, which, after = plan.detector.brackets(*samples)
+                stop = _first_stop(plan, sol, a, b, which, after)
+                # the other events are located on the final solution (in one pass, see
+                # Plan.report), those whose bracket holds the stop here, before it is redone
+                te = np.inf if stop is None else stop[0]
+                later = plan.stops[which] | (a >= te)
+                now = ~later & (b >= te)
+                plan.pending.append((a[~later & ~now], b[~later & ~now], which[~later & ~now]))
+                times = plan.detector.roots(sol, a[now], b[now], which[now])
+                located = times <= te  # (not NaN)
+                plan.located.append((times[located], which[now][located],
+                                     sol._evaluate(times[located]).T))
+                if stop is None:
+                    elements.append(chunk)
+                    continue
+                kept, te = loop.truncate(chunk, stop[0])
+                j, after = stop[1:]
+                elements.append(kept)
+                for status, rest in loop.chunks(te):
+                    if status not in (loop.DONE, loop.FULL):
+                        return status, elements, loop.t()
+                    elements.append(rest)
+                plan.detector.start(te, loop.x)
+                plan.detector.last[j] = after
+                if j < n_events:
+                    plan.terminal = (te, j, loop.x.copy())
+                    return TERMINATED, elements, te
+                switch = plan.state_switches[j - n_events]
+                plan.switched += 1
+                sigma[plan.switches.index(switch)] = switch.value(after)
+                _check_sliding(recent, te, switch, t0, T)
+                loop.restart(sigma)
+                break
+    return loop.DONE, elements, T
+
+
+def _first_stop(plan, sol, a, b, which, after):
+    """(time, j, sign after) of the first crossing of a terminal event or a state switch
+    among the brackets, or None; a crossing right after a restart at a is at a."""
+    stops = np.flatnonzero(plan.stops[which])
+    if stops.size == 0:
+        return None
+    first = stops[a[stops] < b[stops].min()]  # those that can come first
+    roots = plan.detector.roots(sol, a[first], b[first], which[first])
+    roots = np.where(np.isnan(roots), a[first], roots)
+    k = int(np.argmin(roots))
+    return float(roots[k]), int(which[first][k]), float(after[first][k])
+
+
+def _check_sliding(recent, te, switch, t0, T):
+    """Raise SolverError when the last SLIDING_SWITCHES switches came within
+    SLIDING_SPAN (T - t0) of each other: a sliding mode, which switching cannot follow."""
+    from dolfinode.errors import SolverError
+
+    recent.append(te)
+    del recent[:-SLIDING_SWITCHES]
+    if len(recent) == SLIDING_SWITCHES and recent[-1] - recent[0] < SLIDING_SPAN * (T - t0):
+        raise SolverError(f"the switch on {switch.g} changes branch {SLIDING_SWITCHES} times "
+                          f"between t = {recent[0]:.9g} and {recent[-1]:.9g}: the solution slides "
+                          f"along {switch.g} = 0, where f is discontinuous (on both sides f points "
+                          "towards it). Replace the switch by a smooth one (e.g. tanh(g / eps)), "
+                          "or model the sliding motion", t=te)
+
+
+class _Pieces:
+    """What :func:`march` needs of a compiled loop: its time, state and branch parameters,
+    chunks up to a given end, a view of a chunk as a Solution, and truncation at a time.
+
+    ``run_chunks()`` starts the loop's chunk generator (``solve._chunks``); ``p`` and
+    ``n_params`` locate sigma in the kernels' parameters; ``step_guess(x, t)`` is the first
+    step of a fresh start (after a jump of f the old step says nothing)."""
+
+    from dolfinode.timeslab import DONE, FULL
+
+    def __init__(self, ode, method, run_chunks, fopts, state, x, p, n_params, step_guess):
+        self.ode, self.method, self.run_chunks = ode, method, run_chunks
+        self.fopts, self.state, self.x, self.p, self.n_params = fopts, state, x, p, n_params
+        self.step_guess = step_guess
+
+    def t(self):
+        return float(self.state[0])
+
+    def located(self, te):
+        """How far past an element start a crossing counts as at the start: the accuracy
+        of its location (a crossing in a dG jump is found just past it)."""
+        return _ROOT_RTOL * abs(te) + smallest_step(te, self.ode.T - self.ode.t0)
+
+    def sigma(self):
+        return self.p[self.n_params:].copy()
+
+    def chunks(self, end):
+        """The loop's chunks up to ``end``, with the state at each chunk's start kept."""
+        self.fopts[self.T_END] = end
+        run = self.run_chunks()
+        while True:
+            self.saved = self.save()
+            try:
+                status, chunk = next(run)
+            except StopIteration:
+                return
+            yield status, chunk
+
+
+class MonoPieces(_Pieces):
+    from dolfinode.timeslab.mono import EPS_PREV, HAVE_F0, K_NEXT, T_END, T_NOW
+
+    def __init__(self, *args, f0, f):
+        super().__init__(*args)
+        self.f0, self.f = f0, f  # f(x, t) with the kernels' current parameters
+
+    def save(self):
+        return self.x.copy()
+
+    def restart(self, sigma):
+        """A fresh start at the current time with the branches sigma."""
+        self.p[self.n_params:] = sigma
+        self.f0[:] = self.f(self.x, self.t())
+        self.state[[self.HAVE_F0, self.EPS_PREV]] = 1.0
+        self.state[self.K_NEXT] = min(self.state[self.K_NEXT], self.step_guess(self.x, self.t()))
+
+    def view(self, chunk):
+        from dolfinode.solution import Solution
+
+        t_start, k, values = chunk
+        sol = Solution(self.ode, self.method, t_start, k, values, {}, 2)
+        return sol, t_start[0], t_start + k, values[:, -1, :].T
+
+    def truncate(self, chunk, te):
+        """The chunk's elements before the one containing te, and te; the loop restarts at
+        its start (with U(t_n^-)), or at te when an element ends there. A te just past
+        an element start (a crossing in a dG jump, see ``located``) is taken as the start."""
+        t_start, k, values = chunk
+        t_end = t_start + k
+        n = min(int(np.searchsorted(t_end, te)), len(k) - 1)
+        if self.method.family == "cG":
+            left = values[n, 0]
+        else:
+            left = values[n - 1, -1] if n > 0 else self.saved
+        if te - t_start[n] <= self.located(te):
+            keep, t, te, x = n, t_start[n], t_start[n], left
+        elif t_end[n] <= te:
+            keep, t, te, x = n + 1, t_end[n], t_end[n], values[n, -1]
+        else:
+            keep, t, x = n, t_start[n], left
+        self.x[:] = x
+        self.state[[self.T_NOW, self.K_NEXT, self.HAVE_F0]] = t, k[n], 0.0
+        return [a[:keep] for a in chunk], te
+
+
+class MultiPieces(_Pieces):
+    def __init__(self, *args, kdes, frozen, components):
+        super().__init__(*args)
+        from dolfinode.timeslab.multi import T_END  # (imported by the loop already)
+
+        self.T_END = T_END
+        self.kdes, self.frozen, self.components = kdes, frozen, components
+
+    def save(self):
+        return self.state.copy(), self.x.copy(), self.kdes.copy(), self.frozen.copy()
+
+    def restart(self, sigma):
+        self.p[self.n_params:] = sigma
+        self.kdes[:] = np.minimum(self.kdes, self.step_guess(self.x, self.t()))
+
+    def view(self, chunk):
+        """The chunk as a Solution, the frozen components as constants since they froze."""
+        from dolfinode.solution import Solution
+
+        comp, a, b, values = chunk
+        frozen = np.flatnonzero(~np.isnan(self.frozen))
+        begin = float(self.saved[0][0])
+        times = b[np.isin(comp, self.components)] if self.components else b
+        times = np.unique(times[times > begin])
+        comp = np.concatenate([comp, frozen])
+        a = np.concatenate([a, self.frozen[frozen]])
+        b = np.concatenate([b, np.full(frozen.size, self.t())])
+        values = np.concatenate([values, np.repeat(self.x[frozen, None], values.shape[1], 1)])
+        sol = Solution.multi_adaptive(self.ode, self.method, comp, a, b, values, {}, 2)
+        return sol, begin, times, sol._evaluate(times)
+
+    def truncate(self, chunk, te):
+        """Nothing of the chunk, and te: the loop restarts at its start (a slab boundary,
+        where all components meet), which is te when te is just past it (``located``)."""
+        state, x, kdes, frozen = self.saved
+        self.state[:], self.x[:], self.kdes[:], self.frozen[:] = state, x, kdes, frozen
+        if te - state[0] <= self.located(te):
+            te = float(state[0])
+        return [a[:0] for a in chunk], te

@@ -1,0 +1,284 @@
+"""Where the elements a solve stores go as the time-slab loop produces them: its *history*.
+
+The driver (:func:`dolfinode.solve._integrate`) hands each chunk of stored elements to a sink
+and, at the end, asks the sink for the :class:`~dolfinode.Solution`. The parameter
+``dense_output`` chooses it (as scipy's ``dense_output``, diffrax's ``SaveAt``):
+
+- True (:class:`InMemory`): the whole history in memory, checked against the memory
+  available to the process after each chunk, so that a history that would not fit stops
+  with a SolverError naming ``dense_output`` instead of numpy's MemoryError or the OOM killer;
+- False (:class:`Samples`): each chunk is evaluated at the sample times it covers and
+  dropped; the memory does not grow with the number of steps;
+- a path "run.h5" (:class:`dolfinode.io.stored.ToFile`): each chunk is appended to an HDF5
+  file, which :func:`dolfinode.load_solution` opens lazily.
+
+A chunk is ``[t_start (n,), k (n,), values (n, q + 1, N)]`` from a mono-adaptive loop (a
+shared partition) and ``[comp (n,), t_start (n,), t_end (n,), values (n, q + 1)]`` from a
+multi-adaptive one, each element covering (t_start, t_end] (the value at a shared end point is
+the left element's, as :class:`~dolfinode.Solution` returns).
+"""
+import ctypes
+import ctypes.util
+import mmap
+
+import numpy as np
+from numba import njit
+
+from dolfinode.errors import SolverError
+from dolfinode.memory import address_space_room, available_memory
+from dolfinode.methods.method import element_value
+from dolfinode.solution import Solution, _evaluate_shared, equispaced, join_elements
+
+#: A dense history is checked against the available memory once it holds this many bytes
+#: (reading /proc for every chunk of a small solve would cost more than it guards).
+CHECK_FROM = 2**26
+
+
+def sink(ode, method, multi_adaptive, params):
+    """The history sink that ``params["dense_output"]`` asks for, with the sample times.
+
+    Raises
+    ------
+    ValueError
+        For sample times outside [t0, T].
+    """
+    times = params["sample_times"]
+    if times is not None and (times[0] < ode.t0 or times[-1] > ode.T):
+        raise ValueError(f"sample_times must lie in [t0, T] = [{ode.t0}, {ode.T}], got "
+                         f"[{times[0]}, {times[-1]}]")
+    if params["dense_output"] is False:
+        if times is None:
+            times = equispaced(ode.t0, ode.T, params["number_of_samples"])
+        return Samples(ode, method, multi_adaptive, times)
+    if params["dense_output"] is True:
+        return InMemory(ode, multi_adaptive, params["number_of_samples"] if times is None
+                        else times)
+    from dolfinode.io.stored import ToFile
+
+    return ToFile(params["dense_output"], ode, method, multi_adaptive,
+                  params["number_of_samples"] if times is None else times)
+
+
+class InMemory:
+    """``dense_output=True``: every chunk kept, joined into the Solution's arrays at the end.
+
+    Multi-adaptive chunks are joined grouped by component (a counting sort as they are
+    copied), so that the Solution is built without a global sort: the join peaks at the
+    history plus one chunk, the Solution at 1.2 x the history (a lexsort with reordered
+    copies peaked at 2.35 x).
+    """
+
+    def __init__(self, ode, multi_adaptive, samples):
+        self.ode, self.multi_adaptive, self.samples = ode, multi_adaptive, samples
+        self.chunks = []
+        self.bytes = 0
+        self.per_component = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
+
+    def add(self, chunk, t):
+        """Keep ``chunk`` (views of the loop's buffers, which it keeps alive); raise
+        SolverError when the history reached at the time ``t`` leaves no room for more."""
+        self.chunks.append(chunk)
+        if self.multi_adaptive:
+            self.per_component += np.bincount(chunk[0], minlength=self.ode.N)
+        size = sum(part.nbytes if part.base is None else part.base.nbytes for part in chunk)
+        self.bytes += size
+        if self.bytes >= CHECK_FROM:
+            self._check_room(2 * size, t)
+
+    def _check_room(self, more, t):
+        """Raise SolverError if ``more`` bytes (the next buffers and the join's slack) do not
+        fit; under RLIMIT_AS, where the join reserves its whole result at once, the history
+        must fit a second time as well."""
+        room, address_space = available_memory(), address_space_room()
+        if address_space is not None:
+            more += self.bytes
+        if room >= more:
+            return
+        ode = self.ode
+        done = (t - ode.t0) / (ode.T - ode.t0)
+        projected = (f"; the whole interval would take about {self.bytes / done / 2**30:.3g} GB"
+                     if done > 0 else "")
+        raise SolverError(
+            f"the solution history kept for dense output has grown to "
+            f"{self.bytes / 2**30:.3g} GB at t = {t:.6g} ({100 * done:.3g}% of [t0, T])"
+            f"{projected}; going on and joining it needs {more / 2**30:.3g} GB more, and the "
+            f"memory left to this process is {room / 2**30:.3g} GB (the least of the machine's "
+            "available memory, its cgroup limit and RLIMIT_AS). Solve with dense_output=False to keep only the samples (choose them with "
+            "sample_times=) and the final state", t=t)
+
+    def finish(self, completed):
+        """The joined elements: [t_start, k, values] as Solution takes them, or (multi-
+        adaptive) [ptr, t_start, t_end, values] as Solution.grouped does."""
+        if not completed:  # a failed solve: the elements are not used
+            self.chunks.clear()
+            return None
+        if not self.multi_adaptive:
+            return join_elements(self.chunks)
+        ptr = np.zeros(self.ode.N + 1, dtype=np.int64)
+        np.cumsum(self.per_component, out=ptr[1:])
+        large = self.bytes >= CHECK_FROM  # (a small join is not worth the system calls)
+        empty = _small_pages if large else np.empty
+        joined = [empty((ptr[-1], *part.shape[1:]), part.dtype) for part in self.chunks[0][1:]]
+        cursor = ptr[:-1].copy()
+        self.chunks.reverse()
+        while self.chunks:  # each chunk released once copied
+            _scatter_by_component(*self.chunks.pop(), cursor, *joined)
+            if large:
+                _return_freed_memory()
+        return [ptr, *joined]
+
+    def solution(self, ode, method, elements, stats, final):
+        """The Solution of the joined ``elements`` (``final``: the state at T, unused)."""
+        if not self.multi_adaptive:
+            return Solution(ode, method, *elements, stats, self.samples)
+        ptr, t_start, t_end, values = elements
+        if not _in_time_order(ptr, t_start):  # the loop made a component's elements out of order
+            comp = np.repeat(np.arange(ode.N), np.diff(ptr))
+            return Solution.multi_adaptive(ode, method, comp, t_start, t_end, values, stats,
+                                           self.samples)
+        return Solution.grouped(ode, method, *elements, stats, self.samples)
+
+
+def _small_pages(shape, dtype):
+    """np.empty(shape, dtype) in memory that is committed page by page as it is written.
+
+    NumPy asks for transparent huge pages (2 MB) for large arrays: each chunk of a join by
+    component writes a short run into every component's range, which with huge pages made
+    the whole result resident at the first chunk (the join peaked at twice the history)."""
+    size = int(np.prod(shape)) * np.dtype(dtype).itemsize
+    if size == 0 or not hasattr(mmap, "MADV_NOHUGEPAGE"):
+        return np.empty(shape, dtype)
+    memory = mmap.mmap(-1, size)
+    memory.madvise(mmap.MADV_NOHUGEPAGE)
+    return np.frombuffer(memory, dtype=dtype).reshape(shape)
+
+
+def _return_freed_memory():
+    """Give the heap's free pages back to the system (glibc's malloc_trim): buffers below
+    malloc's mmap threshold (32 MB at most) stay resident when freed, and a join that
+    copies them into new arrays would peak at twice the history."""
+    if _libc is not None:
+        _libc.malloc_trim(0)
+
+
+def _load_libc():
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc.malloc_trim  # noqa: B018 - glibc only
+        return libc
+    except (OSError, AttributeError):
+        return None
+
+
+_libc = _load_libc()
+
+
+@njit(cache=True)
+def _in_time_order(ptr, t_start):
+    """Whether each component's elements ptr[i]:ptr[i + 1] start in increasing time."""
+    for i in range(ptr.shape[0] - 1):
+        for e in range(ptr[i] + 1, ptr[i + 1]):
+            if t_start[e] < t_start[e - 1]:
+                return False
+    return True
+
+
+@njit(cache=True)
+def _scatter_by_component(comp, t_start, t_end, values, cursor, out_start, out_end, out_values):
+    """Copy a chunk's elements to their component's next free places (``cursor``): a stable
+    counting sort by component."""
+    for e in range(comp.shape[0]):
+        i = comp[e]
+        n = cursor[i]
+        out_start[n], out_end[n] = t_start[e], t_end[e]
+        out_values[n, :] = values[e, :]
+        cursor[i] = n + 1
+
+
+@njit(cache=True)
+def _sample_elements(comp, t_start, t_end, values, nodes, bary, times, out):
+    """out[comp[e], m] = U(times[m]) for the times in (t_start[e], t_end[e]] of each element."""
+    for e in range(comp.shape[0]):
+        first = np.searchsorted(times, t_start[e], side="right")
+        last = np.searchsorted(times, t_end[e], side="right")
+        for m in range(first, last):
+            tau = (times[m] - t_start[e]) / (t_end[e] - t_start[e])
+            out[comp[e], m] = element_value(values, e, tau, nodes, bary)
+
+
+class Samples:
+    """``dense_output=False``: each chunk evaluated at the sample times it covers, then
+    dropped (memory: the samples and one chunk, whatever the number of steps)."""
+
+    def __init__(self, ode, method, multi_adaptive, times):
+        self.ode, self.method, self.multi_adaptive, self.times = ode, method, multi_adaptive, times
+        self.y = np.full((ode.N, times.size), np.nan)
+        self.y[:, times == ode.t0] = ode.u0[:, None]  # U(t0) = u0, as Solution's
+        self.per_component = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
+
+    def add(self, chunk, t):
+        nodes, bary = self.method.nodes, self.method.barycentric_weights
+        if self.multi_adaptive:
+            comp, t_start, t_end, values = chunk
+            self.per_component += np.bincount(comp, minlength=self.ode.N)
+            _sample_elements(comp, t_start, t_end, values, nodes, bary, self.times, self.y)
+            return
+        t_start, k, values = chunk
+        if not len(k):
+            return
+        t_end = t_start + k
+        first = np.searchsorted(self.times, t_start[0], side="right")
+        last = np.searchsorted(self.times, t_end[-1], side="right")
+        if last > first:
+            out = np.empty((last - first, self.ode.N)).T
+            _evaluate_shared(t_start, t_end, values, nodes, bary, self.times[first:last], out)
+            self.y[:, first:last] = out
+
+    def finish(self, completed):
+        return None
+
+    def solution(self, ode, method, elements, stats, final):
+        """A :class:`SampledSolution` of the samples and the state at T, ``final``."""
+        return SampledSolution(ode, method, self.times, self.y, final.copy(), stats)
+
+
+#: What a solution without history says when asked for it.
+NEEDS_HISTORY = ("this solution kept only its samples and final state (dense_output=False); "
+                 "{what} needs the history: solve with dense_output=True")
+
+
+class SampledSolution(Solution):
+    """A solution that kept only its samples ``t``, ``y`` and the state at T, ``final``
+    (``dense_output=False``): it is evaluated at those times only."""
+
+    dense = False
+
+    def __init__(self, ode, method, times, y, final, stats):
+        self.ode, self.method, self.stats = ode, method, stats
+        self.t_start = self.k = self.values = None
+        self._component_ptr = None
+        self.__dict__["t"], self.__dict__["y"] = times, y
+        self.final = final
+
+    def _values(self, times):
+        """U at sample times (or T), else ValueError."""
+        at = np.minimum(np.searchsorted(self.t, times), self.t.size - 1)
+        known = self.t[at] == times
+        out = self.y[:, at]
+        at_end = times == self.ode.T
+        out[:, at_end] = self.final[:, None]
+        missing = ~(known | at_end)
+        if missing.any():
+            raise ValueError(NEEDS_HISTORY.format(
+                what=f"U(t) at t = {times[missing][0]:.17g}, which is not a sample time,"))
+        return out
+
+    def time_steps(self, component=None):
+        raise ValueError(NEEDS_HISTORY.format(what="time_steps()"))
+
+    def elements(self):
+        raise ValueError(NEEDS_HISTORY.format(what="elements()"))
+
+    def __repr__(self):
+        return (f"SampledSolution({self.method.name}, N={self.ode.N}, samples={self.t.size}, "
+                f"t=[{self.ode.t0}, {self.ode.T}])")

@@ -1,0 +1,164 @@
+"""The history of a solve: samples only (dense_output=False), sample_times, the memory check
+of a dense solve, and the memory of building a multi-adaptive Solution."""
+import textwrap
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import dolfinode as dn
+from dolfinode.problems import mass_spring_chain
+
+
+@pytest.fixture(scope="module")
+def chain():
+    """100 masses (N = 200): a mono-adaptive buffer holds 5242 cG(1) slabs, a multi-adaptive
+    one 2^20 elements, so the runs below hand the history over in several chunks."""
+    ode, _ = mass_spring_chain(100, T=6.0)
+    return ode
+
+
+@pytest.mark.parametrize("method, parameters", [
+    ("cG(1)", {"fixed_time_step": True, "initial_time_step": 6.0 / 12000}),
+    ("mcG(1)", {"tolerance": 1e-4, "maximum_time_step": 5e-4}),
+])
+def test_samples_only_equal_the_dense_solution_at_the_sample_times(chain, method, parameters):
+    times = np.sort(np.random.default_rng(3).uniform(0.0, 6.0, 40))
+    dense = dn.solve(chain, method, **parameters)
+    assert dense.stats["elements"] > 1.1e6  # several chunks
+    sampled = dn.solve(chain, method, dense_output=False, sample_times=times, **parameters)
+    assert sampled.dense is False
+    np.testing.assert_array_equal(sampled.t, times)
+    np.testing.assert_array_equal(sampled.y, dense(times))
+    np.testing.assert_array_equal(sampled(times[7]), dense(times[7]))
+    np.testing.assert_array_equal(sampled(6.0), dense(6.0))  # the final state is kept
+    with pytest.raises(ValueError, match="kept only its samples.*dense_output=True"):
+        sampled(0.5 * (times[3] + times[4]))
+    with pytest.raises(ValueError, match="needs the history"):
+        dn.estimate_error(sampled, {chain.states[0]: 1.0})
+
+
+def test_sample_times_of_a_dense_solve_are_its_t_and_y():
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: -u}, u0=[1.0], T=2.0)
+    times = [0.5, 1.0, 2.0]
+    sol = dn.solve(ode, "cG(2)", tolerance=1e-8, sample_times=times)
+    np.testing.assert_array_equal(sol.t, times)
+    np.testing.assert_allclose(sol.y[0], np.exp(-np.array(times)), rtol=1e-7)
+
+
+@pytest.mark.parametrize("parameters, error, words", [
+    ({"sample_times": [0.5, 0.2]}, ValueError, "strictly increasing, as solve_ivp's t_eval"),
+    ({"sample_times": [0.5, 3.0]}, ValueError, r"sample_times must lie in \[t0, T\]"),
+    ({"sample_times": [[0.5]]}, ValueError, "1-D sequence"),
+    ({"sample_times": [0.5j]}, TypeError, "sample_times is complex"),
+    ({"dense_output": "run.txt"}, ValueError, "ending in .h5 or .hdf5"),
+    ({"dense_output": 1}, TypeError, "dense_output must be True"),
+    ({"dense_output": False, "automatic_modeling": True}, ValueError,
+     "automatic_modeling .* needs dense_output=True"),
+])
+def test_history_parameters_are_checked(parameters, error, words):
+    u = sp.Symbol("u")
+    with pytest.raises(error, match=words):
+        dn.solve(dn.ODE({u: -u}, u0=[1.0], T=2.0), "cG(1)", **parameters)
+
+
+def test_a_goal_refuses_a_solve_without_history():
+    u = sp.Symbol("u")
+    with pytest.raises(ValueError, match="needs the history"):
+        dn.solve(dn.ODE({u: -u}, u0=[1.0], T=2.0), "cG(1)", goal={u: 1.0}, dense_output=False)
+
+
+def test_a_real_multi_adaptive_history_is_joined_without_a_sort(chain, monkeypatch):
+    def refuse(*args, **kwargs):
+        raise AssertionError("the joined elements were sorted again")
+
+    monkeypatch.setattr(np, "lexsort", refuse)
+    sol = dn.solve(chain, "mcG(1)", tolerance=1e-4, maximum_time_step=5e-4)
+    ptr, t_start, t_end, _ = sol.elements()
+    for i in (0, 57, 199):
+        assert np.all(t_end[ptr[i]:ptr[i + 1] - 1] == t_start[ptr[i] + 1:ptr[i + 1]])
+
+
+_BUILD = textwrap.dedent("""
+    import numpy as np
+    import dolfinode as dn
+    from dolfinode.io import history
+    from dolfinode.problems import mass_spring_chain
+
+    def rss(field):
+        with open("/proc/self/status") as status:
+            return next(int(line.split()[1]) * 1024 for line in status if line.startswith(field))
+
+    def stored_history(ode, slabs, per_chunk):
+        sink = history.InMemory(ode, True, 11)
+        for first in range(0, slabs, per_chunk):  # each slab: one element per component
+            starts = np.repeat(np.arange(first, first + per_chunk) * 1e-3, ode.N)
+            comp = np.tile(np.arange(ode.N, dtype=np.int64), per_chunk)
+            sink.add([comp, starts, starts + 1e-3, np.ones((comp.size, 2))], starts[-1])
+        return sink
+
+    ode = mass_spring_chain(100)[0]
+    method = dn.parse_method("mcG(1)")[1]
+    small = stored_history(ode, 10, 5)  # compiles the join's kernels
+    small.solution(ode, method, small.finish(True), {}, None)
+    base = rss("VmRSS:")
+    sink = stored_history(ode, 40_000, 5_000)  # 8 chunks of 40 MB
+    stored = sink.bytes
+    sol = sink.solution(ode, method, sink.finish(True), {}, None)
+    assert sol.multi and sol(0.5).shape == (ode.N,)
+    print(stored, rss("VmHWM:") - base)
+""")
+
+
+def test_building_a_multi_adaptive_solution_takes_at_most_1_2_times_its_history(run_python):
+    """From the chunks the loop stored to the Solution, in resident memory (issue 32: a
+    lexsort and reordered copies peaked at 2.35 x the history)."""
+    result = run_python(_BUILD)
+    assert result.returncode == 0, result.stderr
+    stored, peak = map(int, result.stdout.split())
+    assert stored == 40_000 * 200 * 40  # comp, t_start, t_end and two values per element
+    assert peak <= 1.2 * stored, f"{peak / stored:.2f} x the history"
+
+
+_BIG = textwrap.dedent("""
+    import resource, sys
+    import numpy as np, sympy as sp, dolfinode as dn
+
+    dense, slabs = sys.argv[1] == "dense", int(sys.argv[2])
+    if len(sys.argv) > 3:
+        limit = int(sys.argv[3])
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    n = 100_000
+    x, c = sp.symbols("x c")
+    rates = np.linspace(0.1, 1.0, n)
+    decay = dn.Template(slots=(x,), terms={x: -c * x}, indices=np.arange(n)[:, None],
+                        params=(c,), values=rates)
+    ode = dn.TemplateODE(decay, u0=np.ones(n), T=1.0)
+    try:
+        sol = dn.solve(ode, "cG(1)", fixed_time_step=True, initial_time_step=1.0 / slabs,
+                       dense_output=dense, number_of_samples=11)
+        print("solved", sol.stats["time slabs"], np.abs(sol.y[:, -1] - np.exp(-rates)).max())
+    except dn.SolverError as error:
+        print("SolverError", error)
+    print("peak", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
+""")
+
+
+def test_samples_only_of_1e5_components_stay_small(run_python):
+    """1500 slabs of cG(1) on 10^5 components: a 2.4 GB history, never held."""
+    result = run_python(_BIG, "samples", 1500)
+    assert result.returncode == 0, result.stderr
+    solved, peak = (line.split() for line in result.stdout.strip().splitlines()[-2:])
+    assert solved[:2] == ["solved", "1500"] and float(solved[2]) < 1e-6
+    history_bytes = 1500 * 2 * 100_000 * 8
+    assert int(peak[1]) < min(1.5 * 2**30, history_bytes / 4)
+
+
+def test_a_dense_solve_that_would_not_fit_stops_naming_dense_output(run_python):
+    """4000 slabs (a 6.4 GB history) under a 4 GiB RLIMIT_AS: SolverError, not MemoryError."""
+    result = run_python(_BIG, "dense", 4000, 4 * 2**30)
+    assert result.returncode == 0, result.stderr
+    message = result.stdout.strip().splitlines()[-2]
+    assert message.startswith("SolverError the solution history kept for dense output")
+    assert "dense_output=False" in message and "RLIMIT_AS" in message

@@ -1,0 +1,77 @@
+"""A solution history streamed to HDF5 (dense_output="run.h5") and read back lazily."""
+import os
+import stat
+import textwrap
+
+import numpy as np
+import pytest
+
+import dolfinode as dn
+from dolfinode.io.atomic import _umask
+from dolfinode.problems import mass_spring_chain
+
+
+@pytest.fixture(scope="module")
+def chain():
+    ode, _ = mass_spring_chain(20, T=3.0)
+    return ode
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "mcG(1)", "dG(1)"])
+def test_streamed_history_reads_back_equal_to_the_in_memory_one(chain, tmp_path, method):
+    dense = dn.solve(chain, method, tolerance=1e-6)
+    path = tmp_path / "out" / "run.h5"
+    streamed = dn.solve(chain, method, tolerance=1e-6, dense_output=str(path))
+    loaded = dn.load_solution(path)
+    times = np.random.default_rng(1).uniform(0.0, 3.0, 50)
+    for sol in (streamed, loaded):
+        np.testing.assert_array_equal(sol(times), dense(times))  # read lazily
+        np.testing.assert_array_equal(sol.y, dense.y)
+        np.testing.assert_array_equal(sol.values, dense.values)  # read whole
+        assert sol.stats["elements"] == dense.stats["elements"]
+        assert sol.ode.states == chain.states and sol.method.name == dense.method.name
+    assert os.listdir(path.parent) == ["run.h5"]
+    assert stat.S_IMODE(path.stat().st_mode) == 0o644 & ~_umask()
+    loaded.close()
+    streamed.close()
+
+
+def test_an_error_estimate_of_a_loaded_solution_equals_the_in_memory_one(chain, tmp_path):
+    goal = {chain.states[3]: 1.0}
+    dense = dn.solve(chain, "cG(1)", tolerance=1e-4)
+    loaded = dn.solve(chain, "cG(1)", tolerance=1e-4, dense_output=str(tmp_path / "run.h5"))
+    assert dn.estimate_error(loaded, goal).value == dn.estimate_error(dense, goal).value
+
+
+def test_a_failed_solve_leaves_no_file(chain, tmp_path):
+    with pytest.raises(dn.SolverError, match="maximum_steps"):
+        dn.solve(chain, "cG(1)", maximum_steps=5, dense_output=str(tmp_path / "run.h5"))
+    assert not os.listdir(tmp_path)
+
+
+def test_a_file_that_is_not_a_history_is_named(tmp_path):
+    import h5py
+
+    with h5py.File(tmp_path / "other.h5", "w") as other:
+        other["x"] = 1.0
+    with pytest.raises(ValueError, match="other.h5 is not a dolfinode solution history"):
+        dn.load_solution(tmp_path / "other.h5")
+
+
+_LONG = textwrap.dedent("""
+    import sys
+    from pathlib import Path
+    import dolfinode as dn
+    from dolfinode.problems import mass_spring_chain
+
+    ode, _ = mass_spring_chain(100, T=1000.0)
+    Path(sys.argv[1], "started").touch()
+    dn.solve(ode, "cG(1)", fixed_time_step=True, initial_time_step=1e-4,
+             dense_output=str(Path(sys.argv[1], "run.h5")))
+""")
+
+
+def test_a_killed_streaming_solve_leaves_no_file(tmp_path, kill_python):
+    # streaming by 3 s after the start: 10^7 slabs take minutes
+    kill_python(_LONG, tmp_path, started=tmp_path / "started", seconds=3.0)
+    assert os.listdir(tmp_path) == ["started"]

@@ -1,0 +1,198 @@
+"""Breakpoints of f(t), switches on the state and events (dolfinode/events.py)."""
+import math
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import dolfinode as dn
+
+u, v, x = sp.symbols("u v x")
+METHODS = ["cG(1)", "cG(2)", "dG(0)", "dG(1)", "dG(2)", "mcG(1)", "mdG(1)"]
+T_JUMP = math.sqrt(2) / 2
+
+#: (rhs of u, u0, exact u(1)): jumps of f in t, one at an irrational time
+JUMPS = {
+    "piecewise": (sp.Piecewise((0, dn.t < 0.5), (1, True)), 0.0, 0.5),
+    "heaviside": (sp.Heaviside(dn.t - 0.3), 0.0, 0.7),
+    "irrational": (u * sp.Heaviside(dn.t - sp.sqrt(2) / 2), 1.0, math.exp(1 - T_JUMP)),
+}
+
+
+def _low_order_tight(method, tol):
+    """dG(0) on u' = 1 needs steps ~ tolerance: 10^8 of them at 1e-8."""
+    return method.endswith("(0)") and tol < 1e-6
+
+
+@pytest.mark.parametrize("case", list(JUMPS))
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("tol", [1e-4, 1e-8])
+def test_jump_in_t_within_tolerance(case, method, tol):
+    if _low_order_tight(method, tol):
+        pytest.skip("dG(0) at 1e-8 takes 1e8 steps on u' = 1")
+    rhs, u0, exact = JUMPS[case]
+    sol = dn.solve(dn.ODE({u: rhs}, u0=[u0], T=1.0), method=method, tolerance=tol)
+    assert abs(sol(1.0)[0] - exact) <= 10 * tol * max(1.0, abs(exact))
+    assert sol.stats["breakpoints"] == 1
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "dG(0)", "dG(1)", "mcG(1)", "mdG(1)"])
+def test_estimate_across_jump_bounds_error(method):
+    rhs, u0, exact = JUMPS["irrational"]
+    sol = dn.solve(dn.ODE({u: rhs}, u0=[u0], T=1.0), method=method, tolerance=1e-4)
+    error = sol(1.0)[0] - exact
+    est = dn.estimate_error(sol, goal={u: 1.0})
+    assert est.value / error >= 0.5
+    assert est.bound >= abs(error)
+
+
+def test_elements_end_at_breakpoints():
+    ode = dn.ODE({u: sp.Piecewise((1, dn.t < 1.0), (-1, True)) + sp.floor(dn.t / 2)},
+                 u0=[0.0], T=5.0)
+    sol = dn.solve(ode, method="cG(1)", breakpoints=[2.5], tolerance=1e-6)
+    t_start, k = sol.time_steps()
+    ends = t_start + k
+    for b in (1.0, 2.0, 2.5, 4.0):
+        assert np.any(ends == b)
+    assert sol.stats["breakpoints"] == 4
+
+
+def test_unsolvable_breakpoint_asks_for_breakpoints():
+    ode = dn.ODE({u: sp.Heaviside(dn.t - sp.exp(-dn.t) * sp.cos(dn.t) ** 2 - 1 / dn.t)},
+                 u0=[0.0], T=3.0, t0=0.5)
+    with pytest.raises(ValueError, match="breakpoints="):
+        dn.solve(ode, method="cG(1)")
+
+
+#: x' = 1 below x = 1, 3 above: x(t) = t to t = 1, then 1 + 3 (t - 1)
+SWITCHES = [sp.Piecewise((1, x < 1), (3, True)), 1 + 2 * sp.Heaviside(x - 1), 2 + sp.sign(x - 1)]
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("tol", [1e-4, 1e-8])
+def test_state_switch_within_tolerance(method, tol):
+    if _low_order_tight(method, tol):
+        pytest.skip("dG(0) at 1e-8 takes 1e8 steps on x' = 1")
+    sol = dn.solve(dn.ODE({x: SWITCHES[0]}, u0=[0.0], T=2.0), method=method, tolerance=tol)
+    assert abs(sol(2.0)[0] - 4.0) <= 10 * tol * 4.0
+    assert abs(sol(0.5)[0] - 0.5) <= 10 * tol
+    assert sol.stats["state switches"] == 1
+    with pytest.raises(ValueError, match="switches on the state"):
+        dn.estimate_error(sol, goal={x: 1.0})
+
+
+@pytest.mark.parametrize("rhs", SWITCHES[1:3])
+def test_state_switch_forms(rhs):
+    sol = dn.solve(dn.ODE({x: rhs}, u0=[0.0], T=2.0), method="dG(1)", tolerance=1e-6)
+    assert abs(sol(2.0)[0] - 4.0) <= 1e-5
+
+
+def test_kink_on_the_state_within_tolerance():
+    # x' = 1 until x = 1 (t = 1), then x' = 3 x - 2: x = 2/3 + exp(3 (t - 1)) / 3
+    sol = dn.solve(dn.ODE({x: sp.Max(1, 3 * x - 2)}, u0=[0.0], T=1.5), method="cG(2)",
+                   tolerance=1e-8)
+    exact = 2 / 3 + math.exp(1.5) / 3
+    assert abs(sol(1.5)[0] - exact) <= 10 * 1e-8 * exact
+
+
+def test_sliding_mode_raises():
+    # x' = -sign(x): from x = 1 down to 0 at t = 1, then f points at x = 0 from both sides
+    with pytest.raises(dn.SolverError, match="slides along"):
+        dn.solve(dn.ODE({x: -sp.sign(x)}, u0=[1.0], T=2.0), method="dG(1)", tolerance=1e-6)
+
+
+@pytest.fixture(scope="module")
+def oscillator():
+    return dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=10.0)
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(2)", "mcG(2)", "mdG(2)"])
+def test_oscillator_crossings_located(oscillator, method):
+    sol = dn.solve(oscillator, method=method, tolerance=1e-8,
+                   events=[u, dn.Event(u, direction=1), dn.Event(v, direction=-1)])
+    np.testing.assert_allclose(sol.t_events[0], np.pi / 2 + np.pi * np.arange(3), atol=1e-7)
+    np.testing.assert_allclose(sol.t_events[1], [3 * np.pi / 2], atol=1e-7)
+    np.testing.assert_allclose(sol.t_events[2], [2 * np.pi], atol=1e-7)  # v = -sin t
+    np.testing.assert_allclose(sol.y_events[0][:, 0], 0.0, atol=1e-7)
+    np.testing.assert_allclose(sol.y_events[0][:, 1], [-1, 1, -1], atol=1e-7)
+    assert sol.status == 0 and sol.success
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(2)", "mdG(1)"])
+def test_terminal_event_ends_the_solve(oscillator, method):
+    # v = -sin t reaches 0.5 going up at t = 7 pi / 6
+    sol = dn.solve(oscillator, method=method, tolerance=1e-8,
+                   events=[u, dn.Event(v - 0.5, terminal=True, direction=1)])
+    te = 7 * np.pi / 6
+    assert sol.status == 1 and sol.success and "termination event" in sol.message
+    assert abs(sol.t_events[1][0] - te) < 1e-7
+    assert sol.ode.T == sol.t_events[1][0] and oscillator.T == 10.0
+    np.testing.assert_allclose(sol(sol.ode.T), [np.cos(te), 0.5], atol=1e-7)
+    np.testing.assert_allclose(sol.t_events[0], [np.pi / 2], atol=1e-7)  # not 3 pi / 2
+    with pytest.raises(ValueError):
+        sol(te + 0.1)
+
+
+def test_event_at_t0_and_never(oscillator):
+    sol = dn.solve(oscillator, method="cG(2)", tolerance=1e-8,
+                   events=[v, u - 2.0, dn.t - 20.0, dn.Event(v, terminal=True, direction=1)])
+    np.testing.assert_allclose(sol.t_events[0], [np.pi], atol=1e-7)  # v(0) = 0 not reported
+    assert sol.t_events[1].size == 0 and sol.y_events[1].shape == (0, 2)
+    assert sol.t_events[2].size == 0
+    np.testing.assert_allclose(sol.t_events[3], [np.pi], atol=1e-7)
+    assert sol.status == 1
+
+
+def test_no_events_gives_none(oscillator):
+    sol = dn.solve(oscillator, method="cG(1)")
+    assert sol.t_events is None and sol.y_events is None and sol.status == 0
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "dG(1)", "mcG(1)"])
+def test_bouncing_ball(method):
+    y, w = sp.symbols("y w")
+    g, e, tol = 9.81, 0.8, 1e-6
+    times, t0, state = [], 0.0, [1.0, 0.0]
+    for _ in range(10):
+        ode = dn.ODE({y: w, w: -g}, u0=state, t0=t0, T=10.0)
+        sol = dn.solve(ode, method=method, tolerance=tol,
+                       events=[dn.Event(y, terminal=True, direction=-1)])
+        assert sol.status == 1
+        t0 = sol.t_events[0][0]
+        times.append(t0)
+        state = [0.0, -e * sol.y_events[0][0, 1]]
+    first = math.sqrt(2 / g)
+    exact = first + np.cumsum([0.0] + [2 * e ** n * first for n in range(1, 10)])
+    np.testing.assert_allclose(times, exact, rtol=10 * tol)
+
+
+def test_event_validation(oscillator):
+    with pytest.raises(ValueError, match="direction"):
+        dn.Event(u, direction=2)
+    with pytest.raises(TypeError, match="terminal"):
+        dn.Event(u, terminal="yes")
+    with pytest.raises(TypeError, match="sympy expression"):
+        dn.solve(oscillator, events=[object()])
+    with pytest.raises(ValueError, match="unknown symbol"):
+        dn.solve(oscillator, events=[sp.Symbol("w")])
+    with pytest.raises(ValueError, match="finite"):
+        dn.solve(oscillator, breakpoints=[1.0, np.nan])
+    with pytest.raises(ValueError, match="automatic_modeling"):
+        dn.solve(oscillator, events=[u], automatic_modeling=True)
+
+
+@pytest.mark.parametrize("method", ["mcG(1)", "mdG(1)"])
+def test_multi_adaptive_events_with_frozen_and_slow_components(method):
+    # w is at rest (frozen, no elements until the end), z decays slowly to a terminal event
+    w, z = sp.symbols("w z")
+    ode = dn.ODE({u: v, v: -u, w: 0 * u, z: -1e-3 * z}, u0=[1.0, 0.0, 2.0, 1.0], T=50.0)
+    sol = dn.solve(ode, method=method, tolerance=1e-8,
+                   events=[u, w - 1, dn.Event(z - 0.97, terminal=True)])
+    te = -math.log(0.97) / 1e-3
+    assert sol.status == 1 and abs(sol.t_events[2][0] - te) < 1e-4  # |z'| = 1e-3
+    np.testing.assert_allclose(sol.t_events[0], np.pi / 2 + np.pi * np.arange(10), atol=1e-7)
+    assert sol.t_events[1].size == 0
+    assert sol.stats["elements per component"][2] <= 2
+    est = dn.estimate_error(sol, goal={u: 1.0})
+    error = sol(sol.ode.T)[0] - math.cos(sol.ode.T)
+    assert abs(est.value - error) <= 0.5 * abs(error) + 1e-12

@@ -1,0 +1,42 @@
+"""The driver's error control on problems whose small components decide stability."""
+import numpy as np
+import pytest
+import sympy as sp
+
+import dolfinode as dn
+from dolfinode.bench.problems import ROBER_REFERENCE, rober
+from dolfinode.solve import _keeps_nonnegative
+
+METHODS = ["cG(1)", "cG(2)", "dG(0)", "dG(1)", "dG(2)", "mcG(1)", "mcG(2)", "mdG(0)",
+           "mdG(1)", "mdG(2)"]
+#: cG(1) is not L-stable: at loose tolerances it takes ~10^6 steps on ROBER (5 s each)
+SLOW = {("cG(1)", 1e-2), ("cG(1)", 1e-4), ("dG(0)", 1e-6), ("mdG(0)", 1e-6)}
+
+
+@pytest.fixture(scope="module")
+def robertson():
+    return rober().ode
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("tol", [1e-2, 1e-3, 1e-4, 1e-5, 1e-6])
+def test_rober_default_absolute_tolerance(robertson, method, tol):
+    # mdG(1) at 1e-3 returned y1 = -4.3e7 as a success (cG(1) -4.8e7, mcG(q) at 1e-2..1e-5)
+    if (method, tol) in SLOW:
+        pytest.skip("seconds per run: the neighbouring tolerances cover it")
+    try:
+        sol = dn.solve(robertson, method=method, tolerance=tol)
+    except dn.SolverError:
+        return
+    y = sol(1e11)
+    assert np.all(np.abs(y - ROBER_REFERENCE) <= 10 * tol * (1 + np.abs(ROBER_REFERENCE)))
+    assert abs(y.sum() - 1.0) <= tol
+
+
+def test_quasi_positive_systems_are_recognised():
+    a, b = sp.symbols("a b")
+    assert _keeps_nonnegative(rober().ode)
+    assert _keeps_nonnegative(dn.ODE({a: -a, b: a - 2 * b}, u0=[1.0, 0.0], T=1.0))
+    assert not _keeps_nonnegative(dn.ODE({a: -a - b, b: a}, u0=[1.0, 0.0], T=1.0))
+    assert not _keeps_nonnegative(dn.ODE({a: -a, b: a}, u0=[1.0, -1.0], T=1.0))
+    assert not _keeps_nonnegative(dn.ODE({a: sp.sin(dn.t)}, u0=[1.0], T=1.0))
