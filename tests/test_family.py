@@ -34,7 +34,7 @@ def test_uniform_chain_picks_mono():
     ode = mass_spring_chain(40, T=200.0)[0]
     sol = dn.solve(ode, "auto", tolerance=1e-6)
     choice = sol.stats["family choice"]
-    assert choice["method"] == "cG(2)" and sol.stats["method"] == "cG(2)"
+    assert choice["method"] == "cG(2)" and sol.stats["method"] == "cG(2)", choice
     pilots = choice["cG(2)"]
     assert len(pilots["pilot horizons"]) >= 2 and pilots["predicted time"] > 0
     assert pilots["pilot horizons"][-1] >= 0.01 * 200.0
@@ -52,11 +52,11 @@ def test_output_parameters_are_the_final_solves(tmp_path):
 
 
 def test_scale_separation_picks_multi():
-    """One oscillator 1000x faster than 50 others: mcG(2)'s elements are far fewer."""
-    ode = oscillator_bank(n=50, w=1000.0, T=1.0).ode
+    """One oscillator 1000x faster than 200 others: mcG(2) is 27x faster, predicted 4.5x."""
+    ode = oscillator_bank(n=200, w=1000.0, T=0.5).ode
     sol = dn.solve(ode, "auto", tolerance=1e-6)
     choice = sol.stats["family choice"]
-    assert choice["method"] == "mcG(2)" and sol.stats["method"] == "mcG(2)"
+    assert choice["method"] == "mcG(2)" and sol.stats["method"] == "mcG(2)", choice
     assert choice["mcG(2)"]["efficiency index"] > 5
     _same_solution(sol, dn.solve(ode, "mcG(2)", tolerance=1e-6))
 
