@@ -10,6 +10,7 @@ from dolfinode import timeslab as ts
 from dolfinode.adaptivity import filter_constant, initial_step, step_tolerance
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
+from dolfinode.family import auto_base, choose_family
 from dolfinode.io import history
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
 from dolfinode.memory import available_memory
@@ -144,7 +145,10 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     method : str, default "cG(1)"
         "cG(q)" (q >= 1, nodal order 2q, A-stable) or "dG(q)" (q >= 0, order 2q + 1,
         L-stable): one time step shared by all components; "mcG(q)" or "mdG(q)": individual
-        time steps per component (multi-adaptive).
+        time steps per component (multi-adaptive); "auto" (or "auto:cG(q)", "auto:dG(q)";
+        "auto" is "auto:cG(2)"): the mono- or multi-adaptive variant, whichever is faster on
+        pilot solves over the first percent of [t0, T] (see :mod:`dolfinode.family`); the
+        decision and its evidence are in ``sol.stats["family choice"]``.
     tolerance : float, default 1e-6
         Relative tolerance (rtol) of the local error estimate. With ``goal``: the bound on
         the estimated error in that output.
@@ -266,6 +270,12 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     if not isinstance(ode, ODE):
         raise TypeError(f"solve expects a dolfinode.ODE, got {type(ode).__name__}")
     params = check_parameters(parameters)
+    base = auto_base(method)
+    if base is not None:
+        method, choice = choose_family(solve, ode, base, parameters)
+        sol = solve(ode, method, goal=goal, **parameters)
+        sol.stats["family choice"] = choice
+        return sol
     if goal is not None:
         from dolfinode.dual.adaptivity import solve_for_goal
 

@@ -28,6 +28,30 @@ def coupled_oscillators(eps=1e-3, w=1000.0, T=10.0):
                                f"T = {T:g}")
 
 
+def oscillator_bank(n=50, w=1000.0, T=1.0, eps=1e-2):
+    """n slow oscillators of frequencies 1..2 (evenly spaced) and one of frequency w, coupled
+    to the first by eps:
+
+        x_j'' = -omega_j^2 x_j (+ eps x_f for j = 1),  x_f'' = -w^2 x_f + eps x_1,
+        x(0) = 1, v(0) = 0;
+
+    every oscillator starts displaced, so the spread of time scales (w against 1..2) is
+    there from t0, the case where ``method="auto"`` must pick the multi-adaptive variant.
+    Linear: the exact solution is the matrix exponential."""
+    A = np.zeros((2 * n + 2, 2 * n + 2))
+    for j, omega in enumerate(np.linspace(1.0, 2.0, n)):
+        A[2 * j, 2 * j + 1], A[2 * j + 1, 2 * j] = 1.0, -omega**2
+    A[2 * n, 2 * n + 1], A[2 * n + 1, 2 * n] = 1.0, -w**2
+    A[1, 2 * n] = A[2 * n + 1, 0] = eps
+    u0 = np.zeros(2 * n + 2)
+    u0[::2] = 1.0
+    ode, exact = linear(A, u0, T, name="x")
+    return Problem("oscillator bank", ode, stiff=False, final=exact(T), exact=exact,
+                   multiscale=True, reference="matrix exponential (linear system)",
+                   description=f"{n} oscillators of frequencies 1..2 and one of {w:g}, "
+                               f"coupling {eps:g}, T = {T:g}")
+
+
 def _renamed(problem, name):
     problem.name = name
     return problem

@@ -273,7 +273,8 @@ def _parse_method(name):
         hint = (f" ({name!r} is scipy's; a Galerkin method of similar order and stability is "
                 f"{similar!r})" if similar else "")
         raise ValueError(f"unknown method {name!r}{hint}: use 'cG(q)' (q >= 1), 'dG(q)' "
-                         "(q >= 0), or 'mcG(q)', 'mdG(q)' for individual time steps per component")
+                         "(q >= 0), 'mcG(q)', 'mdG(q)' for individual time steps per component, "
+                         "or 'auto' (mono or multi-adaptive, chosen by pilot solves)")
     multi, family, q = match.groups()
     family = "cG" if family.lower() == "cg" else "dG"
     return bool(multi), make_method(family, int(q))

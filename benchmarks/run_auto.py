@@ -1,0 +1,114 @@
+"""method="auto" against cG(q) and mcG(q) (issue 29, item 6: auto within 1.3x of the better).
+
+The problems: the uniform chain without scale separation
+(``dolfinode.problems.mass_spring_chain(100, T=200)``, where mono-adaptive cG(2) is far
+cheaper), the stiff-spring chain (``dolfinode.bench.problems.mass_spring_chain``: 200 masses,
+10 or 2 springs 1e6 stiffer, T = 0.1), the reaction front (``reaction_front(n=500, T=0.05)``)
+and an oscillator bank (``dolfinode.bench.multirate.oscillator_bank``: one fast oscillator
+among 100 slow ones, where mcG(2) is far cheaper).
+Every solve is timed by CPU time (``time.process_time``: the machine is shared), after an
+untimed call per method (compile and load apart), in interleaved rounds; the table gives each
+method's minimum over the rounds, the choice auto made, and auto / min(cG(q), mcG(q)).
+
+Usage::
+
+    .venv/bin/python benchmarks/run_auto.py [--rounds 7] [--output doc/benchmarks]
+"""
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import dolfinode as dn
+from dolfinode.bench.multirate import oscillator_bank
+from dolfinode.bench.problems import mass_spring_chain, reaction_front
+from dolfinode.problems import mass_spring_chain as uniform_chain
+
+TARGET = 1.3
+
+
+def problems():
+    """(name, ode, tolerance, base method) of the problems."""
+    return [
+        ("uniform chain, 100 masses, T = 200", uniform_chain(100, T=200)[0], 1e-6, "cG(2)"),
+        ("stiff-spring chain, 200 masses, 10 springs 1e6 stiffer, T = 0.1",
+         mass_spring_chain(n=200, stiffness=1e6, stiff_springs=10, T=0.1).ode, 1e-6, "cG(2)"),
+        ("stiff-spring chain, 200 masses, 2 springs 1e6 stiffer, T = 0.1",
+         mass_spring_chain(n=200, stiffness=1e6, stiff_springs=2, T=0.1).ode, 1e-6, "cG(2)"),
+        ("reaction front, N = 500, T = 0.05", reaction_front(n=500, T=0.05).ode, 1e-6, "cG(2)"),
+        ("oscillator bank, 100 of frequency 1..2 and one of 1000, T = 2",
+         oscillator_bank(n=100, w=1000.0, T=2.0).ode, 1e-6, "cG(2)"),
+    ]
+
+
+def cpu_time(ode, method, tolerance):
+    """(CPU seconds, solution) of one solve."""
+    start = time.process_time()
+    sol = dn.solve(ode, method, tolerance=tolerance, number_of_samples=2)
+    return time.process_time() - start, sol
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rounds", type=int, default=7)
+    parser.add_argument("--output", default=str(Path(__file__).resolve().parents[1] / "doc"
+                                                / "benchmarks"))
+    args = parser.parse_args(argv)
+    rows = []
+    for name, ode, tolerance, base in problems():
+        methods = [base, "m" + base, "auto:" + base]
+        for method in methods:  # untimed: compile and load
+            cpu_time(ode, method, tolerance)
+        times = {method: [] for method in methods}
+        choices = []
+        for _ in range(args.rounds):
+            for method in methods:
+                seconds, sol = cpu_time(ode, method, tolerance)
+                times[method].append(seconds)
+                if method.startswith("auto"):
+                    choices.append(sol.stats["family choice"]["method"])
+                    evidence = sol.stats["family choice"]
+        best = {method: min(values) for method, values in times.items()}
+        better = min(best[base], best["m" + base])
+        rows.append({"problem": name, "tolerance": tolerance, "times": times, "minima": best,
+                     "choices": choices, "ratio": best["auto:" + base] / better,
+                     "last evidence": evidence})
+        print(name, best, choices, rows[-1]["ratio"], flush=True)
+    lines = ["# method=\"auto\": mono- or multi-adaptive, chosen by pilot solves", "",
+             (f"`python benchmarks/run_auto.py --rounds {args.rounds}`, "
+              f"{time.strftime('%Y-%m-%d')}, {platform.processor() or platform.machine()}, "
+              "a machine shared with other jobs: CPU time (`time.process_time`) of the whole "
+              f"`dn.solve` call, minimum over {args.rounds} interleaved rounds after an untimed "
+              "call per method."), "",
+             ("| problem | tolerance | cG(2) [s] | mcG(2) [s] | auto [s] | auto chose | "
+              f"auto / better (target <= {TARGET}) |"), "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        base, multi, auto = r["minima"]
+        chosen = ", ".join(f"{m} ({r['choices'].count(m)}/{len(r['choices'])})"
+                           for m in sorted(set(r["choices"])))
+        lines.append(f"| {r['problem']} | {r['tolerance']:g} | {r['minima'][base]:.3g} | "
+                     f"{r['minima'][multi]:.3g} | {r['minima'][auto]:.3g} | {chosen} | "
+                     f"{r['ratio']:.2f}x |")
+    lines += ["", ("auto races the two variants over pilot intervals [t0, t0 + H] (H growing "
+                   "4-fold from 0.1 % of [t0, T] until both cover 1 %, or one with its next pilot "
+                   "would cost 10 % of the other's predicted time), then solves [t0, T] from "
+                   "the start with the variant of the smaller marginal CPU rate: its time is "
+                   "that solve plus the pilots. The evidence of each choice is in "
+                   "`sol.stats[\"family choice\"]` (auto.json: the last one per problem)."), "",
+              ("The choice is made once, from the first 1.6 % of [t0, T], and is fragile where "
+               "the scales separate only later: on the chain with 2 stiff springs the fast "
+               "oscillation builds up from rest, cG(2)'s pilots predict about 0.05 s against "
+               "0.13 s measured, and mcG(2), whose start is costly, is abandoned: auto picks "
+               "cG(2) there in most runs (3.2x the better; one earlier run picked mcG(2) in 6 of "
+               "7 rounds, 1.27x). On small solves (the reaction front, 13 ms) the pilots' fixed "
+               "cost per call is most of the difference.")]
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "auto.md").write_text("\n".join(lines) + "\n")
+    (out / "auto.json").write_text(json.dumps(rows, indent=1, default=str) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
