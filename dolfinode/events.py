@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import sympy as sp
+from scipy.optimize import brentq
 
 from dolfinode.ode import ODE
 from dolfinode.ode import t as time_symbol
@@ -41,6 +42,8 @@ _ROOT_ITERATIONS = 200
 _ROOT_RTOL = 1e-13
 #: Most breakpoints of a floor/ceiling of t (each one ends a piece of the integration).
 MAX_BREAKPOINTS = 100_000
+#: Times at which a switching function of t that sympy cannot solve is sampled for its roots.
+ROOT_GRID = 2**16 + 1
 _SWITCH = "dn_switch_"
 
 
@@ -187,7 +190,9 @@ def _numeric(expr, ode):
 
 
 def _roots_in(g, t0, T):
-    """The real roots of g(t) in (t0, T), sorted; ValueError when sympy cannot solve it."""
+    """The real roots of g(t) in (t0, T), sorted: sympy's, or where sympy cannot solve for
+    them, the sign changes of g on ROOT_GRID equispaced times, each refined by Brent's
+    method to rounding (roots closer together than (T - t0) / ROOT_GRID can be missed)."""
     try:
         roots = sp.solveset(g, time_symbol, sp.Interval.open(t0, T))
     except (NotImplementedError, ValueError, TypeError):
@@ -196,8 +201,12 @@ def _roots_in(g, t0, T):
         return []
     if isinstance(roots, sp.FiniteSet):
         return sorted(float(r) for r in roots if r.is_real)
-    raise ValueError(f"the breakpoints of f where {g} changes sign could not be solved for in "
-                     "closed form: give them as breakpoints=[...]")
+    function = sp.lambdify(time_symbol, g, "numpy")
+    grid = np.linspace(t0, T, ROOT_GRID)
+    sign = np.sign(function(grid) * np.ones_like(grid))
+    changes = np.flatnonzero(sign[:-1] * sign[1:] < 0)
+    return sorted([*grid[sign == 0], *(brentq(function, grid[i], grid[i + 1], xtol=1e-300)
+                                       for i in changes)])
 
 
 def breakpoints(ode, switches, given):
