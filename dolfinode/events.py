@@ -237,10 +237,12 @@ class Detector:
     """Sign changes of functions g_j(u, t) on the Galerkin solution, chunk by chunk.
 
     ``last[j]`` is the sign of g_j before the next chunk (0: not yet known, as at t0 where
-    a zero is not an event).
+    a zero is not an event). The last ``switches`` functions are switches of f: for them the
+    first nonzero sign after a zero start is a crossing, as the branch taken at g = 0 (e.g.
+    sign(0) = 0) is not the one that follows.
     """
 
-    def __init__(self, ode, functions, directions):
+    def __init__(self, ode, functions, directions, switches=0):
         exprs = [_numeric(g, ode) for g in functions]
         used = sorted(set().union(*(e.free_symbols for e in exprs)) & set(ode.states),
                       key=ode.index)
@@ -252,6 +254,7 @@ class Detector:
         self._g = [sp.lambdify([time_symbol, *used], e, "numpy") for e in exprs]
         self.directions = np.array(directions)
         self.last = np.zeros(len(exprs))
+        self.from_zero = np.arange(len(exprs)) >= len(exprs) - switches
 
     def values(self, times, U):
         """g_j at the times, U the solution there (N, M): shape (n_g, M)."""
@@ -272,7 +275,8 @@ class Detector:
             before = np.concatenate([[self.last[j]], s])
             index = np.where(before != 0, np.arange(before.size), 0)
             previous = before[np.maximum.accumulate(index)]  # last nonzero sign so far
-            hits = np.flatnonzero((s != 0) & (s == -previous[:-1]))
+            leaves_zero = self.from_zero[j] & (previous[:-1] == 0)
+            hits = np.flatnonzero((s != 0) & ((s == -previous[:-1]) | leaves_zero))
             hits = hits[self.directions[j] * s[hits] >= 0]
             a.append(np.where(hits > 0, times[hits - 1], begin))
             b.append(times[hits])
@@ -356,7 +360,8 @@ class Plan:
         t_only = [s for s in switches if not (_numeric(s.g, ode).free_symbols - {time_symbol})]
         on_state = [s for s in switches if not any(s is o for o in t_only)]
         detector = Detector(ode, [e.g for e in events] + [s.g for s in on_state],
-                            [e.direction for e in events] + [0] * len(on_state))
+                            [e.direction for e in events] + [0] * len(on_state),
+                            switches=len(on_state))
         return times, on_state, detector, Detector(ode, [s.g for s in t_only], [0] * len(t_only))
 
     terminated = False

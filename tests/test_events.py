@@ -105,6 +105,23 @@ def test_kink_on_the_state_within_tolerance():
     assert abs(sol(1.5)[0] - exact) <= 10 * 1e-8 * exact
 
 
+@pytest.mark.parametrize("method", ["cG(1)", "dG(1)", "mcG(1)", "mdG(1)"])
+def test_state_switch_zero_at_t0_takes_the_branch_that_follows(method):
+    # v = -t leaves v = 0 at t0, where sign(v) = 0: u' = sign(v) = -1 after t0, u(1) = -1
+    sol = dn.solve(dn.ODE({v: sp.Integer(-1), u: sp.sign(v)}, u0=[0.0, 0.0], T=1.0),
+                   method=method, tolerance=1e-6)
+    assert abs(sol(1.0)[1] + 1.0) <= 1e-10
+
+
+def test_coulomb_friction_from_rest():
+    # x'' = -x - mu sign(x'), at rest at x = 1: each half period the amplitude drops by 2 mu
+    mu = 0.1
+    ode = dn.ODE({x: v, v: -x - mu * sp.sign(v)}, u0=[1.0, 0.0], T=3 * math.pi)
+    sol = dn.solve(ode, method="cG(2)", tolerance=1e-8)
+    np.testing.assert_allclose(sol([math.pi, 2 * math.pi, 3 * math.pi])[0], [-0.8, 0.6, -0.4],
+                               atol=1e-7)
+
+
 def test_sliding_mode_raises():
     # x' = -sign(x): from x = 1 down to 0 at t = 1, then f points at x = 0 from both sides
     with pytest.raises(dn.SolverError, match="slides along"):
