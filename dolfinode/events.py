@@ -290,11 +290,13 @@ class Detector:
     def roots(self, sol, a, b, which):
         """The crossings of g_which[r] in [a_r, b_r] on the polynomials, to _ROOT_RTOL, by the
         Illinois method (regula falsi, the end kept twice has its value halved) on all
-        brackets at once; NaN where g does not change sign there."""
+        brackets at once; a_r where g is zero there (a crossing on a node, as at a
+        breakpoint); NaN where g does not change sign there."""
         roots = np.full(a.size, np.nan)
         if a.size == 0:
             return roots
         ga, gb = self._at(sol, a, which), self._at(sol, b, which)
+        roots[ga == 0] = a[ga == 0]
         live = np.flatnonzero((ga != 0) & (np.sign(ga) != np.sign(gb)))
         lo, hi, glo, ghi, rows = a[live], b[live], ga[live], gb[live], which[live]
         side = np.zeros(live.size)

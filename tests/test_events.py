@@ -170,6 +170,16 @@ def test_event_at_t0_and_never(oscillator):
     assert sol.status == 1
 
 
+@pytest.mark.parametrize("method", ["cG(1)", "dG(1)", "mdG(1)"])
+def test_event_on_an_element_end_is_reported(method):
+    # g = t - 0.5 is zero on the node the breakpoint puts at 0.5: its bracket started at a
+    # zero of g, which the root finder dropped as 'no sign change'
+    ode = dn.ODE({u: 2 * sp.Heaviside(dn.t - 0.5) - 1}, u0=[0.0], T=1.0)
+    sol = dn.solve(ode, method=method, tolerance=1e-6, events=[dn.t - 0.5, u + 0.25])
+    assert sol.t_events[0].tolist() == [0.5]
+    np.testing.assert_allclose(sol.t_events[1], [0.25, 0.75], atol=1e-9)
+
+
 def test_no_events_gives_none(oscillator):
     sol = dn.solve(oscillator, method="cG(1)")
     assert sol.t_events is None and sol.y_events is None and sol.status == 0
