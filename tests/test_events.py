@@ -1,4 +1,5 @@
 """Breakpoints of f(t), switches on the state and events (dolfinode/events.py)."""
+import itertools
 import math
 
 import numpy as np
@@ -67,7 +68,7 @@ def test_breakpoints_sympy_cannot_solve_are_found_numerically(method):
     grid = np.linspace(0.0, 3.0, 3001)
     ends = [0.0, *(brentq(function, grid[i], grid[i + 1], xtol=1e-15)
                    for i in np.flatnonzero(np.diff(np.sign(function(grid))))), 3.0]
-    exact = sum(b - a for a, b in zip(ends[:-1], ends[1:]) if function(0.5 * (a + b)) > 0)
+    exact = sum(b - a for a, b in itertools.pairwise(ends) if function(0.5 * (a + b)) > 0)
     sol = dn.solve(dn.ODE({u: sp.Heaviside(g)}, u0=[0.0], T=3.0), method=method,
                    tolerance=1e-6)
     assert sol.stats["breakpoints"] == len(ends) - 2 == 19
