@@ -121,6 +121,9 @@ def solve_ensemble(ode, variations, executor=None, reduce=None, progress=False,
         raise TypeError(f"solve_ensemble expects a dolfinode.ODE, got {type(ode).__name__}")
     if reduce is not None and not callable(reduce):
         raise TypeError(f"reduce must be a function of the solution, got {reduce!r}")
+    if executor is not None and not callable(getattr(executor, "submit", None)):
+        raise TypeError("executor must be a concurrent.futures.Executor or a "
+                        f"dask.distributed.Client (something with submit), got {executor!r}")
     parse_method(method)
     check_parameters(parameters)
     runs = [vary(ode, variation) for variation in variations]

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import sympy as sp
+from scipy.optimize import brentq
 
 from dolfinode.ode import ODE
 from dolfinode.ode import t as time_symbol
@@ -41,6 +42,8 @@ _ROOT_ITERATIONS = 200
 _ROOT_RTOL = 1e-13
 #: Most breakpoints of a floor/ceiling of t (each one ends a piece of the integration).
 MAX_BREAKPOINTS = 100_000
+#: Times at which a switching function of t that sympy cannot solve is sampled for its roots.
+ROOT_GRID = 2**16 + 1
 _SWITCH = "dn_switch_"
 
 
@@ -187,7 +190,9 @@ def _numeric(expr, ode):
 
 
 def _roots_in(g, t0, T):
-    """The real roots of g(t) in (t0, T), sorted; ValueError when sympy cannot solve it."""
+    """The real roots of g(t) in (t0, T), sorted: sympy's, or where sympy cannot solve for
+    them, the sign changes of g on ROOT_GRID equispaced times, each refined by Brent's
+    method to rounding (roots closer together than (T - t0) / ROOT_GRID can be missed)."""
     try:
         roots = sp.solveset(g, time_symbol, sp.Interval.open(t0, T))
     except (NotImplementedError, ValueError, TypeError):
@@ -196,8 +201,12 @@ def _roots_in(g, t0, T):
         return []
     if isinstance(roots, sp.FiniteSet):
         return sorted(float(r) for r in roots if r.is_real)
-    raise ValueError(f"the breakpoints of f where {g} changes sign could not be solved for in "
-                     "closed form: give them as breakpoints=[...]")
+    function = sp.lambdify(time_symbol, g, "numpy")
+    grid = np.linspace(t0, T, ROOT_GRID)
+    sign = np.sign(function(grid) * np.ones_like(grid))
+    changes = np.flatnonzero(sign[:-1] * sign[1:] < 0)
+    return sorted([*grid[sign == 0], *(brentq(function, grid[i], grid[i + 1], xtol=1e-300)
+                                       for i in changes)])
 
 
 def breakpoints(ode, switches, given):
@@ -228,10 +237,12 @@ class Detector:
     """Sign changes of functions g_j(u, t) on the Galerkin solution, chunk by chunk.
 
     ``last[j]`` is the sign of g_j before the next chunk (0: not yet known, as at t0 where
-    a zero is not an event).
+    a zero is not an event). The last ``switches`` functions are switches of f: for them the
+    first nonzero sign after a zero start is a crossing, as the branch taken at g = 0 (e.g.
+    sign(0) = 0) is not the one that follows.
     """
 
-    def __init__(self, ode, functions, directions):
+    def __init__(self, ode, functions, directions, switches=0):
         exprs = [_numeric(g, ode) for g in functions]
         used = sorted(set().union(*(e.free_symbols for e in exprs)) & set(ode.states),
                       key=ode.index)
@@ -243,6 +254,7 @@ class Detector:
         self._g = [sp.lambdify([time_symbol, *used], e, "numpy") for e in exprs]
         self.directions = np.array(directions)
         self.last = np.zeros(len(exprs))
+        self.from_zero = np.arange(len(exprs)) >= len(exprs) - switches
 
     def values(self, times, U):
         """g_j at the times, U the solution there (N, M): shape (n_g, M)."""
@@ -263,7 +275,8 @@ class Detector:
             before = np.concatenate([[self.last[j]], s])
             index = np.where(before != 0, np.arange(before.size), 0)
             previous = before[np.maximum.accumulate(index)]  # last nonzero sign so far
-            hits = np.flatnonzero((s != 0) & (s == -previous[:-1]))
+            leaves_zero = self.from_zero[j] & (previous[:-1] == 0)
+            hits = np.flatnonzero((s != 0) & ((s == -previous[:-1]) | leaves_zero))
             hits = hits[self.directions[j] * s[hits] >= 0]
             a.append(np.where(hits > 0, times[hits - 1], begin))
             b.append(times[hits])
@@ -277,11 +290,13 @@ class Detector:
     def roots(self, sol, a, b, which):
         """The crossings of g_which[r] in [a_r, b_r] on the polynomials, to _ROOT_RTOL, by the
         Illinois method (regula falsi, the end kept twice has its value halved) on all
-        brackets at once; NaN where g does not change sign there."""
+        brackets at once; a_r where g is zero there (a crossing on a node, as at a
+        breakpoint); NaN where g does not change sign there."""
         roots = np.full(a.size, np.nan)
         if a.size == 0:
             return roots
         ga, gb = self._at(sol, a, which), self._at(sol, b, which)
+        roots[ga == 0] = a[ga == 0]
         live = np.flatnonzero((ga != 0) & (np.sign(ga) != np.sign(gb)))
         lo, hi, glo, ghi, rows = a[live], b[live], ga[live], gb[live], which[live]
         side = np.zeros(live.size)
@@ -347,7 +362,8 @@ class Plan:
         t_only = [s for s in switches if not (_numeric(s.g, ode).free_symbols - {time_symbol})]
         on_state = [s for s in switches if not any(s is o for o in t_only)]
         detector = Detector(ode, [e.g for e in events] + [s.g for s in on_state],
-                            [e.direction for e in events] + [0] * len(on_state))
+                            [e.direction for e in events] + [0] * len(on_state),
+                            switches=len(on_state))
         return times, on_state, detector, Detector(ode, [s.g for s in t_only], [0] * len(t_only))
 
     terminated = False

@@ -115,11 +115,18 @@ def _check_resolvable(ode, name, k, t):
                          f"t = {t:.6g} ({kmin:.3g}); give a larger {name}")
 
 
+def _first_step(ode, f, x, t, atol, rtol):
+    """The first step of a start at (x, t), f = f(x, t): Hairer-Noersett-Wanner's guess, at
+    least a few times the smallest step resolvable at t (far from t = 0 the guess 1e-6 (T - t0)
+    for u0 = 0 can be below it), at most T - t0."""
+    span = ode.T - ode.t0
+    return min(max(initial_step(f, x, atol, rtol, span), 4 * _smallest_step(ode, t)), span)
+
+
 def _initial_steps(ode, given, f0, atol, rtol, multi_adaptive):
     """The first step: a number, or per state (dict/sequence) for multi-adaptive methods."""
-    span = ode.T - ode.t0
     if given is None:
-        return np.full(ode.N, initial_step(f0, ode.u0, atol, rtol, span))
+        return np.full(ode.N, _first_step(ode, f0, ode.u0, ode.t0, atol, rtol))
     if np.isscalar(given):
         return np.full(ode.N, float(given))
     if not multi_adaptive:
@@ -474,7 +481,7 @@ def _newton_plan(compiled, m):
 def _step_guess(ode, compiled, atol, rtol):
     """The first step of a fresh start at (x, t) (after a jump of f, the last step says
     nothing about the next)."""
-    return lambda x, t: initial_step(compiled.f(x, t), x, atol, rtol, ode.T - ode.t0)
+    return lambda x, t: _first_step(ode, compiled.f(x, t), x, t, atol, rtol)
 
 
 def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):

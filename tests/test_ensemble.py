@@ -93,6 +93,8 @@ def test_bad_arguments_fail_before_running():
         dn.solve_ensemble(oscillator(), [{}], reduce=3)
     with pytest.raises(TypeError, match="dolfinode.ODE"):
         dn.solve_ensemble("ode", [{}])
+    with pytest.raises(TypeError, match="executor must be"):  # was "'str' has no 'submit'"
+        dn.solve_ensemble(oscillator(), [{}], executor="threads")
 
 
 def test_a_failing_run_names_its_variation():

@@ -1,9 +1,11 @@
 """Breakpoints of f(t), switches on the state and events (dolfinode/events.py)."""
+import itertools
 import math
 
 import numpy as np
 import pytest
 import sympy as sp
+from scipy.optimize import brentq
 
 import dolfinode as dn
 
@@ -57,11 +59,20 @@ def test_elements_end_at_breakpoints():
     assert sol.stats["breakpoints"] == 4
 
 
-def test_unsolvable_breakpoint_asks_for_breakpoints():
-    ode = dn.ODE({u: sp.Heaviside(dn.t - sp.exp(-dn.t) * sp.cos(dn.t) ** 2 - 1 / dn.t)},
-                 u0=[0.0], T=3.0, t0=0.5)
-    with pytest.raises(ValueError, match="breakpoints="):
-        dn.solve(ode, method="cG(1)")
+@pytest.mark.parametrize("method", ["cG(1)", "dG(1)", "mdG(1)"])
+def test_breakpoints_sympy_cannot_solve_are_found_numerically(method):
+    # sin(20 t) + e^t / 10 - 0.7 has 19 roots on [0, 3], none in closed form; between them
+    # f is constant, so the steps are long and a crossing between two nodes went unseen
+    g = sp.sin(20 * dn.t) + sp.exp(dn.t) / 10 - 0.7
+    function = sp.lambdify(dn.t, g)
+    grid = np.linspace(0.0, 3.0, 3001)
+    ends = [0.0, *(brentq(function, grid[i], grid[i + 1], xtol=1e-15)
+                   for i in np.flatnonzero(np.diff(np.sign(function(grid))))), 3.0]
+    exact = sum(b - a for a, b in itertools.pairwise(ends) if function(0.5 * (a + b)) > 0)
+    sol = dn.solve(dn.ODE({u: sp.Heaviside(g)}, u0=[0.0], T=3.0), method=method,
+                   tolerance=1e-6)
+    assert sol.stats["breakpoints"] == len(ends) - 2 == 19
+    assert abs(sol(3.0)[0] - exact) <= 1e-10
 
 
 #: x' = 1 below x = 1, 3 above: x(t) = t to t = 1, then 1 + 3 (t - 1)
@@ -93,6 +104,23 @@ def test_kink_on_the_state_within_tolerance():
                    tolerance=1e-8)
     exact = 2 / 3 + math.exp(1.5) / 3
     assert abs(sol(1.5)[0] - exact) <= 10 * 1e-8 * exact
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "dG(1)", "mcG(1)", "mdG(1)"])
+def test_state_switch_zero_at_t0_takes_the_branch_that_follows(method):
+    # v = -t leaves v = 0 at t0, where sign(v) = 0: u' = sign(v) = -1 after t0, u(1) = -1
+    sol = dn.solve(dn.ODE({v: sp.Integer(-1), u: sp.sign(v)}, u0=[0.0, 0.0], T=1.0),
+                   method=method, tolerance=1e-6)
+    assert abs(sol(1.0)[1] + 1.0) <= 1e-10
+
+
+def test_coulomb_friction_from_rest():
+    # x'' = -x - mu sign(x'), at rest at x = 1: each half period the amplitude drops by 2 mu
+    mu = 0.1
+    ode = dn.ODE({x: v, v: -x - mu * sp.sign(v)}, u0=[1.0, 0.0], T=3 * math.pi)
+    sol = dn.solve(ode, method="cG(2)", tolerance=1e-8)
+    np.testing.assert_allclose(sol([math.pi, 2 * math.pi, 3 * math.pi])[0], [-0.8, 0.6, -0.4],
+                               atol=1e-7)
 
 
 def test_sliding_mode_raises():
@@ -141,6 +169,16 @@ def test_event_at_t0_and_never(oscillator):
     assert sol.t_events[2].size == 0
     np.testing.assert_allclose(sol.t_events[3], [np.pi], atol=1e-7)
     assert sol.status == 1
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "dG(1)", "mdG(1)"])
+def test_event_on_an_element_end_is_reported(method):
+    # g = t - 0.5 is zero on the node the breakpoint puts at 0.5: its bracket started at a
+    # zero of g, which the root finder dropped as 'no sign change'
+    ode = dn.ODE({u: 2 * sp.Heaviside(dn.t - 0.5) - 1}, u0=[0.0], T=1.0)
+    sol = dn.solve(ode, method=method, tolerance=1e-6, events=[dn.t - 0.5, u + 0.25])
+    assert sol.t_events[0].tolist() == [0.5]
+    np.testing.assert_allclose(sol.t_events[1], [0.25, 0.75], atol=1e-9)
 
 
 def test_no_events_gives_none(oscillator):

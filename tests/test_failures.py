@@ -1,4 +1,5 @@
 """A solve that cannot continue raises SolverError naming the time reached, quickly."""
+import math
 import time
 
 import numpy as np
@@ -85,6 +86,17 @@ def test_an_interval_too_short_for_double_precision_at_its_times_raises():
     with pytest.raises(ValueError, match=r"shorter than the smallest step double precision "
                        r"resolves there .* t0 = 0 and T = 1$"):
         dn.solve(ode)
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mdG(1)"])
+@pytest.mark.parametrize("rhs, exact", [(1 - u, 1 - math.exp(-5.0)),
+                                        (sp.Heaviside(dn.t - 1e9 - 1.5), 3.5)])
+def test_first_step_far_from_t0_zero_is_resolvable(method, rhs, exact):
+    # from u = 0 the first guess 1e-6 (T - t0) = 5e-6, at t0 or after the jump, was below the
+    # 1e-5 that double precision resolves at t = 1e9: "the time step fell to 5e-06 at t = 1e9"
+    ode = dn.ODE({u: rhs}, u0=[0.0], t0=1e9, T=1e9 + 5)
+    sol = dn.solve(ode, method=method, tolerance=1e-6)
+    assert abs(sol(1e9 + 5)[0] - exact) <= 1e-5
 
 
 def test_maximum_steps_from_zero_gives_no_ratio_to_zero():
