@@ -21,6 +21,8 @@ from dolfinode.parameters import DEFAULTS, NONLINEAR_SOLVERS, check_parameters
 from dolfinode.timeslab import mono
 
 _STATUS_STEP_LIMIT = -1
+#: New solves with a smaller maximum_time_step when a switch was crossed inside an element.
+_SWITCH_RETRIES = 3
 #: Slabs (elements: multi-adaptive) per loop call of a solve with events or switches: what a
 #: terminal event or a switch in the chunk makes the loop redo.
 _EVENT_CHUNK = 1024
@@ -332,7 +334,31 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
     """:func:`solve` of ``ode`` with its kernels ``compiled`` (whose ``p`` holds the parameter
     values) and ``plan`` (:func:`lowered`), the parsed method and the checked parameters
     (:func:`check_parameters`, :func:`check_tolerance`): the part of a solve that
-    :class:`dolfinode.Solver` repeats."""
+    :class:`dolfinode.Solver` repeats.
+
+    A switch on the state crossed inside an element, found a posteriori on the solution
+    (:meth:`dolfinode.events.Plan.unresolved_switch_step`), is solved again with a step
+    bound from the crossings seen, at most _SWITCH_RETRIES times, else SolverError."""
+    given = params["maximum_time_step"]
+    for _ in range(_SWITCH_RETRIES + 1):
+        sol = _solve_once(ode, compiled, plan, multi_adaptive, m, params)
+        step = None if plan is None else plan.unresolved_switch_step(sol)
+        if step is None:
+            if params["maximum_time_step"] != given:
+                sol.stats["switch step bound"] = params["maximum_time_step"]
+            return sol
+        bound = params["maximum_time_step"]
+        params = {**params, "maximum_time_step": step if bound is None else min(bound, step)}
+        plan = ev.Plan.make(ode, plan.switches, params["breakpoints"], params["events"])
+    raise SolverError(
+        f"a switch on the state (Piecewise/Heaviside/sign of a state in f) changes sign "
+        f"inside elements that were not split there, even with maximum_time_step = "
+        f"{params['maximum_time_step']:.3g}: f was evaluated on the wrong branch. Give a "
+        "smaller maximum_time_step, or smooth the switch", t=float(ode.t0))
+
+
+def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
+    """One solve of :func:`solve_lowered`."""
     start = time.perf_counter()
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)

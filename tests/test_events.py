@@ -234,3 +234,25 @@ def test_multi_adaptive_events_with_frozen_and_slow_components(method):
     est = dn.estimate_error(sol, goal={u: 1.0})
     error = sol(sol.ode.T)[0] - math.cos(sol.ode.T)
     assert abs(est.value - error) <= 0.5 * abs(error) + 1e-12
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(1)"])
+def test_switch_crossed_inside_an_element_is_found_and_solved_again(method):
+    """u' = H(g(x)) with x' = 1 and g = sin(20x) + e^x/10 - 0.7: f is constant on each branch,
+    so the steps grow past the half period of g, and 14 of its 19 crossings fell inside
+    elements (u(3) off by 0.93, reported as a success). The a posteriori check on the
+    solution finds them and solves again with a step bound."""
+    x, v = sp.symbols("x v")
+    g = sp.sin(20 * x) + sp.exp(x) / 10 - 0.7
+    ode = dn.ODE({x: 1, v: sp.Heaviside(g)}, u0=[0.0, 0.0], T=3.0)
+    grid = np.linspace(0.0, 3.0, 300_001)
+    values = np.sin(20 * grid) + np.exp(grid) / 10 - 0.7
+    crossings = np.flatnonzero(np.sign(values[1:]) != np.sign(values[:-1]))
+    roots = [brentq(sp.lambdify(x, g), grid[i], grid[i + 1], xtol=1e-15) for i in crossings]
+    ends = [0.0, *roots, 3.0]
+    exact = sum(b - a for a, b in zip(ends[:-1], ends[1:])
+                if np.sin(10 * (a + b)) + np.exp((a + b) / 2) / 10 - 0.7 > 0)
+    sol = dn.solve(ode, method, tolerance=1e-4)
+    assert len(roots) == 19 == sol.stats["state switches"]
+    assert abs(sol(3.0)[1] - exact) < 1e-9
+    assert sol.stats["switch step bound"] < 0.157  # below the half period of g
