@@ -67,6 +67,8 @@ class Event:
             raise TypeError(f"an event is a sympy expression g(u, t), got {g!r}") from None
         if not isinstance(self.g, sp.Expr):
             raise TypeError(f"an event is a sympy expression g(u, t), got {g!r}")
+        if self.g.has(sp.I, sp.zoo, sp.nan, sp.oo, sp.S.NegativeInfinity):
+            raise ValueError(f"an event is a finite real expression g(u, t), got {self.g}")
         if not isinstance(terminal, (bool, np.bool_)):
             raise TypeError(f"terminal must be True or False, got {terminal!r}")
         if direction not in (0, 1, -1):

@@ -213,6 +213,10 @@ def test_event_validation(oscillator):
         dn.solve(oscillator, events=[object()])
     with pytest.raises(ValueError, match="unknown symbol"):
         dn.solve(oscillator, events=[sp.Symbol("w")])
+    with pytest.raises(ValueError, match="finite real expression"):
+        dn.Event(sp.I * u)
+    with pytest.raises(TypeError, match="breakpoints is complex"):
+        dn.solve(oscillator, breakpoints=[1.0 + 0.5j])
     with pytest.raises(ValueError, match="finite"):
         dn.solve(oscillator, breakpoints=[1.0, np.nan])
     with pytest.raises(ValueError, match="automatic_modeling"):
@@ -250,7 +254,7 @@ def test_switch_crossed_inside_an_element_is_found_and_solved_again(method):
     crossings = np.flatnonzero(np.sign(values[1:]) != np.sign(values[:-1]))
     roots = [brentq(sp.lambdify(x, g), grid[i], grid[i + 1], xtol=1e-15) for i in crossings]
     ends = [0.0, *roots, 3.0]
-    exact = sum(b - a for a, b in zip(ends[:-1], ends[1:])
+    exact = sum(b - a for a, b in itertools.pairwise(ends)
                 if np.sin(10 * (a + b)) + np.exp((a + b) / 2) / 10 - 0.7 > 0)
     sol = dn.solve(ode, method, tolerance=1e-4)
     assert len(roots) == 19 == sol.stats["state switches"]
