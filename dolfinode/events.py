@@ -36,8 +36,8 @@ from dolfinode.timeslab import smallest_step
 SLIDING_SWITCHES, SLIDING_SPAN = 50, 1e-9
 #: Most Illinois iterations locating an event (it converges superlinearly; a crossing in a
 #: dG jump, where g is discontinuous, takes longest), and the relative width to reach: some
-#: 500 ulp, where g's rounding starts to decide its sign (to 4 ulp, a third of the roots
-#: of the oscillator took 20-40 iterations instead of 5-10).
+#: 500 ulp, where g's rounding starts to decide its sign (closer, rounding stalls the
+#: iteration for several times the usual count).
 _ROOT_ITERATIONS = 200
 _ROOT_RTOL = 1e-13
 #: Most breakpoints of a floor/ceiling of t (each one ends a piece of the integration).
@@ -344,7 +344,7 @@ class Plan:
             return None
         events = events or []
         # made once per declaration, parameter values, interval and events (sympy's solveset
-        # and lambdify took 17 of a small solve's 20 ms)
+        # and lambdify would otherwise dominate a small solve)
         key = (ode.rhs, tuple(ode.params.values()), ode.t0, ode.T,
                () if given_breakpoints is None else tuple(given_breakpoints),
                tuple((e.g, e.terminal, e.direction) for e in events))

@@ -31,8 +31,8 @@ _AUTO_PATTERN = re.compile(r"^\s*auto\s*(?::\s*((?:cG|dG)\(\s*\d+\s*\)))?\s*$", 
 DEFAULT_BASE = "cG(2)"
 #: The first pilot interval and the one the faster variant reaches, as fractions of T - t0.
 PILOT_START, PILOT_END = 1e-3, 1e-2
-#: Growth of the pilot intervals: few pilots, since each costs a call's fixed time (a solve of
-#: 13 ms, the reaction front, paid 1.44x with doubling intervals, 5 pilots per variant).
+#: Growth of the pilot intervals: few pilots, since each costs a call's fixed time (with
+#: doubling intervals a small solve paid for five pilots per variant).
 GROWTH = 4
 #: A variant whose pilots, with its next one, would cost more than ABANDON x the predicted time
 #: of the other (that has reached PILOT_END) loses without them: the pilots stay a small part

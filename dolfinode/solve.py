@@ -576,7 +576,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
 
 
 def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):
-    # imported on first use: compiling its loop (once per installation) takes ~30 s
+    # imported on first use: its loop is the longest compile of the package
     from dolfinode.timeslab import multi
 
     fopts = np.array(fopts + [params["partitioning_threshold"], params["interval_threshold"],

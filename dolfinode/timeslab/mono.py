@@ -84,8 +84,7 @@ REUSE_AGE = 20
 #: the step (to the last one it converged on, at most half), as with
 #: nonlinear_solver="fixed-point", while that is still the cheaper. Mildly stiff systems
 #: (diffusion) converge by fixed-point iteration on steps a few times shorter than Newton's at
-#: a fraction of the cost per step: 2-D Brusselator N = 3200, cG(2) at 1e-5, 2.5 s with
-#: Newton for the rest of the run, 0.48 s with the way back (errors 4.4e-8 and 2.3e-9).
+#: a fraction of the cost per step (the 2-D Brusselator: doc/design/methods.md).
 SWITCH_BACK = 0.5
 #: ... only where Newton's steps have settled (the error control asks for at most
 #: SETTLED x the last step: in a transient Newton's steps grow far beyond fixed point's), and
