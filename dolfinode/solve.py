@@ -711,9 +711,7 @@ def _failure_message(status, state, fixed, x, outside, kmax, newton, ode, slabs)
     if status == _STATUS_STEP_LIMIT:
         raise_ = ("maximum_steps" if kmax is None else
                   f"maximum_steps or maximum_time_step (the steps are capped at {kmax:.3g})")
-        start, now = np.max(np.abs(ode.u0)), np.max(np.abs(x))
-        grew = now > _BLOWUP_GROWTH * (start if start > 0 else 1.0)
-        growth = f"{now / start:.3g}-fold since t0" if start > 0 else f"from 0 at t0 to {now:.3g}"
+        grew, growth = _growth(ode, x)
         mean = (t - ode.t0) / max(slabs, 1)
         hint = ""
         if k < _BLOWUP_STEP * (ode.T - ode.t0) and k < _STEADY * mean and grew:
@@ -748,6 +746,21 @@ def _failure_message(status, state, fixed, x, outside, kmax, newton, ode, slabs)
         return (f"the solution is not finite or blows up near t = {t:.6g} (time step reduced to "
                 f"{k:.3g}; {size}): the exact solution may have a finite-time singularity there, "
                 f"or f is not defined past it; {domain}")
+    grew, growth = _growth(ode, x)
+    if grew:
+        return (f"the time step fell to {k:.3g} at t = {t:.6g}, below what double precision "
+                f"resolves, while max |u| grew {growth} ({size}): the solution may blow up "
+                "near this time, or the tolerance is too tight for double precision")
     return (f"the time step fell to {k:.3g} at t = {t:.6g}, below what double precision "
-            f"resolves ({size}): the solution may blow up near this time, or the tolerance is "
-            "too tight for double precision")
+            f"resolves, but max |u| did not grow ({size}): not a blow-up. The error control or "
+            f"{solver} kept cutting the step: for a stiff problem use a dG(q) method (L-stable) "
+            "with nonlinear_solver='newton'; else loosen tolerance or absolute_tolerance")
+
+
+def _growth(ode, x):
+    """(whether max |u| grew _BLOWUP_GROWTH-fold since t0, how much, in words without a ratio
+    to zero)."""
+    start, now = np.max(np.abs(ode.u0)), np.max(np.abs(x))
+    grew = now > _BLOWUP_GROWTH * (start if start > 0 else 1.0)
+    return grew, (f"{now / start:.3g}-fold since t0" if start > 0
+                  else f"from 0 at t0 to {now:.3g}")

@@ -151,3 +151,18 @@ def test_a_tolerance_below_double_precision_at_the_solution_size_is_refused():
     # a tiny absolute tolerance for tiny values is resolvable: allowed
     sol = dn.solve(ode, "cG(2)", tolerance=1e-6, absolute_tolerance={y: 1e-8, z: 1e-36})
     assert sol(1.0)[1] == pytest.approx(1e-30 * np.exp(-1.0), rel=1e-5)
+
+
+def test_a_step_underflow_without_growth_is_not_called_a_blowup():
+    """Issue 30: a stiff multi-adaptive run whose steps fell to the rounding floor at
+    t = 8.3e9 was told the solution may blow up; max |u| had not grown."""
+    from dolfinode import timeslab as ts
+    from dolfinode.solve import _failure_message
+
+    ode = dn.ODE({u: -u}, u0=[1.0], T=1e13)
+    bounded = _failure_message(ts.UNDERFLOW, (8.3e9, 8e-5), False, np.array([0.5]), None,
+                               None, True, ode, 1000)
+    assert "not a blow-up" in bounded and "dG(q)" in bounded and "blow up" not in bounded
+    grown = _failure_message(ts.UNDERFLOW, (0.99, 1e-16), False, np.array([1e6]), None, None,
+                             True, ode, 1000)
+    assert "may blow up" in grown and "1e+06-fold since t0" in grown
