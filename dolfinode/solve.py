@@ -10,29 +10,21 @@ from dolfinode import timeslab as ts
 from dolfinode.adaptivity import filter_constant, initial_step, step_tolerance
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
+from dolfinode.failures import STEP_LIMIT, failure_message, undefined
 from dolfinode.family import auto_base, choose_family
 from dolfinode.io import history
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
 from dolfinode.memory import available_memory
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
-from dolfinode.ode import t as dn_t
 from dolfinode.parameters import DEFAULTS, NONLINEAR_SOLVERS, check_parameters
 from dolfinode.timeslab import mono
 
-_STATUS_STEP_LIMIT = -1
 #: New solves with a smaller maximum_time_step when a switch was crossed inside an element.
 _SWITCH_RETRIES = 3
 #: Slabs (elements: multi-adaptive) per loop call of a solve with events or switches: what a
 #: terminal event or a switch in the chunk makes the loop redo.
 _EVENT_CHUNK = 1024
-#: A solve stopped by maximum_steps is said to approach a blow-up when its last step is below
-#: _BLOWUP_STEP (T - t0) and max |u| grew _BLOWUP_GROWTH-fold since t0 (dG(0) on u' = u^2,
-#: u(0) = 1: 10^7 steps, down to 3.1e-10, with |u| = 2.3e3 at t = 0.99956), and the last
-#: step is below _STEADY times the mean step; steps near their mean resolve a fast time
-#: scale instead (the seed model at kappa = 1e12: 3e-8 steps, |u| = 1e6 the amplitude of
-#: the fast velocity).
-_BLOWUP_STEP, _BLOWUP_GROWTH, _STEADY = 1e-6, 100.0, 0.1
 #: The smallest tolerance without an absolute_tolerance (scipy's solve_ivp bound, 100 machine
 #: epsilons): below it the step error estimate is rounding (tolerance=1e-300 failed with
 #: "Newton's method did not converge at t = 0 ... check the right-hand side for a
@@ -410,12 +402,11 @@ def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
               or stats.get("newton matrices") is not None)
     if status != ts.DONE:
         outside = ode.states[counters[ts.OUTSIDE] - 1] if counters[ts.OUTSIDE] else None
-        undefined = (_undefined(ode, compiled, x, float(state[0]), float(state[1]))
-                     if status in (ts.NONCONVERGENCE, ts.BLOWUP) else None)
-        raise SolverError(undefined or _failure_message(
+        why = (undefined(ode, compiled, x, float(state[0]), float(state[1]))
+               if status in (ts.NONCONVERGENCE, ts.BLOWUP) else None)
+        raise SolverError(why or failure_message(
             status, state, fixed, x, outside, params["maximum_time_step"], newton, ode,
-            counters[ts.SLABS]),
-                          t=float(state[0]))
+            counters[ts.SLABS]), t=float(state[0]))
     counts = counters.tolist()
     stats.update({
         "method": ("m" if multi_adaptive else "") + m.name,
@@ -445,7 +436,7 @@ def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newto
     progress can be shown); a FULL with nothing stored means one slab needs larger buffers.
     It returns NEWTON_NEEDED when Newton's matrices are not ready: it goes on if
     ``newton_ready()`` makes them so. More than ``maximum_steps`` slabs stop it with
-    _STATUS_STEP_LIMIT: the mono-adaptive buffers hold no more slabs than are left, the
+    STEP_LIMIT: the mono-adaptive buffers hold no more slabs than are left, the
     multi-adaptive loop (whose buffers count elements) is checked after each chunk.
     """
     while True:
@@ -457,14 +448,14 @@ def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newto
         if bar is not None:
             bar.update(state[0] - bar.n)
         if counters[ts.SLABS] > params["maximum_steps"]:
-            status = _STATUS_STEP_LIMIT
+            status = STEP_LIMIT
         elif status == ts.NEWTON_NEEDED and newton_ready is not None and newton_ready():
             status = ts.FULL
         elif status == ts.FULL:
             if n == 0:
                 capacity *= 2
             if counters[ts.SLABS] >= params["maximum_steps"]:
-                status = _STATUS_STEP_LIMIT
+                status = STEP_LIMIT
         yield status, chunk
         if status != ts.FULL:
             return
@@ -639,128 +630,3 @@ def _progress(ode, params):
 
     return tqdm(total=ode.T - ode.t0, unit="t", desc="dolfinode",
                 bar_format="{l_bar}{bar}| t={n:.4g}/{total:.4g} [{elapsed}<{remaining}]")
-
-
-#: Where f may stop being defined (see ``ODE(nonnegative=...)``).
-_DOMAIN = ("a square root or other non-integer power of a component that reaches 0 is nan "
-           "below it: declare the component nonnegative=, and f reads it there as max(u, 0)")
-#: The same hint when components are declared nonnegative already.
-_DOMAIN_DECLARED = ("the components declared nonnegative are read as max(u, 0) in non-integer "
-                    "powers, but sqrt(u) and the like have no bounded derivative where u reaches "
-                    "0 (Newton's Jacobian is infinite there): cG(1) and mcG(1) step through such "
-                    "a point")
-
-
-#: Functions not defined on the whole real line, with their domain as a test on the argument.
-_PARTIAL = {sp.log: ("log", lambda a: a > 0), sp.asin: ("asin", lambda a: abs(a) <= 1),
-            sp.acos: ("acos", lambda a: abs(a) <= 1), sp.acosh: ("acosh", lambda a: a >= 1),
-            sp.atanh: ("atanh", lambda a: abs(a) < 1)}
-
-
-def _undefined(ode, compiled, x, t, k):
-    """Why f is not finite a little past the time t where a step from the state x failed
-    (after the last step k, up to 10^4 k, with x moved along f(x, t)), if it is not (else
-    None): the argument outside its function's domain and whether it depends on t alone
-    (then no method or step helps) or on components."""
-    if hasattr(ode, "templates"):  # a template system's rhs takes O(N) to build
-        return None
-    with np.errstate(all="ignore"):
-        slope = np.nan_to_num(compiled.f(x, t), nan=0.0, posinf=0.0, neginf=0.0)
-        for step in k * np.logspace(0, 4, 5):
-            step = min(step, ode.T - t)
-            moved = x + step * slope
-            bad = np.flatnonzero(~np.isfinite(compiled.f(moved, t + step)))
-            if bad.size:
-                break
-        else:
-            return None
-    i, t = int(bad[0]), float(t + step)
-    values = {**dict(zip(ode.states, moved.tolist())), **ode.params, dn_t: t}
-    for part in sp.preorder_traversal(ode.rhs[i]):
-        if part.is_Pow and not part.exp.is_integer:
-            name, argument, inside = "a non-integer power", part.base, lambda a: a >= 0
-        elif type(part) in _PARTIAL:
-            (name, inside), argument = _PARTIAL[type(part)], part.args[0]
-        else:
-            continue
-        try:
-            value = float(argument.subs(values))
-        except (TypeError, ValueError):
-            continue
-        if inside(value):
-            continue
-        where = f"{name} in the right-hand side of {ode.states[i].name} gets {argument} = {value:.3g}"
-        if not argument.free_symbols & set(ode.states):
-            return (f"f is not defined past t = {t:.6g}: {where}, which depends on t alone, so "
-                    "no method or step size can continue; end the interval there (smaller T) "
-                    "or change the expression")
-        components = ", ".join(sorted(s.name for s in argument.free_symbols & set(ode.states)))
-        return (f"f is not defined at t = {t:.6g}: {where} from the values of {components}; "
-                + (_DOMAIN_DECLARED if ode.nonnegative.any() else _DOMAIN))
-    return None
-
-
-def _failure_message(status, state, fixed, x, outside, kmax, newton, ode, slabs):
-    """The SolverError message for a loop that stopped with ``status`` (state: t and the
-    last step) with the solution x after ``slabs`` time slabs; ``newton``: whether Newton's
-    method was used."""
-    t, k = state
-    size = f"max |u| = {np.max(np.abs(x)):.3g} there"
-    domain = _DOMAIN_DECLARED if ode.nonnegative.any() else _DOMAIN
-    solver = "Newton's method" if newton else "the nonlinear solver"
-    if status == _STATUS_STEP_LIMIT:
-        raise_ = ("maximum_steps" if kmax is None else
-                  f"maximum_steps or maximum_time_step (the steps are capped at {kmax:.3g})")
-        grew, growth = _growth(ode, x)
-        mean = (t - ode.t0) / max(slabs, 1)
-        hint = ""
-        if k < _BLOWUP_STEP * (ode.T - ode.t0) and k < _STEADY * mean and grew:
-            hint = (f"; the steps shrank to {k:.3g} while max |u| grew {growth}: the solution "
-                    "may blow up near this time")
-        elif k < _BLOWUP_STEP * (ode.T - ode.t0) and k >= _STEADY * mean:
-            hint = (f"; the steps stayed near {k:.3g} (their mean since t0: {mean:.3g}), a time "
-                    "scale far shorter than T - t0: for a fast oscillation automatic_modeling="
-                    "True averages it, for a fast decay (stiff) a dG(q) method with "
-                    "nonlinear_solver='newton' steps over it")
-        return (f"maximum_steps was reached at t = {t:.6g} ({size}){hint}; raise {raise_}, "
-                "loosen the tolerance, or use a higher-order method")
-    if status == ts.NONCONVERGENCE:
-        if fixed:
-            return (f"{solver} did not converge at t = {t:.6g} with the fixed time step "
-                    f"{k:.3g}; use a smaller initial_time_step"
-                    + ("" if newton else " or nonlinear_solver='newton'"))
-        return (f"{solver} did not converge at t = {t:.6g}, even after reducing the time step "
-                f"to {k:.3g}; try " + ("" if newton else "nonlinear_solver='newton', ")
-                + f"a dG(q) method, or check the right-hand side for a singularity near this "
-                f"time ({size}); {domain}")
-    if status == ts.CONSTRAINT:
-        name = outside.name
-        how = "" if fixed else (", or it falls below -absolute_tolerance on every step down to "
-                                f"{k:.3g}")
-        declared = "declared" if ode.nonnegative.any() else "kept by f (u0 >= 0)"
-        return (f"{name}, {declared} nonnegative, leaves [0, inf) at t = {t:.6g} (the right-hand "
-                f"side drives it below zero from {name} = 0{how}). Check that f keeps {name} >= 0 "
-                f"(f >= 0 where {name} = 0), or drop {name} from nonnegative="
-                + ("; with fixed_time_step, a smaller initial_time_step may help" if fixed else ""))
-    if status == ts.BLOWUP:
-        return (f"the solution is not finite or blows up near t = {t:.6g} (time step reduced to "
-                f"{k:.3g}; {size}): the exact solution may have a finite-time singularity there, "
-                f"or f is not defined past it; {domain}")
-    grew, growth = _growth(ode, x)
-    if grew:
-        return (f"the time step fell to {k:.3g} at t = {t:.6g}, below what double precision "
-                f"resolves, while max |u| grew {growth} ({size}): the solution may blow up "
-                "near this time, or the tolerance is too tight for double precision")
-    return (f"the time step fell to {k:.3g} at t = {t:.6g}, below what double precision "
-            f"resolves, but max |u| did not grow ({size}): not a blow-up. The error control or "
-            f"{solver} kept cutting the step: for a stiff problem use a dG(q) method (L-stable) "
-            "with nonlinear_solver='newton'; else loosen tolerance or absolute_tolerance")
-
-
-def _growth(ode, x):
-    """(whether max |u| grew _BLOWUP_GROWTH-fold since t0, how much, in words without a ratio
-    to zero)."""
-    start, now = np.max(np.abs(ode.u0)), np.max(np.abs(x))
-    grew = now > _BLOWUP_GROWTH * (start if start > 0 else 1.0)
-    return grew, (f"{now / start:.3g}-fold since t0" if start > 0
-                  else f"from 0 at t0 to {now:.3g}")

@@ -157,12 +157,12 @@ def test_a_step_underflow_without_growth_is_not_called_a_blowup():
     """Issue 30: a stiff multi-adaptive run whose steps fell to the rounding floor at
     t = 8.3e9 was told the solution may blow up; max |u| had not grown."""
     from dolfinode import timeslab as ts
-    from dolfinode.solve import _failure_message
+    from dolfinode.failures import failure_message
 
     ode = dn.ODE({u: -u}, u0=[1.0], T=1e13)
-    bounded = _failure_message(ts.UNDERFLOW, (8.3e9, 8e-5), False, np.array([0.5]), None,
-                               None, True, ode, 1000)
+    bounded = failure_message(ts.UNDERFLOW, (8.3e9, 8e-5), False, np.array([0.5]), None,
+                              None, True, ode, 1000)
     assert "not a blow-up" in bounded and "dG(q)" in bounded and "blow up" not in bounded
-    grown = _failure_message(ts.UNDERFLOW, (0.99, 1e-16), False, np.array([1e6]), None, None,
-                             True, ode, 1000)
+    grown = failure_message(ts.UNDERFLOW, (0.99, 1e-16), False, np.array([1e6]), None, None,
+                            True, ode, 1000)
     assert "may blow up" in grown and "1e+06-fold since t0" in grown
