@@ -58,7 +58,9 @@ def _to_float(value, what="a value"):
         return math.inf if value > 0 else -math.inf
 
 
-def _check_time(value, what):
+def _finite_real(value, what):
+    """``value`` as a finite float; TypeError (or ComplexValueError) naming ``what`` for a
+    value that is not a real number, ValueError for an infinite one."""
     try:
         value = _to_float(value, what)
     except ComplexValueError:
@@ -139,15 +141,7 @@ def _listed_vector(values, states, what):
 
 def _parameter_value(symbol, value):
     """The value of parameter ``symbol`` as a checked finite float."""
-    try:
-        value = _to_float(value, f"parameter {symbol}")
-    except ComplexValueError:
-        raise
-    except (TypeError, ValueError):
-        raise TypeError(f"parameter {symbol} must be a real number, got {value!r}") from None
-    if not math.isfinite(value):
-        raise ValueError(f"parameter {symbol} must be finite, got {value}")
-    return value
+    return _finite_real(value, f"parameter {symbol}")
 
 
 def _read_only(array):
@@ -303,7 +297,7 @@ class ODE:
 
     def _set_interval(self, t0, T):
         """Set a validated finite t0 < T."""
-        t0, T = _check_time(t0, "t0"), _check_time(T, "T")
+        t0, T = _finite_real(t0, "t0"), _finite_real(T, "T")
         if not T > t0:
             raise ValueError(f"the final time T = {T} must be larger than t0 = {t0}")
         self.__dict__.update(t0=t0, T=T)
