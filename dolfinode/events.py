@@ -148,10 +148,7 @@ def switched(ode):
     if hasattr(ode, "templates"):
         return ode, []
     # made once per declaration (a sympy traversal of every right-hand side)
-    cached = ode.__dict__.get("_smooth")
-    if cached is None or cached[0] is not ode.rhs:
-        cached = ode._smooth = (ode.rhs, *_smooth(ode))
-    _, rhs, switches = cached
+    rhs, switches = ode._derived("_smooth", ode.rhs, lambda: _smooth(ode))
     if not switches:
         return ode, []
     params = dict(ode.params)
@@ -348,10 +345,8 @@ class Plan:
         key = (ode.rhs, tuple(ode.params.values()), ode.t0, ode.T,
                () if given_breakpoints is None else tuple(given_breakpoints),
                tuple((e.g, e.terminal, e.direction) for e in events))
-        cached = ode.__dict__.get("_plan")
-        if cached is None or cached[0] != key:
-            cached = ode._plan = (key, cls._parts(ode, switches, given_breakpoints, events))
-        times, on_state, detector, t_detector = cached[1]
+        times, on_state, detector, t_detector = ode._derived(
+            "_plan", key, lambda: cls._parts(ode, switches, given_breakpoints, events))
         if not (switches or events or times.size):
             return None
         return cls(switches, times, events, on_state, detector, t_detector)

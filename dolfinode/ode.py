@@ -302,6 +302,14 @@ class ODE:
             raise ValueError(f"the final time T = {T} must be larger than t0 = {t0}")
         self.__dict__.update(t0=t0, T=T)
 
+    def _derived(self, name, key, make):
+        """``make()``, kept on this declaration under ``name`` while ``key`` (what it is
+        derived from: right-hand sides, parameter values, ...) is unchanged."""
+        cached = self.__dict__.get(name)
+        if cached is None or cached[0] != key:
+            cached = self.__dict__[name] = (key, make())
+        return cached[1]
+
     def _snapshot(self):
         """This declaration as it is now, for a Solution to keep: later changes of the
         values on ``self`` do not reach it (a shallow copy with its own parameter values)."""

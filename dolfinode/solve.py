@@ -79,25 +79,26 @@ def _keeps_nonnegative(ode):
     i (quasi-positivity, decided by sympy's sign assumptions with the parameter values; t-
     dependent or undecidable terms count as no). Then the step control keeps the values
     >= -atol as for components declared nonnegative: ROBER to 1e11 at tolerance 1e-3
-    (absolute tolerance 1e-3 by default) let y2 ~ 1e-5 dip below -3e-4, where
-    y2' = -3e7 y2^2 - 1e4 y2 y3 + ... diverges, and returned y1 = -4.3e7 (mdG(1)), -4.8e7
-    (cG(1)) as a success. Checked for systems of at most _QUASI_POSITIVE_N components (sympy
-    takes ~1 ms per component), once per declaration and parameter values."""
+    (absolute tolerance 1e-3 by default) let y2 dip below -3e-4, where
+    y2' = -3e7 y2^2 - 1e4 y2 y3 + ... diverges, and returned y1 ~ -4e7 as a success. Checked
+    for systems of at most _QUASI_POSITIVE_N components (sympy's work grows with N), once per
+    declaration and parameter values."""
     if hasattr(ode, "templates") or ode.N > _QUASI_POSITIVE_N or ode.u0.min() < 0:
         return False
-    key = (ode.rhs, tuple(ode.params.values()))
-    cached = ode.__dict__.get("_keeps_nonnegative")
-    if cached is None or cached[0] != key:
-        keeps = not any(f.has(*ev.NON_SMOOTH) for f in ode.rhs)  # (a jump at u_i = 0: sign(u))
-        if keeps:
-            values = {p: sp.Float(value) for p, value in ode.params.items()}
-            nonnegative = {s: sp.Symbol(s.name, nonnegative=True) for s in ode.states}
-            at_zero = (sp.sympify(f).xreplace(values).xreplace(nonnegative)
-                       .xreplace({nonnegative[s]: sp.S.Zero})
-                       for s, f in zip(ode.states, ode.rhs))
-            keeps = all(f.is_nonnegative for f in at_zero)
-        cached = ode._keeps_nonnegative = (key, bool(keeps))
-    return cached[1]
+    return ode._derived("_keeps_nonnegative", (ode.rhs, tuple(ode.params.values())),
+                        lambda: _quasi_positive(ode))
+
+
+def _quasi_positive(ode):
+    """f_i >= 0 where u_i = 0 and the others are >= 0, for every i, by sympy's sign
+    assumptions with the parameter values (a jump at u_i = 0, as sign(u), counts as no)."""
+    if any(f.has(*ev.NON_SMOOTH) for f in ode.rhs):
+        return False
+    values = {p: sp.Float(value) for p, value in ode.params.items()}
+    nonnegative = {s: sp.Symbol(s.name, nonnegative=True) for s in ode.states}
+    at_zero = (sp.sympify(f).xreplace(values).xreplace(nonnegative)
+               .xreplace({nonnegative[s]: sp.S.Zero}) for s, f in zip(ode.states, ode.rhs))
+    return all(bool(f.is_nonnegative) for f in at_zero)
 
 
 def _check_resolvable(ode, name, k, t):
