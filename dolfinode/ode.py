@@ -141,7 +141,7 @@ def _listed_vector(values, states, what):
 
 def _parameter_value(symbol, value):
     """The value of parameter ``symbol`` as a checked finite float."""
-    return _finite_real(value, f"parameter {symbol}")
+    return _finite_real(value, f"parameter {symbol.name}")  # (str(symbol) prints with sympy)
 
 
 def _read_only(array):

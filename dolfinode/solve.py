@@ -353,6 +353,35 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
 def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
     """One solve of :func:`solve_lowered`."""
     start = time.perf_counter()
+    atol, floor, x, f0, steps, iopts, fopts = _start(ode, compiled, plan, multi_adaptive, m,
+                                                     params)
+    if plan is not None and plan.events and params["dense_output"] is False:
+        raise ValueError("events are located on the solution's history: give "
+                         "dense_output=True or a file name with events=")
+    sink = history.sink(ode, m, multi_adaptive, params)
+    run = _run_multi if multi_adaptive else _run_mono
+    status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
+                                                   floor, x, f0, steps, plan, sink)
+    sol = _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, state, x,
+                  stats, start, lambda solved: sink.solution(solved, m, elements, stats, x))
+    if plan is not None:
+        plan.report(sol)
+    return sol
+
+
+def _start(ode, compiled, plan, multi_adaptive, m, params):
+    """The start of a solve of ``ode`` from u0 at t0 with the kernels ``compiled`` (whose
+    ``p`` holds its parameter values; the branches of ``plan``'s switches at t0 are set in
+    it): (atol, floor, x, f0, steps, iopts, fopts), the loops'
+    tolerances, lower bounds of the values, the state x = u0 (a copy), f0 = f(u0, t0), the
+    first steps and the options (lists) shared by both loops; the checks of the start.
+
+    Raises
+    ------
+    ValueError
+        For f(u0, t0) not finite, an interval or step double precision does not resolve, a
+        tolerance below what it resolves at |u0|.
+    """
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
     if rtol < MIN_TOLERANCE and not params["fixed_time_step"]:  # (else atol + rtol |u0| is)
@@ -391,17 +420,19 @@ def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
              params["maximum_iterations"], int(m.family == "dG")]
     fopts = [rtol, ode.T, params["maximum_time_step"] or ode.T - ode.t0,
              params["safety_factor"], dtol, m.local_order]
-    if plan is not None and plan.events and params["dense_output"] is False:
-        raise ValueError("events are located on the solution's history: give "
-                         "dense_output=True or a file name with events=")
-    sink = history.sink(ode, m, multi_adaptive, params)
-    run = _run_multi if multi_adaptive else _run_mono
-    status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
-                                                   floor, x, f0, steps, plan, sink)
+    return atol, floor, x, f0, steps, iopts, fopts
+
+
+def _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, state, x, stats,
+            start, solution):
+    """The Solution ``solution(solved declaration)`` of a loop run that ended with
+    ``status``, its ``stats`` completed from the loop's ``counters``; SolverError (naming
+    the time ``state[0]`` and what to try) for a run that did not reach T."""
     # mono-adaptive solves may return from Newton to fixed-point iteration (STIFF is then 0)
     newton = (bool(counters[ts.STIFF]) or params["nonlinear_solver"] == "newton"
               or stats.get("newton matrices") is not None)
     if status != ts.DONE:
+        fixed = bool(params["fixed_time_step"])
         outside = ode.states[counters[ts.OUTSIDE] - 1] if counters[ts.OUTSIDE] else None
         why = (undefined(ode, compiled, x, float(state[0]), float(state[1]))
                if status in (ts.NONCONVERGENCE, ts.BLOWUP) else None)
@@ -422,10 +453,8 @@ def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
     })
     # the declaration as solved: later changes to ode do not reach sol
     solved = ode._snapshot() if plan is None else plan.solved_ode(ode._snapshot())
-    sol = sink.solution(solved, m, elements, stats, x)
+    sol = solution(solved)
     sol.parameters = params
-    if plan is not None:
-        plan.report(sol)
     return sol
 
 
@@ -481,9 +510,10 @@ def _integrate(chunks, plan, pieces, ode, state, sink):
 
 
 def _newton_plan(compiled, m):
-    """(structure, bytes, costs) of the Newton matrices of method ``m`` on the pattern of
-    ``compiled``: their storage (:func:`newton_structure`; a sparse one is analysed only now),
-    its memory and the cost units of :func:`mono.newton_costs`. Made once per pattern and
+    """(structure, bytes, costs, reuse) of the Newton matrices of method ``m`` on the pattern
+    of ``compiled``: their storage (:func:`newton_structure`; a sparse one is analysed only
+    now), its memory, the cost units of :func:`mono.newton_costs` and whether a factorization
+    is worth reusing across slabs (the loop's REUSE option). Made once per pattern and
     method: a small solve would otherwise spend a fifth of its time on them."""
     plan = compiled.newton_plans.get(m.name)
     if plan is None:
@@ -491,7 +521,8 @@ def _newton_plan(compiled, m):
                                      lambda: compiled.sparse_structure, m.stage_eigenvalues)
         plan = (structure, structure.memory(m.num_stages),
                 mono.newton_costs(structure, m.stage_eigenvalues, compiled.N, compiled.nnz,
-                                  m.num_stages))
+                                  m.num_stages),
+                int(structure.seconds(complex_values=True) >= mono.REUSE_TIME))
         compiled.newton_plans[m.name] = plan
     return plan
 
@@ -502,27 +533,55 @@ def _step_guess(ode, compiled, atol, rtol):
     return lambda x, t: _first_step(ode, compiled.f(x, t), x, t, atol, rtol)
 
 
-def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):
+def _mono_workspace(ode, compiled, m, iopts, fopts, steps):
+    """The mono-adaptive loop's arrays for a start with ``steps`` (iopts, fopts: the lists of
+    :func:`_start`): (tables, iopts, fopts, state, counters)."""
     tables = mono.method_tables(m)
     fopts = np.array(fopts + [ode.T - ode.t0, filter_constant(m), 0.0, 0.0])
     # the running mean of fixed-point iterations per slab starts at a typical 6
     state = np.array([ode.t0, steps[0], 1.0, 1.0, 0.0, 6.0, 0.0, 0.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     iopts = np.array(iopts + [0, 0], dtype=np.int64)
+    return tables, iopts, fopts, state, counters
+
+
+def _newton_options(compiled, m, iopts, fopts):
+    """Decide the storage of the Newton matrices (a sparse one is analysed only now) and set
+    the loop's options for it; (structure, bytes, whether they fit in memory)."""
+    structure, newton_bytes, costs, reuse = _newton_plan(compiled, m)
+    fits = (newton_bytes <= _NEWTON_SMALL
+            or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
+    iopts[mono.NEWTON_READY] = int(fits)
+    iopts[mono.REUSE] = reuse
+    fopts[mono.NEWTON_UNITS], fopts[mono.FACTOR_UNITS] = costs
+    return structure, newton_bytes, fits
+
+
+def _mono_advance(compiled, structure, tables, iopts, fopts, atol, floor, x, f0, state,
+                  counters, out_t, out_k, out_X):
+    """One call of the mono-adaptive loop: slabs until T or until out_t, out_k, out_X are
+    full; its status."""
+    return mono.advance.unchecked(compiled.rhs.address, compiled.jacobian.address, compiled.p,
+                                  compiled.indptr, compiled.indices, structure.tuple, *tables,
+                                  iopts, fopts, atol, floor, x, f0, state, counters, out_t,
+                                  out_k, out_X)
+
+
+def _mono_capacity(ode, m):
+    """Slabs per loop call: the stored values at most 2^21 doubles."""
+    return int(max(64, min(20000, 2 ** 21 // ((m.q + 1) * ode.N))))
+
+
+def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):
+    tables, iopts, fopts, state, counters = _mono_workspace(ode, compiled, m, iopts, fopts,
+                                                            steps)
     nodes = m.q + 1
     structure = compiled.band_structure  # until Newton is needed: see newton_ready
     newton_bytes = 0
 
     def newton_ready():
-        """Decide the storage of the Newton matrices (a sparse one is analysed only now);
-        whether they fit in memory."""
         nonlocal structure, newton_bytes
-        structure, newton_bytes, costs = _newton_plan(compiled, m)
-        fits = (newton_bytes <= _NEWTON_SMALL
-                or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
-        iopts[mono.NEWTON_READY] = int(fits)
-        iopts[mono.REUSE] = int(structure.seconds(complex_values=True) >= mono.REUSE_TIME)
-        fopts[[mono.NEWTON_UNITS, mono.FACTOR_UNITS]] = costs
+        structure, newton_bytes, fits = _newton_options(compiled, m, iopts, fopts)
         return fits
 
     if not sparse_candidate(structure):
@@ -533,12 +592,10 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
         return np.empty(size), np.empty(size), np.empty((size, nodes, ode.N))
 
     def advance(out_t, out_k, out_X):
-        return mono.advance.unchecked(compiled.rhs.address, compiled.jacobian.address, compiled.p,
-                            compiled.indptr, compiled.indices, structure.tuple, *tables,
-                            iopts, fopts, atol, floor, x, f0, state, counters, out_t, out_k,
-                            out_X)
+        return _mono_advance(compiled, structure, tables, iopts, fopts, atol, floor, x, f0,
+                             state, counters, out_t, out_k, out_X)
 
-    capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
+    capacity = _mono_capacity(ode, m)
     if plan is not None and plan.truncates:  # a terminal event or a switch redoes the rest
         capacity = min(capacity, _EVENT_CHUNK)
     with _progress(ode, params) as bar:
@@ -560,11 +617,16 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
             f"than {_NEWTON_MEMORY_FRACTION:g} x the {available / 2**30:.3g} GB available. "
             "Use smaller steps with fixed_time_step=True and nonlinear_solver='fixed-point', "
             "or a smaller system", t=float(state[mono.T_NOW]))
+    return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, _mono_stats(
+        ode, structure, counters)
+
+
+def _mono_stats(ode, structure, counters):
+    """The stats of a mono-adaptive run from its loop's counters."""
     slabs = int(counters[ts.SLABS])
-    stats = {"time slabs": slabs, "elements": slabs * ode.N,
-             "factorizations": int(counters[ts.FACTORIZATIONS]),
-             "newton matrices": structure.description if counters[ts.FACTORIZATIONS] else None}
-    return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, stats
+    return {"time slabs": slabs, "elements": slabs * ode.N,
+            "factorizations": int(counters[ts.FACTORIZATIONS]),
+            "newton matrices": structure.description if counters[ts.FACTORIZATIONS] else None}
 
 
 def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):

@@ -5,14 +5,29 @@ ODE once; ``solver.solve(u0=, params=, T=, t0=)`` then solves with those values 
 exactly as :func:`dolfinode.solve` solves :func:`dolfinode.vary` (ode, values): the same
 steps and values, bit for bit. The parameter values reach the compiled kernels as the
 vector ``p`` of each call, never through the declaration the solver was made from.
+
+A mono-adaptive solve without events, breakpoints, switches or automatic modeling, with
+its history in memory, takes the prepared path: the start of :func:`dolfinode.solve`
+(``solve._start``) and one call of the compiled loop into buffers kept by the solver, whose
+used part the Solution copies. Everything else, and a solve that outgrows the buffers or
+fails, goes through the general path (``solve_lowered``, the driver of dn.solve).
 """
+import time
+from collections.abc import Mapping
+
 import numpy as np
 
-from dolfinode.ensemble import vary
+from dolfinode import timeslab as ts
+from dolfinode.ensemble import parameter_symbol
+from dolfinode.io import history
+from dolfinode.linalg.newton_matrix import sparse_candidate
 from dolfinode.methods import parse_method
-from dolfinode.ode import ODE
+from dolfinode.ode import ODE, Parameters, _parameter_value
 from dolfinode.parameters import check_parameters
-from dolfinode.solve import check_tolerance, lowered, solve, solve_lowered
+from dolfinode.solve import (_finish, _mono_advance, _mono_capacity, _mono_stats,
+                             _mono_workspace, _newton_options, _start, check_tolerance, lower,
+                             lowered, solve, solve_lowered)
+from dolfinode.timeslab import mono
 
 
 class Solver:
@@ -49,7 +64,24 @@ class Solver:
         self.ode = ode
         self.method = method
         self.parameters = dict(parameters)
-        lowered(ode, self._params)  # compiled now, kept on the declaration for every call
+        self._prepare()
+
+    def _prepare(self):
+        """Lower the declaration (kept on it for every call) and decide the path; the
+        solver's own copy of it, whose values each call replaces."""
+        ode, params = self.ode, self._params
+        _, plan = lowered(ode, params)
+        self._declared = ode.params  # a new assignment ode.params = {...} prepares again
+        self._by_name = {s.name: s for s in ode.params}
+        self._work = object.__new__(type(ode))
+        self._work.__dict__.update(ode.__dict__)
+        self._buffers = None
+        if (plan is None and not self._multi_adaptive and params["dense_output"] is True
+                and not params["progress"] and not params["automatic_modeling"]
+                and not sparse_candidate(ode._compiled.band_structure)):
+            m = self._method
+            size = min(_mono_capacity(ode, m), params["maximum_steps"])
+            self._buffers = (np.empty(size), np.empty(size), np.empty((size, m.q + 1, ode.N)))
 
     def solve(self, u0=None, params=None, T=None, t0=None):
         """Solve with the given initial values, parameter values and interval (each defaults
@@ -59,7 +91,7 @@ class Solver:
         Parameters
         ----------
         u0 : dict or sequence, optional
-            Initial values by state symbol, or in component order.
+            Initial values by state symbol (or name), or in component order.
         params : dict, optional
             Parameter symbols (or names) -> values; the others keep the declaration's.
         T, t0 : float, optional
@@ -67,20 +99,66 @@ class Solver:
         Raises
         ------
         TypeError, ValueError
-            For values the declaration would reject.
+            For values the declaration would reject (naming the entry).
         SolverError
             As :func:`dolfinode.solve`.
         """
-        variation = {} if params is None else dict(params)
-        if isinstance(u0, (list, tuple)) and all(isinstance(x, (int, float)) for x in u0):
-            u0 = np.array(u0, dtype=float)  # checked as an array: 4x faster than as a list
-        for name, value in (("u0", u0), ("T", T), ("t0", t0)):
-            if value is not None:
-                variation[name] = value
-        ode = vary(self.ode, variation)
+        work = self._declaration(u0, params, T, t0)
         if self._params["automatic_modeling"]:  # a driver over many solves
-            return solve(ode, self.method, **self.parameters)
-        # the kernels' p is made from the varied declaration's values (CompiledODE.again)
-        compiled, plan = lowered(ode, self._params)
-        return solve_lowered(ode, compiled, plan, self._multi_adaptive, self._method,
-                             self._params)
+            return solve(work._snapshot(), self.method, **self.parameters)
+        if self._buffers is not None:
+            sol = self._solve_prepared(work)
+            if sol is not None:
+                return sol
+        compiled, plan = lowered(work, self._params)
+        return solve_lowered(work, compiled, plan, self._multi_adaptive, self._method,
+                                    self._params)
+
+    def _declaration(self, u0, params, T, t0):
+        """The solver's copy of the declaration with the values of this call, checked as
+        :func:`dolfinode.vary` checks them (the declaration's values where not given)."""
+        ode = self.ode
+        if ode.params is not self._declared:
+            self._prepare()
+        work = self._work
+        values = dict(ode.params)
+        if params is not None:
+            if not isinstance(params, Mapping):
+                raise TypeError("params must be a dict {parameter symbol or name: value}, got "
+                                f"{type(params).__name__}")
+            for key, value in params.items():
+                symbol = parameter_symbol(self._by_name, key)
+                values[symbol] = _parameter_value(symbol, value)
+        work.__dict__["params"] = Parameters(values)
+        if u0 is None:
+            work.__dict__["u0"] = ode.u0
+        else:
+            if isinstance(u0, (list, tuple)) and all(isinstance(x, (int, float)) for x in u0):
+                u0 = np.array(u0, dtype=float)  # checked as an array: 4x faster than as a list
+            work.u0 = u0
+        work._set_interval(ode.t0 if t0 is None else t0, ode.T if T is None else T)
+        return work
+
+    def _solve_prepared(self, work):
+        """The solve of ``work`` as one call of the mono-adaptive loop into the kept
+        buffers; None when that call did not reach T (the general path then solves it)."""
+        start = time.perf_counter()
+        params, m = self._params, self._method
+        compiled = lower(work)
+        atol, floor, x, f0, steps, iopts, fopts = _start(work, compiled, None, False, m,
+                                                                params)
+        sink = history.sink(work, m, False, params)
+        tables, iopts, fopts, state, counters = _mono_workspace(work, compiled, m, iopts,
+                                                                       fopts, steps)
+        structure, _, _ = _newton_options(compiled, m, iopts, fopts)
+        status = _mono_advance(compiled, structure, tables, iopts, fopts, atol, floor, x,
+                                      f0, state, counters, *self._buffers)
+        if status != ts.DONE or counters[ts.SLABS] > params["maximum_steps"]:
+            return None
+        n = counters[ts.STORED]
+        sink.add([b[:n] for b in self._buffers], float(state[mono.T_NOW]))
+        elements = sink.finish(True)  # copies: the next call refills the buffers
+        stats = _mono_stats(work, structure, counters)
+        return _finish(work, compiled, None, False, m, params, status, counters,
+                              state[[mono.T_NOW, mono.K_NEXT]], x, stats, start,
+                              lambda solved: sink.solution(solved, m, elements, stats, x))
