@@ -76,25 +76,30 @@ def _smallest_step(ode, t):
 def _keeps_nonnegative(ode):
     """Whether f keeps every component >= 0 from u0 >= 0 (the exact solution stays in the
     nonnegative orthant): f_i >= 0 where u_i = 0 and the other components are >= 0, for every
-    i (quasi-positivity, decided by sympy's sign assumptions with the parameter values; t-
-    dependent or undecidable terms count as no). Then the step control keeps the values
-    >= -atol as for components declared nonnegative: ROBER to 1e11 at tolerance 1e-3
-    (absolute tolerance 1e-3 by default) let y2 dip below -3e-4, where
+    i (quasi-positivity, decided by sympy's sign assumptions for parameters of the signs of
+    their values; t-dependent or undecidable terms count as no). Then the step control keeps
+    the values >= -atol as for components declared nonnegative: ROBER to 1e11 at tolerance
+    1e-3 (absolute tolerance 1e-3 by default) let y2 dip below -3e-4, where
     y2' = -3e7 y2^2 - 1e4 y2 y3 + ... diverges, and returned y1 ~ -4e7 as a success. Checked
     for systems of at most _QUASI_POSITIVE_N components (sympy's work grows with N), once per
-    declaration and parameter values."""
+    declaration and signs of the parameters (a parameter fit varies the values at every
+    solve: a sympy check per value took ~3 ms a solve)."""
     if hasattr(ode, "templates") or ode.N > _QUASI_POSITIVE_N or ode.u0.min() < 0:
         return False
-    return ode._derived("_keeps_nonnegative", (ode.rhs, tuple(ode.params.values())),
-                        lambda: _quasi_positive(ode))
+    signs = tuple((value > 0) - (value < 0) for value in ode.params.values())
+    return ode._derived("_keeps_nonnegative", (ode.rhs, signs),
+                        lambda: _quasi_positive(ode, signs))
 
 
-def _quasi_positive(ode):
+def _quasi_positive(ode, signs):
     """f_i >= 0 where u_i = 0 and the others are >= 0, for every i, by sympy's sign
-    assumptions with the parameter values (a jump at u_i = 0, as sign(u), counts as no)."""
+    assumptions, the parameters of the given ``signs`` (+1, -1, 0) (a jump at u_i = 0, as
+    sign(u), counts as no)."""
     if any(f.has(*ev.NON_SMOOTH) for f in ode.rhs):
         return False
-    values = {p: sp.Float(value) for p, value in ode.params.items()}
+    values = {p: sp.Dummy(p.name, positive=True) if sign > 0 else
+              sp.Dummy(p.name, negative=True) if sign < 0 else sp.S.Zero
+              for p, sign in zip(ode.params, signs)}
     nonnegative = {s: sp.Symbol(s.name, nonnegative=True) for s in ode.states}
     at_zero = (sp.sympify(f).xreplace(values).xreplace(nonnegative)
                .xreplace({nonnegative[s]: sp.S.Zero}) for s, f in zip(ode.states, ode.rhs))

@@ -121,22 +121,28 @@ class Solver:
         if ode.params is not self._declared:
             self._prepare()
         work = self._work
-        values = dict(ode.params)
-        if params is not None:
+        # the declaration's values are checked already: only those given here are
+        if params is None:
+            work.__dict__["params"] = ode.params
+        else:
             if not isinstance(params, Mapping):
                 raise TypeError("params must be a dict {parameter symbol or name: value}, got "
                                 f"{type(params).__name__}")
+            values = dict(ode.params.items())
             for key, value in params.items():
                 symbol = parameter_symbol(self._by_name, key)
                 values[symbol] = _parameter_value(symbol, value)
-        work.__dict__["params"] = Parameters(values)
+            work.__dict__["params"] = Parameters(values)
         if u0 is None:
             work.__dict__["u0"] = ode.u0
         else:
             if isinstance(u0, (list, tuple)) and all(isinstance(x, (int, float)) for x in u0):
                 u0 = np.array(u0, dtype=float)  # checked as an array: 4x faster than as a list
             work.u0 = u0
-        work._set_interval(ode.t0 if t0 is None else t0, ode.T if T is None else T)
+        if t0 is None and T is None:
+            work.__dict__.update(t0=ode.t0, T=ode.T)
+        else:
+            work._set_interval(ode.t0 if t0 is None else t0, ode.T if T is None else T)
         return work
 
     def _solve_prepared(self, work):
