@@ -412,7 +412,7 @@ def _start(ode, compiled, plan, multi_adaptive, m, params):
         _check_resolvable(ode, "maximum_time_step", params["maximum_time_step"], latest)
     # the domain of the values: declared, or kept by f (with a loose absolute tolerance a
     # small concentration dips below 0 and polynomial kinetics then diverge from there)
-    floor = np.where(ode.nonnegative | _keeps_nonnegative(ode), -atol, -np.inf)
+    floor = -atol if _keeps_nonnegative(ode) else np.where(ode.nonnegative, -atol, -np.inf)
     fixed = bool(params["fixed_time_step"])
     if fixed:  # no error control: iterate to rounding level, relative to the solution size
         atol, rtol, dtol = np.ones(ode.N), 1.0, 1e-15

@@ -147,3 +147,14 @@ def test_solver_follows_the_declaration_as_it_is_at_each_call(oscillator):
 def test_solver_names_the_bad_entry_of_a_call(oscillator, call, error, match):
     with pytest.raises(error, match=match):
         dn.Solver(oscillator, method="dG(1)").solve(**call)
+
+
+def test_solver_of_a_template_system_is_bitwise_dn_solve():
+    x, rate = sp.symbols("x rate")
+    decay = dn.Template(slots=(x,), terms={x: -rate * x}, indices=[[0], [1]])
+    ode = dn.TemplateODE(decay, u0=[1.0, 2.0], T=1.0, params={rate: 1.0})
+    solver = dn.Solver(ode, method="cG(2)", tolerance=1e-8)
+    sol = solver.solve(params={"rate": 2.0}, u0=[1.0, 1.0])
+    _assert_same_solution(sol, dn.solve(dn.vary(ode, {rate: 2.0, "u0": [1.0, 1.0]}),
+                                        method="cG(2)", tolerance=1e-8))
+    np.testing.assert_allclose(sol(1.0), np.exp(-2.0), rtol=1e-6)
