@@ -515,10 +515,9 @@ def _integrate(chunks, plan, pieces, ode, state, sink):
 
 
 def _newton_plan(compiled, m):
-    """(structure, bytes, costs, reuse) of the Newton matrices of method ``m`` on the pattern
-    of ``compiled``: their storage (:func:`newton_structure`; a sparse one is analysed only
-    now), its memory, the cost units of :func:`mono.newton_costs` and whether a factorization
-    is worth reusing across slabs (the loop's REUSE option). Made once per pattern and
+    """(structure, bytes, costs) of the Newton matrices of method ``m`` on the pattern of
+    ``compiled``: their storage (:func:`newton_structure`; a sparse one is analysed only now),
+    its memory and the cost units of :func:`mono.newton_costs`. Made once per pattern and
     method: a small solve would otherwise spend a fifth of its time on them."""
     plan = compiled.newton_plans.get(m.name)
     if plan is None:
@@ -526,8 +525,7 @@ def _newton_plan(compiled, m):
                                      lambda: compiled.sparse_structure, m.stage_eigenvalues)
         plan = (structure, structure.memory(m.num_stages),
                 mono.newton_costs(structure, m.stage_eigenvalues, compiled.N, compiled.nnz,
-                                  m.num_stages),
-                int(structure.seconds(complex_values=True) >= mono.REUSE_TIME))
+                                  m.num_stages))
         compiled.newton_plans[m.name] = plan
     return plan
 
@@ -553,11 +551,11 @@ def _mono_workspace(ode, compiled, m, iopts, fopts, steps):
 def _newton_options(compiled, m, iopts, fopts):
     """Decide the storage of the Newton matrices (a sparse one is analysed only now) and set
     the loop's options for it; (structure, bytes, whether they fit in memory)."""
-    structure, newton_bytes, costs, reuse = _newton_plan(compiled, m)
+    structure, newton_bytes, costs = _newton_plan(compiled, m)
     fits = (newton_bytes <= _NEWTON_SMALL
             or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
     iopts[mono.NEWTON_READY] = int(fits)
-    iopts[mono.REUSE] = reuse
+    iopts[mono.REUSE] = int(structure.seconds(complex_values=True) >= mono.REUSE_TIME)
     fopts[mono.NEWTON_UNITS], fopts[mono.FACTOR_UNITS] = costs
     return structure, newton_bytes, fits
 
@@ -634,32 +632,69 @@ def _mono_stats(ode, structure, counters):
             "newton matrices": structure.description if counters[ts.FACTORIZATIONS] else None}
 
 
-def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):
-    # imported on first use: its loop is the longest compile of the package
-    from dolfinode.timeslab import multi
+def _multi_workspace(ode, compiled, m, params, iopts, fopts, steps):
+    """The multi-adaptive loop's arrays for a start with ``steps`` (iopts, fopts: the lists
+    of :func:`_start`): (tables, iopts, fopts, state, counters, kdes, frozen)."""
+    from dolfinode.timeslab import multi  # (its loop is the longest compile of the package)
 
     fopts = np.array(fopts + [params["partitioning_threshold"], params["interval_threshold"],
                               filter_constant(m), ode.T - ode.t0])
     state = np.array([ode.t0, 0.0])
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
-    _, position, kl, ku = compiled.ordering
+    _, _, kl, ku = compiled.ordering
     iopts = np.array(iopts + [kl, ku, int(ode.autonomous)], dtype=np.int64)
-    tables = multi.method_tables(m)
     kdes = steps.copy()
     frozen = np.full(ode.N, np.nan)  # since when each component is frozen (NaN: active)
+    return multi.method_tables(m), iopts, fopts, state, counters, kdes, frozen
+
+
+def _multi_advance(compiled, tables, iopts, fopts, atol, floor, x, kdes, frozen, state,
+                   counters, out_comp, out_a, out_b, out_values):
+    """One call of the multi-adaptive loop: elements until T or until the out_ arrays are
+    full; its status."""
+    from dolfinode.timeslab import multi
+
+    return multi.advance.unchecked(compiled.rhs_component.address,
+                                   compiled.jacobian_row.address, compiled.p, compiled.indptr,
+                                   compiled.indices, compiled.ordering[1], *tables, iopts, fopts,
+                                   atol, floor, x, kdes, frozen, state, counters, out_comp,
+                                   out_a, out_b, out_values)
+
+
+def _multi_capacity(ode, m):
+    """Elements per loop call: values at most 2^21 doubles, as mono's (from 32 MB on, each
+    solve would map fresh pages)."""
+    return int(max(64 * ode.N, min(2 ** 20, 2 ** 21 // (m.q + 1))))
+
+
+def _multi_stats(counters, state, per_component):
+    """The stats of a multi-adaptive run from its loop's counters and state."""
+    from dolfinode.timeslab import multi
+
+    total = int(counters[ts.ELEMENTS])
+    return {"time slabs": int(counters[ts.SLABS]),
+            "sub-slabs": int(counters[ts.SUBSLABS]),
+            "elements": total,
+            "elements per component": per_component,
+            "factorizations": int(counters[ts.FACTORIZATIONS]),
+            "efficiency index": float(state[multi.MONO_ELEMENTS]) / max(total, 1)}
+
+
+def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):
+    from dolfinode.timeslab import multi
+
+    tables, iopts, fopts, state, counters, kdes, frozen = _multi_workspace(
+        ode, compiled, m, params, iopts, fopts, steps)
 
     def buffers(capacity):
         return (np.empty(capacity, dtype=np.int64), np.empty(capacity), np.empty(capacity),
                 np.empty((capacity, m.q + 1)))
 
     def advance(out_comp, out_a, out_b, out_values):
-        return multi.advance.unchecked(compiled.rhs_component.address, compiled.jacobian_row.address,
-                             compiled.p, compiled.indptr, compiled.indices, position, *tables,
-                             iopts, fopts, atol, floor, x, kdes, frozen, state, counters,
-                             out_comp, out_a, out_b, out_values)
+        return _multi_advance(compiled, tables, iopts, fopts, atol, floor, x, kdes, frozen,
+                              state, counters, out_comp, out_a, out_b, out_values)
 
-    # values at most 2^21 doubles, as mono's: from 32 MB on, each solve would map fresh pages
-    capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 21 // (m.q + 1))))
+    capacity = _multi_capacity(ode, m)
     if plan is not None and plan.truncates:
         capacity = min(capacity, max(4 * ode.N, _EVENT_CHUNK))
     with _progress(ode, params) as bar:
@@ -671,15 +706,8 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
             _step_guess(ode, compiled, atol, fopts[multi.RTOL]), kdes=kdes, frozen=frozen,
             components=plan.detector.components)
         status, elements = _integrate(chunks, plan, pieces, ode, state, sink)
-    per_component = sink.per_component
-    total = int(counters[ts.ELEMENTS])
-    stats = {"time slabs": int(counters[ts.SLABS]),
-             "sub-slabs": int(counters[ts.SUBSLABS]),
-             "elements": total,
-             "elements per component": per_component,
-             "factorizations": int(counters[ts.FACTORIZATIONS]),
-             "efficiency index": float(state[multi.MONO_ELEMENTS]) / max(total, 1)}
-    return status, counters, np.array([state[0], np.min(kdes)]), elements, stats
+    return (status, counters, np.array([state[0], np.min(kdes)]), elements,
+            _multi_stats(counters, state, sink.per_component))
 
 
 class _NoProgress:

@@ -6,10 +6,11 @@ exactly as :func:`dolfinode.solve` solves :func:`dolfinode.vary` (ode, values): 
 steps and values, bit for bit. The parameter values reach the compiled kernels as the
 vector ``p`` of each call, never through the declaration the solver was made from.
 
-A mono-adaptive solve without events, breakpoints, switches or automatic modeling, with
-its history in memory, takes the prepared path: the start of :func:`dolfinode.solve`
-(``solve._start``) and one call of the compiled loop into buffers kept by the solver, whose
-used part the Solution copies. Everything else, and a solve that outgrows the buffers or
+A solve without events, breakpoints, switches or automatic modeling, with its history in
+memory (and for cG/dG a Newton matrix storage decided up front, as for all but large sparse
+systems), takes the prepared path: the start of :func:`dolfinode.solve` (``solve._start``)
+and one call of the compiled loop into buffers kept by the solver, as large as the first
+ones of dn.solve, whose used part the Solution copies. Everything else, and a solve that outgrows the buffers or
 fails, goes through the general path (``solve_lowered``, the driver of dn.solve).
 """
 import time
@@ -25,7 +26,8 @@ from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, Parameters, _parameter_value
 from dolfinode.parameters import check_parameters
 from dolfinode.solve import (_finish, _mono_advance, _mono_capacity, _mono_stats,
-                             _mono_workspace, _newton_options, _start, check_tolerance, lower,
+                             _mono_workspace, _multi_advance, _multi_capacity, _multi_stats,
+                             _multi_workspace, _newton_options, _start, check_tolerance, lower,
                              lowered, solve, solve_lowered)
 from dolfinode.timeslab import mono
 
@@ -45,6 +47,12 @@ class Solver:
     ------
     TypeError, ValueError
         For an invalid ODE, method or parameter (with the closest valid name).
+
+    Notes
+    -----
+    A Solver keeps work space between calls (its copy of the declaration, the loop's output
+    buffers): call one Solver from one thread at a time, one per thread for parallel fits.
+    The Solutions it returns own their arrays; later calls leave them alone.
 
     Examples
     --------
@@ -76,12 +84,17 @@ class Solver:
         self._work = object.__new__(type(ode))
         self._work.__dict__.update(ode.__dict__)
         self._buffers = None
-        if (plan is None and not self._multi_adaptive and params["dense_output"] is True
-                and not params["progress"] and not params["automatic_modeling"]
-                and not sparse_candidate(ode._compiled.band_structure)):
+        if (plan is None and params["dense_output"] is True and not params["progress"]
+                and not params["automatic_modeling"]):
             m = self._method
-            size = min(_mono_capacity(ode, m), params["maximum_steps"])
-            self._buffers = (np.empty(size), np.empty(size), np.empty((size, m.q + 1, ode.N)))
+            if self._multi_adaptive:  # (the loop's first buffers, as in _run_multi)
+                size = _multi_capacity(ode, m)
+                self._buffers = (np.empty(size, dtype=np.int64), np.empty(size),
+                                 np.empty(size), np.empty((size, m.q + 1)))
+            elif not sparse_candidate(ode._compiled.band_structure):  # (as in _run_mono)
+                size = min(_mono_capacity(ode, m), params["maximum_steps"])
+                self._buffers = (np.empty(size), np.empty(size),
+                                 np.empty((size, m.q + 1, ode.N)))
 
     def solve(self, u0=None, params=None, T=None, t0=None):
         """Solve with the given initial values, parameter values and interval (each defaults
@@ -146,25 +159,36 @@ class Solver:
         return work
 
     def _solve_prepared(self, work):
-        """The solve of ``work`` as one call of the mono-adaptive loop into the kept
-        buffers; None when that call did not reach T (the general path then solves it)."""
+        """The solve of ``work`` as one call of the loop into the kept buffers; None when
+        that call did not reach T (the general path then solves it)."""
         start = time.perf_counter()
-        params, m = self._params, self._method
+        params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
         compiled = lower(work)
-        atol, floor, x, f0, steps, iopts, fopts = _start(work, compiled, None, False, m,
-                                                                params)
-        sink = history.sink(work, m, False, params)
-        tables, iopts, fopts, state, counters = _mono_workspace(work, compiled, m, iopts,
-                                                                       fopts, steps)
-        structure, _, _ = _newton_options(compiled, m, iopts, fopts)
-        status = _mono_advance(compiled, structure, tables, iopts, fopts, atol, floor, x,
-                                      f0, state, counters, *self._buffers)
+        atol, floor, x, f0, steps, iopts, fopts = _start(work, compiled, None, multi_adaptive,
+                                                         m, params)
+        sink = history.sink(work, m, multi_adaptive, params)
+        if multi_adaptive:
+            tables, iopts, fopts, state, counters, kdes, frozen = _multi_workspace(
+                work, compiled, m, params, iopts, fopts, steps)
+            status = _multi_advance(compiled, tables, iopts, fopts, atol, floor, x, kdes,
+                                    frozen, state, counters, *self._buffers)
+        else:
+            tables, iopts, fopts, state, counters = _mono_workspace(work, compiled, m, iopts,
+                                                                    fopts, steps)
+            structure, _, _ = _newton_options(compiled, m, iopts, fopts)
+            status = _mono_advance(compiled, structure, tables, iopts, fopts, atol, floor, x,
+                                   f0, state, counters, *self._buffers)
         if status != ts.DONE or counters[ts.SLABS] > params["maximum_steps"]:
             return None
         n = counters[ts.STORED]
-        sink.add([b[:n] for b in self._buffers], float(state[mono.T_NOW]))
+        sink.add([b[:n] for b in self._buffers], float(state[0]))
         elements = sink.finish(True)  # copies: the next call refills the buffers
-        stats = _mono_stats(work, structure, counters)
-        return _finish(work, compiled, None, False, m, params, status, counters,
-                              state[[mono.T_NOW, mono.K_NEXT]], x, stats, start,
-                              lambda solved: sink.solution(solved, m, elements, stats, x))
+        if multi_adaptive:
+            stats = _multi_stats(counters, state, sink.per_component)
+            state = np.array([state[0], np.min(kdes)])
+        else:
+            state = state[[mono.T_NOW, mono.K_NEXT]]
+            stats = _mono_stats(work, structure, counters)
+        return _finish(work, compiled, None, multi_adaptive, m, params, status, counters,
+                       state, x, stats, start,
+                       lambda solved: sink.solution(solved, m, elements, stats, x))

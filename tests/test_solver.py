@@ -99,13 +99,14 @@ def test_successive_calls_are_bitwise_dn_solve_and_keep_their_own_arrays(oscilla
 
 
 def test_solver_takes_the_prepared_path_where_it_can(oscillator, monkeypatch):
-    """A mono-adaptive solve in memory takes one loop call into the kept buffers; events,
-    samples only and multi-adaptive methods take the general path, with the same answers."""
+    """A solve in memory takes one loop call into the kept buffers; events, breakpoints,
+    samples only and modeling take the general path, with the same answers."""
     prepared = dn.Solver(oscillator, method="dG(1)")
     assert prepared._buffers is not None
-    for parameters in ({"events": [u]}, {"dense_output": False}, {"breakpoints": [1.0]}):
+    assert dn.Solver(oscillator, method="mcG(1)")._buffers is not None
+    for parameters in ({"events": [u]}, {"dense_output": False}, {"breakpoints": [1.0]},
+                       {"automatic_modeling": True}):
         assert dn.Solver(oscillator, method="dG(1)", **parameters)._buffers is None
-    assert dn.Solver(oscillator, method="mcG(1)")._buffers is None
     events = dn.Solver(oscillator, method="dG(1)", events=[u]).solve(params={k: 1.0})
     reference = dn.solve(dn.vary(oscillator, {k: 1.0}), method="dG(1)", events=[u])
     np.testing.assert_array_equal(events.t_events[0], reference.t_events[0])
@@ -115,11 +116,12 @@ def test_solver_takes_the_prepared_path_where_it_can(oscillator, monkeypatch):
                                                       method="dG(1)", dense_output=False).y)
 
 
-def test_a_solve_longer_than_the_kept_buffers_goes_the_general_way(oscillator):
-    solver = dn.Solver(oscillator, method="cG(1)", tolerance=1e-3, maximum_steps=400)
+@pytest.mark.parametrize("method", ["cG(1)", "mcG(1)"])
+def test_a_solve_longer_than_the_kept_buffers_goes_the_general_way(oscillator, method):
+    solver = dn.Solver(oscillator, method=method, tolerance=1e-3, maximum_steps=400)
     solver._buffers = tuple(b[:3] for b in solver._buffers)  # 55 slabs do not fit in 3
     sol = solver.solve(T=1.0)
-    _assert_same_solution(sol, dn.solve(dn.vary(oscillator, {"T": 1.0}), method="cG(1)",
+    _assert_same_solution(sol, dn.solve(dn.vary(oscillator, {"T": 1.0}), method=method,
                                         tolerance=1e-3, maximum_steps=400))
     with pytest.raises(dn.SolverError, match="maximum_steps"):
         solver.solve(T=50.0)
