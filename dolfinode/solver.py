@@ -25,10 +25,24 @@ from dolfinode.linalg.newton_matrix import sparse_candidate
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, Parameters, _parameter_value
 from dolfinode.parameters import check_parameters
-from dolfinode.solve import (_finish, _mono_advance, _mono_capacity, _mono_stats,
-                             _mono_workspace, _multi_advance, _multi_capacity, _multi_stats,
-                             _multi_workspace, _newton_options, _start, check_tolerance, lower,
-                             lowered, solve, solve_lowered)
+from dolfinode.solve import (
+    _finish,
+    _mono_advance,
+    _mono_capacity,
+    _mono_stats,
+    _mono_workspace,
+    _multi_advance,
+    _multi_capacity,
+    _multi_stats,
+    _multi_workspace,
+    _newton_options,
+    _start,
+    check_tolerance,
+    lower,
+    lowered,
+    solve,
+    solve_lowered,
+)
 from dolfinode.timeslab import mono
 
 
@@ -78,7 +92,7 @@ class Solver:
         """Lower the declaration (kept on it for every call) and decide the path; the
         solver's own copy of it, whose values each call replaces."""
         ode, params = self.ode, self._params
-        _, plan = lowered(ode, params)
+        compiled, plan = lowered(ode, params)
         self._declared = ode.params  # a new assignment ode.params = {...} prepares again
         self._by_name = {s.name: s for s in ode.params}
         self._work = object.__new__(type(ode))
@@ -91,7 +105,7 @@ class Solver:
                 size = _multi_capacity(ode, m)
                 self._buffers = (np.empty(size, dtype=np.int64), np.empty(size),
                                  np.empty(size), np.empty((size, m.q + 1)))
-            elif not sparse_candidate(ode._compiled.band_structure):  # (as in _run_mono)
+            elif not sparse_candidate(compiled.band_structure):  # (as in _run_mono)
                 size = min(_mono_capacity(ode, m), params["maximum_steps"])
                 self._buffers = (np.empty(size), np.empty(size),
                                  np.empty((size, m.q + 1, ode.N)))
@@ -125,7 +139,7 @@ class Solver:
                 return sol
         compiled, plan = lowered(work, self._params)
         return solve_lowered(work, compiled, plan, self._multi_adaptive, self._method,
-                                    self._params)
+                             self._params)
 
     def _declaration(self, u0, params, T, t0):
         """The solver's copy of the declaration with the values of this call, checked as

@@ -87,9 +87,9 @@ def _assert_same_solution(sol, reference):
 @pytest.mark.parametrize("method", ["cG(1)", "dG(0)", "mdG(0)"])
 def test_successive_calls_are_bitwise_dn_solve_and_keep_their_own_arrays(oscillator, method):
     solver = dn.Solver(oscillator, method=method, tolerance=1e-5)
-    calls = [dict(u0={u: 0.5, "v": 0.1}, params={"k": 9.0}),
-             dict(u0=np.array([1.0, -1.0]), t0=0.5, T=1.0),
-             dict(params={k: 1.0}, T=3.0)]
+    calls = [{"u0": {u: 0.5, "v": 0.1}, "params": {"k": 9.0}},
+             {"u0": np.array([1.0, -1.0]), "t0": 0.5, "T": 1.0},
+             {"params": {k: 1.0}, "T": 3.0}]
     solutions = [solver.solve(**call) for call in calls]
     for call, sol in zip(calls, solutions):  # the later calls left the earlier results alone
         variation = {**call.get("params", {}),
@@ -137,14 +137,14 @@ def test_solver_follows_the_declaration_as_it_is_at_each_call(oscillator):
 
 
 @pytest.mark.parametrize("call, error, match", [
-    (dict(u0=[1.0, np.nan]), ValueError, "u0 is not finite for v"),
-    (dict(u0={u: 1.0}), ValueError, "missing values for v"),
-    (dict(params={"kk": 1.0}), ValueError, "did you mean 'k'"),
-    (dict(params={k: np.inf}), ValueError, "parameter k must be finite"),
-    (dict(params={k: "x"}), TypeError, "parameter k must be a real number"),
-    (dict(params=[(k, 1.0)]), TypeError, "params must be a dict"),
-    (dict(t0=3.0), ValueError, "larger than t0"),
-    (dict(T=np.inf), ValueError, "T must be finite"),
+    ({"u0": [1.0, np.nan]}, ValueError, "u0 is not finite for v"),
+    ({"u0": {u: 1.0}}, ValueError, "missing values for v"),
+    ({"params": {"kk": 1.0}}, ValueError, "did you mean 'k'"),
+    ({"params": {k: np.inf}}, ValueError, "parameter k must be finite"),
+    ({"params": {k: "x"}}, TypeError, "parameter k must be a real number"),
+    ({"params": [(k, 1.0)]}, TypeError, "params must be a dict"),
+    ({"t0": 3.0}, ValueError, "larger than t0"),
+    ({"T": np.inf}, ValueError, "T must be finite"),
 ])
 def test_solver_names_the_bad_entry_of_a_call(oscillator, call, error, match):
     with pytest.raises(error, match=match):
