@@ -340,8 +340,15 @@ class ODE:
             mask[self.index(state)] = True
         return mask
 
+    @cached_property
+    def _constrained(self):
+        """Whether a component is declared nonnegative (fixed with the declaration)."""
+        return bool(self.nonnegative.any())
+
     def _in_domain(self, u0):
         """u0, checked against the declared constraints."""
+        if not self._constrained:
+            return u0
         below = self.nonnegative & (u0 < 0)
         if below.any():
             i = np.flatnonzero(below)[0]
