@@ -67,7 +67,7 @@ def main(argv=None):
                 seconds, sol = cpu_time(ode, method, tolerance)
                 times[method].append(seconds)
                 if method.startswith("auto"):
-                    choices.append(sol.stats["family choice"]["method"])
+                    choices.append(sol.stats["method"])
                     evidence = sol.stats["family choice"]
         best = {method: min(values) for method, values in times.items()}
         better = min(best[base], best["m" + base])

@@ -11,7 +11,7 @@ from dolfinode.adaptivity import filter_constant, initial_step, step_tolerance
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
 from dolfinode.failures import STEP_LIMIT, failure_message, undefined
-from dolfinode.family import auto_base, choose_family
+from dolfinode.family import auto_base, solve_auto
 from dolfinode.io import history
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
 from dolfinode.memory import available_memory
@@ -274,10 +274,7 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     params = check_parameters(parameters)
     base = auto_base(method)
     if base is not None:
-        method, choice = choose_family(solve, ode, base, parameters)
-        sol = solve(ode, method, goal=goal, **parameters)
-        sol.stats["family choice"] = choice
-        return sol
+        return solve_auto(solve, ode, base, goal, parameters, params)
     if goal is not None:
         from dolfinode.dual.adaptivity import solve_for_goal
 
@@ -563,7 +560,8 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
     slabs = int(counters[ts.SLABS])
     stats = {"time slabs": slabs, "elements": slabs * ode.N,
              "factorizations": int(counters[ts.FACTORIZATIONS]),
-             "newton matrices": structure.description if counters[ts.FACTORIZATIONS] else None}
+             "newton matrices": structure.description if counters[ts.FACTORIZATIONS] else None,
+             "next time step": float(state[mono.K_NEXT])}
     return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, stats
 
 
@@ -611,7 +609,8 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
              "elements": total,
              "elements per component": per_component,
              "factorizations": int(counters[ts.FACTORIZATIONS]),
-             "efficiency index": float(state[multi.MONO_ELEMENTS]) / max(total, 1)}
+             "efficiency index": float(state[multi.MONO_ELEMENTS]) / max(total, 1),
+             "next time step": kdes.copy()}
     return status, counters, np.array([state[0], np.min(kdes)]), elements, stats
 
 
