@@ -6,8 +6,8 @@ sweeps and partition): mcG(q)/mdG(q) pay off only where the components' steps sp
 widely, and the spread may change during a solve (a fast oscillation excited later, a
 transient that dies out). [t0, T] is solved in stretches, the first FIRST_STRETCH (T - t0)
 long with the mono-adaptive variant (cheap to start), each next one STRETCH_GROWTH x longer
-(a problem that never changes pays for three restarts), each from the end value of the last
-with its last step. After each stretch the current variant's rate r = CPU time / length is
+up to MAX_STRETCH (T - t0) (a problem that never changes pays for five restarts), each from
+the end value of the last with its last step. After each stretch the current variant's rate r = CPU time / length is
 measured and the other's predicted from the elements it would take over the same stretch,
 
     r_other = r x (E_other / E) x (c_other / c),
@@ -17,8 +17,8 @@ with c the CPU time per element: E_mono = (efficiency index) x E of a multi-adap
 from the spread of its components' local errors (:func:`_multi_elements`); c_multi / c_mono
 the latest ratio measured on stretches, COST_RATIO before both were; r_other is scaled by
 measured / predicted of the last check of the other variant (until it runs a stretch; above
-1, divided by STRETCH_GROWTH per stretch since, as the start of a variant, in a pilot's time,
-weighs less in the next, longer pilot). When r_other < r /
+1, divided by CALIBRATION_DECAY per stretch since, as the start of a variant, in a pilot's
+time, weighs less in the next, longer pilot). When r_other < r /
 SWITCH_MARGIN, the other variant is measured from the current state by a pilot as long as
 the last stretch (a quarter of the next), and it takes over only if its rate, fixed cost
 per call and start included, is below r / SWITCH_MARGIN: a hysteresis, so that timing
@@ -32,8 +32,8 @@ Decided once (after the first stretch and its check, the chosen variant solving 
 from the start): with a goal, events, breakpoints, automatic modeling, a progress bar,
 sample times, or a history kept only as samples or in a file.
 
-Limitation: a change of scales is seen at the end of the stretch it happens in (the last is
-up to 3/4 of [t0, T]), and the prediction of the multi-adaptive elements is a heuristic
+Limitation: a change of scales is seen at the end of the stretch it happens in (up to 29 %
+of [t0, T] later), and the prediction of the multi-adaptive elements is a heuristic
 (0.4-0.55 x the elements mcG(2) took on the benchmark problems, whence MULTI_ELEMENTS):
 a variant predicted no cheaper is not measured.
 """
@@ -49,9 +49,9 @@ from dolfinode.solution import Solution
 #: "auto" is "auto:cG(2)"; "auto:cG(q)" and "auto:dG(q)" switch between cG(q)/mcG(q), dG(q)/mdG(q).
 _AUTO_PATTERN = re.compile(r"^\s*auto\s*(?::\s*((?:cG|dG)\(\s*\d+\s*\)))?\s*$", re.IGNORECASE)
 DEFAULT_BASE = "cG(2)"
-#: The first stretch, as a fraction of T - t0, and the growth of the next ones (1, 4, 16 %,
-#: the rest).
-FIRST_STRETCH, STRETCH_GROWTH = 1e-2, 4
+#: The first stretch and the longest, as fractions of T - t0, and the growth of the next ones
+#: (1, 4, 16, 25, 25, 29 %: a change is seen within a quarter of [t0, T]).
+FIRST_STRETCH, MAX_STRETCH, STRETCH_GROWTH = 1e-2, 0.25, 4
 #: The other variant is measured when predicted, and takes over when measured, more than
 #: SWITCH_MARGIN x cheaper than the current one (timing noise of a shared machine is some
 #: 10-30 %).
@@ -60,6 +60,9 @@ SWITCH_MARGIN = 1.5
 #: smallest measured on the benchmark problems was 12 (doc/benchmarks/auto.md), some below it
 #: so that a multi-adaptive variant is rather measured than missed.
 COST_RATIO = 10.0
+#: A check's measured / predicted rate above 1 is divided by CALIBRATION_DECAY per stretch
+#: after it: sqrt(STRETCH_GROWTH), as a pilot's start-up share falls by up to STRETCH_GROWTH.
+CALIBRATION_DECAY = 2.0
 #: Multi-adaptive elements / :func:`_multi_elements`' estimate (0.4-0.55 x on the benchmarks).
 MULTI_ELEMENTS = 2.0
 #: Parameters a stretch overrides: output, progress, modeling and events are the whole
@@ -136,7 +139,7 @@ class _Switching:
         self.current = base
         self.per_element = {}  # the latest CPU time per element of each variant's stretches
         # measured / predicted rate of the last check of a variant, since its last stretch;
-        # above 1, divided by STRETCH_GROWTH per stretch since
+        # above 1, divided by CALIBRATION_DECAY per stretch since
         self.calibration = {base: 1.0, "m" + base: 1.0}
         self.evidence = {"stretches": [], "checks": []}
 
@@ -151,6 +154,7 @@ class _Switching:
         length = FIRST_STRETCH * (ode.T - ode.t0) / STRETCH_GROWTH
         while t < ode.T and (stretches is None or len(pieces) < stretches):
             length *= STRETCH_GROWTH
+            length = min(length, MAX_STRETCH * (ode.T - ode.t0))
             end = ode.T if ode.T - t < 1.5 * length else t + length  # (no sliver at the end)
             piece, cpu = _solve_on(self.solve, ode, t, end, x, self.current,
                                    {**self.parameters, "initial_time_step": step})
@@ -160,7 +164,7 @@ class _Switching:
             other = self.other(self.current)
             # a pilot's start is a smaller share of the longer pilots after it
             if self.calibration[other] > 1.0:
-                self.calibration[other] = max(1.0, self.calibration[other] / STRETCH_GROWTH)
+                self.calibration[other] = max(1.0, self.calibration[other] / CALIBRATION_DECAY)
             predicted = self.predicted(other, piece, rate)
             self.evidence["stretches"].append(
                 {"method": self.current, "interval": [t, end], "cpu time": cpu, "rate": rate,
