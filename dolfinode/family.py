@@ -16,9 +16,9 @@ with c the CPU time per element: E_mono = (efficiency index) x E of a multi-adap
 (a mono-adaptive step is the smallest component step); E_multi of a mono-adaptive stretch
 from the spread of its components' local errors (:func:`_multi_elements`); c_multi / c_mono
 the latest ratio measured on stretches, COST_RATIO before both were; r_other is scaled by
-measured / predicted of the last check of the other variant (until it runs a stretch; above
-1, divided by CALIBRATION_DECAY per stretch since, as the start of a variant, in a pilot's
-time, weighs less in the next, longer pilot). When r_other < r /
+c = measured / predicted of the last check of the other variant (until it runs a stretch;
+c > 1 is taken as the variant's start, spread over that pilot's length h: the next pilot, of
+length L, has 1 + (c - 1) h / L). When r_other < r /
 SWITCH_MARGIN, the other variant is measured from the current state by a pilot as long as
 the last stretch (a quarter of the next), and it takes over only if its rate, fixed cost
 per call and start included, is below r / SWITCH_MARGIN: a hysteresis, so that timing
@@ -57,12 +57,9 @@ FIRST_STRETCH, MAX_STRETCH, STRETCH_GROWTH = 1e-2, 0.25, 4
 #: 10-30 %).
 SWITCH_MARGIN = 1.5
 #: CPU time per multi-adaptive element / per mono-adaptive one until both were measured: the
-#: smallest measured on the benchmark problems was 12 (doc/benchmarks/auto.md), some below it
-#: so that a multi-adaptive variant is rather measured than missed.
-COST_RATIO = 10.0
-#: A check's measured / predicted rate above 1 is divided by CALIBRATION_DECAY per stretch
-#: after it: sqrt(STRETCH_GROWTH), as a pilot's start-up share falls by up to STRETCH_GROWTH.
-CALIBRATION_DECAY = 2.0
+#: smallest measured on the benchmark problems (11-22 on those of doc/benchmarks/auto.md), so
+#: that a multi-adaptive variant is rather measured than missed.
+COST_RATIO = 12.0
 #: Multi-adaptive elements / :func:`_multi_elements`' estimate (0.4-0.55 x on the benchmarks).
 MULTI_ELEMENTS = 2.0
 #: Parameters a stretch overrides: output, progress, modeling and events are the whole
@@ -138,9 +135,9 @@ class _Switching:
         self.atol = _absolute_tolerance(ode, params["absolute_tolerance"], self.rtol)
         self.current = base
         self.per_element = {}  # the latest CPU time per element of each variant's stretches
-        # measured / predicted rate of the last check of a variant, since its last stretch;
-        # above 1, divided by CALIBRATION_DECAY per stretch since
-        self.calibration = {base: 1.0, "m" + base: 1.0}
+        # (measured / predicted rate, pilot length) of the last check of each variant since
+        # its last stretch, and its latest uncalibrated prediction
+        self.calibration, self.uncalibrated = {}, {}
         self.evidence = {"stretches": [], "checks": []}
 
     def other(self, name):
@@ -160,11 +157,8 @@ class _Switching:
                                    {**self.parameters, "initial_time_step": step})
             rate = cpu / (end - t)
             self.per_element[self.current] = cpu / piece.stats["elements"]
-            self.calibration[self.current] = 1.0
+            self.calibration.pop(self.current, None)
             other = self.other(self.current)
-            # a pilot's start is a smaller share of the longer pilots after it
-            if self.calibration[other] > 1.0:
-                self.calibration[other] = max(1.0, self.calibration[other] / CALIBRATION_DECAY)
             predicted = self.predicted(other, piece, rate)
             self.evidence["stretches"].append(
                 {"method": self.current, "interval": [t, end], "cpu time": cpu, "rate": rate,
@@ -191,8 +185,15 @@ class _Switching:
             other_elements = MULTI_ELEMENTS * _multi_elements(piece, self.atol, self.rtol)
         multi, mono = self.per_element.get("m" + self.base), self.per_element.get(self.base)
         ratio = multi / mono if multi and mono else COST_RATIO
-        return (self.calibration[name] * rate * other_elements / elements
-                * (1 / ratio if piece.multi else ratio))
+        predicted = rate * other_elements / elements * (1 / ratio if piece.multi else ratio)
+        self.uncalibrated[name] = predicted
+        if name in self.calibration:
+            # the excess of a check's measured over its predicted rate is the variant's
+            # start, spread over that pilot's length; the next pilot is as long as ``piece``
+            excess, pilot = self.calibration[name]
+            length = piece.ode.T - piece.ode.t0
+            predicted *= excess if excess < 1 else 1 + (excess - 1) * min(1.0, pilot / length)
+        return predicted
 
     def measure(self, name, t, x, step, length):
         """Measure variant ``name`` by a pilot from (t, x) over ``length``: its solution if
@@ -210,7 +211,7 @@ class _Switching:
             return None
         # the mean rate, fixed cost per call and start included: a change must pay for them
         check["measured"] = cpu / (end - t)
-        self.calibration[name] *= check["measured"] / check["predicted"]
+        self.calibration[name] = (check["measured"] / self.uncalibrated[name], end - t)
         if check["measured"] * SWITCH_MARGIN < check["rate"]:
             check["switched"] = True
             self.evidence["stretches"].append({"method": name, "interval": [t, end],

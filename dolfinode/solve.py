@@ -148,9 +148,9 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         "cG(q)" (q >= 1, nodal order 2q, A-stable) or "dG(q)" (q >= 0, order 2q + 1,
         L-stable): one time step shared by all components; "mcG(q)" or "mdG(q)": individual
         time steps per component (multi-adaptive); "auto" (or "auto:cG(q)", "auto:dG(q)";
-        "auto" is "auto:cG(2)"): the mono- or multi-adaptive variant, whichever is faster on
-        pilot solves over the first percent of [t0, T] (see :mod:`dolfinode.family`); the
-        decision and its evidence are in ``sol.stats["family choice"]``.
+        "auto" is "auto:cG(2)"): the mono- or multi-adaptive variant, switched between in
+        stretches of [t0, T] when the other is measured to be faster (see
+        :mod:`dolfinode.family`); the evidence is in ``sol.stats["family choice"]``.
     tolerance : float, default 1e-6
         Relative tolerance (rtol) of the local error estimate. With ``goal``: the bound on
         the estimated error in that output.
