@@ -262,6 +262,17 @@ def _multi_elements(sol, atol, rtol, sampled=64):
     return float(share.sum(axis=1).mean() * M)
 
 
+def _component_blocks(sol):
+    """Per component, its (t_start, t_end, values) in ``sol`` (views; a mono-adaptive
+    solution's elements end exactly where the next starts, the last at T)."""
+    if sol.multi:
+        ptr = sol._component_ptr
+        return [(sol.t_start[a:b], sol._t_end[a:b], sol.values[a:b])
+                for a, b in zip(ptr[:-1], ptr[1:])]
+    t_end = np.append(sol.t_start[1:], sol.ode.T)
+    return [(sol.t_start, t_end, sol.values[:, :, i]) for i in range(sol.ode.N)]
+
+
 def _next_step(sol, per_component):
     """The step the solve ``sol`` would have taken next: per component (multi-adaptive) or
     one (the smallest of a multi-adaptive solve's)."""
@@ -294,11 +305,13 @@ def _joined(ode, pieces, samples):
         return Solution(solved, method, np.concatenate([p.t_start for p in pieces]),
                         np.concatenate([p.k for p in pieces]),
                         np.concatenate([p.values for p in pieces]), stats, samples)
-    parts = [piece.elements() for piece in pieces]
-    comp = np.concatenate([np.repeat(np.arange(ode.N), np.diff(ptr)) for ptr, *_ in parts])
-    t_start, t_end, values = (np.concatenate([part[i] for part in parts]) for i in (1, 2, 3))
-    sol = Solution.multi_adaptive(solved, method, comp, t_start, t_end, values, stats, samples)
-    stats["elements per component"] = np.diff(sol._component_ptr)
-    return sol
+    # each component's elements, piece after piece (views joined once: no sort, no transpose)
+    blocks = [_component_blocks(piece) for piece in pieces]
+    ordered = [piece_blocks[i] for i in range(ode.N) for piece_blocks in blocks]
+    t_start, t_end, values = (np.concatenate([block[j] for block in ordered]) for j in range(3))
+    counts = np.array([len(block[0]) for block in ordered]).reshape(ode.N, len(pieces))
+    stats["elements per component"] = counts.sum(axis=1)
+    ptr = np.concatenate([[0], np.cumsum(stats["elements per component"])])
+    return Solution.grouped(solved, method, ptr, t_start, t_end, values, stats, samples)
 
 
