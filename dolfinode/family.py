@@ -7,8 +7,9 @@ widely, and the spread may change during a solve (a fast oscillation excited lat
 transient that dies out). [t0, T] is solved in stretches, the first FIRST_STRETCH (T - t0)
 long with the mono-adaptive variant (cheap to start), each next one STRETCH_GROWTH x longer
 up to MAX_STRETCH (T - t0) (a problem that never changes pays for five restarts), each from
-the end value of the last with its last step. After each stretch the current variant's rate r = CPU time / length is
-measured and the other's predicted from the elements it would take over the same stretch,
+the end value of the last with its last step. After each stretch the current variant's rate
+r = CPU time / length is measured and the other's predicted from the elements it would take
+over the same stretch,
 
     r_other = r x (E_other / E) x (c_other / c),
 
@@ -18,15 +19,15 @@ from the spread of its components' local errors (:func:`_multi_elements`); c_mul
 the latest ratio measured on stretches, COST_RATIO before both were; r_other is scaled by
 c = measured / predicted of the last check of the other variant (until it runs a stretch;
 c > 1 is taken as the variant's start, spread over that pilot's length h: the next pilot, of
-length L, has 1 + (c - 1) h / L). When r_other < r /
-SWITCH_MARGIN, the other variant is measured from the current state by a pilot as long as
-the last stretch (a quarter of the next), and it takes over only if its rate, fixed cost
-per call and start included, is below r / SWITCH_MARGIN: a hysteresis, so that timing
-noise cannot make a problem that does not change switch back and forth. The pilot is then
-the first stretch of the new variant. The stretches, checks and switches with their evidence are in
-``sol.stats["family choice"]``; a solution with stretches of both variants is represented in
-the multi-adaptive form (a mono-adaptive slab is one element per component: mcG(q) on a
-common partition is cG(q)), so evaluation, samples and ``estimate_error`` see one solution.
+length L, has 1 + (c - 1) h / L). When r_other < r / SWITCH_MARGIN, the other variant is
+measured from the current state by a pilot as long as the last stretch (a quarter of the
+next), and it takes over only if its rate, fixed cost per call and start included, is below
+r / SWITCH_MARGIN: a hysteresis, so that timing noise cannot make a problem that does not
+change switch back and forth. The pilot is then the first stretch of the new variant. The
+stretches, checks and switches with their evidence are in ``sol.stats["family choice"]``; a
+solution with stretches of both variants is represented in the multi-adaptive form (a
+mono-adaptive slab is one element per component: mcG(q) on a common partition is cG(q)), so
+evaluation, samples and ``estimate_error`` see one solution.
 
 Decided once (after the first stretch and its check, the chosen variant solving [t0, T]
 from the start): with a goal, events, breakpoints, automatic modeling, a progress bar,
@@ -37,6 +38,7 @@ of [t0, T] later), and the prediction of the multi-adaptive elements is a heuris
 (0.4-0.55 x the elements mcG(2) took on the benchmark problems, whence MULTI_ELEMENTS):
 a variant predicted no cheaper is not measured.
 """
+import itertools
 import re
 import time
 
@@ -50,7 +52,7 @@ from dolfinode.solution import Solution
 _AUTO_PATTERN = re.compile(r"^\s*auto\s*(?::\s*((?:cG|dG)\(\s*\d+\s*\)))?\s*$", re.IGNORECASE)
 DEFAULT_BASE = "cG(2)"
 #: The first stretch and the longest, as fractions of T - t0, and the growth of the next ones
-#: (1, 4, 16, 25, 25, 29 %: a change is seen within a quarter of [t0, T]).
+#: (1, 4, 16, 25, 25, 29 %: a change is seen within 29 % of [t0, T]).
 FIRST_STRETCH, MAX_STRETCH, STRETCH_GROWTH = 1e-2, 0.25, 4
 #: The other variant is measured when predicted, and takes over when measured, more than
 #: SWITCH_MARGIN x cheaper than the current one (timing noise of a shared machine is some
@@ -268,7 +270,7 @@ def _component_blocks(sol):
     if sol.multi:
         ptr = sol._component_ptr
         return [(sol.t_start[a:b], sol._t_end[a:b], sol.values[a:b])
-                for a, b in zip(ptr[:-1], ptr[1:])]
+                for a, b in itertools.pairwise(ptr)]
     t_end = np.append(sol.t_start[1:], sol.ode.T)
     return [(sol.t_start, t_end, sol.values[:, :, i]) for i in range(sol.ode.N)]
 

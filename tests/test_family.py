@@ -5,6 +5,7 @@ a cost model instead (elements x 1 for cG(q), x COST_RATIO = 12 for mcG(q): the 
 11-22 on the benchmark problems), so that they do not depend on the machine's load.
 """
 import importlib
+import itertools
 
 import numpy as np
 import pytest
@@ -73,7 +74,7 @@ def test_late_fast_scale_switches(cost_model, late_fast):
     assert choice["method"] == "mcG(2)" and sol.multi
     stretches = choice["stretches"]
     assert stretches[0]["interval"][0] == 0.0 and stretches[-1]["interval"][1] == 6.0
-    assert all(a["interval"][1] == b["interval"][0] for a, b in zip(stretches, stretches[1:]))
+    assert all(a["interval"][1] == b["interval"][0] for a, b in itertools.pairwise(stretches))
     reference = dn.solve(late_fast, "cG(3)", tolerance=1e-10)(6.0)
     error = np.abs(sol(6.0) - reference).max()
     errors = [np.abs(dn.solve(late_fast, m, tolerance=TOL)(6.0) - reference).max()
