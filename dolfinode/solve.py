@@ -11,7 +11,7 @@ from dolfinode.adaptivity import filter_constant, initial_step, step_tolerance
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
 from dolfinode.failures import STEP_LIMIT, failure_message, undefined
-from dolfinode.family import auto_base, choose_family
+from dolfinode.family import auto_base, solve_auto
 from dolfinode.io import history
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
 from dolfinode.memory import available_memory
@@ -153,9 +153,9 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         "cG(q)" (q >= 1, nodal order 2q, A-stable) or "dG(q)" (q >= 0, order 2q + 1,
         L-stable): one time step shared by all components; "mcG(q)" or "mdG(q)": individual
         time steps per component (multi-adaptive); "auto" (or "auto:cG(q)", "auto:dG(q)";
-        "auto" is "auto:cG(2)"): the mono- or multi-adaptive variant, whichever is faster on
-        pilot solves over the first percent of [t0, T] (see :mod:`dolfinode.family`); the
-        decision and its evidence are in ``sol.stats["family choice"]``.
+        "auto" is "auto:cG(2)"): the mono- or multi-adaptive variant, switched between in
+        stretches of [t0, T] when the other is measured to be faster (see
+        :mod:`dolfinode.family`); the evidence is in ``sol.stats["family choice"]``.
     tolerance : float, default 1e-6
         Relative tolerance (rtol) of the local error estimate. With ``goal``: the bound on
         the estimated error in that output.
@@ -279,10 +279,7 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     params = check_parameters(parameters)
     base = auto_base(method)
     if base is not None:
-        method, choice = choose_family(solve, ode, base, parameters)
-        sol = solve(ode, method, goal=goal, **parameters)
-        sol.stats["family choice"] = choice
-        return sol
+        return solve_auto(solve, ode, base, goal, parameters, params)
     if goal is not None:
         from dolfinode.dual.adaptivity import solve_for_goal
 
@@ -621,15 +618,16 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
             "Use smaller steps with fixed_time_step=True and nonlinear_solver='fixed-point', "
             "or a smaller system", t=float(state[mono.T_NOW]))
     return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, _mono_stats(
-        ode, structure, counters)
+        ode, structure, counters, state)
 
 
-def _mono_stats(ode, structure, counters):
+def _mono_stats(ode, structure, counters, state):
     """The stats of a mono-adaptive run from its loop's counters."""
     slabs = int(counters[ts.SLABS])
     return {"time slabs": slabs, "elements": slabs * ode.N,
             "factorizations": int(counters[ts.FACTORIZATIONS]),
-            "newton matrices": structure.description if counters[ts.FACTORIZATIONS] else None}
+            "newton matrices": structure.description if counters[ts.FACTORIZATIONS] else None,
+            "next time step": float(state[mono.K_NEXT])}
 
 
 def _multi_workspace(ode, compiled, m, params, iopts, fopts, steps):
@@ -667,7 +665,7 @@ def _multi_capacity(ode, m):
     return int(max(64 * ode.N, min(2 ** 20, 2 ** 21 // (m.q + 1))))
 
 
-def _multi_stats(counters, state, per_component):
+def _multi_stats(counters, state, per_component, kdes):
     """The stats of a multi-adaptive run from its loop's counters and state."""
     from dolfinode.timeslab import multi
 
@@ -677,7 +675,8 @@ def _multi_stats(counters, state, per_component):
             "elements": total,
             "elements per component": per_component,
             "factorizations": int(counters[ts.FACTORIZATIONS]),
-            "efficiency index": float(state[multi.MONO_ELEMENTS]) / max(total, 1)}
+            "efficiency index": float(state[multi.MONO_ELEMENTS]) / max(total, 1),
+            "next time step": kdes.copy()}
 
 
 def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):
@@ -707,7 +706,7 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
             components=plan.detector.components)
         status, elements = _integrate(chunks, plan, pieces, ode, state, sink)
     return (status, counters, np.array([state[0], np.min(kdes)]), elements,
-            _multi_stats(counters, state, sink.per_component))
+            _multi_stats(counters, state, sink.per_component, kdes))
 
 
 class _NoProgress:

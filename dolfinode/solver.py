@@ -198,11 +198,11 @@ class Solver:
         sink.add([b[:n] for b in self._buffers], float(state[0]))
         elements = sink.finish(True)  # copies: the next call refills the buffers
         if multi_adaptive:
-            stats = _multi_stats(counters, state, sink.per_component)
+            stats = _multi_stats(counters, state, sink.per_component, kdes)
             state = np.array([state[0], np.min(kdes)])
         else:
+            stats = _mono_stats(work, structure, counters, state)
             state = state[[mono.T_NOW, mono.K_NEXT]]
-            stats = _mono_stats(work, structure, counters)
         return _finish(work, compiled, None, multi_adaptive, m, params, status, counters,
                        state, x, stats, start,
                        lambda solved: sink.solution(solved, m, elements, stats, x))
