@@ -134,6 +134,7 @@ class _Switching:
 
         self.solve, self.ode, self.base, self.parameters = solve, ode, base, parameters
         self.rtol = params["tolerance"]
+        self.steps_left = params["maximum_steps"]  # a bound on the whole solve, not a stretch
         self.atol = _absolute_tolerance(ode, params["absolute_tolerance"], self.rtol)
         self.current = base
         self.per_element = {}  # the latest CPU time per element of each variant's stretches
@@ -155,8 +156,7 @@ class _Switching:
             length *= STRETCH_GROWTH
             length = min(length, MAX_STRETCH * (ode.T - ode.t0))
             end = ode.T if ode.T - t < 1.5 * length else t + length  # (no sliver at the end)
-            piece, cpu = _solve_on(self.solve, ode, t, end, x, self.current,
-                                   {**self.parameters, "initial_time_step": step})
+            piece, cpu = self.stretch(t, end, x, self.current, step)
             rate = cpu / (end - t)
             self.per_element[self.current] = cpu / piece.stats["elements"]
             self.calibration.pop(self.current, None)
@@ -166,16 +166,29 @@ class _Switching:
                 {"method": self.current, "interval": [t, end], "cpu time": cpu, "rate": rate,
                  "predicted rate of " + other: predicted})
             pieces.append(piece)
+            self.steps_left -= piece.stats["time slabs"]
             t, x = end, piece(end)
             step = _next_step(piece, self.current != self.base)
             if predicted * SWITCH_MARGIN < rate and (t < ode.T or stretches is not None):
                 pilot = self.measure(other, t, x, _next_step(piece, False), length)
                 if pilot is not None:
                     pieces.append(pilot)
+                    self.steps_left -= pilot.stats["time slabs"]
                     self.current = other
                     t = pilot.ode.T
                     x, step = pilot(t), _next_step(pilot, other != self.base)
         return _joined(ode, pieces, samples)
+
+    def stretch(self, t, end, x, name, step):
+        """(solution, CPU time) of variant ``name`` on [t, end] from x, within the time
+        slabs the kept stretches have left of ``maximum_steps``."""
+        if self.steps_left < 1:
+            raise SolverError(f"maximum_steps reached at t = {t:.6g} (method='auto', in "
+                              "stretches): raise maximum_steps or loosen the tolerance", t=t)
+        piece, cpu = _solve_on(self.solve, self.ode, t, end, x, name,
+                               {**self.parameters, "initial_time_step": step,
+                                "maximum_steps": self.steps_left})
+        return piece, cpu
 
     def predicted(self, name, piece, rate):
         """The rate of variant ``name`` over the stretch ``piece`` that the other solved at
@@ -206,8 +219,7 @@ class _Switching:
         self.evidence["checks"].append(check)
         end = min(t + length, self.ode.T)
         try:
-            sol, cpu = _solve_on(self.solve, self.ode, t, end, x, name,
-                                 {**self.parameters, "initial_time_step": step})
+            sol, cpu = self.stretch(t, end, x, name, step)
         except SolverError as error:
             check["error"] = str(error)
             return None

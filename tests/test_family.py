@@ -140,3 +140,13 @@ def test_failing_stretch_is_not_silent():
     """A stretch that fails raises what went wrong."""
     with pytest.raises(dn.SolverError, match="maximum_steps"):
         dn.solve(mass_spring_chain(4, T=100.0)[0], "auto", maximum_steps=3)
+
+
+def test_maximum_steps_bounds_the_whole_solve():
+    """maximum_steps counts the time slabs of every kept stretch, not of each one."""
+    ode = mass_spring_chain(4, T=100.0)[0]
+    slabs = dn.solve(ode, "cG(2)", tolerance=TOL).stats["time slabs"]
+    with pytest.raises(dn.SolverError, match="maximum_steps"):
+        dn.solve(ode, "auto", tolerance=TOL, maximum_steps=slabs // 2)
+    sol = dn.solve(ode, "auto", tolerance=TOL, maximum_steps=3 * slabs)
+    assert sol.t[-1] == ode.T
