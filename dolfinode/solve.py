@@ -10,7 +10,7 @@ from dolfinode import timeslab as ts
 from dolfinode.adaptivity import filter_constant, initial_step, step_tolerance
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
-from dolfinode.failures import STEP_LIMIT, failure_message, undefined
+from dolfinode.failures import STEP_LIMIT, failure_message, undamped_message, undefined
 from dolfinode.family import auto_base, choose_family
 from dolfinode.io import history
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
@@ -385,8 +385,8 @@ def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
     else:
         dtol = params["discrete_tolerance_factor"]
         if params["calibrate_tolerance"] and not multi_adaptive and rtol >= MIN_TOLERANCE:
-            loosened = step_tolerance(m, rtol) / rtol
-            atol, rtol = atol * loosened, rtol * loosened
+            scale = step_tolerance(m, rtol) / rtol
+            atol, rtol = atol * scale, rtol * scale
     iopts = [NONLINEAR_SOLVERS.index(params["nonlinear_solver"]), int(fixed),
              params["maximum_iterations"], int(m.family == "dG")]
     fopts = [rtol, ode.T, params["maximum_time_step"] or ode.T - ode.t0,
@@ -405,6 +405,10 @@ def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
         outside = ode.states[counters[ts.OUTSIDE] - 1] if counters[ts.OUTSIDE] else None
         why = (undefined(ode, compiled, x, float(state[0]), float(state[1]))
                if status in (ts.NONCONVERGENCE, ts.BLOWUP) else None)
+        if (status == ts.NONCONVERGENCE and not (fixed or multi_adaptive or m.family == "dG")
+                and mono.undamped(counters[ts.FAILED_SOLVES], counters[ts.SLABS])):
+            why = undamped_message(m, float(state[0]), counters[ts.FAILED_SOLVES],
+                                   counters[ts.SLABS], params["tolerance"])
         raise SolverError(why or failure_message(
             status, state, fixed, x, outside, params["maximum_time_step"], newton, ode,
             counters[ts.SLABS]), t=float(state[0]))
