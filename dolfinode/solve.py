@@ -216,9 +216,10 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     subgrid_model : {"auto", "constant", "affine"}, default "auto"
         g~ constant, affine in the slow state, or affine when the first window or a rebuild
         shows g-bar moving with the slow state.
-    calibrate_tolerance : bool, default False
-        cG(q)/dG(q), q <= 3: aim the steps at the error at T, about ``tolerance`` (see Notes),
-        instead of bounding each step's local error estimate by it.
+    calibrate_tolerance : bool, default True
+        cG(q)/dG(q), q <= 3: aim the steps at the error at T, about ``tolerance`` (see Notes);
+        False: bound each step's local error estimate by ``tolerance`` instead (the error
+        at T then lands 1e-7..10 x below it). Automatic modeling's inner solves use False.
     strict : bool, default False
         Automatic modeling: raise :class:`~dolfinode.SolverError` where the a posteriori
         check of the reduced model would issue a :class:`~dolfinode.ModelingWarning` (its
@@ -274,6 +275,8 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     params = check_parameters(parameters)
     base = auto_base(method)
     if base is not None:
+        # the multi-adaptive methods are not calibrated: race both families on the step mapping
+        parameters.setdefault("calibrate_tolerance", False)
         method, choice = choose_family(solve, ode, base, parameters)
         sol = solve(ode, method, goal=goal, **parameters)
         sol.stats["family choice"] = choice
