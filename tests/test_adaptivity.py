@@ -58,9 +58,9 @@ def test_step_tolerance_is_monotone_bounded_and_identity_where_not_calibrated():
 
 
 def test_rober_cg_says_it_cannot_damp_and_dg_steps_over():
-    """cG(q) is not L-stable: on ROBER at 1e-3 it stopped after 322,000 slabs; now it stops
-    within a few hundred with a SolverError that names dG(q), which reaches T in a few
-    dozen slabs within 10 x the tolerance."""
+    """cG(q) is not L-stable: on ROBER at 1e-3 it took 322,000 slabs; now it stops after a
+    few thousand with a SolverError that names dG(q), which reaches T in a few hundred
+    slabs within 10 x the tolerance."""
     problem = problems.rober()
     options = dict(tolerance=1e-3, absolute_tolerance=problem.atol_ratio * 1e-3)
     with pytest.raises(dn.SolverError, match=r"not L-stable.*method='dG\(2\)'") as failure:

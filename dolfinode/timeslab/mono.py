@@ -68,9 +68,9 @@ EXTRAPOLATE = 2.0
 #: cG(q) is not L-stable (|R(-inf)| = 1): a stiff component's deviation from its
 #: quasi-steady state is never damped, and once the state decays below it, Newton fails on
 #: most steps and the steps collapse (ROBER, cG(2), tolerance 1e-3: 322,000 slabs, 45 % failed
-#: solves). A cG loop stops after UNDAMPED_FAILURES failed solves once they are at least
-#: UNDAMPED_SHARE of the accepted slabs, and the driver says why (a dG(q) method steps over it).
-UNDAMPED_FAILURES = 200
+#: solves). A cG loop stops when Newton fails after UNDAMPED_FAILURES failed solves, once they
+#: are at least UNDAMPED_SHARE of the accepted slabs, and the driver says why (dG(q) damps it).
+UNDAMPED_FAILURES = 1000
 UNDAMPED_SHARE = 0.25
 #: The factors of one Jacobian (stage matrices, error filter) are kept over slabs, as RADAU5
 #: and CVODE keep theirs, when a factorization is estimated to take at least REUSE_TIME seconds
@@ -377,7 +377,8 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                     break
         if iters < 0:
             counters[FAILED_SOLVES] += 1
-            if fixed or (not is_dg and undamped(counters[FAILED_SOLVES], counters[SLABS])):
+            if fixed or (use_newton and not is_dg
+                         and undamped(counters[FAILED_SOLVES], counters[SLABS])):
                 state[K_NEXT] = k
                 return NONCONVERGENCE
             k_solver = k
