@@ -208,14 +208,16 @@ def inactive_components(ode, compiled, tau, drift, average_tolerance):
             "larger average_tolerance), or the averages really move: the slow variables are "
             "combinations of fast components (the centre of a stiff spring whose ends "
             "oscillate, as in the Fermi-Pasta-Ulam problem), which inactivating components "
-            "cannot represent; then solve without automatic_modeling")
+            "cannot represent; then use subgrid_model='flow' (the default does when a "
+            "parameter sets the fast scale) or solve without automatic_modeling")
     if inactive.all():
         raise ValueError(
             "automatic modeling would inactivate every component: all of them are fast "
             f"(omega_i average_length >= 2 pi, average_length = {tau:.3g}) and no slow "
             "component is left to solve for; the slow variables are combinations of the "
             "components (as the centres of stiff springs), which a reduced model of "
-            "inactivated components cannot represent: solve without automatic_modeling")
+            "inactivated components cannot represent: use subgrid_model='flow' or solve "
+            "without automatic_modeling")
     return inactive
 
 
