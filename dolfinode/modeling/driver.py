@@ -195,8 +195,9 @@ def solve_with_modeling(ode, method, params, solve):
     # mass at rest by symmetry) stays active
     auto = params["subgrid_model"] == "auto"
     first_jacobian = compiled.jacobian_matrix(averages.u_bar, averages.center)
-    halves = [compiled.jacobian_matrix(h.u_bar, h.center) for h in averages.halves]
-    if auto and frequency_change(*halves, tau) * span / (tau / 2) > FLOW_START \
+    halves = [compiled.jacobian_matrix(h.u_bar, h.center) for h in averages.halves] \
+        if auto else [first_jacobian] * 2
+    if frequency_change(*halves, tau) * span / (tau / 2) > FLOW_START \
             and stiffness_parameter(ode, compiled):
         return flow("subgrid_model='auto': the first window shows a fast frequency moving "
                     "with the slow state")
@@ -234,9 +235,9 @@ def solve_with_modeling(ode, method, params, solve):
                                     compiled.jacobian_matrix(u_slow, t_now - tau))
         u_start = u_slow + np.where(model.active, 0.0, scaling * fluctuation)
         elements, averages = resolve(u_start, t_now)
-        change = frequency_change(first_jacobian,
-                                  compiled.jacobian_matrix(averages.u_bar, t_now), tau)
-        if auto and change > FLOW_START and stiffness_parameter(ode, compiled):
+        change = frequency_change(first_jacobian, compiled.jacobian_matrix(
+            averages.u_bar, t_now), tau) if auto else 0.0
+        if change > FLOW_START and stiffness_parameter(ode, compiled):
             return flow(f"subgrid_model='auto': at the control point t = {t_now:.4g} a fast "
                         f"frequency has moved by {change:.0%} with the slow state")
         defect = model.defect(compiled, averages)
