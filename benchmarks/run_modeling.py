@@ -343,7 +343,9 @@ def write_classes(rows, output, cap):
               "oscillatory: an implicit resolving solver (LSODA) needs about 130 steps "
               "whatever kappa, so modeling is slower there; it is right and checked. "
               "numbalsoda DOP853: rtol 1e-6, atol 1e-9, 101 output points, CPU of the solve "
-              "after its compilation ('-': not installed or not finished).", ""]
+              "after its compilation ('-': not installed or not finished; at 1e8 it stops "
+              "with more than its 200,000 steps in one output interval, also with 10,001 "
+              "output points).", ""]
     (output / "modeling_classes.md").write_text("\n".join(lines))
 
 
