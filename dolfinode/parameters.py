@@ -35,7 +35,7 @@ DEFAULTS = {
     "control_points": 10,          # checks of the reduced model against the full model
     "model_tolerance": 0.02,       # rebuild when |g~ - g-bar| > model_tolerance (max |g-bar| + tol)
     "rebuild_model": True,         # False: build once, only measure the defect at control points
-    "subgrid_model": "auto",       # "constant" | "affine" in the slow state | "auto": affine when the first window or a rebuild asks
+    "subgrid_model": "auto",       # "constant" | "affine" in the slow state | "flow" (fast variables carried) | "auto": chosen from the first window
     "strict": False,               # automatic modeling: raise instead of a ModelingWarning
     "events": None,                # g(u, t) expressions or dn.Event: zero crossings located
     "breakpoints": None,           # times where f(t) is not smooth that the declaration hides
@@ -60,7 +60,7 @@ _FOREIGN_NAMES = {
 
 NONLINEAR_SOLVERS = ("default", "fixed-point", "newton")
 #: The subgrid models of automatic modeling (see :mod:`dolfinode.modeling.reduced`).
-SUBGRID_MODELS = ("auto", "constant", "affine")
+SUBGRID_MODELS = ("auto", "constant", "affine", "flow")
 
 
 def _positive(name, value, allow_none=True):

@@ -218,9 +218,13 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         Rebuild the model where ``|g~ - g-bar| > model_tolerance max |g-bar|``.
     rebuild_model : bool, default True
         False: build the model once and only measure its defect at the control points.
-    subgrid_model : {"auto", "constant", "affine"}, default "auto"
-        g~ constant, affine in the slow state, or affine when the first window or a rebuild
-        shows g-bar moving with the slow state.
+    subgrid_model : {"auto", "constant", "affine", "flow"}, default "auto"
+        g~ constant, affine in the slow state, or "flow": no g~, the fast variables evolve
+        with the slow ones in the full model with its stiffness parameter scaled to a
+        moderate separation, averaged (:mod:`dolfinode.modeling.flow`). "auto": "flow" when
+        the first window shows a fast frequency moving with the slow state or no component
+        can be inactivated, else constant, affine when the first window or a rebuild shows
+        g-bar moving with the slow state.
     calibrate_tolerance : bool, default True
         cG(q)/dG(q), q <= 3: aim the steps at the error at T, about ``tolerance`` (see Notes);
         False: bound each step's local error estimate by ``tolerance`` instead (the error

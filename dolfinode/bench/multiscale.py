@@ -68,9 +68,10 @@ CLASSES = {"adiabatic": adiabatic, "fermi_pasta_ulam": fermi_pasta_ulam,
 
 
 def averaged_reference(ode, times, tau, method="DOP853", rtol=1e-10, samples=400):
-    """The full model resolved by scipy (``method``, ``rtol``, atol = rtol / 100) and averaged
-    with the modeling kernel of half-length ``tau`` around each of ``times``, all in
-    [t0 + tau, T - tau]. Returns an array (N, len(times))."""
+    """The full model resolved by scipy (``method``, ``rtol``, atol = rtol / 100), or by
+    numbalsoda's compiled DOP853 for ``method="numbalsoda"``, and averaged with the modeling
+    kernel of half-length ``tau`` around each of ``times``, all in [t0 + tau, T - tau].
+    Returns an array (N, len(times))."""
     from dolfinode.modeling.averaging import kernel_weights
 
     compiled = lower(ode)
@@ -78,6 +79,15 @@ def averaged_reference(ode, times, tau, method="DOP853", rtol=1e-10, samples=400
     w = kernel_weights(samples)
     offsets = tau * np.linspace(-1.0, 1.0, w.size)
     grid, inverse = np.unique((times[:, None] + offsets).ravel(), return_inverse=True)
+    if method == "numbalsoda":
+        from dolfinode.bench.peers import NumbalsodaDOP853
+
+        # more output points: the peer caps the steps between two of them
+        every = np.union1d(grid, np.linspace(ode.t0, grid[-1], 10001))
+        peer = NumbalsodaDOP853(ode, every)
+        peer.build()
+        values = peer.solve(rtol, rtol / 100)[0][:, np.searchsorted(every, grid)][:, inverse]
+        return values.reshape(ode.N, times.size, w.size) @ w
     jac = (lambda t, u: compiled.jacobian_matrix(u, t)) if method in ("Radau", "BDF") else None
     sol = solve_ivp(lambda t, u: compiled.f(u, t), (ode.t0, grid[-1]), ode.u0,
                     method=method, rtol=rtol, atol=rtol / 100, t_eval=grid,

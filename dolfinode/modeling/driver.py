@@ -33,6 +33,7 @@ from dolfinode.compile import lower
 from dolfinode.methods import parse_method
 from dolfinode.modeling.averaging import WindowAverager
 from dolfinode.modeling.declaration import WindowModel
+from dolfinode.modeling.flow import FLOW_START, frequency_change, solve_flow, stiffness_parameter
 from dolfinode.modeling.reduced import (
     ControlPoint,
     ReducedModel,
@@ -79,6 +80,25 @@ def solve_with_modeling(ode, method, params, solve):
     inner["calibrate_tolerance"] = False
     compiled = lower(ode)
     span = ode.T - ode.t0
+    runs = []
+
+    def solve_piece(declaration, method=method, **extra):
+        return solve(declaration, method, **dict(inner, **extra))
+
+    def run(declaration, method=method, **extra):
+        sol = solve_piece(declaration, method, **extra)
+        runs.append(sol.stats)
+        return sol
+
+    def flow(reason):
+        """The flow-averaged model instead (:mod:`dolfinode.modeling.flow`), checked."""
+        sol = solve_flow(ode, _conservative(method), params["tolerance"],
+                         params["average_samples"],
+                         params["number_of_samples"], run, reason)
+        return _checked(sol, sol.model, runs, params, start_time, stacklevel=6)
+
+    if params["subgrid_model"] == "flow":
+        return flow("subgrid_model='flow'")
     tau = params["average_length"]
     fastest = fast_time_scale(compiled, ode.u0, ode.t0)
     # the resolved windows must not step over the fast oscillation (an implicit solver
@@ -107,16 +127,6 @@ def solve_with_modeling(ode, method, params, solve):
     model = ReducedModel(ode, tau, subgrid_model=params["subgrid_model"], spacing=spacing,
                          tolerance=params["tolerance"],
                          model_tolerance=params["model_tolerance"])
-    runs = []
-
-    def solve_piece(declaration, method=method, **extra):
-        return solve(declaration, method, **dict(inner, **extra))
-
-    def run(declaration, method=method, **extra):
-        sol = solve_piece(declaration, method, **extra)
-        runs.append(sol.stats)
-        return sol
-
     window_model = WindowModel(ode)
     # dG(q) damps the resolved oscillation a little in every window; the control points
     # restart from the fluctuation of the last build, so with dG the losses would compound
@@ -186,8 +196,24 @@ def solve_with_modeling(ode, method, params, solve):
     # inactivated: the fast components whose average does not move, with their fast
     # partners; a slow component whose average happens to be constant over the window (a
     # mass at rest by symmetry) stays active
-    inactive = inactive_components(ode, compiled, tau, averages.drift,
-                                   params["average_tolerance"])
+    auto = params["subgrid_model"] == "auto"
+    first_jacobian = compiled.jacobian_matrix(averages.u_bar, averages.center)
+    halves = [compiled.jacobian_matrix(h.u_bar, h.center) for h in averages.halves] \
+        if auto else [first_jacobian] * 2
+    if frequency_change(*halves, tau) * span / (tau / 2) > FLOW_START \
+            and stiffness_parameter(ode, compiled):
+        return flow("subgrid_model='auto': the first window shows a fast frequency moving "
+                    "with the slow state")
+    try:
+        inactive = inactive_components(ode, compiled, tau, averages.drift,
+                                       params["average_tolerance"])
+    except ValueError:
+        # with an average_length of the user's the error may be theirs (too short): say so
+        if not (auto and params["average_length"] is None
+                and stiffness_parameter(ode, compiled)):
+            raise
+        return flow("subgrid_model='auto': no component can be inactivated (the slow "
+                    "variables are combinations of fast components)")
     model.build(averages, inactive, averages.center, compiled)
     fluctuation = averages.fluctuation
     fluctuation_jacobian = _end_jacobian(compiled, model, averages, tau)
@@ -212,6 +238,11 @@ def solve_with_modeling(ode, method, params, solve):
                                     compiled.jacobian_matrix(u_slow, t_now - tau))
         u_start = u_slow + np.where(model.active, 0.0, scaling * fluctuation)
         elements, averages = resolve(u_start, t_now)
+        change = frequency_change(first_jacobian, compiled.jacobian_matrix(
+            averages.u_bar, t_now), tau) if auto else 0.0
+        if change > FLOW_START and stiffness_parameter(ode, compiled):
+            return flow(f"subgrid_model='auto': at the control point t = {t_now:.4g} a fast "
+                        f"frequency has moved by {change:.0%} with the slow state")
         defect = model.defect(compiled, averages)
         # + tolerance: g-bar vanishes where the fast components sit on their average
         # (1e-19 on Michaelis-Menten), and the defect is then not relative to anything
@@ -241,11 +272,18 @@ def solve_with_modeling(ode, method, params, solve):
         sol = _concatenate(ode, kept, params["number_of_samples"])
     else:
         sol = ModelingSolution(ode, model, start, params["number_of_samples"])
-    sol.stats = _total_stats(runs, model, time.perf_counter() - start_time)
+    sol = _checked(sol, model, runs, params, start_time)
     sol.stats["resolved fraction"] = resolved
+    return sol
+
+
+def _checked(sol, model, runs, params, start_time, stacklevel=5):
+    """``sol`` with its model, stats and the a posteriori check of the model (its warning
+    ``stacklevel`` frames up from check_validity: the caller of dn.solve)."""
+    sol.stats = _total_stats(runs, model, time.perf_counter() - start_time)
     sol.model = model
     model.estimate = check_validity(model, params["tolerance"], params["model_tolerance"],
-                                    params["strict"])
+                                    params["strict"], stacklevel)
     sol.stats["modeling error estimate"] = model.estimate.total if model.estimate else np.nan
     return sol
 

@@ -50,6 +50,8 @@ SLOW_FRACTION = 0.2
 MINIMUM_PERIODS = 30.0
 #: Eigenvalues at least this factor below |lambda|_max are the slow ones.
 SCALE_SEPARATION = 100.0
+#: Up to this many components :func:`component_frequencies` works on a dense Jacobian.
+DENSE_FREQUENCIES = 64
 #: Relative accuracy of the spectral radius (a time scale: a few digits suffice).
 SPECTRAL_TOLERANCE = 1e-6
 #: Windows (the last build and the checks and builds before it) fitted by the affine model.
@@ -117,6 +119,11 @@ def component_frequencies(J):
     an oscillation: in Michaelis-Menten, s' = -s + (s + K - lam) c with eps c' = s - (s + K) c,
     J_sc J_cs ~ 1/eps would make the slow substrate s fast.
     """
+    if J.shape[0] <= DENSE_FREQUENCIES:  # scipy.sparse's overhead dominates small systems
+        J = J.toarray() if sparse.issparse(J) else np.asarray(J)
+        products = J * J.T
+        diagonal = np.diag(products).copy()
+        return np.sqrt(diagonal + np.abs(np.minimum(products, 0.0).sum(axis=1)))
     J = sparse.csr_matrix(J)
     products = J.multiply(J.T).tocsr()
     diagonal = products.diagonal()
@@ -135,14 +142,23 @@ def adiabatic_scaling(J_old, J_new):
     x2'' = -kappa (1 + x1) x2, the recorded fluctuation restarted at another slow state
     gave g-bar from 0.208 to 0.250 depending on its phase; scaled, the same at every phase.
     """
-    J_old, J_new = sparse.csr_matrix(J_old), sparse.csr_matrix(J_new)
-    products = J_old.multiply(J_old.T).tocoo()
-    oscillatory = (products.row != products.col) & (products.data < 0)
-    row, col, data = products.row[oscillatory], products.col[oscillatory], products.data[oscillatory]
-    first = np.lexsort((data, row))  # per row, the most negative product first
-    row, col = row[first], col[first]
-    keep = np.r_[True, row[1:] != row[:-1]][:row.size]
-    rows, cols = row[keep], col[keep]
+    if J_old.shape[0] <= DENSE_FREQUENCIES:  # scipy.sparse's overhead dominates small systems
+        J_old, J_new = (J.toarray() if sparse.issparse(J) else np.asarray(J)
+                        for J in (J_old, J_new))
+        products = J_old * J_old.T
+        np.fill_diagonal(products, 0.0)
+        partner = np.argmin(products, axis=1)  # the most negative product
+        rows = np.flatnonzero(products[np.arange(len(partner)), partner] < 0)
+        cols = partner[rows]
+    else:
+        J_old, J_new = sparse.csr_matrix(J_old), sparse.csr_matrix(J_new)
+        products = J_old.multiply(J_old.T).tocoo()
+        oscillatory = (products.row != products.col) & (products.data < 0)
+        row, col = products.row[oscillatory], products.col[oscillatory]
+        first = np.lexsort((products.data[oscillatory], row))  # per row, most negative first
+        row, col = row[first], col[first]
+        keep = np.r_[True, row[1:] != row[:-1]][:row.size]
+        rows, cols = row[keep], col[keep]
     factor = np.ones(J_old.shape[0])
     if not rows.size:
         return factor
@@ -208,14 +224,16 @@ def inactive_components(ode, compiled, tau, drift, average_tolerance):
             "larger average_tolerance), or the averages really move: the slow variables are "
             "combinations of fast components (the centre of a stiff spring whose ends "
             "oscillate, as in the Fermi-Pasta-Ulam problem), which inactivating components "
-            "cannot represent; then solve without automatic_modeling")
+            "cannot represent; then use subgrid_model='flow' (the default does when a "
+            "parameter sets the fast scale) or solve without automatic_modeling")
     if inactive.all():
         raise ValueError(
             "automatic modeling would inactivate every component: all of them are fast "
             f"(omega_i average_length >= 2 pi, average_length = {tau:.3g}) and no slow "
             "component is left to solve for; the slow variables are combinations of the "
             "components (as the centres of stiff springs), which a reduced model of "
-            "inactivated components cannot represent: solve without automatic_modeling")
+            "inactivated components cannot represent: use subgrid_model='flow' or solve "
+            "without automatic_modeling")
     return inactive
 
 

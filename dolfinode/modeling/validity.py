@@ -26,6 +26,7 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
+import sympy as sp
 
 from dolfinode.errors import ModelingWarning, SolverError
 
@@ -73,15 +74,8 @@ def modeling_error(model, goal=None):
     """:class:`ModelingError` of ``model`` (a solved :class:`ReducedModel`) in ``goal``."""
     from dolfinode.dual import estimate_error
 
-    active = np.flatnonzero(model.active)
-    if goal is not None:
-        goals = {"the goal": goal}
-    elif len(active) <= DUAL_COMPONENTS:
-        goals = {f"{model.ode.states[i]}(T)": np.eye(model.ode.N)[i] for i in active}
-    else:
-        goals = {"the sum of the slow components at T": model.active.astype(float)}
     worst = None
-    for name, psi in goals.items():
+    for name, psi in _goals(model, goal).items():
         estimate = estimate_error(model.reduced, psi)
         part = ModelingError(_weighted_defect(estimate.dual, model),
                              estimate.stability_factors["S0"], model.largest_defect,
@@ -92,6 +86,53 @@ def modeling_error(model, goal=None):
     worst.worst_time = float(point.time)
     worst.worst_state = model.ode.states[int(np.argmax(np.abs(point.defects)))]
     return worst
+
+
+def flow_error(model, goal=None):
+    """:class:`ModelingError` of a :class:`~dolfinode.modeling.flow.FlowModel` in ``goal``:
+    the modeling part FLOW_SAFETY |(psi, D(T))| from the difference D of the averages of the
+    flows at the two scale separations (see :mod:`dolfinode.modeling.flow`), ``local`` the
+    same at the worst comparison time. No dual is solved (S0 is nan): the dual of the
+    oscillating flow cost 20 times the flows; the two flows are solved on their own meshes
+    to the tolerance, so D holds their discretisation errors too, and ``discretization``
+    is 0."""
+    from dolfinode.modeling.flow import FLOW_SAFETY
+
+    worst = None
+    for name, psi in _goals(model, goal).items():
+        differences = np.abs(_goal_vector(model.ode, psi) @ model.difference)
+        part = ModelingError(FLOW_SAFETY * float(differences[-1]), np.nan,
+                             model.largest_defect, 0.0, FLOW_SAFETY * float(differences.max()),
+                             name)
+        if worst is None or part.total > worst.total:
+            worst = part
+    where = np.abs(model.difference) * model.active[:, None]
+    i, j = np.unravel_index(np.argmax(where), where.shape)
+    worst.worst_time, worst.worst_state = float(model.times[j]), model.ode.states[int(i)]
+    return worst
+
+
+def _goal_vector(ode, goal):
+    """psi of a linear final-time goal (a dict by state or a vector); the flow model's
+    difference is known at the output times only for such goals."""
+    from dolfinode.dual.goal import Goal, _Functional
+
+    goal = Goal.parse(goal)
+    if goal.integral is not None or isinstance(goal.final, sp.Basic):
+        raise ValueError("the flow model's modeling error is estimated for linear final-time "
+                         "goals (psi, u(T)): a dict by state or a vector of N weights")
+    return _Functional(goal.final, ode, "final", False).weights
+
+
+def _goals(model, goal):
+    """{name: psi}: the given goal, or each active (slow) component at T (the sum of them
+    beyond DUAL_COMPONENTS)."""
+    active = np.flatnonzero(model.active)
+    if goal is not None:
+        return {"the goal": goal}
+    if len(active) <= DUAL_COMPONENTS:
+        return {f"{model.ode.states[i]}(T)": np.eye(model.ode.N)[i] for i in active}
+    return {"the sum of the slow components at T": model.active.astype(float)}
 
 
 def _local_defect(model):
@@ -125,25 +166,41 @@ def _weighted_defect(phi, model):
     return total
 
 
-def check_validity(model, tolerance, model_tolerance, strict):
+def check_validity(model, tolerance, model_tolerance, strict, stacklevel=5):
     """Warn (``ModelingWarning``), or raise SolverError when ``strict``, when the reduced
     model's error estimate in the default goal, or its ``local`` part, exceeds ``tolerance``;
     the message says too when the last two control points both found a relative defect above
     ``model_tolerance`` (rebuilding did not help). Returns the :class:`ModelingError` (None
     without control points)."""
-    if not model.control_points:
+    if model.subgrid_model != "flow" and not model.control_points:
         return None
-    estimate = modeling_error(model)
+    estimate = model.modeling_error()
     problems = []
     if estimate.total > tolerance:
         problems.append(f"its error estimate {estimate.total:.3g} in {estimate.goal} (modeling "
                         f"{estimate.bound:.3g}, discretisation "
                         f"{abs(estimate.discretization):.3g}) exceeds the tolerance {tolerance:g}")
+    flow = model.subgrid_model == "flow"
     if estimate.local > tolerance:
-        problems.append(f"a defect found at a control point, times the span before it, is "
-                        f"{estimate.local:.3g}, above the tolerance {tolerance:g} (the solution "
-                        "on that span may be off by as much)")
+        problems.append(
+            f"the averages of the flows at the two scale separations differ, times the "
+            f"safety factor, by {estimate.local:.3g} at t = {estimate.worst_time:.4g}, above "
+            f"the tolerance {tolerance:g}" if flow else
+            f"a defect found at a control point, times the span before it, is "
+            f"{estimate.local:.3g}, above the tolerance {tolerance:g} (the solution on that "
+            "span may be off by as much)")
     if not problems:
+        return estimate
+    if flow:
+        rates = ", ".join(f"{r:.3g}" for r in model.rates[1:])
+        message = (f"the flow-averaged model may not represent the full one: "
+                   f"{'; '.join(problems)} (largest in {estimate.worst_state}). The flows "
+                   f"slow the fast scale {model.rates[0]:.3g} down to {rates}, too little "
+                   "separated from the slow one for this tolerance: solve without "
+                   "automatic_modeling, or raise dolfinode.modeling.flow.FLOW_SEPARATION")
+        if strict:
+            raise SolverError("automatic modeling: " + message, t=estimate.worst_time)
+        warnings.warn(message, ModelingWarning, stacklevel=stacklevel)
         return estimate
     message = (f"the reduced model may not represent the full one: {'; '.join(problems)}; "
                f"largest relative defect at t = {estimate.worst_time:.4g} in "
@@ -158,5 +215,5 @@ def check_validity(model, tolerance, model_tolerance, strict):
                 "subgrid_model='affine', or solve without automatic_modeling")
     if strict:
         raise SolverError("automatic modeling: " + message, t=estimate.worst_time)
-    warnings.warn(message, ModelingWarning, stacklevel=4)
+    warnings.warn(message, ModelingWarning, stacklevel=stacklevel)
     return estimate
