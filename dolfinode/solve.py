@@ -18,7 +18,7 @@ from dolfinode.memory import available_memory
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
 from dolfinode.parameters import DEFAULTS, NONLINEAR_SOLVERS, check_parameters
-from dolfinode.timeslab import mono
+from dolfinode.timeslab import contract, mono
 
 #: New solves with a smaller maximum_time_step when a switch was crossed inside an element.
 _SWITCH_RETRIES = 3
@@ -387,16 +387,17 @@ def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
         if params["calibrate_tolerance"] and not multi_adaptive and rtol >= MIN_TOLERANCE:
             loosened = step_tolerance(m, rtol) / rtol
             atol, rtol = atol * loosened, rtol * loosened
-    iopts = [NONLINEAR_SOLVERS.index(params["nonlinear_solver"]), int(fixed),
-             params["maximum_iterations"], int(m.family == "dG")]
-    fopts = [rtol, ode.T, params["maximum_time_step"] or ode.T - ode.t0,
-             params["safety_factor"], dtol, m.local_order]
+    options = contract.options(
+        solver=NONLINEAR_SOLVERS.index(params["nonlinear_solver"]), fixed=fixed,
+        max_iter=params["maximum_iterations"], is_dg=m.family == "dG", rtol=rtol, T=ode.T,
+        kmax=params["maximum_time_step"] or ode.T - ode.t0, safety=params["safety_factor"],
+        dtol=dtol, order=m.local_order, span=ode.T - ode.t0, gamma=filter_constant(m))
     if plan is not None and plan.events and params["dense_output"] is False:
         raise ValueError("events are located on the solution's history: give "
                          "dense_output=True or a file name with events=")
     sink = history.sink(ode, m, multi_adaptive, params)
     run = _run_multi if multi_adaptive else _run_mono
-    status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
+    status, counters, state, elements, stats = run(ode, compiled, m, params, options, atol,
                                                    floor, x, f0, steps, plan, sink)
     # mono-adaptive solves may return from Newton to fixed-point iteration (STIFF is then 0)
     newton = (bool(counters[ts.STIFF]) or params["nonlinear_solver"] == "newton"
@@ -447,7 +448,7 @@ def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newto
         chunk = [b[:n] for b in buffers]
         del buffers
         if bar is not None:
-            bar.update(state[0] - bar.n)
+            bar.update(state["t"][0] - bar.n)
         if counters[ts.SLABS] > params["maximum_steps"]:
             status = STEP_LIMIT
         elif status == ts.NEWTON_NEEDED and newton_ready is not None and newton_ready():
@@ -469,7 +470,7 @@ def _integrate(chunks, plan, pieces, ode, state, sink):
     ``sink.finish(completed)`` returns)."""
     if plan is None:
         for status, chunk in chunks():
-            sink.add(chunk, float(state[0]))
+            sink.add(chunk, float(state["t"][0]))
     else:  # a terminal event or a switch may redo a chunk: the sink takes the final ones
         status, stored, plan.end = ev.march(plan, pieces, ode.t0, ode.T)
         plan.terminated = status == ev.TERMINATED
@@ -502,13 +503,12 @@ def _step_guess(ode, compiled, atol, rtol):
     return lambda x, t: _first_step(ode, compiled.f(x, t), x, t, atol, rtol)
 
 
-def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):
+def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, plan, sink):
     tables = mono.method_tables(m)
-    fopts = np.array(fopts + [ode.T - ode.t0, filter_constant(m), 0.0, 0.0])
     # the running mean of fixed-point iterations per slab starts at a typical 6
-    state = np.array([ode.t0, steps[0], 1.0, 1.0, 0.0, 6.0, 0.0, 0.0])
+    state = contract.state(t=ode.t0, k_next=steps[0], eps_prev=1.0, have_f0=True,
+                           fp_iterations=6.0)
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
-    iopts = np.array(iopts + [0, 0], dtype=np.int64)
     nodes = m.q + 1
     structure = compiled.band_structure  # until Newton is needed: see newton_ready
     newton_bytes = 0
@@ -520,9 +520,9 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
         structure, newton_bytes, costs = _newton_plan(compiled, m)
         fits = (newton_bytes <= _NEWTON_SMALL
                 or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
-        iopts[mono.NEWTON_READY] = int(fits)
-        iopts[mono.REUSE] = int(structure.seconds(complex_values=True) >= mono.REUSE_TIME)
-        fopts[[mono.NEWTON_UNITS, mono.FACTOR_UNITS]] = costs
+        options["newton_ready"] = fits
+        options["reuse"] = structure.seconds(complex_values=True) >= mono.REUSE_TIME
+        options["newton_units"], options["factor_units"] = costs
         return fits
 
     if not sparse_candidate(structure):
@@ -535,7 +535,7 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
     def advance(out_t, out_k, out_X):
         return mono.advance.unchecked(compiled.rhs.address, compiled.jacobian.address, compiled.p,
                             compiled.indptr, compiled.indices, structure.tuple, *tables,
-                            iopts, fopts, atol, floor, x, f0, state, counters, out_t, out_k,
+                            options, atol, floor, x, f0, state, counters, out_t, out_k,
                             out_X)
 
     capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
@@ -547,36 +547,35 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
                            newton_ready)
 
         pieces = plan and ev.MonoPieces(
-            ode, m, chunks, fopts, state, x, compiled.p, len(ode.params),
-            _step_guess(ode, compiled, atol, fopts[mono.RTOL]), f0=f0, f=compiled.f)
+            ode, m, chunks, options, state, x, compiled.p, len(ode.params),
+            _step_guess(ode, compiled, atol, options["rtol"][0]), f0=f0, f=compiled.f)
         status, elements = _integrate(chunks, plan, pieces, ode, state, sink)
     if status == ts.NEWTON_NEEDED:
         available = available_memory()
         why = ("was not selected" if params["nonlinear_solver"] == "newton" else "failed")
         raise SolverError(
-            f"{m.name} needs Newton's method at t = {state[mono.T_NOW]:.6g} (fixed-point "
+            f"{m.name} needs Newton's method at t = {state['t'][0]:.6g} (fixed-point "
             f"iteration {why}), but its Newton matrices ({ode.N} unknowns each, "
             f"{structure.description}) take {newton_bytes / 2**30:.3g} GB, more "
             f"than {_NEWTON_MEMORY_FRACTION:g} x the {available / 2**30:.3g} GB available. "
             "Use smaller steps with fixed_time_step=True and nonlinear_solver='fixed-point', "
-            "or a smaller system", t=float(state[mono.T_NOW]))
+            "or a smaller system", t=float(state["t"][0]))
     slabs = int(counters[ts.SLABS])
     stats = {"time slabs": slabs, "elements": slabs * ode.N,
              "factorizations": int(counters[ts.FACTORIZATIONS]),
              "newton matrices": structure.description if counters[ts.FACTORIZATIONS] else None}
-    return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, stats
+    return status, counters, np.array([state["t"][0], state["k_next"][0]]), elements, stats
 
 
-def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):
+def _run_multi(ode, compiled, m, params, options, atol, floor, x, f0, steps, plan, sink):
     # imported on first use: its loop is the longest compile of the package
     from dolfinode.timeslab import multi
 
-    fopts = np.array(fopts + [params["partitioning_threshold"], params["interval_threshold"],
-                              filter_constant(m), ode.T - ode.t0])
-    state = np.array([ode.t0, 0.0])
+    state = contract.state(t=ode.t0)
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     _, position, kl, ku = compiled.ordering
-    iopts = np.array(iopts + [kl, ku, int(ode.autonomous)], dtype=np.int64)
+    options[["theta", "beta", "band_lower", "band_upper", "autonomous"]] = (
+        params["partitioning_threshold"], params["interval_threshold"], kl, ku, ode.autonomous)
     tables = multi.method_tables(m)
     kdes = steps.copy()
     frozen = np.full(ode.N, np.nan)  # since when each component is frozen (NaN: active)
@@ -588,7 +587,7 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
     def advance(out_comp, out_a, out_b, out_values):
         return multi.advance.unchecked(compiled.rhs_component.address, compiled.jacobian_row.address,
                              compiled.p, compiled.indptr, compiled.indices, position, *tables,
-                             iopts, fopts, atol, floor, x, kdes, frozen, state, counters,
+                             options, atol, floor, x, kdes, frozen, state, counters,
                              out_comp, out_a, out_b, out_values)
 
     # values at most 2^21 doubles, as mono's: from 32 MB on, each solve would map fresh pages
@@ -600,8 +599,8 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
             return _chunks(advance, buffers, capacity, counters, params, state, bar)
 
         pieces = plan and ev.MultiPieces(
-            ode, m, chunks, fopts, state, x, compiled.p, len(ode.params),
-            _step_guess(ode, compiled, atol, fopts[multi.RTOL]), kdes=kdes, frozen=frozen,
+            ode, m, chunks, options, state, x, compiled.p, len(ode.params),
+            _step_guess(ode, compiled, atol, options["rtol"][0]), kdes=kdes, frozen=frozen,
             components=plan.detector.components)
         status, elements = _integrate(chunks, plan, pieces, ode, state, sink)
     per_component = sink.per_component
@@ -611,8 +610,8 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
              "elements": total,
              "elements per component": per_component,
              "factorizations": int(counters[ts.FACTORIZATIONS]),
-             "efficiency index": float(state[multi.MONO_ELEMENTS]) / max(total, 1)}
-    return status, counters, np.array([state[0], np.min(kdes)]), elements, stats
+             "efficiency index": float(state["mono_elements"][0]) / max(total, 1)}
+    return status, counters, np.array([state["t"][0], np.min(kdes)]), elements, stats
 
 
 class _NoProgress:

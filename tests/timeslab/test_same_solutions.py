@@ -7,7 +7,6 @@ import json
 
 import numpy as np
 import pytest
-
 from regenerate import DATA, cases, record
 
 EXPECTED = json.loads(DATA.read_text())
