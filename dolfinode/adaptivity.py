@@ -34,8 +34,8 @@ import math
 from functools import cache
 
 import numpy as np
-from numba import njit
 
+from dolfinode.compile.jit import helper
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.linalg.banded import band_solve
 from dolfinode.linalg.group import factor_group, group_order
@@ -47,7 +47,7 @@ MIN_FACTOR = 0.2
 MAX_FACTOR = 5.0
 
 
-@njit(cache=True)
+@helper()
 def initial_step(f0, u0, atol, rtol, span):
     """k0 = 0.01 d0 / d1 with d0 = |u0|, d1 = |f(u0)| in the scaled max-norm (weights
     1 / (atol + rtol |u0|); Hairer-Noersett-Wanner's first guess), 1e-6 span if either is
@@ -62,7 +62,7 @@ def initial_step(f0, u0, atol, rtol, span):
     return min(k0, span)
 
 
-@njit(cache=True)
+@helper()
 def next_step(k, eps, eps_prev, order, safety, accepted):
     """Next step length after a step of length k with estimate eps (<= 1: accepted).
 
@@ -115,7 +115,7 @@ def _filter_constant(family, q):
     return abs(np.linalg.det(A)) ** (1.0 / A.shape[0])
 
 
-@njit(cache=True)
+@helper()
 def filter_estimate(ab, structure, ipiv, v, rhs):
     """Apply (I - gamma k J)^{-1} to v in place.
 
@@ -136,7 +136,7 @@ def filter_estimate(ab, structure, ipiv, v, rhs):
 FILTER_NEGLIGIBLE = 0.1
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def filter_residuals(ne, comp, ea, eb, res, position, indptr, indices, jacobian, jdiag,
                      coupling, gamma, elist, order, local, newton, counters):
     """The local error estimates of the elements from their residuals k R(t_e) (``res``, in

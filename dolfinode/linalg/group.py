@@ -11,14 +11,14 @@ transformation, as the mono-adaptive solver (:mod:`dolfinode.solvers.slab`) does
 whole system's matrices.
 """
 import numpy as np
-from numba import njit
 
+from dolfinode.compile.jit import helper
 from dolfinode.counters import FACTORIZATIONS
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.methods.method import real_eigenvalues
 
 
-@njit(cache=True, inline="always")
+@helper(inline="always")
 def group_order(elist, n, comp, position, order, local):
     """The components of the elements elist[:n] in the global bandwidth ordering into
     order[:n], and local[i] = their row block (the others stay -1)."""
@@ -35,7 +35,7 @@ def group_order(elist, n, comp, position, order, local):
         local[order[r_]] = r_
 
 
-@njit(cache=True, inline="always")
+@helper(inline="always")
 def group_band(order, n, local, indptr, indices):
     """The band widths (kl, ku) of J_gg, the rows of the components order[:n] restricted to
     them, in their order (``local``, see ``group_order``)."""
@@ -51,7 +51,7 @@ def group_band(order, n, local, indptr, indices):
     return kl, ku
 
 
-@njit(cache=True)
+@helper()
 def assemble_group(order, n, local, indptr, indices, jacobian, c, kl, ku, ab):
     """I - c J_gg into the band storage ab (n rows, real or complex c), J_gg as in
     ``group_band``."""
@@ -67,7 +67,7 @@ def assemble_group(order, n, local, indptr, indices, jacobian, c, kl, ku, ab):
         ab[r_, kv] += 1.0
 
 
-@njit(cache=True)
+@helper()
 def factor_group(order, n, local, indptr, indices, jacobian, k, eigenvalues, newton,
                   counters):
     """Factor I - k lambda J_gg (``group_band``) in band storage for every eigenvalue lambda
@@ -95,7 +95,7 @@ def factor_group(order, n, local, indptr, indices, jacobian, k, eigenvalues, new
     return kl, ku, 0
 
 
-@njit(cache=True, inline="always")
+@helper(inline="always")
 def solve_group(n, kl, ku, stages, newton):
     """(I - k A (x) J_gg) dX = r for the stage-major residuals r = rhs[s n + r_] (in place),
     with the factors of ``factor_group``: A = T B T^{-1} (``stages`` = (T, T^{-1}, the
@@ -137,7 +137,7 @@ def solve_group(n, kl, ku, stages, newton):
             rhs[s_ * n + r_] = acc
 
 
-@njit(cache=True)
+@helper()
 def group_workspace(real, pairs, S, rows, width):
     """The workspace of ``group_newton`` for groups of up to ``rows`` components: (real band
     matrices, complex ones, pivots, rhs, real vector, complex vector, Z)."""

@@ -10,10 +10,11 @@ components fill [a, a + K] with sub-slabs built the same way. Elements live in f
 """
 
 import numpy as np
-from numba import njit
+
+from dolfinode.compile.jit import helper
 
 
-@njit(cache=True)
+@helper()
 def grow_float(array, size):
     if size <= array.shape[0]:
         return array
@@ -22,7 +23,7 @@ def grow_float(array, size):
     return bigger
 
 
-@njit(cache=True)
+@helper()
 def grow_int(array, size):
     if size <= array.shape[0]:
         return array
@@ -31,7 +32,7 @@ def grow_int(array, size):
     return bigger
 
 
-@njit(cache=True)
+@helper()
 def _partition(perm, offset, kdes, theta, length):
     """Move the components of perm[offset:] with k >= theta min(max k, length) to the front;
     return the group's end and its step: the group's smallest k, at most ``length`` (DOLFIN's
@@ -56,7 +57,7 @@ def _partition(perm, offset, kdes, theta, length):
     return end, K
 
 
-@njit(cache=True)
+@helper()
 def build_slab(a, T, kdes, active, theta, beta, kslab, comp, ea, eb, windows):
     """Build the time slab starting at a, at most kslab long, for the components ``active``
     (the others are frozen and get no element); returns (b, number of elements, number of
@@ -113,7 +114,7 @@ def build_slab(a, T, kdes, active, theta, beta, kslab, comp, ea, eb, windows):
         offset, lo, hi = fend[f], ft[f], fb[f]
 
 
-@njit(cache=True)
+@helper()
 def component_elements(comp, ne, n):
     """CSR (ptr, elements) of each component's elements in creation (= time) order, and each
     element's predecessor of the same component (-1 at the slab start)."""
@@ -133,7 +134,7 @@ def component_elements(comp, ne, n):
     return ptr, elements, prev
 
 
-@njit(cache=True)
+@helper()
 def _sort(buf, count):
     """Sort buf[:count] in place (insertion sort: the lists are short and nearly sorted)."""
     if count > 64:
@@ -148,7 +149,7 @@ def _sort(buf, count):
         buf[s + 1] = v
 
 
-@njit(cache=True)
+@helper()
 def dependency_structure(ne, comp, indptr, indices, cptr, celems, ea, eb):
     """Per element e of component i: the breakpoints that split it into intervals where the
     integrand f_i(U) is one polynomial (its ends and the element ends of its dependencies

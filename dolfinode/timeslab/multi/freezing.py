@@ -4,8 +4,8 @@ is stored."""
 import math
 
 import numpy as np
-from numba import njit
 
+from dolfinode.compile.jit import helper
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.counters import ELEMENTS, STORED
 
@@ -14,7 +14,7 @@ from dolfinode.counters import ELEMENTS, STORED
 QUIET = 1e-3
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def store_constant(i, a, b, x, counters, out_comp, out_a, out_b, out_values):
     """Store the constant element U_i = x_i on [a, b]: component i was frozen there."""
     if b <= a:
@@ -28,7 +28,7 @@ def store_constant(i, a, b, x, counters, out_comp, out_a, out_b, out_values):
     counters[ELEMENTS] += 1
 
 
-@njit(cache=True, inline="always")
+@helper(inline="always")
 def drift_bound(change, rate, tau, mu):
     """|change| + |rate| tau (e^(mu tau) - 1) / (mu tau): a component's change on a slab and a
     bound of its drift over the time tau left, if it moves at ``rate`` now and its row of
@@ -42,7 +42,7 @@ def drift_bound(change, rate, tau, mu):
     return abs(change) + abs(rate) * tau * growth
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def freeze(b, k, active, checked, indptr, indices, drift, atol, rtol, umax, x, frozen, kdes,
             last_a, last_b, quiet, uw, counters, out_comp, out_a, out_b, out_values):
     """Freeze and wake components at the end b of an accepted slab of length k, from the
@@ -88,7 +88,7 @@ def freeze(b, k, active, checked, indptr, indices, drift, atol, rtol, umax, x, f
     return changed
 
 
-@njit(cache=True)
+@helper()
 def transpose_pattern(indptr, indices, N):
     """The transpose of the dependency pattern, as CSR (rptr, readers): the components whose
     f_i reads u_j are readers[rptr[j]:rptr[j + 1]]."""

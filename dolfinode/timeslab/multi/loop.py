@@ -7,10 +7,10 @@ import math
 from functools import cache
 
 import numpy as np
-from numba import njit, types
+from numba import types
 
 from dolfinode.adaptivity import MAX_FACTOR, filter_residuals, next_step
-from dolfinode.compile.jit import Loop
+from dolfinode.compile.jit import Loop, helper
 from dolfinode.compile.signatures import NO_REFCOUNT, component_kernel
 from dolfinode.counters import (
     ELEMENTS,
@@ -79,7 +79,7 @@ _SIGNATURE = types.int64(
 )
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def _leaves_domain(ne, comp, values, floor, kdes, kact):
     """The first component with a nodal value below its floor (-atol_i for a component
     declared nonnegative, -inf for the others), or -1; the steps of all such components are
@@ -95,7 +95,7 @@ def _leaves_domain(ne, comp, values, floor, kdes, kact):
     return first
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def _project(ne, comp, values, floor, projected):
     """Set the nodal values of the nonnegative components in [floor, 0) to 0, marking those
     components in ``projected``."""

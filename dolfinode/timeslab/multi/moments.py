@@ -2,12 +2,12 @@
 powers of the element's normalised time, by quadrature on every interval between the element
 ends of the dependencies (exact for linear f), each dependency read from its own element
 polynomial."""
-from numba import njit
 
+from dolfinode.compile.jit import helper
 from dolfinode.methods.method import element_value
 
 
-@njit(cache=True, inline="always")
+@helper(inline="always")
 def moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea, eb, values, nodes, bary,
              qweights, sptr, spts, dptr, dcur, cur, states, out, mom, fend):
     """Moments m_l = int_0^1 f_i(U(tau)) tau^l dtau of element e by quadrature on every

@@ -2,8 +2,7 @@
 the ties and grading of steps along strong couplings, and the slab length limit."""
 import math
 
-from numba import njit
-
+from dolfinode.compile.jit import helper
 from dolfinode.compile.signatures import NO_REFCOUNT
 
 #: Largest step ratio between strongly coupled components (see ``grade``), and sweeps.
@@ -17,7 +16,7 @@ ASYMMETRY = 10.0
 SLAB_CLIMB = 1.5
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def propagate(kdes, rows, frozen, indptr, indices, jacobian):
     """Small steps travel along strong dependencies: k_j <= k_i when f_i reacts to u_j within
     one step of i (|J_ij| k_i > 1; DOLFIN's "poor man's dual weighting", restricted to the
@@ -52,7 +51,7 @@ def propagate(kdes, rows, frozen, indptr, indices, jacobian):
             return
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def grade(kdes, rows, frozen, indptr, indices, jacobian):
     """Grade the steps along strong couplings, k_i <= max(GRADING k_j, 1 / |df_i/du_j|):
     a component that reacts to u_j within its own step may not step far beyond j, so that
@@ -77,7 +76,7 @@ def grade(kdes, rows, frozen, indptr, indices, jacobian):
             return
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def slab_limit(kslab, kmax, K, converged, nwin, cost, climb):
     """The next slab length limit. A slab with windows costs its top-level elements about
     once (lazy sweeps) and its window elements once per global iteration: a longer slab

@@ -5,8 +5,7 @@ matrices of :mod:`dolfinode.linalg.group`); the check that the windows stay conv
 the top level moved; the initial values of a slab rebuilt after a rejection."""
 import math
 
-from numba import njit
-
+from dolfinode.compile.jit import helper
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.counters import F_EVALUATIONS
 from dolfinode.linalg.group import factor_group, group_order, solve_group
@@ -19,7 +18,7 @@ MAX_SWEEPS = 30
 COUPLING_LIMIT = 0.5
 
 
-@njit(cache=True, inline="always")
+@helper(inline="always")
 def damping(k, jii, A, D):
     """D = (I - k J_ii A)^{-1}: the element's own (diagonal) Newton matrix, which turns the
     Gauss-Seidel update into a local Newton step for components stiff on their own step."""
@@ -44,7 +43,7 @@ def damping(k, jii, A, D):
                     D[r, cc] -= factor * D[c, cc]
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp, prev, cptr,
                   celems, ea, eb, values, nodes, bary, qweights, Minv, stages, sptr, spts, dptr,
                   dcur, atol, rtol, states, out, cur, mom, fend, local, order, newton, factored,
@@ -121,7 +120,7 @@ def group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp, 
     return d
 
 
-@njit(cache=True, inline="always")
+@helper(inline="always")
 def stale(e, i, indptr, indices, changed, computed):
     """Whether element e of component i must be recomputed: never computed, or i (its left
     value) or a component it reads changed since."""
@@ -133,7 +132,7 @@ def stale(e, i, indptr, indices, changed, computed):
     return False
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, indptr, indices,
               position, jacobian, comp, prev, cptr, celems, ea, eb, values, nodes, bary,
               qweights, Minv, A, stages, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol,
@@ -253,7 +252,7 @@ def converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, indp
     return first, settled
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol, rtol, x, K,
                      dtol, change, mark, frozen):
     """Whether the windows, converged against the top-level values before its last sweeps,
@@ -290,7 +289,7 @@ def windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol,
     return True
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues, nodes,
                 bary):
     """Initial values of a slab rebuilt after a rejection: every element of component i
