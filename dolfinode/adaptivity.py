@@ -38,7 +38,7 @@ import numpy as np
 from dolfinode.compile.jit import helper
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.linalg.banded import band_solve
-from dolfinode.linalg.group import factor_group, group_order
+from dolfinode.linalg.group import band_view, factor_group, group_order
 from dolfinode.linalg.newton_matrix import lu_solve
 from dolfinode.methods import make_method
 
@@ -177,7 +177,7 @@ def filter_residuals(ne, comp, ea, eb, res, position, indptr, indices, jacobian,
         if info == 0:
             for r in range(n):
                 rhs[local[comp[e + r]]] = res[e + r]
-            band_solve(ab_real[0, :n, :2 * kl + ku + 1], kl, ku, ipiv[0], rhs[:n])
+            band_solve(band_view(ab_real, 0, n, 2 * kl + ku + 1), kl, ku, ipiv[0], rhs[:n])
             for r in range(n):
                 res[e + r] = rhs[local[comp[e + r]]]
         for r in range(n):

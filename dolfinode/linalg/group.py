@@ -35,10 +35,11 @@ def group_order(elist, n, comp, position, order, local):
         local[order[r_]] = r_
 
 
-@helper(inline="always")
+@helper()
 def group_band(order, n, local, indptr, indices):
     """The band widths (kl, ku) of J_gg, the rows of the components order[:n] restricted to
-    them, in their order (``local``, see ``group_order``)."""
+    them, in their order (``local``, see ``group_order``). (Not inlined: the literal 0 its
+    widths start from would reach band_lu's types and compile it once more.)"""
     kl = 0
     ku = 0
     for r_ in range(n):
@@ -49,6 +50,14 @@ def group_band(order, n, local, indptr, indices):
                 kl = max(kl, local[i] - local[j])
                 ku = max(ku, local[j] - local[i])
     return kl, ku
+
+
+@helper(inline="always")
+def band_view(matrices, j, n, width):
+    """Band matrix j of a group workspace (``group_workspace``) for n rows of ``width``: a
+    C-contiguous (n, width) view, so that band_lu and band_solve take the types they take
+    for the mono-adaptive loop (and are compiled once for both)."""
+    return matrices[j, :n * width].reshape((n, width))
 
 
 @helper()
@@ -81,15 +90,15 @@ def factor_group(order, n, local, indptr, indices, jacobian, k, eigenvalues, new
     for j in range(real):
         counters[FACTORIZATIONS] += 1
         assemble_group(order, n, local, indptr, indices, jacobian, k * eigenvalues[j].real,
-                        kl, ku, ab_real[j, :n, :width])
-        info = band_lu(ab_real[j, :n, :width], kl, ku, ipiv[j])
+                        kl, ku, band_view(ab_real, j, n, width))
+        info = band_lu(band_view(ab_real, j, n, width), kl, ku, ipiv[j])
         if info != 0:
             return kl, ku, info
     for j in range(real, eigenvalues.shape[0]):
         counters[FACTORIZATIONS] += 1
         assemble_group(order, n, local, indptr, indices, jacobian, k * eigenvalues[j], kl, ku,
-                        ab_complex[j - real, :n, :width])
-        info = band_lu(ab_complex[j - real, :n, :width], kl, ku, ipiv[j])
+                        band_view(ab_complex, j - real, n, width))
+        info = band_lu(band_view(ab_complex, j - real, n, width), kl, ku, ipiv[j])
         if info != 0:
             return kl, ku, info
     return kl, ku, 0
@@ -118,14 +127,14 @@ def solve_group(n, kl, ku, stages, newton):
     for j in range(real):
         for r_ in range(n):
             z_real[r_] = Z[j, r_]
-        band_solve(ab_real[j, :n, :width], kl, ku, ipiv[j], z_real[:n])
+        band_solve(band_view(ab_real, j, n, width), kl, ku, ipiv[j], z_real[:n])
         for r_ in range(n):
             Z[j, r_] = z_real[r_]
     for c in range(eigenvalues.shape[0] - real):
         re = real + 2 * c
         for r_ in range(n):
             z_complex[r_] = complex(Z[re, r_], Z[re + 1, r_])
-        band_solve(ab_complex[c, :n, :width], kl, ku, ipiv[real + c], z_complex[:n])
+        band_solve(band_view(ab_complex, c, n, width), kl, ku, ipiv[real + c], z_complex[:n])
         for r_ in range(n):
             Z[re, r_] = z_complex[r_].real
             Z[re + 1, r_] = z_complex[r_].imag
@@ -140,7 +149,8 @@ def solve_group(n, kl, ku, stages, newton):
 @helper()
 def group_workspace(real, pairs, S, rows, width):
     """The workspace of ``group_newton`` for groups of up to ``rows`` components: (real band
-    matrices, complex ones, pivots, rhs, real vector, complex vector, Z)."""
-    return (np.zeros((real, rows, width)), np.zeros((pairs, rows, width), dtype=np.complex128),
+    matrices, complex ones, pivots, rhs, real vector, complex vector, Z). Matrix j is
+    ``band_view(matrices, j, n, width)``."""
+    return (np.zeros((real, rows * width)), np.zeros((pairs, rows * width), dtype=np.complex128),
             np.zeros((max(real, S), rows), dtype=np.int64), np.empty(S * rows), np.empty(rows),
             np.empty(rows, dtype=np.complex128), np.empty((S, rows)))

@@ -2,7 +2,7 @@
 each a numpy record array of one element with named fields (a numba record in the loops).
 
 A loop reads ``options[0].rtol``, carries ``state[0].t`` from one call to the next; the driver
-fills both in one place (:func:`dolfinode.solve._solve_lowered` and its ``_run_*``) and reads
+fills both in one place (:func:`dolfinode.solve.solve_lowered` and its ``_run_*``) and reads
 ``state["t"][0]``. One dtype each serves the mono- and the multi-adaptive loop, so every loop
 is compiled for one signature; a field a loop does not use stays at its default.
 

@@ -16,19 +16,24 @@ from dolfinode.compile.jit import helper
 
 @helper()
 def grow_float(array, size):
+    """``array`` (1-D), or a copy of it at least ``size`` long (twice as long at least)."""
     if size <= array.shape[0]:
         return array
-    bigger = np.empty((max(size, 2 * array.shape[0]),) + array.shape[1:])
-    bigger[:array.shape[0]] = array
+    bigger = np.empty(max(size, 2 * array.shape[0]))
+    for i in range(array.shape[0]):  # (a slice copy compiles its shape check and message)
+        bigger[i] = array[i]
     return bigger
 
 
 @helper()
 def grow_int(array, size):
+    """``array`` (1-D int64), or a copy of it at least ``size`` long (twice as long at
+    least)."""
     if size <= array.shape[0]:
         return array
     bigger = np.empty(max(size, 2 * array.shape[0]), dtype=np.int64)
-    bigger[:array.shape[0]] = array
+    for i in range(array.shape[0]):
+        bigger[i] = array[i]
     return bigger
 
 
@@ -136,17 +141,21 @@ def component_elements(comp, ne, n):
 
 @helper()
 def _sort(buf, count):
-    """Sort buf[:count] in place (insertion sort: the lists are short and nearly sorted)."""
+    """Sort buf[:count] in place: insertion sort (the lists are short and nearly sorted),
+    as the last pass of a Shell sort (gaps 3 g + 1) for lists longer than 64."""
+    gap = 1
     if count > 64:
-        buf[:count] = np.sort(buf[:count])
-        return
-    for r in range(1, count):
-        v = buf[r]
-        s = r - 1
-        while s >= 0 and buf[s] > v:
-            buf[s + 1] = buf[s]
-            s -= 1
-        buf[s + 1] = v
+        while gap < count // 3:
+            gap = 3 * gap + 1
+    while gap >= 1:
+        for r in range(gap, count):
+            v = buf[r]
+            s = r
+            while s >= gap and buf[s - gap] > v:
+                buf[s] = buf[s - gap]
+                s -= gap
+            buf[s] = v
+        gap //= 3
 
 
 @helper()

@@ -284,7 +284,7 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
         for e in range(1, ne):
             run = run + 1 if ea[e] == ea[e - 1] and eb[e] == eb[e - 1] else 1
             largest = max(largest, run)
-        if largest > newton[0].shape[1]:
+        if largest > newton[4].shape[0]:  # (its real vector has a row per component)
             newton = group_workspace(max(n_real, 1), eigenvalues.shape[0] - n_real, S,
                                        largest, band_width)
         # initial guess: each component's first element continues its last polynomial of the
@@ -508,9 +508,11 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
             oeb = grow_float(oeb, ne)
             if ovalues.shape[0] < ne:
                 ovalues = np.empty((max(ne, 2 * ovalues.shape[0]), nn))
-            oea[:ne] = ea[:ne]
-            oeb[:ne] = eb[:ne]
-            ovalues[:ne] = values[:ne]
+            for e in range(ne):  # (slice copies compile their shape checks and messages)
+                oea[e] = ea[e]
+                oeb[e] = eb[e]
+                for m in range(nn):
+                    ovalues[e, m] = values[e, m]
             ocptr, ocelems = cptr, celems
             retry = True
             continue
