@@ -173,7 +173,7 @@ def filter_residuals(ne, comp, ea, eb, res, position, indptr, indices, jacobian,
             elist[r] = e + r
         group_order(elist, n, comp, position, order, local)
         kl, ku, info = factor_group(order, n, local, indptr, indices, jacobian, k, gamma,
-                                     newton, counters)
+                                    newton, counters)
         if info == 0:
             for r in range(n):
                 rhs[local[comp[e + r]]] = res[e + r]

@@ -78,7 +78,7 @@ def assemble_group(order, n, local, indptr, indices, jacobian, c, kl, ku, ab):
 
 @helper()
 def factor_group(order, n, local, indptr, indices, jacobian, k, eigenvalues, newton,
-                  counters):
+                 counters):
     """Factor I - k lambda J_gg (``group_band``) in band storage for every eigenvalue lambda
     of the stage matrix: the real ones into the real matrices of the workspace ``newton``,
     one complex matrix per complex pair (see ``group_newton``). Returns the band widths and
@@ -90,14 +90,14 @@ def factor_group(order, n, local, indptr, indices, jacobian, k, eigenvalues, new
     for j in range(real):
         counters[FACTORIZATIONS] += 1
         assemble_group(order, n, local, indptr, indices, jacobian, k * eigenvalues[j].real,
-                        kl, ku, band_view(ab_real, j, n, width))
+                       kl, ku, band_view(ab_real, j, n, width))
         info = band_lu(band_view(ab_real, j, n, width), kl, ku, ipiv[j])
         if info != 0:
             return kl, ku, info
     for j in range(real, eigenvalues.shape[0]):
         counters[FACTORIZATIONS] += 1
         assemble_group(order, n, local, indptr, indices, jacobian, k * eigenvalues[j], kl, ku,
-                        band_view(ab_complex, j - real, n, width))
+                       band_view(ab_complex, j - real, n, width))
         info = band_lu(band_view(ab_complex, j - real, n, width), kl, ku, ipiv[j])
         if info != 0:
             return kl, ku, info

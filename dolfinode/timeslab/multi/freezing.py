@@ -44,7 +44,7 @@ def drift_bound(change, rate, tau, mu):
 
 @helper(**NO_REFCOUNT)
 def freeze(b, k, active, checked, indptr, indices, drift, atol, rtol, umax, x, frozen, kdes,
-            last_a, last_b, quiet, uw, counters, out_comp, out_a, out_b, out_values):
+           last_a, last_b, quiet, uw, counters, out_comp, out_a, out_b, out_values):
     """Freeze and wake components at the end b of an accepted slab of length k, from the
     ``active`` ones and the frozen ones ``checked`` on it; returns whether any changed.
 

@@ -122,8 +122,8 @@ def method_tables(method):
 
 
 def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, transform,
-            transform_inverse, eigenvalues, nodes, qweights, bary, end_derivative, options,
-            atol, floor, x, kdes, frozen, state, counters, out_comp, out_a, out_b, out_values):
+             transform_inverse, eigenvalues, nodes, qweights, bary, end_derivative, options,
+             atol, floor, x, kdes, frozen, state, counters, out_comp, out_a, out_b, out_values):
     """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status.
     ``frozen[i]`` is the time since which component i is frozen (NaN: active). A slab on
     which a value leaves the declared domain is rejected (``_leaves_domain``); an accepted
@@ -235,7 +235,7 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
             for i in range(N):
                 if not math.isnan(frozen[i]):
                     store_constant(i, frozen[i], t, x, counters, out_comp, out_a, out_b,
-                                    out_values)
+                                   out_values)
                     frozen[i] = math.nan
             return DONE
         # the Jacobian at the slab start: its diagonal damps the element updates, its
@@ -286,14 +286,14 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
             largest = max(largest, run)
         if largest > newton[4].shape[0]:  # (its real vector has a row per component)
             newton = group_workspace(max(n_real, 1), eigenvalues.shape[0] - n_real, S,
-                                       largest, band_width)
+                                     largest, band_width)
         # initial guess: each component's first element continues its last polynomial of the
         # previous slab (at most two element lengths ahead); later elements continue their
         # predecessor when the sweep reaches them
         # (after a rejection: the rejected attempt)
         if retry:
             guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues,
-                        nodes, bary)
+                       nodes, bary)
         else:
             for e in range(ne):
                 i = comp[e]
@@ -319,24 +319,24 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
             # iteration, which costs a sweep over every window
             predict = it == 0 and not retry
             d, resolved = converge(windows, nwin, ne, predict, True, sweep_limit, fi, p, x,
-                                    indptr, indices, position, jacobian, comp, prev, cptr, celems,
-                                    ea, eb, values, nodes, bary, qweights, Minv, A, stages, sptr,
-                                    spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol, states,
-                                    out, cur, mom, fend, D, delta, local, group_order, elist,
-                                    newton, factored, factored_k, changed, computed, clock,
-                                    counters)
+                                   indptr, indices, position, jacobian, comp, prev, cptr, celems,
+                                   ea, eb, values, nodes, bary, qweights, Minv, A, stages, sptr,
+                                   spts, dptr, dcur, jdiag, coupling, stiff, atol, rtol, states,
+                                   out, cur, mom, fend, D, delta, local, group_order, elist,
+                                   newton, factored, factored_k, changed, computed, clock,
+                                   counters)
             if not resolved:
                 d = math.inf
             for e in range(nroot):
                 for m in range(nn):
                     saved[e, m] = values[e, m]
             top, settled = converge(top_start, 1, nroot, False, nwin > 0, sweep_limit, fi, p,
-                                     x, indptr, indices, position, jacobian, comp, prev, cptr,
-                                     celems, ea, eb, values, nodes, bary, qweights, Minv, A,
-                                     stages, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol,
-                                     rtol, states, out, cur, mom, fend, D, delta, local,
-                                     group_order, elist, newton, factored, factored_k, changed,
-                                     computed, clock, counters)
+                                    x, indptr, indices, position, jacobian, comp, prev, cptr,
+                                    celems, ea, eb, values, nodes, bary, qweights, Minv, A,
+                                    stages, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol,
+                                    rtol, states, out, cur, mom, fend, D, delta, local,
+                                    group_order, elist, newton, factored, factored_k, changed,
+                                    computed, clock, counters)
             d = max(d, top)
             if nwin > 0 and not settled:
                 d = math.inf
@@ -362,7 +362,7 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
             counters[STIFF] = 1  # Gauss-Seidel converges too slowly: Newton from here on
         if not fixed:
             limit = slab_limit(min(kslab, kcap), kmax, b - t, converged, nwin,
-                                (counters[F_EVALUATIONS] - f_attempt) / (b - t), climb)
+                               (counters[F_EVALUATIONS] - f_attempt) / (b - t), climb)
             # no growth for REJECTION_HOLD slabs after a rejection: growing straight back
             # into the length that was rejected costs another whole slab
             kslab = limit if hold == 0 else min(limit, max(kslab, b - t))
@@ -395,8 +395,8 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
                 kdu += end_derivative[j] * values[e, j]
             resid[e] = kdu - (eb[e] - ea[e]) * fend[e]  # k R(t_e), f_i(U(t_e)) from the last sweep
         filter_residuals(ne, comp, ea, eb, resid, position, indptr, indices, jacobian, jdiag,
-                          coupling, gamma, elist, group_order, local, newton,
-                          counters)  # (overwrites newton: ``factored`` is reset at every slab start)
+                         coupling, gamma, elist, group_order, local, newton,
+                         counters)  # (overwrites newton: ``factored`` is reset at every slab start)
         for e in range(ne):
             i = comp[e]
             k = eb[e] - ea[e]
@@ -448,7 +448,7 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
             i = checked[c]
             if not emax[i] <= ACCEPTANCE_MARGIN:
                 store_constant(i, frozen[i], t, x, counters, out_comp, out_a, out_b,
-                                out_values)
+                               out_values)
                 frozen[i] = math.nan
                 quiet[i] = False
                 last_b[i] = last_a[i]
@@ -539,7 +539,7 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
             i = active[r]
             last = celems[cptr[i + 1] - 1]
             drift[i] = drift_bound(values[last, nn - 1] - x[i], fend[last], T - b,
-                              jdiag[i] + coupling[i])
+                                   jdiag[i] + coupling[i])
             x[i] = values[last, nn - 1]
             last_a[i], last_b[i] = ea[last], eb[last]
             for m in range(nn):
@@ -559,9 +559,9 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
                         st.t = b
                         return CONSTRAINT
         if not fixed and b < T and freeze(b, b - t, active[:nactive], checked[:nchecked],
-                                           indptr, indices, drift, atol, rtol, umax, x, frozen,
-                                           kdes, last_a, last_b, quiet, uw, counters, out_comp,
-                                           out_a, out_b, out_values):
+                                          indptr, indices, drift, atol, rtol, umax, x, frozen,
+                                          kdes, last_a, last_b, quiet, uw, counters, out_comp,
+                                          out_a, out_b, out_values):
             regroup = True
         t = b
         st.t = t

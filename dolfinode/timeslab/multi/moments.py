@@ -9,7 +9,7 @@ from dolfinode.methods.method import element_value
 
 @helper(inline="always")
 def moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea, eb, values, nodes, bary,
-             qweights, sptr, spts, dptr, dcur, cur, states, out, mom, fend):
+            qweights, sptr, spts, dptr, dcur, cur, states, out, mom, fend):
     """Moments m_l = int_0^1 f_i(U(tau)) tau^l dtau of element e by quadrature on every
     interval between breakpoints (exact for linear f); f_i at the end of e into fend[e] (the
     last node of the last interval is the element's end). Every dependency is one polynomial

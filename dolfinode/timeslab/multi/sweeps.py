@@ -45,9 +45,9 @@ def damping(k, jii, A, D):
 
 @helper(**NO_REFCOUNT)
 def group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp, prev, cptr,
-                  celems, ea, eb, values, nodes, bary, qweights, Minv, stages, sptr, spts, dptr,
-                  dcur, atol, rtol, states, out, cur, mom, fend, local, order, newton, factored,
-                  factored_k, changed, computed, clock, small, counters):
+                 celems, ea, eb, values, nodes, bary, qweights, Minv, stages, sptr, spts, dptr,
+                 dcur, atol, rtol, states, out, cur, mom, fend, local, order, newton, factored,
+                 factored_k, changed, computed, clock, small, counters):
     """One simplified Newton step for the elements elist[:n] of one sub-slab (same interval):
     (I - k A (x) J_gg) dX = r, with r the exact Galerkin residuals and J_gg the Jacobian at
     the slab start restricted to the group's components (in the global bandwidth ordering),
@@ -73,7 +73,7 @@ def group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp, 
     if not reuse:
         factored[0] = 0
         kl, ku, info = factor_group(order, n, local, indptr, indices, jacobian, k, stages[2],
-                                     newton, counters)
+                                    newton, counters)
         if info != 0:
             for r_ in range(n):
                 local[order[r_]] = -1
@@ -90,8 +90,8 @@ def group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp, 
         if first_stage == 1:
             values[e, 0] = xl
         counters[F_EVALUATIONS] += moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea,
-                                            eb, values, nodes, bary, qweights, sptr, spts, dptr,
-                                            dcur, cur, states, out, mom, fend)
+                                           eb, values, nodes, bary, qweights, sptr, spts, dptr,
+                                           dcur, cur, states, out, mom, fend)
         for s_ in range(S):
             acc = 0.0
             for lm in range(S):
@@ -134,10 +134,10 @@ def stale(e, i, indptr, indices, changed, computed):
 
 @helper(**NO_REFCOUNT)
 def converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, indptr, indices,
-              position, jacobian, comp, prev, cptr, celems, ea, eb, values, nodes, bary,
-              qweights, Minv, A, stages, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol,
-              rtol, states, out, cur, mom, fend, D, delta, local, order, elist, newton,
-              factored, factored_k, changed, computed, clock, counters):
+             position, jacobian, comp, prev, cptr, celems, ea, eb, values, nodes, bary,
+             qweights, Minv, A, stages, sptr, spts, dptr, dcur, jdiag, coupling, stiff, atol,
+             rtol, states, out, cur, mom, fend, D, delta, local, order, elist, newton,
+             factored, factored_k, changed, computed, clock, counters):
     """Gauss-Seidel sweeps over the element ranges starts[r]..starts[r+1] (the last up to
     end), one range after the other, each swept until its largest scaled increment is below
     ``limit`` (``iterate``) or once. A sweep goes sub-slab by sub-slab (elements on one
@@ -196,12 +196,12 @@ def converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, indp
                             n += 1
                     if n > 0:
                         d = max(d, group_newton(elist, n, fi, p, x, indptr, indices,
-                                                 position, jacobian, comp, prev, cptr, celems,
-                                                 ea, eb, values, nodes, bary, qweights, Minv,
-                                                 stages, sptr, spts, dptr, dcur, atol, rtol,
-                                                 states, out, cur, mom, fend, local, order,
-                                                 newton, factored, factored_k, changed,
-                                                 computed, clock, small, counters))
+                                                position, jacobian, comp, prev, cptr, celems,
+                                                ea, eb, values, nodes, bary, qweights, Minv,
+                                                stages, sptr, spts, dptr, dcur, atol, rtol,
+                                                states, out, cur, mom, fend, local, order,
+                                                newton, factored, factored_k, changed,
+                                                computed, clock, small, counters))
                     e = e1
                     continue
                 for ep in range(e, e1):
@@ -212,9 +212,9 @@ def converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, indp
                     if first_stage == 1:
                         values[ep, 0] = xl
                     counters[F_EVALUATIONS] += moments(fi, p, x, i, ep, indptr, indices, cptr,
-                                                        celems, ea, eb, values, nodes, bary,
-                                                        qweights, sptr, spts, dptr, dcur, cur,
-                                                        states, out, mom, fend)
+                                                       celems, ea, eb, values, nodes, bary,
+                                                       qweights, sptr, spts, dptr, dcur, cur,
+                                                       states, out, mom, fend)
                     for s in range(S):
                         acc = 0.0
                         for lm in range(S):
@@ -254,7 +254,7 @@ def converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, indp
 
 @helper(**NO_REFCOUNT)
 def windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol, rtol, x, K,
-                     dtol, change, mark, frozen):
+                    dtol, change, mark, frozen):
     """Whether the windows, converged against the top-level values before its last sweeps,
     stay within dtol of what the changed top level implies: a change du_j of a top-level
     component leaves the Galerkin residual sum_j |df_i/du_j| du_j per unit time in a window
@@ -291,7 +291,7 @@ def windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol,
 
 @helper(**NO_REFCOUNT)
 def guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues, nodes,
-                bary):
+               bary):
     """Initial values of a slab rebuilt after a rejection: every element of component i
     reads the rejected attempt's polynomials of i at its nodes (the same values where the
     element is unchanged, interpolation where it was refined; x_i where i was frozen)."""
