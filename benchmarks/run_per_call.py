@@ -4,7 +4,8 @@ Each variant is called ``--number`` times per repeat after an untimed warm-up (c
 excluded); the repeats of all variants are interleaved and the minimum time per call over
 the repeats is reported (wall clock, ``time.perf_counter``: a call is microseconds, and the
 minimum is the least disturbed by the other processes of a shared machine). Variants:
-``dn.solve`` per method; ``dn.Solver(...).solve()`` and with new u0 and parameter per call;
+``dn.solve`` per method; ``dn.Solver(...).solve()``, with other u0 and parameter values,
+and with a new parameter value at every call (a fit);
 numbalsoda's LSODA (its C code, a numba cfunc right-hand side) with its arrays ready, when
 numbalsoda is installed (``pip install numbalsoda``).
 
@@ -15,6 +16,7 @@ Usage::
     python benchmarks/run_per_call.py [--output doc/benchmarks] [--repeats 60] [--number 50]
 """
 import argparse
+import itertools
 import json
 import platform
 import subprocess
@@ -35,11 +37,15 @@ def variants():
     y, a = sp.symbols("y a")
     ode = dn.ODE({y: -a * y}, u0=[1.0], T=1e-6, params={a: 1.0})
     calls = {f"dn.solve, {m}": (lambda m=m: dn.solve(ode, method=m)) for m in METHODS}
-    for m in ("cG(2)", "dG(2)"):
+    for m in ("cG(2)", "dG(2)", "mcG(1)"):
         solver = dn.Solver(ode, method=m)
         calls[f"Solver.solve(), {m}"] = solver.solve
         calls[f"Solver.solve(u0=, params=), {m}"] = (
             lambda solver=solver: solver.solve(u0=[2.0], params={a: 1.5}))
+    # a fit: a new parameter value at every call
+    fit, values = dn.Solver(ode, method="dG(2)"), itertools.count()
+    calls["Solver.solve(params= new value), dG(2)"] = (
+        lambda: fit.solve(params={a: 1.0 + 1e-9 * next(values)}))
     try:
         from numba import cfunc
         from numbalsoda import lsoda, lsoda_sig

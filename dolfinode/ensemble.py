@@ -48,21 +48,26 @@ def vary(ode, variation):
     new = object.__new__(type(ode))
     new.__dict__.update(ode.__dict__)
     for key, value in variation.items():
-        if key in _FIELDS:
-            continue
-        symbol = by_name.get(key.name if isinstance(key, sp.Symbol) else key)
-        if symbol is None or (key is not symbol and isinstance(key, sp.Symbol) and key != symbol):
-            name = getattr(key, "name", str(key))
-            match = difflib.get_close_matches(name, [*by_name, *_FIELDS], n=1, cutoff=0.5)
-            hint = f"; did you mean {match[0]!r}?" if match else ""
-            raise ValueError(f"variation key {key!r} is neither a parameter of the ODE nor one of "
-                             f"{', '.join(_FIELDS)}{hint}")
-        params[symbol] = value
+        if key not in _FIELDS:
+            params[parameter_symbol(by_name, key)] = value
     new.params = params
     if "u0" in variation:
         new.u0 = variation["u0"]
     new._set_interval(variation.get("t0", ode.t0), variation.get("T", ode.T))
     return new
+
+
+def parameter_symbol(by_name, key):
+    """The parameter symbol of a variation key (its symbol or name; ``by_name``: name ->
+    symbol); ValueError with the closest name for any other key."""
+    symbol = by_name.get(key.name if isinstance(key, sp.Symbol) else key)
+    if symbol is None or (key is not symbol and isinstance(key, sp.Symbol) and key != symbol):
+        name = getattr(key, "name", str(key))
+        match = difflib.get_close_matches(name, [*by_name, *_FIELDS], n=1, cutoff=0.5)
+        hint = f"; did you mean {match[0]!r}?" if match else ""
+        raise ValueError(f"variation key {key!r} is neither a parameter of the ODE nor one of "
+                         f"{', '.join(_FIELDS)}{hint}")
+    return symbol
 
 
 def _solve_variation(ode, method, parameters, reduce):

@@ -79,6 +79,15 @@ def undefined(ode, compiled, x, t, k):
     return None
 
 
+def undamped_message(method, t, failed, slabs, tolerance):
+    """The SolverError message for a cG(q) loop stopped by ``timeslab.mono.undamped``."""
+    return (f"{method.name} stopped at t = {t:.6g}: {failed} of its nonlinear solves failed in "
+            f"{slabs} time slabs. cG(q) does not damp a stiff component's deviation from its "
+            f"quasi-steady state (it is not L-stable), so Newton fails on long steps once the "
+            f"state decays below it; use dG({method.q}) (method='dG({method.q})'), which damps "
+            f"it, or a tolerance well below {tolerance:g}")
+
+
 def failure_message(status, state, fixed, x, outside, kmax, newton, ode, slabs):
     """The SolverError message for a loop that stopped with ``status`` (state: t and the
     last step) with the solution x after ``slabs`` time slabs; ``newton``: whether Newton's

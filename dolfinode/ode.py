@@ -97,8 +97,9 @@ def _vector_by_state(values, states, what):
         array = values.astype(float)  # a copy, without converting entry by entry
     else:
         array = _listed_vector(values, states, what)
-    bad = np.flatnonzero(~np.isfinite(array))
-    if bad.size:
+    finite = np.isfinite(array)
+    if not finite.all():  # (flatnonzero alone is most of a small solver call)
+        bad = np.flatnonzero(~finite)
         raise ValueError(f"{what} is not finite for {states[bad[0]].name}: {array[bad[0]]}")
     return array
 
@@ -141,7 +142,7 @@ def _listed_vector(values, states, what):
 
 def _parameter_value(symbol, value):
     """The value of parameter ``symbol`` as a checked finite float."""
-    return _finite_real(value, f"parameter {symbol}")
+    return _finite_real(value, f"parameter {symbol.name}")  # (str(symbol) prints with sympy)
 
 
 def _read_only(array):
@@ -339,11 +340,18 @@ class ODE:
             mask[self.index(state)] = True
         return mask
 
+    @cached_property
+    def _constrained(self):
+        """Whether a component is declared nonnegative (fixed with the declaration)."""
+        return bool(self.nonnegative.any())
+
     def _in_domain(self, u0):
         """u0, checked against the declared constraints."""
-        bad = np.flatnonzero(self.nonnegative & (u0 < 0))
-        if bad.size:
-            i = bad[0]
+        if not self._constrained:
+            return u0
+        below = self.nonnegative & (u0 < 0)
+        if below.any():
+            i = np.flatnonzero(below)[0]
             raise ValueError(f"u0 of {self.states[i].name} is {u0[i]}, but {self.states[i].name} "
                              "is declared nonnegative")
         return u0

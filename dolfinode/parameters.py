@@ -12,7 +12,7 @@ import sympy
 DEFAULTS = {
     "tolerance": 1e-6,             # rtol of the step error estimate (DOLFIN: TOL)
     "absolute_tolerance": None,    # atol, scalar or per state; None: equal to tolerance
-    "calibrate_tolerance": False,  # True: tolerances aim at the error at T (solve's Notes)
+    "calibrate_tolerance": True,   # tolerance aims at the error at T; False: bounds each step
     "initial_time_step": None,     # None: chosen from f(u0)
     "maximum_time_step": None,     # None: T - t0
     "fixed_time_step": False,      # True: uniform steps of initial_time_step, no adaptivity

@@ -11,7 +11,7 @@ from dolfinode.adaptivity import filter_constant, initial_step, step_tolerance
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
 from dolfinode.failures import STEP_LIMIT, failure_message, undefined
-from dolfinode.family import auto_base, choose_family
+from dolfinode.family import auto_base, solve_auto
 from dolfinode.io import history
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
 from dolfinode.memory import available_memory
@@ -76,25 +76,30 @@ def _smallest_step(ode, t):
 def _keeps_nonnegative(ode):
     """Whether f keeps every component >= 0 from u0 >= 0 (the exact solution stays in the
     nonnegative orthant): f_i >= 0 where u_i = 0 and the other components are >= 0, for every
-    i (quasi-positivity, decided by sympy's sign assumptions with the parameter values; t-
-    dependent or undecidable terms count as no). Then the step control keeps the values
-    >= -atol as for components declared nonnegative: ROBER to 1e11 at tolerance 1e-3
-    (absolute tolerance 1e-3 by default) let y2 dip below -3e-4, where
+    i (quasi-positivity, decided by sympy's sign assumptions for parameters of the signs of
+    their values; t-dependent or undecidable terms count as no). Then the step control keeps
+    the values >= -atol as for components declared nonnegative: ROBER to 1e11 at tolerance
+    1e-3 (absolute tolerance 1e-3 by default) let y2 dip below -3e-4, where
     y2' = -3e7 y2^2 - 1e4 y2 y3 + ... diverges, and returned y1 ~ -4e7 as a success. Checked
     for systems of at most _QUASI_POSITIVE_N components (sympy's work grows with N), once per
-    declaration and parameter values."""
+    declaration and signs of the parameters (a parameter fit varies the values at every
+    solve: a sympy check per value took ~3 ms a solve)."""
     if hasattr(ode, "templates") or ode.N > _QUASI_POSITIVE_N or ode.u0.min() < 0:
         return False
-    return ode._derived("_keeps_nonnegative", (ode.rhs, tuple(ode.params.values())),
-                        lambda: _quasi_positive(ode))
+    signs = tuple((value > 0) - (value < 0) for value in ode.params.values())
+    return ode._derived("_keeps_nonnegative", (ode.rhs, signs),
+                        lambda: _quasi_positive(ode, signs))
 
 
-def _quasi_positive(ode):
+def _quasi_positive(ode, signs):
     """f_i >= 0 where u_i = 0 and the others are >= 0, for every i, by sympy's sign
-    assumptions with the parameter values (a jump at u_i = 0, as sign(u), counts as no)."""
+    assumptions, the parameters of the given ``signs`` (+1, -1, 0) (a jump at u_i = 0, as
+    sign(u), counts as no)."""
     if any(f.has(*ev.NON_SMOOTH) for f in ode.rhs):
         return False
-    values = {p: sp.Float(value) for p, value in ode.params.items()}
+    values = {p: sp.Dummy(p.name, positive=True) if sign > 0 else
+              sp.Dummy(p.name, negative=True) if sign < 0 else sp.S.Zero
+              for p, sign in zip(ode.params, signs)}
     nonnegative = {s: sp.Symbol(s.name, nonnegative=True) for s in ode.states}
     at_zero = (sp.sympify(f).xreplace(values).xreplace(nonnegative)
                .xreplace({nonnegative[s]: sp.S.Zero}) for s, f in zip(ode.states, ode.rhs))
@@ -148,9 +153,9 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         "cG(q)" (q >= 1, nodal order 2q, A-stable) or "dG(q)" (q >= 0, order 2q + 1,
         L-stable): one time step shared by all components; "mcG(q)" or "mdG(q)": individual
         time steps per component (multi-adaptive); "auto" (or "auto:cG(q)", "auto:dG(q)";
-        "auto" is "auto:cG(2)"): the mono- or multi-adaptive variant, whichever is faster on
-        pilot solves over the first percent of [t0, T] (see :mod:`dolfinode.family`); the
-        decision and its evidence are in ``sol.stats["family choice"]``.
+        "auto" is "auto:cG(2)"): the mono- or multi-adaptive variant, switched between in
+        stretches of [t0, T] when the other is measured to be faster (see
+        :mod:`dolfinode.family`); the evidence is in ``sol.stats["family choice"]``.
     tolerance : float, default 1e-6
         Relative tolerance (rtol) of the local error estimate. With ``goal``: the bound on
         the estimated error in that output.
@@ -274,10 +279,7 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     params = check_parameters(parameters)
     base = auto_base(method)
     if base is not None:
-        method, choice = choose_family(solve, ode, base, parameters)
-        sol = solve(ode, method, goal=goal, **parameters)
-        sol.stats["family choice"] = choice
-        return sol
+        return solve_auto(solve, ode, base, goal, parameters, params)
     if goal is not None:
         from dolfinode.dual.adaptivity import solve_for_goal
 
@@ -353,6 +355,35 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
 def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
     """One solve of :func:`solve_lowered`."""
     start = time.perf_counter()
+    atol, floor, x, f0, steps, options = _start(ode, compiled, plan, multi_adaptive, m, params)
+    if plan is not None and plan.events and params["dense_output"] is False:
+        raise ValueError("events are located on the solution's history: give "
+                         "dense_output=True or a file name with events=")
+    sink = history.sink(ode, m, multi_adaptive, params)
+    run = _run_multi if multi_adaptive else _run_mono
+    status, counters, state, elements, stats = run(ode, compiled, m, params, options, atol,
+                                                   floor, x, f0, steps, plan, sink)
+    sol = _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, state, x,
+                  stats, start, lambda solved: sink.solution(solved, m, elements, stats, x))
+    if plan is not None:
+        plan.report(sol)
+    return sol
+
+
+def _start(ode, compiled, plan, multi_adaptive, m, params):
+    """The start of a solve of ``ode`` from u0 at t0 with the kernels ``compiled`` (whose
+    ``p`` holds its parameter values; the branches of ``plan``'s switches at t0 are set in
+    it): (atol, floor, x, f0, steps, options), the loops'
+    tolerances, lower bounds of the values, the state x = u0 (a copy), f0 = f(u0, t0), the
+    first steps and the options of both loops (:func:`dolfinode.timeslab.contract.options`;
+    the workspace functions add what only their loop reads); the checks of the start.
+
+    Raises
+    ------
+    ValueError
+        For f(u0, t0) not finite, an interval or step double precision does not resolve, a
+        tolerance below what it resolves at |u0|.
+    """
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
     if rtol < MIN_TOLERANCE and not params["fixed_time_step"]:  # (else atol + rtol |u0| is)
@@ -378,7 +409,7 @@ def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
         _check_resolvable(ode, "maximum_time_step", params["maximum_time_step"], latest)
     # the domain of the values: declared, or kept by f (with a loose absolute tolerance a
     # small concentration dips below 0 and polynomial kinetics then diverge from there)
-    floor = np.where(ode.nonnegative | _keeps_nonnegative(ode), -atol, -np.inf)
+    floor = -atol if _keeps_nonnegative(ode) else np.where(ode.nonnegative, -atol, -np.inf)
     fixed = bool(params["fixed_time_step"])
     if fixed:  # no error control: iterate to rounding level, relative to the solution size
         atol, rtol, dtol = np.ones(ode.N), 1.0, 1e-15
@@ -392,17 +423,19 @@ def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
         max_iter=params["maximum_iterations"], is_dg=m.family == "dG", rtol=rtol, T=ode.T,
         kmax=params["maximum_time_step"] or ode.T - ode.t0, safety=params["safety_factor"],
         dtol=dtol, order=m.local_order, span=ode.T - ode.t0, gamma=filter_constant(m))
-    if plan is not None and plan.events and params["dense_output"] is False:
-        raise ValueError("events are located on the solution's history: give "
-                         "dense_output=True or a file name with events=")
-    sink = history.sink(ode, m, multi_adaptive, params)
-    run = _run_multi if multi_adaptive else _run_mono
-    status, counters, state, elements, stats = run(ode, compiled, m, params, options, atol,
-                                                   floor, x, f0, steps, plan, sink)
+    return atol, floor, x, f0, steps, options
+
+
+def _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, state, x, stats,
+            start, solution):
+    """The Solution ``solution(solved declaration)`` of a loop run that ended with
+    ``status``, its ``stats`` completed from the loop's ``counters``; SolverError (naming
+    the time ``state[0]`` and what to try) for a run that did not reach T."""
     # mono-adaptive solves may return from Newton to fixed-point iteration (STIFF is then 0)
     newton = (bool(counters[ts.STIFF]) or params["nonlinear_solver"] == "newton"
               or stats.get("newton matrices") is not None)
     if status != ts.DONE:
+        fixed = bool(params["fixed_time_step"])
         outside = ode.states[counters[ts.OUTSIDE] - 1] if counters[ts.OUTSIDE] else None
         why = (undefined(ode, compiled, x, float(state[0]), float(state[1]))
                if status in (ts.NONCONVERGENCE, ts.BLOWUP) else None)
@@ -423,10 +456,8 @@ def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
     })
     # the declaration as solved: later changes to ode do not reach sol
     solved = ode._snapshot() if plan is None else plan.solved_ode(ode._snapshot())
-    sol = sink.solution(solved, m, elements, stats, x)
+    sol = solution(solved)
     sol.parameters = params
-    if plan is not None:
-        plan.report(sol)
     return sol
 
 
@@ -503,26 +534,53 @@ def _step_guess(ode, compiled, atol, rtol):
     return lambda x, t: _first_step(ode, compiled.f(x, t), x, t, atol, rtol)
 
 
-def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, plan, sink):
+def _mono_workspace(ode, compiled, m, steps):
+    """The mono-adaptive loop's arrays for a start with ``steps``: (tables, state,
+    counters)."""
     tables = mono.method_tables(m)
     # the running mean of fixed-point iterations per slab starts at a typical 6
     state = contract.state(t=ode.t0, k_next=steps[0], eps_prev=1.0, have_f0=True,
                            fp_iterations=6.0)
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
+    return tables, state, counters
+
+
+def _newton_options(compiled, m, options):
+    """Decide the storage of the Newton matrices (a sparse one is analysed only now) and set
+    the loop's options for it; (structure, bytes, whether they fit in memory)."""
+    structure, newton_bytes, costs = _newton_plan(compiled, m)
+    fits = (newton_bytes <= _NEWTON_SMALL
+            or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
+    options["newton_ready"] = fits
+    options["reuse"] = structure.seconds(complex_values=True) >= mono.REUSE_TIME
+    options["newton_units"], options["factor_units"] = costs
+    return structure, newton_bytes, fits
+
+
+def _mono_advance(compiled, structure, tables, options, atol, floor, x, f0, state, counters,
+                  out_t, out_k, out_X):
+    """One call of the mono-adaptive loop: slabs until T or until out_t, out_k, out_X are
+    full; its status."""
+    return mono.advance.unchecked(compiled.rhs.address, compiled.jacobian.address, compiled.p,
+                                  compiled.indptr, compiled.indices, structure.tuple, *tables,
+                                  options, atol, floor, x, f0, state, counters, out_t, out_k,
+                                  out_X)
+
+
+def _mono_capacity(ode, m):
+    """Slabs per loop call: the stored values at most 2^21 doubles."""
+    return int(max(64, min(20000, 2 ** 21 // ((m.q + 1) * ode.N))))
+
+
+def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, plan, sink):
+    tables, state, counters = _mono_workspace(ode, compiled, m, steps)
     nodes = m.q + 1
     structure = compiled.band_structure  # until Newton is needed: see newton_ready
     newton_bytes = 0
 
     def newton_ready():
-        """Decide the storage of the Newton matrices (a sparse one is analysed only now);
-        whether they fit in memory."""
         nonlocal structure, newton_bytes
-        structure, newton_bytes, costs = _newton_plan(compiled, m)
-        fits = (newton_bytes <= _NEWTON_SMALL
-                or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
-        options["newton_ready"] = fits
-        options["reuse"] = structure.seconds(complex_values=True) >= mono.REUSE_TIME
-        options["newton_units"], options["factor_units"] = costs
+        structure, newton_bytes, fits = _newton_options(compiled, m, options)
         return fits
 
     if not sparse_candidate(structure):
@@ -533,12 +591,10 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, plan
         return np.empty(size), np.empty(size), np.empty((size, nodes, ode.N))
 
     def advance(out_t, out_k, out_X):
-        return mono.advance.unchecked(compiled.rhs.address, compiled.jacobian.address, compiled.p,
-                            compiled.indptr, compiled.indices, structure.tuple, *tables,
-                            options, atol, floor, x, f0, state, counters, out_t, out_k,
-                            out_X)
+        return _mono_advance(compiled, structure, tables, options, atol, floor, x, f0, state,
+                             counters, out_t, out_k, out_X)
 
-    capacity = int(max(64, min(20000, 2 ** 21 // (nodes * ode.N))))
+    capacity = _mono_capacity(ode, m)
     if plan is not None and plan.truncates:  # a terminal event or a switch redoes the rest
         capacity = min(capacity, _EVENT_CHUNK)
     with _progress(ode, params) as bar:
@@ -560,38 +616,85 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, plan
             f"than {_NEWTON_MEMORY_FRACTION:g} x the {available / 2**30:.3g} GB available. "
             "Use smaller steps with fixed_time_step=True and nonlinear_solver='fixed-point', "
             "or a smaller system", t=float(state["t"][0]))
+    return status, counters, _time_and_step(state, state["k_next"][0]), elements, _mono_stats(
+        ode, structure, counters, state)
+
+
+def _time_and_step(state, k):
+    """(t, k): where a loop stopped (its ``state``) and its next step, for :func:`_finish`."""
+    return np.array([state["t"][0], k])
+
+
+def _mono_stats(ode, structure, counters, state):
+    """The stats of a mono-adaptive run from its loop's counters."""
     slabs = int(counters[ts.SLABS])
-    stats = {"time slabs": slabs, "elements": slabs * ode.N,
-             "factorizations": int(counters[ts.FACTORIZATIONS]),
-             "newton matrices": structure.description if counters[ts.FACTORIZATIONS] else None}
-    return status, counters, np.array([state["t"][0], state["k_next"][0]]), elements, stats
+    return {"time slabs": slabs, "elements": slabs * ode.N,
+            "factorizations": int(counters[ts.FACTORIZATIONS]),
+            "newton matrices": structure.description if counters[ts.FACTORIZATIONS] else None,
+            "next time step": float(state["k_next"][0])}
 
 
-def _run_multi(ode, compiled, m, params, options, atol, floor, x, f0, steps, plan, sink):
-    # imported on first use: its loop is the longest compile of the package
-    from dolfinode.timeslab import multi
+def _multi_workspace(ode, compiled, m, params, options, steps):
+    """The multi-adaptive loop's arrays for a start with ``steps`` (and its fields of the
+    ``options`` of :func:`_start`): (tables, state, counters, kdes, frozen)."""
+    from dolfinode.timeslab import multi  # (its loop is the longest compile of the package)
 
     state = contract.state(t=ode.t0)
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
-    _, position, kl, ku = compiled.ordering
+    _, _, kl, ku = compiled.ordering
     options[["theta", "beta", "band_lower", "band_upper", "autonomous"]] = (
         params["partitioning_threshold"], params["interval_threshold"], kl, ku, ode.autonomous)
-    tables = multi.method_tables(m)
     kdes = steps.copy()
     frozen = np.full(ode.N, np.nan)  # since when each component is frozen (NaN: active)
+    return multi.method_tables(m), state, counters, kdes, frozen
+
+
+def _multi_advance(compiled, tables, options, atol, floor, x, kdes, frozen, state, counters,
+                   out_comp, out_a, out_b, out_values):
+    """One call of the multi-adaptive loop: elements until T or until the out_ arrays are
+    full; its status."""
+    from dolfinode.timeslab import multi
+
+    return multi.advance.unchecked(compiled.rhs_component.address,
+                                   compiled.jacobian_row.address, compiled.p, compiled.indptr,
+                                   compiled.indices, compiled.ordering[1], *tables, options,
+                                   atol, floor, x, kdes, frozen, state, counters, out_comp,
+                                   out_a, out_b, out_values)
+
+
+def _multi_capacity(ode, m):
+    """Elements per loop call: values at most 2^21 doubles, as mono's (from 32 MB on, each
+    solve would map fresh pages)."""
+    return int(max(64 * ode.N, min(2 ** 20, 2 ** 21 // (m.q + 1))))
+
+
+def _multi_stats(counters, state, per_component, kdes):
+    """The stats of a multi-adaptive run from its loop's counters and state."""
+
+    total = int(counters[ts.ELEMENTS])
+    return {"time slabs": int(counters[ts.SLABS]),
+            "sub-slabs": int(counters[ts.SUBSLABS]),
+            "elements": total,
+            "elements per component": per_component,
+            "factorizations": int(counters[ts.FACTORIZATIONS]),
+            "efficiency index": float(state["mono_elements"][0]) / max(total, 1),
+            "next time step": kdes.copy()}
+
+
+def _run_multi(ode, compiled, m, params, options, atol, floor, x, f0, steps, plan, sink):
+
+    tables, state, counters, kdes, frozen = _multi_workspace(ode, compiled, m, params, options,
+                                                             steps)
 
     def buffers(capacity):
         return (np.empty(capacity, dtype=np.int64), np.empty(capacity), np.empty(capacity),
                 np.empty((capacity, m.q + 1)))
 
     def advance(out_comp, out_a, out_b, out_values):
-        return multi.advance.unchecked(compiled.rhs_component.address, compiled.jacobian_row.address,
-                             compiled.p, compiled.indptr, compiled.indices, position, *tables,
-                             options, atol, floor, x, kdes, frozen, state, counters,
-                             out_comp, out_a, out_b, out_values)
+        return _multi_advance(compiled, tables, options, atol, floor, x, kdes, frozen, state,
+                              counters, out_comp, out_a, out_b, out_values)
 
-    # values at most 2^21 doubles, as mono's: from 32 MB on, each solve would map fresh pages
-    capacity = int(max(64 * ode.N, min(2 ** 20, 2 ** 21 // (m.q + 1))))
+    capacity = _multi_capacity(ode, m)
     if plan is not None and plan.truncates:
         capacity = min(capacity, max(4 * ode.N, _EVENT_CHUNK))
     with _progress(ode, params) as bar:
@@ -603,15 +706,8 @@ def _run_multi(ode, compiled, m, params, options, atol, floor, x, f0, steps, pla
             _step_guess(ode, compiled, atol, options["rtol"][0]), kdes=kdes, frozen=frozen,
             components=plan.detector.components)
         status, elements = _integrate(chunks, plan, pieces, ode, state, sink)
-    per_component = sink.per_component
-    total = int(counters[ts.ELEMENTS])
-    stats = {"time slabs": int(counters[ts.SLABS]),
-             "sub-slabs": int(counters[ts.SUBSLABS]),
-             "elements": total,
-             "elements per component": per_component,
-             "factorizations": int(counters[ts.FACTORIZATIONS]),
-             "efficiency index": float(state["mono_elements"][0]) / max(total, 1)}
-    return status, counters, np.array([state["t"][0], np.min(kdes)]), elements, stats
+    return (status, counters, _time_and_step(state, np.min(kdes)), elements,
+            _multi_stats(counters, state, sink.per_component, kdes))
 
 
 class _NoProgress:

@@ -5,14 +5,45 @@ ODE once; ``solver.solve(u0=, params=, T=, t0=)`` then solves with those values 
 exactly as :func:`dolfinode.solve` solves :func:`dolfinode.vary` (ode, values): the same
 steps and values, bit for bit. The parameter values reach the compiled kernels as the
 vector ``p`` of each call, never through the declaration the solver was made from.
+
+A solve without events, breakpoints, switches or automatic modeling, with its history in
+memory (and for cG/dG a Newton matrix storage decided up front, as for all but large sparse
+systems), takes the prepared path: the start of :func:`dolfinode.solve` (``solve._start``)
+and one call of the compiled loop into buffers kept by the solver, as large as the first
+ones of dn.solve, whose used part the Solution copies. Everything else, and a solve that outgrows the buffers or
+fails, goes through the general path (``solve_lowered``, the driver of dn.solve).
 """
+import time
+from collections.abc import Mapping
+
 import numpy as np
 
-from dolfinode.ensemble import vary
+from dolfinode import timeslab as ts
+from dolfinode.ensemble import parameter_symbol
+from dolfinode.io import history
+from dolfinode.linalg.newton_matrix import sparse_candidate
 from dolfinode.methods import parse_method
-from dolfinode.ode import ODE
+from dolfinode.ode import ODE, Parameters, _parameter_value
 from dolfinode.parameters import check_parameters
-from dolfinode.solve import check_tolerance, lowered, solve, solve_lowered
+from dolfinode.solve import (
+    _finish,
+    _mono_advance,
+    _mono_capacity,
+    _mono_stats,
+    _mono_workspace,
+    _multi_advance,
+    _multi_capacity,
+    _multi_stats,
+    _multi_workspace,
+    _newton_options,
+    _start,
+    _time_and_step,
+    check_tolerance,
+    lower,
+    lowered,
+    solve,
+    solve_lowered,
+)
 
 
 class Solver:
@@ -30,6 +61,12 @@ class Solver:
     ------
     TypeError, ValueError
         For an invalid ODE, method or parameter (with the closest valid name).
+
+    Notes
+    -----
+    A Solver keeps work space between calls (its copy of the declaration, the loop's output
+    buffers): call one Solver from one thread at a time, one per thread for parallel fits.
+    The Solutions it returns own their arrays; later calls leave them alone.
 
     Examples
     --------
@@ -49,7 +86,29 @@ class Solver:
         self.ode = ode
         self.method = method
         self.parameters = dict(parameters)
-        lowered(ode, self._params)  # compiled now, kept on the declaration for every call
+        self._prepare()
+
+    def _prepare(self):
+        """Lower the declaration (kept on it for every call) and decide the path; the
+        solver's own copy of it, whose values each call replaces."""
+        ode, params = self.ode, self._params
+        compiled, plan = lowered(ode, params)
+        self._declared = ode.params  # a new assignment ode.params = {...} prepares again
+        self._by_name = {s.name: s for s in ode.params}
+        self._work = object.__new__(type(ode))
+        self._work.__dict__.update(ode.__dict__)
+        self._buffers = None
+        if (plan is None and params["dense_output"] is True and not params["progress"]
+                and not params["automatic_modeling"]):
+            m = self._method
+            if self._multi_adaptive:  # (the loop's first buffers, as in _run_multi)
+                size = _multi_capacity(ode, m)
+                self._buffers = (np.empty(size, dtype=np.int64), np.empty(size),
+                                 np.empty(size), np.empty((size, m.q + 1)))
+            elif not sparse_candidate(compiled.band_structure):  # (as in _run_mono)
+                size = min(_mono_capacity(ode, m), params["maximum_steps"])
+                self._buffers = (np.empty(size), np.empty(size),
+                                 np.empty((size, m.q + 1, ode.N)))
 
     def solve(self, u0=None, params=None, T=None, t0=None):
         """Solve with the given initial values, parameter values and interval (each defaults
@@ -59,7 +118,7 @@ class Solver:
         Parameters
         ----------
         u0 : dict or sequence, optional
-            Initial values by state symbol, or in component order.
+            Initial values by state symbol (or name), or in component order.
         params : dict, optional
             Parameter symbols (or names) -> values; the others keep the declaration's.
         T, t0 : float, optional
@@ -67,20 +126,82 @@ class Solver:
         Raises
         ------
         TypeError, ValueError
-            For values the declaration would reject.
+            For values the declaration would reject (naming the entry).
         SolverError
             As :func:`dolfinode.solve`.
         """
-        variation = {} if params is None else dict(params)
-        if isinstance(u0, (list, tuple)) and all(isinstance(x, (int, float)) for x in u0):
-            u0 = np.array(u0, dtype=float)  # checked as an array: 4x faster than as a list
-        for name, value in (("u0", u0), ("T", T), ("t0", t0)):
-            if value is not None:
-                variation[name] = value
-        ode = vary(self.ode, variation)
+        work = self._declaration(u0, params, T, t0)
         if self._params["automatic_modeling"]:  # a driver over many solves
-            return solve(ode, self.method, **self.parameters)
-        # the kernels' p is made from the varied declaration's values (CompiledODE.again)
-        compiled, plan = lowered(ode, self._params)
-        return solve_lowered(ode, compiled, plan, self._multi_adaptive, self._method,
+            return solve(work._snapshot(), self.method, **self.parameters)
+        if self._buffers is not None:
+            sol = self._solve_prepared(work)
+            if sol is not None:
+                return sol
+        compiled, plan = lowered(work, self._params)
+        return solve_lowered(work, compiled, plan, self._multi_adaptive, self._method,
                              self._params)
+
+    def _declaration(self, u0, params, T, t0):
+        """The solver's copy of the declaration with the values of this call, checked as
+        :func:`dolfinode.vary` checks them (the declaration's values where not given)."""
+        ode = self.ode
+        if ode.params is not self._declared:
+            self._prepare()
+        work = self._work
+        # the declaration's values are checked already: only those given here are
+        if params is None:
+            work.__dict__["params"] = ode.params
+        else:
+            if not isinstance(params, Mapping):
+                raise TypeError("params must be a dict {parameter symbol or name: value}, got "
+                                f"{type(params).__name__}")
+            values = dict(ode.params.items())
+            for key, value in params.items():
+                symbol = parameter_symbol(self._by_name, key)
+                values[symbol] = _parameter_value(symbol, value)
+            work.__dict__["params"] = Parameters(values)
+        if u0 is None:
+            work.__dict__["u0"] = ode.u0
+        else:
+            if isinstance(u0, (list, tuple)) and all(isinstance(x, (int, float)) for x in u0):
+                u0 = np.array(u0, dtype=float)  # checked as an array: 4x faster than as a list
+            work.u0 = u0
+        if t0 is None and T is None:
+            work.__dict__.update(t0=ode.t0, T=ode.T)
+        else:
+            work._set_interval(ode.t0 if t0 is None else t0, ode.T if T is None else T)
+        return work
+
+    def _solve_prepared(self, work):
+        """The solve of ``work`` as one call of the loop into the kept buffers; None when
+        that call did not reach T (the general path then solves it)."""
+        start = time.perf_counter()
+        params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
+        compiled = lower(work)
+        atol, floor, x, f0, steps, options = _start(work, compiled, None, multi_adaptive, m,
+                                                    params)
+        sink = history.sink(work, m, multi_adaptive, params)
+        if multi_adaptive:
+            tables, state, counters, kdes, frozen = _multi_workspace(work, compiled, m, params,
+                                                                     options, steps)
+            status = _multi_advance(compiled, tables, options, atol, floor, x, kdes, frozen,
+                                    state, counters, *self._buffers)
+        else:
+            tables, state, counters = _mono_workspace(work, compiled, m, steps)
+            structure, _, _ = _newton_options(compiled, m, options)
+            status = _mono_advance(compiled, structure, tables, options, atol, floor, x, f0,
+                                   state, counters, *self._buffers)
+        if status != ts.DONE or counters[ts.SLABS] > params["maximum_steps"]:
+            return None
+        n = counters[ts.STORED]
+        sink.add([b[:n] for b in self._buffers], float(state["t"][0]))
+        elements = sink.finish(True)  # copies: the next call refills the buffers
+        if multi_adaptive:
+            stats = _multi_stats(counters, state, sink.per_component, kdes)
+            state = _time_and_step(state, np.min(kdes))
+        else:
+            stats = _mono_stats(work, structure, counters, state)
+            state = _time_and_step(state, state["k_next"][0])
+        return _finish(work, compiled, None, multi_adaptive, m, params, status, counters,
+                       state, x, stats, start,
+                       lambda solved: sink.solution(solved, m, elements, stats, x))

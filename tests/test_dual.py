@@ -49,7 +49,8 @@ def test_adjoint_identity_of_generated_jacobian(make):
 def test_dual_of_linear_system_is_the_matrix_exponential(method):
     """phi(t) = exp(A^T (T - t)) psi for u' = A u."""
     ode, _ = linear(NON_NORMAL, [1.0, 1.0], 3.0)
-    sol = dn.solve(ode, method=method, tolerance=1e-5)
+    # the dual is solved on the primal's partition: steps from the local estimate
+    sol = dn.solve(ode, method=method, tolerance=1e-5, calibrate_tolerance=False)
     psi = np.array([0.3, -1.0])
     est = dn.estimate_error(sol, psi)
     times = np.linspace(0.0, ode.T, 23)

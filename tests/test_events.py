@@ -99,9 +99,11 @@ def test_state_switch_forms(rhs):
 
 
 def test_kink_on_the_state_within_tolerance():
+    # the switch time comes from the element's polynomial, O(k^(q+1)) inside the element, so
+    # the step estimate is bounded by the tolerance (calibrate_tolerance=False)
     # x' = 1 until x = 1 (t = 1), then x' = 3 x - 2: x = 2/3 + exp(3 (t - 1)) / 3
     sol = dn.solve(dn.ODE({x: sp.Max(1, 3 * x - 2)}, u0=[0.0], T=1.5), method="cG(2)",
-                   tolerance=1e-8)
+                   tolerance=1e-8, calibrate_tolerance=False)
     exact = 2 / 3 + math.exp(1.5) / 3
     assert abs(sol(1.5)[0] - exact) <= 10 * 1e-8 * exact
 
@@ -136,7 +138,9 @@ def oscillator():
 
 @pytest.mark.parametrize("method", ["cG(2)", "dG(2)", "mcG(2)", "mdG(2)"])
 def test_oscillator_crossings_located(oscillator, method):
-    sol = dn.solve(oscillator, method=method, tolerance=1e-8,
+    # event times come from the polynomials inside the elements, O(k^(q+1)) there, not from
+    # the superconvergent element ends: the steps bound the local estimate by the tolerance
+    sol = dn.solve(oscillator, method=method, tolerance=1e-8, calibrate_tolerance=False,
                    events=[u, dn.Event(u, direction=1), dn.Event(v, direction=-1)])
     np.testing.assert_allclose(sol.t_events[0], np.pi / 2 + np.pi * np.arange(3), atol=1e-7)
     np.testing.assert_allclose(sol.t_events[1], [3 * np.pi / 2], atol=1e-7)
@@ -149,7 +153,7 @@ def test_oscillator_crossings_located(oscillator, method):
 @pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(2)", "mdG(1)"])
 def test_terminal_event_ends_the_solve(oscillator, method):
     # v = -sin t reaches 0.5 going up at t = 7 pi / 6
-    sol = dn.solve(oscillator, method=method, tolerance=1e-8,
+    sol = dn.solve(oscillator, method=method, tolerance=1e-8, calibrate_tolerance=False,
                    events=[u, dn.Event(v - 0.5, terminal=True, direction=1)])
     te = 7 * np.pi / 6
     assert sol.status == 1 and sol.success and "termination event" in sol.message
@@ -193,7 +197,7 @@ def test_bouncing_ball(method):
     times, t0, state = [], 0.0, [1.0, 0.0]
     for _ in range(10):
         ode = dn.ODE({y: w, w: -g}, u0=state, t0=t0, T=10.0)
-        sol = dn.solve(ode, method=method, tolerance=tol,
+        sol = dn.solve(ode, method=method, tolerance=tol, calibrate_tolerance=False,
                        events=[dn.Event(y, terminal=True, direction=-1)])
         assert sol.status == 1
         t0 = sol.t_events[0][0]

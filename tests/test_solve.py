@@ -40,3 +40,11 @@ def test_quasi_positive_systems_are_recognised():
     assert not _keeps_nonnegative(dn.ODE({a: -a - b, b: a}, u0=[1.0, 0.0], T=1.0))
     assert not _keeps_nonnegative(dn.ODE({a: -a, b: a}, u0=[1.0, -1.0], T=1.0))
     assert not _keeps_nonnegative(dn.ODE({a: sp.sin(dn.t)}, u0=[1.0], T=1.0))
+    # decided for the signs of the parameter values, so a fit's new values reuse it
+    c = sp.Symbol("c")
+    ode = dn.ODE({a: -c * a, b: c * a - b}, u0=[1.0, 0.0], T=1.0, params={c: 2.0})
+    assert _keeps_nonnegative(ode)
+    ode.params[c] = 3.0
+    assert _keeps_nonnegative(ode) and ode._keeps_nonnegative[0][1] == (1,)
+    ode.params[c] = -1.0  # b' = c a < 0 at b = 0
+    assert not _keeps_nonnegative(ode)

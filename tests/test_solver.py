@@ -68,3 +68,95 @@ def test_solver_rejects_bad_input_up_front_and_per_call(oscillator):
         solver.solve(u0=[1.0, 2.0, 3.0])
     with pytest.raises(ValueError):
         solver.solve(T=-1.0)
+
+
+def _assert_same_solution(sol, reference):
+    """Bitwise the same elements, samples and counters, and a declaration with the same
+    values."""
+    np.testing.assert_array_equal(sol.t_start, reference.t_start)
+    np.testing.assert_array_equal(sol.k, reference.k)
+    np.testing.assert_array_equal(sol.values, reference.values)
+    np.testing.assert_array_equal(sol.y, reference.y)
+    for name in ("time slabs", "f evaluations", "rejected steps", "nonlinear iterations"):
+        assert sol.stats[name] == reference.stats[name]
+    assert (sol.ode.t0, sol.ode.T, dict(sol.ode.params)) == (
+        reference.ode.t0, reference.ode.T, dict(reference.ode.params))
+    np.testing.assert_array_equal(sol.ode.u0, reference.ode.u0)
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "dG(0)", "mdG(0)"])
+def test_successive_calls_are_bitwise_dn_solve_and_keep_their_own_arrays(oscillator, method):
+    solver = dn.Solver(oscillator, method=method, tolerance=1e-5)
+    calls = [{"u0": {u: 0.5, "v": 0.1}, "params": {"k": 9.0}},
+             {"u0": np.array([1.0, -1.0]), "t0": 0.5, "T": 1.0},
+             {"params": {k: 1.0}, "T": 3.0}]
+    solutions = [solver.solve(**call) for call in calls]
+    for call, sol in zip(calls, solutions):  # the later calls left the earlier results alone
+        variation = {**call.get("params", {}),
+                     **{name: call[name] for name in ("u0", "T", "t0") if name in call}}
+        reference = dn.solve(dn.vary(oscillator, variation), method=method, tolerance=1e-5)
+        _assert_same_solution(sol, reference)
+
+
+def test_solver_takes_the_prepared_path_where_it_can(oscillator, monkeypatch):
+    """A solve in memory takes one loop call into the kept buffers; events, breakpoints,
+    samples only and modeling take the general path, with the same answers."""
+    prepared = dn.Solver(oscillator, method="dG(1)")
+    assert prepared._buffers is not None
+    assert dn.Solver(oscillator, method="mcG(1)")._buffers is not None
+    for parameters in ({"events": [u]}, {"dense_output": False}, {"breakpoints": [1.0]},
+                       {"automatic_modeling": True}):
+        assert dn.Solver(oscillator, method="dG(1)", **parameters)._buffers is None
+    events = dn.Solver(oscillator, method="dG(1)", events=[u]).solve(params={k: 1.0})
+    reference = dn.solve(dn.vary(oscillator, {k: 1.0}), method="dG(1)", events=[u])
+    np.testing.assert_array_equal(events.t_events[0], reference.t_events[0])
+    assert events.t_events[0][0] == pytest.approx(np.pi / 2, rel=1e-5)
+    samples = dn.Solver(oscillator, method="dG(1)", dense_output=False).solve(u0=[2.0, 0.0])
+    np.testing.assert_array_equal(samples.y, dn.solve(dn.vary(oscillator, {"u0": [2.0, 0.0]}),
+                                                      method="dG(1)", dense_output=False).y)
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "mcG(1)"])
+def test_a_solve_longer_than_the_kept_buffers_goes_the_general_way(oscillator, method):
+    solver = dn.Solver(oscillator, method=method, tolerance=1e-3, maximum_steps=400)
+    solver._buffers = tuple(b[:3] for b in solver._buffers)  # 55 slabs do not fit in 3
+    sol = solver.solve(T=1.0)
+    _assert_same_solution(sol, dn.solve(dn.vary(oscillator, {"T": 1.0}), method=method,
+                                        tolerance=1e-3, maximum_steps=400))
+    with pytest.raises(dn.SolverError, match="maximum_steps"):
+        solver.solve(T=50.0)
+
+
+def test_solver_follows_the_declaration_as_it_is_at_each_call(oscillator):
+    solver = dn.Solver(oscillator, method="dG(1)")
+    oscillator.params[k] = 1.0
+    oscillator.T = 1.0
+    sol = solver.solve()
+    assert sol.ode.params[k] == 1.0 and sol.ode.T == 1.0
+    _assert_same_solution(sol, dn.solve(oscillator, method="dG(1)"))
+
+
+@pytest.mark.parametrize("call, error, match", [
+    ({"u0": [1.0, np.nan]}, ValueError, "u0 is not finite for v"),
+    ({"u0": {u: 1.0}}, ValueError, "missing values for v"),
+    ({"params": {"kk": 1.0}}, ValueError, "did you mean 'k'"),
+    ({"params": {k: np.inf}}, ValueError, "parameter k must be finite"),
+    ({"params": {k: "x"}}, TypeError, "parameter k must be a real number"),
+    ({"params": [(k, 1.0)]}, TypeError, "params must be a dict"),
+    ({"t0": 3.0}, ValueError, "larger than t0"),
+    ({"T": np.inf}, ValueError, "T must be finite"),
+])
+def test_solver_names_the_bad_entry_of_a_call(oscillator, call, error, match):
+    with pytest.raises(error, match=match):
+        dn.Solver(oscillator, method="dG(1)").solve(**call)
+
+
+def test_solver_of_a_template_system_is_bitwise_dn_solve():
+    x, rate = sp.symbols("x rate")
+    decay = dn.Template(slots=(x,), terms={x: -rate * x}, indices=[[0], [1]])
+    ode = dn.TemplateODE(decay, u0=[1.0, 2.0], T=1.0, params={rate: 1.0})
+    solver = dn.Solver(ode, method="cG(2)", tolerance=1e-8)
+    sol = solver.solve(params={"rate": 2.0}, u0=[1.0, 1.0])
+    _assert_same_solution(sol, dn.solve(dn.vary(ode, {rate: 2.0, "u0": [1.0, 1.0]}),
+                                        method="cG(2)", tolerance=1e-8))
+    np.testing.assert_allclose(sol(1.0), np.exp(-2.0), rtol=1e-6)

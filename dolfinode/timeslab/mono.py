@@ -52,6 +52,13 @@ NEWTON_PROBE = 1.2
 #: Test Set problems but moved their accuracy by up to 1.9 digits either way (VDPOLM dG(3) at
 #: tolerance 1e-4: 8.8 -> 7.0 digits), a stiff component's polynomial being a poor predictor.
 EXTRAPOLATE = 2.0
+#: cG(q) is not L-stable (|R(-inf)| = 1): a stiff component's deviation from its
+#: quasi-steady state is never damped, and once the state decays below it, Newton fails on
+#: most steps and the steps collapse (ROBER, cG(2), tolerance 1e-3: 322,000 slabs, 45 % failed
+#: solves). A cG loop stops when Newton fails after UNDAMPED_FAILURES failed solves, once they
+#: are at least UNDAMPED_SHARE of the accepted slabs, and the driver says why (dG(q) damps it).
+UNDAMPED_FAILURES = 1000
+UNDAMPED_SHARE = 0.25
 #: The factors of one Jacobian (stage matrices, error filter) are kept over slabs, as RADAU5
 #: and CVODE keep theirs, when a factorization is estimated to take at least REUSE_TIME seconds
 #: (``NewtonStructure.seconds``, complex; 2e5 multiply-adds of the banded LU): while the step
@@ -134,6 +141,12 @@ def euler_stages(x, f0, k, tau, X):
     for s in range(tau.shape[0]):
         for i in range(N):
             X[s * N + i] = x[i] + tau[s] * k * f0[i]
+
+
+@njit(cache=True)
+def undamped(failed, slabs):
+    """Whether a cG loop's failed nonlinear solves show a stiff deviation cG(q) cannot damp."""
+    return failed > UNDAMPED_FAILURES and failed >= UNDAMPED_SHARE * slabs
 
 
 @njit(cache=True)
@@ -353,7 +366,9 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                     break
         if iters < 0:
             counters[FAILED_SOLVES] += 1
-            if fixed:
+            if fixed or (use_newton and not is_dg
+                         and undamped(counters[FAILED_SOLVES], counters[SLABS])):
+                state[K_NEXT] = k
                 return NONCONVERGENCE
             k_solver = k
             k *= 0.25

@@ -21,7 +21,10 @@ LOOSE = [("cG(2)", 1e-2, 1e-6), ("mcG(1)", 1e-2, 1e-2), ("mcG(1)", 1e-2, 1e-6),
 @pytest.mark.parametrize("method, tol, atol", LOOSE)
 def test_rober_declared_nonnegative_is_right_at_loose_tolerances(method, tol, atol, finite):
     p = P.rober(nonnegative=True)
-    sol = dn.solve(p.ode, method=method, tolerance=tol, absolute_tolerance=atol)
+    # the step tolerances at which the failures were measured (calibrated, cG(2) at 1e-2
+    # stops: cG(q) does not damp ROBER's y2, see doc/design/tolerance.md)
+    sol = dn.solve(p.ode, method=method, tolerance=tol, absolute_tolerance=atol,
+                   calibrate_tolerance=False)
     finite(sol)
     assert np.all(np.abs(sol(p.T) - p.final) <= atol + tol * np.abs(p.final))
     assert sol.values.min() >= 0.0  # every nodal value, projected

@@ -41,17 +41,21 @@ def test_cg_conserves_the_energy_with_newton(oscillator, method, finite):
 
 @pytest.mark.parametrize("method", ["cG(2)", "cG(3)"])
 def test_cg_energy_error_stays_below_the_tolerance(oscillator, method, finite):
-    """Default solver: the accumulated iteration error over 10^4 periods stays far below the
-    tolerance (measured 8.5e-9 for cG(2), 5.9e-9 for cG(3))."""
+    """Default solver: the accumulated iteration error over 10^4 periods stays below the
+    tolerance, which the default aims the error at T at (measured 2.0e-7 for cG(3) at
+    1e-6)."""
     sol = dn.solve(oscillator, method=method, tolerance=TOL)
     finite(sol)
-    assert np.abs(energies(sol) - 1).max() < 0.1 * TOL
+    assert np.abs(energies(sol) - 1).max() < TOL
 
 
 @pytest.mark.parametrize("solver", ["default", "newton"])
 @pytest.mark.parametrize("method", ["dG(2)", "dG(3)"])
 def test_dg_energy_decays_monotonically(oscillator, method, solver, finite):
-    sol = dn.solve(oscillator, method=method, tolerance=TOL, nonlinear_solver=solver)
+    # dissipation of the discrete scheme: needs the iteration converged far below the energy
+    # change per slab, as with the step estimate bounded by the tolerance
+    sol = dn.solve(oscillator, method=method, tolerance=TOL, nonlinear_solver=solver,
+                   calibrate_tolerance=False)
     finite(sol)
     E = energies(sol)
     assert np.all(np.diff(E) <= 1e-14), "dG energy increased"

@@ -50,7 +50,8 @@ def check(method, seed, n, stiffness, T, bound=1000.0, bound_T=10.0, **options):
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 4), stiffness=st.floats(0.0, 8.0))
 def test_mono_adaptive_matches_expm(method, seed, n, stiffness):
-    check(method, seed, n, stiffness, T=1.0, bound=10.0)
+    # the error at T within 10 x tolerance (the contract); on the way, at most 100 x
+    check(method, seed, n, stiffness, T=1.0, bound=100.0)
 
 
 @pytest.mark.parametrize("method", ["mcG(1)", "mcG(2)", "mdG(1)", "mdG(2)"])
