@@ -83,7 +83,7 @@ SWITCH_BACK = 0.5
 #: ... only where Newton's steps have settled (the error control asks for at most
 #: SETTLED x the last step: in a transient Newton's steps grow far beyond fixed point's), and
 #: back to Newton when the error control of fixed point asks for steps below RETURN x
-#: K_NEWTON (without Newton's error filter a stiff component's estimate is far larger).
+#: k_newton (state; without Newton's error filter a stiff component's estimate is far larger).
 SETTLED = 1.25
 RETURN = 0.25
 #: Seconds of one f evaluation per Jacobian nonzero and component, and per call (a model,
@@ -368,7 +368,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             counters[FAILED_SOLVES] += 1
             if fixed or (use_newton and not is_dg
                          and undamped(counters[FAILED_SOLVES], counters[SLABS])):
-                state[K_NEXT] = k
+                st.k_next = k
                 return NONCONVERGENCE
             k_solver = k
             k *= 0.25
