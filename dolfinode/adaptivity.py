@@ -1,4 +1,4 @@
-"""Step-size selection from a local error estimate, for mono-adaptive time slabs.
+"""Step-size selection from a local error estimate, for the mono- and multi-adaptive loops.
 
 The residual of the discrete solution at the element's end point,
 
@@ -25,13 +25,20 @@ and eps = O(k^(q+1)). The next step comes from a PI controller on eps (Gustafsso
 Soederlind's digital filters, as DOLFIN's H211PI intended), with P = q + 1:
 
     k_new = k * clamp(safety * eps^(-0.7/P) * eps_prev^(0.4/P), 0.2, 5).
+
+The multi-adaptive loop filters each sub-slab's residuals together (``filter_residuals``) and
+gives each component its own next step from :func:`next_step` (see
+:mod:`dolfinode.timeslab.multi`).
 """
 import math
 from functools import cache
 
 import numpy as np
-from numba import njit
 
+from dolfinode.compile.jit import helper
+from dolfinode.compile.signatures import NO_REFCOUNT
+from dolfinode.linalg.banded import band_solve
+from dolfinode.linalg.group import band_view, factor_group, group_order
 from dolfinode.linalg.newton_matrix import lu_solve
 from dolfinode.methods import make_method
 
@@ -40,7 +47,7 @@ MIN_FACTOR = 0.2
 MAX_FACTOR = 5.0
 
 
-@njit(cache=True)
+@helper()
 def initial_step(f0, u0, atol, rtol, span):
     """k0 = 0.01 d0 / d1 with d0 = |u0|, d1 = |f(u0)| in the scaled max-norm (weights
     1 / (atol + rtol |u0|); Hairer-Noersett-Wanner's first guess), 1e-6 span if either is
@@ -55,7 +62,7 @@ def initial_step(f0, u0, atol, rtol, span):
     return min(k0, span)
 
 
-@njit(cache=True)
+@helper()
 def next_step(k, eps, eps_prev, order, safety, accepted):
     """Next step length after a step of length k with estimate eps (<= 1: accepted).
 
@@ -109,7 +116,7 @@ def _filter_constant(family, q):
     return abs(np.linalg.det(A)) ** (1.0 / A.shape[0])
 
 
-@njit(cache=True)
+@helper()
 def filter_estimate(ab, structure, ipiv, v, rhs):
     """Apply (I - gamma k J)^{-1} to v in place.
 
@@ -123,3 +130,57 @@ def filter_estimate(ab, structure, ipiv, v, rhs):
     lu_solve(ab, structure, ipiv, rhs)
     for i in range(N):
         v[i] = rhs[position[i]]
+
+
+#: The error filter of a sub-slab of the multi-adaptive loop is skipped when it would change
+#: the estimates by at most this fraction (gamma k ||J_gg||_inf).
+FILTER_NEGLIGIBLE = 0.1
+
+
+@helper(**NO_REFCOUNT)
+def filter_residuals(ne, comp, ea, eb, res, position, indptr, indices, jacobian, jdiag,
+                     coupling, gamma, elist, order, local, newton, counters):
+    """The local error estimates of the elements from their residuals k R(t_e) (``res``, in
+    place): (I - gamma k J_gg)^{-1} k R on every sub-slab, its elements together (J_gg the
+    Jacobian at the slab start restricted to their components), as
+    :func:`filter_estimate` does for the mono-adaptive loop: k R on components that are not stiff
+    on their step, the distance from the quasi-steady state on those that are. A sub-slab
+    with gamma k max_i sum_j |J_ij| <= FILTER_NEGLIGIBLE (the filter would change its
+    estimates by at most that fraction) or a singular matrix keeps its residuals. ``gamma``:
+    [gamma] (the filter's one real eigenvalue, see ``factor_group``)."""
+    ab_real, ipiv, rhs = newton[0], newton[2], newton[3]
+    g = gamma[0].real
+    e = 0
+    while e < ne:
+        e1 = e + 1
+        while e1 < ne and ea[e1] == ea[e] and eb[e1] == eb[e]:
+            e1 += 1
+        n = e1 - e
+        k = eb[e] - ea[e]
+        if n == 1:
+            i = comp[e]
+            if 1.0 - g * k * jdiag[i] != 0.0:
+                res[e] /= 1.0 - g * k * jdiag[i]
+            e = e1
+            continue
+        row_sum = 0.0
+        for r in range(n):
+            i = comp[e + r]
+            row_sum = max(row_sum, abs(jdiag[i]) + coupling[i])
+        if g * k * row_sum <= FILTER_NEGLIGIBLE:
+            e = e1
+            continue
+        for r in range(n):
+            elist[r] = e + r
+        group_order(elist, n, comp, position, order, local)
+        kl, ku, info = factor_group(order, n, local, indptr, indices, jacobian, k, gamma,
+                                    newton, counters)
+        if info == 0:
+            for r in range(n):
+                rhs[local[comp[e + r]]] = res[e + r]
+            band_solve(band_view(ab_real, 0, n, 2 * kl + ku + 1), kl, ku, ipiv[0], rhs[:n])
+            for r in range(n):
+                res[e + r] = rhs[local[comp[e + r]]]
+        for r in range(n):
+            local[order[r]] = -1
+        e = e1

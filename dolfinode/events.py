@@ -562,13 +562,13 @@ class _Pieces:
 
     from dolfinode.timeslab import DONE, FULL
 
-    def __init__(self, ode, method, run_chunks, fopts, state, x, p, n_params, step_guess):
+    def __init__(self, ode, method, run_chunks, options, state, x, p, n_params, step_guess):
         self.ode, self.method, self.run_chunks = ode, method, run_chunks
-        self.fopts, self.state, self.x, self.p, self.n_params = fopts, state, x, p, n_params
+        self.options, self.state, self.x, self.p, self.n_params = options, state, x, p, n_params
         self.step_guess = step_guess
 
     def t(self):
-        return float(self.state[0])
+        return float(self.state["t"][0])
 
     def located(self, te):
         """How far past an element start a crossing counts as at the start: the accuracy
@@ -580,7 +580,7 @@ class _Pieces:
 
     def chunks(self, end):
         """The loop's chunks up to ``end``, with the state at each chunk's start kept."""
-        self.fopts[self.T_END] = end
+        self.options["T"] = end
         run = self.run_chunks()
         while True:
             self.saved = self.save()
@@ -592,8 +592,6 @@ class _Pieces:
 
 
 class MonoPieces(_Pieces):
-    from dolfinode.timeslab.mono import EPS_PREV, HAVE_F0, K_NEXT, T_END, T_NOW
-
     def __init__(self, *args, f0, f):
         super().__init__(*args)
         self.f0, self.f = f0, f  # f(x, t) with the kernels' current parameters
@@ -605,8 +603,8 @@ class MonoPieces(_Pieces):
         """A fresh start at the current time with the branches sigma."""
         self.p[self.n_params:] = sigma
         self.f0[:] = self.f(self.x, self.t())
-        self.state[[self.HAVE_F0, self.EPS_PREV]] = 1.0
-        self.state[self.K_NEXT] = min(self.state[self.K_NEXT], self.step_guess(self.x, self.t()))
+        self.state[["have_f0", "eps_prev"]] = True, 1.0
+        self.state["k_next"] = min(self.state["k_next"][0], self.step_guess(self.x, self.t()))
 
     def view(self, chunk):
         from dolfinode.solution import Solution
@@ -633,16 +631,13 @@ class MonoPieces(_Pieces):
         else:
             keep, t, x = n, t_start[n], left
         self.x[:] = x
-        self.state[[self.T_NOW, self.K_NEXT, self.HAVE_F0]] = t, k[n], 0.0
+        self.state[["t", "k_next", "have_f0"]] = t, k[n], False
         return [a[:keep] for a in chunk], te
 
 
 class MultiPieces(_Pieces):
     def __init__(self, *args, kdes, frozen, components):
         super().__init__(*args)
-        from dolfinode.timeslab.multi import T_END  # (imported by the loop already)
-
-        self.T_END = T_END
         self.kdes, self.frozen, self.components = kdes, frozen, components
 
     def save(self):
@@ -658,7 +653,7 @@ class MultiPieces(_Pieces):
 
         comp, a, b, values = chunk
         frozen = np.flatnonzero(~np.isnan(self.frozen))
-        begin = float(self.saved[0][0])
+        begin = float(self.saved[0]["t"][0])
         times = b[np.isin(comp, self.components)] if self.components else b
         times = np.unique(times[times > begin])
         comp = np.concatenate([comp, frozen])
@@ -673,6 +668,6 @@ class MultiPieces(_Pieces):
         where all components meet), which is te when te is just past it (``located``)."""
         state, x, kdes, frozen = self.saved
         self.state[:], self.x[:], self.kdes[:], self.frozen[:] = state, x, kdes, frozen
-        if te - state[0] <= self.located(te):
-            te = float(state[0])
+        if te - state["t"][0] <= self.located(te):
+            te = float(state["t"][0])
         return [a[:0] for a in chunk], te

@@ -18,7 +18,7 @@ from dolfinode.memory import available_memory
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
 from dolfinode.parameters import DEFAULTS, NONLINEAR_SOLVERS, check_parameters
-from dolfinode.timeslab import mono
+from dolfinode.timeslab import contract, mono
 
 #: New solves with a smaller maximum_time_step when a switch was crossed inside an element.
 _SWITCH_RETRIES = 3
@@ -366,14 +366,13 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
 def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
     """One solve of :func:`solve_lowered`."""
     start = time.perf_counter()
-    atol, floor, x, f0, steps, iopts, fopts = _start(ode, compiled, plan, multi_adaptive, m,
-                                                     params)
+    atol, floor, x, f0, steps, options = _start(ode, compiled, plan, multi_adaptive, m, params)
     if plan is not None and plan.events and params["dense_output"] is False:
         raise ValueError("events are located on the solution's history: give "
                          "dense_output=True or a file name with events=")
     sink = history.sink(ode, m, multi_adaptive, params)
     run = _run_multi if multi_adaptive else _run_mono
-    status, counters, state, elements, stats = run(ode, compiled, m, params, iopts, fopts, atol,
+    status, counters, state, elements, stats = run(ode, compiled, m, params, options, atol,
                                                    floor, x, f0, steps, plan, sink)
     sol = _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, state, x,
                   stats, start, lambda solved: sink.solution(solved, m, elements, stats, x))
@@ -385,9 +384,10 @@ def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
 def _start(ode, compiled, plan, multi_adaptive, m, params):
     """The start of a solve of ``ode`` from u0 at t0 with the kernels ``compiled`` (whose
     ``p`` holds its parameter values; the branches of ``plan``'s switches at t0 are set in
-    it): (atol, floor, x, f0, steps, iopts, fopts), the loops'
+    it): (atol, floor, x, f0, steps, options), the loops'
     tolerances, lower bounds of the values, the state x = u0 (a copy), f0 = f(u0, t0), the
-    first steps and the options (lists) shared by both loops; the checks of the start.
+    first steps and the options of both loops (:func:`dolfinode.timeslab.contract.options`;
+    the workspace functions add what only their loop reads); the checks of the start.
 
     Raises
     ------
@@ -429,11 +429,12 @@ def _start(ode, compiled, plan, multi_adaptive, m, params):
         if params["calibrate_tolerance"] and not multi_adaptive and rtol >= MIN_TOLERANCE:
             scale = step_tolerance(m, rtol) / rtol
             atol, rtol = atol * scale, rtol * scale
-    iopts = [NONLINEAR_SOLVERS.index(params["nonlinear_solver"]), int(fixed),
-             params["maximum_iterations"], int(m.family == "dG")]
-    fopts = [rtol, ode.T, params["maximum_time_step"] or ode.T - ode.t0,
-             params["safety_factor"], dtol, m.local_order]
-    return atol, floor, x, f0, steps, iopts, fopts
+    options = contract.options(
+        solver=NONLINEAR_SOLVERS.index(params["nonlinear_solver"]), fixed=fixed,
+        max_iter=params["maximum_iterations"], is_dg=m.family == "dG", rtol=rtol, T=ode.T,
+        kmax=params["maximum_time_step"] or ode.T - ode.t0, safety=params["safety_factor"],
+        dtol=dtol, order=m.local_order, span=ode.T - ode.t0, gamma=filter_constant(m))
+    return atol, floor, x, f0, steps, options
 
 
 def _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, state, x, stats,
@@ -493,7 +494,7 @@ def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newto
         chunk = [b[:n] for b in buffers]
         del buffers
         if bar is not None:
-            bar.update(state[0] - bar.n)
+            bar.update(state["t"][0] - bar.n)
         if counters[ts.SLABS] > params["maximum_steps"]:
             status = STEP_LIMIT
         elif status == ts.NEWTON_NEEDED and newton_ready is not None and newton_ready():
@@ -515,7 +516,7 @@ def _integrate(chunks, plan, pieces, ode, state, sink):
     ``sink.finish(completed)`` returns)."""
     if plan is None:
         for status, chunk in chunks():
-            sink.add(chunk, float(state[0]))
+            sink.add(chunk, float(state["t"][0]))
     else:  # a terminal event or a switch may redo a chunk: the sink takes the final ones
         status, stored, plan.end = ev.march(plan, pieces, ode.t0, ode.T)
         plan.terminated = status == ev.TERMINATED
@@ -548,38 +549,37 @@ def _step_guess(ode, compiled, atol, rtol):
     return lambda x, t: _first_step(ode, compiled.f(x, t), x, t, atol, rtol)
 
 
-def _mono_workspace(ode, compiled, m, iopts, fopts, steps):
-    """The mono-adaptive loop's arrays for a start with ``steps`` (iopts, fopts: the lists of
-    :func:`_start`): (tables, iopts, fopts, state, counters)."""
+def _mono_workspace(ode, compiled, m, steps):
+    """The mono-adaptive loop's arrays for a start with ``steps``: (tables, state,
+    counters)."""
     tables = mono.method_tables(m)
-    fopts = np.array(fopts + [ode.T - ode.t0, filter_constant(m), 0.0, 0.0])
     # the running mean of fixed-point iterations per slab starts at a typical 6
-    state = np.array([ode.t0, steps[0], 1.0, 1.0, 0.0, 6.0, 0.0, 0.0])
+    state = contract.state(t=ode.t0, k_next=steps[0], eps_prev=1.0, have_f0=True,
+                           fp_iterations=6.0)
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
-    iopts = np.array(iopts + [0, 0], dtype=np.int64)
-    return tables, iopts, fopts, state, counters
+    return tables, state, counters
 
 
-def _newton_options(compiled, m, iopts, fopts):
+def _newton_options(compiled, m, options):
     """Decide the storage of the Newton matrices (a sparse one is analysed only now) and set
     the loop's options for it; (structure, bytes, whether they fit in memory)."""
     structure, newton_bytes, costs = _newton_plan(compiled, m)
     fits = (newton_bytes <= _NEWTON_SMALL
             or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
-    iopts[mono.NEWTON_READY] = int(fits)
-    iopts[mono.REUSE] = int(structure.seconds(complex_values=True) >= mono.REUSE_TIME)
-    fopts[mono.NEWTON_UNITS], fopts[mono.FACTOR_UNITS] = costs
+    options["newton_ready"] = fits
+    options["reuse"] = structure.seconds(complex_values=True) >= mono.REUSE_TIME
+    options["newton_units"], options["factor_units"] = costs
     return structure, newton_bytes, fits
 
 
-def _mono_advance(compiled, structure, tables, iopts, fopts, atol, floor, x, f0, state,
-                  counters, out_t, out_k, out_X):
+def _mono_advance(compiled, structure, tables, options, atol, floor, x, f0, state, counters,
+                  out_t, out_k, out_X):
     """One call of the mono-adaptive loop: slabs until T or until out_t, out_k, out_X are
     full; its status."""
     return mono.advance.unchecked(compiled.rhs.address, compiled.jacobian.address, compiled.p,
                                   compiled.indptr, compiled.indices, structure.tuple, *tables,
-                                  iopts, fopts, atol, floor, x, f0, state, counters, out_t,
-                                  out_k, out_X)
+                                  options, atol, floor, x, f0, state, counters, out_t, out_k,
+                                  out_X)
 
 
 def _mono_capacity(ode, m):
@@ -587,16 +587,15 @@ def _mono_capacity(ode, m):
     return int(max(64, min(20000, 2 ** 21 // ((m.q + 1) * ode.N))))
 
 
-def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):
-    tables, iopts, fopts, state, counters = _mono_workspace(ode, compiled, m, iopts, fopts,
-                                                            steps)
+def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, plan, sink):
+    tables, state, counters = _mono_workspace(ode, compiled, m, steps)
     nodes = m.q + 1
     structure = compiled.band_structure  # until Newton is needed: see newton_ready
     newton_bytes = 0
 
     def newton_ready():
         nonlocal structure, newton_bytes
-        structure, newton_bytes, fits = _newton_options(compiled, m, iopts, fopts)
+        structure, newton_bytes, fits = _newton_options(compiled, m, options)
         return fits
 
     if not sparse_candidate(structure):
@@ -607,8 +606,8 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
         return np.empty(size), np.empty(size), np.empty((size, nodes, ode.N))
 
     def advance(out_t, out_k, out_X):
-        return _mono_advance(compiled, structure, tables, iopts, fopts, atol, floor, x, f0,
-                             state, counters, out_t, out_k, out_X)
+        return _mono_advance(compiled, structure, tables, options, atol, floor, x, f0, state,
+                             counters, out_t, out_k, out_X)
 
     capacity = _mono_capacity(ode, m)
     if plan is not None and plan.truncates:  # a terminal event or a switch redoes the rest
@@ -619,21 +618,26 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
                            newton_ready)
 
         pieces = plan and ev.MonoPieces(
-            ode, m, chunks, fopts, state, x, compiled.p, len(ode.params),
-            _step_guess(ode, compiled, atol, fopts[mono.RTOL]), f0=f0, f=compiled.f)
+            ode, m, chunks, options, state, x, compiled.p, len(ode.params),
+            _step_guess(ode, compiled, atol, options["rtol"][0]), f0=f0, f=compiled.f)
         status, elements = _integrate(chunks, plan, pieces, ode, state, sink)
     if status == ts.NEWTON_NEEDED:
         available = available_memory()
         why = ("was not selected" if params["nonlinear_solver"] == "newton" else "failed")
         raise SolverError(
-            f"{m.name} needs Newton's method at t = {state[mono.T_NOW]:.6g} (fixed-point "
+            f"{m.name} needs Newton's method at t = {state['t'][0]:.6g} (fixed-point "
             f"iteration {why}), but its Newton matrices ({ode.N} unknowns each, "
             f"{structure.description}) take {newton_bytes / 2**30:.3g} GB, more "
             f"than {_NEWTON_MEMORY_FRACTION:g} x the {available / 2**30:.3g} GB available. "
             "Use smaller steps with fixed_time_step=True and nonlinear_solver='fixed-point', "
-            "or a smaller system", t=float(state[mono.T_NOW]))
-    return status, counters, state[[mono.T_NOW, mono.K_NEXT]], elements, _mono_stats(
+            "or a smaller system", t=float(state["t"][0]))
+    return status, counters, _time_and_step(state, state["k_next"][0]), elements, _mono_stats(
         ode, structure, counters, state)
+
+
+def _time_and_step(state, k):
+    """(t, k): where a loop stopped (its ``state``) and its next step, for :func:`_finish`."""
+    return np.array([state["t"][0], k])
 
 
 def _mono_stats(ode, structure, counters, state):
@@ -642,34 +646,33 @@ def _mono_stats(ode, structure, counters, state):
     return {"time slabs": slabs, "elements": slabs * ode.N,
             "factorizations": int(counters[ts.FACTORIZATIONS]),
             "newton matrices": structure.description if counters[ts.FACTORIZATIONS] else None,
-            "next time step": float(state[mono.K_NEXT])}
+            "next time step": float(state["k_next"][0])}
 
 
-def _multi_workspace(ode, compiled, m, params, iopts, fopts, steps):
-    """The multi-adaptive loop's arrays for a start with ``steps`` (iopts, fopts: the lists
-    of :func:`_start`): (tables, iopts, fopts, state, counters, kdes, frozen)."""
+def _multi_workspace(ode, compiled, m, params, options, steps):
+    """The multi-adaptive loop's arrays for a start with ``steps`` (and its fields of the
+    ``options`` of :func:`_start`): (tables, state, counters, kdes, frozen)."""
     from dolfinode.timeslab import multi  # (its loop is the longest compile of the package)
 
-    fopts = np.array(fopts + [params["partitioning_threshold"], params["interval_threshold"],
-                              filter_constant(m), ode.T - ode.t0])
-    state = np.array([ode.t0, 0.0])
+    state = contract.state(t=ode.t0)
     counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     _, _, kl, ku = compiled.ordering
-    iopts = np.array(iopts + [kl, ku, int(ode.autonomous)], dtype=np.int64)
+    options[["theta", "beta", "band_lower", "band_upper", "autonomous"]] = (
+        params["partitioning_threshold"], params["interval_threshold"], kl, ku, ode.autonomous)
     kdes = steps.copy()
     frozen = np.full(ode.N, np.nan)  # since when each component is frozen (NaN: active)
-    return multi.method_tables(m), iopts, fopts, state, counters, kdes, frozen
+    return multi.method_tables(m), state, counters, kdes, frozen
 
 
-def _multi_advance(compiled, tables, iopts, fopts, atol, floor, x, kdes, frozen, state,
-                   counters, out_comp, out_a, out_b, out_values):
+def _multi_advance(compiled, tables, options, atol, floor, x, kdes, frozen, state, counters,
+                   out_comp, out_a, out_b, out_values):
     """One call of the multi-adaptive loop: elements until T or until the out_ arrays are
     full; its status."""
     from dolfinode.timeslab import multi
 
     return multi.advance.unchecked(compiled.rhs_component.address,
                                    compiled.jacobian_row.address, compiled.p, compiled.indptr,
-                                   compiled.indices, compiled.ordering[1], *tables, iopts, fopts,
+                                   compiled.indices, compiled.ordering[1], *tables, options,
                                    atol, floor, x, kdes, frozen, state, counters, out_comp,
                                    out_a, out_b, out_values)
 
@@ -682,7 +685,6 @@ def _multi_capacity(ode, m):
 
 def _multi_stats(counters, state, per_component, kdes):
     """The stats of a multi-adaptive run from its loop's counters and state."""
-    from dolfinode.timeslab import multi
 
     total = int(counters[ts.ELEMENTS])
     return {"time slabs": int(counters[ts.SLABS]),
@@ -690,23 +692,22 @@ def _multi_stats(counters, state, per_component, kdes):
             "elements": total,
             "elements per component": per_component,
             "factorizations": int(counters[ts.FACTORIZATIONS]),
-            "efficiency index": float(state[multi.MONO_ELEMENTS]) / max(total, 1),
+            "efficiency index": float(state["mono_elements"][0]) / max(total, 1),
             "next time step": kdes.copy()}
 
 
-def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps, plan, sink):
-    from dolfinode.timeslab import multi
+def _run_multi(ode, compiled, m, params, options, atol, floor, x, f0, steps, plan, sink):
 
-    tables, iopts, fopts, state, counters, kdes, frozen = _multi_workspace(
-        ode, compiled, m, params, iopts, fopts, steps)
+    tables, state, counters, kdes, frozen = _multi_workspace(ode, compiled, m, params, options,
+                                                             steps)
 
     def buffers(capacity):
         return (np.empty(capacity, dtype=np.int64), np.empty(capacity), np.empty(capacity),
                 np.empty((capacity, m.q + 1)))
 
     def advance(out_comp, out_a, out_b, out_values):
-        return _multi_advance(compiled, tables, iopts, fopts, atol, floor, x, kdes, frozen,
-                              state, counters, out_comp, out_a, out_b, out_values)
+        return _multi_advance(compiled, tables, options, atol, floor, x, kdes, frozen, state,
+                              counters, out_comp, out_a, out_b, out_values)
 
     capacity = _multi_capacity(ode, m)
     if plan is not None and plan.truncates:
@@ -716,11 +717,11 @@ def _run_multi(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps
             return _chunks(advance, buffers, capacity, counters, params, state, bar)
 
         pieces = plan and ev.MultiPieces(
-            ode, m, chunks, fopts, state, x, compiled.p, len(ode.params),
-            _step_guess(ode, compiled, atol, fopts[multi.RTOL]), kdes=kdes, frozen=frozen,
+            ode, m, chunks, options, state, x, compiled.p, len(ode.params),
+            _step_guess(ode, compiled, atol, options["rtol"][0]), kdes=kdes, frozen=frozen,
             components=plan.detector.components)
         status, elements = _integrate(chunks, plan, pieces, ode, state, sink)
-    return (status, counters, np.array([state[0], np.min(kdes)]), elements,
+    return (status, counters, _time_and_step(state, np.min(kdes)), elements,
             _multi_stats(counters, state, sink.per_component, kdes))
 
 

@@ -37,13 +37,13 @@ from dolfinode.solve import (
     _multi_workspace,
     _newton_options,
     _start,
+    _time_and_step,
     check_tolerance,
     lower,
     lowered,
     solve,
     solve_lowered,
 )
-from dolfinode.timeslab import mono
 
 
 class Solver:
@@ -178,31 +178,30 @@ class Solver:
         start = time.perf_counter()
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
         compiled = lower(work)
-        atol, floor, x, f0, steps, iopts, fopts = _start(work, compiled, None, multi_adaptive,
-                                                         m, params)
+        atol, floor, x, f0, steps, options = _start(work, compiled, None, multi_adaptive, m,
+                                                    params)
         sink = history.sink(work, m, multi_adaptive, params)
         if multi_adaptive:
-            tables, iopts, fopts, state, counters, kdes, frozen = _multi_workspace(
-                work, compiled, m, params, iopts, fopts, steps)
-            status = _multi_advance(compiled, tables, iopts, fopts, atol, floor, x, kdes,
-                                    frozen, state, counters, *self._buffers)
+            tables, state, counters, kdes, frozen = _multi_workspace(work, compiled, m, params,
+                                                                     options, steps)
+            status = _multi_advance(compiled, tables, options, atol, floor, x, kdes, frozen,
+                                    state, counters, *self._buffers)
         else:
-            tables, iopts, fopts, state, counters = _mono_workspace(work, compiled, m, iopts,
-                                                                    fopts, steps)
-            structure, _, _ = _newton_options(compiled, m, iopts, fopts)
-            status = _mono_advance(compiled, structure, tables, iopts, fopts, atol, floor, x,
-                                   f0, state, counters, *self._buffers)
+            tables, state, counters = _mono_workspace(work, compiled, m, steps)
+            structure, _, _ = _newton_options(compiled, m, options)
+            status = _mono_advance(compiled, structure, tables, options, atol, floor, x, f0,
+                                   state, counters, *self._buffers)
         if status != ts.DONE or counters[ts.SLABS] > params["maximum_steps"]:
             return None
         n = counters[ts.STORED]
-        sink.add([b[:n] for b in self._buffers], float(state[0]))
+        sink.add([b[:n] for b in self._buffers], float(state["t"][0]))
         elements = sink.finish(True)  # copies: the next call refills the buffers
         if multi_adaptive:
             stats = _multi_stats(counters, state, sink.per_component, kdes)
-            state = np.array([state[0], np.min(kdes)])
+            state = _time_and_step(state, np.min(kdes))
         else:
             stats = _mono_stats(work, structure, counters, state)
-            state = state[[mono.T_NOW, mono.K_NEXT]]
+            state = _time_and_step(state, state["k_next"][0])
         return _finish(work, compiled, None, multi_adaptive, m, params, status, counters,
                        state, x, stats, start,
                        lambda solved: sink.solution(solved, m, elements, stats, x))

@@ -14,9 +14,38 @@ import logging
 import threading
 from contextlib import contextmanager, nullcontext
 
-from numba import njit
+from numba import njit, types
 
 logger = logging.getLogger("dolfinode")
+
+#: njit options of the loops' helpers: numba's disk cache, and numpy's error model (as the
+#: loops themselves): a division by zero gives inf or nan, which the loops check, instead of
+#: raising ZeroDivisionError, whose check and raise every division carried into the compile.
+HELPER = {"cache": True, "error_model": "numpy"}
+
+
+
+def helper(**options):
+    """``njit`` for the loops' helper functions (:data:`HELPER` and ``options``), compiled
+    for argument types without literal values.
+
+    Called from compiled code, numba compiles a function once more for every constant
+    argument (``f(x, True)``, ``f(x, 1)``), and for the literal first value of a counter
+    (``n = 0`` then ``n += 1``) that type inference meets before the counter's type: with
+    empty caches the sweeps of the multi-adaptive loop were compiled twice, the band
+    assembly of its Newton groups eight times."""
+    def decorate(func):
+        dispatcher = njit(**HELPER, **options)(func)
+        typed = dispatcher.get_call_template
+
+        def get_call_template(args, kws):
+            return typed(tuple(types.unliteral(a) for a in args),
+                         {name: types.unliteral(a) for name, a in kws.items()})
+
+        dispatcher.get_call_template = get_call_template
+        return dispatcher
+    return decorate
+
 
 #: Seconds after which a compile still running is announced (a load from numba's disk cache
 #: takes well under a second).

@@ -21,9 +21,9 @@ import math
 from numba import njit
 
 from dolfinode.compile.signatures import NO_REFCOUNT, address
+from dolfinode.counters import F_EVALUATIONS, FACTORIZATIONS, ITERATIONS
 from dolfinode.linalg.banded import _u
 from dolfinode.linalg.newton_matrix import lu_factor, lu_solve, shift
-from dolfinode.timeslab import F_EVALUATIONS, FACTORIZATIONS, ITERATIONS
 
 #: An iteration that stops contracting with scaled increments below this has reached rounding.
 ROUNDING_LEVEL = 1e-10

@@ -1,15 +1,29 @@
 """Time slabs: the compiled loops that build, solve and check one slab after another.
 
-The constants below are shared by the mono- and multi-adaptive loops, the nonlinear solvers
-and the driver, so every counter and status code has one index.
+The constants below are shared by the mono- and multi-adaptive loops and the driver: the
+return codes, the nonlinear solver modes and the smallest resolvable step. The loops'
+options and state are the named records of :mod:`dolfinode.timeslab.contract`; the work
+counters live in :mod:`dolfinode.counters`.
 """
 from numba import njit
 
-# Indices into the integer counters (kept across calls by the driver). OUTSIDE: the component
-# that left its declared domain (see CONSTRAINT), plus one.
-SLABS, REJECTED, F_EVALUATIONS, JACOBIANS, FACTORIZATIONS, ITERATIONS, STORED, FAILED_SOLVES, \
-    STIFF, ELEMENTS, SUBSLABS, OUTSIDE = range(12)
-NUM_COUNTERS = 12
+# The work counters (indices, re-exported: their home is dolfinode.counters).
+from dolfinode.counters import (  # noqa: F401
+    ELEMENTS,
+    F_EVALUATIONS,
+    FACTORIZATIONS,
+    FAILED_SOLVES,
+    ITERATIONS,
+    JACOBIANS,
+    NUM_COUNTERS,
+    OUTSIDE,
+    REJECTED,
+    SLABS,
+    STIFF,
+    STORED,
+    SUBSLABS,
+)
+
 # Return codes of the loops (NEWTON_NEEDED: mono only, Newton needed but its matrices are not
 # ready: their storage is decided when first needed, or they do not fit in memory;
 # CONSTRAINT: a component declared nonnegative fell below its floor however short the step, or

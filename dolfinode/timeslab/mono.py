@@ -40,21 +40,8 @@ from dolfinode.timeslab import (
     UNDERFLOW,
     smallest_step,
 )
+from dolfinode.timeslab.contract import OPTIONS_TYPE, STATE_TYPE
 
-# Indices into the float state.
-# FP_STEP: the last step fixed-point iteration converged on (halved where it then failed; 0:
-# none); FP_ITERATIONS: its iterations per slab and NEWTON_COST Newton's cost per slab in f
-# evaluations (running means; 0: not measured); K_NEWTON: Newton's step when it gave way to
-# fixed-point iteration (0: it has not). See SWITCH_BACK.
-T_NOW, K_NEXT, EPS_PREV, HAVE_F0, FP_STEP, FP_ITERATIONS, NEWTON_COST, K_NEWTON = range(8)
-# Indices into the integer and float options (NEWTON_READY: 1 if the storage of the Newton
-# matrices is decided and fits in memory; else the loop returns NEWTON_NEEDED when it first
-# needs them, and the driver decides;
-# REUSE: 1 if a factorization costs enough to keep it over slabs, see REUSE_TIME).
-SOLVER, FIXED, MAX_ITER, IS_DG, NEWTON_READY, REUSE = range(6)
-# NEWTON_UNITS, FACTOR_UNITS: the cost of a Newton iteration (f at the stages and the solves)
-# and of a Jacobian with its factorizations, in f evaluations (see newton_costs).
-RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, SPAN, GAMMA, NEWTON_UNITS, FACTOR_UNITS = range(10)
 #: After a failed nonlinear solve of length k_fail, steps stay below SOLVER_MARGIN x k_fail,
 #: and k_fail grows by NEWTON_PROBE per accepted step.
 SOLVER_MARGIN = 0.8
@@ -96,7 +83,7 @@ SWITCH_BACK = 0.5
 #: ... only where Newton's steps have settled (the error control asks for at most
 #: SETTLED x the last step: in a transient Newton's steps grow far beyond fixed point's), and
 #: back to Newton when the error control of fixed point asks for steps below RETURN x
-#: K_NEWTON (without Newton's error filter a stiff component's estimate is far larger).
+#: k_newton (state; without Newton's error filter a stiff component's estimate is far larger).
 SETTLED = 1.25
 RETURN = 0.25
 #: Seconds of one f evaluation per Jacobian nonzero and component, and per call (a model,
@@ -113,8 +100,8 @@ _SIGNATURE = types.int64(
     types.float64[:, ::1], _f8, _f8,       # A, b0, tau
     types.float64[:, ::1], types.float64[:, ::1], types.complex128[::1],  # A = T B T^-1, eig B
     _f8, _f8, _f8,                           # nodes, barycentric weights, end_derivative
-    _i8, _f8, _f8, _f8,                      # iopts, fopts, atol, floor
-    _f8, _f8, _f8, _i8,                      # x, f0, state, counters
+    OPTIONS_TYPE, _f8, _f8,                  # options, atol, floor
+    _f8, _f8, STATE_TYPE, _i8,               # x, f0, state, counters
     _f8, _f8, types.float64[:, :, ::1],      # out_t, out_k, out_X
 )
 
@@ -215,16 +202,16 @@ def newton_costs(structure, eigenvalues, N, nnz, stages):
 
 
 @njit(cache=True)
-def fixed_point_cheaper(k_fp, k_newton, S, state):
+def fixed_point_cheaper(k_fp, k_newton, S, st):
     """Whether fixed-point iteration on steps k_fp is estimated SWITCH_BACK times cheaper per
     unit time than Newton's method on steps k_newton (False before Newton was measured)."""
-    return (state[NEWTON_COST] > 0.0 and k_fp > 0.0 and state[FP_ITERATIONS] * S / k_fp
-            < SWITCH_BACK * state[NEWTON_COST] / k_newton)
+    return (st.newton_cost > 0.0 and k_fp > 0.0 and st.fp_iterations * S / k_fp
+            < SWITCH_BACK * st.newton_cost / k_newton)
 
 
 def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
-            transform, transform_inverse, eigenvalues, nodes, bary, end_derivative, iopts,
-            fopts, atol, floor, x, f0, state, counters, out_t, out_k, out_X):
+            transform, transform_inverse, eigenvalues, nodes, bary, end_derivative, options,
+            atol, floor, x, f0, state, counters, out_t, out_k, out_X):
     """Advance (x, t) towards T, storing accepted elements in out_*; returns a status code.
 
     A step on which a stage value leaves the declared domain (``leaves_domain``) is
@@ -234,14 +221,16 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     N = x.shape[0]
     S = A.shape[0]
     n_nodes = nodes.shape[0]
-    is_dg = iopts[IS_DG] == 1
-    fixed = iopts[FIXED] == 1
-    mode = iopts[SOLVER]
-    max_iter = iopts[MAX_ITER]
-    rtol, T, kmax, safety, dtol = fopts[RTOL], fopts[T_END], fopts[KMAX], fopts[SAFETY], fopts[DTOL]
+    o = options[0]
+    st = state[0]
+    is_dg = o.is_dg
+    fixed = o.fixed
+    mode = o.solver
+    max_iter = o.max_iter
+    rtol, T, kmax, safety, dtol = o.rtol, o.T, o.kmax, o.safety, o.dtol
     # the estimate is O(k^(q+1)) for cG(q) and dG(q) (see dolfinode.adaptivity)
-    order = fopts[ORDER]
-    gamma = fopts[GAMMA]
+    order = o.order
+    gamma = o.gamma
 
     X = np.empty(S * N)
     F = np.empty(S * N)
@@ -264,7 +253,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     z_real = np.empty(N)
     z_complex = np.empty(N, dtype=np.complex128)
     ipiv_filter = np.zeros(0, dtype=np.int64)
-    reuse = iopts[REUSE] == 1
+    reuse = o.reuse
     k_factored = 0.0  # the step of the current factors (0: none)
     age = 0  # Newton slabs since the Jacobian was evaluated
     filter_ok = False  # the error filter's factors are usable
@@ -273,17 +262,17 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     weights = np.empty(n_nodes)  # extrapolate's work space
     counters[STORED] = 0
 
-    t = state[T_NOW]
+    t = st.t
     # Largest step the nonlinear solver is trusted with: the length of its last failure,
     # raised by NEWTON_PROBE per accepted step, so that the controller does not grow the step
     # straight back into a failure (a step limited by convergence, not by accuracy).
     k_solver = math.inf
-    k = state[K_NEXT]
+    k = st.k_next
     k_accuracy = k  # the step the error control asks for (solver failures aside)
-    if state[HAVE_F0] == 0.0:
+    if not st.have_f0:
         f(address(x, 0), t, address(p, 0), address(f0, 0))
         counters[F_EVALUATIONS] += 1
-        state[HAVE_F0] = 1.0
+        st.have_f0 = True
     capacity = out_t.shape[0]
     while counters[STORED] < capacity:
         if t >= T:
@@ -293,7 +282,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             k = min(k, kmax)
         if k >= remaining * (1.0 - 1e-9) or (not fixed and 1.1 * k >= remaining):
             k = remaining  # also absorbs the rounding of t0 + n k in fixed steps
-        kmin = smallest_step(t, fopts[SPAN])
+        kmin = smallest_step(t, o.span)
         if k < kmin and k < remaining:
             return UNDERFLOW
         # Each slab's discrete (iteration) error adds up over the (T - t0)/k slabs, and for
@@ -302,7 +291,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         # taken below the rounding level ROUNDING/rtol of the scaled norm (nor above dtol).
         dtol_k = dtol
         if not fixed:
-            dtol_k = max(dtol * min(1.0, k / fopts[SPAN]), min(dtol, ROUNDING / rtol))
+            dtol_k = max(dtol * min(1.0, k / o.span), min(dtol, ROUNDING / rtol))
         use_newton = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         n_prev = counters[STORED] - 1
         if not use_newton and n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
@@ -315,13 +304,13 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             iters = fixed_point(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol_k, max_iter,
                                 X, F, G, w, counters)
             if iters >= 0:
-                state[FP_ITERATIONS] = 0.7 * state[FP_ITERATIONS] + 0.3 * iters
-                state[FP_STEP] = k
+                st.fp_iterations = 0.7 * st.fp_iterations + 0.3 * iters
+                st.fp_step = k
             elif mode == DEFAULT:
-                if state[FP_STEP] >= k:  # it converged on this step before, not now
-                    state[FP_STEP] = 0.5 * k
-                k_fp = min(state[FP_STEP], 0.5 * k)
-                if fixed_point_cheaper(k_fp, k_accuracy, S, state) and k_fp >= kmin:
+                if st.fp_step >= k:  # it converged on this step before, not now
+                    st.fp_step = 0.5 * k
+                k_fp = min(st.fp_step, 0.5 * k)
+                if fixed_point_cheaper(k_fp, k_accuracy, S, st) and k_fp >= kmin:
                     counters[FAILED_SOLVES] += 1  # on the shorter step, as with "fixed-point"
                     k_solver = k
                     k = k_fp
@@ -330,9 +319,9 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                 use_newton = True
                 euler_stages(x, f0, k, tau, X)
         if use_newton and ipiv.shape[0] == 0:
-            if iopts[NEWTON_READY] == 0:
-                state[T_NOW] = t
-                state[K_NEXT] = k
+            if not o.newton_ready:
+                st.t = t
+                st.k_next = k
                 return NEWTON_NEEDED
             jb = np.zeros((rows, columns))
             ab_real = np.zeros((n_real, rows, columns))
@@ -379,7 +368,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             counters[FAILED_SOLVES] += 1
             if fixed or (use_newton and not is_dg
                          and undamped(counters[FAILED_SOLVES], counters[SLABS])):
-                state[K_NEXT] = k
+                st.k_next = k
                 return NONCONVERGENCE
             k_solver = k
             k *= 0.25
@@ -432,8 +421,8 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                 outside = drives_out(X[end:], fend, floor, T - t - k)
             if outside >= 0:
                 counters[OUTSIDE] = outside + 1
-                state[T_NOW] = t
-                state[K_NEXT] = k
+                st.t = t
+                st.k_next = k
                 return CONSTRAINT
             n = counters[STORED]
             out_t[n] = t
@@ -450,33 +439,33 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             for i in range(N):
                 x[i] = X[end + i]
                 f0[i] = fend[i]
-            k_new = k if fixed else next_step(k, eps, state[EPS_PREV], order, safety, True)
+            k_new = k if fixed else next_step(k, eps, st.eps_prev, order, safety, True)
             k_accuracy = k_new
             if use_newton and mode == DEFAULT:
-                cost = ((counters[ITERATIONS] - iterations_before) * fopts[NEWTON_UNITS]
-                        + (counters[JACOBIANS] - jacobians_before) * fopts[FACTOR_UNITS])
-                state[NEWTON_COST] = (cost if state[NEWTON_COST] == 0.0
-                                      else 0.7 * state[NEWTON_COST] + 0.3 * cost)
-                k_fp = min(state[FP_STEP], k_new)
-                if k_new <= SETTLED * k and fixed_point_cheaper(k_fp, k_new, S, state):
+                cost = ((counters[ITERATIONS] - iterations_before) * o.newton_units
+                        + (counters[JACOBIANS] - jacobians_before) * o.factor_units)
+                st.newton_cost = (cost if st.newton_cost == 0.0
+                                  else 0.7 * st.newton_cost + 0.3 * cost)
+                k_fp = min(st.fp_step, k_new)
+                if k_new <= SETTLED * k and fixed_point_cheaper(k_fp, k_new, S, st):
                     counters[STIFF] = 0  # back to fixed point, on steps up to k_fp
                     k_solver = k_fp / SOLVER_MARGIN
-                    state[K_NEWTON] = k_new
-            elif mode == DEFAULT and k_new < RETURN * state[K_NEWTON]:
+                    st.k_newton = k_new
+            elif mode == DEFAULT and k_new < RETURN * st.k_newton:
                 counters[STIFF] = 1  # fixed point's error control throttles: Newton again
-                state[K_NEWTON] = 0.0
+                st.k_newton = 0.0
             k_new = min(k_new, SOLVER_MARGIN * k_solver)
             k_solver *= NEWTON_PROBE
-            state[EPS_PREV] = eps
+            st.eps_prev = eps
             k = k_new
         else:
             counters[REJECTED] += 1
             k = next_step(k, eps, 1.0, order, safety, False)
             k_accuracy = k
-        state[T_NOW] = t
-        state[K_NEXT] = k
-    state[T_NOW] = t
-    state[K_NEXT] = k
+        st.t = t
+        st.k_next = k
+    st.t = t
+    st.k_next = k
     return DONE if t >= T else FULL
 
 

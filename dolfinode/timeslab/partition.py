@@ -10,28 +10,34 @@ components fill [a, a + K] with sub-slabs built the same way. Elements live in f
 """
 
 import numpy as np
-from numba import njit
+
+from dolfinode.compile.jit import helper
 
 
-@njit(cache=True)
+@helper()
 def grow_float(array, size):
+    """``array`` (1-D), or a copy of it at least ``size`` long (twice as long at least)."""
     if size <= array.shape[0]:
         return array
-    bigger = np.empty((max(size, 2 * array.shape[0]),) + array.shape[1:])
-    bigger[:array.shape[0]] = array
+    bigger = np.empty(max(size, 2 * array.shape[0]))
+    for i in range(array.shape[0]):  # (a slice copy compiles its shape check and message)
+        bigger[i] = array[i]
     return bigger
 
 
-@njit(cache=True)
+@helper()
 def grow_int(array, size):
+    """``array`` (1-D int64), or a copy of it at least ``size`` long (twice as long at
+    least)."""
     if size <= array.shape[0]:
         return array
     bigger = np.empty(max(size, 2 * array.shape[0]), dtype=np.int64)
-    bigger[:array.shape[0]] = array
+    for i in range(array.shape[0]):
+        bigger[i] = array[i]
     return bigger
 
 
-@njit(cache=True)
+@helper()
 def _partition(perm, offset, kdes, theta, length):
     """Move the components of perm[offset:] with k >= theta min(max k, length) to the front;
     return the group's end and its step: the group's smallest k, at most ``length`` (DOLFIN's
@@ -56,7 +62,7 @@ def _partition(perm, offset, kdes, theta, length):
     return end, K
 
 
-@njit(cache=True)
+@helper()
 def build_slab(a, T, kdes, active, theta, beta, kslab, comp, ea, eb, windows):
     """Build the time slab starting at a, at most kslab long, for the components ``active``
     (the others are frozen and get no element); returns (b, number of elements, number of
@@ -113,7 +119,7 @@ def build_slab(a, T, kdes, active, theta, beta, kslab, comp, ea, eb, windows):
         offset, lo, hi = fend[f], ft[f], fb[f]
 
 
-@njit(cache=True)
+@helper()
 def component_elements(comp, ne, n):
     """CSR (ptr, elements) of each component's elements in creation (= time) order, and each
     element's predecessor of the same component (-1 at the slab start)."""
@@ -133,22 +139,26 @@ def component_elements(comp, ne, n):
     return ptr, elements, prev
 
 
-@njit(cache=True)
+@helper()
 def _sort(buf, count):
-    """Sort buf[:count] in place (insertion sort: the lists are short and nearly sorted)."""
+    """Sort buf[:count] in place: insertion sort (the lists are short and nearly sorted),
+    as the last pass of a Shell sort (gaps 3 g + 1) for lists longer than 64."""
+    gap = 1
     if count > 64:
-        buf[:count] = np.sort(buf[:count])
-        return
-    for r in range(1, count):
-        v = buf[r]
-        s = r - 1
-        while s >= 0 and buf[s] > v:
-            buf[s + 1] = buf[s]
-            s -= 1
-        buf[s + 1] = v
+        while gap < count // 3:
+            gap = 3 * gap + 1
+    while gap >= 1:
+        for r in range(gap, count):
+            v = buf[r]
+            s = r
+            while s >= gap and buf[s - gap] > v:
+                buf[s] = buf[s - gap]
+                s -= gap
+            buf[s] = v
+        gap //= 3
 
 
-@njit(cache=True)
+@helper()
 def dependency_structure(ne, comp, indptr, indices, cptr, celems, ea, eb):
     """Per element e of component i: the breakpoints that split it into intervals where the
     integrand f_i(U) is one polynomial (its ends and the element ends of its dependencies

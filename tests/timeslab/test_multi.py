@@ -125,17 +125,17 @@ def test_slab_limit_climbs_on_the_cost_per_unit_time():
     """With windows the slab length limit moves by SLAB_CLIMB in one direction while the
     cost per unit time falls and turns when it rises; without windows it doubles; after a
     failed solve it halves."""
-    from dolfinode.timeslab.multi import SLAB_CLIMB, _slab_limit
+    from dolfinode.timeslab.multi.steps import SLAB_CLIMB, slab_limit
 
     climb = np.array([np.inf, 1.0])
-    assert _slab_limit(1.0, 100.0, 1.0, True, 2, 10.0, climb) == SLAB_CLIMB
-    assert _slab_limit(1.5, 100.0, 1.5, True, 2, 8.0, climb) == 1.5 * SLAB_CLIMB
-    assert _slab_limit(2.25, 100.0, 2.25, True, 2, 9.0, climb) == 2.25 / SLAB_CLIMB
+    assert slab_limit(1.0, 100.0, 1.0, True, 2, 10.0, climb) == SLAB_CLIMB
+    assert slab_limit(1.5, 100.0, 1.5, True, 2, 8.0, climb) == 1.5 * SLAB_CLIMB
+    assert slab_limit(2.25, 100.0, 2.25, True, 2, 9.0, climb) == 2.25 / SLAB_CLIMB
     assert climb[1] == -1.0 and climb[0] == 9.0
-    assert _slab_limit(1.5, 100.0, 1.5, True, 2, 7.0, climb) == 1.5 / SLAB_CLIMB
-    assert _slab_limit(1.0, 100.0, 1.0, True, 0, 50.0, climb) == 2.0
-    assert _slab_limit(1.0, 1.5, 1.0, True, 0, 50.0, climb) == 1.5  # at most kmax
-    assert _slab_limit(1.0, 100.0, 1.0, False, 2, 1.0, climb) == 0.5
+    assert slab_limit(1.5, 100.0, 1.5, True, 2, 7.0, climb) == 1.5 / SLAB_CLIMB
+    assert slab_limit(1.0, 100.0, 1.0, True, 0, 50.0, climb) == 2.0
+    assert slab_limit(1.0, 1.5, 1.0, True, 0, 50.0, climb) == 1.5  # at most kmax
+    assert slab_limit(1.0, 100.0, 1.0, False, 2, 1.0, climb) == 0.5
 
 
 def test_windows_cost_few_evaluations_per_element():
@@ -174,7 +174,7 @@ def test_steps_are_graded_along_strong_couplings():
     """k_i <= max(2 k_j, 1 / |df_i/du_j|) after grading: on a diffusion chain (|J| = 400)
     the steps grow by at most 2 per neighbour away from a small one, weak couplings (1e-3)
     constrain nothing."""
-    from dolfinode.timeslab.multi import _grade
+    from dolfinode.timeslab.multi.steps import grade
 
     n = 6
     indptr = np.arange(0, 2 * n + 1, 2)  # row i reads i - 1 and i + 1 (i = 0: 1, i = n-1: n-2)
@@ -182,10 +182,10 @@ def test_steps_are_graded_along_strong_couplings():
                                                       if i == n - 1 else (i - 1, i + 1))])
     jacobian = np.full(2 * n, 400.0)
     kdes = np.array([1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])
-    _grade(kdes, np.arange(n), np.full(n, np.nan), indptr, indices, jacobian)
+    grade(kdes, np.arange(n), np.full(n, np.nan), indptr, indices, jacobian)
     np.testing.assert_allclose(kdes, [1e-5, 0.0025, 0.005, 0.01, 0.02, 0.04])
     kdes = np.array([1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])
-    _grade(kdes, np.arange(n), np.full(n, np.nan), indptr, indices, np.full(2 * n, 1e-3))
+    grade(kdes, np.arange(n), np.full(n, np.nan), indptr, indices, np.full(2 * n, 1e-3))
     np.testing.assert_allclose(kdes, [1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])
 
 
@@ -194,12 +194,12 @@ def test_ties_are_passed_on_along_chains_of_strong_couplings():
     whatever the order of the rows (one pass in the order [1, 0] left u2 at u1's old step;
     on POLLU that chain, y4 -> y3 -> a species with J_ii = -4.4e11, cost mcG(2) 9.3 million
     elements at tolerance 1e-10)."""
-    from dolfinode.timeslab.multi import _propagate
+    from dolfinode.timeslab.multi.steps import propagate
 
     indptr = np.array([0, 1, 2, 2])
     indices = np.array([1, 2])
     kdes = np.array([1e-3, 2e-3, 4e-3])
-    _propagate(kdes, np.array([1, 0]), np.full(3, np.nan), indptr, indices, np.full(2, 1e4))
+    propagate(kdes, np.array([1, 0]), np.full(3, np.nan), indptr, indices, np.full(2, 1e4))
     np.testing.assert_allclose(kdes, [1e-3, 1e-3, 1e-3])
 
 
@@ -260,11 +260,11 @@ def test_growing_components_are_not_frozen():
     QUIET x atol), but grows to 11: the drift bound includes the growth e^(mu t) of its row's
     log-norm bound mu = 1, so u is not frozen (frozen, it ended at 1.005e-12). Below atol its
     own steps are long, so only that it grows is checked here."""
-    from dolfinode.timeslab.multi import _drift
+    from dolfinode.timeslab.multi.freezing import drift_bound
 
-    assert _drift(0.0, 1e-12, 30.0, 1.0) == pytest.approx(1e-12 * np.expm1(30.0))
-    assert _drift(-2e-3, 1e-12, 30.0, -5.0) == pytest.approx(2e-3 + 3e-11)
-    assert _drift(0.0, 1e-300, 1e3, 1.0) == np.inf
+    assert drift_bound(0.0, 1e-12, 30.0, 1.0) == pytest.approx(1e-12 * np.expm1(30.0))
+    assert drift_bound(-2e-3, 1e-12, 30.0, -5.0) == pytest.approx(2e-3 + 3e-11)
+    assert drift_bound(0.0, 1e-300, 1e3, 1.0) == np.inf
     u, x, y = sp.symbols("u x y")
     ode = dn.ODE({u: u, x: y, y: -x}, u0=[1e-12, 1.0, 0.0], T=30.0)
     sol = dn.solve(ode, method="mcG(1)", tolerance=1e-6)
@@ -283,38 +283,3 @@ def test_fixed_unequal_steps_on_a_stiff_nonnormal_system(ratio):
     steps = {u[0]: 1e-6 * ratio ** 0.5, u[1]: 1e-6 / ratio ** 0.5}
     sol = dn.solve(ode, method="mdG(0)", fixed_time_step=True, initial_time_step=steps)
     assert np.abs(sol(ode.T) - sl.expm(A * ode.T) @ u0).max() < 1e-5
-
-
-@pytest.mark.parametrize("method", ["mcG(1)", "mcG(2)", "mcG(3)", "mdG(0)", "mdG(1)", "mdG(2)"])
-def test_group_newton_solves_the_stage_system_through_the_transformation(method):
-    """The group Newton step's factors and solve (``_factor_group``, ``_solve_group``: one
-    n x n band system per real eigenvalue of A and one complex one per pair) give the solution
-    of the whole stage system (I - k A (x) J_gg) dX = r, stage-major, on a random banded
-    group."""
-    from dolfinode.methods import parse_method
-    from dolfinode.timeslab import NUM_COUNTERS, multi
-
-    _, m = parse_method(method)
-    T, T_inverse, eigenvalues = multi.method_tables(m)[2:5]
-    S = T.shape[0]
-    rng = np.random.default_rng(7)
-    n, k = 9, 0.3
-    J = np.where(np.abs(np.subtract.outer(np.arange(n), np.arange(n))) <= 2,
-                 rng.standard_normal((n, n)), 0.0)
-    J[0, 1] = J[1, 0] = 0.0  # a hole in the band
-    indptr = np.concatenate([[0], np.cumsum((J != 0).sum(axis=1))]).astype(np.int64)
-    indices = np.concatenate([np.flatnonzero(row) for row in J]).astype(np.int64)
-    jacobian = J[J != 0]
-    order = np.arange(n, dtype=np.int64)
-    local = np.arange(n, dtype=np.int64)
-    n_real = int(np.sum(eigenvalues.imag == 0))
-    newton = multi._newton_workspace(max(n_real, 1), len(eigenvalues) - n_real, S, n, 7)
-    counters = np.zeros(NUM_COUNTERS, dtype=np.int64)
-    kl, ku, info = multi._factor_group(order, n, local, indptr, indices, jacobian, k,
-                                       eigenvalues, newton, counters)
-    assert info == 0 and (kl, ku) == (2, 2)
-    r = rng.standard_normal(S * n)
-    newton[3][:S * n] = r
-    multi._solve_group(n, kl, ku, (T, T_inverse, eigenvalues), newton)
-    expected = np.linalg.solve(np.eye(S * n) - k * np.kron(m.A, J), r)
-    np.testing.assert_allclose(newton[3][:S * n], expected, rtol=1e-12, atol=1e-12)

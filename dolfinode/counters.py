@@ -1,0 +1,10 @@
+"""The work counters of a solve: one int64 array that the time-slab loops and the nonlinear
+solvers increment and the driver turns into ``Solution.stats`` (indices below).
+
+OUTSIDE: the component that left its declared domain (status CONSTRAINT), plus one. Its own
+module, so that :mod:`dolfinode.solvers` and :mod:`dolfinode.timeslab` both read it and
+neither imports the other's package for it.
+"""
+SLABS, REJECTED, F_EVALUATIONS, JACOBIANS, FACTORIZATIONS, ITERATIONS, STORED, FAILED_SOLVES, \
+    STIFF, ELEMENTS, SUBSLABS, OUTSIDE = range(12)
+NUM_COUNTERS = 12

@@ -1,0 +1,86 @@
+"""The contract between the driver and the time-slab loops: their options and their state,
+each a numpy record array of one element with named fields (a numba record in the loops).
+
+A loop reads ``options[0].rtol``, carries ``state[0].t`` from one call to the next; the driver
+fills both in one place (:func:`dolfinode.solve.solve_lowered` and its ``_run_*``) and reads
+``state["t"][0]``. One dtype each serves the mono- and the multi-adaptive loop, so every loop
+is compiled for one signature; a field a loop does not use stays at its default.
+
+Options (set before a loop runs; the piecewise driver of :mod:`dolfinode.events` moves ``T``):
+
+=================  ====================================================================
+solver             nonlinear solver, index into parameters.NONLINEAR_SOLVERS (DEFAULT,
+                   FIXED_POINT, NEWTON of :mod:`dolfinode.timeslab`)
+fixed              fixed time steps (no error control)
+max_iter           most nonlinear iterations per slab (global iterations: multi)
+is_dg              the method is dG(q) (its first node is a stage)
+newton_ready       mono: the storage of the Newton matrices is decided and fits (else the
+                   loop returns NEWTON_NEEDED when it first needs them)
+reuse              mono: a factorization costs enough to keep it over slabs (REUSE_TIME)
+band_lower/upper   multi: the band widths of df/du in the bandwidth ordering
+autonomous         multi: f does not depend on t
+rtol               relative tolerance (atol is an array argument)
+T                  end time of this call
+kmax               largest step
+safety             safety factor of the step control
+dtol               discrete (iteration) tolerance, relative to the tolerance
+order              P in the error estimate eps = O(k^P)
+span               T - t0 of the whole solve (the step floor, the iteration tolerance)
+gamma              the error filter's constant |det A|^(1/S) (dolfinode.adaptivity)
+newton_units       mono: a Newton iteration's cost in f evaluations (mono.newton_costs)
+factor_units       mono: a Jacobian with its factorizations, in f evaluations
+theta, beta        multi: partitioning and interval thresholds (partition.build_slab)
+=================  ====================================================================
+
+State (kept by the driver across calls, and saved/restored by the piecewise driver):
+
+=================  ====================================================================
+t                  the current time
+k_next             mono: the next step
+eps_prev           mono: the last accepted error estimate (PI controller)
+have_f0            mono: f(x, t) is in the f0 argument
+fp_step            mono: the last step fixed-point iteration converged on (0: none)
+fp_iterations      mono: running mean of fixed-point iterations per slab
+newton_cost        mono: running mean of Newton's cost per slab in f evaluations
+k_newton           mono: Newton's step when it gave way to fixed point (0: it has not)
+mono_elements      multi: elements a mono-adaptive method with each slab's smallest step
+                   would have needed (the efficiency index)
+=================  ====================================================================
+"""
+import numba
+import numpy as np
+
+OPTIONS = np.dtype([
+    ("solver", np.int64), ("max_iter", np.int64), ("band_lower", np.int64),
+    ("band_upper", np.int64), ("rtol", np.float64), ("T", np.float64), ("kmax", np.float64),
+    ("safety", np.float64), ("dtol", np.float64), ("order", np.float64), ("span", np.float64),
+    ("gamma", np.float64), ("newton_units", np.float64), ("factor_units", np.float64),
+    ("theta", np.float64), ("beta", np.float64), ("fixed", np.bool_), ("is_dg", np.bool_),
+    ("newton_ready", np.bool_), ("reuse", np.bool_), ("autonomous", np.bool_)], align=True)
+STATE = np.dtype([
+    ("t", np.float64), ("k_next", np.float64), ("eps_prev", np.float64),
+    ("fp_step", np.float64), ("fp_iterations", np.float64), ("newton_cost", np.float64),
+    ("k_newton", np.float64), ("mono_elements", np.float64), ("have_f0", np.bool_)], align=True)
+
+#: Their numba types, for the loops' signatures.
+OPTIONS_TYPE = numba.from_dtype(OPTIONS)[::1]
+STATE_TYPE = numba.from_dtype(STATE)[::1]
+
+
+def _record(dtype, values):
+    record = np.zeros(1, dtype=dtype)
+    for name, value in values.items():
+        if name not in dtype.names:
+            raise TypeError(f"no field {name!r} in {dtype.names}")
+        record[name] = value
+    return record
+
+
+def options(**values):
+    """The options of a loop: a record array of one element, unnamed fields zero (False)."""
+    return _record(OPTIONS, values)
+
+
+def state(**values):
+    """The state of a loop: a record array of one element, unnamed fields zero (False)."""
+    return _record(STATE, values)

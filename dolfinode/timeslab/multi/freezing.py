@@ -1,0 +1,107 @@
+"""Frozen components of the multi-adaptive loop: components at rest get no elements, the
+constant x_i for the others, until they drift; then their constant element over the whole span
+is stored."""
+import math
+
+import numpy as np
+
+from dolfinode.compile.jit import helper
+from dolfinode.compile.signatures import NO_REFCOUNT
+from dolfinode.counters import ELEMENTS, STORED
+
+#: A component whose change on a slab and drift over the rest of the interval stay below QUIET
+#: times its error scale is frozen: a constant, with no elements, until it drifts (``freeze``).
+QUIET = 1e-3
+
+
+@helper(**NO_REFCOUNT)
+def store_constant(i, a, b, x, counters, out_comp, out_a, out_b, out_values):
+    """Store the constant element U_i = x_i on [a, b]: component i was frozen there."""
+    if b <= a:
+        return
+    n = counters[STORED]
+    out_comp[n] = i
+    out_a[n] = a
+    out_b[n] = b
+    out_values[n, :] = x[i]
+    counters[STORED] += 1
+    counters[ELEMENTS] += 1
+
+
+@helper(inline="always")
+def drift_bound(change, rate, tau, mu):
+    """|change| + |rate| tau (e^(mu tau) - 1) / (mu tau): a component's change on a slab and a
+    bound of its drift over the time tau left, if it moves at ``rate`` now and its row of
+    df/du has mu = J_ii + sum_j!=i |J_ij| (the row's bound of the logarithmic max-norm:
+    rates of size r grow at most like e^(mu t) r). Without the growth factor u' = u from
+    u = 1e-12 would be frozen for good."""
+    if rate == 0.0:
+        return abs(change)
+    z = max(mu, 0.0) * tau
+    growth = 1.0 if z < 1e-8 else (math.expm1(z) / z if z < 700.0 else math.inf)
+    return abs(change) + abs(rate) * tau * growth
+
+
+@helper(**NO_REFCOUNT)
+def freeze(b, k, active, checked, indptr, indices, drift, atol, rtol, umax, x, frozen, kdes,
+           last_a, last_b, quiet, uw, counters, out_comp, out_a, out_b, out_values):
+    """Freeze and wake components at the end b of an accepted slab of length k, from the
+    ``active`` ones and the frozen ones ``checked`` on it; returns whether any changed.
+
+    Component i is quiet when its drift (``drift_bound``: its change on the slab, and a bound of
+    its change on the rest of the interval from its present rate f_i(U(b))) is at most QUIET
+    times atol + rtol max |U_i|. A frozen component that is no longer quiet wakes up (its
+    constant element on [frozen since, b] is stored); an active one freezes when it and every
+    component it reads are quiet, unless no component would be left active. (A frozen
+    component that was not checked stays quiet: none of its inputs changed.)"""
+    for lst in (active, checked):
+        for i in lst:
+            quiet[i] = drift[i] <= QUIET * (atol[i] + rtol * umax[i])
+    changed = False
+    awake = active.shape[0]
+    for i in checked:
+        if not quiet[i]:
+            store_constant(i, frozen[i], b, x, counters, out_comp, out_a, out_b, out_values)
+            frozen[i] = math.nan
+            last_b[i] = last_a[i]  # no polynomial to continue
+            kdes[i] = k  # (graded against its active neighbours)
+            awake += 1
+            changed = True
+    for sweep in range(2):  # count, then freeze when some component stays active
+        count = 0
+        for i in active:
+            if not quiet[i]:
+                continue
+            reads_quiet = True
+            for nz in range(indptr[i], indptr[i + 1]):
+                if not quiet[indices[nz]]:
+                    reads_quiet = False
+                    break
+            if reads_quiet:
+                count += 1
+                if sweep == 1:
+                    frozen[i] = b
+                    uw[i] = x[i]  # the value the others read (see ``advance``)
+                    changed = True
+        if count >= awake:
+            break
+    return changed
+
+
+@helper()
+def transpose_pattern(indptr, indices, N):
+    """The transpose of the dependency pattern, as CSR (rptr, readers): the components whose
+    f_i reads u_j are readers[rptr[j]:rptr[j + 1]]."""
+    rptr = np.zeros(N + 1, dtype=np.int64)
+    for nz in range(indices.shape[0]):
+        rptr[indices[nz] + 1] += 1
+    for j in range(N):
+        rptr[j + 1] += rptr[j]
+    fill = rptr[:-1].copy()
+    readers = np.empty(indices.shape[0], dtype=np.int64)
+    for i in range(N):
+        for nz in range(indptr[i], indptr[i + 1]):
+            j = indices[nz]
+            readers[fill[j]] = i
+            fill[j] += 1
+    return rptr, readers

@@ -1,0 +1,101 @@
+"""The steps of the multi-adaptive loop: each component's next step from its error estimate,
+the ties and grading of steps along strong couplings, and the slab length limit."""
+import math
+
+from dolfinode.compile.jit import helper
+from dolfinode.compile.signatures import NO_REFCOUNT
+
+#: Largest step ratio between strongly coupled components (see ``grade``), and sweeps.
+GRADING = 2.0
+GRADING_SWEEPS = 4
+#: Most passes of ``propagate`` (ties passed on along chains of strong couplings).
+PROPAGATION_SWEEPS = 8
+#: A mutual coupling with |J_ij| >= ASYMMETRY^2 |J_ji| ties u_j's step to u_i's (``propagate``).
+ASYMMETRY = 10.0
+#: Factor by which the slab length limit climbs on the cost per unit time (``slab_limit``).
+SLAB_CLIMB = 1.5
+
+
+@helper(**NO_REFCOUNT)
+def propagate(kdes, rows, frozen, indptr, indices, jacobian):
+    """Small steps travel along strong dependencies: k_j <= k_i when f_i reacts to u_j within
+    one step of i (|J_ij| k_i > 1; DOLFIN's "poor man's dual weighting", restricted to the
+    couplings that matter), or when the coupling is mutual and lopsided,
+    |J_ij| >= ASYMMETRY^2 |J_ji| > 0: then an error d in u_j becomes sqrt(|J_ij / J_ji|) d in
+    u_i over i's time scale (the scaling that makes the pair symmetric; omega for x' = v,
+    v' = -omega^2 x), so u_j must be as resolved as u_i although its own indicator allows
+    longer steps (mcG(1) on the stiff chain at tolerance 1e-7: positions 40x longer than
+    their velocities, 2 10^4 x tolerance). Only the components ``rows`` and the active ones
+    they read take part (frozen components have no step). Passes repeat until no step
+    changes (at most PROPAGATION_SWEEPS): a step lowered by a tie is passed on along the
+    next one (on POLLU, y4 -> y3 -> the species with J_ii = -4.4e11)."""
+    for sweep in range(PROPAGATION_SWEEPS):
+        moved = False
+        for i in rows:
+            for nz in range(indptr[i], indptr[i + 1]):
+                j = indices[nz]
+                jij = abs(jacobian[nz])
+                if j == i or jij == 0.0 or kdes[j] <= kdes[i] or not math.isnan(frozen[j]):
+                    continue
+                tie = jij * kdes[i] > 1.0
+                if not tie:
+                    for nz2 in range(indptr[j], indptr[j + 1]):
+                        if indices[nz2] == i:
+                            jji = abs(jacobian[nz2])
+                            tie = 0.0 < jji and jij >= ASYMMETRY**2 * jji
+                            break
+                if tie:
+                    kdes[j] = kdes[i]
+                    moved = True
+        if not moved:
+            return
+
+
+@helper(**NO_REFCOUNT)
+def grade(kdes, rows, frozen, indptr, indices, jacobian):
+    """Grade the steps along strong couplings, k_i <= max(GRADING k_j, 1 / |df_i/du_j|):
+    a component that reacts to u_j within its own step may not step far beyond j, so that
+    activity moving along the couplings (a front) meets steps that shrink towards it instead
+    of one long step that the next slab rejects. Alternating sweeps over the components
+    ``rows``, to a fixed point or GRADING_SWEEPS of them; frozen components constrain
+    nothing."""
+    n = rows.shape[0]
+    for sweep in range(GRADING_SWEEPS):
+        moved = False
+        for r in range(n):
+            i = rows[r] if sweep % 2 == 0 else rows[n - 1 - r]
+            for nz in range(indptr[i], indptr[i + 1]):
+                j = indices[nz]
+                if j == i or jacobian[nz] == 0.0 or not math.isnan(frozen[j]):
+                    continue
+                cap = max(GRADING * kdes[j], 1.0 / abs(jacobian[nz]))
+                if kdes[i] > cap:
+                    kdes[i] = cap
+                    moved = True
+        if not moved:
+            return
+
+
+@helper(**NO_REFCOUNT)
+def slab_limit(kslab, kmax, K, converged, nwin, cost, climb):
+    """The next slab length limit. A slab with windows costs its top-level elements about
+    once (lazy sweeps) and its window elements once per global iteration: a longer slab
+    takes fewer top-level elements per unit time, but more global iterations and longer
+    windows, whose sweeps converge more slowly. Without windows the limit grows. With them
+    it climbs on the measured cost per unit time, ``cost`` (f evaluations of the slab's
+    solve / K): by SLAB_CLIMB in the direction ``climb[1]`` (+1 longer, -1 shorter),
+    turning when the cost rose above the last slab's, ``climb[0]``. (The former rule, grow
+    at two global iterations or fewer and halve at four, let the windows of the
+    multi-adaptive problems of the benchmark suite take 2-3 times the f evaluations.)
+    Growth starts from the limit itself, not from K, which the top level's smallest desired
+    step may keep below it."""
+    if not converged:
+        return 0.5 * K
+    if nwin == 0:
+        return min(kmax, 2.0 * max(kslab, K))
+    if cost > climb[0]:
+        climb[1] = -climb[1]
+    climb[0] = cost
+    if climb[1] > 0:
+        return min(kmax, SLAB_CLIMB * max(kslab, K))
+    return K / SLAB_CLIMB
