@@ -521,7 +521,8 @@ def _run_mono(ode, compiled, m, params, iopts, fopts, atol, floor, x, f0, steps,
         fits = (newton_bytes <= _NEWTON_SMALL
                 or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
         iopts[mono.NEWTON_READY] = int(fits)
-        iopts[mono.REUSE] = int(structure.seconds(complex_values=True) >= mono.REUSE_TIME)
+        costly = structure.seconds(complex_values=True) >= mono.REUSE_TIME
+        iopts[mono.REUSE] = 1 if costly else (0 if mono.KEEP_FACTORS else -1)
         fopts[[mono.NEWTON_UNITS, mono.FACTOR_UNITS]] = costs
         return fits
 

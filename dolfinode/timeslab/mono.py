@@ -16,7 +16,7 @@ from dolfinode.compile.jit import Loop
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
 from dolfinode.linalg.newton_matrix import shift, store_jacobian
 from dolfinode.methods.method import lagrange_weights, real_eigenvalues
-from dolfinode.solvers.slab import factor, factor_stages, fixed_point, newton
+from dolfinode.solvers.slab import factor, factor_stages, fixed_point, near_step, newton
 from dolfinode.timeslab import (
     BLOWUP,
     CONSTRAINT,
@@ -50,7 +50,8 @@ T_NOW, K_NEXT, EPS_PREV, HAVE_F0, FP_STEP, FP_ITERATIONS, NEWTON_COST, K_NEWTON 
 # Indices into the integer and float options (NEWTON_READY: 1 if the storage of the Newton
 # matrices is decided and fits in memory; else the loop returns NEWTON_NEEDED when it first
 # needs them, and the driver decides;
-# REUSE: 1 if a factorization costs enough to keep it over slabs, see REUSE_TIME).
+# REUSE: 1 if a factorization costs enough to keep it over slabs, see REUSE_TIME; 0 to keep
+# it while Newton contracts fast, see THETA_KEEP; -1 to factor every Newton slab afresh).
 SOLVER, FIXED, MAX_ITER, IS_DG, NEWTON_READY, REUSE = range(6)
 # NEWTON_UNITS, FACTOR_UNITS: the cost of a Newton iteration (f at the stages and the solves)
 # and of a Jacobian with its factorizations, in f evaluations (see newton_costs).
@@ -59,23 +60,35 @@ RTOL, T_END, KMAX, SAFETY, DTOL, ORDER, SPAN, GAMMA, NEWTON_UNITS, FACTOR_UNITS 
 #: and k_fail grows by NEWTON_PROBE per accepted step.
 SOLVER_MARGIN = 0.8
 NEWTON_PROBE = 1.2
-#: Fixed-point iteration starts from the last element extrapolated (see :func:`extrapolate`)
-#: when the step is at most EXTRAPOLATE times the last one, else from explicit Euler. Newton
-#: starts from explicit Euler: extrapolated, it saved 5-35% of the f evaluations on the stiff
-#: Test Set problems but moved their accuracy by up to 1.9 digits either way (VDPOLM dG(3) at
-#: tolerance 1e-4: 8.8 -> 7.0 digits), a stiff component's polynomial being a poor predictor.
+#: Both nonlinear solvers start from the last element extrapolated (see :func:`extrapolate`)
+#: when the step is at most EXTRAPOLATE times the last one, else from explicit Euler. For
+#: Newton with kept factors (THETA_KEEP) a close start is what keeps the iterations few: on
+#: HIRES, ROBER, VDPOL and POLLU (q = 3, tolerances 1e-4..1e-8) it saves 10-30% of the f
+#: evaluations; the digits move by up to 1.4 either way (POLLU dG(3) at 1e-6: 10.4 -> 8.9),
+#: where the iteration stops inside dtol at another point (doc/design/newton.md).
 EXTRAPOLATE = 2.0
 #: The factors of one Jacobian (stage matrices, error filter) are kept over slabs, as RADAU5
 #: and CVODE keep theirs, when a factorization is estimated to take at least REUSE_TIME seconds
 #: (``NewtonStructure.seconds``, complex; 2e5 multiply-adds of the banded LU): while the step
 #: stays within a factor REUSE_RATIO of the factors' step, for at most REUSE_AGE slabs, and
 #: until a Newton iteration with them fails (then they are made afresh and the slab is solved
-#: again). On wide bands a factorization costs ten or more solves, so keeping it pays; small
-#: systems are factored every Newton slab, where an iteration more costs more than the
-#: factorization it saves.
+#: again). On wide bands a factorization costs ten or more solves, so keeping it pays; on
+#: narrow ones only while Newton contracts fast (THETA_KEEP).
 REUSE_TIME = 1.3e-4
 REUSE_RATIO = 1.25
 REUSE_AGE = 20
+#: Every system also keeps its factors, as RADAU5 does, while the last Newton iteration with
+#: them contracted fast (rate theta <= THETA_KEEP, see slab.newton) and the step stays within
+#: a factor KEEP_RATIO of theirs, for at most REUSE_AGE slabs; with kept factors Newton gives
+#: up when an increment shrinks by less than THETA_KEPT, and the slab is solved again with a
+#: fresh J and factors. On HIRES, ROBER, VDPOL and POLLU a J costs about one f evaluation, its
+#: factorizations 50-500 and a Newton iteration 5-50: the factors are what is worth keeping
+#: (doc/design/newton.md).
+THETA_KEEP = 0.03
+THETA_KEPT = 0.25
+KEEP_RATIO = 1.2
+#: False: factor every Newton slab afresh unless REUSE_TIME says otherwise (for comparisons).
+KEEP_FACTORS = True
 #: With the default solver, Newton's method (taken when fixed-point iteration fails) gives way
 #: to fixed-point iteration again when that is estimated SWITCH_BACK times cheaper per unit
 #: time: its iterations per slab times the stages over the step it last converged on, against
@@ -252,8 +265,11 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     z_complex = np.empty(N, dtype=np.complex128)
     ipiv_filter = np.zeros(0, dtype=np.int64)
     reuse = iopts[REUSE] == 1
+    keep = iopts[REUSE] >= 0
     k_factored = 0.0  # the step of the current factors (0: none)
     age = 0  # Newton slabs since the Jacobian was evaluated
+    rate = np.zeros(1)  # Newton's contraction rate on the last slab (see slab.newton)
+    theta = math.inf  # ... with the current factors (inf: unknown)
     filter_ok = False  # the error filter's factors are usable
     est = np.empty(N)
     w = np.empty(S * N)  # weights of the scaled norm (solvers' work space)
@@ -292,7 +308,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             dtol_k = max(dtol * min(1.0, k / fopts[SPAN]), min(dtol, ROUNDING / rtol))
         use_newton = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         n_prev = counters[STORED] - 1
-        if not use_newton and n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
+        if n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
             extrapolate(out_X, n_prev, nodes, bary, out_k[n_prev], k, tau, X, weights)
         else:
             euler_stages(x, f0, k, tau, X)
@@ -330,8 +346,9 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         if use_newton:
             iterations_before = counters[ITERATIONS]  # not the failed fixed point's
             age += 1
-            kept = (reuse and age <= REUSE_AGE and k_factored > 0.0
-                    and k_factored <= REUSE_RATIO * k and k <= REUSE_RATIO * k_factored)
+            kept = age <= REUSE_AGE and (
+                (keep and theta <= THETA_KEEP and near_step(k, k_factored, KEEP_RATIO))
+                or (reuse and near_step(k, k_factored, REUSE_RATIO)))
             for fresh in range(0 if kept else 1, 2):
                 if fresh == 1:
                     if kept:  # the kept factors did not converge: afresh, from the start
@@ -355,12 +372,14 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                         # before reducing k.
                         euler_stages(x, f0, 0.0, tau, X)
                     iters = newton(f, p, x, f0, t, k, A, b0, tau, transform,
-                                   transform_inverse, atol, rtol, dtol_k, max_iter, X, F, G, Z,
-                                   ab_real, ab_complex, structure, ipiv, z_real, z_complex,
-                                   w, counters)
+                                   transform_inverse, atol, rtol, dtol_k, max_iter,
+                                   1.0 if fresh == 1 else THETA_KEPT, X, F, G, Z, ab_real,
+                                   ab_complex, structure, ipiv, z_real, z_complex, w,
+                                   counters, rate)
                     if iters >= 0:
                         break
                 if iters >= 0:
+                    theta = rate[0]
                     break
         if iters < 0:
             counters[FAILED_SOLVES] += 1
