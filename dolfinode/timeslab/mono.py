@@ -77,16 +77,17 @@ EXTRAPOLATE = 2.0
 REUSE_TIME = 1.3e-4
 REUSE_RATIO = 1.25
 REUSE_AGE = 20
-#: Every system also keeps its factors, as RADAU5 does, while the last Newton iteration with
-#: them contracted fast (rate theta <= THETA_KEEP, see slab.newton) and the step stays within
-#: a factor KEEP_RATIO of theirs, for at most REUSE_AGE slabs; with kept factors Newton gives
-#: up when an increment shrinks by less than THETA_KEPT, and the slab is solved again with a
-#: fresh J and factors. On HIRES, ROBER, VDPOL and POLLU a J costs about one f evaluation, its
-#: factorizations 50-500 and a Newton iteration 5-50: the factors are what is worth keeping
-#: (doc/design/newton.md).
+#: Every system also keeps its factors over slabs of the same step (fixed steps, or a step
+#: the controller repeats) while the last Newton iteration with them contracted fast (rate
+#: theta <= THETA_KEEP, see slab.newton), for at most REUSE_AGE slabs; with kept factors Newton
+#: gives up when an increment shrinks by less than THETA_KEPT, and the slab is solved again
+#: with a fresh J and factors. Factors of another step leave an iteration error at the
+#: stopping tolerance that fresh ones do not (a linear system: none), which breaks the energy
+#: conservation of cG on the harmonic oscillator (4e-10 against 1e-12); RADAU5's freeze of a
+#: step that would grow by at most 1.2x, to keep its factors exact, costs 50-60% more slabs
+#: with dG(1) (doc/design/newton.md).
 THETA_KEEP = 0.03
 THETA_KEPT = 0.25
-KEEP_RATIO = 1.2
 #: False: factor every Newton slab afresh unless REUSE_TIME says otherwise (for comparisons).
 KEEP_FACTORS = True
 #: With the default solver, Newton's method (taken when fixed-point iteration fails) gives way
@@ -347,7 +348,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             iterations_before = counters[ITERATIONS]  # not the failed fixed point's
             age += 1
             kept = age <= REUSE_AGE and (
-                (keep and theta <= THETA_KEEP and near_step(k, k_factored, KEEP_RATIO))
+                (keep and theta <= THETA_KEEP and k == k_factored)
                 or (reuse and near_step(k, k_factored, REUSE_RATIO)))
             for fresh in range(0 if kept else 1, 2):
                 if fresh == 1:

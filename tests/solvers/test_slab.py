@@ -12,7 +12,6 @@ from dolfinode.compile import lower
 from dolfinode.compile.signatures import rhs_kernel
 from dolfinode.linalg.newton_matrix import band_structure, sparse_structure, store_jacobian
 from dolfinode.methods import make_method
-from dolfinode.problems import HIRES_REFERENCE, hires
 from dolfinode.solvers import slab
 from dolfinode.timeslab import NUM_COUNTERS, mono
 
@@ -86,16 +85,12 @@ def test_one_newton_step_solves_a_linear_stage_system(family, q, storage):
 
 @pytest.mark.parametrize("method", ["cG(1)", "cG(3)", "cG(4)", "dG(1)", "dG(2)", "dG(5)"])
 def test_newton_converges_in_one_step_on_a_linear_system(method):
-    """Through dn.solve: every slab of a linear stiff system on fresh factors takes two Newton
-    iterations (the second confirms the first), one on factors kept from a step within
-    KEEP_RATIO at most four (they contract at a rate <= THETA_KEEP), and the solution matches
-    the matrix exponential."""
+    """Through dn.solve: every slab of a linear stiff system takes two Newton iterations (the
+    second confirms the first), and the solution matches the matrix exponential."""
     ode, M = permuted_band_system()
     sol = dn.solve(ode, method=method, tolerance=1e-8, nonlinear_solver="newton")
     stats = sol.stats
-    slabs = stats["time slabs"] + stats["rejected steps"]
-    fresh = stats["jacobian evaluations"]
-    assert stats["nonlinear iterations"] <= 2 * fresh + 4 * (slabs - fresh)
+    assert stats["nonlinear iterations"] <= 2 * (stats["time slabs"] + stats["rejected steps"])
     exact = sl.expm(M * ode.T) @ np.asarray(ode.u0)
     assert np.abs(sol(ode.T) - exact).max() < 1e-6
 
@@ -115,25 +110,24 @@ def test_factors_are_kept_on_a_linear_system(monkeypatch):
     fresh = _newton_solve(ode, False, monkeypatch, **steps)
     slabs = kept.stats["time slabs"]
     assert slabs == fresh.stats["time slabs"] == fresh.stats["jacobian evaluations"] == 100
-    assert kept.stats["jacobian evaluations"] == math.ceil(slabs / (mono.REUSE_AGE + 1))
+    # + 1: the last step, which absorbs the rounding of t0 + n k, is not exactly theirs
+    assert kept.stats["jacobian evaluations"] <= math.ceil(slabs / (mono.REUSE_AGE + 1)) + 1
     assert kept.stats["nonlinear iterations"] == fresh.stats["nonlinear iterations"]
     np.testing.assert_allclose(kept(ode.T), fresh(ode.T), rtol=1e-12, atol=1e-15)
 
 
-@pytest.mark.parametrize("method", ["cG(2)", "dG(3)"])
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)"])
 def test_kept_factors_are_refreshed_as_the_jacobian_changes(method, monkeypatch):
-    """HIRES (nonlinear, J changes along the solution): the factors serve several slabs, yet
-    are made afresh more often than the age limit REUSE_AGE asks, when Newton on them
-    contracts slowly or fails; the answer is as accurate as with fresh factors every slab."""
-    ode = hires()
-    kept = _newton_solve(ode, True, monkeypatch, method=method, tolerance=1e-6)
-    fresh = _newton_solve(ode, False, monkeypatch, method=method, tolerance=1e-6)
-    st = kept.stats
-    slabs = st["time slabs"] + st["rejected steps"] + st["failed nonlinear solves"]
-    assert slabs / (mono.REUSE_AGE + 1) + 10 < st["jacobian evaluations"] < slabs / 1.5
-    assert fresh.stats["jacobian evaluations"] == (
-        fresh.stats["time slabs"] + fresh.stats["rejected steps"]
-        + fresh.stats["failed nonlinear solves"])
-    errors = [np.abs(sol(ode.T) - HIRES_REFERENCE).max() for sol in (kept, fresh)]
-    assert errors[0] < 1e-8 and errors[1] < 1e-8
-    assert errors[0] < 3 * errors[1]
+    """Van der Pol, eps = 0.01, on fixed steps (J changes along the limit cycle): the factors
+    serve several slabs, yet are made afresh more often than the age limit REUSE_AGE asks,
+    when Newton on them contracts slowly or fails; the answer is that of fresh factors on
+    every slab."""
+    y1, y2 = sp.symbols("y1 y2")
+    ode = dn.ODE({y1: y2, y2: 100 * ((1 - y1**2) * y2 - y1)}, u0=[2.0, 0.0], T=2.0)
+    steps = {"method": method, "fixed_time_step": True, "initial_time_step": 2e-3}
+    kept = _newton_solve(ode, True, monkeypatch, **steps)
+    fresh = _newton_solve(ode, False, monkeypatch, **steps)
+    slabs = kept.stats["time slabs"]
+    assert slabs == fresh.stats["jacobian evaluations"] == 1000
+    assert slabs / (mono.REUSE_AGE + 1) + 10 < kept.stats["jacobian evaluations"] < slabs / 10
+    np.testing.assert_allclose(kept(ode.T), fresh(ode.T), rtol=1e-10)
