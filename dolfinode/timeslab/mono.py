@@ -62,10 +62,10 @@ SOLVER_MARGIN = 0.8
 NEWTON_PROBE = 1.2
 #: Both nonlinear solvers start from the last element extrapolated (see :func:`extrapolate`)
 #: when the step is at most EXTRAPOLATE times the last one, else from explicit Euler. For
-#: Newton with kept factors (THETA_KEEP) a close start is what keeps the iterations few: on
-#: HIRES, ROBER, VDPOL and POLLU (q = 3, tolerances 1e-4..1e-8) it saves 10-30% of the f
-#: evaluations; the digits move by up to 1.4 either way (POLLU dG(3) at 1e-6: 10.4 -> 8.9),
-#: where the iteration stops inside dtol at another point (doc/design/newton.md).
+#: Newton it saves 10-30% of the f evaluations on HIRES, ROBER, VDPOL and POLLU (q = 3,
+#: tolerances 1e-4..1e-8); the digits move by up to 1.4 either way (POLLU dG(3) at 1e-6:
+#: 10.4 -> 8.9), the iteration stopping at another point inside its tolerance
+#: (doc/design/newton.md).
 EXTRAPOLATE = 2.0
 #: The factors of one Jacobian (stage matrices, error filter) are kept over slabs, as RADAU5
 #: and CVODE keep theirs, when a factorization is estimated to take at least REUSE_TIME seconds
@@ -73,7 +73,7 @@ EXTRAPOLATE = 2.0
 #: stays within a factor REUSE_RATIO of the factors' step, for at most REUSE_AGE slabs, and
 #: until a Newton iteration with them fails (then they are made afresh and the slab is solved
 #: again). On wide bands a factorization costs ten or more solves, so keeping it pays; on
-#: narrow ones only while Newton contracts fast (THETA_KEEP).
+#: narrow ones only over slabs of the same step (THETA_KEEP).
 REUSE_TIME = 1.3e-4
 REUSE_RATIO = 1.25
 REUSE_AGE = 20
