@@ -568,6 +568,7 @@ def _newton_options(compiled, m, options):
             or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
     options["newton_ready"] = fits
     options["reuse"] = structure.seconds(complex_values=True) >= mono.REUSE_TIME
+    options["keep_factors"] = options["reuse"] or mono.KEEP_FACTORS
     options["newton_units"], options["factor_units"] = costs
     return structure, newton_bytes, fits
 

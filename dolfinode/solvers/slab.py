@@ -190,6 +190,13 @@ def fixed_point(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F
     return -1
 
 
+@njit(cache=True, inline="always")
+def near_step(k, k_factored, ratio):
+    """Whether factors made on the step k_factored (0: none) serve the step k: the two within
+    a factor ``ratio`` of each other."""
+    return k_factored > 0.0 and k_factored <= ratio * k and k <= ratio * k_factored
+
+
 @njit(cache=True)
 def factor(ab, structure, ipiv, counters):
     """LU-factor a Newton matrix in place; returns True on success."""
@@ -215,18 +222,24 @@ def factor_stages(jb, k, eigenvalues, structure, ab_real, ab_complex, ipiv, coun
 
 
 @njit(cache=True, **NO_REFCOUNT)
-def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_iter, X, F, G,
-           Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w, counters):
+def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_iter, theta_max,
+           X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w, counters,
+           rate):
     """Simplified Newton iteration on the stages, (I - k A (x) J) dX = -G(X), with the
     factors of :func:`factor_stages`: with A = T B T^{-1} (``T``, ``T_inverse``) the system is
     (I - k B (x) J) Z = -(T^{-1} (x) I) G, dX = (T (x) I) Z, and B's blocks decouple it into
     one N x N solve per real eigenvalue and one complex one per pair (RADAU5's
-    transformation): S N x S N with bandwidth ~S b becomes ~S/2 N x N with bandwidth b."""
+    transformation): S N x S N with bandwidth ~S b becomes ~S/2 N x N with bandwidth b.
+
+    It fails when an increment shrinks by less than ``theta_max`` (1: when it grows); the
+    largest contraction rate theta = |dX_(m+1)| / |dX_m| seen goes to ``rate[0]`` (0 after
+    one iteration), which tells the caller how well J and the factors still fit."""
     position = structure[0]
     S = A.shape[0]
     N = x0.shape[0]
     r = ab_real.shape[0]
     d_prev = 0.0
+    rate[0] = 0.0
     for it in range(max_iter):
         counters[F_EVALUATIONS] += stage_rhs(f, p, X, t, k, tau, F)
         _residual(x0, f0, X, F, A, b0, k, G)
@@ -257,9 +270,11 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
         d = weighted_norm(G, w)
         if not math.isfinite(d):
             return -1
+        if it >= 1 and d > ROUNDING_LEVEL:  # not a stagnation at rounding level
+            rate[0] = max(rate[0], d / d_prev)
         if _converged(d, d_prev, it, dtol):
             return it + 1
-        if it >= 1 and d >= d_prev:
+        if it >= 1 and d >= theta_max * d_prev:
             return -1
         d_prev = d
     return -1

@@ -17,6 +17,8 @@ is_dg              the method is dG(q) (its first node is a stage)
 newton_ready       mono: the storage of the Newton matrices is decided and fits (else the
                    loop returns NEWTON_NEEDED when it first needs them)
 reuse              mono: a factorization costs enough to keep it over slabs (REUSE_TIME)
+keep_factors       mono: keep the factors over slabs of their step while Newton contracts
+                   fast (THETA_KEEP; set with reuse, or by mono.KEEP_FACTORS)
 band_lower/upper   multi: the band widths of df/du in the bandwidth ordering
 autonomous         multi: f does not depend on t
 rtol               relative tolerance (atol is an array argument)
@@ -56,7 +58,8 @@ OPTIONS = np.dtype([
     ("safety", np.float64), ("dtol", np.float64), ("order", np.float64), ("span", np.float64),
     ("gamma", np.float64), ("newton_units", np.float64), ("factor_units", np.float64),
     ("theta", np.float64), ("beta", np.float64), ("fixed", np.bool_), ("is_dg", np.bool_),
-    ("newton_ready", np.bool_), ("reuse", np.bool_), ("autonomous", np.bool_)], align=True)
+    ("newton_ready", np.bool_), ("reuse", np.bool_), ("keep_factors", np.bool_),
+    ("autonomous", np.bool_)], align=True)
 STATE = np.dtype([
     ("t", np.float64), ("k_next", np.float64), ("eps_prev", np.float64),
     ("fp_step", np.float64), ("fp_iterations", np.float64), ("newton_cost", np.float64),

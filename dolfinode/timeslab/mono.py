@@ -16,7 +16,7 @@ from dolfinode.compile.jit import Loop
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
 from dolfinode.linalg.newton_matrix import shift, store_jacobian
 from dolfinode.methods.method import lagrange_weights, real_eigenvalues
-from dolfinode.solvers.slab import factor, factor_stages, fixed_point, newton
+from dolfinode.solvers.slab import factor, factor_stages, fixed_point, near_step, newton
 from dolfinode.timeslab import (
     BLOWUP,
     CONSTRAINT,
@@ -46,11 +46,12 @@ from dolfinode.timeslab.contract import OPTIONS_TYPE, STATE_TYPE
 #: and k_fail grows by NEWTON_PROBE per accepted step.
 SOLVER_MARGIN = 0.8
 NEWTON_PROBE = 1.2
-#: Fixed-point iteration starts from the last element extrapolated (see :func:`extrapolate`)
-#: when the step is at most EXTRAPOLATE times the last one, else from explicit Euler. Newton
-#: starts from explicit Euler: extrapolated, it saved 5-35% of the f evaluations on the stiff
-#: Test Set problems but moved their accuracy by up to 1.9 digits either way (VDPOLM dG(3) at
-#: tolerance 1e-4: 8.8 -> 7.0 digits), a stiff component's polynomial being a poor predictor.
+#: Both nonlinear solvers start from the last element extrapolated (see :func:`extrapolate`)
+#: when the step is at most EXTRAPOLATE times the last one, else from explicit Euler. For
+#: Newton it saves 10-30% of the f evaluations on HIRES, ROBER, VDPOL and POLLU (q = 3,
+#: tolerances 1e-4..1e-8); the digits move by up to 1.4 either way (POLLU dG(3) at 1e-6:
+#: 10.4 -> 8.9), the iteration stopping at another point inside its tolerance
+#: (doc/design/newton.md).
 EXTRAPOLATE = 2.0
 #: cG(q) is not L-stable (|R(-inf)| = 1): a stiff component's deviation from its
 #: quasi-steady state is never damped, and once the state decays below it, Newton fails on
@@ -64,12 +65,24 @@ UNDAMPED_SHARE = 0.25
 #: (``NewtonStructure.seconds``, complex; 2e5 multiply-adds of the banded LU): while the step
 #: stays within a factor REUSE_RATIO of the factors' step, for at most REUSE_AGE slabs, and
 #: until a Newton iteration with them fails (then they are made afresh and the slab is solved
-#: again). On wide bands a factorization costs ten or more solves, so keeping it pays; small
-#: systems are factored every Newton slab, where an iteration more costs more than the
-#: factorization it saves.
+#: again). On wide bands a factorization costs ten or more solves, so keeping it pays; on
+#: narrow ones only over slabs of the same step (THETA_KEEP).
 REUSE_TIME = 1.3e-4
 REUSE_RATIO = 1.25
 REUSE_AGE = 20
+#: Every system also keeps its factors over slabs of the same step (fixed steps, or a step
+#: the controller repeats) while the last Newton iteration with them contracted fast (rate
+#: theta <= THETA_KEEP, see slab.newton), for at most REUSE_AGE slabs; with kept factors Newton
+#: gives up when an increment shrinks by less than THETA_KEPT, and the slab is solved again
+#: with a fresh J and factors. Factors of another step leave an iteration error at the
+#: stopping tolerance that fresh ones do not (a linear system: none), which breaks the energy
+#: conservation of cG on the harmonic oscillator (4e-10 against 1e-12); RADAU5's freeze of a
+#: step that would grow by at most 1.2x, to keep its factors exact, costs 50-60% more slabs
+#: with dG(1) (doc/design/newton.md).
+THETA_KEEP = 0.03
+THETA_KEPT = 0.25
+#: False: factor every Newton slab afresh unless REUSE_TIME says otherwise (for comparisons).
+KEEP_FACTORS = True
 #: With the default solver, Newton's method (taken when fixed-point iteration fails) gives way
 #: to fixed-point iteration again when that is estimated SWITCH_BACK times cheaper per unit
 #: time: its iterations per slab times the stages over the step it last converged on, against
@@ -254,8 +267,11 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     z_complex = np.empty(N, dtype=np.complex128)
     ipiv_filter = np.zeros(0, dtype=np.int64)
     reuse = o.reuse
+    keep = o.keep_factors
     k_factored = 0.0  # the step of the current factors (0: none)
     age = 0  # Newton slabs since the Jacobian was evaluated
+    rate = np.zeros(1)  # Newton's contraction rate on the last slab (see slab.newton)
+    theta = math.inf  # ... with the current factors (inf: unknown)
     filter_ok = False  # the error filter's factors are usable
     est = np.empty(N)
     w = np.empty(S * N)  # weights of the scaled norm (solvers' work space)
@@ -294,7 +310,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             dtol_k = max(dtol * min(1.0, k / o.span), min(dtol, ROUNDING / rtol))
         use_newton = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         n_prev = counters[STORED] - 1
-        if not use_newton and n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
+        if n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
             extrapolate(out_X, n_prev, nodes, bary, out_k[n_prev], k, tau, X, weights)
         else:
             euler_stages(x, f0, k, tau, X)
@@ -332,8 +348,9 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         if use_newton:
             iterations_before = counters[ITERATIONS]  # not the failed fixed point's
             age += 1
-            kept = (reuse and age <= REUSE_AGE and k_factored > 0.0
-                    and k_factored <= REUSE_RATIO * k and k <= REUSE_RATIO * k_factored)
+            kept = age <= REUSE_AGE and (
+                (keep and theta <= THETA_KEEP and k == k_factored)
+                or (reuse and near_step(k, k_factored, REUSE_RATIO)))
             for fresh in range(0 if kept else 1, 2):
                 if fresh == 1:
                     if kept:  # the kept factors did not converge: afresh, from the start
@@ -357,12 +374,14 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                         # before reducing k.
                         euler_stages(x, f0, 0.0, tau, X)
                     iters = newton(f, p, x, f0, t, k, A, b0, tau, transform,
-                                   transform_inverse, atol, rtol, dtol_k, max_iter, X, F, G, Z,
-                                   ab_real, ab_complex, structure, ipiv, z_real, z_complex,
-                                   w, counters)
+                                   transform_inverse, atol, rtol, dtol_k, max_iter,
+                                   1.0 if fresh == 1 else THETA_KEPT, X, F, G, Z, ab_real,
+                                   ab_complex, structure, ipiv, z_real, z_complex, w,
+                                   counters, rate)
                     if iters >= 0:
                         break
                 if iters >= 0:
+                    theta = rate[0]
                     break
         if iters < 0:
             counters[FAILED_SOLVES] += 1

@@ -1,4 +1,6 @@
 """Nonlinear solvers of one slab: the transformed simplified Newton iteration."""
+import math
+
 import numpy as np
 import pytest
 import scipy.linalg as sl
@@ -11,7 +13,7 @@ from dolfinode.compile.signatures import rhs_kernel
 from dolfinode.linalg.newton_matrix import band_structure, sparse_structure, store_jacobian
 from dolfinode.methods import make_method
 from dolfinode.solvers import slab
-from dolfinode.timeslab import NUM_COUNTERS
+from dolfinode.timeslab import NUM_COUNTERS, mono
 
 METHODS = [("cG", q) for q in range(1, 7)] + [("dG", q) for q in range(7)]
 
@@ -34,8 +36,8 @@ def _newton_steps(f_address, p, x0, f0, k, A, b0, tau, T, T_inverse, atol, X, F,
                   ab_complex, structure, ipiv, z_real, z_complex, w, counters, steps):
     f = rhs_kernel(f_address)
     return slab.newton(f, p, x0, f0, 0.0, k, A, b0, tau, T, T_inverse, atol, 1e-6, 0.0, steps,
-                       X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w,
-                       counters)
+                       1.0, X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex,
+                       w, counters, np.zeros(1))
 
 
 @pytest.mark.parametrize("storage", ["banded", "sparse"])
@@ -91,3 +93,41 @@ def test_newton_converges_in_one_step_on_a_linear_system(method):
     assert stats["nonlinear iterations"] <= 2 * (stats["time slabs"] + stats["rejected steps"])
     exact = sl.expm(M * ode.T) @ np.asarray(ode.u0)
     assert np.abs(sol(ode.T) - exact).max() < 1e-6
+
+
+def _newton_solve(ode, keep, monkeypatch, **parameters):
+    monkeypatch.setattr(mono, "KEEP_FACTORS", keep)
+    return dn.solve(ode, nonlinear_solver="newton", **parameters)
+
+
+def test_factors_are_kept_on_a_linear_system(monkeypatch):
+    """u' = M u on fixed steps: J and the factors are exact for every slab, so they are kept
+    for REUSE_AGE slabs at a time, and the solution and iterations are those of factoring
+    every slab afresh."""
+    ode, _ = permuted_band_system()
+    steps = {"method": "dG(2)", "fixed_time_step": True, "initial_time_step": 0.01}
+    kept = _newton_solve(ode, True, monkeypatch, **steps)
+    fresh = _newton_solve(ode, False, monkeypatch, **steps)
+    slabs = kept.stats["time slabs"]
+    assert slabs == fresh.stats["time slabs"] == fresh.stats["jacobian evaluations"] == 100
+    # + 1: the last step, which absorbs the rounding of t0 + n k, is not exactly theirs
+    assert kept.stats["jacobian evaluations"] <= math.ceil(slabs / (mono.REUSE_AGE + 1)) + 1
+    assert kept.stats["nonlinear iterations"] == fresh.stats["nonlinear iterations"]
+    np.testing.assert_allclose(kept(ode.T), fresh(ode.T), rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)"])
+def test_kept_factors_are_refreshed_as_the_jacobian_changes(method, monkeypatch):
+    """Van der Pol, eps = 0.01, on fixed steps (J changes along the limit cycle): the factors
+    serve several slabs, yet are made afresh more often than the age limit REUSE_AGE asks,
+    when Newton on them contracts slowly or fails; the answer is that of fresh factors on
+    every slab."""
+    y1, y2 = sp.symbols("y1 y2")
+    ode = dn.ODE({y1: y2, y2: 100 * ((1 - y1**2) * y2 - y1)}, u0=[2.0, 0.0], T=2.0)
+    steps = {"method": method, "fixed_time_step": True, "initial_time_step": 2e-3}
+    kept = _newton_solve(ode, True, monkeypatch, **steps)
+    fresh = _newton_solve(ode, False, monkeypatch, **steps)
+    slabs = kept.stats["time slabs"]
+    assert slabs == fresh.stats["jacobian evaluations"] == 1000
+    assert slabs / (mono.REUSE_AGE + 1) + 10 < kept.stats["jacobian evaluations"] < slabs / 10
+    np.testing.assert_allclose(kept(ode.T), fresh(ode.T), rtol=1e-10)

@@ -253,6 +253,7 @@ def test_newton_keeps_costly_factors_over_slabs(method, monkeypatch):
     kept = dn.solve(ode, method, tolerance=1e-5, nonlinear_solver="newton",
                     calibrate_tolerance=False)
     monkeypatch.setattr(mono, "REUSE_TIME", np.inf)
+    monkeypatch.setattr(mono, "KEEP_FACTORS", False)
     every = dn.solve(ode, method, tolerance=1e-5, nonlinear_solver="newton",
                      calibrate_tolerance=False)
     assert every.stats["jacobian evaluations"] == every.stats["time slabs"] + every.stats[
