@@ -87,11 +87,12 @@ def filter_constant(method):
 
 #: Delivered error against tolerance, error ~ C tol^alpha at T (scaled as the Test Set's
 #: mescd), per mono-adaptive method: chosen to put the most runs of HIRES, VDPOL and the
-#: harmonic oscillator within [0.1, 10] x tol over tolerances 1e-2..1e-10 (1e-2..1e-7 for
-#: q = 1; benchmarks/run_tolerance.py, doc/design/tolerance.md) with the error monotone in
-#: tol; where the problems spread over more than the window (dG(3)), below rather than above. The nodal values of cG(q)
-#: and dG(q) superconverge, so the step estimate O(k^(q+1)) over-delivers more the tighter
-#: the tolerance. dG(0) and q > 3 are not measured and keep the tolerance as it is.
+#: harmonic oscillator within [0.1, 10] x tol over tolerances 1e-2..1e-10 (1e-2..1e-7 for q =
+#: 1; benchmarks/run_tolerance.py, doc/design/tolerance.md) with the error monotone in tol;
+#: where the problems spread over more than the window (dG(3)), below rather than above. The
+#: nodal values of cG(q) and dG(q) superconverge, so the step estimate O(k^(q+1))
+#: over-delivers more the tighter the tolerance. dG(0) and q > 3 are not measured and keep
+#: the tolerance as it is.
 DELIVERED = {("cG", 1): (1.5, 1.0), ("cG", 2): (0.1, 1.26), ("cG", 3): (0.0315, 1.42),
              ("dG", 1): (0.56, 1.48), ("dG", 2): (0.04, 1.48), ("dG", 3): (0.0126, 1.36)}
 #: The step estimate's tolerance stays below this (its expansion in k is asymptotic).

@@ -7,7 +7,6 @@ declaration (sympy expressions or templates and arrays), never compiled kernels:
 lowers it once and then finds the kernels in its own disk cache (``DOLFINODE_CACHE_DIR``),
 so on a cluster every node compiles each distinct system at most once.
 """
-import copy
 import difflib
 from collections.abc import Mapping, Sequence
 

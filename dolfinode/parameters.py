@@ -35,7 +35,7 @@ DEFAULTS = {
     "control_points": 10,          # checks of the reduced model against the full model
     "model_tolerance": 0.02,       # rebuild when |g~ - g-bar| > model_tolerance (max |g-bar| + tol)
     "rebuild_model": True,         # False: build once, only measure the defect at control points
-    "subgrid_model": "auto",       # "constant" | "affine" in the slow state | "flow" (fast variables carried) | "auto": chosen from the first window
+    "subgrid_model": "auto",       # "constant" | "affine" | "flow" | "auto": from the first window
     "strict": False,               # automatic modeling: raise instead of a ModelingWarning
     "events": None,                # g(u, t) expressions or dn.Event: zero crossings located
     "breakpoints": None,           # times where f(t) is not smooth that the declaration hides

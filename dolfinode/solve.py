@@ -272,10 +272,11 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     (doc/design/tolerance.md): 129 of 144 runs within 0.1-10 x the tolerance, at most 23 x
     (cG(3) on HIRES at 1e-6; dG(3) 15 x), down to 0.006 x (dG(3) on VDPOL), and in all
     48 sweeps the error is smaller for every smaller tolerance. It is a calibration, not a
-    bound: a long non-dissipative run lands higher than a damped stiff one. Values inside elements (``sol(t)`` between
-    element ends, samples, events) are accurate to O(k^(q+1)) only, up to ~100 x the
-    tolerance; ``calibrate_tolerance=False`` bounds each step's estimate by the tolerance
-    instead, as scipy's rtol and atol do (the error at T then lands 1e-7..10 x below it).
+    bound: a long non-dissipative run lands higher than a damped stiff one. Values inside
+    elements (``sol(t)`` between element ends, samples, events) are accurate to O(k^(q+1))
+    only, up to ~100 x the tolerance; ``calibrate_tolerance=False`` bounds each step's
+    estimate by the tolerance instead, as scipy's rtol and atol do (the error at T then
+    lands 1e-7..10 x below it).
     Multi-adaptive methods, dG(0), q > 3, ``method="auto"`` and automatic modeling's inner
     solves use the step tolerance as given. For a bound on an output, pass ``goal``
     (dual-based estimate).

@@ -10,8 +10,9 @@ A solve without events, breakpoints, switches or automatic modeling, with its hi
 memory (and for cG/dG a Newton matrix storage decided up front, as for all but large sparse
 systems), takes the prepared path: the start of :func:`dolfinode.solve` (``solve._start``)
 and one call of the compiled loop into buffers kept by the solver, as large as the first
-ones of dn.solve, whose used part the Solution copies. Everything else, and a solve that outgrows the buffers or
-fails, goes through the general path (``solve_lowered``, the driver of dn.solve).
+ones of dn.solve, whose used part the Solution copies. Everything else, and a solve that
+outgrows the buffers or fails, goes through the general path (``solve_lowered``, the driver
+of dn.solve).
 """
 import time
 from collections.abc import Mapping

@@ -1,5 +1,5 @@
-"""Four classes of multiscale systems on which automatic modeling must be right or say it is not
-(issue 28), with a resolved reference averaged with the modeling kernel.
+"""Four classes of multiscale systems on which automatic modeling must be right or say it is not,
+with a resolved reference averaged with the modeling kernel.
 
 Each builder takes the scale separation ``kappa`` (the fast rate squared for oscillators, the
 fast rate for relaxation) and returns ``(ode, slow)``: the ODE and the indices of its slow

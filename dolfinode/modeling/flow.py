@@ -59,9 +59,10 @@ from dolfinode.modeling.reduced import (
 from dolfinode.solution import Solution
 
 #: The flow's fast rate over the slow one: rho_1 = FLOW_SEPARATION rho_slow (on the adiabatic
-#: class of issue 28, rho_slow = 1.4, the averages at rho = 100 are within 1.7e-5 of those at
-#: 1e3, and the error falls like rho^-2). At 75 the check's averages, over MINIMUM_PERIODS
-#: radians of rho_1, are 0.4 / rho_slow long: they damp a slow oscillation by 8e-6.
+#: class of dolfinode.bench.multiscale, rho_slow = 1.4, the averages at rho = 100 are within
+#: 1.7e-5 of those at 1e3, and the error falls like rho^-2). At 75 the check's averages, over
+#: MINIMUM_PERIODS radians of rho_1, are 0.4 / rho_slow long: they damp a slow oscillation by
+#: 8e-6.
 FLOW_SEPARATION = 75.0
 #: The check's flow is this much faster: rho_2 = FLOW_REFINEMENT rho_1.
 FLOW_REFINEMENT = 2.0

@@ -61,7 +61,8 @@ AFFINE_SAMPLES = 4
 AFFINE_RCOND = 0.1
 #: "auto" starts affine when a constant g~ would miss the first check by this many
 #: model tolerances (see ReducedModel._constant_fails; set above the paper's lattice, 15-37
-#: for p = 7, 5, 3, and below class 4 of issue 28, 1300-4400).
+#: for p = 7, 5, 3, and below the proportional class of
+#: dolfinode.bench.multiscale, 1300-4400).
 AFFINE_START = 100.0
 #: ... and only when the first control point is at most this many half windows away: the
 #: fit's error over the baseline tau / 2 grows with the extrapolation (the lattice with
@@ -423,7 +424,7 @@ class ReducedModel:
         "auto" is affine from the start, fitted to the half windows. Their
         short baseline tau / 2 makes that fit noisy: on the lattice (predicted 0.30-0.74
         for p = 7, 5, 3 and model_tolerance 0.02) starting affine raised the drift of D from
-        D-bar from 0.0040 to 0.0074 at p = 3, so the bar is high; class 4 of issue 28
+        D-bar from 0.0040 to 0.0074 at p = 3, so the bar is high; the proportional class
         (y' = cos t - y x^2, predicted 27 and 88 at kappa = 1e4, 1e6) starts affine (its
         error from 0.53 to 1.5e-5 of the range); class 1 (0.76) does not (it would go from
         0.13 to 0.039, warned either way)."""

@@ -4,7 +4,6 @@ import ctypes
 
 import numpy as np
 import pytest
-import sympy as sp
 
 import dolfinode as dn
 from dolfinode.bench import command, peer_report, peers

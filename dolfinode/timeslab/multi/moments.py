@@ -18,9 +18,9 @@ def moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea, eb, values, nodes
     a frozen dependency (no element in the slab) is its constant value x_j. The values at all
     nodes of an interval go to the rows of ``states`` (row m: the state f_i reads at node m)
     before f_i is evaluated: written just before each evaluation, as the evaluation loads
-    them, they stalled the pipeline at every node. (The reads are written out here, not in a helper: numba's
-    reference counting of each array argument of a call cost more than the reads.) Returns
-    the f evaluations."""
+    them, they stalled the pipeline at every node. (The reads are written out here, not in a
+    helper: numba's reference counting of each array argument of a call cost more than the
+    reads.) Returns the f evaluations."""
     S = mom.shape[0]
     nn = nodes.shape[0]
     k = eb[e] - ea[e]
