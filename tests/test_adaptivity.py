@@ -62,7 +62,7 @@ def test_rober_cg_says_it_cannot_damp_and_dg_steps_over():
     few thousand with a SolverError that names dG(q), which reaches T in a few hundred
     slabs within 10 x the tolerance."""
     problem = problems.rober()
-    options = dict(tolerance=1e-3, absolute_tolerance=problem.atol_ratio * 1e-3)
+    options = {"tolerance": 1e-3, "absolute_tolerance": problem.atol_ratio * 1e-3}
     with pytest.raises(dn.SolverError, match=r"not L-stable.*method='dG\(2\)'") as failure:
         dn.solve(problem.ode, method="cG(2)", **options)
     assert failure.value.t < problem.T

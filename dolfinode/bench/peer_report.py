@@ -19,11 +19,11 @@ from dolfinode.bench import peers, report
 
 #: Accuracy levels (mescd at T) of the comparison.
 LEVELS = (4, 6, 8, 10)
-_LSODA = ("numbalsoda-LSODA", {6: 1.0, 8: 0.5, 10: 0.5}, "<= 1.0x numbalsoda LSODA at 6 "
-          "digits, <= 0.5x at 8+")
+_LSODA = ("numbalsoda-LSODA", {6: 1.0, 8: 0.5, 10: 0.5}, ("<= 1.0x numbalsoda LSODA at 6 "
+                                                           "digits, <= 0.5x at 8+"))
 _CVODE = ("CVODE-BDF", dict.fromkeys(LEVELS, 1.0), "<= 1.0x CVODE (band) at every level")
-_MULTI = (None, dict.fromkeys(LEVELS, 1 / 3), "multi-adaptive >= 3x faster than the best "
-          "peer")
+_MULTI = (None, dict.fromkeys(LEVELS, 1 / 3), ("multi-adaptive >= 3x faster than "
+                                                "the best peer"))
 #: problem -> (the peer it is compared with, None: the best peer; {level: largest ratio};
 #: the target in words).
 TARGETS = {"HIRES": _LSODA, "ROBER": _LSODA, "VDPOL": _LSODA, "POLLU": _LSODA,
@@ -153,32 +153,32 @@ def compile_table(problems):
 
 
 HOW = (
-    "Time: CPU time (`time.process_time`, all threads of the process) of one whole solve "
-    "with output at 100 points, the **minimum** of the timed repeats, taken in interleaved "
-    "rounds (one call of every run per round) after an untimed run; compile and build times "
-    "are excluded (table above; a peer's build is its code generation and compile plus one "
-    "warm-up solve at rtol 1e-3, and includes numbalsoda's driver compile on its first "
-    "problem and JAX tracing).",
-    "numbalsoda (C++ LSODA, DOP853): a numba cfunc right-hand side generated from the same "
-    "sympy expressions (`dolfinode.bench.peers.numba_rhs_source`); LSODA forms its Jacobian by "
-    "finite differences and factors it dense (run for N <= 400); f evals counted by the cfunc.",
-    "CVODE (SUNDIALS BDF through scikit-sundae): dolfinode's compiled C right-hand side and "
-    "exact Jacobian called from the Python callbacks scikit-sundae requires (a few us per "
-    "call); band linear solver where the Jacobian is banded and N >= 50, dense otherwise.",
-    "diffrax (Kvaerno5 on the stiff problems, Tsit5 on the others), JAX CPU in double "
-    "precision, PID step control with default coefficients, first step 1e-8 for Kvaerno5; "
-    "the right-hand side lambdified to JAX; the whole solve jit-compiled once per problem "
-    "(Kvaerno5 for N <= 100, Tsit5 for N <= 400).",
-    "scipy (DOP853, Radau, BDF, LSODA): lambdified NumPy right-hand sides and exact Jacobians, "
-    "as in the benchmark suite; abandoned at the time limit.",
-    "Accuracy: mescd = min_i -log10(|y_i(T) - ref_i| / (atol/rtol + |ref_i|)) (Test Set), over "
-    "the scored components. rtol = tolerance, atol = rtol x the problem's atol/rtol for every "
-    "solver. A time at a level is read off the method's Pareto front, log-linearly "
-    "interpolated in mescd; * = below the method's loosest run (its fastest time).",
-    "The fastest peer at a level is the fastest among those whose sweep reached it: where a "
-    "fast peer's tightest tolerance fell short of a level (LSODA and DOP853 deliver fewer "
-    "digits than their rtol), the ratio there is against a slower peer and flatters "
-    "dolfinode.",
+    ("Time: CPU time (`time.process_time`, all threads of the process) of one whole solve "
+     "with output at 100 points, the **minimum** of the timed repeats, taken in interleaved "
+     "rounds (one call of every run per round) after an untimed run; compile and build times "
+     "are excluded (table above; a peer's build is its code generation and compile plus one "
+     "warm-up solve at rtol 1e-3, and includes numbalsoda's driver compile on its first "
+     "problem and JAX tracing)."),
+    ("numbalsoda (C++ LSODA, DOP853): a numba cfunc right-hand side generated from the same "
+     "sympy expressions (`dolfinode.bench.peers.numba_rhs_source`); LSODA forms its Jacobian by "
+     "finite differences and factors it dense (run for N <= 400); f evals counted by the cfunc."),
+    ("CVODE (SUNDIALS BDF through scikit-sundae): dolfinode's compiled C right-hand side and "
+     "exact Jacobian called from the Python callbacks scikit-sundae requires (a few us per "
+     "call); band linear solver where the Jacobian is banded and N >= 50, dense otherwise."),
+    ("diffrax (Kvaerno5 on the stiff problems, Tsit5 on the others), JAX CPU in double "
+     "precision, PID step control with default coefficients, first step 1e-8 for Kvaerno5; "
+     "the right-hand side lambdified to JAX; the whole solve jit-compiled once per problem "
+     "(Kvaerno5 for N <= 100, Tsit5 for N <= 400)."),
+    ("scipy (DOP853, Radau, BDF, LSODA): lambdified NumPy right-hand sides and exact Jacobians, "
+     "as in the benchmark suite; abandoned at the time limit."),
+    ("Accuracy: mescd = min_i -log10(|y_i(T) - ref_i| / (atol/rtol + |ref_i|)) (Test Set), over "
+     "the scored components. rtol = tolerance, atol = rtol x the problem's atol/rtol for every "
+     "solver. A time at a level is read off the method's Pareto front, log-linearly "
+     "interpolated in mescd; * = below the method's loosest run (its fastest time)."),
+    ("The fastest peer at a level is the fastest among those whose sweep reached it: where a "
+     "fast peer's tightest tolerance fell short of a level (LSODA and DOP853 deliver fewer "
+     "digits than their rtol), the ratio there is against a slower peer and flatters "
+     "dolfinode."),
 )
 
 
