@@ -70,7 +70,10 @@ def test_late_fast_scale_switches(cost_model, late_fast):
     assert sol.stats["method"] == "cG(2) -> mcG(2)", choice
     switch = [check for check in choice["checks"] if check["switched"]]
     assert len(switch) == 1 and 2.0 < switch[0]["t"] < 6.0, choice
-    assert switch[0]["measured"] * family.SWITCH_MARGIN < switch[0]["rate"]
+    assert switch[0]["measured"] < switch[0]["rate"]
+    # the trial that switched is kept: the stretch from the check's time is mcG(2)'s
+    after = next(s for s in choice["stretches"] if s["interval"][0] == switch[0]["t"])
+    assert after["method"] == "mcG(2)" and after["trial"]
     assert choice["method"] == "mcG(2)" and sol.multi
     stretches = choice["stretches"]
     assert stretches[0]["interval"][0] == 0.0 and stretches[-1]["interval"][1] == 6.0
@@ -151,3 +154,52 @@ def test_maximum_steps_bounds_the_whole_solve():
         dn.solve(ode, "auto", tolerance=TOL, maximum_steps=slabs // 2)
     sol = dn.solve(ode, "auto", tolerance=TOL, maximum_steps=3 * slabs)
     assert sol.t[-1] == ode.T
+
+
+def test_losing_trial_among_mono_stretches_is_discarded(cost_model, monkeypatch):
+    """A multi-adaptive trial predicted cheap but measured dearer does not continue, and
+    among mono-adaptive stretches it is solved again by cG(2): the solution stays
+    mono-adaptive, its stretches contiguous, every check recorded."""
+    monkeypatch.setattr(family, "MULTI_ELEMENTS", 1e-3)  # mcG(2) predicted ~free
+    ode = mass_spring_chain(20, T=50.0)[0]
+    sol = dn.solve(ode, "auto", tolerance=1e-6)
+    choice = sol.stats["family choice"]
+    assert sol.stats["method"] == "cG(2)" and not sol.multi, choice
+    assert choice["checks"] and not any(c["switched"] for c in choice["checks"])
+    assert all(c["measured"] >= c["rate"] for c in choice["checks"])
+    stretches = choice["stretches"]
+    assert all(s["method"] == "cG(2)" for s in stretches)
+    assert all(a["interval"][1] == b["interval"][0] for a, b in itertools.pairwise(stretches))
+    direct = dn.solve(ode, "cG(2)", tolerance=1e-6, calibrate_tolerance=False)
+    assert np.abs(sol(50.0) - direct(50.0)).max() < 1e-4
+
+
+def test_joined_stretches_evaluate_as_the_stretches(late_fast):
+    """A cG(2) stretch and an mcG(2) stretch joined in the multi-adaptive form: at any time
+    the joined solution is the stretch's own polynomial."""
+    parameters = {"tolerance": TOL, "number_of_samples": 2, "calibrate_tolerance": False}
+    first, _ = family._solve_on(driver.solve, late_fast, 0.0, 2.5, late_fast.u0, "cG(2)",
+                                parameters)
+    second, _ = family._solve_on(driver.solve, late_fast, 2.5, 3.0, first(2.5), "mcG(2)",
+                                 parameters)
+    joined = family._joined(late_fast, [first, second], 5)
+    assert joined.multi and joined.stats["method"] == "cG(2) -> mcG(2)"
+    assert joined.stats["elements"] == first.stats["elements"] + second.stats["elements"]
+    times = np.random.default_rng(1).uniform(0.0, 3.0, 50)
+    for t in times:
+        piece = first if t <= 2.5 else second
+        np.testing.assert_allclose(joined(t), piece(t), rtol=0, atol=1e-13)
+
+
+def test_carried_steps_follow_the_components_errors():
+    """Entering mcG(2) after cG(2), a component gets the common step over its share of the
+    largest local error, at most MAX_STEP_GROWTH x: the fast oscillator keeps the common
+    step, slow ones get larger ones."""
+    bank = oscillator_bank(n=20, w=1000.0, T=0.02).ode
+    sol = dn.solve(bank, "cG(2)", tolerance=1e-6, calibrate_tolerance=False)
+    atol = np.full(bank.N, 1e-6)
+    steps = family._component_steps(sol, atol, 1e-6)
+    common = sol.stats["next time step"]
+    assert np.all(steps >= common) and np.all(steps <= family.MAX_STEP_GROWTH * common)
+    fast = [bank.N - 2, bank.N - 1]  # x_f, v_f: the last two states
+    assert steps[fast].max() < 2 * common and np.median(steps) > 3 * common
