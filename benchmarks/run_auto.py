@@ -4,8 +4,13 @@ The problems: the uniform chain without scale separation
 (``dolfinode.problems.mass_spring_chain(100, T=200)``, where mono-adaptive cG(2) is far
 cheaper), the stiff-spring chain (``dolfinode.bench.problems.mass_spring_chain``: 200 masses,
 10 or 2 springs 1e6 stiffer, T = 0.1), the reaction front (``reaction_front(n=500, T=0.05)``)
-and an oscillator bank (``dolfinode.bench.multirate.oscillator_bank``: one fast oscillator
-among 100 slow ones, where mcG(2) is far cheaper).
+an oscillator bank (``dolfinode.bench.multirate.oscillator_bank``: one fast oscillator
+among 100 slow ones, where mcG(2) is far cheaper), and, added after auto's rules were set
+(not tuned on), the seed model of automatic modeling at kappa = 1e2
+(``dolfinode.bench.problems.seed_model``: one slow and one 10x faster oscillator).
+All three methods solve with ``calibrate_tolerance=False``: the same step tolerance, as auto
+and the multi-adaptive methods always do (cG(q)'s default calibration would solve at a
+~100x looser step tolerance than the two others); the error at T is reported with them.
 Every solve is timed by CPU time (``time.process_time``: the machine is shared), after an
 untimed call per method (compile and load apart), in interleaved rounds; the table gives each
 method's minimum over the rounds, the choice auto made, and auto / min(cG(q), mcG(q)).
@@ -20,9 +25,11 @@ import platform
 import time
 from pathlib import Path
 
+import numpy as np
+
 import dolfinode as dn
 from dolfinode.bench.multirate import oscillator_bank
-from dolfinode.bench.problems import mass_spring_chain, reaction_front
+from dolfinode.bench.problems import mass_spring_chain, reaction_front, seed_model
 from dolfinode.problems import mass_spring_chain as uniform_chain
 
 TARGET = 1.3
@@ -40,23 +47,34 @@ NOTES = [
 
 
 def problems():
-    """(name, ode, tolerance, base method) of the problems."""
-    return [
-        ("uniform chain, 100 masses, T = 200", uniform_chain(100, T=200)[0], 1e-6, "cG(2)"),
-        ("stiff-spring chain, 200 masses, 10 springs 1e6 stiffer, T = 0.1",
-         mass_spring_chain(n=200, stiffness=1e6, stiff_springs=10, T=0.1).ode, 1e-6, "cG(2)"),
-        ("stiff-spring chain, 200 masses, 2 springs 1e6 stiffer, T = 0.1",
-         mass_spring_chain(n=200, stiffness=1e6, stiff_springs=2, T=0.1).ode, 1e-6, "cG(2)"),
-        ("reaction front, N = 500, T = 0.05", reaction_front(n=500, T=0.05).ode, 1e-6, "cG(2)"),
-        ("oscillator bank, 100 of frequency 1..2 and one of 1000, T = 2",
-         oscillator_bank(n=100, w=1000.0, T=2.0).ode, 1e-6, "cG(2)"),
-    ]
+    """(name, ode, tolerance, base method, u(T) or None) of the problems."""
+    uniform, exact = uniform_chain(100, T=200)
+    bench = [("stiff-spring chain, 200 masses, 10 springs 1e6 stiffer, T = 0.1",
+              mass_spring_chain(n=200, stiffness=1e6, stiff_springs=10, T=0.1)),
+             ("stiff-spring chain, 200 masses, 2 springs 1e6 stiffer, T = 0.1",
+              mass_spring_chain(n=200, stiffness=1e6, stiff_springs=2, T=0.1)),
+             ("reaction front, N = 500, T = 0.05", reaction_front(n=500, T=0.05)),
+             ("oscillator bank, 100 of frequency 1..2 and one of 1000, T = 2",
+              oscillator_bank(n=100, w=1000.0, T=2.0)),
+             ("seed model, kappa = 1e2, T = 10 (new)", seed_model(1e2, T=10.0))]
+    return ([("uniform chain, 100 masses, T = 200", uniform, 1e-6, "cG(2)",
+              exact(200.0))]
+            + [(name, problem.ode, 1e-6, "cG(2)", problem.final) for name, problem in bench])
+
+
+def reference(ode, final):
+    """u(T): ``final`` if known, else cG(3) at a step tolerance of 1e-11."""
+    if final is not None:
+        return np.asarray(final, dtype=float)
+    return dn.solve(ode, "cG(3)", tolerance=1e-11, calibrate_tolerance=False,
+                    number_of_samples=2)(ode.T)
 
 
 def cpu_time(ode, method, tolerance):
-    """(CPU seconds, solution) of one solve."""
+    """(CPU seconds, solution) of one solve, at the step tolerance as given."""
     start = time.process_time()
-    sol = dn.solve(ode, method, tolerance=tolerance, number_of_samples=2)
+    sol = dn.solve(ode, method, tolerance=tolerance, number_of_samples=2,
+                   calibrate_tolerance=False)
     return time.process_time() - start, sol
 
 
@@ -67,8 +85,10 @@ def main(argv=None):
                                                 / "benchmarks"))
     args = parser.parse_args(argv)
     rows = []
-    for name, ode, tolerance, base in problems():
+    for name, ode, tolerance, base, final in problems():
         methods = [base, "m" + base, "auto:" + base]
+        exact = reference(ode, final)
+        errors = {}
         for method in methods:  # untimed: compile and load
             cpu_time(ode, method, tolerance)
         times = {method: [] for method in methods}
@@ -77,6 +97,7 @@ def main(argv=None):
             for method in methods:
                 seconds, sol = cpu_time(ode, method, tolerance)
                 times[method].append(seconds)
+                errors[method] = float(np.abs(sol(ode.T) - exact).max())
                 if method.startswith("auto"):
                     choices.append(sol.stats["method"])
                     evidence = sol.stats["family choice"]
@@ -84,6 +105,7 @@ def main(argv=None):
         better = min(best[base], best["m" + base])
         rows.append({"problem": name, "tolerance": tolerance, "times": times, "minima": best,
                      "choices": choices, "ratio": best["auto:" + base] / better,
+                     "errors at T": errors,
                      "last evidence": evidence})
         print(name, best, choices, rows[-1]["ratio"], flush=True)
     lines = ["# method=\"auto\": mono- or multi-adaptive, switched in stretches", "",
@@ -93,14 +115,17 @@ def main(argv=None):
               f"`dn.solve` call, minimum over {args.rounds} interleaved rounds after an untimed "
               "call per method."), "",
              ("| problem | tolerance | cG(2) [s] | mcG(2) [s] | auto [s] | auto chose | "
-              f"auto / better (target <= {TARGET}) |"), "|---|---|---|---|---|---|---|"]
+              f"auto / better (target <= {TARGET}) | max error at T: cG(2), mcG(2), auto |"),
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         base, multi, auto = r["minima"]
         chosen = ", ".join(f"{m} ({r['choices'].count(m)}/{len(r['choices'])})"
                            for m in sorted(set(r["choices"])))
         lines.append(f"| {r['problem']} | {r['tolerance']:g} | {r['minima'][base]:.3g} | "
                      f"{r['minima'][multi]:.3g} | {r['minima'][auto]:.3g} | {chosen} | "
-                     f"{r['ratio']:.2f}x |")
+                     f"{r['ratio']:.2f}x | "
+                     + ", ".join(f"{r['errors at T'][m]:.1e}" for m in (base, multi, auto))
+                     + " |")
     lines += ["", ("auto solves [t0, T] in stretches (1, 4, 16 %, then at most 25 % of it) "
                    "starting with cG(2); after each stretch it predicts mcG(2)'s CPU rate (or "
                    "cG(2)'s) from the elements that variant would take, measures it by a pilot "

@@ -66,6 +66,9 @@ SWITCH_MARGIN = 1.5
 COST_RATIO = 12.0
 #: Multi-adaptive elements / :func:`_multi_elements`' estimate (0.4-0.55 x on the benchmarks).
 MULTI_ELEMENTS = 2.0
+#: A stretch is at least so long that its fixed cost (:func:`_restart_cost`) is at most this
+#: share of it: a small problem, whose solve is mostly fixed costs, is not cut up for nothing.
+RESTART_SHARE = 0.1
 #: A component's first multi-adaptive step after a mono-adaptive stretch is at most this
 #: multiple of the common step (a component at rest has no error to size it by).
 MAX_STEP_GROWTH = 10.0
@@ -157,12 +160,19 @@ class _Switching:
         ode = self.ode
         pieces, t, x, step = [], ode.t0, ode.u0, self.parameters.get("initial_time_step")
         length = FIRST_STRETCH * (ode.T - ode.t0) / STRETCH_GROWTH
+        costs = []  # (length, CPU time) of the first two stretches if of one variant
+        fixed, shortest = 0.0, 0.0  # a stretch's fixed cost, once known, and its length
         while t < ode.T and (stretches is None or len(pieces) < stretches):
-            length *= STRETCH_GROWTH
-            length = min(length, MAX_STRETCH * (ode.T - ode.t0))
-            end = _stretch_end(t, length, ode.T)
+            length = min(length * STRETCH_GROWTH, MAX_STRETCH * (ode.T - ode.t0))
+            end = _stretch_end(t, max(length, shortest), ode.T)
             piece, cpu = self.stretch(t, end, x, self.current, step)
             rate = _steady_rate(piece, cpu)
+            if len(pieces) < 2 and not self.evidence["checks"]:
+                costs.append((end - t, cpu))
+                fixed = _restart_cost(costs) if len(costs) == 2 else 0.0
+            if fixed > 0.0:  # at most RESTART_SHARE of a stretch at the cost beyond it
+                beyond = (cpu - fixed) / (end - t)
+                shortest = fixed / (RESTART_SHARE * beyond) if beyond > 0.0 else np.inf
             self.per_element[self.current] = cpu / piece.stats["elements"]
             self.calibration.pop(self.current, None)
             other = self.other(self.current)
@@ -238,6 +248,13 @@ class _Switching:
             check["switched"] = True
             self.current = name
         return sol, cpu
+
+
+def _restart_cost(costs):
+    """F of the first two stretches' CPU times c_j = F + r L_j: the fixed cost of a stretch
+    (the solve's call, its first steps), at least 0."""
+    (L1, c1), (L2, c2) = costs[:2]
+    return max((L2 * c1 - L1 * c2) / (L2 - L1), 0.0)
 
 
 def _steady_rate(sol, cpu):

@@ -21,19 +21,26 @@ TOL = 1e-5
 driver = importlib.import_module("dolfinode.solve")  # (dn.solve is the function)
 
 
-@pytest.fixture
-def cost_model(monkeypatch):
-    """CPU time = elements x (COST_RATIO multi-adaptive, 1 mono-adaptive) x 1e-7 s."""
+def _model_costs(monkeypatch, per_call):
+    """CPU time = per_call + elements x (COST_RATIO multi-adaptive, 1 mono-adaptive) x 1e-7 s
+    per solve."""
     spent = [0.0]
     solve = driver.solve
 
     def counted(ode, method, **parameters):
         sol = solve(ode, method, **parameters)
-        spent[0] += sol.stats["elements"] * (family.COST_RATIO if sol.multi else 1) * 1e-7
+        elements = sol.stats["elements"] * (family.COST_RATIO if sol.multi else 1)
+        spent[0] += per_call + elements * 1e-7
         return sol
 
     monkeypatch.setattr(driver, "solve", counted)
     monkeypatch.setattr(family, "_clock", lambda: spent[0])
+
+
+@pytest.fixture
+def cost_model(monkeypatch):
+    """The CPU time of a solve from its elements alone."""
+    _model_costs(monkeypatch, 0.0)
 
 
 @pytest.fixture(scope="module")
@@ -203,3 +210,25 @@ def test_carried_steps_follow_the_components_errors():
     assert np.all(steps >= common) and np.all(steps <= family.MAX_STEP_GROWTH * common)
     fast = [bank.N - 2, bank.N - 1]  # x_f, v_f: the last two states
     assert steps[fast].max() < 2 * common and np.median(steps) > 3 * common
+
+
+def test_restart_cost_from_two_stretches():
+    """c_j = F + r L_j: F from two stretches, and never negative (timing noise)."""
+    assert family._restart_cost([(1.0, 3.0), (4.0, 6.0)]) == pytest.approx(2.0)
+    assert family._restart_cost([(1.0, 1.0), (4.0, 8.0)]) == 0.0
+
+
+def test_fixed_cost_per_solve_makes_longer_stretches(monkeypatch):
+    """When a solve's fixed cost dominates (a small problem), the stretches after the first
+    two are long enough that it is at most RESTART_SHARE of each: fewer restarts, the same
+    solution as without a fixed cost."""
+    ode = mass_spring_chain(10, T=50.0)[0]
+    _model_costs(monkeypatch, 0.0)
+    cut = dn.solve(ode, "auto", tolerance=1e-6)
+    monkeypatch.undo()
+    _model_costs(monkeypatch, 1e-3)
+    long = dn.solve(ode, "auto", tolerance=1e-6)
+    few, many = (len(s.stats["family choice"]["stretches"]) for s in (long, cut))
+    assert few <= 3 < many, (few, many)
+    assert long.stats["method"] == "cG(2)"
+    assert np.abs(long(50.0) - cut(50.0)).max() < 1e-5
