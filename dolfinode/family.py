@@ -2,14 +2,18 @@
 the problem's scales change.
 
 A multi-adaptive element costs several mono-adaptive component-steps (its own moments,
-sweeps and partition): mcG(q)/mdG(q) pay off only where the components' steps spread
-widely, and the spread may change during a solve (a fast oscillation excited later, a
-transient that dies out). [t0, T] is solved in stretches, the first FIRST_STRETCH (T - t0)
-long with the mono-adaptive variant (cheap to start), each next one STRETCH_GROWTH x longer
-up to MAX_STRETCH (T - t0) (a problem that never changes pays for five restarts), each from
-the end value of the last with its last step. After each stretch the current variant's rate
-r (CPU time / length once started, :func:`_steady_rate`) is measured and the other's
-predicted from the elements it would take over the same stretch,
+sweeps and partition): mcG(q)/mdG(q) pay off only where the components' steps spread widely,
+and the spread may change during a solve (a fast oscillation excited later, a transient that
+dies out). [t0, T] is solved in stretches, the first FIRST_STRETCH (T - t0) long with the
+mono-adaptive variant (cheap to start), each next one STRETCH_GROWTH x longer up to
+MAX_STRETCH (T - t0), each from the end value of the last with its last step(s). A restart
+costs a solve's fixed cost (from the first two stretches, :func:`_restart_cost`) or the
+stretch's start (a multi-adaptive solve has all components active until it finds them at
+rest), whichever is larger: a stretch is at least so long that its restart is RESTART_SHARE
+of it (:func:`_shortest_stretch`), so a problem that never changes pays for five restarts at
+most, and a small one or a multi-adaptive one for fewer. After each stretch the current
+variant's rate r (CPU time / length once started, :func:`_steady_rate`) is measured and the
+other's predicted from the elements it would take over the same stretch,
 
     r_other = r x (E_other / E) x (c_other / c),
 
@@ -18,28 +22,30 @@ with c the CPU time per element: E_mono = (efficiency index) x E of a multi-adap
 from the spread of its components' local errors (:func:`_multi_elements`); c_multi / c_mono
 the latest ratio measured on stretches, COST_RATIO before both were; r_other is scaled by
 measured / predicted of the last trial of the other variant, until that variant runs a
-stretch. When r_other < r / SWITCH_MARGIN, the next stretch, as long as the last one, is a
-trial of the other variant from the current state, a multi-adaptive one starting each
-component at its own step (:func:`_component_steps`, not all at the common one). The trial
-is kept (no stretch is solved twice) and its variant continues if its measured rate is below
-r; a multi-adaptive trial that does not continue among mono-adaptive stretches only is solved
-again instead (kept, it would turn every slab into N elements of the joined solution).
-The margin on the prediction keeps a problem that does not change from paying for trials;
-the trial itself is measured, so a noisy measurement costs one stretch at most. The
-stretches and trials with their evidence are in ``sol.stats["family choice"]``; a solution
-with stretches of both variants is represented in the multi-adaptive form (a mono-adaptive
-slab is one element per component: mcG(q) on a common partition is cG(q)), so evaluation,
-samples and ``estimate_error`` see one solution.
+stretch. When r_other < r / SWITCH_MARGIN, the next stretch (a stretch of the schedule, not
+the first: a short trial would be mostly its start) is a trial of the other variant from the
+current state, a multi-adaptive one starting each component at its own step
+(:func:`_component_steps`, not all at the common one). The trial is kept (no stretch is
+solved twice) and its variant continues if its measured rate is below r; a multi-adaptive
+trial that does not continue among mono-adaptive stretches only is solved again instead
+(kept, it would turn every slab into N elements of the joined solution). The margin on the
+prediction keeps a problem that does not change from paying for trials; the trial itself is
+measured, so a noisy measurement costs one stretch at most. The stretches and trials with
+their evidence are in ``sol.stats["family choice"]``; a solution with stretches of both
+variants is represented in the multi-adaptive form (a mono-adaptive slab is one element per
+component: mcG(q) on a common partition is cG(q)), so evaluation, samples and
+``estimate_error`` see one solution.
 
 Decided once (after the first stretch and its trial, the chosen variant solving [t0, T]
 from the start): with a goal, events, breakpoints, automatic modeling, a progress bar,
 sample times, or a history kept only as samples or in a file.
 
 Limitation: a change of scales is seen at the end of the stretch it happens in (up to 29 %
-of [t0, T] later), and the prediction of the multi-adaptive elements is a heuristic
-(0.4-0.55 x the elements mcG(2) took on the benchmark problems, whence MULTI_ELEMENTS):
-a variant predicted no cheaper is not measured. Each stretch restarts the variant (its
-fixed cost per call; a multi-adaptive one finds its components at rest again).
+of [t0, T] later, more where restarts are dear), and the prediction of the multi-adaptive
+elements is a heuristic (0.4-0.55 x the elements mcG(2) took on the benchmark problems,
+whence MULTI_ELEMENTS): a variant predicted no cheaper is not measured. Each stretch
+restarts the variant (its fixed cost per call; a multi-adaptive one finds its components at
+rest again).
 """
 import re
 import time
@@ -66,8 +72,10 @@ SWITCH_MARGIN = 1.5
 COST_RATIO = 12.0
 #: Multi-adaptive elements / :func:`_multi_elements`' estimate (0.4-0.55 x on the benchmarks).
 MULTI_ELEMENTS = 2.0
-#: A stretch is at least so long that its fixed cost (:func:`_restart_cost`) is at most this
-#: share of it: a small problem, whose solve is mostly fixed costs, is not cut up for nothing.
+#: A stretch is at least so long that its restart (:func:`_shortest_stretch`) is at most this
+#: share of it: a small problem, whose solve is mostly a solve's fixed cost, or a
+#: multi-adaptive one, whose components are all active again at a restart until found at
+#: rest, is not cut up for nothing.
 RESTART_SHARE = 0.1
 #: A component's first multi-adaptive step after a mono-adaptive stretch is at most this
 #: multiple of the common step (a component at rest has no error to size it by).
@@ -161,7 +169,7 @@ class _Switching:
         pieces, t, x, step = [], ode.t0, ode.u0, self.parameters.get("initial_time_step")
         length = FIRST_STRETCH * (ode.T - ode.t0) / STRETCH_GROWTH
         costs = []  # (length, CPU time) of the first two stretches if of one variant
-        fixed, shortest = 0.0, 0.0  # a stretch's fixed cost, once known, and its length
+        per_call, shortest = 0.0, 0.0  # the fixed cost of a solve call; a stretch's length
         while t < ode.T and (stretches is None or len(pieces) < stretches):
             length = min(length * STRETCH_GROWTH, MAX_STRETCH * (ode.T - ode.t0))
             end = _stretch_end(t, max(length, shortest), ode.T)
@@ -169,10 +177,9 @@ class _Switching:
             rate = _steady_rate(piece, cpu)
             if len(pieces) < 2 and not self.evidence["checks"]:
                 costs.append((end - t, cpu))
-                fixed = _restart_cost(costs) if len(costs) == 2 else 0.0
-            if fixed > 0.0:  # at most RESTART_SHARE of a stretch at the cost beyond it
-                beyond = (cpu - fixed) / (end - t)
-                shortest = fixed / (RESTART_SHARE * beyond) if beyond > 0.0 else np.inf
+                per_call = _restart_cost(costs) if len(costs) == 2 else 0.0
+            if pieces:  # (the first stretch's start is no restart: the steps grow from 0)
+                shortest = _shortest_stretch(cpu, rate, end - t, per_call)
             self.per_element[self.current] = cpu / piece.stats["elements"]
             self.calibration.pop(self.current, None)
             other = self.other(self.current)
@@ -186,7 +193,8 @@ class _Switching:
             if predicted * SWITCH_MARGIN < rate and (t < ode.T or stretches is not None):
                 first = (_next_step(piece, False) if piece.multi
                          else _component_steps(piece, self.atol, self.rtol))
-                trial, cpu = self.trial(other, t, x, first, length)
+                trial, cpu = self.trial(other, t, x, first, min(
+                    length * STRETCH_GROWTH, MAX_STRETCH * (ode.T - ode.t0)))
                 # a multi-adaptive trial among mono-adaptive stretches is kept only if it
                 # continues: else every slab would be joined as N elements, for nothing
                 mixes = trial is not None and trial.multi and not any(p.multi for p in pieces)
@@ -199,6 +207,8 @@ class _Switching:
                     x = trial(t)
                     if self.current == other:
                         step = _next_step(trial, other != self.base)
+                        shortest = _shortest_stretch(cpu, self.evidence["checks"][-1][
+                            "measured"], t - self.evidence["checks"][-1]["t"], per_call)
                 elif trial is not None:
                     self.steps_left += trial.stats["time slabs"]  # solved again
         return _joined(ode, pieces, samples)
@@ -255,6 +265,16 @@ def _restart_cost(costs):
     (the solve's call, its first steps), at least 0."""
     (L1, c1), (L2, c2) = costs[:2]
     return max((L2 * c1 - L1 * c2) / (L2 - L1), 0.0)
+
+
+def _shortest_stretch(cpu, rate, length, per_call):
+    """The shortest stretch whose restart costs at most RESTART_SHARE of it, after one of
+    ``length`` that took ``cpu`` at ``rate`` (:func:`_steady_rate`): the restart is its
+    start, cpu - rate x length, or the fixed cost ``per_call`` of a solve if larger, and
+    the rest of a stretch costs (cpu - restart) / length per unit time."""
+    restart = max(cpu - rate * length, per_call)
+    beyond = (cpu - restart) / length
+    return restart / (RESTART_SHARE * beyond) if beyond > 0.0 else np.inf
 
 
 def _steady_rate(sol, cpu):

@@ -132,6 +132,11 @@ def test_scale_separation_switches_once(cost_model):
     assert sol.stats["method"] == "cG(2) -> mcG(2)", choice
     assert [c["switched"] for c in choice["checks"]] == [True]
     assert choice["checks"][0]["t"] == pytest.approx(0.005)
+    # the trial (4 % of T) found every component active again at its start: the stretch
+    # after it is longer than the 16 % of the schedule, so that restarts stay cheap
+    trial, after = choice["stretches"][1:3]
+    assert trial["trial"] and trial["interval"] == pytest.approx([0.005, 0.025])
+    assert after["interval"][1] - after["interval"][0] > 0.16 * 0.5
 
 
 def test_decided_once_for_output_parameters(cost_model):
@@ -216,6 +221,15 @@ def test_restart_cost_from_two_stretches():
     """c_j = F + r L_j: F from two stretches, and never negative (timing noise)."""
     assert family._restart_cost([(1.0, 3.0), (4.0, 6.0)]) == pytest.approx(2.0)
     assert family._restart_cost([(1.0, 1.0), (4.0, 8.0)]) == 0.0
+
+
+def test_shortest_stretch_bounds_the_restart_share():
+    """A stretch of 2 that took 3 at a steady rate 1 had a start of 1: the next is 1 /
+    (RESTART_SHARE x 1) long at least; a larger fixed cost per call counts instead."""
+    share = family.RESTART_SHARE
+    assert family._shortest_stretch(3.0, 1.0, 2.0, 0.0) == pytest.approx(1.0 / share)
+    assert family._shortest_stretch(3.0, 1.0, 2.0, 2.0) == pytest.approx(2.0 / (share * 0.5))
+    assert family._shortest_stretch(3.0, 1.5, 2.0, 0.0) == 0.0
 
 
 def test_fixed_cost_per_solve_makes_longer_stretches(monkeypatch):
