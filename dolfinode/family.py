@@ -77,6 +77,8 @@ MULTI_ELEMENTS = 2.0
 #: multi-adaptive one, whose components are all active again at a restart until found at
 #: rest, is not cut up for nothing.
 RESTART_SHARE = 0.1
+#: ... but at most this fraction of T - t0, so that a change of scales is still seen.
+LONGEST_STRETCH = 0.5
 #: A component's first multi-adaptive step after a mono-adaptive stretch is at most this
 #: multiple of the common step (a component at rest has no error to size it by).
 MAX_STEP_GROWTH = 10.0
@@ -172,7 +174,8 @@ class _Switching:
         per_call, shortest = 0.0, 0.0  # the fixed cost of a solve call; a stretch's length
         while t < ode.T and (stretches is None or len(pieces) < stretches):
             length = min(length * STRETCH_GROWTH, MAX_STRETCH * (ode.T - ode.t0))
-            end = _stretch_end(t, max(length, shortest), ode.T)
+            longest = LONGEST_STRETCH * (ode.T - ode.t0)
+            end = _stretch_end(t, max(length, min(shortest, longest)), ode.T)
             piece, cpu = self.stretch(t, end, x, self.current, step)
             rate = _steady_rate(piece, cpu)
             if len(pieces) < 2 and not self.evidence["checks"]:
@@ -262,9 +265,9 @@ class _Switching:
 
 def _restart_cost(costs):
     """F of the first two stretches' CPU times c_j = F + r L_j: the fixed cost of a stretch
-    (the solve's call, its first steps), at least 0."""
+    (the solve's call, its first steps), at least 0 and at most either c_j (timing noise)."""
     (L1, c1), (L2, c2) = costs[:2]
-    return max((L2 * c1 - L1 * c2) / (L2 - L1), 0.0)
+    return min(max((L2 * c1 - L1 * c2) / (L2 - L1), 0.0), c1, c2)
 
 
 def _shortest_stretch(cpu, rate, length, per_call):
