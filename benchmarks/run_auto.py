@@ -7,7 +7,9 @@ cheaper), the stiff-spring chain (``dolfinode.bench.problems.mass_spring_chain``
 an oscillator bank (``dolfinode.bench.multirate.oscillator_bank``: one fast oscillator
 among 100 slow ones, where mcG(2) is far cheaper), and, added after auto's rules were set
 (not tuned on), the seed model of automatic modeling at kappa = 1e2
-(``dolfinode.bench.problems.seed_model``: one slow and one 10x faster oscillator).
+(``dolfinode.bench.problems.seed_model``: one slow and one 10x faster oscillator) and a
+bank whose one fast oscillator appears at T/3 (:func:`late_fast_bank`: the scales change
+during the solve).
 All three methods solve with ``calibrate_tolerance=False``: the same step tolerance, as auto
 and the multi-adaptive methods always do (cG(q)'s default calibration would solve at a
 ~100x looser step tolerance than the two others); the error at T is reported with them.
@@ -26,6 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import sympy as sp
 
 import dolfinode as dn
 from dolfinode.bench.multirate import oscillator_bank
@@ -46,6 +49,18 @@ NOTES = [
      "on a machine with a load average of 8-9 on 2 cores.")]
 
 
+def late_fast_bank(n=60, T=6.0):
+    """n oscillators of frequency 1..2 and one whose frequency ramps from 1 to 100 around
+    t = T/3, all displaced at t = 0: one time scale until the ramp, two after it."""
+    x, v = sp.symbols(f"x:{n + 1}"), sp.symbols(f"v:{n + 1}")
+    omega = list(np.linspace(1.0, 2.0, n)) + [1 + 99 * (1 + sp.tanh(5 * (dn.t - T / 3))) / 2]
+    rhs = {}
+    for i in range(n + 1):
+        rhs[x[i]] = v[i]
+        rhs[v[i]] = -omega[i] ** 2 * x[i]
+    return dn.ODE(rhs, u0={**dict.fromkeys(x, 1.0), **dict.fromkeys(v, 0.0)}, T=T)
+
+
 def problems():
     """(name, ode, tolerance, base method, u(T) or None) of the problems."""
     uniform, exact = uniform_chain(100, T=200)
@@ -57,9 +72,12 @@ def problems():
              ("oscillator bank, 100 of frequency 1..2 and one of 1000, T = 2",
               oscillator_bank(n=100, w=1000.0, T=2.0)),
              ("seed model, kappa = 1e2, T = 10 (new)", seed_model(1e2, T=10.0))]
+    late = ("61 oscillators, one ramping from frequency 1 to 100 at t = 2, T = 6 (new)",
+            late_fast_bank(), 1e-5, "cG(2)", None)
     return ([("uniform chain, 100 masses, T = 200", uniform, 1e-6, "cG(2)",
               exact(200.0))]
-            + [(name, problem.ode, 1e-6, "cG(2)", problem.final) for name, problem in bench])
+            + [(name, problem.ode, 1e-6, "cG(2)", problem.final) for name, problem in bench]
+            + [late])
 
 
 def reference(ode, final):
