@@ -144,12 +144,15 @@ def main(argv=None):
                      f"{r['ratio']:.2f}x | "
                      + ", ".join(f"{r['errors at T'][m]:.1e}" for m in (base, multi, auto))
                      + " |")
-    lines += ["", ("auto solves [t0, T] in stretches (1, 4, 16 %, then at most 25 % of it) "
+    lines += ["", ("auto solves [t0, T] in stretches (1, 4, 16 %, then 25 % of it, longer "
+                   "where a restart would cost more than 10 % of a stretch, at most 50 %) "
                    "starting with cG(2); after each stretch it predicts mcG(2)'s CPU rate (or "
-                   "cG(2)'s) from the elements that variant would take, measures it by a pilot "
-                   "from the current state when predicted 1.5x cheaper, and switches when "
-                   "measured 1.5x cheaper (dolfinode/family.py). Its time includes the "
-                   "restarts, the pilots and the joining of the stretches into one solution. "
+                   "cG(2)'s) from the elements that variant would take and, when that is 1.5x "
+                   "below the measured rate, solves the next stretch with the other variant as "
+                   "a trial, which continues if measured cheaper (dolfinode/family.py). Its "
+                   "time includes the restarts, the trials and the joining of the stretches "
+                   "into one solution. All three solve at the same step tolerance "
+                   "(calibrate_tolerance=False; the errors at T are in the last column). "
                    "\"auto chose\" is `sol.stats[\"method\"]` per round; the evidence of the "
                    "last round is in auto.json (`sol.stats[\"family choice\"]`)."), ""]
     lines += NOTES
