@@ -2,14 +2,18 @@
 the problem's scales change.
 
 A multi-adaptive element costs several mono-adaptive component-steps (its own moments,
-sweeps and partition): mcG(q)/mdG(q) pay off only where the components' steps spread
-widely, and the spread may change during a solve (a fast oscillation excited later, a
-transient that dies out). [t0, T] is solved in stretches, the first FIRST_STRETCH (T - t0)
-long with the mono-adaptive variant (cheap to start), each next one STRETCH_GROWTH x longer
-up to MAX_STRETCH (T - t0) (a problem that never changes pays for five restarts), each from
-the end value of the last with its last step. After each stretch the current variant's rate
-r = CPU time / length is measured and the other's predicted from the elements it would take
-over the same stretch,
+sweeps and partition): mcG(q)/mdG(q) pay off only where the components' steps spread widely,
+and the spread may change during a solve (a fast oscillation excited later, a transient that
+dies out). [t0, T] is solved in stretches, the first FIRST_STRETCH (T - t0) long with the
+mono-adaptive variant (cheap to start), each next one STRETCH_GROWTH x longer up to
+MAX_STRETCH (T - t0), each from the end value of the last with its last step(s). A restart
+costs a solve's fixed cost (from the first two stretches, :func:`_restart_cost`) or the
+stretch's start (a multi-adaptive solve has all components active until it finds them at
+rest), whichever is larger: a stretch is at least so long that its restart is RESTART_SHARE
+of it (:func:`_shortest_stretch`), so a problem that never changes pays for five restarts at
+most, and a small one or a multi-adaptive one for fewer. After each stretch the current
+variant's rate r (CPU time / length once started, :func:`_steady_rate`) is measured and the
+other's predicted from the elements it would take over the same stretch,
 
     r_other = r x (E_other / E) x (c_other / c),
 
@@ -17,32 +21,37 @@ with c the CPU time per element: E_mono = (efficiency index) x E of a multi-adap
 (a mono-adaptive step is the smallest component step); E_multi of a mono-adaptive stretch
 from the spread of its components' local errors (:func:`_multi_elements`); c_multi / c_mono
 the latest ratio measured on stretches, COST_RATIO before both were; r_other is scaled by
-c = measured / predicted of the last check of the other variant (until it runs a stretch;
-c > 1 is taken as the variant's start, spread over that pilot's length h: the next pilot, of
-length L, has 1 + (c - 1) h / L). When r_other < r / SWITCH_MARGIN, the other variant is
-measured from the current state by a pilot as long as the last stretch (a quarter of the
-next), and it takes over only if its rate, fixed cost per call and start included, is below
-r / SWITCH_MARGIN: a hysteresis, so that timing noise cannot make a problem that does not
-change switch back and forth. The pilot is then the first stretch of the new variant. The
-stretches, checks and switches with their evidence are in ``sol.stats["family choice"]``; a
-solution with stretches of both variants is represented in the multi-adaptive form (a
-mono-adaptive slab is one element per component: mcG(q) on a common partition is cG(q)), so
-evaluation, samples and ``estimate_error`` see one solution.
+measured / predicted of the last trial of the other variant, until that variant runs a
+stretch. When r_other < r / SWITCH_MARGIN, the next stretch (a stretch of the schedule, not
+the first: a short trial would be mostly its start) is a trial of the other variant from the
+current state, a multi-adaptive one starting each component at its own step
+(:func:`_component_steps`, not all at the common one). The trial is kept (no stretch is
+solved twice) and its variant continues if its measured rate is below r; a multi-adaptive
+trial that does not continue among mono-adaptive stretches only is solved again instead
+(kept, it would turn every slab into N elements of the joined solution). The margin on the
+prediction keeps a problem that does not change from paying for trials; the trial itself is
+measured, so a noisy measurement costs one stretch at most. The stretches and trials with
+their evidence are in ``sol.stats["family choice"]``; a solution with stretches of both
+variants is represented in the multi-adaptive form (a mono-adaptive slab is one element per
+component: mcG(q) on a common partition is cG(q)), so evaluation, samples and
+``estimate_error`` see one solution.
 
-Decided once (after the first stretch and its check, the chosen variant solving [t0, T]
+Decided once (after the first stretch and its trial, the chosen variant solving [t0, T]
 from the start): with a goal, events, breakpoints, automatic modeling, a progress bar,
 sample times, or a history kept only as samples or in a file.
 
 Limitation: a change of scales is seen at the end of the stretch it happens in (up to 29 %
-of [t0, T] later), and the prediction of the multi-adaptive elements is a heuristic
-(0.4-0.55 x the elements mcG(2) took on the benchmark problems, whence MULTI_ELEMENTS):
-a variant predicted no cheaper is not measured.
+of [t0, T] later, more where restarts are dear), and the prediction of the multi-adaptive
+elements is a heuristic (0.4-0.55 x the elements mcG(2) took on the benchmark problems,
+whence MULTI_ELEMENTS): a variant predicted no cheaper is not measured. Each stretch
+restarts the variant (its fixed cost per call; a multi-adaptive one finds its components at
+rest again).
 """
-import itertools
 import re
 import time
 
 import numpy as np
+from numba import njit
 
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
@@ -54,9 +63,8 @@ DEFAULT_BASE = "cG(2)"
 #: The first stretch and the longest, as fractions of T - t0, and the growth of the next ones
 #: (1, 4, 16, 25, 25, 29 %: a change is seen within 29 % of [t0, T]).
 FIRST_STRETCH, MAX_STRETCH, STRETCH_GROWTH = 1e-2, 0.25, 4
-#: The other variant is measured when predicted, and takes over when measured, more than
-#: SWITCH_MARGIN x cheaper than the current one (timing noise of a shared machine is some
-#: 10-30 %).
+#: The other variant is tried when predicted SWITCH_MARGIN x cheaper than the current one
+#: (the prediction is a heuristic, within 2x on the benchmark problems).
 SWITCH_MARGIN = 1.5
 #: CPU time per multi-adaptive element / per mono-adaptive one until both were measured: the
 #: smallest measured on the benchmark problems (11-22 on those of doc/benchmarks/auto.md), so
@@ -64,6 +72,16 @@ SWITCH_MARGIN = 1.5
 COST_RATIO = 12.0
 #: Multi-adaptive elements / :func:`_multi_elements`' estimate (0.4-0.55 x on the benchmarks).
 MULTI_ELEMENTS = 2.0
+#: A stretch is at least so long that its restart (:func:`_shortest_stretch`) is at most this
+#: share of it: a small problem, whose solve is mostly a solve's fixed cost, or a
+#: multi-adaptive one, whose components are all active again at a restart until found at
+#: rest, is not cut up for nothing.
+RESTART_SHARE = 0.1
+#: ... but at most this fraction of T - t0, so that a change of scales is still seen.
+LONGEST_STRETCH = 0.5
+#: A component's first multi-adaptive step after a mono-adaptive stretch is at most this
+#: multiple of the common step (a component at rest has no error to size it by).
+MAX_STEP_GROWTH = 10.0
 #: Parameters a stretch overrides: output, progress, modeling and events are the whole
 #: solve's business (sample times and a history file refer to [t0, T]).
 _STRETCH_PARAMETERS = {"number_of_samples": 2, "sample_times": None, "dense_output": True,
@@ -99,10 +117,10 @@ def solve_auto(solve, ode, base, goal, parameters, params):
     Solution
         ``sol.stats["method"]`` names the variants in turn ("cG(2) -> mcG(2)");
         ``sol.stats["family choice"]`` holds "method" (the variant at the end, or the one
-        chosen once), "stretches" (per stretch: method, interval, CPU time, rate and the
-        other's predicted rate), "checks" (per measurement of the other variant: time, the
-        current, predicted and measured rates, whether it switched, or the pilot's error)
-        and, when decided once, "decided once".
+        chosen once), "stretches" (per kept stretch: method, interval, CPU time, and the
+        rate and the other's predicted rate, or "trial"), "checks" (per trial of the other
+        variant: time, the current, predicted and measured rates, whether it switched, or
+        the trial's error) and, when decided once, "decided once".
     """
     lower(ode)  # compiled once, shared by the stretches (a copy would compile again)
     switching = _Switching(solve, ode, base, {**parameters, **_STRETCH_PARAMETERS}, params)
@@ -138,8 +156,8 @@ class _Switching:
         self.atol = _absolute_tolerance(ode, params["absolute_tolerance"], self.rtol)
         self.current = base
         self.per_element = {}  # the latest CPU time per element of each variant's stretches
-        # (measured / predicted rate, pilot length) of the last check of each variant since
-        # its last stretch, and its latest uncalibrated prediction
+        # measured / predicted rate of the last trial of each variant since its last
+        # stretch, and its latest uncalibrated prediction
         self.calibration, self.uncalibrated = {}, {}
         self.evidence = {"stretches": [], "checks": []}
 
@@ -152,12 +170,19 @@ class _Switching:
         ode = self.ode
         pieces, t, x, step = [], ode.t0, ode.u0, self.parameters.get("initial_time_step")
         length = FIRST_STRETCH * (ode.T - ode.t0) / STRETCH_GROWTH
+        costs = []  # (length, CPU time) of the first two stretches if of one variant
+        per_call, shortest = 0.0, 0.0  # the fixed cost of a solve call; a stretch's length
         while t < ode.T and (stretches is None or len(pieces) < stretches):
-            length *= STRETCH_GROWTH
-            length = min(length, MAX_STRETCH * (ode.T - ode.t0))
-            end = ode.T if ode.T - t < 1.5 * length else t + length  # (no sliver at the end)
+            length = min(length * STRETCH_GROWTH, MAX_STRETCH * (ode.T - ode.t0))
+            longest = LONGEST_STRETCH * (ode.T - ode.t0)
+            end = _stretch_end(t, max(length, min(shortest, longest)), ode.T)
             piece, cpu = self.stretch(t, end, x, self.current, step)
-            rate = cpu / (end - t)
+            rate = _steady_rate(piece, cpu)
+            if len(pieces) < 2 and not self.evidence["checks"]:
+                costs.append((end - t, cpu))
+                per_call = _restart_cost(costs) if len(costs) == 2 else 0.0
+            if pieces:  # (the first stretch's start is no restart: the steps grow from 0)
+                shortest = _shortest_stretch(cpu, rate, end - t, per_call)
             self.per_element[self.current] = cpu / piece.stats["elements"]
             self.calibration.pop(self.current, None)
             other = self.other(self.current)
@@ -166,17 +191,29 @@ class _Switching:
                 {"method": self.current, "interval": [t, end], "cpu time": cpu, "rate": rate,
                  "predicted rate of " + other: predicted})
             pieces.append(piece)
-            self.steps_left -= piece.stats["time slabs"]
             t, x = end, piece(end)
             step = _next_step(piece, self.current != self.base)
             if predicted * SWITCH_MARGIN < rate and (t < ode.T or stretches is not None):
-                pilot = self.measure(other, t, x, _next_step(piece, False), length)
-                if pilot is not None:
-                    pieces.append(pilot)
-                    self.steps_left -= pilot.stats["time slabs"]
-                    self.current = other
-                    t = pilot.ode.T
-                    x, step = pilot(t), _next_step(pilot, other != self.base)
+                first = (_next_step(piece, False) if piece.multi
+                         else _component_steps(piece, self.atol, self.rtol))
+                trial, cpu = self.trial(other, t, x, first, min(
+                    length * STRETCH_GROWTH, MAX_STRETCH * (ode.T - ode.t0)))
+                # a multi-adaptive trial among mono-adaptive stretches is kept only if it
+                # continues: else every slab would be joined as N elements, for nothing
+                mixes = trial is not None and trial.multi and not any(p.multi for p in pieces)
+                if trial is not None and (self.current == other or not mixes):
+                    self.evidence["stretches"].append(
+                        {"method": other, "interval": [t, trial.ode.T], "cpu time": cpu,
+                         "trial": True})
+                    pieces.append(trial)
+                    t = trial.ode.T
+                    x = trial(t)
+                    if self.current == other:
+                        step = _next_step(trial, other != self.base)
+                        shortest = _shortest_stretch(cpu, self.evidence["checks"][-1][
+                            "measured"], t - self.evidence["checks"][-1]["t"], per_call)
+                elif trial is not None:
+                    self.steps_left += trial.stats["time slabs"]  # solved again
         return _joined(ode, pieces, samples)
 
     def stretch(self, t, end, x, name, step):
@@ -188,6 +225,7 @@ class _Switching:
         piece, cpu = _solve_on(self.solve, self.ode, t, end, x, name,
                                {**self.parameters, "initial_time_step": step,
                                 "maximum_steps": self.steps_left})
+        self.steps_left -= piece.stats["time slabs"]
         return piece, cpu
 
     def predicted(self, name, piece, rate):
@@ -202,36 +240,61 @@ class _Switching:
         ratio = multi / mono if multi and mono else COST_RATIO
         predicted = rate * other_elements / elements * (1 / ratio if piece.multi else ratio)
         self.uncalibrated[name] = predicted
-        if name in self.calibration:
-            # the excess of a check's measured over its predicted rate is the variant's
-            # start, spread over that pilot's length; the next pilot is as long as ``piece``
-            excess, pilot = self.calibration[name]
-            length = piece.ode.T - piece.ode.t0
-            predicted *= excess if excess < 1 else 1 + (excess - 1) * min(1.0, pilot / length)
-        return predicted
+        return predicted * self.calibration.get(name, 1.0)
 
-    def measure(self, name, t, x, step, length):
-        """Measure variant ``name`` by a pilot from (t, x) over ``length``: its solution if
-        it takes over, else None (the check in the evidence)."""
+    def trial(self, name, t, x, step, length):
+        """(solution, CPU time) of variant ``name`` over the next ``length`` from (t, x)
+        (None if it failed, the error in the check); ``name`` continues if its rate
+        (:func:`_steady_rate`) is below the current one's."""
         stretch = self.evidence["stretches"][-1]
         check = {"t": t, "from": stretch["method"], "rate": stretch["rate"],
                  "predicted": stretch["predicted rate of " + name], "switched": False}
         self.evidence["checks"].append(check)
-        end = min(t + length, self.ode.T)
         try:
-            sol, cpu = self.stretch(t, end, x, name, step)
+            sol, cpu = self.stretch(t, _stretch_end(t, length, self.ode.T), x, name, step)
         except SolverError as error:
             check["error"] = str(error)
-            return None
-        # the mean rate, fixed cost per call and start included: a change must pay for them
-        check["measured"] = cpu / (end - t)
-        self.calibration[name] = (check["measured"] / self.uncalibrated[name], end - t)
-        if check["measured"] * SWITCH_MARGIN < check["rate"]:
+            return None, None
+        check["measured"] = _steady_rate(sol, cpu)
+        self.calibration[name] = check["measured"] / self.uncalibrated[name]
+        if check["measured"] < check["rate"]:
             check["switched"] = True
-            self.evidence["stretches"].append({"method": name, "interval": [t, end],
-                                               "cpu time": cpu})
-            return sol
-        return None
+            self.current = name
+        return sol, cpu
+
+
+def _restart_cost(costs):
+    """F of the first two stretches' CPU times c_j = F + r L_j: the fixed cost of a stretch
+    (the solve's call, its first steps), at least 0 and at most either c_j (timing noise)."""
+    (L1, c1), (L2, c2) = costs[:2]
+    return min(max((L2 * c1 - L1 * c2) / (L2 - L1), 0.0), c1, c2)
+
+
+def _shortest_stretch(cpu, rate, length, per_call):
+    """The shortest stretch whose restart costs at most RESTART_SHARE of it, after one of
+    ``length`` that took ``cpu`` at ``rate`` (:func:`_steady_rate`): the restart is its
+    start, cpu - rate x length, or the fixed cost ``per_call`` of a solve if larger, and
+    the rest of a stretch costs (cpu - restart) / length per unit time."""
+    restart = max(cpu - rate * length, per_call)
+    beyond = (cpu - restart) / length
+    return restart / (RESTART_SHARE * beyond) if beyond > 0.0 else np.inf
+
+
+def _steady_rate(sol, cpu):
+    """The CPU rate of the solve ``sol`` (CPU time ``cpu``) once started: CPU time / length,
+    or, if lower, its CPU time per element x the elements per unit time of the second half
+    of its interval. A start (the steps growing from the first, a multi-adaptive solve's
+    components active until found at rest) is paid again by every stretch of either variant,
+    and mostly in a short one."""
+    t0, T = sol.ode.t0, sol.ode.T
+    late = max(int(np.count_nonzero(sol.t_start >= 0.5 * (t0 + T))), 1)
+    return cpu / (T - t0) * min(1.0, 2.0 * late / len(sol.t_start))
+
+
+def _stretch_end(t, length, T):
+    """The end of a stretch of ``length`` from t: T when less than half a stretch would
+    be left after it (no sliver at the end)."""
+    return T if T - t < 1.5 * length else t + length
 
 
 def _solve_on(solve, ode, t0, T, u0, method, parameters):
@@ -250,41 +313,54 @@ def _solve_on(solve, ode, t0, T, u0, method, parameters):
     return sol, cpu
 
 
-def _multi_elements(sol, atol, rtol, sampled=64):
+def _local_errors(sol, first, atol, rtol):
+    """eta_ni = k^(q+1) |u_i^(q+1)| / (atol_i + rtol |U_i|), (len(first), N), of the
+    mono-adaptive solution ``sol`` at the ends of its elements ``first``, with u^(q+1) from
+    the jump of the polynomials' q-th derivatives to the next element and k the mean of
+    the two steps."""
+    q = sol.method.q
+    k0, k1 = sol.k[first], sol.k[first + 1]
+    weights = np.asarray(sol.method.barycentric_weights)
+    # q! u^(q): the barycentric weights applied to the nodal values, over k^q
+    jump = ((weights @ sol.values[first + 1]) / (k1 ** q)[:, None]
+            - (weights @ sol.values[first]) / (k0 ** q)[:, None])
+    eta = np.abs(jump) * (0.5 * (k0 + k1))[:, None] ** q
+    return eta / (atol + rtol * np.abs(sol.values[first + 1, -1]))
+
+
+def _step_shares(eta, q):
+    """(eta_ni / max_i eta_ni)^(1/(q+1)): the share of the mono-adaptive step's elements that
+    component i alone would take (1 where no component has an error)."""
+    largest = eta.max(axis=1, keepdims=True)
+    return np.divide(eta, largest, out=np.ones_like(eta), where=largest > 0) ** (1.0 / (q + 1))
+
+
+def _multi_elements(sol, atol, rtol, sampled=16):
     """The elements a multi-adaptive solve would take over the mono-adaptive solution ``sol``.
 
-    The local error of component i on element n is taken as
-    eta_ni = k_n^(q+1) |u_i^(q+1)| / (atol_i + rtol |U_i|), with u^(q+1) from the jump of
-    the polynomials' q-th derivatives between consecutive elements; where the mono-adaptive
-    step k_n meets the largest eta_n, component i alone would take
-    (eta_ni / max_i eta_ni)^(1/(q+1)) x as many elements. Summed over ``sampled`` pairs of
-    consecutive elements spread over the solution, scaled to all of them.
+    Where the mono-adaptive step k_n meets the largest local error eta_n
+    (:func:`_local_errors`), component i alone would take (eta_ni / max_i eta_ni)^(1/(q+1))
+    x as many elements. Summed over ``sampled`` pairs of consecutive elements spread over
+    the solution, scaled to all of them.
     """
-    q, M = sol.method.q, len(sol.k)
+    M = len(sol.k)
     if M < 2:
         return float(sol.stats["elements"])
-    pairs = np.unique(np.linspace(0, M - 2, min(sampled, M - 1)).astype(np.int64))
-    both = np.concatenate([pairs, pairs + 1])
-    k = sol.k[both].reshape(2, -1)
-    values = sol.values[both].reshape(2, len(pairs), q + 1, -1)
-    leading = sum(w * values[:, :, j] for j, w in enumerate(sol.method.barycentric_weights))
-    leading /= k[..., None] ** q
-    eta = np.abs(leading[1] - leading[0]) * (0.5 * (k[0] + k[1]))[:, None] ** q
-    eta /= atol + rtol * np.abs(values[1, :, -1, :])
-    largest = eta.max(axis=1, keepdims=True)
-    share = np.divide(eta, largest, out=np.ones_like(eta), where=largest > 0) ** (1.0 / (q + 1))
-    return float(share.sum(axis=1).mean() * M)
+    first = np.linspace(0, M - 2, min(sampled, M - 1)).astype(np.int64)  # distinct
+    shares = _step_shares(_local_errors(sol, first, atol, rtol), sol.method.q)
+    return float(shares.sum(axis=1).mean() * M)
 
 
-def _component_blocks(sol):
-    """Per component, its (t_start, t_end, values) in ``sol`` (views; a mono-adaptive
-    solution's elements end exactly where the next starts, the last at T)."""
-    if sol.multi:
-        ptr = sol._component_ptr
-        return [(sol.t_start[a:b], sol._t_end[a:b], sol.values[a:b])
-                for a, b in itertools.pairwise(ptr)]
-    t_end = np.append(sol.t_start[1:], sol.ode.T)
-    return [(sol.t_start, t_end, sol.values[:, :, i]) for i in range(sol.ode.N)]
+def _component_steps(sol, atol, rtol):
+    """Per component, the first step of a multi-adaptive solve continuing the mono-adaptive
+    solution ``sol``: its next step over the component's share at its last elements (at most
+    MAX_STEP_GROWTH x), so that the components need not grow their steps from the common one."""
+    step = float(sol.stats["next time step"])
+    if len(sol.k) < 2:
+        return step
+    shares = _step_shares(_local_errors(sol, np.array([len(sol.k) - 2]), atol, rtol),
+                          sol.method.q)[0]
+    return step / np.maximum(shares, 1.0 / MAX_STEP_GROWTH)
 
 
 def _next_step(sol, per_component):
@@ -319,13 +395,48 @@ def _joined(ode, pieces, samples):
         return Solution(solved, method, np.concatenate([p.t_start for p in pieces]),
                         np.concatenate([p.k for p in pieces]),
                         np.concatenate([p.values for p in pieces]), stats, samples)
-    # each component's elements, piece after piece (views joined once: no sort, no transpose)
-    blocks = [_component_blocks(piece) for piece in pieces]
-    ordered = [piece_blocks[i] for i in range(ode.N) for piece_blocks in blocks]
-    t_start, t_end, values = (np.concatenate([block[j] for block in ordered]) for j in range(3))
-    counts = np.array([len(block[0]) for block in ordered]).reshape(ode.N, len(pieces))
-    stats["elements per component"] = counts.sum(axis=1)
+    # each component's elements, piece after piece: component i's elements of piece p start
+    # at ptr[i] + (component i's elements in the pieces before p)
+    counts = np.array([np.diff(p._component_ptr) if p.multi else np.full(ode.N, len(p.k))
+                       for p in pieces])  # (pieces, N)
+    stats["elements per component"] = counts.sum(axis=0)
     ptr = np.concatenate([[0], np.cumsum(stats["elements per component"])])
+    offsets = ptr[:-1] + np.cumsum(counts, axis=0) - counts
+    t_start, t_end = np.empty(ptr[-1]), np.empty(ptr[-1])
+    values = np.empty((ptr[-1], method.q + 1))
+    for piece, offset in zip(pieces, offsets):
+        if piece.multi:
+            _place_elements(offset, piece._component_ptr, piece.t_start, piece._t_end,
+                            piece.values, t_start, t_end, values)
+        else:
+            _place_slabs(offset, piece.t_start, piece.ode.T, piece.values, t_start, t_end,
+                         values)
     return Solution.grouped(solved, method, ptr, t_start, t_end, values, stats, samples)
 
 
+@njit(cache=True)
+def _place_elements(offset, ptr, t_start, t_end, values, out_t_start, out_t_end, out_values):
+    """Copy component i's elements ptr[i]:ptr[i + 1] of a multi-adaptive solution to the
+    rows from offset[i] of the out arrays."""
+    for i in range(offset.shape[0]):
+        row = offset[i]
+        for e in range(ptr[i], ptr[i + 1]):
+            out_t_start[row], out_t_end[row] = t_start[e], t_end[e]
+            out_values[row, :] = values[e, :]
+            row += 1
+
+
+@njit(cache=True)
+def _place_slabs(offset, t_start, T, values, out_t_start, out_t_end, out_values):
+    """Copy the slabs of a mono-adaptive solution on [t_start[0], T] (``values`` (M, q+1, N))
+    as component i's elements to the rows from offset[i] of the out arrays."""
+    M, N = t_start.shape[0], offset.shape[0]
+    for first in range(0, N, 32):  # in blocks of components: the reads stay in cache
+        last = min(first + 32, N)
+        for n in range(M):
+            end = t_start[n + 1] if n + 1 < M else T
+            for i in range(first, last):
+                row = offset[i] + n
+                out_t_start[row], out_t_end[row] = t_start[n], end
+                for j in range(values.shape[1]):
+                    out_values[row, j] = values[n, j, i]

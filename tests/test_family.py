@@ -21,19 +21,26 @@ TOL = 1e-5
 driver = importlib.import_module("dolfinode.solve")  # (dn.solve is the function)
 
 
-@pytest.fixture
-def cost_model(monkeypatch):
-    """CPU time = elements x (COST_RATIO multi-adaptive, 1 mono-adaptive) x 1e-7 s."""
+def _model_costs(monkeypatch, per_call):
+    """CPU time = per_call + elements x (COST_RATIO multi-adaptive, 1 mono-adaptive) x 1e-7 s
+    per solve."""
     spent = [0.0]
     solve = driver.solve
 
     def counted(ode, method, **parameters):
         sol = solve(ode, method, **parameters)
-        spent[0] += sol.stats["elements"] * (family.COST_RATIO if sol.multi else 1) * 1e-7
+        elements = sol.stats["elements"] * (family.COST_RATIO if sol.multi else 1)
+        spent[0] += per_call + elements * 1e-7
         return sol
 
     monkeypatch.setattr(driver, "solve", counted)
     monkeypatch.setattr(family, "_clock", lambda: spent[0])
+
+
+@pytest.fixture
+def cost_model(monkeypatch):
+    """The CPU time of a solve from its elements alone."""
+    _model_costs(monkeypatch, 0.0)
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +77,10 @@ def test_late_fast_scale_switches(cost_model, late_fast):
     assert sol.stats["method"] == "cG(2) -> mcG(2)", choice
     switch = [check for check in choice["checks"] if check["switched"]]
     assert len(switch) == 1 and 2.0 < switch[0]["t"] < 6.0, choice
-    assert switch[0]["measured"] * family.SWITCH_MARGIN < switch[0]["rate"]
+    assert switch[0]["measured"] < switch[0]["rate"]
+    # the trial that switched is kept: the stretch from the check's time is mcG(2)'s
+    after = next(s for s in choice["stretches"] if s["interval"][0] == switch[0]["t"])
+    assert after["method"] == "mcG(2)" and after["trial"]
     assert choice["method"] == "mcG(2)" and sol.multi
     stretches = choice["stretches"]
     assert stretches[0]["interval"][0] == 0.0 and stretches[-1]["interval"][1] == 6.0
@@ -122,6 +132,11 @@ def test_scale_separation_switches_once(cost_model):
     assert sol.stats["method"] == "cG(2) -> mcG(2)", choice
     assert [c["switched"] for c in choice["checks"]] == [True]
     assert choice["checks"][0]["t"] == pytest.approx(0.005)
+    # the trial (4 % of T) found every component active again at its start: the stretch
+    # after it is longer than the 16 % of the schedule, so that restarts stay cheap
+    trial, after = choice["stretches"][1:3]
+    assert trial["trial"] and trial["interval"] == pytest.approx([0.005, 0.025])
+    assert after["interval"][1] - after["interval"][0] > 0.16 * 0.5
 
 
 def test_decided_once_for_output_parameters(cost_model):
@@ -151,3 +166,85 @@ def test_maximum_steps_bounds_the_whole_solve():
         dn.solve(ode, "auto", tolerance=TOL, maximum_steps=slabs // 2)
     sol = dn.solve(ode, "auto", tolerance=TOL, maximum_steps=3 * slabs)
     assert sol.t[-1] == ode.T
+
+
+def test_losing_trial_among_mono_stretches_is_discarded(cost_model, monkeypatch):
+    """A multi-adaptive trial predicted cheap but measured dearer does not continue, and
+    among mono-adaptive stretches it is solved again by cG(2): the solution stays
+    mono-adaptive, its stretches contiguous, every check recorded."""
+    monkeypatch.setattr(family, "MULTI_ELEMENTS", 1e-3)  # mcG(2) predicted ~free
+    ode = mass_spring_chain(20, T=50.0)[0]
+    sol = dn.solve(ode, "auto", tolerance=1e-6)
+    choice = sol.stats["family choice"]
+    assert sol.stats["method"] == "cG(2)" and not sol.multi, choice
+    assert choice["checks"] and not any(c["switched"] for c in choice["checks"])
+    assert all(c["measured"] >= c["rate"] for c in choice["checks"])
+    stretches = choice["stretches"]
+    assert all(s["method"] == "cG(2)" for s in stretches)
+    assert all(a["interval"][1] == b["interval"][0] for a, b in itertools.pairwise(stretches))
+    direct = dn.solve(ode, "cG(2)", tolerance=1e-6, calibrate_tolerance=False)
+    assert np.abs(sol(50.0) - direct(50.0)).max() < 1e-4
+
+
+def test_joined_stretches_evaluate_as_the_stretches(late_fast):
+    """A cG(2) stretch and an mcG(2) stretch joined in the multi-adaptive form: at any time
+    the joined solution is the stretch's own polynomial."""
+    parameters = {"tolerance": TOL, "number_of_samples": 2, "calibrate_tolerance": False}
+    first, _ = family._solve_on(driver.solve, late_fast, 0.0, 2.5, late_fast.u0, "cG(2)",
+                                parameters)
+    second, _ = family._solve_on(driver.solve, late_fast, 2.5, 3.0, first(2.5), "mcG(2)",
+                                 parameters)
+    joined = family._joined(late_fast, [first, second], 5)
+    assert joined.multi and joined.stats["method"] == "cG(2) -> mcG(2)"
+    assert joined.stats["elements"] == first.stats["elements"] + second.stats["elements"]
+    times = np.random.default_rng(1).uniform(0.0, 3.0, 50)
+    for t in times:
+        piece = first if t <= 2.5 else second
+        np.testing.assert_allclose(joined(t), piece(t), rtol=0, atol=1e-13)
+
+
+def test_carried_steps_follow_the_components_errors():
+    """Entering mcG(2) after cG(2), a component gets the common step over its share of the
+    largest local error, at most MAX_STEP_GROWTH x: the fast oscillator keeps the common
+    step, slow ones get larger ones."""
+    bank = oscillator_bank(n=20, w=1000.0, T=0.02).ode
+    sol = dn.solve(bank, "cG(2)", tolerance=1e-6, calibrate_tolerance=False)
+    atol = np.full(bank.N, 1e-6)
+    steps = family._component_steps(sol, atol, 1e-6)
+    common = sol.stats["next time step"]
+    assert np.all(steps >= common) and np.all(steps <= family.MAX_STEP_GROWTH * common)
+    fast = [bank.N - 2, bank.N - 1]  # x_f, v_f: the last two states
+    assert steps[fast].max() < 2 * common and np.median(steps) > 3 * common
+
+
+def test_restart_cost_from_two_stretches():
+    """c_j = F + r L_j: F from two stretches, and never negative (timing noise)."""
+    assert family._restart_cost([(1.0, 3.0), (4.0, 6.0)]) == pytest.approx(2.0)
+    assert family._restart_cost([(1.0, 1.0), (4.0, 8.0)]) == 0.0
+
+
+def test_shortest_stretch_bounds_the_restart_share():
+    """A stretch of 2 that took 3 at a steady rate 1 had a start of 1: the next is 1 /
+    (RESTART_SHARE x 1) long at least; a larger fixed cost per call counts instead."""
+    share = family.RESTART_SHARE
+    assert family._shortest_stretch(3.0, 1.0, 2.0, 0.0) == pytest.approx(1.0 / share)
+    assert family._shortest_stretch(3.0, 1.0, 2.0, 2.0) == pytest.approx(2.0 / (share * 0.5))
+    assert family._shortest_stretch(3.0, 1.5, 2.0, 0.0) == 0.0
+
+
+def test_fixed_cost_per_solve_makes_longer_stretches(monkeypatch):
+    """When a solve's fixed cost dominates (a small problem), the stretches after the first
+    two are long enough that it is at most RESTART_SHARE of each, up to LONGEST_STRETCH:
+    fewer restarts, the same solution as without a fixed cost."""
+    ode = mass_spring_chain(10, T=50.0)[0]
+    _model_costs(monkeypatch, 0.0)
+    cut = dn.solve(ode, "auto", tolerance=1e-6)
+    monkeypatch.undo()
+    _model_costs(monkeypatch, 1e-3)
+    long = dn.solve(ode, "auto", tolerance=1e-6)
+    few, many = (len(s.stats["family choice"]["stretches"]) for s in (long, cut))
+    assert few < many, (few, many)
+    third = long.stats["family choice"]["stretches"][2]["interval"]  # at most half of T
+    assert third[1] - third[0] == pytest.approx(family.LONGEST_STRETCH * 50.0)
+    assert long.stats["method"] == "cG(2)"
+    assert np.abs(long(50.0) - cut(50.0)).max() < 1e-5
