@@ -92,7 +92,7 @@ def solve_with_modeling(ode, method, params, solve):
 
     def flow(reason):
         """The flow-averaged model instead (:mod:`dolfinode.modeling.flow`), checked."""
-        sol = solve_flow(ode, _conservative(method), params["tolerance"],
+        sol = solve_flow(ode, method, params["tolerance"],
                          params["average_samples"],
                          params["number_of_samples"], run, reason)
         return _checked(sol, sol.model, runs, params, start_time, stacklevel=6)
