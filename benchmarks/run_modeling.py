@@ -286,17 +286,18 @@ def _compiled_resolving(ode, stiff, grid, average, reference, slow, target, repe
     return row
 
 
-def _scipy_resolving(ode, stiff, grid, average, reference, slow, target, rtol, cap):
-    """scipy's DOP853 (LSODA when stiff) on the full model from ``rtol`` (the compiled
-    solver's, the same method; the loosest of RESOLVING_RTOLS without it) tightened by 10
+def _scipy_resolving(ode, stiff, grid, average, reference, slow, target, loosest, cap):
+    """scipy's DOP853 (LSODA when stiff) on the full model from the rtol ``loosest`` (the
+    compiled solver's, the same method; the loosest of RESOLVING_RTOLS without it) tightened
+    by 10
     until its kernel averages are within ``target`` of the reference, each run stopped after
     ``cap`` seconds of wall time: its rtol, error and CPU seconds."""
     compiled = lower(ode)
     method = "LSODA" if stiff else "DOP853"
     row = {"scipy": method, "scipy rtol": None, "scipy error / range": None,
            "scipy CPU [s]": None}
-    for rtol in [r for r in RESOLVING_RTOLS if rtol is None or r <= rtol][:3]:
-        full, cpu = _capped(lambda: solve_ivp(
+    for rtol in [r for r in RESOLVING_RTOLS if loosest is None or r <= loosest][:3]:
+        full, cpu = _capped(lambda rtol=rtol: solve_ivp(
             lambda t, u: compiled.f(u, t), (ode.t0, grid[-1]), ode.u0, method=method,
             rtol=rtol, atol=rtol / 100, t_eval=grid), cap)
         if full is None:

@@ -20,8 +20,8 @@ The pipeline (Jansson, Johnson & Logg 2005, sections 3-7, made automatic and che
 5. check the result a posteriori (:mod:`dolfinode.modeling.validity`): a ModelingWarning,
    or with ``strict=True`` a SolverError, when the error estimate exceeds the tolerance.
 
-Windows are resolved with a cG method (cG(q) for dG(q), mcG(q) for mdG(q)), see
-``_conservative``.
+Windows are resolved with cG(max(q, 4)) (mcG for multi-adaptive methods), see
+:func:`~dolfinode.modeling.flow.resolving_method`.
 """
 import math
 import time
@@ -33,7 +33,13 @@ from dolfinode.compile import lower
 from dolfinode.methods import parse_method
 from dolfinode.modeling.averaging import WindowAverager
 from dolfinode.modeling.declaration import WindowModel
-from dolfinode.modeling.flow import FLOW_START, frequency_change, solve_flow, stiffness_parameter
+from dolfinode.modeling.flow import (
+    FLOW_START,
+    frequency_change,
+    resolving_method,
+    solve_flow,
+    stiffness_parameter,
+)
 from dolfinode.modeling.reduced import (
     ControlPoint,
     ReducedModel,
@@ -131,11 +137,11 @@ def solve_with_modeling(ode, method, params, solve):
     # dG(q) damps the resolved oscillation a little in every window; the control points
     # restart from the fluctuation of the last build, so with dG the losses would compound
     # over rebuilds (mdG(1) on the simple model: g~ 0.25 -> 0.10 in ten checks). Windows
-    # are resolved with cG(q) (mcG(q)), which conserves the oscillation's energy; the output
-    # on [t0, t_c] is the first half-window solved again with the method of the reduced
-    # solution, so that the returned Solution has one method.
-    from dolfinode.modeling.flow import flow_method
-    window_method = flow_method(method)
+    # are resolved with cG (mcG), which conserves the oscillation's energy, of degree 4 at
+    # least (fewer steps per fast period); the output on [t0, t_c] is the first half-window
+    # solved again with the method of the reduced solution, so that the returned Solution
+    # has one method.
+    window_method = resolving_method(method)
     window_options = {"maximum_time_step": min(window_step, tau)}
 
     # a window of a large system is solved in pieces of about WINDOW_PIECE_BYTES of elements
@@ -427,12 +433,6 @@ def _end_jacobian(compiled, model, averages, tau):
     average): the slow state moves over the window."""
     return compiled.jacobian_matrix(model.state(averages.u_bar + averages.fluctuation),
                                     averages.center + tau)
-
-
-def _conservative(method):
-    """cG(max(q, 1)) for dG(q), mcG(max(q, 1)) for mdG(q); a cG method itself."""
-    multi, m = parse_method(method)
-    return method if m.family == "cG" else f"{'m' if multi else ''}cG({max(m.q, 1)})"
 
 
 def _last_step(sol):

@@ -18,7 +18,7 @@ the slow one (their "boosting"; FLAVORS, Tao, Owhadi & Marsden, Multiscale Model
    rho_2 = min(rho, 2 FLOW_SEPARATION rho_slow) (rho_slow the |lambda| of df/du(u0) below its
    largest gap, see :func:`slow_rate`), solved from u0 on [t0, T + tau_1] with a conservative
    cG method (dG damps the fast oscillation, whose energy drives the slow variables) of
-   degree at least FLOW_DEGREE (see :func:`flow_method`);
+   degree at least RESOLVING_DEGREE (see :func:`resolving_method`);
 3. the output is its average with the modeling kernel K (:mod:`~dolfinode.modeling.averaging`)
    of half-length tau' = max(MINIMUM_PERIODS / rho_2, SLOW_FRACTION / rho_slow), shortened
    to t - t0 near t0:
@@ -74,11 +74,12 @@ FLOW_SAFETY = 2.0
 #: Where the full model is no faster than rho_2 it is solved, and checked by a solve at
 #: this fraction of the tolerance (returned; D then estimates the discretisation error).
 FULL_TIGHTER = 0.1
-#: The flows are solved with cG(q) (mcG(q)) of this degree at least: they carry thousands of
-#: fast periods, and at the tolerance the steps per period fall with q (the adiabatic class at
+#: The flows (and the resolved windows) are solved with cG(q) (mcG(q)) of this degree at
+#: least: they carry thousands of fast periods, and at the tolerance the steps per period
+#: fall with q (the adiabatic class at
 #: rho_2 = 212, tolerance 1e-4: cG(2) 199,000 slabs, cG(3) 50,000, cG(4) 26,000, with the
 #: slow x1(T) the same to 2e-7).
-FLOW_DEGREE = 4
+RESOLVING_DEGREE = 4
 #: A parameter p is a stiffness when rho ~ p^e with |e| at least this.
 MIN_EXPONENT = 0.25
 #: p is multiplied by this to measure e.
@@ -264,18 +265,20 @@ def average(solution, times, half, weights, offsets):
     return out
 
 
-def flow_method(method):
-    """The method of the flows: cG(max(q, FLOW_DEGREE)) for cG(q) or dG(q), mcG(...) for
-    mcG(q) or mdG(q) (conservative: dG damps the fast oscillation)."""
+def resolving_method(method):
+    """The method that resolves the fast scale, in the flows and in the windows of the
+    reduced models: cG(max(q, RESOLVING_DEGREE)) for cG(q) or dG(q), mcG(...) for mcG(q)
+    or mdG(q) (conservative: dG damps the fast oscillation)."""
     multi, m = parse_method(method)
-    return f"{'m' if multi else ''}cG({max(m.q, FLOW_DEGREE)})"
+    return f"{'m' if multi else ''}cG({max(m.q, RESOLVING_DEGREE)})"
 
 
 def solve_flow(ode, method, tolerance, samples, number_of_samples, run, reason):
     """Solve ``ode`` with the flow-averaged model; ``run(declaration, method, tolerance=)``
     solves a declaration (counted in the stats by the caller), ``method`` the user's (the
-    flows take :func:`flow_method` of it). Returns the :class:`FlowSolution` with ``model`` set (its check
-    is the caller's, :func:`~dolfinode.modeling.validity.check_validity`).
+    flows take :func:`resolving_method` of it). Returns the :class:`FlowSolution` with
+    ``model`` set (its check is the caller's,
+    :func:`~dolfinode.modeling.validity.check_validity`).
 
     Raises ValueError when no parameter sets the fast scale."""
     compiled = lower(ode)
@@ -308,8 +311,8 @@ def solve_flow(ode, method, tolerance, samples, number_of_samples, run, reason):
                          "the slow one (a relaxation has no fast oscillation to carry: "
                          "subgrid_model='auto' puts it on its slow manifold); solve "
                          "without automatic_modeling")
-    solutions = [run(vary(flow, {"T": ode.T + tau_check}), flow_method(method), tolerance=tol)
-                 for flow, tol in zip(flows, tolerances)]
+    solutions = [run(vary(flow, {"T": ode.T + tau_check}), resolving_method(method),
+                     tolerance=tol) for flow, tol in zip(flows, tolerances)]
     weights = kernel_weights(COMPARISON_SAMPLES)
     offsets = np.linspace(-1.0, 1.0, weights.size)
     times = np.linspace(ode.t0 + tau_check, ode.T, COMPARISON_TIMES)

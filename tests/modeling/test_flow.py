@@ -43,8 +43,8 @@ def flowed(request):
 
 def test_default_takes_the_flow_and_is_right_or_warned(flowed):
     """The adiabatic class (fast frequency depending on the slow state) comes out right
-    without a warning (measured 5.4e-6 of the range, estimate 1.8e-5 against an error at T
-    of 1.8e-6; the constant/affine model was off by 13-17% and warned); Fermi-Pasta-Ulam,
+    without a warning (measured 5.0e-6 of the range, estimate 1.8e-5 against an error at T
+    of 1.7e-6; the constant/affine model was off by 13-17% and warned); Fermi-Pasta-Ulam,
     whose slow variables are not components (it raised), is right within 1e-2 of the range
     (measured 2.2e-5) and warned exactly where its estimate (1.2e-3 against an error at T of
     3.4e-5) is above the tolerance."""
