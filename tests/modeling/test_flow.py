@@ -148,3 +148,11 @@ def test_stiffness_parameter_and_its_absence():
     sol, _ = _solve(multiscale.adiabatic(1e6)[0])
     with pytest.raises(ValueError, match="linear final-time goals"):
         sol.model.modeling_error(("integral", {sol.ode.states[0]: 1.0}))
+
+
+def test_resolving_method_is_conservative_of_degree_four_at_least():
+    """Flows and windows are solved with cG (dG damps the fast energy) of degree >= 4."""
+    from dolfinode.modeling.flow import resolving_method
+
+    assert [resolving_method(m) for m in ("cG(2)", "dG(1)", "mdG(0)", "mcG(5)", "cG(6)")] \
+        == ["cG(4)", "cG(4)", "mcG(4)", "mcG(5)", "cG(6)"]
