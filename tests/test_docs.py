@@ -99,3 +99,24 @@ def test_readme_peer_figures_match_the_peers_record():
     text = README.replace("\n  ", " ")
     assert (f"{min(ratios[8]):g}-{max(ratios[8]):g}x its time at 8 digits" in text
             and f"{min(ratios[6]):g}-{max(ratios[6]):g}x at 6" in text)
+
+
+def test_readme_modeling_classes_figures_match_the_record():
+    """The README's modeling CPU range over the four classes (1e4 ... 1e12) and its ratios of
+    the resolving solvers' CPU at equal accuracy at 1e8 (the oscillating classes) are the
+    record's."""
+    import csv
+
+    with open(ROOT / "doc" / "benchmarks" / "modeling_classes.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    cpu = [float(r["modeling CPU [s]"]) for r in rows]
+    at_1e8 = [r for r in rows if float(r["scale separation"]) == 1e8
+              and r["class"] != "michaelis_menten"]
+    ratios = {k: [float(r[k]) / float(r["modeling CPU [s]"]) for r in at_1e8]
+              for k in ("compiled CPU [s]", "scipy CPU [s]")}
+    text = README.replace("\n  ", " ")
+    assert f"in {min(cpu):.2g}-{max(cpu):.2g} s of CPU time" in text
+    scipy, compiled = ratios["scipy CPU [s]"], ratios["compiled CPU [s]"]
+    assert (f"{min(scipy):.0f}-{max(scipy):.0f}x the modeling's CPU time with scipy's DOP853"
+            in text)
+    assert f"{min(compiled):.2g}-{max(compiled):.2g}x with numbalsoda's" in text

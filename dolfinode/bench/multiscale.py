@@ -67,32 +67,41 @@ CLASSES = {"adiabatic": adiabatic, "fermi_pasta_ulam": fermi_pasta_ulam,
            "michaelis_menten": michaelis_menten, "proportional": proportional}
 
 
+def kernel_grid(times, tau, samples=400):
+    """(grid, average): the sorted times at which a solution is read for the kernel averages
+    of half-length ``tau`` around each of ``times``, and the map from its values there,
+    shape (N, len(grid)), to the averages, shape (N, len(times))."""
+    from dolfinode.modeling.averaging import kernel_weights
+
+    times = np.asarray(times, dtype=float)
+    w = kernel_weights(samples)
+    offsets = tau * np.linspace(-1.0, 1.0, w.size)
+    grid, inverse = np.unique((times[:, None] + offsets).ravel(), return_inverse=True)
+
+    def average(values):
+        return values[:, inverse].reshape(len(values), times.size, w.size) @ w
+
+    return grid, average
+
+
 def averaged_reference(ode, times, tau, method="DOP853", rtol=1e-10, samples=400):
     """The full model resolved by scipy (``method``, ``rtol``, atol = rtol / 100), or by
     numbalsoda's compiled DOP853 for ``method="numbalsoda"``, and averaged with the modeling
     kernel of half-length ``tau`` around each of ``times``, all in [t0 + tau, T - tau].
     Returns an array (N, len(times))."""
-    from dolfinode.modeling.averaging import kernel_weights
-
-    compiled = lower(ode)
-    times = np.asarray(times, dtype=float)
-    w = kernel_weights(samples)
-    offsets = tau * np.linspace(-1.0, 1.0, w.size)
-    grid, inverse = np.unique((times[:, None] + offsets).ravel(), return_inverse=True)
+    grid, average = kernel_grid(times, tau, samples)
     if method == "numbalsoda":
         from dolfinode.bench.peers import NumbalsodaDOP853
 
-        # more output points: the peer caps the steps between two of them
-        every = np.union1d(grid, np.linspace(ode.t0, grid[-1], 10001))
-        peer = NumbalsodaDOP853(ode, every)
+        peer = NumbalsodaDOP853(ode, np.concatenate([[ode.t0], grid]))  # from u0 at t0
+        peer.max_steps = 10**9  # a resolved run at a large separation takes millions
         peer.build()
-        values = peer.solve(rtol, rtol / 100)[0][:, np.searchsorted(every, grid)][:, inverse]
-        return values.reshape(ode.N, times.size, w.size) @ w
+        return average(peer.solve(rtol, rtol / 100)[0][:, 1:])
+    compiled = lower(ode)
     jac = (lambda t, u: compiled.jacobian_matrix(u, t)) if method in ("Radau", "BDF") else None
     sol = solve_ivp(lambda t, u: compiled.f(u, t), (ode.t0, grid[-1]), ode.u0,
                     method=method, rtol=rtol, atol=rtol / 100, t_eval=grid,
                     **({} if jac is None else {"jac": jac}))
     if sol.status != 0:
         raise RuntimeError(f"reference solve failed: {sol.message}")
-    values = sol.y[:, inverse]
-    return values.reshape(ode.N, times.size, w.size) @ w
+    return average(sol.y)

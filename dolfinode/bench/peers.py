@@ -33,7 +33,8 @@ from dolfinode.ode import t as time_symbol
 DENSE_LIMIT = 400
 #: Smallest system that CVODE solves with its band linear solver (when the band is narrow).
 BAND_FROM = 50
-#: Steps a peer may take: numbalsoda and CVODE between two output points, diffrax in all.
+#: Steps a peer may take: CVODE between two output points, numbalsoda and diffrax in all
+#: (a peer's ``max_steps``).
 MAXIMUM_STEPS = 200_000
 
 
@@ -97,6 +98,8 @@ class Peer:
     largest = DENSE_LIMIT
     #: True: stiff problems only; False: nonstiff only; None: both.
     stiff = None
+    #: The peer's step limit (set on an instance for a long resolved run).
+    max_steps = MAXIMUM_STEPS
 
     def __init__(self, ode, t_eval):
         self.ode = ode
@@ -159,7 +162,7 @@ class _Numbalsoda(Peer):
     def solve(self, rtol, atol):
         self._calls[0] = 0.0
         usol, success = self._solve(self._rhs.address, self.u0, self.t_eval, self._calls,
-                                    rtol=rtol, atol=atol, mxstep=MAXIMUM_STEPS)
+                                    rtol=rtol, atol=atol, mxstep=self.max_steps)
         if not success:
             raise PeerFailed(f"numbalsoda {self.method} did not reach T")
         return usol.T, _counts(f_evals=int(self._calls[0]))

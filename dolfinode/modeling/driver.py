@@ -20,8 +20,8 @@ The pipeline (Jansson, Johnson & Logg 2005, sections 3-7, made automatic and che
 5. check the result a posteriori (:mod:`dolfinode.modeling.validity`): a ModelingWarning,
    or with ``strict=True`` a SolverError, when the error estimate exceeds the tolerance.
 
-Windows are resolved with a cG method (cG(q) for dG(q), mcG(q) for mdG(q)), see
-``_conservative``.
+Windows are resolved with cG(max(q, 4)) (mcG for multi-adaptive methods), see
+:func:`~dolfinode.modeling.flow.resolving_method`.
 """
 import math
 import time
@@ -33,7 +33,13 @@ from dolfinode.compile import lower
 from dolfinode.methods import parse_method
 from dolfinode.modeling.averaging import WindowAverager
 from dolfinode.modeling.declaration import WindowModel
-from dolfinode.modeling.flow import FLOW_START, frequency_change, solve_flow, stiffness_parameter
+from dolfinode.modeling.flow import (
+    FLOW_START,
+    frequency_change,
+    resolving_method,
+    solve_flow,
+    stiffness_parameter,
+)
 from dolfinode.modeling.reduced import (
     ControlPoint,
     ReducedModel,
@@ -92,7 +98,7 @@ def solve_with_modeling(ode, method, params, solve):
 
     def flow(reason):
         """The flow-averaged model instead (:mod:`dolfinode.modeling.flow`), checked."""
-        sol = solve_flow(ode, _conservative(method), params["tolerance"],
+        sol = solve_flow(ode, method, params["tolerance"],
                          params["average_samples"],
                          params["number_of_samples"], run, reason)
         return _checked(sol, sol.model, runs, params, start_time, stacklevel=6)
@@ -131,10 +137,11 @@ def solve_with_modeling(ode, method, params, solve):
     # dG(q) damps the resolved oscillation a little in every window; the control points
     # restart from the fluctuation of the last build, so with dG the losses would compound
     # over rebuilds (mdG(1) on the simple model: g~ 0.25 -> 0.10 in ten checks). Windows
-    # are resolved with cG(q) (mcG(q)), which conserves the oscillation's energy; the output
-    # on [t0, t_c] is the first half-window solved again with the method of the reduced
-    # solution, so that the returned Solution has one method.
-    window_method = _conservative(method)
+    # are resolved with cG (mcG), which conserves the oscillation's energy, of degree 4 at
+    # least (fewer steps per fast period); the output on [t0, t_c] is the first half-window
+    # solved again with the method of the reduced solution, so that the returned Solution
+    # has one method.
+    window_method = resolving_method(method)
     window_options = {"maximum_time_step": min(window_step, tau)}
 
     # a window of a large system is solved in pieces of about WINDOW_PIECE_BYTES of elements
@@ -142,7 +149,7 @@ def solve_with_modeling(ode, method, params, solve):
     # dropped
     q = parse_method(window_method)[1].q
     half_bytes = 8 * (q + 1) * ode.N * tau / window_step
-    first_length = tau / max(1, math.ceil(half_bytes / WINDOW_PIECE_BYTES))
+    first_length = 2 * tau / max(1, math.ceil(2 * half_bytes / WINDOW_PIECE_BYTES))
     pace = {"length": first_length}  # windows after the first start at the last density
 
     def resolve(u, center, record_first=None):
@@ -159,7 +166,9 @@ def solve_with_modeling(ode, method, params, solve):
         averager = WindowAverager(lower(local), tau, tau, params["average_samples"], 0.0,
                                   2 * tau)
         elements = 0
-        for piece in _pieces(run, window_model, u, (0.0, tau, 2 * tau), center - tau,
+        # (a window that gives no output is not cut at its centre: one inner solve fewer)
+        stops = (0.0, 2 * tau) if record_first is None else (0.0, tau, 2 * tau)
+        for piece in _pieces(run, window_model, u, stops, center - tau,
                              dict(window_options, method=window_method), pace):
             averager.record(piece)
             elements += piece.stats["elements"]
@@ -219,18 +228,20 @@ def solve_with_modeling(ode, method, params, solve):
     fluctuation_jacobian = _end_jacobian(compiled, model, averages, tau)
     segments = []
     # the reduced solution starts at t_c = t0 + tau from u-bar(t_c): the output is the full
-    # solution on [t0, t_c] and the reduced one on (t_c, T] (left-continuous, as for dG)
-    step = {}
-    u, t_now = averages.u_bar, averages.center
-    reduced_start = (u, t_now)
+    # solution on [t0, t_c] and the reduced one on (t_c, T] (left-continuous, as for dG).
+    # It is solved in one piece to T while the checks keep the model, and from a rebuild
+    # to the next check (a rebuilt model is likely rebuilt again): the part of a piece
+    # beyond a rebuild is dropped, and the part before it solved again up to the check
     checks = [ode.t0 + 2 * tau + k * spacing for k in range(1, n_control + 1)]
-    for t_next in [ode.t0 + 2 * tau] + checks + [ode.T]:
-        segment = run(model.declaration(u, t_now, t_next), **step)
-        segments.append(segment)
-        u, t_now = segment(t_next), t_next
-        step = {"initial_time_step": _last_step(segment)}
-        if t_now >= ode.T or t_now == ode.t0 + 2 * tau:
-            continue
+    start_state = (averages.u_bar, averages.center, {})  # u, t and step of the piece
+
+    def reduced(end):
+        u, t_from, step = start_state
+        return run(model.declaration(u, t_from, end), **step)
+
+    reduced_start = start_state[:2]
+    segment = reduced(ode.T)
+    for k, t_now in enumerate(checks):
         # control point at t_now: full model from t_now - tau, perturbed by the fast
         # fluctuation of the last build carried to the current slow state (its action kept)
         u_slow = model.state(segment(t_now - tau))
@@ -249,6 +260,15 @@ def solve_with_modeling(ode, method, params, solve):
         g_bar = np.where(model.active, averages.g_bar, 0.0)
         relative = np.max(np.abs(defect)) / (np.max(np.abs(g_bar)) + params["tolerance"])
         rebuild = params["rebuild_model"] and relative > params["model_tolerance"]
+        model.control_points.append(ControlPoint(t_now, float(np.linalg.norm(defect)),
+                                                 float(relative), bool(rebuild),
+                                                 int(elements), defect, g_bar))
+        if not rebuild and segment.ode.T > t_now:
+            continue
+        if segment.ode.T > t_now:  # the old model up to the check only
+            segment = reduced(t_now)
+        segments.append(segment)
+        u = segment(t_now)
         if rebuild:
             # g~ is refitted; the inactive set stays that of the first build, so that the
             # reduced problem (and its dual) is one ODE on (t_c, T]
@@ -258,9 +278,9 @@ def solve_with_modeling(ode, method, params, solve):
             # windows do not accumulate over the checks of one model
             fluctuation = averages.fluctuation
             fluctuation_jacobian = _end_jacobian(compiled, model, averages, tau)
-        model.control_points.append(ControlPoint(t_now, float(np.linalg.norm(defect)),
-                                                 float(relative), bool(rebuild),
-                                                 int(elements), defect, g_bar))
+        start_state = (u, t_now, {"initial_time_step": _last_step(segment)})
+        segment = reduced(checks[k + 1] if rebuild and k + 1 < len(checks) else ode.T)
+    segments.append(segment)
     del segment
     model.reduced = _concatenate(model.declaration(*reduced_start, ode.T), segments, 2)
     if keep_start:
@@ -415,15 +435,10 @@ def _end_jacobian(compiled, model, averages, tau):
                                     averages.center + tau)
 
 
-def _conservative(method):
-    """cG(max(q, 1)) for dG(q), mcG(max(q, 1)) for mdG(q); a cG method itself."""
-    multi, m = parse_method(method)
-    return method if m.family == "cG" else f"{'m' if multi else ''}cG({max(m.q, 1)})"
-
-
 def _last_step(sol):
-    """The last step of a solution (of component 0 for a multi-adaptive one)."""
-    return float(sol.time_steps(0)[1][-1] if sol.multi else sol.k[-1])
+    """The larger of the last two steps of a solution (of component 0 for a multi-adaptive
+    one): the last is cut to end at T, down to 1e-20 on the lattice's window pieces."""
+    return float(np.max(sol.time_steps(0)[1][-2:] if sol.multi else sol.k[-2:]))
 
 
 def _concatenate(ode, pieces, number_of_samples):

@@ -16,9 +16,9 @@ the slow one (their "boosting"; FLAVORS, Tao, Owhadi & Marsden, Multiscale Model
    small mass: e = -1/2; the rate of a relaxation: e = 1), see :func:`stiffness_parameter`;
 2. the flow is the full model with p replaced by p (rho_2 / rho)^(1/e), whose fast rate is
    rho_2 = min(rho, 2 FLOW_SEPARATION rho_slow) (rho_slow the |lambda| of df/du(u0) below its
-   largest gap, see :func:`slow_rate`), solved from u0 on [t0, T + tau_1] with the
-   conservative cG method (dG damps the fast oscillation, whose energy drives the slow
-   variables);
+   largest gap, see :func:`slow_rate`), solved from u0 on [t0, T + tau_1] with a conservative
+   cG method (dG damps the fast oscillation, whose energy drives the slow variables) of
+   degree at least RESOLVING_DEGREE (see :func:`resolving_method`);
 3. the output is its average with the modeling kernel K (:mod:`~dolfinode.modeling.averaging`)
    of half-length tau' = max(MINIMUM_PERIODS / rho_2, SLOW_FRACTION / rho_slow), shortened
    to t - t0 near t0:
@@ -47,6 +47,7 @@ import numpy as np
 
 from dolfinode.compile import lower
 from dolfinode.ensemble import vary
+from dolfinode.methods import parse_method
 from dolfinode.modeling import validity
 from dolfinode.modeling.averaging import kernel_weights
 from dolfinode.modeling.reduced import (
@@ -73,6 +74,12 @@ FLOW_SAFETY = 2.0
 #: Where the full model is no faster than rho_2 it is solved, and checked by a solve at
 #: this fraction of the tolerance (returned; D then estimates the discretisation error).
 FULL_TIGHTER = 0.1
+#: The flows (and the resolved windows) are solved with cG(q) (mcG(q)) of this degree at
+#: least: they carry thousands of fast periods, and at the tolerance the steps per period
+#: fall with q (the adiabatic class at
+#: rho_2 = 212, tolerance 1e-4: cG(2) 199,000 slabs, cG(3) 50,000, cG(4) 26,000, with the
+#: slow x1(T) the same to 2e-7).
+RESOLVING_DEGREE = 4
 #: A parameter p is a stiffness when rho ~ p^e with |e| at least this.
 MIN_EXPONENT = 0.25
 #: p is multiplied by this to measure e.
@@ -83,9 +90,11 @@ PROBE = 4.0
 #: slow state, which a frozen fluctuation cannot follow).
 FLOW_START = 0.1
 #: Output times at which the two flows are compared, and the kernel's points per half
-#: window there (tau_1 rho_2 = 2 MINIMUM_PERIODS = 60: 50 points per fast period).
+#: window there (tau_1 rho_2 = 2 MINIMUM_PERIODS = 60: 8 points per fast period; the kernel
+#: vanishes with five derivatives at the ends, and from 250 points D on the slow components
+#: moved by 6e-9 on the adiabatic class, 1e-6 of |D| = 2.5e-3 on Fermi-Pasta-Ulam).
 COMPARISON_TIMES = 200
-COMPARISON_SAMPLES = 250
+COMPARISON_SAMPLES = 80
 #: Bytes of solution values evaluated at once for the averages.
 EVALUATION_BYTES = 2**26
 
@@ -256,11 +265,20 @@ def average(solution, times, half, weights, offsets):
     return out
 
 
+def resolving_method(method):
+    """The method that resolves the fast scale, in the flows and in the windows of the
+    reduced models: cG(max(q, RESOLVING_DEGREE)) for cG(q) or dG(q), mcG(...) for mcG(q)
+    or mdG(q) (conservative: dG damps the fast oscillation)."""
+    multi, m = parse_method(method)
+    return f"{'m' if multi else ''}cG({max(m.q, RESOLVING_DEGREE)})"
+
+
 def solve_flow(ode, method, tolerance, samples, number_of_samples, run, reason):
     """Solve ``ode`` with the flow-averaged model; ``run(declaration, method, tolerance=)``
-    solves a declaration (counted in the stats by the caller), ``method`` is the conservative
-    method of the flows. Returns the :class:`FlowSolution` with ``model`` set (its check
-    is the caller's, :func:`~dolfinode.modeling.validity.check_validity`).
+    solves a declaration (counted in the stats by the caller), ``method`` the user's (the
+    flows take :func:`resolving_method` of it). Returns the :class:`FlowSolution` with
+    ``model`` set (its check is the caller's,
+    :func:`~dolfinode.modeling.validity.check_validity`).
 
     Raises ValueError when no parameter sets the fast scale."""
     compiled = lower(ode)
@@ -293,8 +311,8 @@ def solve_flow(ode, method, tolerance, samples, number_of_samples, run, reason):
                          "the slow one (a relaxation has no fast oscillation to carry: "
                          "subgrid_model='auto' puts it on its slow manifold); solve "
                          "without automatic_modeling")
-    solutions = [run(vary(flow, {"T": ode.T + tau_check}), method, tolerance=tol)
-                 for flow, tol in zip(flows, tolerances)]
+    solutions = [run(vary(flow, {"T": ode.T + tau_check}), resolving_method(method),
+                     tolerance=tol) for flow, tol in zip(flows, tolerances)]
     weights = kernel_weights(COMPARISON_SAMPLES)
     offsets = np.linspace(-1.0, 1.0, weights.size)
     times = np.linspace(ode.t0 + tau_check, ode.T, COMPARISON_TIMES)

@@ -373,6 +373,14 @@ class ReducedModel:
         rows, cols = self._pattern if len(self._G) else (np.zeros(0, dtype=np.int64),) * 2
         return sparse.csr_matrix((self._G, (rows, cols)), shape=(self.ode.N,) * 2)
 
+    def _apply_G(self, v):
+        """G v from G's entries on the pattern (a sparse matrix built per call cost more
+        than the product)."""
+        if not len(self._G):
+            return np.zeros(self.ode.N)
+        rows, cols = self._pattern
+        return np.bincount(rows, weights=self._G * v[cols], minlength=self.ode.N)
+
     def record(self, averages):
         """Keep a window's averages as data for the affine fit."""
         self._windows.append(averages)
@@ -463,7 +471,7 @@ class ReducedModel:
         """g~(u) on the active components (zero elsewhere)."""
         g = self._g.copy()
         if self.affine and len(self._G):
-            g += self.G @ (self.state(u) - self.state(self._reference))
+            g += self._apply_G(self.state(u) - self.state(self._reference))
         return np.where(self._active, g, 0.0)
 
     def declaration(self, u0, t0, T):
@@ -481,7 +489,7 @@ class ReducedModel:
         if not self.affine:
             return declarer.declaration(u0, t0, T, self._g)
         # g + G (u - r) = (g - G r) + G u
-        constant = self._g - self.G @ self.state(self._reference)
+        constant = self._g - self._apply_G(self.state(self._reference))
         return declarer.declaration(u0, t0, T, constant, self._G)
 
     def defect(self, compiled, averages):

@@ -16,7 +16,7 @@ SETTINGS = {"method": "cG(2)", "tolerance": 1e-4, "automatic_modeling": True}
 CLASSES = ("adiabatic", "michaelis_menten", "proportional")
 #: The classes that come out right (measured max error / range: 1.6e-5 and 1.5e-5; the
 #: adiabatic one, fast frequency depending on the slow state, with the flow-averaged model
-#: that the default takes for it: 3e-7; it was off by 0.13 and warned).
+#: that the default takes for it: 1.3e-9; it was off by 0.13 and warned).
 RIGHT = CLASSES
 
 
@@ -30,8 +30,10 @@ def modeled(request):
     tau = sol.model.average_length
     times = np.linspace(3 * tau, ode.T, 120)
     stiff = request.param == "michaelis_menten"
+    # (DOP853 at rtol 1e-9 is off by 7e-8 at T on the adiabatic class, where the flows of
+    # degree 4 are within 2e-10)
     reference = multiscale.averaged_reference(ode, times, tau, "Radau" if stiff else "DOP853",
-                                              rtol=1e-9)
+                                              rtol=1e-9 if stiff else 1e-11)
     fired = [w for w in caught if issubclass(w.category, dn.ModelingWarning)]
     return request.param, ode, slow, sol, fired, times, reference
 
