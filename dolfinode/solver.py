@@ -27,24 +27,29 @@ from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, Parameters, _parameter_value
 from dolfinode.parameters import check_parameters
 from dolfinode.solve import (
+    MIN_TOLERANCE,
+    _absolute_tolerance,
+    _check_resolvable_tolerance,
     _finish,
-    _mono_advance,
+    _floor,
+    _initial_steps,
+    _mono_arguments,
     _mono_capacity,
     _mono_stats,
-    _mono_workspace,
-    _multi_advance,
+    _multi_arguments,
     _multi_capacity,
     _multi_stats,
     _multi_workspace,
     _newton_options,
-    _start,
-    _time_and_step,
+    _options,
+    _started,
     check_tolerance,
     lower,
     lowered,
     solve,
     solve_lowered,
 )
+from dolfinode.timeslab import contract, mono
 
 
 class Solver:
@@ -98,7 +103,7 @@ class Solver:
         self._by_name = {s.name: s for s in ode.params}
         self._work = object.__new__(type(ode))
         self._work.__dict__.update(ode.__dict__)
-        self._buffers = None
+        self._buffers = self._interval = None
         if (plan is None and params["dense_output"] is True and not params["progress"]
                 and not params["automatic_modeling"]):
             m = self._method
@@ -173,36 +178,77 @@ class Solver:
             work._set_interval(ode.t0 if t0 is None else t0, ode.T if T is None else T)
         return work
 
+    def _workspace(self, work):
+        """The loop's arguments for solves over ``work``'s interval (made again when it
+        changes): the solver's own kernels, whose ``p`` each call overwrites, the options and
+        tolerances, the start's and the loop's arrays, which each call refills, and the kept
+        buffers. The storage of the Newton matrices is decided here, once."""
+        params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
+        compiled = lower(work)
+        rtol = params["tolerance"]
+        atol = _absolute_tolerance(work, params["absolute_tolerance"], rtol)
+        loop_atol, options = _options(work, m, params, multi_adaptive, atol)
+        given = _initial_steps(work, params["initial_time_step"], multi_adaptive)
+        n = work.N
+        x, f0, floor = np.empty(n), np.empty(n), np.empty(n)
+        state = contract.state()
+        counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
+        if multi_adaptive:
+            from dolfinode.timeslab import multi
+
+            tables, steps, frozen = _multi_workspace(work, compiled, m, params, options, given)
+            arguments = _multi_arguments(compiled, tables, options, loop_atol, floor, x, steps,
+                                         frozen, state, counters)
+            advance, structure = multi.advance, None
+        else:
+            structure, _, _ = _newton_options(compiled, m, options)
+            steps, frozen = given.copy(), None
+            arguments = _mono_arguments(compiled, structure, mono.method_tables(m), options,
+                                        loop_atol, floor, x, f0, state, counters)
+            advance = mono.advance
+        self._interval = (work.t0, work.T)
+        self._values = self._u0 = None  # p and the floor: written by the next call
+        self._start = (compiled, atol, given, x, f0, steps, options, state, counters, floor,
+                       frozen, structure)
+        self._loop = (advance, (*arguments, *self._buffers))
+
     def _solve_prepared(self, work):
         """The solve of ``work`` as one call of the loop into the kept buffers; None when
         that call did not reach T (the general path then solves it)."""
-        start = time.perf_counter()
+        started = time.perf_counter()
+        if (work.t0, work.T) != self._interval:
+            self._workspace(work)
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
-        compiled = lower(work)
-        atol, floor, x, f0, steps, options = _start(work, compiled, None, multi_adaptive, m,
-                                                    params)
-        sink = history.sink(work, m, multi_adaptive, params)
+        (compiled, atol, given, x, f0, steps, options, state, counters, floor, frozen,
+         structure) = self._start
+        values = tuple(work.params.values())
+        if values != self._values or work.u0 is not self._u0:
+            compiled.p[:len(values)] = values
+            floor[:] = _floor(work, atol)
+            self._values, self._u0 = values, work.u0
+        if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
+            _check_resolvable_tolerance(work, atol, params["tolerance"])
+        x[:] = work.u0
+        if params["initial_time_step"] is not None:
+            steps[:] = given
+        _started(work, compiled, params, multi_adaptive, atol, x, f0, steps, options, state,
+                 counters)
         if multi_adaptive:
-            tables, state, counters, kdes, frozen = _multi_workspace(work, compiled, m, params,
-                                                                     options, steps)
-            status = _multi_advance(compiled, tables, options, atol, floor, x, kdes, frozen,
-                                    state, counters, *self._buffers)
-        else:
-            tables, state, counters = _mono_workspace(work, compiled, m, steps)
-            structure, _, _ = _newton_options(compiled, m, options)
-            status = _mono_advance(compiled, structure, tables, options, atol, floor, x, f0,
-                                   state, counters, *self._buffers)
+            frozen.fill(np.nan)  # since when each component is frozen (NaN: active)
+        advance, arguments = self._loop
+        status = advance.unchecked(*arguments)
         if status != ts.DONE or counters[ts.SLABS] > params["maximum_steps"]:
             return None
+        sink = history.sink(work, m, multi_adaptive, params)
         n = counters[ts.STORED]
         sink.add([b[:n] for b in self._buffers], float(state["t"][0]))
         elements = sink.finish(True)  # copies: the next call refills the buffers
         if multi_adaptive:
-            stats = _multi_stats(counters, state, sink.per_component, kdes)
-            state = _time_and_step(state, np.min(kdes))
+            stats = _multi_stats(counters, state, sink.per_component, steps)
         else:
             stats = _mono_stats(work, structure, counters, state)
-            state = _time_and_step(state, state["k_next"][0])
+        # (no (t, k) where the loop stopped: only a failure reads it, and the general path
+        # solves those)
         return _finish(work, compiled, None, multi_adaptive, m, params, status, counters,
-                       state, x, stats, start,
+                       None, x, stats, started,
                        lambda solved: sink.solution(solved, m, elements, stats, x))
