@@ -429,7 +429,10 @@ def _floor(ode, atol):
     f keeps the values nonnegative (:func:`_keeps_nonnegative`: with a loose absolute
     tolerance a small concentration dips below 0 and polynomial kinetics diverge from
     there); -inf elsewhere."""
-    return -atol if _keeps_nonnegative(ode) else np.where(ode.nonnegative, -atol, -np.inf)
+    if _keeps_nonnegative(ode):
+        return -atol
+    return np.where(ode.nonnegative, -atol, -np.inf) if ode._constrained else np.full(ode.N,
+                                                                                    -np.inf)
 
 
 def _started(ode, compiled, params, multi_adaptive, atol, x, f0, steps, options, state,
@@ -548,17 +551,19 @@ def _integrate(chunks, plan, pieces, ode, state, sink):
 
 
 def _newton_plan(compiled, m):
-    """(structure, bytes, costs) of the Newton matrices of method ``m`` on the pattern of
-    ``compiled``: their storage (:func:`newton_structure`; a sparse one is analysed only now),
-    its memory and the cost units of :func:`mono.newton_costs`. Made once per pattern and
-    method: a small solve would otherwise spend a fifth of its time on them."""
+    """(structure, bytes, costs, seconds) of the Newton matrices of method ``m`` on the
+    pattern of ``compiled``: their storage (:func:`newton_structure`; a sparse one is analysed
+    only now), its memory, the cost units of :func:`mono.newton_costs` and the estimated time
+    of a factorization. Made once per pattern and method: a small solve would otherwise spend
+    a fifth of its time on them."""
     plan = compiled.newton_plans.get(m.name)
     if plan is None:
         structure = newton_structure(compiled.band_structure,
                                      lambda: compiled.sparse_structure, m.stage_eigenvalues)
         plan = (structure, structure.memory(m.num_stages),
                 mono.newton_costs(structure, m.stage_eigenvalues, compiled.N, compiled.nnz,
-                                  m.num_stages))
+                                  m.num_stages),
+                structure.seconds(complex_values=True))
         compiled.newton_plans[m.name] = plan
     return plan
 
@@ -572,12 +577,13 @@ def _step_guess(ode, compiled, atol, rtol):
 def _newton_options(compiled, m, options):
     """Decide the storage of the Newton matrices (a sparse one is analysed only now) and set
     the loop's options for it; (structure, bytes, whether they fit in memory)."""
-    structure, newton_bytes, costs = _newton_plan(compiled, m)
+    structure, newton_bytes, costs, seconds = _newton_plan(compiled, m)
+    reuse = seconds >= mono.REUSE_TIME
     fits = (newton_bytes <= _NEWTON_SMALL
             or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
     options["newton_ready"] = fits
-    options["reuse"] = structure.seconds(complex_values=True) >= mono.REUSE_TIME
-    options["keep_factors"] = options["reuse"] or mono.KEEP_FACTORS
+    options["reuse"] = reuse
+    options["keep_factors"] = reuse or mono.KEEP_FACTORS
     options["newton_units"], options["factor_units"] = costs
     return structure, newton_bytes, fits
 
@@ -648,7 +654,7 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, stat
 
 def _time_and_step(state, k):
     """(t, k): where a loop stopped (its ``state``) and its next step, for :func:`_finish`."""
-    return np.array([state["t"][0], k])
+    return float(state["t"][0]), float(k)
 
 
 def _mono_stats(ode, structure, counters, state):
