@@ -5,7 +5,8 @@ excluded); the repeats of all variants are interleaved and the minimum time per 
 the repeats is reported (wall clock, ``time.perf_counter``: a call is microseconds, and the
 minimum is the least disturbed by the other processes of a shared machine). Variants:
 ``dn.solve`` per method; ``dn.Solver(...).solve()``, with other u0 and parameter values,
-and with a new parameter value at every call (a fit);
+and with a new parameter value at every call (a fit); the compiled start and loop of a
+prepared call alone, with its kept arguments (from the state the last call left);
 numbalsoda's LSODA (its C code, a numba cfunc right-hand side) with its arrays ready, when
 numbalsoda is installed (``pip install numbalsoda``).
 
@@ -27,6 +28,7 @@ import numpy as np
 import sympy as sp
 
 import dolfinode as dn
+from dolfinode.timeslab.start import start
 
 ROOT = Path(__file__).resolve().parents[1]
 METHODS = ("cG(1)", "cG(2)", "dG(0)", "dG(2)", "mcG(1)")
@@ -42,6 +44,15 @@ def variants():
         calls[f"Solver.solve(), {m}"] = solver.solve
         calls[f"Solver.solve(u0=, params=), {m}"] = (
             lambda solver=solver: solver.solve(u0=[2.0], params={a: 1.5}))
+    # the floor of a prepared call: its compiled start and loop alone, arguments kept
+    prepared = dn.Solver(ode, method="dG(2)")
+    prepared.solve()
+    compiled, atol, _, x, f0, steps, options, state, counters = prepared._start[:9]
+    advance, arguments = prepared._loop
+    started = (compiled.rhs.address, compiled.p, ode.t0, atol, prepared._params["tolerance"],
+               True, x, f0, steps, options, state, counters, True)
+    calls["compiled start + loop of Solver.solve(), dG(2)"] = lambda: (
+        start.unchecked(*started), advance.unchecked(*arguments))
     # a fit: a new parameter value at every call
     fit, values = dn.Solver(ode, method="dG(2)"), itertools.count()
     calls["Solver.solve(params= new value), dG(2)"] = (
