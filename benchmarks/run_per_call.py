@@ -1,8 +1,8 @@
 """Per-call cost: a trivial solve (y' = -y, y(0) = 1 on [0, 1e-6]) called in a loop.
 
 Each variant is called ``--number`` times per repeat after an untimed warm-up (compile
-excluded); the repeats of all variants are interleaved and the minimum time per call over
-the repeats is reported (wall clock, ``time.perf_counter``: a call is microseconds, and the
+excluded); the repeats of all variants are interleaved, in a new random order each time,
+and the minimum time per call over the repeats is reported (wall clock, ``time.perf_counter``: a call is microseconds, and the
 minimum is the least disturbed by the other processes of a shared machine). Variants:
 ``dn.solve`` per method; ``dn.Solver(...).solve()``, with other u0 and parameter values,
 and with a new parameter value at every call (a fit); the compiled start and loop of a
@@ -20,6 +20,7 @@ import argparse
 import itertools
 import json
 import platform
+import random
 import subprocess
 import time
 from pathlib import Path
@@ -78,8 +79,14 @@ def measure(calls, repeats, number):
     for call in calls.values():
         call()
     best = dict.fromkeys(calls, np.inf)
+    order = list(calls)
+    shuffle = random.Random(0).shuffle
     for _ in range(repeats):
-        for name, call in calls.items():
+        # in a new order each repeat: in a fixed one, the first batch (after numbalsoda's)
+        # ran ~5 us a call slower, whichever variant it was
+        shuffle(order)
+        for name in order:
+            call = calls[name]
             start = time.perf_counter()
             for _ in range(number):
                 call()
