@@ -48,7 +48,7 @@ def variants():
     # the floor of a prepared call: its compiled start and loop alone, arguments kept
     prepared = dn.Solver(ode, method="dG(2)")
     prepared.solve()
-    compiled, atol, _, x, f0, steps, options, state, counters = prepared._start[:9]
+    compiled, atol, _, x, f0, steps, options, state, counters = prepared._kept[:9]
     advance, arguments = prepared._loop
     started = (compiled.rhs.address, compiled.p, ode.t0, atol, prepared._params["tolerance"],
                True, x, f0, steps, options, state, counters, True)

@@ -8,11 +8,13 @@ vector ``p`` of each call, never through the declaration the solver was made fro
 
 A solve without events, breakpoints, switches or automatic modeling, with its history in
 memory (and for cG/dG a Newton matrix storage decided up front, as for all but large sparse
-systems), takes the prepared path: the start of :func:`dolfinode.solve` (``solve._start``)
-and one call of the compiled loop into buffers kept by the solver, as large as the first
-ones of dn.solve, whose used part the Solution copies. Everything else, and a solve that
-outgrows the buffers or fails, goes through the general path (``solve_lowered``, the driver
-of dn.solve).
+systems), takes the prepared path: the solver keeps, per interval [t0, T], a work space (its
+own kernels, the options and tolerances, the arrays of the start and of the loop, and output
+buffers as large as the first ones of dn.solve) and the loop's whole argument tuple; a call
+writes the values that changed into it, runs the compiled start of dn.solve
+(:mod:`dolfinode.timeslab.start`) and calls the loop once, and the Solution copies the used
+part of the buffers. Everything else, and a solve that outgrows the buffers or fails, goes
+through the general path (``solve_lowered``, the driver of dn.solve).
 """
 import time
 from collections.abc import Mapping
@@ -208,7 +210,7 @@ class Solver:
             advance = mono.advance
         self._interval = (work.t0, work.T)
         self._values = self._u0 = None  # p and the floor: written by the next call
-        self._start = (compiled, atol, given, x, f0, steps, options, state, counters, floor,
+        self._kept = (compiled, atol, given, x, f0, steps, options, state, counters, floor,
                        frozen, structure)
         self._loop = (advance, (*arguments, *self._buffers))
 
@@ -220,7 +222,8 @@ class Solver:
             self._workspace(work)
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
         (compiled, atol, given, x, f0, steps, options, state, counters, floor, frozen,
-         structure) = self._start
+         structure) = self._kept
+        sink = history.sink(work, m, multi_adaptive, params)
         values = tuple(work.params.values())
         if values != self._values or work.u0 is not self._u0:
             compiled.p[:len(values)] = values
@@ -239,7 +242,6 @@ class Solver:
         status = advance.unchecked(*arguments)
         if status != ts.DONE or counters[ts.SLABS] > params["maximum_steps"]:
             return None
-        sink = history.sink(work, m, multi_adaptive, params)
         n = counters[ts.STORED]
         sink.add([b[:n] for b in self._buffers], float(state["t"][0]))
         elements = sink.finish(True)  # copies: the next call refills the buffers
