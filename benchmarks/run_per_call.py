@@ -83,7 +83,7 @@ def measure(calls, repeats, number):
     shuffle = random.Random(0).shuffle
     for _ in range(repeats):
         # in a new order each repeat: in a fixed one, the first batch (after numbalsoda's)
-        # ran ~5 us a call slower, whichever variant it was
+        # ran 3-5 us a call slower, whichever variant it was
         shuffle(order)
         for name in order:
             call = calls[name]
