@@ -186,3 +186,27 @@ def test_the_prepared_work_space_is_kept_and_follows_each_call(monkeypatch):
                                             tolerance=1e-4))
     assert loops[0] is loops[3] and loops[4] is loops[5]  # kept over calls of one interval
     assert loops[3] is not loops[4] and loops[5] is not loops[6]  # made again for another
+
+
+@pytest.mark.parametrize("method, parameters", [
+    ("cG(2)", {"fixed_time_step": True, "initial_time_step": 0.01}),
+    ("mcG(1)", {"initial_time_step": {u: 1e-3, v: 2e-3}, "tolerance": 1e-5}),
+    ("dG(1)", {"absolute_tolerance": {u: 1e-8, v: 1e-6}, "tolerance": 1e-5,
+               "maximum_time_step": 0.05}),
+])
+def test_the_prepared_path_keeps_the_given_steps_and_tolerances(oscillator, monkeypatch,
+                                                                method, parameters):
+    """Steps and tolerances given to the Solver hold in every call of its kept work space
+    (fixed steps, first steps per state, absolute tolerances per state, a largest step),
+    bitwise as dn.solve, also after a new interval."""
+    solver = dn.Solver(oscillator, method=method, **parameters)
+
+    def general_path(*args):
+        raise AssertionError("the prepared path gave way to the general one")
+
+    monkeypatch.setattr("dolfinode.solver.solve_lowered", general_path)
+    for call in ({}, {"params": {k: 9.0}, "u0": [0.5, 0.1]}, {"T": 1.0}):
+        variation = {**call.get("params", {}),
+                     **{name: call[name] for name in ("u0", "T") if name in call}}
+        _assert_same_solution(solver.solve(**call), dn.solve(dn.vary(oscillator, variation),
+                                                             method=method, **parameters))
