@@ -81,9 +81,15 @@ def _keeps_nonnegative(ode):
     solve: a sympy check per value took ~3 ms a solve)."""
     if hasattr(ode, "templates") or ode.N > _QUASI_POSITIVE_N or ode.u0.min() < 0:
         return False
-    signs = tuple((value > 0) - (value < 0) for value in ode.params.values())
+    signs = _signs(ode.params.values())
     return ode._derived("_keeps_nonnegative", (ode.rhs, signs),
                         lambda: _quasi_positive(ode, signs))
+
+
+def _signs(values):
+    """The signs (+1, -1, 0) of parameter values: all that :func:`_keeps_nonnegative` reads
+    of them."""
+    return tuple((value > 0) - (value < 0) for value in values)
 
 
 def _quasi_positive(ode, signs):

@@ -44,6 +44,7 @@ from dolfinode.solve import (
     _multi_workspace,
     _newton_options,
     _options,
+    _signs,
     _started,
     check_tolerance,
     lower,
@@ -209,7 +210,7 @@ class Solver:
                                         loop_atol, floor, x, f0, state, counters)
             advance = mono.advance
         self._interval = (work.t0, work.T)
-        self._values = self._u0 = None  # p and the floor: written by the next call
+        self._values = self._signs = self._u0 = None  # p, floor: written by the next call
         self._kept = (compiled, atol, given, x, f0, steps, options, state, counters, floor,
                        frozen, structure)
         self._loop = (advance, (*arguments, *self._buffers))
@@ -225,10 +226,14 @@ class Solver:
          structure) = self._kept
         sink = history.sink(work, m, multi_adaptive, params)
         values = tuple(work.params.values())
-        if values != self._values or work.u0 is not self._u0:
+        if values != self._values:
             compiled.p[:len(values)] = values
+            self._values, signs = values, _signs(values)
+            if signs != self._signs:  # the floor depends on the values through their signs
+                self._signs, self._u0 = signs, None
+        if work.u0 is not self._u0:
             floor[:] = _floor(work, atol)
-            self._values, self._u0 = values, work.u0
+            self._u0 = work.u0
         if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
             _check_resolvable_tolerance(work, atol, params["tolerance"])
         x[:] = work.u0
