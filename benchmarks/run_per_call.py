@@ -1,11 +1,12 @@
 """Per-call cost: a trivial solve (y' = -y, y(0) = 1 on [0, 1e-6]) called in a loop.
 
 Each variant is called ``--number`` times per repeat after an untimed warm-up (compile
-excluded); the repeats of all variants are interleaved and the minimum time per call over
-the repeats is reported (wall clock, ``time.perf_counter``: a call is microseconds, and the
+excluded); the repeats of all variants are interleaved, in a new random order each time,
+and the minimum time per call over the repeats is reported (wall clock, ``time.perf_counter``: a call is microseconds, and the
 minimum is the least disturbed by the other processes of a shared machine). Variants:
 ``dn.solve`` per method; ``dn.Solver(...).solve()``, with other u0 and parameter values,
-and with a new parameter value at every call (a fit);
+and with a new parameter value at every call (a fit); the compiled start and loop of a
+prepared call alone, with its kept arguments (from the state the last call left);
 numbalsoda's LSODA (its C code, a numba cfunc right-hand side) with its arrays ready, when
 numbalsoda is installed (``pip install numbalsoda``).
 
@@ -19,6 +20,7 @@ import argparse
 import itertools
 import json
 import platform
+import random
 import subprocess
 import time
 from pathlib import Path
@@ -27,6 +29,7 @@ import numpy as np
 import sympy as sp
 
 import dolfinode as dn
+from dolfinode.timeslab.start import start
 
 ROOT = Path(__file__).resolve().parents[1]
 METHODS = ("cG(1)", "cG(2)", "dG(0)", "dG(2)", "mcG(1)")
@@ -42,6 +45,15 @@ def variants():
         calls[f"Solver.solve(), {m}"] = solver.solve
         calls[f"Solver.solve(u0=, params=), {m}"] = (
             lambda solver=solver: solver.solve(u0=[2.0], params={a: 1.5}))
+    # the floor of a prepared call: its compiled start and loop alone, arguments kept
+    prepared = dn.Solver(ode, method="dG(2)")
+    prepared.solve()
+    compiled, atol, _, x, f0, steps, options, state, counters = prepared._kept[:9]
+    advance, arguments = prepared._loop
+    started = (compiled.rhs.address, compiled.p, ode.t0, atol, prepared._params["tolerance"],
+               True, x, f0, steps, options, state, counters, True)
+    calls["compiled start + loop of Solver.solve(), dG(2)"] = lambda: (
+        start.unchecked(*started), advance.unchecked(*arguments))
     # a fit: a new parameter value at every call
     fit, values = dn.Solver(ode, method="dG(2)"), itertools.count()
     calls["Solver.solve(params= new value), dG(2)"] = (
@@ -67,8 +79,14 @@ def measure(calls, repeats, number):
     for call in calls.values():
         call()
     best = dict.fromkeys(calls, np.inf)
+    order = list(calls)
+    shuffle = random.Random(0).shuffle
     for _ in range(repeats):
-        for name, call in calls.items():
+        # in a new order each repeat: in a fixed one, the first batch (after numbalsoda's)
+        # ran 3-5 us a call slower, whichever variant it was
+        shuffle(order)
+        for name in order:
+            call = calls[name]
             start = time.perf_counter()
             for _ in range(number):
                 call()

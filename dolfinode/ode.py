@@ -316,7 +316,7 @@ class ODE:
         values on ``self`` do not reach it (a shallow copy with its own parameter values)."""
         snapshot = object.__new__(type(self))
         snapshot.__dict__.update(self.__dict__)
-        snapshot.__dict__["params"] = Parameters(self.params)
+        snapshot.__dict__["params"] = Parameters(self.params.items())  # (a Mapping: slower)
         return snapshot
 
     def _initial_vector(self, u0):

@@ -1,5 +1,4 @@
 """The driver: ``solve(ode, method, tolerance=..., **parameters) -> Solution``."""
-import math
 import time
 
 import numpy as np
@@ -7,7 +6,7 @@ import sympy as sp
 
 from dolfinode import events as ev
 from dolfinode import timeslab as ts
-from dolfinode.adaptivity import filter_constant, initial_step, step_tolerance
+from dolfinode.adaptivity import filter_constant, step_tolerance
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
 from dolfinode.failures import STEP_LIMIT, failure_message, undamped_message, undefined
@@ -19,6 +18,7 @@ from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
 from dolfinode.parameters import DEFAULTS, NONLINEAR_SOLVERS, check_parameters
 from dolfinode.timeslab import contract, mono
+from dolfinode.timeslab.start import F0_NOT_FINITE, INTERVAL_UNRESOLVED, first_step, start
 
 #: New solves with a smaller maximum_time_step when a switch was crossed inside an element.
 _SWITCH_RETRIES = 3
@@ -68,11 +68,6 @@ def _check_resolvable_tolerance(ode, atol, rtol):
             f"{MIN_TOLERANCE * scale[i]:.3g} for it")
 
 
-def _smallest_step(ode, t):
-    """The smallest step double precision resolves at the time t (the loops' bound)."""
-    return ts.smallest_step(t, ode.T - ode.t0)
-
-
 def _keeps_nonnegative(ode):
     """Whether f keeps every component >= 0 from u0 >= 0 (the exact solution stays in the
     nonnegative orthant): f_i >= 0 where u_i = 0 and the other components are >= 0, for every
@@ -86,9 +81,15 @@ def _keeps_nonnegative(ode):
     solve: a sympy check per value took ~3 ms a solve)."""
     if hasattr(ode, "templates") or ode.N > _QUASI_POSITIVE_N or ode.u0.min() < 0:
         return False
-    signs = tuple((value > 0) - (value < 0) for value in ode.params.values())
+    signs = _signs(ode.params.values())
     return ode._derived("_keeps_nonnegative", (ode.rhs, signs),
                         lambda: _quasi_positive(ode, signs))
+
+
+def _signs(values):
+    """The signs (+1, -1, 0) of parameter values: all that :func:`_keeps_nonnegative` reads
+    of them."""
+    return tuple((value > 0) - (value < 0) for value in values)
 
 
 def _quasi_positive(ode, signs):
@@ -108,25 +109,18 @@ def _quasi_positive(ode, signs):
 
 def _check_resolvable(ode, name, k, t):
     """Raise ValueError if the step ``k`` (a number or per state) is below
-    :func:`_smallest_step` at the time ``t``."""
-    kmin = _smallest_step(ode, t)
+    the smallest step double precision resolves at the time ``t`` (the loops' bound)."""
+    kmin = ts.smallest_step(t, ode.T - ode.t0)
     if np.min(k) < kmin:
         raise ValueError(f"{name} = {np.min(k):.3g} is below what double precision resolves at "
                          f"t = {t:.6g} ({kmin:.3g}); give a larger {name}")
 
 
-def _first_step(ode, f, x, t, atol, rtol):
-    """The first step of a start at (x, t), f = f(x, t): Hairer-Noersett-Wanner's guess, at
-    least a few times the smallest step resolvable at t (far from t = 0 the guess 1e-6 (T - t0)
-    for u0 = 0 can be below it), at most T - t0."""
-    span = ode.T - ode.t0
-    return min(max(initial_step(f, x, atol, rtol, span), 4 * _smallest_step(ode, t)), span)
-
-
-def _initial_steps(ode, given, f0, atol, rtol, multi_adaptive):
-    """The first step: a number, or per state (dict/sequence) for multi-adaptive methods."""
+def _initial_steps(ode, given, multi_adaptive):
+    """The first steps: per state, from ``initial_time_step`` (a number, or per state as a
+    dict/sequence for multi-adaptive methods); None: to be guessed by the start."""
     if given is None:
-        return np.full(ode.N, _first_step(ode, f0, ode.u0, ode.t0, atol, rtol))
+        return np.empty(ode.N)
     if np.isscalar(given):
         return np.full(ode.N, float(given))
     if not multi_adaptive:
@@ -367,14 +361,16 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
 def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
     """One solve of :func:`solve_lowered`."""
     start = time.perf_counter()
-    atol, floor, x, f0, steps, options = _start(ode, compiled, plan, multi_adaptive, m, params)
+    atol, floor, x, f0, steps, options, state, counters = _start(ode, compiled, plan,
+                                                                 multi_adaptive, m, params)
     if plan is not None and plan.events and params["dense_output"] is False:
         raise ValueError("events are located on the solution's history: give "
                          "dense_output=True or a file name with events=")
     sink = history.sink(ode, m, multi_adaptive, params)
     run = _run_multi if multi_adaptive else _run_mono
     status, counters, state, elements, stats = run(ode, compiled, m, params, options, atol,
-                                                   floor, x, f0, steps, plan, sink)
+                                                   floor, x, f0, steps, state, counters, plan,
+                                                   sink)
     sol = _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, state, x,
                   stats, start, lambda solved: sink.solution(solved, m, elements, stats, x))
     if plan is not None:
@@ -385,10 +381,10 @@ def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
 def _start(ode, compiled, plan, multi_adaptive, m, params):
     """The start of a solve of ``ode`` from u0 at t0 with the kernels ``compiled`` (whose
     ``p`` holds its parameter values; the branches of ``plan``'s switches at t0 are set in
-    it): (atol, floor, x, f0, steps, options), the loops'
-    tolerances, lower bounds of the values, the state x = u0 (a copy), f0 = f(u0, t0), the
-    first steps and the options of both loops (:func:`dolfinode.timeslab.contract.options`;
-    the workspace functions add what only their loop reads); the checks of the start.
+    it): (atol, floor, x, f0, steps, options, state, counters), the loops' tolerances, lower
+    bounds of the values, the state x = u0 (a copy), f0 = f(u0, t0), the first steps, the
+    options of both loops (:func:`_options`; the workspace functions add what only their
+    loop reads), the loop's state at t0 and zero counters; the checks of the start.
 
     Raises
     ------
@@ -404,38 +400,70 @@ def _start(ode, compiled, plan, multi_adaptive, m, params):
     if plan is not None:
         sigma = compiled.p[len(ode.params):]  # (a view: the branches at t0 set in place)
         plan.initial_branches(sigma, x, ode.t0, ode.T)
-    f0 = compiled.f(x, ode.t0)
-    if not math.isfinite(f0.sum()) and not np.isfinite(f0).all():  # the sum may overflow
-        bad = ode.states[int(np.flatnonzero(~np.isfinite(f0))[0])]
-        raise ValueError(f"f(u0, t0) is not finite in the right-hand side of {bad}: check u0 "
-                         "and the parameters")
-    steps = _initial_steps(ode, params["initial_time_step"], f0, atol, rtol, multi_adaptive)
-    span, latest = ode.T - ode.t0, max(abs(ode.t0), abs(ode.T))
-    if span < _smallest_step(ode, latest):
-        raise ValueError(f"[t0, T] = [{ode.t0:.17g}, {ode.T:.17g}] is shorter than the smallest "
-                         f"step double precision resolves there ({ts.ROUNDING:g} |t|): shift "
-                         f"the time origin, e.g. t0 = 0 and T = {span:.17g}")
-    if params["initial_time_step"] is not None:
-        _check_resolvable(ode, "initial_time_step", steps, ode.t0)
-    if params["maximum_time_step"] is not None:
-        _check_resolvable(ode, "maximum_time_step", params["maximum_time_step"], latest)
-    # the domain of the values: declared, or kept by f (with a loose absolute tolerance a
-    # small concentration dips below 0 and polynomial kinetics then diverge from there)
-    floor = -atol if _keeps_nonnegative(ode) else np.where(ode.nonnegative, -atol, -np.inf)
+    steps = _initial_steps(ode, params["initial_time_step"], multi_adaptive)
+    loop_atol, options = _options(ode, m, params, multi_adaptive, atol)
+    f0, state = np.empty(ode.N), contract.state()
+    counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
+    _started(ode, compiled, params, multi_adaptive, atol, x, f0, steps, options, state,
+             counters)
+    return loop_atol, _floor(ode, atol), x, f0, steps, options, state, counters
+
+
+def _options(ode, m, params, multi_adaptive, atol):
+    """The loops' absolute tolerances and options (:func:`contract.options`) for the
+    tolerances ``atol`` and ``params["tolerance"]``: as given, or calibrated to the error at T
+    (:func:`step_tolerance`); with fixed steps, iteration to rounding level relative to the
+    solution size."""
+    rtol = params["tolerance"]
     fixed = bool(params["fixed_time_step"])
-    if fixed:  # no error control: iterate to rounding level, relative to the solution size
+    if fixed:
         atol, rtol, dtol = np.ones(ode.N), 1.0, 1e-15
     else:
         dtol = params["discrete_tolerance_factor"]
         if params["calibrate_tolerance"] and not multi_adaptive and rtol >= MIN_TOLERANCE:
             scale = step_tolerance(m, rtol) / rtol
             atol, rtol = atol * scale, rtol * scale
-    options = contract.options(
+    return atol, contract.options(
         solver=NONLINEAR_SOLVERS.index(params["nonlinear_solver"]), fixed=fixed,
         max_iter=params["maximum_iterations"], is_dg=m.family == "dG", rtol=rtol, T=ode.T,
         kmax=params["maximum_time_step"] or ode.T - ode.t0, safety=params["safety_factor"],
         dtol=dtol, order=m.local_order, span=ode.T - ode.t0, gamma=filter_constant(m))
-    return atol, floor, x, f0, steps, options
+
+
+def _floor(ode, atol):
+    """The lower bounds of the values: -atol where declared nonnegative, or everywhere when
+    f keeps the values nonnegative (:func:`_keeps_nonnegative`: with a loose absolute
+    tolerance a small concentration dips below 0 and polynomial kinetics diverge from
+    there); -inf elsewhere."""
+    if _keeps_nonnegative(ode):
+        return -atol
+    return np.where(ode.nonnegative, -atol, -np.inf) if ode._constrained else np.full(ode.N,
+                                                                                    -np.inf)
+
+
+def _started(ode, compiled, params, multi_adaptive, atol, x, f0, steps, options, state,
+             counters):
+    """Run the compiled start (:func:`dolfinode.timeslab.start.start`) from x at t0 with
+    the tolerances ``atol`` and ``params["tolerance"]`` (the first step's), into f0, the
+    steps (guessed unless given), the state and the counters; raise ValueError for a check
+    that fails, in words."""
+    given = params["initial_time_step"]
+    status = start.unchecked(compiled.rhs.address, compiled.p, ode.t0, atol,
+                             params["tolerance"], given is None, x, f0, steps, options,
+                             state, counters, not multi_adaptive)
+    if status == F0_NOT_FINITE:
+        bad = ode.states[int(np.flatnonzero(~np.isfinite(f0))[0])]
+        raise ValueError(f"f(u0, t0) is not finite in the right-hand side of {bad}: check u0 "
+                         "and the parameters")
+    if status == INTERVAL_UNRESOLVED:
+        raise ValueError(f"[t0, T] = [{ode.t0:.17g}, {ode.T:.17g}] is shorter than the smallest "
+                         f"step double precision resolves there ({ts.ROUNDING:g} |t|): shift "
+                         f"the time origin, e.g. t0 = 0 and T = {ode.T - ode.t0:.17g}")
+    if given is not None:
+        _check_resolvable(ode, "initial_time_step", steps, ode.t0)
+    if params["maximum_time_step"] is not None:
+        _check_resolvable(ode, "maximum_time_step", params["maximum_time_step"],
+                          max(abs(ode.t0), abs(ode.T)))
 
 
 def _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, state, x, stats,
@@ -529,17 +557,19 @@ def _integrate(chunks, plan, pieces, ode, state, sink):
 
 
 def _newton_plan(compiled, m):
-    """(structure, bytes, costs) of the Newton matrices of method ``m`` on the pattern of
-    ``compiled``: their storage (:func:`newton_structure`; a sparse one is analysed only now),
-    its memory and the cost units of :func:`mono.newton_costs`. Made once per pattern and
-    method: a small solve would otherwise spend a fifth of its time on them."""
+    """(structure, bytes, costs, seconds) of the Newton matrices of method ``m`` on the
+    pattern of ``compiled``: their storage (:func:`newton_structure`; a sparse one is analysed
+    only now), its memory, the cost units of :func:`mono.newton_costs` and the estimated time
+    of a factorization. Made once per pattern and method: a small solve would otherwise spend
+    a fifth of its time on them."""
     plan = compiled.newton_plans.get(m.name)
     if plan is None:
         structure = newton_structure(compiled.band_structure,
                                      lambda: compiled.sparse_structure, m.stage_eigenvalues)
         plan = (structure, structure.memory(m.num_stages),
                 mono.newton_costs(structure, m.stage_eigenvalues, compiled.N, compiled.nnz,
-                                  m.num_stages))
+                                  m.num_stages),
+                structure.seconds(complex_values=True))
         compiled.newton_plans[m.name] = plan
     return plan
 
@@ -547,41 +577,31 @@ def _newton_plan(compiled, m):
 def _step_guess(ode, compiled, atol, rtol):
     """The first step of a fresh start at (x, t) (after a jump of f, the last step says
     nothing about the next)."""
-    return lambda x, t: _first_step(ode, compiled.f(x, t), x, t, atol, rtol)
-
-
-def _mono_workspace(ode, compiled, m, steps):
-    """The mono-adaptive loop's arrays for a start with ``steps``: (tables, state,
-    counters)."""
-    tables = mono.method_tables(m)
-    # the running mean of fixed-point iterations per slab starts at a typical 6
-    state = contract.state(t=ode.t0, k_next=steps[0], eps_prev=1.0, have_f0=True,
-                           fp_iterations=6.0)
-    counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
-    return tables, state, counters
+    return lambda x, t: first_step(compiled.f(x, t), x, t, atol, rtol, ode.T - ode.t0)
 
 
 def _newton_options(compiled, m, options):
     """Decide the storage of the Newton matrices (a sparse one is analysed only now) and set
     the loop's options for it; (structure, bytes, whether they fit in memory)."""
-    structure, newton_bytes, costs = _newton_plan(compiled, m)
+    structure, newton_bytes, costs, seconds = _newton_plan(compiled, m)
+    reuse = seconds >= mono.REUSE_TIME
     fits = (newton_bytes <= _NEWTON_SMALL
             or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
     options["newton_ready"] = fits
-    options["reuse"] = structure.seconds(complex_values=True) >= mono.REUSE_TIME
-    options["keep_factors"] = options["reuse"] or mono.KEEP_FACTORS
+    options["reuse"] = reuse
+    options["keep_factors"] = reuse or mono.KEEP_FACTORS
     options["newton_units"], options["factor_units"] = costs
     return structure, newton_bytes, fits
 
 
-def _mono_advance(compiled, structure, tables, options, atol, floor, x, f0, state, counters,
-                  out_t, out_k, out_X):
-    """One call of the mono-adaptive loop: slabs until T or until out_t, out_k, out_X are
-    full; its status."""
-    return mono.advance.unchecked(compiled.rhs.address, compiled.jacobian.address, compiled.p,
-                                  compiled.indptr, compiled.indices, structure.tuple, *tables,
-                                  options, atol, floor, x, f0, state, counters, out_t, out_k,
-                                  out_X)
+def _mono_arguments(compiled, structure, tables, options, atol, floor, x, f0, state,
+                    counters):
+    """The mono-adaptive loop's arguments but its output buffers: a call
+    ``mono.advance.unchecked(*arguments, out_t, out_k, out_X)`` runs slabs until T or until
+    the buffers are full, and returns its status."""
+    return (compiled.rhs.address, compiled.jacobian.address, compiled.p, compiled.indptr,
+            compiled.indices, structure.tuple, *tables, options, atol, floor, x, f0, state,
+            counters)
 
 
 def _mono_capacity(ode, m):
@@ -589,8 +609,9 @@ def _mono_capacity(ode, m):
     return int(max(64, min(20000, 2 ** 21 // ((m.q + 1) * ode.N))))
 
 
-def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, plan, sink):
-    tables, state, counters = _mono_workspace(ode, compiled, m, steps)
+def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, state, counters,
+              plan, sink):
+    tables = mono.method_tables(m)
     nodes = m.q + 1
     structure = compiled.band_structure  # until Newton is needed: see newton_ready
     newton_bytes = 0
@@ -607,9 +628,9 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, plan
         size = min(capacity, params["maximum_steps"] - counters[ts.SLABS])
         return np.empty(size), np.empty(size), np.empty((size, nodes, ode.N))
 
-    def advance(out_t, out_k, out_X):
-        return _mono_advance(compiled, structure, tables, options, atol, floor, x, f0, state,
-                             counters, out_t, out_k, out_X)
+    def advance(*buffers):
+        return mono.advance.unchecked(*_mono_arguments(
+            compiled, structure, tables, options, atol, floor, x, f0, state, counters), *buffers)
 
     capacity = _mono_capacity(ode, m)
     if plan is not None and plan.truncates:  # a terminal event or a switch redoes the rest
@@ -639,7 +660,7 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, plan
 
 def _time_and_step(state, k):
     """(t, k): where a loop stopped (its ``state``) and its next step, for :func:`_finish`."""
-    return np.array([state["t"][0], k])
+    return float(state["t"][0]), float(k)
 
 
 def _mono_stats(ode, structure, counters, state):
@@ -653,30 +674,25 @@ def _mono_stats(ode, structure, counters, state):
 
 def _multi_workspace(ode, compiled, m, params, options, steps):
     """The multi-adaptive loop's arrays for a start with ``steps`` (and its fields of the
-    ``options`` of :func:`_start`): (tables, state, counters, kdes, frozen)."""
+    ``options`` of :func:`_start`): (tables, kdes, frozen)."""
     from dolfinode.timeslab import multi  # (its loop is the longest compile of the package)
 
-    state = contract.state(t=ode.t0)
-    counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
     _, _, kl, ku = compiled.ordering
     options[["theta", "beta", "band_lower", "band_upper", "autonomous"]] = (
         params["partitioning_threshold"], params["interval_threshold"], kl, ku, ode.autonomous)
     kdes = steps.copy()
     frozen = np.full(ode.N, np.nan)  # since when each component is frozen (NaN: active)
-    return multi.method_tables(m), state, counters, kdes, frozen
+    return multi.method_tables(m), kdes, frozen
 
 
-def _multi_advance(compiled, tables, options, atol, floor, x, kdes, frozen, state, counters,
-                   out_comp, out_a, out_b, out_values):
-    """One call of the multi-adaptive loop: elements until T or until the out_ arrays are
-    full; its status."""
-    from dolfinode.timeslab import multi
-
-    return multi.advance.unchecked(compiled.rhs_component.address,
-                                   compiled.jacobian_row.address, compiled.p, compiled.indptr,
-                                   compiled.indices, compiled.ordering[1], *tables, options,
-                                   atol, floor, x, kdes, frozen, state, counters, out_comp,
-                                   out_a, out_b, out_values)
+def _multi_arguments(compiled, tables, options, atol, floor, x, kdes, frozen, state,
+                     counters):
+    """The multi-adaptive loop's arguments but its output buffers: a call
+    ``multi.advance.unchecked(*arguments, out_comp, out_a, out_b, out_values)`` runs
+    elements until T or until the buffers are full, and returns its status."""
+    return (compiled.rhs_component.address, compiled.jacobian_row.address, compiled.p,
+            compiled.indptr, compiled.indices, compiled.ordering[1], *tables, options, atol,
+            floor, x, kdes, frozen, state, counters)
 
 
 def _multi_capacity(ode, m):
@@ -698,18 +714,21 @@ def _multi_stats(counters, state, per_component, kdes):
             "next time step": kdes.copy()}
 
 
-def _run_multi(ode, compiled, m, params, options, atol, floor, x, f0, steps, plan, sink):
+def _run_multi(ode, compiled, m, params, options, atol, floor, x, f0, steps, state, counters,
+               plan, sink):
+    from dolfinode.timeslab import multi
 
-    tables, state, counters, kdes, frozen = _multi_workspace(ode, compiled, m, params, options,
-                                                             steps)
+    tables, kdes, frozen = _multi_workspace(ode, compiled, m, params, options, steps)
 
     def buffers(capacity):
         return (np.empty(capacity, dtype=np.int64), np.empty(capacity), np.empty(capacity),
                 np.empty((capacity, m.q + 1)))
 
-    def advance(out_comp, out_a, out_b, out_values):
-        return _multi_advance(compiled, tables, options, atol, floor, x, kdes, frozen, state,
-                              counters, out_comp, out_a, out_b, out_values)
+    arguments = _multi_arguments(compiled, tables, options, atol, floor, x, kdes, frozen, state,
+                                 counters)
+
+    def advance(*buffers):
+        return multi.advance.unchecked(*arguments, *buffers)
 
     capacity = _multi_capacity(ode, m)
     if plan is not None and plan.truncates:

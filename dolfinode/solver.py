@@ -8,11 +8,13 @@ vector ``p`` of each call, never through the declaration the solver was made fro
 
 A solve without events, breakpoints, switches or automatic modeling, with its history in
 memory (and for cG/dG a Newton matrix storage decided up front, as for all but large sparse
-systems), takes the prepared path: the start of :func:`dolfinode.solve` (``solve._start``)
-and one call of the compiled loop into buffers kept by the solver, as large as the first
-ones of dn.solve, whose used part the Solution copies. Everything else, and a solve that
-outgrows the buffers or fails, goes through the general path (``solve_lowered``, the driver
-of dn.solve).
+systems), takes the prepared path: the solver keeps, per interval [t0, T], a work space (its
+own kernels, the options and tolerances, the arrays of the start and of the loop, and output
+buffers as large as the first ones of dn.solve) and the loop's whole argument tuple; a call
+writes the values that changed into it, runs the compiled start of dn.solve
+(:mod:`dolfinode.timeslab.start`) and calls the loop once, and the Solution copies the used
+part of the buffers. Everything else, and a solve that outgrows the buffers or fails, goes
+through the general path (``solve_lowered``, the driver of dn.solve).
 """
 import time
 from collections.abc import Mapping
@@ -27,24 +29,30 @@ from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, Parameters, _parameter_value
 from dolfinode.parameters import check_parameters
 from dolfinode.solve import (
+    MIN_TOLERANCE,
+    _absolute_tolerance,
+    _check_resolvable_tolerance,
     _finish,
-    _mono_advance,
+    _floor,
+    _initial_steps,
+    _mono_arguments,
     _mono_capacity,
     _mono_stats,
-    _mono_workspace,
-    _multi_advance,
+    _multi_arguments,
     _multi_capacity,
     _multi_stats,
     _multi_workspace,
     _newton_options,
-    _start,
-    _time_and_step,
+    _options,
+    _signs,
+    _started,
     check_tolerance,
     lower,
     lowered,
     solve,
     solve_lowered,
 )
+from dolfinode.timeslab import contract, mono
 
 
 class Solver:
@@ -98,7 +106,7 @@ class Solver:
         self._by_name = {s.name: s for s in ode.params}
         self._work = object.__new__(type(ode))
         self._work.__dict__.update(ode.__dict__)
-        self._buffers = None
+        self._buffers = self._interval = None
         if (plan is None and params["dense_output"] is True and not params["progress"]
                 and not params["automatic_modeling"]):
             m = self._method
@@ -173,36 +181,81 @@ class Solver:
             work._set_interval(ode.t0 if t0 is None else t0, ode.T if T is None else T)
         return work
 
+    def _workspace(self, work):
+        """The loop's arguments for solves over ``work``'s interval (made again when it
+        changes): the solver's own kernels, whose ``p`` each call overwrites, the options and
+        tolerances, the start's and the loop's arrays, which each call refills, and the kept
+        buffers. The storage of the Newton matrices is decided here, once."""
+        params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
+        compiled = lower(work)
+        rtol = params["tolerance"]
+        atol = _absolute_tolerance(work, params["absolute_tolerance"], rtol)
+        loop_atol, options = _options(work, m, params, multi_adaptive, atol)
+        given = _initial_steps(work, params["initial_time_step"], multi_adaptive)
+        n = work.N
+        x, f0, floor = np.empty(n), np.empty(n), np.empty(n)
+        state = contract.state()
+        counters = np.zeros(ts.NUM_COUNTERS, dtype=np.int64)
+        if multi_adaptive:
+            from dolfinode.timeslab import multi
+
+            tables, steps, frozen = _multi_workspace(work, compiled, m, params, options, given)
+            arguments = _multi_arguments(compiled, tables, options, loop_atol, floor, x, steps,
+                                         frozen, state, counters)
+            advance, structure = multi.advance, None
+        else:
+            structure, _, _ = _newton_options(compiled, m, options)
+            steps, frozen = given.copy(), None
+            arguments = _mono_arguments(compiled, structure, mono.method_tables(m), options,
+                                        loop_atol, floor, x, f0, state, counters)
+            advance = mono.advance
+        self._interval = (work.t0, work.T)
+        self._values = self._signs = self._u0 = None  # p, floor: written by the next call
+        self._kept = (compiled, atol, given, x, f0, steps, options, state, counters, floor,
+                       frozen, structure)
+        self._loop = (advance, (*arguments, *self._buffers))
+
     def _solve_prepared(self, work):
         """The solve of ``work`` as one call of the loop into the kept buffers; None when
         that call did not reach T (the general path then solves it)."""
-        start = time.perf_counter()
+        started = time.perf_counter()
+        if (work.t0, work.T) != self._interval:
+            self._workspace(work)
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
-        compiled = lower(work)
-        atol, floor, x, f0, steps, options = _start(work, compiled, None, multi_adaptive, m,
-                                                    params)
+        (compiled, atol, given, x, f0, steps, options, state, counters, floor, frozen,
+         structure) = self._kept
         sink = history.sink(work, m, multi_adaptive, params)
+        values = tuple(work.params.values())
+        if values != self._values:
+            compiled.p[:len(values)] = values
+            self._values, signs = values, _signs(values)
+            if signs != self._signs:  # the floor depends on the values through their signs
+                self._signs, self._u0 = signs, None
+        if work.u0 is not self._u0:
+            floor[:] = _floor(work, atol)
+            self._u0 = work.u0
+        if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
+            _check_resolvable_tolerance(work, atol, params["tolerance"])
+        x[:] = work.u0
+        if params["initial_time_step"] is not None:
+            steps[:] = given
+        _started(work, compiled, params, multi_adaptive, atol, x, f0, steps, options, state,
+                 counters)
         if multi_adaptive:
-            tables, state, counters, kdes, frozen = _multi_workspace(work, compiled, m, params,
-                                                                     options, steps)
-            status = _multi_advance(compiled, tables, options, atol, floor, x, kdes, frozen,
-                                    state, counters, *self._buffers)
-        else:
-            tables, state, counters = _mono_workspace(work, compiled, m, steps)
-            structure, _, _ = _newton_options(compiled, m, options)
-            status = _mono_advance(compiled, structure, tables, options, atol, floor, x, f0,
-                                   state, counters, *self._buffers)
+            frozen.fill(np.nan)  # since when each component is frozen (NaN: active)
+        advance, arguments = self._loop
+        status = advance.unchecked(*arguments)
         if status != ts.DONE or counters[ts.SLABS] > params["maximum_steps"]:
             return None
         n = counters[ts.STORED]
         sink.add([b[:n] for b in self._buffers], float(state["t"][0]))
         elements = sink.finish(True)  # copies: the next call refills the buffers
         if multi_adaptive:
-            stats = _multi_stats(counters, state, sink.per_component, kdes)
-            state = _time_and_step(state, np.min(kdes))
+            stats = _multi_stats(counters, state, sink.per_component, steps)
         else:
             stats = _mono_stats(work, structure, counters, state)
-            state = _time_and_step(state, state["k_next"][0])
+        # (no (t, k) where the loop stopped: only a failure reads it, and the general path
+        # solves those)
         return _finish(work, compiled, None, multi_adaptive, m, params, status, counters,
-                       state, x, stats, start,
+                       None, x, stats, started,
                        lambda solved: sink.solution(solved, m, elements, stats, x))

@@ -160,3 +160,53 @@ def test_solver_of_a_template_system_is_bitwise_dn_solve():
     _assert_same_solution(sol, dn.solve(dn.vary(ode, {rate: 2.0, "u0": [1.0, 1.0]}),
                                         method="cG(2)", tolerance=1e-8))
     np.testing.assert_allclose(sol(1.0), np.exp(-2.0), rtol=1e-6)
+
+
+def test_the_prepared_work_space_is_kept_and_follows_each_call(monkeypatch):
+    """The loop's arguments are made once per interval; the values of each call (the
+    parameters, whose signs decide the floor of the values, u0, T) reach them: every call
+    takes the prepared path and is bitwise dn.solve of the varied declaration."""
+    x, rate = sp.symbols("x rate")
+    ode = dn.ODE({x: rate - x}, u0=[0.5], T=1.0, params={rate: 1.0})  # x >= 0 iff rate >= 0
+    solver = dn.Solver(ode, method="dG(1)", tolerance=1e-4)
+
+    def general_path(*args):
+        raise AssertionError("the prepared path gave way to the general one")
+
+    monkeypatch.setattr("dolfinode.solver.solve_lowered", general_path)
+    calls = [{}, {"params": {rate: -1.0}}, {"params": {rate: -1.0}, "u0": [-0.5]}, {},
+             {"T": 2.0}, {"T": 2.0, "params": {rate: 2.0}}, {}]
+    loops = []
+    for call in calls:
+        sol = solver.solve(**call)
+        loops.append(solver._loop)
+        variation = {**call.get("params", {}),
+                     **{name: call[name] for name in ("u0", "T") if name in call}}
+        _assert_same_solution(sol, dn.solve(dn.vary(ode, variation), method="dG(1)",
+                                            tolerance=1e-4))
+    assert loops[0] is loops[3] and loops[4] is loops[5]  # kept over calls of one interval
+    assert loops[3] is not loops[4] and loops[5] is not loops[6]  # made again for another
+
+
+@pytest.mark.parametrize("method, parameters", [
+    ("cG(2)", {"fixed_time_step": True, "initial_time_step": 0.01}),
+    ("mcG(1)", {"initial_time_step": {u: 1e-3, v: 2e-3}, "tolerance": 1e-5}),
+    ("dG(1)", {"absolute_tolerance": {u: 1e-8, v: 1e-6}, "tolerance": 1e-5,
+               "maximum_time_step": 0.05}),
+])
+def test_the_prepared_path_keeps_the_given_steps_and_tolerances(oscillator, monkeypatch,
+                                                                method, parameters):
+    """Steps and tolerances given to the Solver hold in every call of its kept work space
+    (fixed steps, first steps per state, absolute tolerances per state, a largest step),
+    bitwise as dn.solve, also after a new interval."""
+    solver = dn.Solver(oscillator, method=method, **parameters)
+
+    def general_path(*args):
+        raise AssertionError("the prepared path gave way to the general one")
+
+    monkeypatch.setattr("dolfinode.solver.solve_lowered", general_path)
+    for call in ({}, {"params": {k: 9.0}, "u0": [0.5, 0.1]}, {"T": 1.0}):
+        variation = {**call.get("params", {}),
+                     **{name: call[name] for name in ("u0", "T") if name in call}}
+        _assert_same_solution(solver.solve(**call), dn.solve(dn.vary(oscillator, variation),
+                                                             method=method, **parameters))

@@ -1,0 +1,70 @@
+"""The start of a solve, compiled: f(u0, t0), the first step and the loop's fresh state, in
+one call from the driver (as numpy operations on arrays of a few elements, each its own
+call from Python, they were most of the time of a small solve).
+
+:func:`start` is called once per solve, by :func:`dolfinode.solve` and
+:class:`dolfinode.Solver` alike, before the first call of a time-slab loop; the checks it
+finds failing are raised by the driver, which words them (:data:`F0_NOT_FINITE`,
+:data:`INTERVAL_UNRESOLVED`).
+"""
+import math
+
+from numba import njit, types
+
+from dolfinode.adaptivity import initial_step
+from dolfinode.compile.jit import Loop
+from dolfinode.compile.signatures import call_rhs
+from dolfinode.timeslab import smallest_step
+from dolfinode.timeslab.contract import OPTIONS_TYPE, STATE_TYPE
+
+#: Return codes of :func:`start`: ready, f(u0, t0) not finite, [t0, T] shorter than the
+#: smallest step double precision resolves there.
+READY, F0_NOT_FINITE, INTERVAL_UNRESOLVED = range(3)
+#: The running mean of fixed-point iterations per slab (mono) starts at a typical 6.
+FIXED_POINT_ITERATIONS = 6.0
+
+
+@njit(cache=True)
+def first_step(f, x, t, atol, rtol, span):
+    """The first step of a start at (x, t), f = f(x, t): Hairer-Noersett-Wanner's guess
+    (:func:`dolfinode.adaptivity.initial_step`), at least 4 x the smallest step resolvable
+    at t (far from t = 0 the guess 1e-6 span for x = 0 can be below it), at most the span."""
+    return min(max(initial_step(f, x, atol, rtol, span), 4 * smallest_step(t, span)), span)
+
+
+def _start(rhs, p, t0, atol, rtol, guess, x, f0, steps, options, state, counters, mono):
+    """f0 = f(x, t0) from the kernel at address ``rhs``; if ``guess``, every entry of
+    ``steps`` the :func:`first_step` for ``atol``, ``rtol`` (else ``steps`` as given); the
+    loop's ``state`` at t0 (mono: the first step and the controller's start) and zero
+    ``counters``. Reads T and the span T - t0 from ``options``. Returns READY, or the first
+    check that fails: F0_NOT_FINITE, INTERVAL_UNRESOLVED."""
+    call_rhs(rhs, x, t0, p, f0)
+    total = 0.0
+    for value in f0:
+        total += value
+    if not math.isfinite(total):  # (a sum may overflow where every value is finite)
+        for value in f0:
+            if not math.isfinite(value):
+                return F0_NOT_FINITE
+    op = options[0]
+    span = op.span
+    if guess:
+        steps[:] = first_step(f0, x, t0, atol, rtol, span)
+    if span < smallest_step(max(abs(t0), abs(op.T)), span):
+        return INTERVAL_UNRESOLVED
+    counters[:] = 0
+    st = state[0]
+    st.t = t0
+    st.k_next = steps[0] if mono else 0.0
+    st.eps_prev = 1.0 if mono else 0.0
+    st.have_f0 = mono
+    st.fp_iterations = FIXED_POINT_ITERATIONS if mono else 0.0
+    st.fp_step = st.newton_cost = st.k_newton = st.mono_elements = 0.0
+    return READY
+
+
+_f8 = types.float64[::1]
+start = Loop(_start, types.int64(types.intp, _f8, types.float64, _f8, types.float64,
+                                 types.boolean, _f8, _f8, _f8, OPTIONS_TYPE, STATE_TYPE,
+                                 types.int64[::1], types.boolean),
+             "the start of a solve", 2)
