@@ -42,9 +42,11 @@ SOLVES_PER_FACTORIZATION = 4
 #: The sparse LU must be estimated this much faster to be chosen, and only systems with at
 #: least SPARSE_MIN_N components and bandwidths kl + ku >= SPARSE_MIN_BAND are analysed, when
 #: a solve first needs Newton's method (below these, the banded LU is as fast or faster, and
-#: the analysis would not pay).
+#: the analysis would not pay). The analysis is made once per pattern and method, so small
+#: systems qualify: on POLLU (N = 20, band 15 + 15 after reordering, 82 nonzeros) a sparse
+#: complex LU takes 1.6 us against the band's 2.6 us, a solve 0.46 us against 0.86 us.
 SPARSE_MARGIN = 0.8
-SPARSE_MIN_N = 64
+SPARSE_MIN_N = 20
 SPARSE_MIN_BAND = 16
 
 

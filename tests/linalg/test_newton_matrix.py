@@ -104,10 +104,21 @@ def test_wide_bands_go_sparse_narrow_ones_stay_banded():
                     for i in range(300)}, u0=np.ones(300), T=1.0)
     assert not sparse_candidate(lower(chain).band_structure)
     assert chosen(chain, "cG(2)").description.startswith("banded LU, bandwidth")
-    assert not sparse_candidate(lower(grid_ode(4)).band_structure)  # N = 16 < SPARSE_MIN_N
+    assert not sparse_candidate(lower(grid_ode(4)).band_structure)  # N = 16 < SPARSE_MIN_N = 20
     plain = grid_ode(20, coupled=False)  # band 20 + 20
     assert chosen(plain, "cG(2)").sparse
     assert not chosen(plain, "cG(1)").sparse
+
+
+def test_small_wide_band_goes_sparse():
+    """POLLU (N = 20, band 15 + 15 after reordering, 82 nonzeros): the sparse LU, 136 entries
+    in its factors against the band's 920, is chosen for a method with a complex pair."""
+    from dolfinode.bench.problems import pollu
+
+    ode = pollu().ode
+    assert chosen(ode, "dG(2)").sparse
+    band, sparse = lower(ode).band_structure, lower(ode).sparse_structure
+    assert sparse.entries < band.entries / 5
 
 
 def test_sparse_memory_is_far_below_the_band():
