@@ -18,6 +18,7 @@ import numpy as np
 import scipy.sparse as sps
 from numba import njit
 
+from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.linalg.sparse import (
     fill_reducing_ordering,
@@ -41,9 +42,11 @@ SOLVES_PER_FACTORIZATION = 4
 #: The sparse LU must be estimated this much faster to be chosen, and only systems with at
 #: least SPARSE_MIN_N components and bandwidths kl + ku >= SPARSE_MIN_BAND are analysed, when
 #: a solve first needs Newton's method (below these, the banded LU is as fast or faster, and
-#: the analysis would not pay).
+#: the analysis would not pay). The analysis is made once per pattern and method, so small
+#: systems qualify: on POLLU (N = 20, band 15 + 15 after reordering, 82 nonzeros) a sparse
+#: complex LU takes 1.6 us against the band's 2.6 us, a solve 0.46 us against 0.86 us.
 SPARSE_MARGIN = 0.8
-SPARSE_MIN_N = 64
+SPARSE_MIN_N = 20
 SPARSE_MIN_BAND = 16
 
 
@@ -163,7 +166,7 @@ def newton_structure(band, make_sparse, eigenvalues):
     return sparse if cost(sparse) < SPARSE_MARGIN * cost(band) else band
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def store_jacobian(jdata, indptr, indices, structure, jb):
     """J (its CSR values ``jdata``) into the storage ``jb``: scattered once per Jacobian,
     then shifted by :func:`shift` into each matrix I - c J the slab needs."""
@@ -181,7 +184,7 @@ def store_jacobian(jdata, indptr, indices, structure, jb):
             jb[col, kv + r - col] += jdata[nz]
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def shift(jb, c, structure, ab):
     """ab = I - c J (c real or complex) from J in the storage ``jb`` (ab may be jb); the band
     storage's kl fill-in columns are band_lu's to clear."""
@@ -199,7 +202,7 @@ def shift(jb, c, structure, ab):
         ab[r, kv] += 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def lu_factor(ab, structure, ipiv):
     """LU-factor I - c J in place (pivots into ``ipiv``, banded only). Returns 0 on
     success."""
@@ -209,7 +212,7 @@ def lu_factor(ab, structure, ipiv):
     return band_lu(ab, kl, ku, ipiv)
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def lu_solve(ab, structure, ipiv, b):
     """Solve (I - c J) x = b in place, b in the matrices' ordering, with the factors of
     :func:`lu_factor`."""

@@ -19,6 +19,8 @@ import scipy.sparse as sps
 from numba import njit
 from scipy.sparse.linalg import splu
 
+from dolfinode.compile.signatures import NO_REFCOUNT
+
 #: splu is used when the stage matrix's band r (kl + ku + 2) exceeds this ...
 SPARSE_BAND = 200
 #: ... and it has at least this many unknowns (below, the Python loop over intervals of the
@@ -131,7 +133,9 @@ def lu_flops(ptr, idx, diag):
     return total
 
 
-@njit(cache=True)
+# allocates its work row: reference counting stays on when the factorizations (compiled
+# without it, NO_REFCOUNT, an option numba passes on to the functions they call) call it
+@njit(cache=True, _nrt=True)
 def sparse_lu(values, ptr, idx, diag):
     """Factor in place, A = L U (real or complex), row by row: row i is scattered into a
     dense work row w, w_k <- w_k / U_kk and w <- w - w_k U_k. for its L columns k in
@@ -158,7 +162,7 @@ def sparse_lu(values, ptr, idx, diag):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def sparse_solve(values, ptr, idx, diag, b):
     """Solve A x = b in place with the factors of :func:`sparse_lu`: L y = b forward, then
     U x = y backward."""

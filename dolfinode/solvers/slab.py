@@ -197,14 +197,14 @@ def near_step(k, k_factored, ratio):
     return k_factored > 0.0 and k_factored <= ratio * k and k <= ratio * k_factored
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def factor(ab, structure, ipiv, counters):
     """LU-factor a Newton matrix in place; returns True on success."""
     counters[FACTORIZATIONS] += 1
     return lu_factor(ab, structure, ipiv) == 0
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNT)
 def factor_stages(jb, k, eigenvalues, structure, ab_real, ab_complex, ipiv, counters):
     """LU factors of I - k lambda_j J (J in the storage ``jb`` of ``structure``, see
     :mod:`dolfinode.linalg.newton_matrix`) for the eigenvalues of the stage matrix: the real

@@ -104,10 +104,36 @@ def test_wide_bands_go_sparse_narrow_ones_stay_banded():
                     for i in range(300)}, u0=np.ones(300), T=1.0)
     assert not sparse_candidate(lower(chain).band_structure)
     assert chosen(chain, "cG(2)").description.startswith("banded LU, bandwidth")
-    assert not sparse_candidate(lower(grid_ode(4)).band_structure)  # N = 16 < SPARSE_MIN_N
+    assert not sparse_candidate(lower(grid_ode(4)).band_structure)  # N = 16 < SPARSE_MIN_N = 20
     plain = grid_ode(20, coupled=False)  # band 20 + 20
     assert chosen(plain, "cG(2)").sparse
     assert not chosen(plain, "cG(1)").sparse
+
+
+def test_small_wide_band_goes_sparse(monkeypatch):
+    """POLLU (N = 20, band 15 + 15 after reordering, 82 nonzeros): the sparse LU, 136 entries
+    in its factors against the band's 920, is chosen for a method with a complex pair, and a
+    solve with it takes the banded solve's slabs and iterations to the same answer."""
+    from dolfinode.bench.problems import pollu
+
+    newton_matrix = importlib.import_module("dolfinode.linalg.newton_matrix")
+    ode = pollu().ode
+    assert chosen(ode, "dG(2)").sparse
+    compiled = lower(ode)
+    band, sparse = compiled.band_structure, compiled.sparse_structure
+    assert sparse.entries < band.entries / 5
+    solves = {}
+    for storage, smallest in (("sparse", newton_matrix.SPARSE_MIN_N), ("banded", ode.N + 1)):
+        monkeypatch.setattr(newton_matrix, "SPARSE_MIN_N", smallest)
+        compiled.newton_plans.clear()
+        solves[storage] = dn.solve(ode, method="dG(2)", tolerance=1e-5)
+        assert solves[storage].stats["newton matrices"].startswith(f"{storage} LU")
+    compiled.newton_plans.clear()  # (the banded plan is not the default's)
+    counts = ("time slabs", "nonlinear iterations", "jacobian evaluations")
+    assert [solves["sparse"].stats[c] for c in counts] == [solves["banded"].stats[c]
+                                                           for c in counts]
+    np.testing.assert_allclose(solves["sparse"](ode.T), solves["banded"](ode.T), rtol=1e-12,
+                               atol=1e-300)
 
 
 def test_sparse_memory_is_far_below_the_band():
