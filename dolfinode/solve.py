@@ -672,7 +672,7 @@ def _multi_advance(compiled, tables, options, atol, floor, x, kdes, frozen, stat
     full; its status."""
     from dolfinode.timeslab import multi
 
-    return multi.advance.unchecked(compiled.rhs_component.address,
+    return multi.advance.unchecked(compiled.rhs.address, compiled.rhs_component.address,
                                    compiled.jacobian_row.address, compiled.p, compiled.indptr,
                                    compiled.indices, compiled.ordering[1], *tables, options,
                                    atol, floor, x, kdes, frozen, state, counters, out_comp,
@@ -695,6 +695,7 @@ def _multi_stats(counters, state, per_component, kdes):
             "elements per component": per_component,
             "factorizations": int(counters[ts.FACTORIZATIONS]),
             "efficiency index": float(state["mono_elements"][0]) / max(total, 1),
+            "synchronised slabs": int(counters[ts.SYNCHRONISED]),
             "next time step": kdes.copy()}
 
 

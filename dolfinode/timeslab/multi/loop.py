@@ -11,7 +11,7 @@ from numba import types
 
 from dolfinode.adaptivity import MAX_FACTOR, filter_residuals, next_step
 from dolfinode.compile.jit import Loop, helper
-from dolfinode.compile.signatures import NO_REFCOUNT, component_kernel
+from dolfinode.compile.signatures import NO_REFCOUNT, component_kernel, rhs_kernel
 from dolfinode.counters import (
     ELEMENTS,
     F_EVALUATIONS,
@@ -24,6 +24,7 @@ from dolfinode.counters import (
     STIFF,
     STORED,
     SUBSLABS,
+    SYNCHRONISED,
 )
 from dolfinode.linalg.group import group_workspace
 from dolfinode.methods.method import element_value, real_eigenvalues
@@ -42,13 +43,19 @@ from dolfinode.timeslab import (
 )
 from dolfinode.timeslab.contract import OPTIONS_TYPE, STATE_TYPE
 from dolfinode.timeslab.multi.freezing import (
+    QUIET,
     drift_bound,
     freeze,
     store_constant,
     transpose_pattern,
 )
 from dolfinode.timeslab.multi.steps import grade, propagate, slab_limit
-from dolfinode.timeslab.multi.sweeps import converge, guess_from, windows_settled
+from dolfinode.timeslab.multi.sweeps import (
+    converge,
+    guess_from,
+    synchronised,
+    windows_settled,
+)
 from dolfinode.timeslab.partition import (
     build_slab,
     component_elements,
@@ -61,14 +68,23 @@ from dolfinode.timeslab.partition import (
 ACCEPTANCE_MARGIN = 2.0
 #: Accepted slabs after a rejection during which the slab length limit does not grow.
 REJECTION_HOLD = 4
+#: A slab is synchronised, every active component on the smallest desired step, when that
+#: takes at most SYNCHRONISE times the elements of the multi-adaptive partition: it is then
+#: solved as one mono-adaptive slab (``sweeps.synchronised``), whose elements cost a fraction
+#: of a multi-adaptive one (a component kernel call per node, dependencies gathered, sweeps).
+SYNCHRONISE = 4.0
+#: After the synchronised fixed-point iteration failed on a slab of length k, slabs are
+#: synchronised only below k, which grows by SYNCHRONISE_PROBE per synchronised slab.
+SYNCHRONISE_PROBE = 1.2
 
 
 _f8 = types.float64[::1]
 _i8 = types.int64[::1]
 _SIGNATURE = types.int64(
-    types.intp, types.intp, _f8,                   # addresses of f_i and J_i, p
+    types.intp, types.intp, types.intp, _f8,       # addresses of f, f_i and J_i, p
     _i8, _i8, _i8,                                 # indptr, indices, bandwidth position
     types.float64[:, ::1], types.float64[:, ::1],  # M^{-1}, A
+    _f8, _f8,                                      # b0, tau (the mono form, ``synchronised``)
     types.float64[:, ::1], types.float64[:, ::1],  # A = T B T^-1
     types.complex128[::1],                         # the eigenvalues of B
     _f8, _f8, _f8,                                 # nodes, quadrature weights, bary
@@ -110,24 +126,26 @@ def _project(ne, comp, values, floor, projected):
 
 @cache
 def method_tables(method):
-    """The method's tables in the order :func:`advance` takes them (M^{-1}, A, T, T^{-1},
-    eigenvalues, nodes, quadrature weights, barycentric weights, end derivative), as writable
-    copies (numba types read-only arrays apart); made once per method, as advance only reads
-    them."""
+    """The method's tables in the order :func:`advance` takes them (M^{-1}, A, b0, the stage
+    nodes tau, T, T^{-1}, eigenvalues, nodes, quadrature weights, barycentric weights, end
+    derivative), as writable copies (numba types read-only arrays apart); made once per
+    method, as advance only reads them."""
     m = method
-    tables = (m.moment_inverse, m.A, m.stage_transform, m.stage_transform_inverse,
-              m.stage_eigenvalues, m.nodes, m.quadrature_weights, m.barycentric_weights,
-              m.end_derivative)
+    tables = (m.moment_inverse, m.A, m.b0, m.nodes[m.stages], m.stage_transform,
+              m.stage_transform_inverse, m.stage_eigenvalues, m.nodes, m.quadrature_weights,
+              m.barycentric_weights, m.end_derivative)
     return tuple(np.array(table) for table in tables)
 
 
-def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, transform,
-             transform_inverse, eigenvalues, nodes, qweights, bary, end_derivative, options,
-             atol, floor, x, kdes, frozen, state, counters, out_comp, out_a, out_b, out_values):
+def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Minv, A, b0,
+             stage_nodes, transform, transform_inverse, eigenvalues, nodes, qweights, bary,
+             end_derivative, options, atol, floor, x, kdes, frozen, state, counters, out_comp,
+             out_a, out_b, out_values):
     """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status.
     ``frozen[i]`` is the time since which component i is frozen (NaN: active). A slab on
     which a value leaves the declared domain is rejected (``_leaves_domain``); an accepted
     one is projected on it."""
+    f = rhs_kernel(f_address)
     fi = component_kernel(fi_address)
     ji = component_kernel(ji_address)
     N = x.shape[0]
@@ -217,6 +235,19 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
     ocelems = np.empty(0, dtype=np.int64)
     outside = -1  # the component that left its domain on the last slab (rejected), or -1
     projected = np.zeros(N, dtype=np.bool_)
+    # the synchronised slabs' workspace: f(x, t) (valid at f0_time), stages, f at the end
+    f0 = np.empty(N)
+    f0_time = math.nan
+    fvec = np.empty(N)
+    X = np.empty(S * N)
+    F = np.empty(S * N)
+    G = np.empty(S * N)
+    w = np.empty(S * N)
+    sync_fail = math.inf  # (see SYNCHRONISE_PROBE)
+    sptr = np.zeros(1, dtype=np.int64)  # (``dependency_structure``, for the sweeps)
+    spts = np.zeros(1)
+    dptr = np.zeros(1, dtype=np.int64)
+    dcur = np.zeros(1, dtype=np.int64)
     counters[STORED] = 0
     capacity = out_a.shape[0]
     t = st.t
@@ -256,13 +287,23 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
                 counters[JACOBIANS] += 1
                 jacobian_time[i] = t
         kcap = 0.0  # the largest desired step
+        kmin = math.inf  # the smallest, and the elements per unit time of the partition
+        rate = 0.0
         for r in range(nactive):
             i = active[r]
             if not fixed:
                 kdes[i] = min(kdes[i], kmax)
             kcap = max(kcap, kdes[i])
-        b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, active[:nactive], theta,
-                                                              beta, kslab, comp, ea, eb, windows)
+            ki = min(kdes[i], T - t)
+            kmin = min(kmin, ki)
+            rate += 1.0 / ki
+        stiff = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
+        sync = (not fixed and not stiff and nfrozen == 0 and kmin < sync_fail
+                and nactive <= SYNCHRONISE * kmin * rate)
+        # (threshold 0: one group, on the smallest step)
+        b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, active[:nactive],
+                                                              0.0 if sync else theta, beta,
+                                                              kslab, comp, ea, eb, windows)
         if ne + nfrozen > capacity - counters[STORED]:
             # (room for the frozen components' elements too, stored when they wake up)
             return FULL  # with nothing stored: the driver grows the buffers
@@ -277,8 +318,6 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
         changed[:] = 0
         clock[0] = 0
         cptr, celems, prev = component_elements(comp, ne, N)
-        sptr, spts, dptr, dcur = dependency_structure(ne, comp, indptr, indices, cptr, celems,
-                                                      ea, eb)
         largest = 1
         run = 1
         for e in range(1, ne):
@@ -304,7 +343,6 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
                                / (last_b[i] - last_a[i]))
                         if tau <= 3.0:
                             values[e, m] = element_value(last_values, i, tau, nodes, bary)
-        stiff = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         nroot = windows[0] if nwin > 0 else ne
         if saved.shape[0] < nroot:
             saved = np.empty((max(nroot, 2 * saved.shape[0]), nn))
@@ -312,7 +350,29 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
         d_prev = math.inf
         growth = 0
         f_attempt = counters[F_EVALUATIONS]
-        for it in range(max_iter):
+        solved = False  # as one mono-adaptive slab (every component on [t, b])
+        if nsub == 1 and nfrozen == 0 and not stiff and b - t < sync_fail:
+            if f0_time != t:  # (NaN: not valid)
+                f(x.ctypes, t, p.ctypes, f0.ctypes)
+                counters[F_EVALUATIONS] += N
+                f0_time = t
+            # the mono loop's stopping tolerance: its discrete errors add up over the slabs
+            dtol_k = dtol if fixed else max(dtol * min(1.0, (b - t) / o.span),
+                                            min(dtol, ROUNDING / rtol))
+            solved = synchronised(f, p, x, f0, t, b - t, A, b0, stage_nodes, atol, rtol, dtol_k,
+                                  max_iter, comp, ne, values, fend, X, F, G, w, fvec,
+                                  counters) >= 0
+            if solved:
+                converged = True
+                sync_fail *= SYNCHRONISE_PROBE
+            else:
+                sync_fail = b - t
+        if not solved:  # the moments' breakpoints and dependency cursors
+            sptr, spts, dptr, dcur = dependency_structure(ne, comp, indptr, indices, cptr,
+                                                          celems, ea, eb)
+        last_it = -1
+        for it in range(0 if solved else max_iter):
+            last_it = it
             # every window iterated to convergence in turn (the fast components advance window
             # by window as in single-rate time stepping), then the top-level elements: one
             # sweep would leave the slow components' own coupling to the next global
@@ -358,9 +418,10 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
             if growth >= 3:
                 break
             d_prev = d
-        if converged and mode == DEFAULT and it >= 7:
+        if converged and mode == DEFAULT and last_it >= 7:
             counters[STIFF] = 1  # Gauss-Seidel converges too slowly: Newton from here on
-        if not fixed:
+        # (a synchronised slab shorter than the limit says nothing about the windows' cost)
+        if not fixed and not (solved and b - t < kslab):
             limit = slab_limit(min(kslab, kcap), kmax, b - t, converged, nwin,
                                (counters[F_EVALUATIONS] - f_attempt) / (b - t), climb)
             # no growth for REJECTION_HOLD slabs after a rejection: growing straight back
@@ -394,9 +455,11 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
             for j in range(nn):
                 kdu += end_derivative[j] * values[e, j]
             resid[e] = kdu - (eb[e] - ea[e]) * fend[e]  # k R(t_e), f_i(U(t_e)) from the last sweep
-        filter_residuals(ne, comp, ea, eb, resid, position, indptr, indices, jacobian, jdiag,
-                         coupling, gamma, elist, group_order, local, newton,
-                         counters)  # (overwrites newton: ``factored`` is reset at every slab start)
+        # (overwrites newton: ``factored`` is reset at every slab start; a synchronised slab
+        # converged by fixed point is not stiff: unfiltered, as in the mono loop)
+        if not solved:
+            filter_residuals(ne, comp, ea, eb, resid, position, indptr, indices, jacobian,
+                             jdiag, coupling, gamma, elist, group_order, local, newton, counters)
         for e in range(ne):
             i = comp[e]
             k = eb[e] - ea[e]
@@ -473,10 +536,17 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
                 i = active[r] if r < nactive else checked[r - nactive]
                 if not math.isnan(frozen[i]):
                     continue  # keeps its step until it wakes up
+                kref, eref = kact[i], emax[i]
+                if solved and kdes[i] > kref:
+                    # held on the synchronised step: its estimate scaled to its own step
+                    # (eps = O(k^order)), so that the synchronised step does not cap its
+                    # growth and the partition can show what it saves again
+                    eref *= (kdes[i] / kref) ** order
+                    kref = kdes[i]
                 # below efloor the factor is capped at MAX_FACTOR anyway: no pow() for idle
                 # components
-                knew = (kact[i] * MAX_FACTOR if emax[i] <= efloor else
-                        next_step(kact[i], emax[i], 1.0, order, safety, False))
+                knew = (kref * MAX_FACTOR if eref <= efloor else
+                        next_step(kref, eref, 1.0, order, safety, False))
                 if accept:
                     knew = 2.0 * kdes[i] * knew / (kdes[i] + knew)  # harmonic-mean regulator
                 elif emax[i] > ACCEPTANCE_MARGIN:
@@ -533,13 +603,16 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
             kmin = min(kmin, eb[e] - ea[e])
         st.mono_elements += (b - t) / kmin * N
         counters[SLABS] += 1
+        counters[SYNCHRONISED] += solved
         hold = max(0, hold - 1)
         counters[SUBSLABS] += nsub
         for r in range(nactive):
             i = active[r]
             last = celems[cptr[i + 1] - 1]
-            drift[i] = drift_bound(values[last, nn - 1] - x[i], fend[last], T - b,
-                                   jdiag[i] + coupling[i])
+            change = values[last, nn - 1] - x[i]
+            # (a change alone above the threshold of ``freeze`` keeps i active: no bound needed)
+            drift[i] = (abs(change) if abs(change) > QUIET * (atol[i] + rtol * umax[i]) else
+                        drift_bound(change, fend[last], T - b, jdiag[i] + coupling[i]))
             x[i] = values[last, nn - 1]
             last_a[i], last_b[i] = ea[last], eb[last]
             for m in range(nn):
@@ -547,9 +620,14 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
         # a component projected to zero that f drives below its floor by T: f does not keep
         # it nonnegative, and the projected solution would stay at 0 where the exact one
         # turns negative
+        if solved:  # f(x, b), unless a value was projected
+            f0_time = b
+            for i in range(N):
+                f0[i] = fvec[i]
         for r in range(nactive):
             i = active[r]
             if projected[i]:
+                f0_time = math.nan
                 projected[i] = False
                 if x[i] == 0.0:
                     fi(i, x.ctypes, b, p.ctypes, out.ctypes)
