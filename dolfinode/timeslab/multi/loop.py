@@ -27,7 +27,7 @@ from dolfinode.counters import (
     SYNCHRONISED,
 )
 from dolfinode.linalg.group import group_workspace
-from dolfinode.methods.method import element_value, real_eigenvalues
+from dolfinode.methods.method import lagrange_weights, real_eigenvalues
 from dolfinode.timeslab import (
     BLOWUP,
     CONSTRAINT,
@@ -76,6 +76,8 @@ SYNCHRONISE = 4.0
 #: After the synchronised fixed-point iteration failed on a slab of length k, slabs are
 #: synchronised only below k, which grows by SYNCHRONISE_PROBE per synchronised slab.
 SYNCHRONISE_PROBE = 1.2
+#: Synchronised slabs over which the Jacobian rows of an earlier slab start serve the steps.
+JACOBIAN_AGE = 8
 
 
 _f8 = types.float64[::1]
@@ -109,6 +111,44 @@ def _leaves_domain(ne, comp, values, floor, kdes, kact):
                 first = i if first < 0 else first
                 break
     return first
+
+
+@helper(**NO_REFCOUNT)
+def _jacobian_rows(ji, active, nactive, x, t, p, indptr, indices, jrow, jacobian, jdiag,
+                   coupling, jacobian_time, counters):
+    """The rows of df/du at (x, t) of the components active[:nactive] not evaluated there
+    yet (``jacobian_time``), into the CSR values ``jacobian``, their diagonals ``jdiag`` and
+    couplings sum_j!=i |J_ij| (``coupling``)."""
+    for r in range(nactive):
+        i = active[r]
+        if jacobian_time[i] != t:
+            ji(i, x.ctypes, t, p.ctypes, jrow.ctypes)
+            jdiag[i] = 0.0
+            coupling[i] = 0.0
+            for nz in range(indptr[i], indptr[i + 1]):
+                jacobian[nz] = jrow[nz - indptr[i]]
+                if indices[nz] == i:
+                    jdiag[i] = jrow[nz - indptr[i]]
+                else:
+                    coupling[i] += abs(jrow[nz - indptr[i]])
+            counters[JACOBIANS] += 1
+            jacobian_time[i] = t
+
+
+@helper(**NO_REFCOUNT)
+def _extrapolation_weights(a, b, ea, eb, nodes, bary, key, weights, far):
+    """weights[m, j] = l_j(tau_m), the Lagrange basis of an element on [a, b] at the nodes
+    tau_m of [ea, eb] (continued past b), and far[m]: whether the node lies more than two
+    element lengths past b (tau > 3: too far to extrapolate). Recomputed only when
+    (a, b, ea, eb) differs from ``key``: on a synchronised slab every component's guess
+    shares them."""
+    if key[0] == a and key[1] == b and key[2] == ea and key[3] == eb:
+        return
+    key[0], key[1], key[2], key[3] = a, b, ea, eb
+    for m in range(nodes.shape[0]):
+        tau = (ea + nodes[m] * (eb - ea) - a) / (b - a)
+        far[m] = tau > 3.0
+        lagrange_weights(tau, nodes, bary, weights[m])
 
 
 @helper(**NO_REFCOUNT)
@@ -244,6 +284,12 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     G = np.empty(S * N)
     w = np.empty(S * N)
     sync_fail = math.inf  # (see SYNCHRONISE_PROBE)
+    # synchronised slabs since the Jacobian rows were evaluated (at the start and after the
+    # active set changed: JACOBIAN_AGE, so that every active row is evaluated)
+    jacobian_age = JACOBIAN_AGE
+    guess_weights = np.empty((nn, nn))  # (``_extrapolation_weights``)
+    guess_key = np.full(4, np.nan)
+    guess_far = np.zeros(nn, dtype=np.bool_)
     sptr = np.zeros(1, dtype=np.int64)  # (``dependency_structure``, for the sweeps)
     spts = np.zeros(1)
     dptr = np.zeros(1, dtype=np.int64)
@@ -259,6 +305,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                     active[nactive] = i
                     nactive += 1
             regroup = False
+            jacobian_age = JACOBIAN_AGE
         nfrozen = N - nactive
         if t >= T:
             if nfrozen > capacity - counters[STORED]:
@@ -269,23 +316,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                                    out_values)
                     frozen[i] = math.nan
             return DONE
-        # the Jacobian at the slab start: its diagonal damps the element updates, its
-        # couplings propagate small steps, and it is the Newton matrix of coupled sub-slabs
         factored[0] = 0
-        for r in range(nactive):
-            i = active[r]
-            if jacobian_time[i] != t:
-                ji(i, x.ctypes, t, p.ctypes, jrow.ctypes)
-                jdiag[i] = 0.0
-                coupling[i] = 0.0
-                for nz in range(indptr[i], indptr[i + 1]):
-                    jacobian[nz] = jrow[nz - indptr[i]]
-                    if indices[nz] == i:
-                        jdiag[i] = jrow[nz - indptr[i]]
-                    else:
-                        coupling[i] += abs(jrow[nz - indptr[i]])
-                counters[JACOBIANS] += 1
-                jacobian_time[i] = t
         kcap = 0.0  # the largest desired step
         kmin = math.inf  # the smallest, and the elements per unit time of the partition
         rate = 0.0
@@ -304,6 +335,15 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, active[:nactive],
                                                               0.0 if sync else theta, beta,
                                                               kslab, comp, ea, eb, windows)
+        # the Jacobian at the slab start: its diagonal damps the element updates, its
+        # couplings propagate small steps, and it is the Newton matrix of coupled sub-slabs.
+        # A slab solved synchronised needs it only for the steps (ties, grading, drift):
+        # one up to JACOBIAN_AGE synchronised slabs old serves them.
+        try_sync = nsub == 1 and nfrozen == 0 and not stiff and b - t < sync_fail
+        if not (try_sync and jacobian_age < JACOBIAN_AGE):
+            _jacobian_rows(ji, active, nactive, x, t, p, indptr, indices, jrow, jacobian, jdiag,
+                           coupling, jacobian_time, counters)
+            jacobian_age = 0
         if ne + nfrozen > capacity - counters[STORED]:
             # (room for the frozen components' elements too, stored when they wake up)
             return FULL  # with nothing stored: the driver grows the buffers
@@ -336,13 +376,17 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         else:
             for e in range(ne):
                 i = comp[e]
-                for m in range(nn):
-                    values[e, m] = x[i]
-                    if prev[e] < 0 and last_b[i] > last_a[i]:
-                        tau = ((ea[e] + nodes[m] * (eb[e] - ea[e]) - last_a[i])
-                               / (last_b[i] - last_a[i]))
-                        if tau <= 3.0:
-                            values[e, m] = element_value(last_values, i, tau, nodes, bary)
+                if prev[e] < 0 and last_b[i] > last_a[i]:
+                    _extrapolation_weights(last_a[i], last_b[i], ea[e], eb[e], nodes, bary,
+                                           guess_key, guess_weights, guess_far)
+                    for m in range(nn):
+                        value = 0.0
+                        for j in range(nn):
+                            value += guess_weights[m, j] * last_values[i, j]
+                        values[e, m] = x[i] if guess_far[m] else value
+                else:
+                    for m in range(nn):
+                        values[e, m] = x[i]
         nroot = windows[0] if nwin > 0 else ne
         if saved.shape[0] < nroot:
             saved = np.empty((max(nroot, 2 * saved.shape[0]), nn))
@@ -351,7 +395,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         growth = 0
         f_attempt = counters[F_EVALUATIONS]
         solved = False  # as one mono-adaptive slab (every component on [t, b])
-        if nsub == 1 and nfrozen == 0 and not stiff and b - t < sync_fail:
+        if try_sync:
             if f0_time != t:  # (NaN: not valid)
                 f(x.ctypes, t, p.ctypes, f0.ctypes)
                 counters[F_EVALUATIONS] += N
@@ -365,8 +409,12 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             if solved:
                 converged = True
                 sync_fail *= SYNCHRONISE_PROBE
+                jacobian_age += 1
             else:
                 sync_fail = b - t
+                _jacobian_rows(ji, active, nactive, x, t, p, indptr, indices, jrow, jacobian,
+                               jdiag, coupling, jacobian_time, counters)
+                jacobian_age = 0
         if not solved:  # the moments' breakpoints and dependency cursors
             sptr, spts, dptr, dcur = dependency_structure(ne, comp, indptr, indices, cptr,
                                                           celems, ea, eb)
