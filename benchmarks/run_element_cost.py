@@ -90,16 +90,18 @@ def main(argv=None):
               f"{row['ratio_solve']:.2f} per solve", flush=True)
     record = {
         "date": time.strftime("%Y-%m-%d"),
-        "git": subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, cwd=Path(__file__).parent).stdout.strip(),
+        "git": subprocess.run(["git", "rev-parse", "--short", "HEAD"], check=False,
+                              capture_output=True, text=True,
+                              cwd=Path(__file__).parent).stdout.strip(),
         "machine": f"{platform.platform()}, {platform.processor() or platform.machine()}",
         "load": list(__import__("os").getloadavg()),
         "rounds": args.rounds, "rows": rows}
     output = Path(args.output)
     (output / "element_cost.json").write_text(json.dumps(record, indent=1) + "\n")
-    lines = ["| setting | q | cG(q): CPU, component-steps, per step, error | "
-             "mcG(q): CPU, elements (synchronised slabs / slabs), per element, error | "
-             "ratio per element | ratio per solve |", "|---|---|---|---|---|---|"]
+    header = ("| setting | q | cG(q): CPU, component-steps, per step, error | "
+              "mcG(q): CPU, elements (synchronised slabs / slabs), per element, error | "
+              "ratio per element | ratio per solve |")
+    lines = [header, "|---|---|---|---|---|---|"]
     for row in rows:
         mono, multi = row[f"cG({row['q']})"], row[f"mcG({row['q']})"]
         lines.append(

@@ -287,6 +287,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     # synchronised slabs since the Jacobian rows were evaluated (at the start and after the
     # active set changed: JACOBIAN_AGE, so that every active row is evaluated)
     jacobian_age = JACOBIAN_AGE
+    solved = False  # the last slab was solved synchronised
     guess_weights = np.empty((nn, nn))  # (``_extrapolation_weights``)
     guess_key = np.full(4, np.nan)
     guess_far = np.zeros(nn, dtype=np.bool_)
@@ -329,8 +330,9 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             kmin = min(kmin, ki)
             rate += 1.0 / ki
         stiff = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
+        # (twice the gain to leave it: a slab that flips back and forth pays both)
         sync = (not fixed and not stiff and nfrozen == 0 and kmin < sync_fail
-                and nactive <= SYNCHRONISE * kmin * rate)
+                and nactive <= (2.0 if solved else 1.0) * SYNCHRONISE * kmin * rate)
         # (threshold 0: one group, on the smallest step)
         b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, active[:nactive],
                                                               0.0 if sync else theta, beta,
