@@ -3,8 +3,9 @@ solvers increment and the driver turns into ``Solution.stats`` (indices below).
 
 OUTSIDE: the component that left its declared domain (status CONSTRAINT), plus one. Its own
 module, so that :mod:`dolfinode.solvers` and :mod:`dolfinode.timeslab` both read it and
-neither imports the other's package for it.
+neither imports the other's package for it. SYNCHRONISED: the multi-adaptive slabs solved as
+one mono-adaptive slab (every component on one step).
 """
 SLABS, REJECTED, F_EVALUATIONS, JACOBIANS, FACTORIZATIONS, ITERATIONS, STORED, FAILED_SOLVES, \
-    STIFF, ELEMENTS, SUBSLABS, OUTSIDE = range(12)
-NUM_COUNTERS = 12
+    STIFF, ELEMENTS, SUBSLABS, OUTSIDE, SYNCHRONISED = range(13)
+NUM_COUNTERS = 13

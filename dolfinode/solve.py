@@ -690,9 +690,10 @@ def _multi_arguments(compiled, tables, options, atol, floor, x, kdes, frozen, st
     """The multi-adaptive loop's arguments but its output buffers: a call
     ``multi.advance.unchecked(*arguments, out_comp, out_a, out_b, out_values)`` runs
     elements until T or until the buffers are full, and returns its status."""
-    return (compiled.rhs_component.address, compiled.jacobian_row.address, compiled.p,
-            compiled.indptr, compiled.indices, compiled.ordering[1], *tables, options, atol,
-            floor, x, kdes, frozen, state, counters)
+    return (compiled.rhs.address, compiled.rhs_component.address,
+            compiled.jacobian_row.address, compiled.p, compiled.indptr, compiled.indices,
+            compiled.ordering[1], *tables, options, atol, floor, x, kdes, frozen, state,
+            counters)
 
 
 def _multi_capacity(ode, m):
@@ -711,6 +712,7 @@ def _multi_stats(counters, state, per_component, kdes):
             "elements per component": per_component,
             "factorizations": int(counters[ts.FACTORIZATIONS]),
             "efficiency index": float(state["mono_elements"][0]) / max(total, 1),
+            "synchronised slabs": int(counters[ts.SYNCHRONISED]),
             "next time step": kdes.copy()}
 
 

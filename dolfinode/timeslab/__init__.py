@@ -22,6 +22,7 @@ from dolfinode.counters import (  # noqa: F401
     STIFF,
     STORED,
     SUBSLABS,
+    SYNCHRONISED,
 )
 
 # Return codes of the loops (NEWTON_NEEDED: mono only, Newton needed but its matrices are not

@@ -15,7 +15,7 @@ def test_group_newton_solves_the_stage_system_through_the_transformation(method)
     from dolfinode.timeslab import multi
 
     _, m = parse_method(method)
-    T, T_inverse, eigenvalues = multi.method_tables(m)[2:5]
+    T, T_inverse, eigenvalues = multi.method_tables(m)[4:7]
     S = T.shape[0]
     rng = np.random.default_rng(7)
     n, k = 9, 0.3

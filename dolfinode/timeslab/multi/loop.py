@@ -11,7 +11,7 @@ from numba import types
 
 from dolfinode.adaptivity import MAX_FACTOR, filter_residuals, next_step
 from dolfinode.compile.jit import Loop, helper
-from dolfinode.compile.signatures import NO_REFCOUNT, component_kernel
+from dolfinode.compile.signatures import NO_REFCOUNT, component_kernel, rhs_kernel
 from dolfinode.counters import (
     ELEMENTS,
     F_EVALUATIONS,
@@ -24,9 +24,10 @@ from dolfinode.counters import (
     STIFF,
     STORED,
     SUBSLABS,
+    SYNCHRONISED,
 )
 from dolfinode.linalg.group import group_workspace
-from dolfinode.methods.method import element_value, real_eigenvalues
+from dolfinode.methods.method import lagrange_weights, real_eigenvalues
 from dolfinode.timeslab import (
     BLOWUP,
     CONSTRAINT,
@@ -42,13 +43,19 @@ from dolfinode.timeslab import (
 )
 from dolfinode.timeslab.contract import OPTIONS_TYPE, STATE_TYPE
 from dolfinode.timeslab.multi.freezing import (
+    QUIET,
     drift_bound,
     freeze,
     store_constant,
     transpose_pattern,
 )
 from dolfinode.timeslab.multi.steps import grade, propagate, slab_limit
-from dolfinode.timeslab.multi.sweeps import converge, guess_from, windows_settled
+from dolfinode.timeslab.multi.sweeps import (
+    converge,
+    guess_from,
+    synchronised,
+    windows_settled,
+)
 from dolfinode.timeslab.partition import (
     build_slab,
     component_elements,
@@ -61,14 +68,28 @@ from dolfinode.timeslab.partition import (
 ACCEPTANCE_MARGIN = 2.0
 #: Accepted slabs after a rejection during which the slab length limit does not grow.
 REJECTION_HOLD = 4
+#: A slab is synchronised, every active component on the smallest desired step, when that
+#: takes at most SYNCHRONISE times the elements of the multi-adaptive partition: it is then
+#: solved as one mono-adaptive slab (``sweeps.synchronised``), whose elements cost a fraction
+#: of a multi-adaptive one (a component kernel call per node, dependencies gathered, sweeps).
+#: After a synchronised slab the next one is synchronised up to twice that gain. (8 to enter:
+#: the suite's stiff-spring chain took 2-3x the elements and 1.4-1.9x the time of its
+#: partition.)
+SYNCHRONISE = 4.0
+#: After the synchronised fixed-point iteration failed on a slab of length k, slabs are
+#: synchronised only below k, which grows by SYNCHRONISE_PROBE per synchronised slab.
+SYNCHRONISE_PROBE = 1.2
+#: Synchronised slabs over which the Jacobian rows of an earlier slab start serve the steps.
+JACOBIAN_AGE = 8
 
 
 _f8 = types.float64[::1]
 _i8 = types.int64[::1]
 _SIGNATURE = types.int64(
-    types.intp, types.intp, _f8,                   # addresses of f_i and J_i, p
+    types.intp, types.intp, types.intp, _f8,       # addresses of f, f_i and J_i, p
     _i8, _i8, _i8,                                 # indptr, indices, bandwidth position
     types.float64[:, ::1], types.float64[:, ::1],  # M^{-1}, A
+    _f8, _f8,                                      # b0, tau (the mono form, ``synchronised``)
     types.float64[:, ::1], types.float64[:, ::1],  # A = T B T^-1
     types.complex128[::1],                         # the eigenvalues of B
     _f8, _f8, _f8,                                 # nodes, quadrature weights, bary
@@ -96,6 +117,44 @@ def _leaves_domain(ne, comp, values, floor, kdes, kact):
 
 
 @helper(**NO_REFCOUNT)
+def _jacobian_rows(ji, active, nactive, x, t, p, indptr, indices, jrow, jacobian, jdiag,
+                   coupling, jacobian_time, counters):
+    """The rows of df/du at (x, t) of the components active[:nactive] not evaluated there
+    yet (``jacobian_time``), into the CSR values ``jacobian``, their diagonals ``jdiag`` and
+    couplings sum_j!=i |J_ij| (``coupling``)."""
+    for r in range(nactive):
+        i = active[r]
+        if jacobian_time[i] != t:
+            ji(i, x.ctypes, t, p.ctypes, jrow.ctypes)
+            jdiag[i] = 0.0
+            coupling[i] = 0.0
+            for nz in range(indptr[i], indptr[i + 1]):
+                jacobian[nz] = jrow[nz - indptr[i]]
+                if indices[nz] == i:
+                    jdiag[i] = jrow[nz - indptr[i]]
+                else:
+                    coupling[i] += abs(jrow[nz - indptr[i]])
+            counters[JACOBIANS] += 1
+            jacobian_time[i] = t
+
+
+@helper(**NO_REFCOUNT)
+def _extrapolation_weights(a, b, ea, eb, nodes, bary, key, weights, far):
+    """weights[m, j] = l_j(tau_m), the Lagrange basis of an element on [a, b] at the nodes
+    tau_m of [ea, eb] (continued past b), and far[m]: whether the node lies more than two
+    element lengths past b (tau > 3: too far to extrapolate). Recomputed only when
+    (a, b, ea, eb) differs from ``key``: on a synchronised slab every component's guess
+    shares them."""
+    if key[0] == a and key[1] == b and key[2] == ea and key[3] == eb:
+        return
+    key[0], key[1], key[2], key[3] = a, b, ea, eb
+    for m in range(nodes.shape[0]):
+        tau = (ea + nodes[m] * (eb - ea) - a) / (b - a)
+        far[m] = tau > 3.0
+        lagrange_weights(tau, nodes, bary, weights[m])
+
+
+@helper(**NO_REFCOUNT)
 def _project(ne, comp, values, floor, projected):
     """Set the nodal values of the nonnegative components in [floor, 0) to 0, marking those
     components in ``projected``."""
@@ -110,24 +169,26 @@ def _project(ne, comp, values, floor, projected):
 
 @cache
 def method_tables(method):
-    """The method's tables in the order :func:`advance` takes them (M^{-1}, A, T, T^{-1},
-    eigenvalues, nodes, quadrature weights, barycentric weights, end derivative), as writable
-    copies (numba types read-only arrays apart); made once per method, as advance only reads
-    them."""
+    """The method's tables in the order :func:`advance` takes them (M^{-1}, A, b0, the stage
+    nodes tau, T, T^{-1}, eigenvalues, nodes, quadrature weights, barycentric weights, end
+    derivative), as writable copies (numba types read-only arrays apart); made once per
+    method, as advance only reads them."""
     m = method
-    tables = (m.moment_inverse, m.A, m.stage_transform, m.stage_transform_inverse,
-              m.stage_eigenvalues, m.nodes, m.quadrature_weights, m.barycentric_weights,
-              m.end_derivative)
+    tables = (m.moment_inverse, m.A, m.b0, m.nodes[m.stages], m.stage_transform,
+              m.stage_transform_inverse, m.stage_eigenvalues, m.nodes, m.quadrature_weights,
+              m.barycentric_weights, m.end_derivative)
     return tuple(np.array(table) for table in tables)
 
 
-def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, transform,
-             transform_inverse, eigenvalues, nodes, qweights, bary, end_derivative, options,
-             atol, floor, x, kdes, frozen, state, counters, out_comp, out_a, out_b, out_values):
+def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Minv, A, b0,
+             stage_nodes, transform, transform_inverse, eigenvalues, nodes, qweights, bary,
+             end_derivative, options, atol, floor, x, kdes, frozen, state, counters, out_comp,
+             out_a, out_b, out_values):
     """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status.
     ``frozen[i]`` is the time since which component i is frozen (NaN: active). A slab on
     which a value leaves the declared domain is rejected (``_leaves_domain``); an accepted
     one is projected on it."""
+    f = rhs_kernel(f_address)
     fi = component_kernel(fi_address)
     ji = component_kernel(ji_address)
     N = x.shape[0]
@@ -217,6 +278,26 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
     ocelems = np.empty(0, dtype=np.int64)
     outside = -1  # the component that left its domain on the last slab (rejected), or -1
     projected = np.zeros(N, dtype=np.bool_)
+    # the synchronised slabs' workspace: f(x, t) (valid at f0_time), stages, f at the end
+    f0 = np.empty(N)
+    f0_time = math.nan
+    fvec = np.empty(N)
+    X = np.empty(S * N)
+    F = np.empty(S * N)
+    G = np.empty(S * N)
+    w = np.empty(S * N)
+    sync_fail = math.inf  # (see SYNCHRONISE_PROBE)
+    # synchronised slabs since the Jacobian rows were evaluated (at the start and after the
+    # active set changed: JACOBIAN_AGE, so that every active row is evaluated)
+    jacobian_age = JACOBIAN_AGE
+    solved = False  # the last slab was solved synchronised
+    guess_weights = np.empty((nn, nn))  # (``_extrapolation_weights``)
+    guess_key = np.full(4, np.nan)
+    guess_far = np.zeros(nn, dtype=np.bool_)
+    sptr = np.zeros(1, dtype=np.int64)  # (``dependency_structure``, for the sweeps)
+    spts = np.zeros(1)
+    dptr = np.zeros(1, dtype=np.int64)
+    dcur = np.zeros(1, dtype=np.int64)
     counters[STORED] = 0
     capacity = out_a.shape[0]
     t = st.t
@@ -228,6 +309,7 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
                     active[nactive] = i
                     nactive += 1
             regroup = False
+            jacobian_age = JACOBIAN_AGE
         nfrozen = N - nactive
         if t >= T:
             if nfrozen > capacity - counters[STORED]:
@@ -238,31 +320,35 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
                                    out_values)
                     frozen[i] = math.nan
             return DONE
-        # the Jacobian at the slab start: its diagonal damps the element updates, its
-        # couplings propagate small steps, and it is the Newton matrix of coupled sub-slabs
         factored[0] = 0
-        for r in range(nactive):
-            i = active[r]
-            if jacobian_time[i] != t:
-                ji(i, x.ctypes, t, p.ctypes, jrow.ctypes)
-                jdiag[i] = 0.0
-                coupling[i] = 0.0
-                for nz in range(indptr[i], indptr[i + 1]):
-                    jacobian[nz] = jrow[nz - indptr[i]]
-                    if indices[nz] == i:
-                        jdiag[i] = jrow[nz - indptr[i]]
-                    else:
-                        coupling[i] += abs(jrow[nz - indptr[i]])
-                counters[JACOBIANS] += 1
-                jacobian_time[i] = t
         kcap = 0.0  # the largest desired step
+        kmin = math.inf  # the smallest, and the elements per unit time of the partition
+        rate = 0.0
         for r in range(nactive):
             i = active[r]
             if not fixed:
                 kdes[i] = min(kdes[i], kmax)
             kcap = max(kcap, kdes[i])
-        b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, active[:nactive], theta,
-                                                              beta, kslab, comp, ea, eb, windows)
+            ki = min(kdes[i], T - t)
+            kmin = min(kmin, ki)
+            rate += 1.0 / ki
+        stiff = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
+        # (twice the gain to leave it: a slab that flips back and forth pays both)
+        sync = (not fixed and not stiff and nfrozen == 0 and kmin < sync_fail
+                and nactive <= (2.0 if solved else 1.0) * SYNCHRONISE * kmin * rate)
+        # (threshold 0: one group, on the smallest step)
+        b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, active[:nactive],
+                                                              0.0 if sync else theta, beta,
+                                                              kslab, comp, ea, eb, windows)
+        # the Jacobian at the slab start: its diagonal damps the element updates, its
+        # couplings propagate small steps, and it is the Newton matrix of coupled sub-slabs.
+        # A slab solved synchronised needs it only for the steps (ties, grading, drift):
+        # one up to JACOBIAN_AGE synchronised slabs old serves them.
+        try_sync = nsub == 1 and nfrozen == 0 and not stiff and b - t < sync_fail
+        if not (try_sync and jacobian_age < JACOBIAN_AGE):
+            _jacobian_rows(ji, active, nactive, x, t, p, indptr, indices, jrow, jacobian, jdiag,
+                           coupling, jacobian_time, counters)
+            jacobian_age = 0
         if ne + nfrozen > capacity - counters[STORED]:
             # (room for the frozen components' elements too, stored when they wake up)
             return FULL  # with nothing stored: the driver grows the buffers
@@ -277,8 +363,6 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
         changed[:] = 0
         clock[0] = 0
         cptr, celems, prev = component_elements(comp, ne, N)
-        sptr, spts, dptr, dcur = dependency_structure(ne, comp, indptr, indices, cptr, celems,
-                                                      ea, eb)
         largest = 1
         run = 1
         for e in range(1, ne):
@@ -297,14 +381,17 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
         else:
             for e in range(ne):
                 i = comp[e]
-                for m in range(nn):
-                    values[e, m] = x[i]
-                    if prev[e] < 0 and last_b[i] > last_a[i]:
-                        tau = ((ea[e] + nodes[m] * (eb[e] - ea[e]) - last_a[i])
-                               / (last_b[i] - last_a[i]))
-                        if tau <= 3.0:
-                            values[e, m] = element_value(last_values, i, tau, nodes, bary)
-        stiff = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
+                if prev[e] < 0 and last_b[i] > last_a[i]:
+                    _extrapolation_weights(last_a[i], last_b[i], ea[e], eb[e], nodes, bary,
+                                           guess_key, guess_weights, guess_far)
+                    for m in range(nn):
+                        value = 0.0
+                        for j in range(nn):
+                            value += guess_weights[m, j] * last_values[i, j]
+                        values[e, m] = x[i] if guess_far[m] else value
+                else:
+                    for m in range(nn):
+                        values[e, m] = x[i]
         nroot = windows[0] if nwin > 0 else ne
         if saved.shape[0] < nroot:
             saved = np.empty((max(nroot, 2 * saved.shape[0]), nn))
@@ -312,7 +399,33 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
         d_prev = math.inf
         growth = 0
         f_attempt = counters[F_EVALUATIONS]
-        for it in range(max_iter):
+        solved = False  # as one mono-adaptive slab (every component on [t, b])
+        if try_sync:
+            if f0_time != t:  # (NaN: not valid)
+                f(x.ctypes, t, p.ctypes, f0.ctypes)
+                counters[F_EVALUATIONS] += N
+                f0_time = t
+            # the mono loop's stopping tolerance: its discrete errors add up over the slabs
+            dtol_k = dtol if fixed else max(dtol * min(1.0, (b - t) / o.span),
+                                            min(dtol, ROUNDING / rtol))
+            solved = synchronised(f, p, x, f0, t, b - t, A, b0, stage_nodes, atol, rtol, dtol_k,
+                                  max_iter, comp, ne, values, fend, X, F, G, w, fvec,
+                                  counters) >= 0
+            if solved:
+                converged = True
+                sync_fail *= SYNCHRONISE_PROBE
+                jacobian_age += 1
+            else:
+                sync_fail = b - t
+                _jacobian_rows(ji, active, nactive, x, t, p, indptr, indices, jrow, jacobian,
+                               jdiag, coupling, jacobian_time, counters)
+                jacobian_age = 0
+        if not solved:  # the moments' breakpoints and dependency cursors
+            sptr, spts, dptr, dcur = dependency_structure(ne, comp, indptr, indices, cptr,
+                                                          celems, ea, eb)
+        last_it = -1
+        for it in range(0 if solved else max_iter):
+            last_it = it
             # every window iterated to convergence in turn (the fast components advance window
             # by window as in single-rate time stepping), then the top-level elements: one
             # sweep would leave the slow components' own coupling to the next global
@@ -358,9 +471,10 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
             if growth >= 3:
                 break
             d_prev = d
-        if converged and mode == DEFAULT and it >= 7:
+        if converged and mode == DEFAULT and last_it >= 7:
             counters[STIFF] = 1  # Gauss-Seidel converges too slowly: Newton from here on
-        if not fixed:
+        # (a synchronised slab shorter than the limit says nothing about the windows' cost)
+        if not fixed and not (solved and b - t < kslab):
             limit = slab_limit(min(kslab, kcap), kmax, b - t, converged, nwin,
                                (counters[F_EVALUATIONS] - f_attempt) / (b - t), climb)
             # no growth for REJECTION_HOLD slabs after a rejection: growing straight back
@@ -394,9 +508,11 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
             for j in range(nn):
                 kdu += end_derivative[j] * values[e, j]
             resid[e] = kdu - (eb[e] - ea[e]) * fend[e]  # k R(t_e), f_i(U(t_e)) from the last sweep
-        filter_residuals(ne, comp, ea, eb, resid, position, indptr, indices, jacobian, jdiag,
-                         coupling, gamma, elist, group_order, local, newton,
-                         counters)  # (overwrites newton: ``factored`` is reset at every slab start)
+        # (overwrites newton: ``factored`` is reset at every slab start; a synchronised slab
+        # converged by fixed point is not stiff: unfiltered, as in the mono loop)
+        if not solved:
+            filter_residuals(ne, comp, ea, eb, resid, position, indptr, indices, jacobian,
+                             jdiag, coupling, gamma, elist, group_order, local, newton, counters)
         for e in range(ne):
             i = comp[e]
             k = eb[e] - ea[e]
@@ -473,10 +589,17 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
                 i = active[r] if r < nactive else checked[r - nactive]
                 if not math.isnan(frozen[i]):
                     continue  # keeps its step until it wakes up
+                kref, eref = kact[i], emax[i]
+                if solved and kdes[i] > kref:
+                    # held on the synchronised step: its estimate scaled to its own step
+                    # (eps = O(k^order)), so that the synchronised step does not cap its
+                    # growth and the partition can show what it saves again
+                    eref *= (kdes[i] / kref) ** order
+                    kref = kdes[i]
                 # below efloor the factor is capped at MAX_FACTOR anyway: no pow() for idle
                 # components
-                knew = (kact[i] * MAX_FACTOR if emax[i] <= efloor else
-                        next_step(kact[i], emax[i], 1.0, order, safety, False))
+                knew = (kref * MAX_FACTOR if eref <= efloor else
+                        next_step(kref, eref, 1.0, order, safety, False))
                 if accept:
                     knew = 2.0 * kdes[i] * knew / (kdes[i] + knew)  # harmonic-mean regulator
                 elif emax[i] > ACCEPTANCE_MARGIN:
@@ -533,13 +656,16 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
             kmin = min(kmin, eb[e] - ea[e])
         st.mono_elements += (b - t) / kmin * N
         counters[SLABS] += 1
+        counters[SYNCHRONISED] += solved
         hold = max(0, hold - 1)
         counters[SUBSLABS] += nsub
         for r in range(nactive):
             i = active[r]
             last = celems[cptr[i + 1] - 1]
-            drift[i] = drift_bound(values[last, nn - 1] - x[i], fend[last], T - b,
-                                   jdiag[i] + coupling[i])
+            change = values[last, nn - 1] - x[i]
+            # (a change alone above the threshold of ``freeze`` keeps i active: no bound needed)
+            drift[i] = (abs(change) if abs(change) > QUIET * (atol[i] + rtol * umax[i]) else
+                        drift_bound(change, fend[last], T - b, jdiag[i] + coupling[i]))
             x[i] = values[last, nn - 1]
             last_a[i], last_b[i] = ea[last], eb[last]
             for m in range(nn):
@@ -547,9 +673,14 @@ def _advance(fi_address, ji_address, p, indptr, indices, position, Minv, A, tran
         # a component projected to zero that f drives below its floor by T: f does not keep
         # it nonnegative, and the projected solution would stay at 0 where the exact one
         # turns negative
+        if solved:  # f(x, b), unless a value was projected
+            f0_time = b
+            for i in range(N):
+                f0[i] = fvec[i]
         for r in range(nactive):
             i = active[r]
             if projected[i]:
+                f0_time = math.nan
                 projected[i] = False
                 if x[i] == 0.0:
                     fi(i, x.ctypes, b, p.ctypes, out.ctypes)

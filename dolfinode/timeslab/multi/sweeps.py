@@ -2,14 +2,16 @@
 the element's own Newton matrix, and a simplified Newton step over the elements of a sub-slab
 whose components are stiff or strongly coupled on its step (``group_newton``, with the band
 matrices of :mod:`dolfinode.linalg.group`); the check that the windows stay converged after
-the top level moved; the initial values of a slab rebuilt after a rejection."""
+the top level moved; the initial values of a slab rebuilt after a rejection; a synchronised
+slab (every component on one step) solved as one mono-adaptive slab (``synchronised``)."""
 import math
 
 from dolfinode.compile.jit import helper
-from dolfinode.compile.signatures import NO_REFCOUNT
+from dolfinode.compile.signatures import NO_REFCOUNT, address
 from dolfinode.counters import F_EVALUATIONS
 from dolfinode.linalg.group import factor_group, group_order, solve_group
 from dolfinode.methods.method import element_value
+from dolfinode.solvers.slab import fixed_point
 from dolfinode.timeslab.multi.moments import moments
 
 #: Most Gauss-Seidel sweeps of one window per global iteration.
@@ -312,3 +314,40 @@ def guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, 
                 eo = ocelems[c]
                 tau = min(max((tq - oea[eo]) / (oeb[eo] - oea[eo]), 0.0), 1.0)
                 values[e, m] = element_value(ovalues, eo, tau, nodes, bary)
+
+
+@helper(**NO_REFCOUNT)
+def synchronised(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, comp, ne, values,
+                 fend, X, F, G, w, fvec, counters):
+    """Solve a slab whose ne = N elements all lie on [t, t + k] as one mono-adaptive slab:
+    the stages X_s = x + k (b0_s f(x, t) + sum_m A_sm f(X_m, t + tau_m k)) by the mono loop's
+    fixed-point iteration (:func:`dolfinode.solvers.slab.fixed_point`) with the whole
+    system's f, from the elements' initial values; with every step equal the element
+    equations xi = x_left + k M^{-1} m(xi) are these equations, so the solution is cG(q)'s
+    or dG(q)'s, at the cost of the mono loop's f evaluations instead of one component
+    kernel call, with its dependencies gathered, per component and node. ``f0`` = f(x, t),
+    fvec, X, F, G, w work space. Writes the converged values and f_i at the end (``fend``)
+    of every element; returns the iterations, or -1 when the iteration did not converge
+    (the slab is then stiff for it). f evaluations are counted per component."""
+    N = x.shape[0]
+    S = A.shape[0]
+    first_stage = values.shape[1] - S
+    for e in range(ne):
+        i = comp[e]
+        for s in range(S):
+            X[s * N + i] = values[e, first_stage + s]
+    before = counters[F_EVALUATIONS]
+    iters = fixed_point(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F, G, w,
+                        counters)
+    if iters >= 0:
+        f(address(X, (S - 1) * N), t + k, address(p, 0), address(fvec, 0))
+        counters[F_EVALUATIONS] += 1
+        for e in range(ne):
+            i = comp[e]
+            if first_stage == 1:
+                values[e, 0] = x[i]
+            for s in range(S):
+                values[e, first_stage + s] = X[s * N + i]
+            fend[e] = fvec[i]
+    counters[F_EVALUATIONS] = before + N * (counters[F_EVALUATIONS] - before)
+    return iters
