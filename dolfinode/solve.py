@@ -289,8 +289,6 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     params = check_parameters(parameters)
     base = auto_base(method)
     if base is not None:
-        # the multi-adaptive methods are not calibrated: both families on the step mapping
-        parameters.setdefault("calibrate_tolerance", False)
         return solve_auto(solve, ode, base, goal, parameters, params)
     if goal is not None:
         from dolfinode.dual.adaptivity import solve_for_goal
@@ -427,7 +425,7 @@ def _start(ode, compiled, plan, multi_adaptive, m, params):
         atol, rtol, dtol = np.ones(ode.N), 1.0, 1e-15
     else:
         dtol = params["discrete_tolerance_factor"]
-        if params["calibrate_tolerance"] and not multi_adaptive and rtol >= MIN_TOLERANCE:
+        if params["calibrate_tolerance"] and rtol >= MIN_TOLERANCE:
             scale = step_tolerance(m, rtol) / rtol
             atol, rtol = atol * scale, rtol * scale
     options = contract.options(
