@@ -226,7 +226,8 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         can be inactivated, else constant, affine when the first window or a rebuild shows
         g-bar moving with the slow state.
     calibrate_tolerance : bool, default True
-        cG(q)/dG(q), q <= 3: aim the steps at the error at T, about ``tolerance`` (see Notes);
+        cG(q)/dG(q) and mcG(q)/mdG(q), q <= 3, and "auto": aim the steps at the error at
+        T, about ``tolerance`` (see Notes);
         False: bound each step's local error estimate by ``tolerance`` instead (the error
         at T then lands 1e-7..10 x below it). Automatic modeling's inner solves use False.
     strict : bool, default False
@@ -277,9 +278,11 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     only, up to ~100 x the tolerance; ``calibrate_tolerance=False`` bounds each step's
     estimate by the tolerance instead, as scipy's rtol and atol do (the error at T then
     lands 1e-7..10 x below it).
-    Multi-adaptive methods, dG(0), q > 3, ``method="auto"`` and automatic modeling's inner
-    solves use the step tolerance as given. For a bound on an output, pass ``goal``
-    (dual-based estimate).
+    mcG(q) and mdG(q) take the mapping of cG(q) and dG(q), and ``method="auto"`` both
+    variants the same one, so that its choice compares runs of equal accuracy
+    (multi-adaptive measurements in doc/benchmarks/tolerance.md). dG(0), q > 3 and
+    automatic modeling's inner solves use the step tolerance as given. For a bound on an
+    output, pass ``goal`` (dual-based estimate).
 
     The defaults are ``dolfinode.default_parameters`` (DOLFIN's names).
     """
@@ -426,7 +429,7 @@ def _start(ode, compiled, plan, multi_adaptive, m, params):
     else:
         dtol = params["discrete_tolerance_factor"]
         if params["calibrate_tolerance"] and rtol >= MIN_TOLERANCE:
-            scale = step_tolerance(m, rtol) / rtol
+            scale = step_tolerance(m, rtol, multi_adaptive) / rtol
             atol, rtol = atol * scale, rtol * scale
     options = contract.options(
         solver=NONLINEAR_SOLVERS.index(params["nonlinear_solver"]), fixed=fixed,
