@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 
 import dolfinode as dn
-from dolfinode.adaptivity import DELIVERED, MAX_STEP_TOLERANCE, step_tolerance
+from dolfinode.adaptivity import DELIVERED, DELIVERED_MULTI, MAX_STEP_TOLERANCE, step_tolerance
 from dolfinode.bench import problems
+from dolfinode.bench.multirate import oscillator_bank
 from dolfinode.methods import make_method
 
 PROBLEMS = {"HIRES": problems.hires_problem, "VDPOL": problems.vdpol,
@@ -34,6 +35,41 @@ def test_delivered_error_within_ten_times_the_tolerance_and_monotone(name, metho
     assert np.all(np.diff(errors) < 0)
 
 
+#: The multi-adaptive methods' sweeps (their own C: DELIVERED_MULTI).
+MULTI_SWEEPS = {"mcG(2)": (1e-3, 1e-6), "mdG(1)": (1e-3, 1e-5)}
+
+
+@pytest.mark.parametrize("name", ["HIRES", "VDPOL"])
+@pytest.mark.parametrize("method", MULTI_SWEEPS)
+def test_multi_adaptive_delivered_error_within_ten_times_and_monotone(name, method):
+    """mcG(q), mdG(q) by default: the error at T within [0.1, 10] x tolerance, smaller for a
+    smaller one."""
+    problem = PROBLEMS[name]()
+    errors = [scaled_error(problem, method, tolerance) for tolerance in MULTI_SWEEPS[method]]
+    for error, tolerance in zip(errors, MULTI_SWEEPS[method]):
+        assert 0.1 * tolerance <= error <= 10 * tolerance, (error, tolerance)
+    assert errors[1] < errors[0]
+
+
+@pytest.mark.parametrize("name", ["HIRES", "VDPOL"])
+def test_auto_default_tolerance_within_ten_times(name):
+    """method="auto" at the default tolerance: the error at T within [0.1, 10] x it."""
+    problem = PROBLEMS[name]()
+    tolerance = dn.default_parameters["tolerance"]
+    error = scaled_error(problem, "auto", tolerance)
+    assert 0.1 * tolerance <= error <= 10 * tolerance, error
+
+
+def test_mono_and_multi_adaptive_deliver_alike():
+    """One oscillator 1000x faster than 50 others (auto switches to mcG(2)): at one tolerance
+    cG(2), mcG(2) and auto reach errors within 3x of each other, so that auto's choice
+    compares runs of equal accuracy (mcG(2) uncalibrated was 27x more accurate than cG(2)
+    calibrated)."""
+    problem = oscillator_bank(n=50, w=1000.0, T=0.5)
+    errors = {m: scaled_error(problem, m, 1e-4) for m in ("cG(2)", "mcG(2)", "auto")}
+    assert max(errors.values()) < 3 * min(errors.values()), errors
+
+
 def test_uncalibrated_bounds_each_step_and_over_delivers():
     """calibrate_tolerance=False: the step estimate below the tolerance, the error at T far
     below it for cG(2) (superconvergent nodes)."""
@@ -53,8 +89,14 @@ def test_step_tolerance_is_monotone_bounded_and_identity_where_not_calibrated():
             assert np.all(np.asarray(step) >= tolerances)
     cg1 = make_method("cG", 1)
     assert step_tolerance(cg1, 1e-6) == pytest.approx(1e-6 / DELIVERED["cG", 1][0])
+    for family, q in DELIVERED_MULTI:  # every component at its tolerance: aimed tighter
+        method = make_method(family, q)
+        step = [step_tolerance(method, tol, multi_adaptive=True) for tol in tolerances]
+        assert np.all(np.diff(step) <= 0) and max(step) <= MAX_STEP_TOLERANCE
+        assert all(s <= step_tolerance(method, tol) for s, tol in zip(step, tolerances))
     for family, q in (("dG", 0), ("cG", 5)):
         assert step_tolerance(make_method(family, q), 1e-6) == 1e-6
+        assert step_tolerance(make_method(family, q), 1e-6, multi_adaptive=True) == 1e-6
 
 
 def test_rober_cg_says_it_cannot_damp_and_dg_steps_over():

@@ -87,8 +87,8 @@ def test_late_fast_scale_switches(cost_model, late_fast):
     assert all(a["interval"][1] == b["interval"][0] for a, b in itertools.pairwise(stretches))
     reference = dn.solve(late_fast, "cG(3)", tolerance=1e-10)(6.0)
     error = np.abs(sol(6.0) - reference).max()
-    errors = [np.abs(dn.solve(late_fast, m, tolerance=TOL, calibrate_tolerance=False)(6.0)
-                     - reference).max() for m in ("cG(2)", "mcG(2)")]
+    errors = [np.abs(dn.solve(late_fast, m, tolerance=TOL)(6.0) - reference).max()
+              for m in ("cG(2)", "mcG(2)")]
     assert error < 10 * max(errors), (error, errors)
 
 
@@ -119,7 +119,7 @@ def test_uniform_chain_does_not_switch(cost_model):
     choice = sol.stats["family choice"]
     assert sol.stats["method"] == "cG(2)" and not sol.multi, choice
     assert choice["checks"] == [] and len(choice["stretches"]) >= 4
-    direct = dn.solve(ode, "cG(2)", tolerance=1e-6, calibrate_tolerance=False)
+    direct = dn.solve(ode, "cG(2)", tolerance=1e-6)
     assert np.abs(sol(200.0) - direct(200.0)).max() < 1e-4
 
 
@@ -147,8 +147,7 @@ def test_decided_once_for_output_parameters(cost_model):
     choice = sol.stats["family choice"]
     assert "decided once" in choice and len(choice["stretches"]) == 1
     np.testing.assert_array_equal(sol.t, [5.0, 20.0])
-    direct = dn.solve(ode, choice["method"], sample_times=[5.0, 20.0], dense_output=False,
-                      calibrate_tolerance=False)  # as "auto" solves
+    direct = dn.solve(ode, choice["method"], sample_times=[5.0, 20.0], dense_output=False)
     np.testing.assert_array_equal(sol.y, direct.y)
 
 
@@ -161,7 +160,7 @@ def test_failing_stretch_is_not_silent():
 def test_maximum_steps_bounds_the_whole_solve():
     """maximum_steps counts the time slabs of every kept stretch, not of each one."""
     ode = mass_spring_chain(4, T=100.0)[0]
-    slabs = dn.solve(ode, "cG(2)", tolerance=TOL, calibrate_tolerance=False).stats["time slabs"]
+    slabs = dn.solve(ode, "cG(2)", tolerance=TOL).stats["time slabs"]
     with pytest.raises(dn.SolverError, match="maximum_steps"):
         dn.solve(ode, "auto", tolerance=TOL, maximum_steps=slabs // 2)
     sol = dn.solve(ode, "auto", tolerance=TOL, maximum_steps=3 * slabs)
@@ -182,7 +181,7 @@ def test_losing_trial_among_mono_stretches_is_discarded(cost_model, monkeypatch)
     stretches = choice["stretches"]
     assert all(s["method"] == "cG(2)" for s in stretches)
     assert all(a["interval"][1] == b["interval"][0] for a, b in itertools.pairwise(stretches))
-    direct = dn.solve(ode, "cG(2)", tolerance=1e-6, calibrate_tolerance=False)
+    direct = dn.solve(ode, "cG(2)", tolerance=1e-6)
     assert np.abs(sol(50.0) - direct(50.0)).max() < 1e-4
 
 

@@ -72,7 +72,7 @@ def test_rober_to_1e11_multi_adaptive(method, finite):
     p = P.rober()
     tol, atol = 1e-6, 1e-10
     sol = dn.solve(p.ode, method=method, tolerance=tol, absolute_tolerance=atol,
-                   maximum_steps=20_000)
+                   maximum_steps=20_000, calibrate_tolerance=False)  # the steps measured
     finite(sol)
     assert P.mescd(sol(p.T), p.final, p.atol_ratio) >= 6
     assert sol.values.min() >= -atol
@@ -87,7 +87,7 @@ def test_pollu_multi_adaptive_at_tight_tolerance(method, finite):
     p = P.pollu()
     tol = 1e-10
     sol = dn.solve(p.ode, method=method, tolerance=tol, absolute_tolerance=tol,
-                   maximum_steps=5000)
+                   maximum_steps=5000, calibrate_tolerance=False)  # the steps measured
     finite(sol)
     assert sol.stats["elements"] < 100_000
     assert P.mescd(sol(p.T), p.final) >= -np.log10(tol)
