@@ -35,7 +35,7 @@ from functools import cache
 
 import numpy as np
 
-from dolfinode.compile.jit import helper
+from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.linalg.banded import band_solve
 from dolfinode.linalg.group import band_view, factor_group, group_order
@@ -117,6 +117,7 @@ def _filter_constant(family, q):
     return abs(np.linalg.det(A)) ** (1.0 / A.shape[0])
 
 
+@linked
 @helper()
 def filter_estimate(ab, structure, ipiv, v, rhs):
     """Apply (I - gamma k J)^{-1} to v in place.
@@ -138,6 +139,7 @@ def filter_estimate(ab, structure, ipiv, v, rhs):
 FILTER_NEGLIGIBLE = 0.1
 
 
+@linked
 @helper(**NO_REFCOUNT)
 def filter_residuals(ne, comp, ea, eb, res, position, indptr, indices, jacobian, jdiag,
                      coupling, gamma, elist, order, local, newton, counters):

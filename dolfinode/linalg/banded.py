@@ -14,6 +14,8 @@ import scipy.sparse as sps
 from numba import njit
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+from dolfinode.compile.jit import linked
+
 #: Column indices of the band storage are cast to unsigned in the inner loops: numba wraps a
 #: signed index around (i < 0: i + n), a select that keeps LLVM from vectorizing the loop;
 #: an unsigned one it takes as is (the same results: the updates of each entry keep their
@@ -33,6 +35,7 @@ def _magnitude(a):
     return abs(a.real) + abs(a.imag)
 
 
+@linked
 @njit(cache=True)
 def band_lu(ab, kl, ku, ipiv):
     """Factor the band matrix (real or complex) in place, P A = L U. Returns 0, or j + 1 if
@@ -76,6 +79,7 @@ def band_lu(ab, kl, ku, ipiv):
     return info
 
 
+@linked
 @njit(cache=True)
 def band_solve(ab, kl, ku, ipiv, b):
     """Solve A x = b in place with the factors from :func:`band_lu`."""

@@ -18,6 +18,7 @@ import numpy as np
 import scipy.sparse as sps
 from numba import njit
 
+from dolfinode.compile.jit import linked
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.linalg.sparse import (
     fill_reducing_ordering,
@@ -199,6 +200,7 @@ def shift(jb, c, structure, ab):
         ab[r, kv] += 1.0
 
 
+@linked
 @njit(cache=True)
 def lu_factor(ab, structure, ipiv):
     """LU-factor I - c J in place (pivots into ``ipiv``, banded only). Returns 0 on
@@ -209,6 +211,7 @@ def lu_factor(ab, structure, ipiv):
     return band_lu(ab, kl, ku, ipiv)
 
 
+@linked
 @njit(cache=True)
 def lu_solve(ab, structure, ipiv, b):
     """Solve (I - c J) x = b in place, b in the matrices' ordering, with the factors of

@@ -5,7 +5,7 @@ matrices of :mod:`dolfinode.linalg.group`); the check that the windows stay conv
 the top level moved; the initial values of a slab rebuilt after a rejection."""
 import math
 
-from dolfinode.compile.jit import helper
+from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.counters import F_EVALUATIONS
 from dolfinode.linalg.group import factor_group, group_order, solve_group
@@ -43,6 +43,7 @@ def damping(k, jii, A, D):
                     D[r, cc] -= factor * D[c, cc]
 
 
+@linked
 @helper(**NO_REFCOUNT)
 def group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp, prev, cptr,
                  celems, ea, eb, values, nodes, bary, qweights, Minv, stages, sptr, spts, dptr,
@@ -132,6 +133,7 @@ def stale(e, i, indptr, indices, changed, computed):
     return False
 
 
+@linked
 @helper(**NO_REFCOUNT)
 def converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, indptr, indices,
              position, jacobian, comp, prev, cptr, celems, ea, eb, values, nodes, bary,
