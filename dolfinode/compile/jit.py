@@ -125,6 +125,7 @@ class _Link:
     with the ``return_type`` the caller was compiled for."""
 
     _signatures = {}  # symbol -> signature, of this process
+    return_type = None
 
     def __init__(self, key, args, return_type=None):
         self.key = key
@@ -150,6 +151,9 @@ class _Link:
                 f"a cached caller of {self.key} expects it to return {self.return_type}, "
                 f"it returns {signature.return_type}: clear numba's cache (NUMBA_CACHE_DIR)")
         return signature
+
+    def __reduce__(self):
+        return _Link, (self.key, self.args, self.return_type)
 
     def __eq__(self, other):
         return isinstance(other, _Link) and self.symbol == other.symbol
