@@ -222,7 +222,7 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None,
     q = method.q
     r = _positive_int(dual_degree, "dual_degree", max(q + 2, 2), minimum=2)
     gauss = _positive_int(quadrature_points, "quadrature_points", q + r + 2)
-    with first_use(advance_forward, "the error estimate's kernels", 10):
+    with first_use(advance_forward, "the error estimate's kernels", 5):
         dual, primal = solve_dual(sol, final, integral, r, linear_solver=linear_solver)
         parts = _error_representation(sol, primal, dual, gauss)
         coarse, _ = solve_dual(sol, final, integral, r - 1, primal, linear_solver)

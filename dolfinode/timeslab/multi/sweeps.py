@@ -254,6 +254,7 @@ def converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, indp
     return first, settled
 
 
+@linked
 @helper(**NO_REFCOUNT)
 def windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol, rtol, x, K,
                     dtol, change, mark, frozen):
@@ -291,6 +292,7 @@ def windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol,
     return True
 
 
+@linked
 @helper(**NO_REFCOUNT)
 def guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues, nodes,
                bary):
