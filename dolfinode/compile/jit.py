@@ -10,6 +10,7 @@ A compile that runs longer than :data:`NOTICE_AFTER` seconds is announced on the
 ``"dolfinode"`` logger at WARNING level (printed on stderr when logging is not configured);
 silence it with ``logging.getLogger("dolfinode").setLevel(logging.ERROR)``.
 """
+import functools
 import hashlib
 import importlib
 import inspect
@@ -100,7 +101,7 @@ class Linked(_Intrinsic):
             [inspect.Parameter("typingctx", inspect.Parameter.POSITIONAL_OR_KEYWORD),
              *parameters])
         super().__init__(dispatcher.py_func.__name__, typer)
-        self.__wrapped__ = dispatcher.py_func
+        functools.update_wrapper(self, dispatcher.py_func)  # its name and docstring
         self._register()
 
     def __call__(self, *args):
