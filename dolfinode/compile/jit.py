@@ -141,8 +141,9 @@ class _Link:
             callee = importlib.import_module(module)
             for name in qualname.split("."):
                 callee = getattr(callee, name)
-            callee.dispatcher.compile(self.args)
-            result = callee.dispatcher.overloads[self.args]
+            dispatcher = getattr(callee, "dispatcher", callee)  # also if no longer linked
+            dispatcher.compile(self.args)
+            result = dispatcher.overloads[self.args]
             ll.add_symbol(self.symbol, result.library.get_pointer_to_function(
                 result.fndesc.llvm_func_name))
             self._signatures[self.symbol] = result.signature

@@ -111,3 +111,15 @@ def test_a_cached_caller_links_its_callee_when_loaded(tmp_path):
     runs = [subprocess.run([sys.executable, "-c", script], env=env, cwd=tmp_path, check=True,
                            capture_output=True, text=True).stdout.split() for _ in range(2)]
     assert runs == [["6.0", "0"], ["6.0", "1"]]
+
+
+def test_a_cached_caller_expecting_another_return_type_is_refused():
+    """The link a caller's cache holds names the return type it was compiled for: a callee
+    that now returns another type is an error, not a call with the wrong layout."""
+    x = np.ones(2)
+    _axpy(1.0, x, x.copy())
+    key = f"{_axpy.py_func.__module__}:{_axpy.py_func.__qualname__}"
+    args = _axpy.signatures[0]
+    assert jit._Link(key, args, types.float64)() == _axpy.dispatcher.overloads[args].signature
+    with pytest.raises(RuntimeError, match="clear numba's cache"):
+        jit._Link(key, args, types.int64)()
