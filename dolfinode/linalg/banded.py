@@ -79,7 +79,6 @@ def band_lu(ab, kl, ku, ipiv):
     return info
 
 
-@linked
 @njit(cache=True)
 def band_solve(ab, kl, ku, ipiv, b):
     """Solve A x = b in place with the factors from :func:`band_lu`."""

@@ -211,7 +211,6 @@ def lu_factor(ab, structure, ipiv):
     return band_lu(ab, kl, ku, ipiv)
 
 
-@linked
 @njit(cache=True)
 def lu_solve(ab, structure, ipiv, b):
     """Solve (I - c J) x = b in place, b in the matrices' ordering, with the factors of

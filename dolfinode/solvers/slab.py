@@ -74,7 +74,7 @@ def _converged(d, d_prev, it, dtol):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def stage_rhs(f, p, X, t, k, tau, F):
     """F[s] = f(X[s], t + tau_s k) for every stage; returns the number of f evaluations.
 
@@ -107,7 +107,7 @@ def _store4(sums, out, i):
         out[_u(i + r)] = sums[r]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _stage_sum(c, f0, F, A, s, out):
     """out = c f0 + sum_m A_sm F_m (one stage of the quadrature, c = b0_s; or with c = 0 one
     stage of a transformation F -> (A (x) I) F), in blocks of 8 and then 4
@@ -141,7 +141,7 @@ def _stage_sum(c, f0, F, A, s, out):
         i += 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _residual(x0, f0, X, F, A, b0, k, G):
     """G = X - x0 - k (b0 f0 + A F), stage-major."""
     N = x0.shape[0]

@@ -7,7 +7,7 @@ from dolfinode.compile.jit import helper
 from dolfinode.methods.method import element_value
 
 
-@helper()
+@helper(inline="always")
 def moments(fi, p, x, i, e, indptr, indices, cptr, celems, ea, eb, values, nodes, bary,
             qweights, sptr, spts, dptr, dcur, cur, states, out, mom, fend):
     """Moments m_l = int_0^1 f_i(U(tau)) tau^l dtau of element e by quadrature on every
