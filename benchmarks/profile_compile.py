@@ -126,7 +126,7 @@ def profile():
         env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(cache) / "numba"),
                    DOLFINODE_CACHE_DIR=str(Path(cache) / "kernels"),
                    PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-        out = subprocess.run([sys.executable, "-c", CHILD], env=env,
+        out = subprocess.run([sys.executable, "-c", CHILD], env=env, check=False,
                              capture_output=True, text=True)
     if out.returncode:
         sys.exit(out.stderr)

@@ -119,13 +119,16 @@ class Linked(_Intrinsic):
         return f"<linked {self._name}>"
 
 
+#: symbol -> signature of the callees linked in this process
+_LINKED = {}
+
+
 class _Link:
     """The link of one callee (``key``: "module:qualname") for argument types ``args``:
     calling it compiles (or loads) the callee for them, registers its symbol (once per
     process) and returns the signature. Picklable: numba stores it with a caller's cache,
     with the ``return_type`` the caller was compiled for."""
 
-    _signatures = {}  # symbol -> signature, of this process
     return_type = None
 
     def __init__(self, key, args, return_type=None):
@@ -136,7 +139,7 @@ class _Link:
         self.symbol = f"dolfinode.{key.replace(':', '.')}.{digest}"
 
     def __call__(self):
-        if self.symbol not in self._signatures:
+        if self.symbol not in _LINKED:
             module, qualname = self.key.split(":")
             callee = importlib.import_module(module)
             for name in qualname.split("."):
@@ -146,8 +149,8 @@ class _Link:
             result = dispatcher.overloads[self.args]
             ll.add_symbol(self.symbol, result.library.get_pointer_to_function(
                 result.fndesc.llvm_func_name))
-            self._signatures[self.symbol] = result.signature
-        signature = self._signatures[self.symbol]
+            _LINKED[self.symbol] = result.signature
+        signature = _LINKED[self.symbol]
         if self.return_type is not None and signature.return_type != self.return_type:
             raise RuntimeError(
                 f"a cached caller of {self.key} expects it to return {self.return_type}, "
