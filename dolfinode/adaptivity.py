@@ -35,7 +35,7 @@ from functools import cache
 
 import numpy as np
 
-from dolfinode.compile.jit import helper
+from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.linalg.banded import band_solve
 from dolfinode.linalg.group import band_view, factor_group, group_order
@@ -145,6 +145,7 @@ def filter_estimate(ab, structure, ipiv, v, rhs):
 FILTER_NEGLIGIBLE = 0.1
 
 
+@linked
 @helper(**NO_REFCOUNT)
 def filter_residuals(ne, comp, ea, eb, res, position, indptr, indices, jacobian, jdiag,
                      coupling, gamma, elist, order, local, newton, counters):

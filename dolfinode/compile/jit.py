@@ -10,11 +10,18 @@ A compile that runs longer than :data:`NOTICE_AFTER` seconds is announced on the
 ``"dolfinode"`` logger at WARNING level (printed on stderr when logging is not configured);
 silence it with ``logging.getLogger("dolfinode").setLevel(logging.ERROR)``.
 """
+import functools
+import hashlib
+import importlib
+import inspect
 import logging
 import threading
 from contextlib import contextmanager, nullcontext
 
+import llvmlite.binding as ll
 from numba import njit, types
+from numba.core import cgutils
+from numba.core.extending import _Intrinsic
 
 logger = logging.getLogger("dolfinode")
 
@@ -45,6 +52,124 @@ def helper(**options):
         dispatcher.get_call_template = get_call_template
         return dispatcher
     return decorate
+
+
+class Linked(_Intrinsic):
+    """A numba function that other compiled functions call through a symbol instead of
+    linking its code into theirs.
+
+    numba copies the LLVM IR of every function a compiled function calls into its module
+    and optimises and compiles that module as a whole: a large routine (the slab's Newton
+    iteration, a banded LU) is optimised and turned into machine code again in every caller,
+    and their callers (doc/design/compile.md). Called through :class:`Linked`, it is
+    compiled once per argument types (and cached by numba); the caller declares the symbol
+    ``dolfinode.<module>.<name>.<hash of the types>``, which the JIT resolves to the
+    compiled function (``llvmlite.binding.add_symbol``). The caller's library records the
+    link as a reload hook, so a caller loaded from numba's disk cache links its callees
+    (loading or compiling them) before its own code.
+
+    Called from Python, it calls the numba function. Wrap a dispatcher: ``@linked`` over
+    ``@njit(...)``.
+    """
+
+    def __init__(self, dispatcher):
+        self.dispatcher = dispatcher
+        key = f"{dispatcher.py_func.__module__}:{dispatcher.py_func.__qualname__}"
+
+        def typer(typingctx, *args):
+            signature = _Link(key, tuple(types.unliteral(a) for a in args))()
+
+            def codegen(context, builder, sig, llargs):
+                link = _Link(key, sig.args, sig.return_type)
+                link()  # the callee's symbol, before this library is finalized
+                context.active_code_library._reload_init.add(link)
+                function = cgutils.get_or_insert_function(
+                    builder.module,
+                    context.call_conv.get_function_type(sig.return_type, sig.args),
+                    link.symbol)
+                status, result = context.call_conv.call_function(
+                    builder, function, sig.return_type, sig.args, llargs)
+                with cgutils.if_unlikely(builder, status.is_error):
+                    context.call_conv.return_status_propagate(builder, status)
+                return result
+
+            return signature, codegen
+
+        # numba folds the call's arguments by the typer's parameters: the function's own
+        parameters = inspect.signature(dispatcher.py_func).parameters.values()
+        typer.__signature__ = inspect.Signature(
+            [inspect.Parameter("typingctx", inspect.Parameter.POSITIONAL_OR_KEYWORD),
+             *parameters])
+        super().__init__(dispatcher.py_func.__name__, typer)
+        functools.update_wrapper(self, dispatcher.py_func)  # its name and docstring
+        self._register()
+
+    def __call__(self, *args):
+        return self.dispatcher(*args)
+
+    @property
+    def py_func(self):
+        return self.dispatcher.py_func
+
+    @property
+    def signatures(self):
+        return self.dispatcher.signatures
+
+    def __repr__(self):
+        return f"<linked {self._name}>"
+
+
+#: symbol -> signature of the callees linked in this process
+_LINKED = {}
+
+
+class _Link:
+    """The link of one callee (``key``: "module:qualname") for argument types ``args``:
+    calling it compiles (or loads) the callee for them, registers its symbol (once per
+    process) and returns the signature. Picklable: numba stores it with a caller's cache,
+    with the ``return_type`` the caller was compiled for."""
+
+    return_type = None
+
+    def __init__(self, key, args, return_type=None):
+        self.key = key
+        self.args = tuple(args)
+        self.return_type = return_type
+        digest = hashlib.sha1(str(self.args).encode()).hexdigest()[:16]
+        self.symbol = f"dolfinode.{key.replace(':', '.')}.{digest}"
+
+    def __call__(self):
+        if self.symbol not in _LINKED:
+            module, qualname = self.key.split(":")
+            callee = importlib.import_module(module)
+            for name in qualname.split("."):
+                callee = getattr(callee, name)
+            dispatcher = getattr(callee, "dispatcher", callee)  # also if no longer linked
+            dispatcher.compile(self.args)
+            result = dispatcher.overloads[self.args]
+            ll.add_symbol(self.symbol, result.library.get_pointer_to_function(
+                result.fndesc.llvm_func_name))
+            _LINKED[self.symbol] = result.signature
+        signature = _LINKED[self.symbol]
+        if self.return_type is not None and signature.return_type != self.return_type:
+            raise RuntimeError(
+                f"a cached caller of {self.key} expects it to return {self.return_type}, "
+                f"it returns {signature.return_type}: clear numba's cache (NUMBA_CACHE_DIR)")
+        return signature
+
+    def __reduce__(self):
+        return _Link, (self.key, self.args, self.return_type)
+
+    def __eq__(self, other):
+        return isinstance(other, _Link) and self.symbol == other.symbol
+
+    def __hash__(self):
+        return hash(self.symbol)
+
+
+def linked(dispatcher):
+    """Decorator: the numba ``dispatcher`` called through a symbol (:class:`Linked`)."""
+    return Linked(dispatcher)
 
 
 #: Seconds after which a compile still running is announced (a load from numba's disk cache

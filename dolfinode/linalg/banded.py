@@ -14,6 +14,7 @@ import scipy.sparse as sps
 from numba import njit
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+from dolfinode.compile.jit import linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 
 #: Column indices of the band storage are cast to unsigned in the inner loops: numba wraps a
@@ -35,6 +36,7 @@ def _magnitude(a):
     return abs(a.real) + abs(a.imag)
 
 
+@linked
 @njit(cache=True, **NO_REFCOUNT)
 def band_lu(ab, kl, ku, ipiv):
     """Factor the band matrix (real or complex) in place, P A = L U. Returns 0, or j + 1 if

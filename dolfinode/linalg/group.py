@@ -12,7 +12,7 @@ whole system's matrices.
 """
 import numpy as np
 
-from dolfinode.compile.jit import helper
+from dolfinode.compile.jit import helper, linked
 from dolfinode.counters import FACTORIZATIONS
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.methods.method import real_eigenvalues
@@ -76,6 +76,7 @@ def assemble_group(order, n, local, indptr, indices, jacobian, c, kl, ku, ab):
         ab[r_, kv] += 1.0
 
 
+@linked
 @helper()
 def factor_group(order, n, local, indptr, indices, jacobian, k, eigenvalues, newton,
                  counters):

@@ -18,6 +18,7 @@ import numpy as np
 import scipy.sparse as sps
 from numba import njit
 
+from dolfinode.compile.jit import linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.linalg.sparse import (
@@ -202,6 +203,7 @@ def shift(jb, c, structure, ab):
         ab[r, kv] += 1.0
 
 
+@linked
 @njit(cache=True, **NO_REFCOUNT)
 def lu_factor(ab, structure, ipiv):
     """LU-factor I - c J in place (pivots into ``ipiv``, banded only). Returns 0 on

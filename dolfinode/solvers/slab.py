@@ -20,6 +20,7 @@ import math
 
 from numba import njit
 
+from dolfinode.compile.jit import linked
 from dolfinode.compile.signatures import NO_REFCOUNT, address
 from dolfinode.counters import F_EVALUATIONS, FACTORIZATIONS, ITERATIONS
 from dolfinode.linalg.banded import _u
@@ -152,6 +153,7 @@ def _residual(x0, f0, X, F, A, b0, k, G):
 
 
 # The iterations run without reference counting (NO_REFCOUNT), their helpers inlined.
+@linked
 @njit(cache=True, **NO_REFCOUNT)
 def fixed_point(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F, G, w,
                 counters):
@@ -197,6 +199,7 @@ def near_step(k, k_factored, ratio):
     return k_factored > 0.0 and k_factored <= ratio * k and k <= ratio * k_factored
 
 
+@linked
 @njit(cache=True, **NO_REFCOUNT)
 def factor(ab, structure, ipiv, counters):
     """LU-factor a Newton matrix in place; returns True on success."""
@@ -204,6 +207,7 @@ def factor(ab, structure, ipiv, counters):
     return lu_factor(ab, structure, ipiv) == 0
 
 
+@linked
 @njit(cache=True, **NO_REFCOUNT)
 def factor_stages(jb, k, eigenvalues, structure, ab_real, ab_complex, ipiv, counters):
     """LU factors of I - k lambda_j J (J in the storage ``jb`` of ``structure``, see
@@ -221,6 +225,7 @@ def factor_stages(jb, k, eigenvalues, structure, ab_real, ab_complex, ipiv, coun
     return True
 
 
+@linked
 @njit(cache=True, **NO_REFCOUNT)
 def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_iter, theta_max,
            X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w, counters,

@@ -11,7 +11,7 @@ components fill [a, a + K] with sub-slabs built the same way. Elements live in f
 
 import numpy as np
 
-from dolfinode.compile.jit import helper
+from dolfinode.compile.jit import helper, linked
 
 
 @helper()
@@ -62,6 +62,7 @@ def _partition(perm, offset, kdes, theta, length):
     return end, K
 
 
+@linked
 @helper()
 def build_slab(a, T, kdes, active, theta, beta, kslab, comp, ea, eb, windows):
     """Build the time slab starting at a, at most kslab long, for the components ``active``
@@ -119,6 +120,7 @@ def build_slab(a, T, kdes, active, theta, beta, kslab, comp, ea, eb, windows):
         offset, lo, hi = fend[f], ft[f], fb[f]
 
 
+@linked
 @helper()
 def component_elements(comp, ne, n):
     """CSR (ptr, elements) of each component's elements in creation (= time) order, and each
@@ -158,6 +160,7 @@ def _sort(buf, count):
         gap //= 3
 
 
+@linked
 @helper()
 def dependency_structure(ne, comp, indptr, indices, cptr, celems, ea, eb):
     """Per element e of component i: the breakpoints that split it into intervals where the

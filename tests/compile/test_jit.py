@@ -1,13 +1,19 @@
 """Loops compiled on first use, and the compile notice."""
 import logging
+import os
+import subprocess
+import sys
 import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
-from numba import types
+from numba import njit, types
 
 from dolfinode.compile import jit
 from dolfinode.compile.jit import Loop, announced, first_use
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _square(x):
@@ -47,3 +53,73 @@ def test_a_short_block_and_a_compiled_function_are_not_announced(monkeypatch, ca
         done = threading.Event()
         done.wait(0.2)  # a cancelled notice stays silent afterwards too
     assert not [r for r in caplog.records if r.name == "dolfinode"]
+
+
+@jit.linked
+@njit(cache=False)
+def _axpy(a, x, y):
+    """y += a x; returns sum(y)."""
+    total = 0.0
+    for i in range(x.shape[0]):
+        y[i] += a * x[i]
+        total += y[i]
+    return total
+
+
+@njit(cache=False)
+def _twice(a, x, y):
+    return _axpy(a, x, y) + _axpy(a, x, y)
+
+
+def test_a_linked_function_is_called_not_copied_into_its_caller():
+    x, y = np.arange(3.0), np.ones(3)
+    assert _twice(2.0, x, y) == (3.0 + 2 * 3.0) + (3.0 + 4 * 3.0)  # y = 1 + 2x, then 1 + 4x
+    np.testing.assert_array_equal(y, 1.0 + 4.0 * x)
+    assert _axpy(1.0, x, y) == 3.0 + 5 * 3.0  # from Python: the numba function
+    ir = next(iter(_twice.inspect_llvm().values()))
+    callee = _axpy.dispatcher.overloads[_axpy.signatures[0]].fndesc.llvm_func_name
+    assert "declare i32 @dolfinode." in ir and "._axpy." in ir  # its symbol is called
+    assert callee not in ir  # ... and no copy of its code
+
+
+LINKED_MODULE = '''
+import numpy as np
+from numba import njit
+from dolfinode.compile.jit import linked
+
+@linked
+@njit(cache=True)
+def scale(x, c):
+    for i in range(x.shape[0]):
+        x[i] *= c
+
+@njit(cache=True)
+def caller(x):
+    scale(x, 2.0)
+    return x.sum()
+'''
+
+
+def test_a_cached_caller_links_its_callee_when_loaded(tmp_path):
+    """In a fresh process the caller comes from numba's cache, its callee linked before it
+    (else the JIT would abort on an unresolved symbol)."""
+    (tmp_path / "linked_module.py").write_text(LINKED_MODULE)
+    script = ("import numpy as np, linked_module as m\n"
+              "print(m.caller(np.ones(3)), sum(m.caller.stats.cache_hits.values()))\n")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"),
+               PYTHONPATH=os.pathsep.join([str(tmp_path), str(ROOT)]))
+    runs = [subprocess.run([sys.executable, "-c", script], env=env, cwd=tmp_path, check=True,
+                           capture_output=True, text=True).stdout.split() for _ in range(2)]
+    assert runs == [["6.0", "0"], ["6.0", "1"]]
+
+
+def test_a_cached_caller_expecting_another_return_type_is_refused():
+    """The link a caller's cache holds names the return type it was compiled for: a callee
+    that now returns another type is an error, not a call with the wrong layout."""
+    x = np.ones(2)
+    _axpy(1.0, x, x.copy())
+    key = f"{_axpy.py_func.__module__}:{_axpy.py_func.__qualname__}"
+    args = _axpy.signatures[0]
+    assert jit._Link(key, args, types.float64)() == _axpy.dispatcher.overloads[args].signature
+    with pytest.raises(RuntimeError, match="clear numba's cache"):
+        jit._Link(key, args, types.int64)()

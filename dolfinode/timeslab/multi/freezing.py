@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from dolfinode.compile.jit import helper
+from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.counters import ELEMENTS, STORED
 
@@ -42,6 +42,7 @@ def drift_bound(change, rate, tau, mu):
     return abs(change) + abs(rate) * tau * growth
 
 
+@linked
 @helper(**NO_REFCOUNT)
 def freeze(b, k, active, checked, indptr, indices, drift, atol, rtol, umax, x, frozen, kdes,
            last_a, last_b, quiet, uw, counters, out_comp, out_a, out_b, out_values):

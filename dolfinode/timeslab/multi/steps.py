@@ -2,7 +2,7 @@
 the ties and grading of steps along strong couplings, and the slab length limit."""
 import math
 
-from dolfinode.compile.jit import helper
+from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 
 #: Largest step ratio between strongly coupled components (see ``grade``), and sweeps.
@@ -16,6 +16,7 @@ ASYMMETRY = 10.0
 SLAB_CLIMB = 1.5
 
 
+@linked
 @helper(**NO_REFCOUNT)
 def propagate(kdes, rows, frozen, indptr, indices, jacobian):
     """Small steps travel along strong dependencies: k_j <= k_i when f_i reacts to u_j within
@@ -51,6 +52,7 @@ def propagate(kdes, rows, frozen, indptr, indices, jacobian):
             return
 
 
+@linked
 @helper(**NO_REFCOUNT)
 def grade(kdes, rows, frozen, indptr, indices, jacobian):
     """Grade the steps along strong couplings, k_i <= max(GRADING k_j, 1 / |df_i/du_j|):

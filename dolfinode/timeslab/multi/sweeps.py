@@ -6,7 +6,7 @@ the top level moved; the initial values of a slab rebuilt after a rejection; a s
 slab (every component on one step) solved as one mono-adaptive slab (``synchronised``)."""
 import math
 
-from dolfinode.compile.jit import helper
+from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT, address
 from dolfinode.counters import F_EVALUATIONS
 from dolfinode.linalg.group import factor_group, group_order, solve_group
@@ -45,6 +45,7 @@ def damping(k, jii, A, D):
                     D[r, cc] -= factor * D[c, cc]
 
 
+@linked
 @helper(**NO_REFCOUNT)
 def group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp, prev, cptr,
                  celems, ea, eb, values, nodes, bary, qweights, Minv, stages, sptr, spts, dptr,
@@ -134,6 +135,7 @@ def stale(e, i, indptr, indices, changed, computed):
     return False
 
 
+@linked
 @helper(**NO_REFCOUNT)
 def converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, indptr, indices,
              position, jacobian, comp, prev, cptr, celems, ea, eb, values, nodes, bary,
@@ -254,6 +256,7 @@ def converge(starts, nranges, end, predict_first, iterate, limit, fi, p, x, indp
     return first, settled
 
 
+@linked
 @helper(**NO_REFCOUNT)
 def windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol, rtol, x, K,
                     dtol, change, mark, frozen):
@@ -291,6 +294,7 @@ def windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol,
     return True
 
 
+@linked
 @helper(**NO_REFCOUNT)
 def guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues, nodes,
                bary):
