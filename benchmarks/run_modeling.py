@@ -418,8 +418,13 @@ def write_classes(rows, output, cap):
               "compiled first, best of 3) and scipy's (from the rtol numbalsoda needed, "
               "tightened by 10 while its error is above). Ratio: resolving CPU / modeling "
               f"CPU. '> {cap:g} (wall)': scipy not finished within {cap:g} s of wall time at "
-              "the rtol numbalsoda needed (the ratio is then a lower bound); '-': not "
-              f"reached, or not resolved (above {RESOLVED_UP_TO:g})."), "",
+              "the rtol numbalsoda needed (the ratio is then a lower bound); '>= X (not "
+              f"run)': scipy is not run above {SCIPY_UP_TO:g}, its CPU is bounded below by "
+              f"its measured CPU at {SCIPY_UP_TO:g} times sqrt(kappa / {SCIPY_UP_TO:g}), the "
+              "ratio of fast periods (an explicit solver's steps per period are fixed by "
+              "the rtol, and numbalsoda's rtol here is no looser than scipy's there): an "
+              "extrapolated lower bound, not a measurement; '-': not reached, or not "
+              f"resolved (above {RESOLVED_UP_TO:g})."), "",
              ("| class | kappa | model | outcome | modeling CPU [s] | max error / range | "
               "error at T | estimate | ref. error | numbalsoda rtol | numbalsoda CPU [s] "
               "| ratio | scipy rtol | scipy CPU [s] | ratio |"),
@@ -448,12 +453,12 @@ def write_classes(rows, output, cap):
               "error is below the reference's own ('ref. error': the flows at 1e4, where "
               "the full model is solved), the resolving solvers run at the reference's rtol: "
               "the comparison then says only that both are as close as the reference can "
-              "tell. Proportional at 1e10 and 1e12 is warned, rightly: 'auto' starts with the "
-              "constant model there (a window's halves, 1e-3 and 1e-4 long, are too short to "
-              "extrapolate an affine fit to the first check, 4.5 away), the first check "
-              "rebuilds it affine, and the error left on that first span, defect times span "
-              "= 2.2, is above the tolerance (the estimate at T is the rebuilt model's; the "
-              "same on main at e138b2f).", ""]
+              "tell. Proportional at 1e10 and 1e12: the first control point, 4.5 away, is "
+              "too far (9e3 and 9e4 half windows) to extrapolate the half windows' affine "
+              "fit, so 'auto' adds an early check about 3e-3 after the start "
+              "(ReducedModel.early_check, where the constant model's predicted error is a "
+              "tenth of the tolerance) and rebuilds the model affine there; before, it "
+              "started constant and was rightly warned (defect times span 2.2).", ""]
     (output / "modeling_classes.md").write_text("\n".join(lines))
 
 
