@@ -198,8 +198,8 @@ REFERENCE_RTOL = 1e-12
 #: Above this scale separation only the modeling is measured (numbalsoda's reference would
 #: take ~10^3 s at 1e12).
 RESOLVED_UP_TO = 1e10
-#: Above this scale separation scipy is not run (113 s at 1e8 for the adiabatic class): its
-#: CPU is bounded below from the last measured one, see :func:`_scipy_lower_bound`.
+#: Above this scale separation scipy's DOP853 is not run (113 s at 1e8 for the adiabatic
+#: class): its CPU is bounded below from the last measured one, see :func:`_scipy_lower_bound`.
 SCIPY_UP_TO = 1e8
 
 
@@ -259,7 +259,7 @@ def classes(output, cap, kappas=(1e4, 1e6, 1e8, 1e10, 1e12), repeat=3):
             row["error at T"] = max(abs(U[i, -1] - reference[i, -1]) for i in slow)
             row.update(_compiled_resolving(ode, stiff, grid, average, reference, slow, target,
                                            repeat))
-            if kappa <= SCIPY_UP_TO:
+            if kappa <= SCIPY_UP_TO or stiff:  # (an implicit solver's cost is flat in kappa)
                 row.update(_scipy_resolving(ode, stiff, grid, average, reference, slow,
                                             target, row["compiled rtol"], cap))
             else:
@@ -419,7 +419,7 @@ def write_classes(rows, output, cap):
               "tightened by 10 while its error is above). Ratio: resolving CPU / modeling "
               f"CPU. '> {cap:g} (wall)': scipy not finished within {cap:g} s of wall time at "
               "the rtol numbalsoda needed (the ratio is then a lower bound); '>= X (not "
-              f"run)': scipy is not run above {SCIPY_UP_TO:g}, its CPU is bounded below by "
+              f"run)': scipy's DOP853 is not run above {SCIPY_UP_TO:g}, its CPU is bounded below by "
               f"its measured CPU at {SCIPY_UP_TO:g} times sqrt(kappa / {SCIPY_UP_TO:g}), the "
               "ratio of fast periods (an explicit solver's steps per period are fixed by "
               "the rtol, and numbalsoda's rtol here is no looser than scipy's there): an "
