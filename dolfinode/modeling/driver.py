@@ -233,6 +233,11 @@ def solve_with_modeling(ode, method, params, solve):
     # to the next check (a rebuilt model is likely rebuilt again): the part of a piece
     # beyond a rebuild is dropped, and the part before it solved again up to the check
     checks = [ode.t0 + 2 * tau + k * spacing for k in range(1, n_control + 1)]
+    # (the constant model until then: solved to that check only, it is rebuilt there)
+    early = model.early_check is not None \
+        and averages.center + model.early_check < (checks[0] if checks else ode.T - tau)
+    if early:
+        checks.insert(0, averages.center + model.early_check)
     start_state = (averages.u_bar, averages.center, {})  # u, t and step of the piece
 
     def reduced(end):
@@ -240,7 +245,7 @@ def solve_with_modeling(ode, method, params, solve):
         return run(model.declaration(u, t_from, end), **step)
 
     reduced_start = start_state[:2]
-    segment = reduced(ode.T)
+    segment = reduced(checks[0] if early else ode.T)
     for k, t_now in enumerate(checks):
         # control point at t_now: full model from t_now - tau, perturbed by the fast
         # fluctuation of the last build carried to the current slow state (its action kept)

@@ -68,6 +68,11 @@ AFFINE_START = 100.0
 #: fit's error over the baseline tau / 2 grows with the extrapolation (the lattice with
 #: m = 1e-12, tau = 1e-4, control points 2 apart, 4e4 half windows: the reduced model blew up).
 AFFINE_EXTRAPOLATION = 1000.0
+#: Beyond that, "auto" checks early instead, where the constant model's predicted local error
+#: (defect times span, rate x d^2) is this fraction of the tolerance; the check rebuilds the
+#: model affine, fitted over the baseline d (the proportional class at kappa = 1e10: local
+#: error 2.2 with the first check 4.5 away).
+EARLY_CHECK_FRACTION = 0.1
 
 
 def fast_time_scale(compiled, u, t):
@@ -330,6 +335,9 @@ class ReducedModel:
         "auto" from the start when the first window shows a constant g~ would fail the
         first check, see :meth:`_constant_fails`, else from the first rebuild)
     spacing, tolerance, model_tolerance : of the control points, set by the solver
+    early_check : for "auto", the distance from t_c of an extra first control point when the
+        first window shows a constant g~ failing but too far from the first check to fit an
+        affine one (see :meth:`_constant_fails`); None otherwise
     G : scipy.sparse matrix (N, N), the slope of the affine model as last built (zero for
         the constant model)
     slaved : tuple of the inactive states that relax to their slow manifold and follow it
@@ -347,6 +355,7 @@ class ReducedModel:
     spacing: float = np.inf
     tolerance: float = 0.0
     model_tolerance: float = np.inf
+    early_check: float = None
 
     def __post_init__(self):
         N = self.ode.N
@@ -435,15 +444,20 @@ class ReducedModel:
         D-bar from 0.0040 to 0.0074 at p = 3, so the bar is high; the proportional class
         (y' = cos t - y x^2, predicted 27 and 88 at kappa = 1e4, 1e6) starts affine (its
         error from 0.53 to 1.5e-5 of the range); class 1 (0.76) does not (it would go from
-        0.13 to 0.039, warned either way)."""
-        if self.spacing > AFFINE_EXTRAPOLATION * self.average_length / 2:
-            return False
+        0.13 to 0.039, warned either way). A check farther than that (the proportional class
+        at kappa = 1e10, 9000 half windows) sets :attr:`early_check` to d with
+        rate x d^2 = EARLY_CHECK_FRACTION x tolerance, and the model starts constant."""
         first, second = (h.f_bar - compiled.f(self.state(h.u_bar, h.center), h.center)
                          for h in averages.halves)
-        rate = np.abs(second - first)[self._active] / (self.average_length / 2)
+        rate = np.max(np.abs(second - first)[self._active]) / (self.average_length / 2)
         scale = np.max(np.abs(averages.g_bar[self._active])) + self.tolerance
-        predicted = np.max(rate) * self.spacing / scale
-        return predicted > AFFINE_START * self.model_tolerance
+        if not rate * self.spacing / scale > AFFINE_START * self.model_tolerance:
+            return False
+        if self.spacing <= AFFINE_EXTRAPOLATION * self.average_length / 2:
+            return True
+        self.early_check = max(np.sqrt(EARLY_CHECK_FRACTION * self.tolerance / rate),
+                               self.average_length)
+        return False
 
     # g and inactive are by state symbol: a lattice of 10^5 masses creates its N symbols
     # only if they are asked for, not at every build

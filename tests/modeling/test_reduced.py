@@ -1,4 +1,6 @@
 """The subgrid models: the pattern of the affine model and its least-squares fit."""
+import warnings
+
 import numpy as np
 import pytest
 import sympy as sp
@@ -100,3 +102,25 @@ def test_default_average_length_looks_at_both_scales():
     for kappa, tau in [(1e4, 0.3), (1e5, 0.2), (1e6, 0.1)]:
         ode = seed_model(kappa).ode
         assert default_average_length(lower(ode), ode.u0, 0.0) == pytest.approx(tau, rel=1e-6)
+
+
+def test_auto_checks_early_where_the_first_check_is_too_far_to_extrapolate():
+    """The proportional class (y' = cos t - y x^2, x'' = -kappa x) at kappa = 1e10: the
+    first check is 9000 half windows away, too far for the half windows' affine fit, and a
+    constant g~ would leave an error of 2.2 on that span. "auto" checks early (rate x d^2 a
+    tenth of the tolerance), rebuilds affine there, and is right without a warning against
+    the averaged solution y-bar' = cos t - y-bar / 2 (x^2 averages to 1/2; O(kappa^-1/2))."""
+    from dolfinode.bench.multiscale import proportional
+
+    ode, _ = proportional(1e10)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sol = dn.solve(ode, method="cG(2)", tolerance=1e-4, automatic_modeling=True)
+    assert not [w for w in caught if issubclass(w.category, dn.ModelingWarning)]
+    model = sol.model
+    assert model.early_check < model.spacing / 100 and model.affine
+    assert model.control_points[0].time == pytest.approx(model.built[0] + model.early_check)
+    assert model.control_points[0].rebuilt and len(model.built) == 2
+    t = np.linspace(5.0, ode.T, 200)
+    y_bar = 0.4 * np.cos(t) + 0.8 * np.sin(t) - 0.4 * np.exp(-t / 2)
+    assert np.max(np.abs(sol(t)[0] - y_bar)) < 1e-3 * np.ptp(y_bar)  # measured 6.9e-6
