@@ -38,26 +38,22 @@ from dolfinode.problems import mass_spring_chain as uniform_chain
 TARGET = 1.3
 #: What the last run showed, in words (kept with the script that measures it).
 NOTES = [
-    ("Within 1.3x on the five problems auto was developed on (1.16, 1.00, 1.08, 1.28, "
-     "0.93); before this change 1.26, 1.03, 2.00, 1.87, 0.96 in the record and 1.33, 1.03, "
-     "1.98, 1.84, 0.93 re-measured at the start of the session. What changed: a trial of "
-     "the other variant is kept instead of thrown away, and is a full stretch long (a "
-     "short one measured mostly its start: mcG(2) on the front 1.9x dearer than cG(2) over "
-     "its first 1 %, 0.8x over the next 4 %); mcG(2) is entered with each component's own "
-     "step (the 2-spring chain now switches at 1 % of T instead of 21 %); a stretch is long "
-     "enough that its restart costs at most 10 % of it (an mcG(2) restart on the front "
-     "activates all 500 components again: 21.0 ms in 6 pieces against 12.5 ms in one); the "
-     "multi-adaptive join places elements with a compiled loop (20 ms -> 2 ms on the "
-     "2-spring chain)."),
+    ("Within 1.3x on the five problems auto was developed on (1.19, 0.97, 1.12, 1.23, "
+     "0.97). How it decides: a trial of the other variant is kept when it is cheaper, and "
+     "is a full stretch long (a short one measures mostly its start: mcG(2) on the front "
+     "1.9x dearer than cG(2) over its first 1 %, 0.8x over the next 4 %); mcG(2) is "
+     "entered with each component's own step (the 2-spring chain switches at 1 % of T); a "
+     "stretch is long enough that its restart costs at most 10 % of it (an mcG(2) restart "
+     "on the front activates all 500 components again: 21.0 ms in 6 pieces against "
+     "12.5 ms in one); the multi-adaptive join places elements with a compiled loop."),
     ("The two problems added after the rules were set miss the target. The seed model "
      "(4 components, 2 ms) is mostly fixed costs: auto makes 4 stretches and predicts "
-     "mcG(2) each time, 1.5x (1.27x as the minimum of 30 repeats on a quieter machine). "
-     "On the bank whose fast oscillator appears at t = 2 of 6, the predicted mcG(2) rate "
-     "is 1.5x above cG(2)'s at t = 3.3 (measured after the switch: 0.42x), so the trial "
-     "comes only at t = 4.8 and auto pays cG(2) for most of the fast phase plus the join "
-     "of 1.3 million mono-adaptive component-steps: 2.6x the better (mcG(2)), 1.3x cG(2). "
-     "The prediction (COST_RATIO, MULTI_ELEMENTS) is the weak part. The times are minima "
-     "over rounds on a machine with a load average of 7-9 on 2 cores.")]
+     "mcG(2) after each, 1.38x. On the bank whose fast oscillator appears at t = 2 of 6, "
+     "the predicted mcG(2) rate is 1.5x above cG(2)'s at t = 3.3 (measured after the "
+     "switch: 0.42x), so the trial comes only at t = 4.8 and auto pays cG(2) for most of "
+     "the fast phase plus the join of 1.3 million mono-adaptive component-steps: 2.45x the "
+     "better (mcG(2)), 1.27x cG(2). The prediction (COST_RATIO, MULTI_ELEMENTS) is the "
+     "weak part.")]
 
 
 def late_fast_bank(n=60, T=6.0):
