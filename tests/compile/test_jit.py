@@ -33,12 +33,11 @@ def test_loop_compiles_its_signature_on_first_call_and_no_other():
 def test_a_long_block_is_announced_once(monkeypatch, caplog):
     monkeypatch.setattr(jit, "NOTICE_AFTER", 0.01)
     done = threading.Event()
-    with caplog.at_level(logging.WARNING, logger="dolfinode"):
-        with announced("the test loop", 20):
-            done.wait(0.5)
+    with caplog.at_level(logging.WARNING, logger="dolfinode"), announced("the test loop", 20):
+        done.wait(0.5)
     notices = [r.getMessage() for r in caplog.records if r.name == "dolfinode"]
-    assert notices == ["dolfinode: compiling the test loop once (about 20 s); it is cached "
-                       "afterwards"]
+    assert notices == [("dolfinode: compiling the test loop once (about 20 s); it is cached "
+                        "afterwards")]
 
 
 def test_a_short_block_and_a_compiled_function_are_not_announced(monkeypatch, caplog):

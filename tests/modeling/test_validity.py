@@ -39,7 +39,7 @@ def modeled(request):
 
 
 def test_slow_components_right_or_warned_with_an_estimate_above_the_error(modeled):
-    name, ode, slow, sol, fired, times, reference = modeled
+    name, _ode, slow, sol, fired, times, reference = modeled
     U = sol(times)
     relative = max(np.max(np.abs(U[i] - reference[i])) / np.ptp(reference[i]) for i in slow)
     error_T = max(abs(U[i, -1] - reference[i, -1]) for i in slow)
@@ -59,7 +59,7 @@ def test_slow_components_right_or_warned_with_an_estimate_above_the_error(modele
 def test_effectivity_in_each_slow_component(modeled):
     """modeling_error(goal) + |discretisation| >= 0.5 |U(T) - u-bar(T)| (measured effectivities
     of 5 to 40: the interpolated defect and |phi| make it a bound rather than an estimate)."""
-    _, ode, slow, sol, fired, times, reference = modeled
+    _, ode, slow, sol, _fired, _times, reference = modeled
     for i in slow:
         estimate = sol.model.modeling_error({ode.states[i]: 1.0})
         assert estimate.goal == "the goal"
@@ -125,7 +125,7 @@ def test_relaxing_component_follows_its_slow_manifold(start):
     with warnings.catch_warnings():
         warnings.simplefilter("error", dn.ModelingWarning)
         sol = dn.solve(ode, **SETTINGS, **extra)
-    s, c = ode.states
+    _s, c = ode.states
     assert sol.model.slaved == (c,) and sol.model.inactive == (c,)
     tau = sol.model.average_length
     times = np.linspace(3 * tau, ode.T, 60)
