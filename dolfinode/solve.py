@@ -273,7 +273,7 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     estimate by the tolerance instead, as scipy's rtol and atol do (the error at T then
     lands 1e-7..10 x below it).
     mcG(q) and mdG(q) have their own C (they deliver 1.3-3.5 x cG(q)'s error at one step
-    tolerance; 120 of 144 runs within 0.1-10 x, doc/design/tolerance.md), and
+    tolerance; 126 of 144 runs within 0.1-10 x, doc/design/tolerance.md), and
     ``method="auto"`` calibrates each variant alike, so that its choice compares runs of
     equal accuracy. dG(0), q > 3 and automatic modeling's inner solves use the step
     tolerance as given. For a bound on an
