@@ -68,6 +68,35 @@ def late_fast_bank(n=60, T=6.0):
     return dn.ODE(rhs, u0={**dict.fromkeys(x, 1.0), **dict.fromkeys(v, 0.0)}, T=T)
 
 
+def early_fast_bank(n=60, T=6.0):
+    """n oscillators of frequency 1..2 and one whose frequency ramps from 100 down to 1
+    around t = T/2: two time scales until the ramp, one after it (the fast part switches
+    off halfway)."""
+    x, v = sp.symbols(f"x:{n + 1}"), sp.symbols(f"v:{n + 1}")
+    omega = list(np.linspace(1.0, 2.0, n)) + [1 + 99 * (1 - sp.tanh(5 * (dn.t - T / 2))) / 2]
+    rhs = {}
+    for i in range(n + 1):
+        rhs[x[i]] = v[i]
+        rhs[v[i]] = -omega[i] ** 2 * x[i]
+    return dn.ODE(rhs, u0={**dict.fromkeys(x, 1.0), **dict.fromkeys(v, 0.0)}, T=T)
+
+
+def moving_source(n=100, T=1.0, D=0.01):
+    """u_t = D u_xx - u + 10 exp(-((x - c(t)) / 0.03)^2) on n points of [0, 1] (zero
+    Dirichlet values outside), c(t) = 0.2 + 0.6 t / T: a stiff diffusion (D / h^2 = 98)
+    with a local source moving across the domain, fast only where it passes."""
+    h = 1.0 / (n + 1)
+    u = sp.symbols(f"u0:{n}")
+    centre = 0.2 + 0.6 * dn.t / T
+    rhs = {}
+    for i in range(n):
+        left = u[i - 1] if i > 0 else 0
+        right = u[i + 1] if i < n - 1 else 0
+        source = 10 * sp.exp(-(((i + 1) * h - centre) / 0.03) ** 2)
+        rhs[u[i]] = D * (left - 2 * u[i] + right) / h**2 - u[i] + source
+    return dn.ODE(rhs, u0=np.zeros(n), T=T)
+
+
 def problems():
     """(name, ode, tolerance, base method, u(T) or None) of the problems."""
     uniform, exact = uniform_chain(100, T=200)
@@ -81,10 +110,15 @@ def problems():
              ("seed model, kappa = 1e2, T = 10 (new)", seed_model(1e2, T=10.0))]
     late = ("61 oscillators, one ramping from frequency 1 to 100 at t = 2, T = 6 (new)",
             late_fast_bank(), 1e-5, "cG(2)", None)
+    # added before the prediction of issue 29 item 6b was reworked (not tuned on)
+    later = [("61 oscillators, one slowing from frequency 100 to 1 at t = 3, T = 6 (new)",
+              early_fast_bank(), 1e-5, "cG(2)", None),
+             ("diffusion with a moving local source, N = 100, T = 1 (new)", moving_source(),
+              1e-6, "cG(2)", None)]
     return ([("uniform chain, 100 masses, T = 200", uniform, 1e-6, "cG(2)",
               exact(200.0))]
             + [(name, problem.ode, 1e-6, "cG(2)", problem.final) for name, problem in bench]
-            + [late])
+            + [late] + later)
 
 
 def reference(ode, final):
