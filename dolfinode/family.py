@@ -6,44 +6,53 @@ sweeps and partition): mcG(q)/mdG(q) pay off only where the components' steps sp
 and the spread may change during a solve (a fast oscillation excited later, a transient that
 dies out). [t0, T] is solved in stretches, the first FIRST_STRETCH (T - t0) long with the
 mono-adaptive variant (cheap to start), each next one STRETCH_GROWTH x longer up to
-MAX_STRETCH (T - t0), each from the end value of the last with its last step(s). A restart
-costs a solve's fixed cost (from the first two stretches, :func:`_restart_cost`) or the
-stretch's start (a multi-adaptive solve has all components active until it finds them at
-rest), whichever is larger: a stretch is at least so long that its restart is RESTART_SHARE
-of it (:func:`_shortest_stretch`), so a problem that never changes pays for five restarts at
-most, and a small one or a multi-adaptive one for fewer. After each stretch the current
-variant's rate r (CPU time / length once started, :func:`_steady_rate`) is measured and the
-other's predicted from the elements it would take over the same stretch,
+MAX_STRETCH (T - t0), each from the end value of the last with its last step(s). A
+mono-adaptive stretch follows this schedule (its restart is a solve's fixed cost); a
+multi-adaptive one is at least so long that its restart (its start, all components active
+until found at rest, or a solve's fixed cost from the 2nd and 3rd stretches,
+:func:`_restart_cost`) is RESTART_SHARE of it (:func:`_shortest_stretch`), at most
+LONGEST_STRETCH (T - t0). After each stretch the current variant's rate r at its end (CPU
+time per element x the elements per unit time of the stretch's second half,
+:func:`_steady_rate`) is measured and the other's predicted from the elements it would take
+over that second half,
 
     r_other = r x (E_other / E) x (c_other / c),
 
-with c the CPU time per element: E_mono = (efficiency index) x E of a multi-adaptive stretch
-(a mono-adaptive step is the smallest component step); E_multi of a mono-adaptive stretch
-from the spread of its components' local errors (:func:`_multi_elements`); c_multi / c_mono
-the latest ratio measured on stretches, COST_RATIO before both were; r_other is scaled by
-measured / predicted of the last trial of the other variant, until that variant runs a
-stretch. When r_other < r / SWITCH_MARGIN, the next stretch (a stretch of the schedule, not
-the first: a short trial would be mostly its start) is a trial of the other variant from the
-current state, a multi-adaptive one starting each component at its own step
-(:func:`_component_steps`, not all at the common one). The trial is kept (no stretch is
-solved twice) and its variant continues if its measured rate is below r; a multi-adaptive
-trial that does not continue among mono-adaptive stretches only is solved again instead
-(kept, it would turn every slab into N elements of the joined solution). The margin on the
-prediction keeps a problem that does not change from paying for trials; the trial itself is
-measured, so a noisy measurement costs one stretch at most. The stretches and trials with
-their evidence are in ``sol.stats["family choice"]``; a solution with stretches of both
-variants is represented in the multi-adaptive form (a mono-adaptive slab is one element per
-component: mcG(q) on a common partition is cG(q)), so evaluation, samples and
-``estimate_error`` see one solution.
+with c the CPU time per element: E_mono / E of a multi-adaptive stretch from the smallest
+component step (the solve's "efficiency index", scaled by the fastest component's share of
+elements in the second half, :func:`_mono_elements_late`); E_multi / E of a mono-adaptive
+stretch from the spread of its components' local errors in the second half
+(:func:`_multi_elements_late`) x MULTI_ELEMENTS; c_multi / c_mono the latest ratio measured
+on stretches, COST_RATIO before both were; r_other is scaled by measured / predicted of the
+last trial of the other variant, until that variant runs a stretch. When r_other < r /
+SWITCH_MARGIN, the next stretch (a stretch of the schedule, not the first: a short trial
+would be mostly its start) is a trial of the other variant from the current state, a
+multi-adaptive one starting each component at its own step (:func:`_component_steps`, not
+all at the common one). The trial is kept (no stretch is solved twice) and its variant
+continues if its measured rate is below r; a multi-adaptive trial that does not continue
+among mono-adaptive stretches only is solved again instead (kept, it would turn every slab
+into N elements of the joined solution). The margin on the prediction keeps a problem that
+does not change from paying for trials; the trial itself is measured, so a noisy
+measurement costs one stretch at most. The stretches and trials with their evidence are in
+``sol.stats["family choice"]``; a solution with stretches of both variants is represented
+in the multi-adaptive form (a mono-adaptive slab is one element per component: mcG(q) on a
+common partition is cG(q)), so evaluation, samples and ``estimate_error`` see one solution.
+
+A small system is not cut into stretches: with N < COST_RATIO x MULTI_ELEMENTS x
+SWITCH_MARGIN components the multi-adaptive variant cannot be predicted cheaper even with
+every component but one at rest (its elements are at least MULTI_ELEMENTS x the fastest
+component's, 1/N of the mono-adaptive ones), so the mono-adaptive variant solves [t0, T] in
+one call, "decided once" in the evidence.
 
 Decided once (after the first stretch and its trial, the chosen variant solving [t0, T]
 from the start): with a goal, events, breakpoints, automatic modeling, a progress bar,
 sample times, or a history kept only as samples or in a file.
 
 Limitation: a change of scales is seen at the end of the stretch it happens in (up to 29 %
-of [t0, T] later, more where restarts are dear), and the prediction of the multi-adaptive
-elements is a heuristic (0.4-0.55 x the elements mcG(2) took on the benchmark problems,
-whence MULTI_ELEMENTS): a variant predicted no cheaper is not measured. Each stretch
+of [t0, T] later, more where multi-adaptive restarts are dear), and the prediction of the
+multi-adaptive elements and their cost is a prior until a trial measured them
+(MULTI_ELEMENTS x COST_RATIO = 24 x the mono-adaptive cost per estimated element; measured /
+predicted 0.9-1.6 on the benchmark problems): a variant predicted no cheaper is not measured. Each stretch
 restarts the variant (its fixed cost per call; a multi-adaptive one finds its components at
 rest again).
 """
@@ -70,7 +79,7 @@ SWITCH_MARGIN = 1.5
 #: smallest measured on the benchmark problems (11-22 on those of doc/benchmarks/auto.md), so
 #: that a multi-adaptive variant is rather measured than missed.
 COST_RATIO = 12.0
-#: Multi-adaptive elements / :func:`_multi_elements`' estimate (0.4-0.55 x on the benchmarks).
+#: Multi-adaptive elements / :func:`_multi_elements_late`' estimate (2-2.5 on the benchmarks).
 MULTI_ELEMENTS = 2.0
 #: A stretch is at least so long that its restart (:func:`_shortest_stretch`) is at most this
 #: share of it: a small problem, whose solve is mostly a solve's fixed cost, or a
@@ -124,7 +133,13 @@ def solve_auto(solve, ode, base, goal, parameters, params):
     """
     lower(ode)  # compiled once, shared by the stretches (a copy would compile again)
     switching = _Switching(solve, ode, base, {**parameters, **_STRETCH_PARAMETERS}, params)
-    if _switchable(goal, params):
+    if not switching.multi_can_pay():
+        sol = solve(ode, base, goal=goal, **parameters)
+        switching.evidence["decided once"] = (
+            f"{ode.N} components: m{base} cannot be predicted {SWITCH_MARGIN}x cheaper even "
+            "with all components but one at rest (COST_RATIO x MULTI_ELEMENTS / N = "
+            f"{COST_RATIO * MULTI_ELEMENTS / ode.N:.2g})")
+    elif _switchable(goal, params):
         sol = switching.run(params["number_of_samples"])
         sol.parameters = params
     else:
@@ -164,22 +179,33 @@ class _Switching:
     def other(self, name):
         return "m" + self.base if name == self.base else self.base
 
+    def multi_can_pay(self):
+        """Whether m(base) can ever be predicted SWITCH_MARGIN x cheaper than base: its
+        predicted elements are at least MULTI_ELEMENTS x those of the fastest component,
+        1/N of a mono-adaptive solve's, at COST_RATIO x the cost (no trial has measured the
+        ratio before the first prediction), so a small system never pays for stretches."""
+        return COST_RATIO * MULTI_ELEMENTS * SWITCH_MARGIN < self.ode.N
+
     def run(self, samples, stretches=None):
         """Solve [t0, T] in stretches (the first ``stretches`` only, if given), switching;
         the joined Solution."""
         ode = self.ode
         pieces, t, x, step = [], ode.t0, ode.u0, self.parameters.get("initial_time_step")
         length = FIRST_STRETCH * (ode.T - ode.t0) / STRETCH_GROWTH
-        costs = []  # (length, CPU time) of the first two stretches if of one variant
+        costs = []  # (length, CPU time) of the 2nd and 3rd stretches if of one variant
         per_call, shortest = 0.0, 0.0  # the fixed cost of a solve call; a stretch's length
+        last = np.inf  # the last stretch's length
         while t < ode.T and (stretches is None or len(pieces) < stretches):
             length = min(length * STRETCH_GROWTH, MAX_STRETCH * (ode.T - ode.t0))
             longest = LONGEST_STRETCH * (ode.T - ode.t0)
+            if self.current == self.base:  # a mono-adaptive restart has no start to spread
+                longest = min(MAX_STRETCH * (ode.T - ode.t0), STRETCH_GROWTH * last)
             end = _stretch_end(t, max(length, min(shortest, longest)), ode.T)
             piece, cpu = self.stretch(t, end, x, self.current, step)
+            last = end - t
             rate = _steady_rate(piece, cpu)
-            if len(pieces) < 2 and not self.evidence["checks"]:
-                costs.append((end - t, cpu))
+            if 1 <= len(pieces) < 3 and not self.evidence["checks"]:
+                costs.append((end - t, cpu))  # (the first carries the steps' growth from 0)
                 per_call = _restart_cost(costs) if len(costs) == 2 else 0.0
             if pieces:  # (the first stretch's start is no restart: the steps grow from 0)
                 shortest = _shortest_stretch(cpu, rate, end - t, per_call)
@@ -231,14 +257,13 @@ class _Switching:
     def predicted(self, name, piece, rate):
         """The rate of variant ``name`` over the stretch ``piece`` that the other solved at
         ``rate``."""
-        elements = piece.stats["elements"]
-        if piece.multi:  # a mono-adaptive step would be the smallest component step
-            other_elements = piece.stats["efficiency index"] * elements
+        if piece.multi:
+            other_elements = _mono_elements_late(piece)
         else:
-            other_elements = MULTI_ELEMENTS * _multi_elements(piece, self.atol, self.rtol)
+            other_elements = MULTI_ELEMENTS * _multi_elements_late(piece, self.atol, self.rtol)
         multi, mono = self.per_element.get("m" + self.base), self.per_element.get(self.base)
         ratio = multi / mono if multi and mono else COST_RATIO
-        predicted = rate * other_elements / elements * (1 / ratio if piece.multi else ratio)
+        predicted = rate * other_elements * (1 / ratio if piece.multi else ratio)
         self.uncalibrated[name] = predicted
         return predicted * self.calibration.get(name, 1.0)
 
@@ -280,15 +305,20 @@ def _shortest_stretch(cpu, rate, length, per_call):
     return restart / (RESTART_SHARE * beyond) if beyond > 0.0 else np.inf
 
 
+def _late(sol):
+    """The elements (multi-adaptive) or slabs of the solve ``sol`` in the second half of
+    its interval: where it has started, and closest to what comes next."""
+    return sol.t_start >= 0.5 * (sol.ode.t0 + sol.ode.T)
+
+
 def _steady_rate(sol, cpu):
-    """The CPU rate of the solve ``sol`` (CPU time ``cpu``) once started: CPU time / length,
-    or, if lower, its CPU time per element x the elements per unit time of the second half
-    of its interval. A start (the steps growing from the first, a multi-adaptive solve's
-    components active until found at rest) is paid again by every stretch of either variant,
-    and mostly in a short one."""
-    t0, T = sol.ode.t0, sol.ode.T
-    late = max(int(np.count_nonzero(sol.t_start >= 0.5 * (t0 + T))), 1)
-    return cpu / (T - t0) * min(1.0, 2.0 * late / len(sol.t_start))
+    """The CPU rate of the solve ``sol`` (CPU time ``cpu``) at its end: its CPU time per
+    element x the elements per unit time of the second half of its interval. A start (the
+    steps growing from the first, a multi-adaptive solve's components active until found at
+    rest) is paid again by every stretch of either variant, and mostly in a short one; a
+    change of scales within the stretch shows in its second half."""
+    late = max(int(np.count_nonzero(_late(sol))), 1)
+    return cpu / len(sol.t_start) * late / (0.5 * (sol.ode.T - sol.ode.t0))
 
 
 def _stretch_end(t, length, T):
@@ -335,20 +365,34 @@ def _step_shares(eta, q):
     return np.divide(eta, largest, out=np.ones_like(eta), where=largest > 0) ** (1.0 / (q + 1))
 
 
-def _multi_elements(sol, atol, rtol, sampled=16):
-    """The elements a multi-adaptive solve would take over the mono-adaptive solution ``sol``.
+def _multi_elements_late(sol, atol, rtol, sampled=16):
+    """Multi-adaptive elements / mono-adaptive ones over the second half of the
+    mono-adaptive solution ``sol`` (:func:`_late`).
 
     Where the mono-adaptive step k_n meets the largest local error eta_n
     (:func:`_local_errors`), component i alone would take (eta_ni / max_i eta_ni)^(1/(q+1))
-    x as many elements. Summed over ``sampled`` pairs of consecutive elements spread over
-    the solution, scaled to all of them.
+    x as many elements: the mean over i of these shares, over ``sampled`` pairs of
+    consecutive slabs spread over the second half.
     """
     M = len(sol.k)
     if M < 2:
-        return float(sol.stats["elements"])
-    first = np.linspace(0, M - 2, min(sampled, M - 1)).astype(np.int64)  # distinct
+        return 1.0
+    start = min(int(np.argmax(_late(sol))), M - 2)
+    first = np.unique(np.linspace(start, M - 2, sampled).astype(np.int64))
     shares = _step_shares(_local_errors(sol, first, atol, rtol), sol.method.q)
-    return float(shares.sum(axis=1).mean() * M)
+    return float(shares.mean())
+
+
+def _mono_elements_late(sol):
+    """Mono-adaptive elements / multi-adaptive ones over the second half of the
+    multi-adaptive solution ``sol`` (:func:`_late`): a mono-adaptive step is the smallest
+    component step, so its elements are the solve's count of them ("efficiency index" x
+    elements) x the share of the fastest component's elements in the second half."""
+    late = np.concatenate([[0], np.cumsum(_late(sol))])
+    ptr = sol._component_ptr
+    fastest_late = (late[ptr[1:]] - late[ptr[:-1]]).max()
+    mono = sol.stats["efficiency index"] * sol.stats["elements"]
+    return float(mono * fastest_late / np.diff(ptr).max() / max(late[-1], 1))
 
 
 def _component_steps(sol, atol, rtol):
