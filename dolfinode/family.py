@@ -475,12 +475,12 @@ def _place_slabs(offset, t_start, T, values, out_t_start, out_t_end, out_values)
     """Copy the slabs of a mono-adaptive solution on [t_start[0], T] (``values`` (M, q+1, N))
     as component i's elements to the rows from offset[i] of the out arrays."""
     M, N = t_start.shape[0], offset.shape[0]
-    for first in range(0, N, 32):  # in blocks of components: the reads stay in cache
-        last = min(first + 32, N)
-        for n in range(M):
-            end = t_start[n + 1] if n + 1 < M else T
-            for i in range(first, last):
-                row = offset[i] + n
-                out_t_start[row], out_t_end[row] = t_start[n], end
-                for j in range(values.shape[1]):
-                    out_values[row, j] = values[n, j, i]
+    for i in range(N):
+        row = offset[i]
+        out_t_start[row:row + M] = t_start
+        out_t_end[row:row + M - 1] = t_start[1:]
+        out_t_end[row + M - 1] = T
+    for n in range(M):  # the values row by row of the input: its reads stay sequential
+        for j in range(values.shape[1]):
+            for i in range(N):
+                out_values[offset[i] + n, j] = values[n, j, i]
