@@ -133,11 +133,21 @@ def test_uniform_chain_does_not_switch(cost_model):
 def test_fast_scale_ending_switches_back(cost_model):
     """A fast oscillator that slows to the others' frequency at t = 3: mcG(2) while it is
     fast, cG(2) again once the second half of a stretch shows one scale only."""
-    sol = dn.solve(_ramped_bank(3.0, -1), "auto", tolerance=TOL)
+    ode = _ramped_bank(3.0, -1)
+    sol = dn.solve(ode, "auto", tolerance=TOL)
     choice = sol.stats["family choice"]
     assert sol.stats["method"] == "cG(2) -> mcG(2) -> cG(2)", choice
     back = choice["checks"][-1]
     assert back["from"] == "mcG(2)" and back["switched"] and 3.0 < back["t"] < 6.0, choice
+    # the joined solution (mono, multi, mono) is as accurate as either variant's at T, and
+    # its dual estimate works
+    reference = dn.solve(ode, "cG(3)", tolerance=1e-10)(6.0)
+    errors = [np.abs(dn.solve(ode, m, tolerance=TOL)(6.0) - reference).max()
+              for m in ("cG(2)", "mcG(2)")]
+    error = np.abs(sol(6.0) - reference).max()
+    assert error < 10 * max(errors), (error, errors)
+    estimate = dn.estimate_error(sol, {"x0": 1.0})
+    assert np.isfinite(estimate.value) and estimate.bound >= abs(estimate.value)
 
 
 def test_late_rate_and_prediction_see_the_second_half(late_fast):
