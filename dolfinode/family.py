@@ -127,7 +127,7 @@ def solve_auto(solve, ode, base, goal, parameters, params):
         ``sol.stats["method"]`` names the variants in turn ("cG(2) -> mcG(2)");
         ``sol.stats["family choice"]`` holds "method" (the variant at the end, or the one
         chosen once), "stretches" (per kept stretch: method, interval, CPU time, and the
-        rate and the other's predicted rate, or "trial"), "checks" (per trial of the other
+        rate and the other's predicted rate (None after the last), or "trial"), "checks" (per trial of the other
         variant: time, the current, predicted and measured rates, whether it switched, or
         the trial's error) and, when decided once, "decided once".
     """
@@ -212,14 +212,15 @@ class _Switching:
             self.per_element[self.current] = cpu / piece.stats["elements"]
             self.calibration.pop(self.current, None)
             other = self.other(self.current)
-            predicted = self.predicted(other, piece, rate)
+            final = end >= ode.T and stretches is None  # nothing left to switch for
+            predicted = None if final else self.predicted(other, piece, rate)
             self.evidence["stretches"].append(
                 {"method": self.current, "interval": [t, end], "cpu time": cpu, "rate": rate,
                  "predicted rate of " + other: predicted})
             pieces.append(piece)
             t, x = end, piece(end)
             step = _next_step(piece, self.current != self.base)
-            if predicted * SWITCH_MARGIN < rate and (t < ode.T or stretches is not None):
+            if not final and predicted * SWITCH_MARGIN < rate:
                 first = (_next_step(piece, False) if piece.multi
                          else _component_steps(piece, self.atol, self.rtol))
                 trial, cpu = self.trial(other, t, x, first, min(
@@ -343,44 +344,63 @@ def _solve_on(solve, ode, t0, T, u0, method, parameters):
     return sol, cpu
 
 
-def _local_errors(sol, first, atol, rtol):
-    """eta_ni = k^(q+1) |u_i^(q+1)| / (atol_i + rtol |U_i|), (len(first), N), of the
-    mono-adaptive solution ``sol`` at the ends of its elements ``first``, with u^(q+1) from
-    the jump of the polynomials' q-th derivatives to the next element and k the mean of
-    the two steps."""
-    q = sol.method.q
-    k0, k1 = sol.k[first], sol.k[first + 1]
-    weights = np.asarray(sol.method.barycentric_weights)
-    # q! u^(q): the barycentric weights applied to the nodal values, over k^q
-    jump = ((weights @ sol.values[first + 1]) / (k1 ** q)[:, None]
-            - (weights @ sol.values[first]) / (k0 ** q)[:, None])
-    eta = np.abs(jump) * (0.5 * (k0 + k1))[:, None] ** q
-    return eta / (atol + rtol * np.abs(sol.values[first + 1, -1]))
+def _shares(sol, first, atol, rtol):
+    """:func:`_step_shares` of the mono-adaptive solution ``sol`` at the ends of its
+    slabs ``first``."""
+    return _step_shares(sol.values, sol.k, first,
+                        np.asarray(sol.method.barycentric_weights, dtype=np.float64),
+                        np.asarray(atol, dtype=np.float64), float(rtol))
 
 
-def _step_shares(eta, q):
-    """(eta_ni / max_i eta_ni)^(1/(q+1)): the share of the mono-adaptive step's elements that
-    component i alone would take (1 where no component has an error)."""
-    largest = eta.max(axis=1, keepdims=True)
-    return np.divide(eta, largest, out=np.ones_like(eta), where=largest > 0) ** (1.0 / (q + 1))
+@njit(cache=True)
+def _step_shares(values, k, first, weights, atol, rtol):
+    """(eta_ni / max_i eta_ni)^(1/(q+1)), (len(first), N): the share of the mono-adaptive
+    step's elements that component i alone would take at the end of slab n = first[s] (1
+    where no component has an error), with the local error
+
+        eta_ni = k^(q+1) |u_i^(q+1)| / (atol_i + rtol |U_i|),
+
+    u^(q+1) from the jump of the polynomials' q-th derivatives (the barycentric ``weights``
+    applied to the nodal ``values`` (M, q+1, N), over k^q) to the next slab and k the mean of
+    the two steps. Compiled: it runs after every stretch, where numpy's per-call cost was
+    most of a prediction."""
+    q = weights.shape[0] - 1
+    N = values.shape[2]
+    shares = np.empty((first.shape[0], N))
+    for s in range(first.shape[0]):
+        n = first[s]
+        scale0, scale1 = 1.0 / k[n] ** q, 1.0 / k[n + 1] ** q
+        mean = (0.5 * (k[n] + k[n + 1])) ** q
+        largest = 0.0
+        for i in range(N):
+            before, after = 0.0, 0.0
+            for j in range(q + 1):
+                before += weights[j] * values[n, j, i]
+                after += weights[j] * values[n + 1, j, i]
+            eta = (abs(after * scale1 - before * scale0) * mean
+                   / (atol[i] + rtol * abs(values[n + 1, q, i])))
+            shares[s, i] = eta
+            largest = max(largest, eta)
+        for i in range(N):
+            shares[s, i] = (shares[s, i] / largest) ** (1.0 / (q + 1)) if largest > 0.0 else 1.0
+    return shares
 
 
 def _multi_elements_late(sol, atol, rtol, sampled=16):
     """Multi-adaptive elements / mono-adaptive ones over the second half of the
     mono-adaptive solution ``sol`` (:func:`_late`).
 
-    Where the mono-adaptive step k_n meets the largest local error eta_n
-    (:func:`_local_errors`), component i alone would take (eta_ni / max_i eta_ni)^(1/(q+1))
-    x as many elements: the mean over i of these shares, over ``sampled`` pairs of
-    consecutive slabs spread over the second half.
+    Where the mono-adaptive step k_n meets the largest local error eta_n, component i alone
+    would take (eta_ni / max_i eta_ni)^(1/(q+1)) x as many elements (:func:`_step_shares`):
+    the mean over i of these shares, over ``sampled`` pairs of consecutive slabs spread over
+    the second half.
     """
     M = len(sol.k)
     if M < 2:
         return 1.0
-    start = min(int(np.argmax(_late(sol))), M - 2)
-    first = np.unique(np.linspace(start, M - 2, sampled).astype(np.int64))
-    shares = _step_shares(_local_errors(sol, first, atol, rtol), sol.method.q)
-    return float(shares.mean())
+    start = min(int(np.searchsorted(sol.t_start, 0.5 * (sol.ode.t0 + sol.ode.T))), M - 2)
+    first = np.arange(start, M - 1, max((M - 1 - start) // sampled, 1))
+    return float(_shares(sol, first, atol, rtol).mean())
 
 
 def _mono_elements_late(sol):
@@ -402,8 +422,7 @@ def _component_steps(sol, atol, rtol):
     step = float(sol.stats["next time step"])
     if len(sol.k) < 2:
         return step
-    shares = _step_shares(_local_errors(sol, np.array([len(sol.k) - 2]), atol, rtol),
-                          sol.method.q)[0]
+    shares = _shares(sol, np.array([len(sol.k) - 2]), atol, rtol)[0]
     return step / np.maximum(shares, 1.0 / MAX_STEP_GROWTH)
 
 
