@@ -9,7 +9,9 @@ among 100 slow ones, where mcG(2) is far cheaper), and, added after auto's rules
 (not tuned on), the seed model of automatic modeling at kappa = 1e2
 (``dolfinode.bench.problems.seed_model``: one slow and one 10x faster oscillator) and a
 bank whose one fast oscillator appears at T/3 (:func:`late_fast_bank`: the scales change
-during the solve).
+during the solve); and, added before the prediction was reworked for issue 29 item 6b (not
+tuned on either), a bank whose fast oscillator slows down at T/2 (:func:`early_fast_bank`)
+and a stiff diffusion with a moving local source (:func:`moving_source`).
 All three methods solve with ``calibrate_tolerance=False``: the same step tolerance (by
 default each is calibrated to the error at T, mcG(q) with its own constants); the error at T
 is reported with them.
@@ -38,22 +40,33 @@ from dolfinode.problems import mass_spring_chain as uniform_chain
 TARGET = 1.3
 #: What the last run showed, in words (kept with the script that measures it).
 NOTES = [
-    ("Within 1.3x on the five problems auto was developed on (1.19, 0.97, 1.12, 1.23, "
-     "0.97). How it decides: a trial of the other variant is kept when it is cheaper, and "
-     "is a full stretch long (a short one measures mostly its start: mcG(2) on the front "
-     "1.9x dearer than cG(2) over its first 1 %, 0.8x over the next 4 %); mcG(2) is "
-     "entered with each component's own step (the 2-spring chain switches at 1 % of T); a "
-     "stretch is long enough that its restart costs at most 10 % of it (an mcG(2) restart "
-     "on the front activates all 500 components again: 21.0 ms in 6 pieces against "
-     "12.5 ms in one); the multi-adaptive join places elements with a compiled loop."),
-    ("The two problems added after the rules were set miss the target. The seed model "
-     "(4 components, 2 ms) is mostly fixed costs: auto makes 4 stretches and predicts "
-     "mcG(2) after each, 1.38x. On the bank whose fast oscillator appears at t = 2 of 6, "
-     "the predicted mcG(2) rate is 1.5x above cG(2)'s at t = 3.3 (measured after the "
-     "switch: 0.42x), so the trial comes only at t = 4.8 and auto pays cG(2) for most of "
-     "the fast phase plus the join of 1.3 million mono-adaptive component-steps: 2.45x the "
-     "better (mcG(2)), 1.27x cG(2). The prediction (COST_RATIO, MULTI_ELEMENTS) is the "
-     "weak part.")]
+    ("Within 1.3x on 7 of the 9 problems, 1.31x and 1.32x on two (the moving source, the "
+     "reaction front), measured at a load of 11-12 on 2 cores; over four runs during this "
+     "rework the ratios moved by up to 0.1 (front 1.27-1.32, moving source 1.28-1.38, late "
+     "fast bank 1.26-1.34, uniform chain 1.19-1.29). What changed for issue 29 item 6b: the "
+     "rates are measured, and the other variant predicted, over the second half of each "
+     "stretch, so a change of scales shows at the end of the stretch it happens in; "
+     "mono-adaptive stretches follow the schedule (the restart-cost lengthening, fed by a "
+     "fixed cost estimated from the first two stretches, made a stretch 50 % of T on the late "
+     "bank); a system of fewer than 36 components, where mcG(2) cannot be predicted cheaper "
+     "even with every component but one at rest, is solved by cG(2) in one call; the "
+     "prediction is a compiled loop and is skipped after the last stretch."),
+    ("Seed model (4 components): no stretches, 1.05x (was 1.38x with 4 stretches and a "
+     "prediction after each). Late fast bank: the stretch [1.26, 2.76] predicts mcG(2) at "
+     "0.58x cG(2)'s rate (measured after the switch 0.50x), the trial comes at t = 2.76 "
+     "instead of 4.8: 1.26x (was 2.45x); what is left is cG(2) over the ramp up to 2.76, "
+     "seen only at the end of a 25 % stretch. Bank whose fast oscillator slows at t = 3: "
+     "mcG(2) from 1 % of T, cG(2) again at t = 4.6 (predicted 0.37x, measured 0.27x): 1.19x. "
+     "Moving source: cG(2) throughout (mcG(2) predicted 3.1-3.9x dearer, measured 4.6x); "
+     "the 1.31x is the price of six stretches on a 7 ms solve: the stretches' solves take "
+     "7.5-7.9 ms against 7.1 ms in one call (the restarts), and 1.1 ms goes between them "
+     "(0.33 ms predictions, 0.2 ms the join), measured by instrumenting family.py. The front "
+     "switches to mcG(2) after 1 % of T and pays three mcG(2) starts: 1.32x; the family.py "
+     "before this rework, run interleaved with it, took the same stretches and time (15.7 "
+     "against 15.5 ms, mcG(2) 12.0 ms), so the 1.23x of the last record is the machine's "
+     "state. The prior before a trial, 24 x the cG(2) cost per estimated element "
+     "(COST_RATIO x MULTI_ELEMENTS), is still a constant; the checks measured 0.74-1.72x "
+     "of their predictions.")]
 
 
 def late_fast_bank(n=60, T=6.0):
@@ -66,6 +79,35 @@ def late_fast_bank(n=60, T=6.0):
         rhs[x[i]] = v[i]
         rhs[v[i]] = -omega[i] ** 2 * x[i]
     return dn.ODE(rhs, u0={**dict.fromkeys(x, 1.0), **dict.fromkeys(v, 0.0)}, T=T)
+
+
+def early_fast_bank(n=60, T=6.0):
+    """n oscillators of frequency 1..2 and one whose frequency ramps from 100 down to 1
+    around t = T/2: two time scales until the ramp, one after it (the fast part switches
+    off halfway)."""
+    x, v = sp.symbols(f"x:{n + 1}"), sp.symbols(f"v:{n + 1}")
+    omega = list(np.linspace(1.0, 2.0, n)) + [1 + 99 * (1 - sp.tanh(5 * (dn.t - T / 2))) / 2]
+    rhs = {}
+    for i in range(n + 1):
+        rhs[x[i]] = v[i]
+        rhs[v[i]] = -omega[i] ** 2 * x[i]
+    return dn.ODE(rhs, u0={**dict.fromkeys(x, 1.0), **dict.fromkeys(v, 0.0)}, T=T)
+
+
+def moving_source(n=100, T=1.0, D=0.01):
+    """u_t = D u_xx - u + 10 exp(-((x - c(t)) / 0.03)^2) on n points of [0, 1] (zero
+    Dirichlet values outside), c(t) = 0.2 + 0.6 t / T: a stiff diffusion (D / h^2 = 98)
+    with a local source moving across the domain, fast only where it passes."""
+    h = 1.0 / (n + 1)
+    u = sp.symbols(f"u0:{n}")
+    centre = 0.2 + 0.6 * dn.t / T
+    rhs = {}
+    for i in range(n):
+        left = u[i - 1] if i > 0 else 0
+        right = u[i + 1] if i < n - 1 else 0
+        source = 10 * sp.exp(-(((i + 1) * h - centre) / 0.03) ** 2)
+        rhs[u[i]] = D * (left - 2 * u[i] + right) / h**2 - u[i] + source
+    return dn.ODE(rhs, u0=np.zeros(n), T=T)
 
 
 def problems():
@@ -81,10 +123,15 @@ def problems():
              ("seed model, kappa = 1e2, T = 10 (new)", seed_model(1e2, T=10.0))]
     late = ("61 oscillators, one ramping from frequency 1 to 100 at t = 2, T = 6 (new)",
             late_fast_bank(), 1e-5, "cG(2)", None)
+    # added before the prediction of issue 29 item 6b was reworked (not tuned on)
+    later = [("61 oscillators, one slowing from frequency 100 to 1 at t = 3, T = 6 (new)",
+              early_fast_bank(), 1e-5, "cG(2)", None),
+             ("diffusion with a moving local source, N = 100, T = 1 (new)", moving_source(),
+              1e-6, "cG(2)", None)]
     return ([("uniform chain, 100 masses, T = 200", uniform, 1e-6, "cG(2)",
               exact(200.0))]
             + [(name, problem.ode, 1e-6, "cG(2)", problem.final) for name, problem in bench]
-            + [late])
+            + [late] + later)
 
 
 def reference(ode, final):
@@ -151,12 +198,15 @@ def main(argv=None):
                      f"{r['ratio']:.2f}x | "
                      + ", ".join(f"{r['errors at T'][m]:.1e}" for m in (base, multi, auto))
                      + " |")
-    lines += ["", ("auto solves [t0, T] in stretches (1, 4, 16 %, then 25 % of it, longer "
-                   "where a restart would cost more than 10 % of a stretch, at most 50 %) "
-                   "starting with cG(2); after each stretch it predicts mcG(2)'s CPU rate (or "
-                   "cG(2)'s) from the elements that variant would take and, when that is 1.5x "
-                   "below the measured rate, solves the next stretch with the other variant as "
-                   "a trial, which continues if measured cheaper (dolfinode/family.py). Its "
+    lines += ["", ("auto solves [t0, T] in stretches (1, 4, 16 %, then 25 % of it; an mcG(2) "
+                   "stretch longer where its restart would cost more than 10 % of it, at most "
+                   "50 %) starting with cG(2); after each stretch it measures the current "
+                   "variant's CPU rate over the stretch's second half, predicts mcG(2)'s (or "
+                   "cG(2)'s) from the elements that variant would take there and, when that is "
+                   "1.5x below the measured rate, solves the next stretch with the other "
+                   "variant as a trial, which continues if measured cheaper; a system of fewer "
+                   "than 36 components is solved by cG(2) in one call (dolfinode/family.py). "
+                   "Its "
                    "time includes the restarts, the trials and the joining of the stretches "
                    "into one solution. All three solve at the same step tolerance "
                    "(calibrate_tolerance=False; the errors at T are in the last column). "

@@ -6,44 +6,53 @@ sweeps and partition): mcG(q)/mdG(q) pay off only where the components' steps sp
 and the spread may change during a solve (a fast oscillation excited later, a transient that
 dies out). [t0, T] is solved in stretches, the first FIRST_STRETCH (T - t0) long with the
 mono-adaptive variant (cheap to start), each next one STRETCH_GROWTH x longer up to
-MAX_STRETCH (T - t0), each from the end value of the last with its last step(s). A restart
-costs a solve's fixed cost (from the first two stretches, :func:`_restart_cost`) or the
-stretch's start (a multi-adaptive solve has all components active until it finds them at
-rest), whichever is larger: a stretch is at least so long that its restart is RESTART_SHARE
-of it (:func:`_shortest_stretch`), so a problem that never changes pays for five restarts at
-most, and a small one or a multi-adaptive one for fewer. After each stretch the current
-variant's rate r (CPU time / length once started, :func:`_steady_rate`) is measured and the
-other's predicted from the elements it would take over the same stretch,
+MAX_STRETCH (T - t0), each from the end value of the last with its last step(s). A
+mono-adaptive stretch follows this schedule (its restart is a solve's fixed cost); a
+multi-adaptive one is at least so long that its restart (its start, all components active
+until found at rest, or a solve's fixed cost from the 2nd and 3rd stretches,
+:func:`_restart_cost`) is RESTART_SHARE of it (:func:`_shortest_stretch`), at most
+LONGEST_STRETCH (T - t0). After each stretch the current variant's rate r at its end (CPU
+time per element x the elements per unit time of the stretch's second half,
+:func:`_steady_rate`) is measured and the other's predicted from the elements it would take
+over that second half,
 
     r_other = r x (E_other / E) x (c_other / c),
 
-with c the CPU time per element: E_mono = (efficiency index) x E of a multi-adaptive stretch
-(a mono-adaptive step is the smallest component step); E_multi of a mono-adaptive stretch
-from the spread of its components' local errors (:func:`_multi_elements`); c_multi / c_mono
-the latest ratio measured on stretches, COST_RATIO before both were; r_other is scaled by
-measured / predicted of the last trial of the other variant, until that variant runs a
-stretch. When r_other < r / SWITCH_MARGIN, the next stretch (a stretch of the schedule, not
-the first: a short trial would be mostly its start) is a trial of the other variant from the
-current state, a multi-adaptive one starting each component at its own step
-(:func:`_component_steps`, not all at the common one). The trial is kept (no stretch is
-solved twice) and its variant continues if its measured rate is below r; a multi-adaptive
-trial that does not continue among mono-adaptive stretches only is solved again instead
-(kept, it would turn every slab into N elements of the joined solution). The margin on the
-prediction keeps a problem that does not change from paying for trials; the trial itself is
-measured, so a noisy measurement costs one stretch at most. The stretches and trials with
-their evidence are in ``sol.stats["family choice"]``; a solution with stretches of both
-variants is represented in the multi-adaptive form (a mono-adaptive slab is one element per
-component: mcG(q) on a common partition is cG(q)), so evaluation, samples and
-``estimate_error`` see one solution.
+with c the CPU time per element: E_mono / E of a multi-adaptive stretch from the smallest
+component step (the solve's "efficiency index", scaled by the fastest component's share of
+elements in the second half, :func:`_mono_elements_late`); E_multi / E of a mono-adaptive
+stretch from the spread of its components' local errors in the second half
+(:func:`_multi_elements_late`) x MULTI_ELEMENTS; c_multi / c_mono the latest ratio measured
+on stretches, COST_RATIO before both were; r_other is scaled by measured / predicted of the
+last trial of the other variant, until that variant runs a stretch. When r_other < r /
+SWITCH_MARGIN, the next stretch (a stretch of the schedule, not the first: a short trial
+would be mostly its start) is a trial of the other variant from the current state, a
+multi-adaptive one starting each component at its own step (:func:`_component_steps`, not
+all at the common one). The trial is kept (no stretch is solved twice) and its variant
+continues if its measured rate is below r; a multi-adaptive trial that does not continue
+among mono-adaptive stretches only is solved again instead (kept, it would turn every slab
+into N elements of the joined solution). The margin on the prediction keeps a problem that
+does not change from paying for trials; the trial itself is measured, so a noisy
+measurement costs one stretch at most. The stretches and trials with their evidence are in
+``sol.stats["family choice"]``; a solution with stretches of both variants is represented
+in the multi-adaptive form (a mono-adaptive slab is one element per component: mcG(q) on a
+common partition is cG(q)), so evaluation, samples and ``estimate_error`` see one solution.
+
+A small system is not cut into stretches: with N < COST_RATIO x MULTI_ELEMENTS x
+SWITCH_MARGIN components the multi-adaptive variant cannot be predicted cheaper even with
+every component but one at rest (its elements are at least MULTI_ELEMENTS x the fastest
+component's, 1/N of the mono-adaptive ones), so the mono-adaptive variant solves [t0, T] in
+one call, "decided once" in the evidence.
 
 Decided once (after the first stretch and its trial, the chosen variant solving [t0, T]
 from the start): with a goal, events, breakpoints, automatic modeling, a progress bar,
 sample times, or a history kept only as samples or in a file.
 
 Limitation: a change of scales is seen at the end of the stretch it happens in (up to 29 %
-of [t0, T] later, more where restarts are dear), and the prediction of the multi-adaptive
-elements is a heuristic (0.4-0.55 x the elements mcG(2) took on the benchmark problems,
-whence MULTI_ELEMENTS): a variant predicted no cheaper is not measured. Each stretch
+of [t0, T] later, more where multi-adaptive restarts are dear), and the prediction of the
+multi-adaptive elements and their cost is a prior until a trial measured them
+(MULTI_ELEMENTS x COST_RATIO = 24 x the mono-adaptive cost per estimated element; measured /
+predicted 0.9-1.6 on the benchmark problems): a variant predicted no cheaper is not measured. Each stretch
 restarts the variant (its fixed cost per call; a multi-adaptive one finds its components at
 rest again).
 """
@@ -70,7 +79,7 @@ SWITCH_MARGIN = 1.5
 #: smallest measured on the benchmark problems (11-22 on those of doc/benchmarks/auto.md), so
 #: that a multi-adaptive variant is rather measured than missed.
 COST_RATIO = 12.0
-#: Multi-adaptive elements / :func:`_multi_elements`' estimate (0.4-0.55 x on the benchmarks).
+#: Multi-adaptive elements / :func:`_multi_elements_late`' estimate (2-2.5 on the benchmarks).
 MULTI_ELEMENTS = 2.0
 #: A stretch is at least so long that its restart (:func:`_shortest_stretch`) is at most this
 #: share of it: a small problem, whose solve is mostly a solve's fixed cost, or a
@@ -118,13 +127,19 @@ def solve_auto(solve, ode, base, goal, parameters, params):
         ``sol.stats["method"]`` names the variants in turn ("cG(2) -> mcG(2)");
         ``sol.stats["family choice"]`` holds "method" (the variant at the end, or the one
         chosen once), "stretches" (per kept stretch: method, interval, CPU time, and the
-        rate and the other's predicted rate, or "trial"), "checks" (per trial of the other
+        rate and the other's predicted rate (None after the last), or "trial"), "checks" (per trial of the other
         variant: time, the current, predicted and measured rates, whether it switched, or
         the trial's error) and, when decided once, "decided once".
     """
     lower(ode)  # compiled once, shared by the stretches (a copy would compile again)
     switching = _Switching(solve, ode, base, {**parameters, **_STRETCH_PARAMETERS}, params)
-    if _switchable(goal, params):
+    if not switching.multi_can_pay():
+        sol = solve(ode, base, goal=goal, **parameters)
+        switching.evidence["decided once"] = (
+            f"{ode.N} components: m{base} cannot be predicted {SWITCH_MARGIN}x cheaper even "
+            "with all components but one at rest (COST_RATIO x MULTI_ELEMENTS / N = "
+            f"{COST_RATIO * MULTI_ELEMENTS / ode.N:.2g})")
+    elif _switchable(goal, params):
         sol = switching.run(params["number_of_samples"])
         sol.parameters = params
     else:
@@ -164,36 +179,48 @@ class _Switching:
     def other(self, name):
         return "m" + self.base if name == self.base else self.base
 
+    def multi_can_pay(self):
+        """Whether m(base) can ever be predicted SWITCH_MARGIN x cheaper than base: its
+        predicted elements are at least MULTI_ELEMENTS x those of the fastest component,
+        1/N of a mono-adaptive solve's, at COST_RATIO x the cost (no trial has measured the
+        ratio before the first prediction), so a small system never pays for stretches."""
+        return COST_RATIO * MULTI_ELEMENTS * SWITCH_MARGIN < self.ode.N
+
     def run(self, samples, stretches=None):
         """Solve [t0, T] in stretches (the first ``stretches`` only, if given), switching;
         the joined Solution."""
         ode = self.ode
         pieces, t, x, step = [], ode.t0, ode.u0, self.parameters.get("initial_time_step")
         length = FIRST_STRETCH * (ode.T - ode.t0) / STRETCH_GROWTH
-        costs = []  # (length, CPU time) of the first two stretches if of one variant
+        costs = []  # (length, CPU time) of the 2nd and 3rd stretches if of one variant
         per_call, shortest = 0.0, 0.0  # the fixed cost of a solve call; a stretch's length
+        last = np.inf  # the last stretch's length
         while t < ode.T and (stretches is None or len(pieces) < stretches):
             length = min(length * STRETCH_GROWTH, MAX_STRETCH * (ode.T - ode.t0))
             longest = LONGEST_STRETCH * (ode.T - ode.t0)
+            if self.current == self.base:  # a mono-adaptive restart has no start to spread
+                longest = min(MAX_STRETCH * (ode.T - ode.t0), STRETCH_GROWTH * last)
             end = _stretch_end(t, max(length, min(shortest, longest)), ode.T)
             piece, cpu = self.stretch(t, end, x, self.current, step)
+            last = end - t
             rate = _steady_rate(piece, cpu)
-            if len(pieces) < 2 and not self.evidence["checks"]:
-                costs.append((end - t, cpu))
+            if 1 <= len(pieces) < 3 and not self.evidence["checks"]:
+                costs.append((end - t, cpu))  # (the first carries the steps' growth from 0)
                 per_call = _restart_cost(costs) if len(costs) == 2 else 0.0
             if pieces:  # (the first stretch's start is no restart: the steps grow from 0)
                 shortest = _shortest_stretch(cpu, rate, end - t, per_call)
             self.per_element[self.current] = cpu / piece.stats["elements"]
             self.calibration.pop(self.current, None)
             other = self.other(self.current)
-            predicted = self.predicted(other, piece, rate)
+            final = end >= ode.T and stretches is None  # nothing left to switch for
+            predicted = None if final else self.predicted(other, piece, rate)
             self.evidence["stretches"].append(
                 {"method": self.current, "interval": [t, end], "cpu time": cpu, "rate": rate,
                  "predicted rate of " + other: predicted})
             pieces.append(piece)
             t, x = end, piece(end)
             step = _next_step(piece, self.current != self.base)
-            if predicted * SWITCH_MARGIN < rate and (t < ode.T or stretches is not None):
+            if not final and predicted * SWITCH_MARGIN < rate:
                 first = (_next_step(piece, False) if piece.multi
                          else _component_steps(piece, self.atol, self.rtol))
                 trial, cpu = self.trial(other, t, x, first, min(
@@ -231,14 +258,13 @@ class _Switching:
     def predicted(self, name, piece, rate):
         """The rate of variant ``name`` over the stretch ``piece`` that the other solved at
         ``rate``."""
-        elements = piece.stats["elements"]
-        if piece.multi:  # a mono-adaptive step would be the smallest component step
-            other_elements = piece.stats["efficiency index"] * elements
+        if piece.multi:
+            other_elements = _mono_elements_late(piece)
         else:
-            other_elements = MULTI_ELEMENTS * _multi_elements(piece, self.atol, self.rtol)
+            other_elements = MULTI_ELEMENTS * _multi_elements_late(piece, self.atol, self.rtol)
         multi, mono = self.per_element.get("m" + self.base), self.per_element.get(self.base)
         ratio = multi / mono if multi and mono else COST_RATIO
-        predicted = rate * other_elements / elements * (1 / ratio if piece.multi else ratio)
+        predicted = rate * other_elements * (1 / ratio if piece.multi else ratio)
         self.uncalibrated[name] = predicted
         return predicted * self.calibration.get(name, 1.0)
 
@@ -280,15 +306,20 @@ def _shortest_stretch(cpu, rate, length, per_call):
     return restart / (RESTART_SHARE * beyond) if beyond > 0.0 else np.inf
 
 
+def _late(sol):
+    """The elements (multi-adaptive) or slabs of the solve ``sol`` in the second half of
+    its interval: where it has started, and closest to what comes next."""
+    return sol.t_start >= 0.5 * (sol.ode.t0 + sol.ode.T)
+
+
 def _steady_rate(sol, cpu):
-    """The CPU rate of the solve ``sol`` (CPU time ``cpu``) once started: CPU time / length,
-    or, if lower, its CPU time per element x the elements per unit time of the second half
-    of its interval. A start (the steps growing from the first, a multi-adaptive solve's
-    components active until found at rest) is paid again by every stretch of either variant,
-    and mostly in a short one."""
-    t0, T = sol.ode.t0, sol.ode.T
-    late = max(int(np.count_nonzero(sol.t_start >= 0.5 * (t0 + T))), 1)
-    return cpu / (T - t0) * min(1.0, 2.0 * late / len(sol.t_start))
+    """The CPU rate of the solve ``sol`` (CPU time ``cpu``) at its end: its CPU time per
+    element x the elements per unit time of the second half of its interval. A start (the
+    steps growing from the first, a multi-adaptive solve's components active until found at
+    rest) is paid again by every stretch of either variant, and mostly in a short one; a
+    change of scales within the stretch shows in its second half."""
+    late = max(int(np.count_nonzero(_late(sol))), 1)
+    return cpu / len(sol.t_start) * late / (0.5 * (sol.ode.T - sol.ode.t0))
 
 
 def _stretch_end(t, length, T):
@@ -313,42 +344,75 @@ def _solve_on(solve, ode, t0, T, u0, method, parameters):
     return sol, cpu
 
 
-def _local_errors(sol, first, atol, rtol):
-    """eta_ni = k^(q+1) |u_i^(q+1)| / (atol_i + rtol |U_i|), (len(first), N), of the
-    mono-adaptive solution ``sol`` at the ends of its elements ``first``, with u^(q+1) from
-    the jump of the polynomials' q-th derivatives to the next element and k the mean of
-    the two steps."""
-    q = sol.method.q
-    k0, k1 = sol.k[first], sol.k[first + 1]
-    weights = np.asarray(sol.method.barycentric_weights)
-    # q! u^(q): the barycentric weights applied to the nodal values, over k^q
-    jump = ((weights @ sol.values[first + 1]) / (k1 ** q)[:, None]
-            - (weights @ sol.values[first]) / (k0 ** q)[:, None])
-    eta = np.abs(jump) * (0.5 * (k0 + k1))[:, None] ** q
-    return eta / (atol + rtol * np.abs(sol.values[first + 1, -1]))
+def _shares(sol, first, atol, rtol):
+    """:func:`_step_shares` of the mono-adaptive solution ``sol`` at the ends of its
+    slabs ``first``."""
+    return _step_shares(sol.values, sol.k, first,
+                        np.asarray(sol.method.barycentric_weights, dtype=np.float64),
+                        np.asarray(atol, dtype=np.float64), float(rtol))
 
 
-def _step_shares(eta, q):
-    """(eta_ni / max_i eta_ni)^(1/(q+1)): the share of the mono-adaptive step's elements that
-    component i alone would take (1 where no component has an error)."""
-    largest = eta.max(axis=1, keepdims=True)
-    return np.divide(eta, largest, out=np.ones_like(eta), where=largest > 0) ** (1.0 / (q + 1))
+@njit(cache=True)
+def _step_shares(values, k, first, weights, atol, rtol):
+    """(eta_ni / max_i eta_ni)^(1/(q+1)), (len(first), N): the share of the mono-adaptive
+    step's elements that component i alone would take at the end of slab n = first[s] (1
+    where no component has an error), with the local error
+
+        eta_ni = k^(q+1) |u_i^(q+1)| / (atol_i + rtol |U_i|),
+
+    u^(q+1) from the jump of the polynomials' q-th derivatives (the barycentric ``weights``
+    applied to the nodal ``values`` (M, q+1, N), over k^q) to the next slab and k the mean of
+    the two steps. Compiled: it runs after every stretch, where numpy's per-call cost was
+    most of a prediction."""
+    q = weights.shape[0] - 1
+    N = values.shape[2]
+    shares = np.empty((first.shape[0], N))
+    for s in range(first.shape[0]):
+        n = first[s]
+        scale0, scale1 = 1.0 / k[n] ** q, 1.0 / k[n + 1] ** q
+        mean = (0.5 * (k[n] + k[n + 1])) ** q
+        largest = 0.0
+        for i in range(N):
+            before, after = 0.0, 0.0
+            for j in range(q + 1):
+                before += weights[j] * values[n, j, i]
+                after += weights[j] * values[n + 1, j, i]
+            eta = (abs(after * scale1 - before * scale0) * mean
+                   / (atol[i] + rtol * abs(values[n + 1, q, i])))
+            shares[s, i] = eta
+            largest = max(largest, eta)
+        for i in range(N):
+            shares[s, i] = (shares[s, i] / largest) ** (1.0 / (q + 1)) if largest > 0.0 else 1.0
+    return shares
 
 
-def _multi_elements(sol, atol, rtol, sampled=16):
-    """The elements a multi-adaptive solve would take over the mono-adaptive solution ``sol``.
+def _multi_elements_late(sol, atol, rtol, sampled=16):
+    """Multi-adaptive elements / mono-adaptive ones over the second half of the
+    mono-adaptive solution ``sol`` (:func:`_late`).
 
-    Where the mono-adaptive step k_n meets the largest local error eta_n
-    (:func:`_local_errors`), component i alone would take (eta_ni / max_i eta_ni)^(1/(q+1))
-    x as many elements. Summed over ``sampled`` pairs of consecutive elements spread over
-    the solution, scaled to all of them.
+    Where the mono-adaptive step k_n meets the largest local error eta_n, component i alone
+    would take (eta_ni / max_i eta_ni)^(1/(q+1)) x as many elements (:func:`_step_shares`):
+    the mean over i of these shares, over ``sampled`` pairs of consecutive slabs spread over
+    the second half.
     """
     M = len(sol.k)
     if M < 2:
-        return float(sol.stats["elements"])
-    first = np.linspace(0, M - 2, min(sampled, M - 1)).astype(np.int64)  # distinct
-    shares = _step_shares(_local_errors(sol, first, atol, rtol), sol.method.q)
-    return float(shares.sum(axis=1).mean() * M)
+        return 1.0
+    start = min(int(np.searchsorted(sol.t_start, 0.5 * (sol.ode.t0 + sol.ode.T))), M - 2)
+    first = np.arange(start, M - 1, max((M - 1 - start) // sampled, 1))
+    return float(_shares(sol, first, atol, rtol).mean())
+
+
+def _mono_elements_late(sol):
+    """Mono-adaptive elements / multi-adaptive ones over the second half of the
+    multi-adaptive solution ``sol`` (:func:`_late`): a mono-adaptive step is the smallest
+    component step, so its elements are the solve's count of them ("efficiency index" x
+    elements) x the share of the fastest component's elements in the second half."""
+    late = np.concatenate([[0], np.cumsum(_late(sol))])
+    ptr = sol._component_ptr
+    fastest_late = (late[ptr[1:]] - late[ptr[:-1]]).max()
+    mono = sol.stats["efficiency index"] * sol.stats["elements"]
+    return float(mono * fastest_late / np.diff(ptr).max() / max(late[-1], 1))
 
 
 def _component_steps(sol, atol, rtol):
@@ -358,8 +422,7 @@ def _component_steps(sol, atol, rtol):
     step = float(sol.stats["next time step"])
     if len(sol.k) < 2:
         return step
-    shares = _step_shares(_local_errors(sol, np.array([len(sol.k) - 2]), atol, rtol),
-                          sol.method.q)[0]
+    shares = _shares(sol, np.array([len(sol.k) - 2]), atol, rtol)[0]
     return step / np.maximum(shares, 1.0 / MAX_STEP_GROWTH)
 
 
@@ -431,12 +494,12 @@ def _place_slabs(offset, t_start, T, values, out_t_start, out_t_end, out_values)
     """Copy the slabs of a mono-adaptive solution on [t_start[0], T] (``values`` (M, q+1, N))
     as component i's elements to the rows from offset[i] of the out arrays."""
     M, N = t_start.shape[0], offset.shape[0]
-    for first in range(0, N, 32):  # in blocks of components: the reads stay in cache
-        last = min(first + 32, N)
-        for n in range(M):
-            end = t_start[n + 1] if n + 1 < M else T
-            for i in range(first, last):
-                row = offset[i] + n
-                out_t_start[row], out_t_end[row] = t_start[n], end
-                for j in range(values.shape[1]):
-                    out_values[row, j] = values[n, j, i]
+    for i in range(N):
+        row = offset[i]
+        out_t_start[row:row + M] = t_start
+        out_t_end[row:row + M - 1] = t_start[1:]
+        out_t_end[row + M - 1] = T
+    for n in range(M):  # the values row by row of the input: its reads stay sequential
+        for j in range(values.shape[1]):
+            for i in range(N):
+                out_values[offset[i] + n, j] = values[n, j, i]
