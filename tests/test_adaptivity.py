@@ -21,11 +21,14 @@ def scaled_error(problem, method, tolerance, **options):
 
 
 #: Tolerances per method across its range (first order to 1e-7, as in run_tolerance.py).
-SWEEPS = {"cG(2)": (1e-3, 1e-6, 1e-9), "dG(1)": (1e-2, 1e-4, 1e-6), "dG(2)": (1e-4, 1e-7)}
+SWEEPS = {"cG(1)": (1e-2, 1e-4, 1e-6), "cG(2)": (1e-3, 1e-6, 1e-9), "cG(3)": (1e-3, 1e-5, 1e-9),
+          "dG(1)": (1e-2, 1e-4, 1e-6), "dG(2)": (1e-4, 1e-7), "dG(3)": (1e-4, 1e-8)}
+#: The sweeps within the band: all but dG(3) on VDPOL, which over-delivers (KNOWN_MISSES).
+BAND = [(name, method) for method in SWEEPS for name in PROBLEMS
+        if (name, method) != ("VDPOL", "dG(3)")]
 
 
-@pytest.mark.parametrize("name", PROBLEMS)
-@pytest.mark.parametrize("method", SWEEPS)
+@pytest.mark.parametrize("name, method", BAND)
 def test_delivered_error_within_ten_times_the_tolerance_and_monotone(name, method):
     """The default: the error at T within [0.1, 10] x tolerance, smaller for a smaller one."""
     problem = PROBLEMS[name]()
@@ -33,6 +36,22 @@ def test_delivered_error_within_ten_times_the_tolerance_and_monotone(name, metho
     for error, tolerance in zip(errors, SWEEPS[method]):
         assert 0.1 * tolerance <= error <= 10 * tolerance, (error, tolerance)
     assert np.all(np.diff(errors) < 0)
+
+
+#: Measured misses (error / tolerance in doc/benchmarks/tolerance.md) and their cause
+#: (doc/design/tolerance.md): on HIRES the last steps are stiff (|k lambda| ~ 1e2..6e3), where
+#: the nodes do not superconverge and the local error is 0.2-0.3 x its estimate, not the
+#: ~1e-3 x the calibration assumes; on VDPOL dG(3) gains more than the fit's average.
+KNOWN_MISSES = {("HIRES", "cG(3)", 1e-6): 23, ("HIRES", "dG(3)", 1e-6): 15,
+                ("VDPOL", "dG(3)", 1e-6): 0.051}
+
+
+@pytest.mark.xfail(strict=True, reason="known misses of the calibration (doc/design/tolerance.md)")
+@pytest.mark.parametrize("name, method, tolerance", KNOWN_MISSES)
+def test_known_misses(name, method, tolerance):
+    """Fails while the miss stands; passes (and so fails strictly) once it is fixed."""
+    error = scaled_error(PROBLEMS[name](), method, tolerance)
+    assert 0.1 * tolerance <= error <= 10 * tolerance, error / tolerance
 
 
 #: The multi-adaptive methods' sweeps (their own C: DELIVERED_MULTI).
@@ -68,6 +87,20 @@ def test_mono_and_multi_adaptive_deliver_alike():
     problem = oscillator_bank(n=50, w=1000.0, T=0.5)
     errors = {m: scaled_error(problem, m, 1e-4) for m in ("cG(2)", "mcG(2)", "auto")}
     assert max(errors.values()) < 3 * min(errors.values()), errors
+
+
+def test_long_undamped_run_exceeds_the_band_and_the_dual_measures_it():
+    """The calibration is of the local error: over ~80 periods of the bank's fast oscillator
+    the errors add up to more than 10 x the tolerance (29 x measured), which no step
+    tolerance sees; estimate_error's dual does (exact for a linear problem)."""
+    problem = oscillator_bank(n=50, w=1000.0, T=0.5)
+    sol = dn.solve(problem.ode, method="cG(2)", tolerance=1e-4,
+                   absolute_tolerance=problem.atol_ratio * 1e-4)
+    error = sol(problem.T) - problem.final
+    i = np.argmax(np.abs(error) / (problem.atol_ratio + np.abs(problem.final)))
+    assert abs(error[i]) / (problem.atol_ratio + abs(problem.final[i])) > 10 * 1e-4
+    estimate = dn.estimate_error(sol, goal=np.eye(problem.ode.N)[i])
+    assert estimate.value == pytest.approx(error[i], rel=0.1)
 
 
 def test_uncalibrated_bounds_each_step_and_over_delivers():
