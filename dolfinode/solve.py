@@ -6,7 +6,7 @@ import sympy as sp
 
 from dolfinode import events as ev
 from dolfinode import timeslab as ts
-from dolfinode.adaptivity import filter_constant, step_tolerance
+from dolfinode.adaptivity import filter_constant, step_tolerance, stiff_loosening
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
 from dolfinode.failures import STEP_LIMIT, failure_message, undamped_message, undefined
@@ -418,18 +418,21 @@ def _options(ode, m, params, multi_adaptive, atol):
     solution size."""
     rtol = params["tolerance"]
     fixed = bool(params["fixed_time_step"])
+    loosening = 0.0
     if fixed:
         atol, rtol, dtol = np.ones(ode.N), 1.0, 1e-15
     else:
         dtol = params["discrete_tolerance_factor"]
         if params["calibrate_tolerance"] and rtol >= MIN_TOLERANCE:
-            scale = step_tolerance(m, rtol, multi_adaptive) / rtol
-            atol, rtol = atol * scale, rtol * scale
+            step = step_tolerance(m, rtol, multi_adaptive)
+            loosening = 0.0 if multi_adaptive else stiff_loosening(m, rtol, step)
+            atol, rtol = atol * (step / rtol), step
     return atol, contract.options(
         solver=NONLINEAR_SOLVERS.index(params["nonlinear_solver"]), fixed=fixed,
         max_iter=params["maximum_iterations"], is_dg=m.family == "dG", rtol=rtol, T=ode.T,
         kmax=params["maximum_time_step"] or ode.T - ode.t0, safety=params["safety_factor"],
-        dtol=dtol, order=m.local_order, span=ode.T - ode.t0, gamma=filter_constant(m))
+        dtol=dtol, order=m.local_order, span=ode.T - ode.t0, gamma=filter_constant(m),
+        loosening=loosening)
 
 
 def _floor(ode, atol):
