@@ -26,6 +26,11 @@ Soederlind's digital filters, as DOLFIN's H211PI intended), with P = q + 1:
 
     k_new = k * clamp(safety * eps^(-0.7/P) * eps_prev^(0.4/P), 0.2, 5).
 
+With the calibrated tolerance (:func:`step_tolerance`, looser than rtol since the nodes
+superconverge), the mono-adaptive loop scales each component's e_{n,i} by
+:func:`stiff_factor`: a component the filter reduced (stiff) has no superconvergent node and
+is held to c x rtol instead.
+
 The multi-adaptive loop filters each sub-slab's residuals together (``filter_residuals``) and
 gives each component its own next step from :func:`next_step` (see
 :mod:`dolfinode.timeslab.multi`).
