@@ -100,7 +100,9 @@ def stiff_factor(filtered, unfiltered, loosening):
     1e-4..1e-2 x where rho > 0.4. Such a component is so held to the tolerance as given, one
     the filter leaves alone to the step tolerance, and in between geometrically."""
     rho = filtered / unfiltered if unfiltered > 0.0 else 1.0
-    return math.exp(loosening * (1.0 - min(1.0, rho / STIFF_RATIO)))
+    if rho >= STIFF_RATIO:  # (the common case: no exp)
+        return 1.0
+    return math.exp(loosening * (1.0 - rho / STIFF_RATIO))
 
 
 def filter_constant(method):
