@@ -91,7 +91,7 @@ STIFF_RATIO = 0.1
 def stiff_factor(filtered, unfiltered, loosening):
     """The factor exp(loosening (1 - min(1, rho / STIFF_RATIO))) on a component's estimate,
     rho = |(I - gamma k J)^{-1} k R|_i / |k R|_i (``filtered`` / ``unfiltered``), loosening =
-    log(step tolerance / tolerance) of the calibration.
+    log(step tolerance / (c tolerance)) (:func:`stiff_loosening`).
 
     The calibration (:func:`step_tolerance`) loosens the step tolerance because the nodes
     superconverge: the local error at t_n is far below the estimate. Where the filter acts

@@ -29,8 +29,8 @@ dtol               discrete (iteration) tolerance, relative to the tolerance
 order              P in the error estimate eps = O(k^P)
 span               T - t0 of the whole solve (the step floor, the iteration tolerance)
 gamma              the error filter's constant |det A|^(1/S) (dolfinode.adaptivity)
-loosening          mono: log(step tolerance / tolerance) of the calibration, taken back on
-                   stiff steps (adaptivity.stiff_factor; 0: none)
+loosening          mono: log(step tolerance / (c tolerance)) of the calibration, taken back
+                   on stiff components (adaptivity.stiff_factor; 0: none)
 newton_units       mono: a Newton iteration's cost in f evaluations (mono.newton_costs)
 factor_units       mono: a Jacobian with its factorizations, in f evaluations
 theta, beta        multi: partitioning and interval thresholds (partition.build_slab)
