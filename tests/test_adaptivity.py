@@ -1,9 +1,12 @@
 """The tolerance means the error at T: calibrated step tolerances (dolfinode.adaptivity)."""
+import math
+
 import numpy as np
 import pytest
 
 import dolfinode as dn
-from dolfinode.adaptivity import DELIVERED, DELIVERED_MULTI, MAX_STEP_TOLERANCE, step_tolerance
+from dolfinode.adaptivity import (DELIVERED, DELIVERED_MULTI, MAX_STEP_TOLERANCE, STIFF_RATIO,
+                                  STIFF_TARGET, step_tolerance, stiff_factor, stiff_loosening)
 from dolfinode.bench import problems
 from dolfinode.bench.multirate import oscillator_bank
 from dolfinode.methods import make_method
@@ -21,11 +24,15 @@ def scaled_error(problem, method, tolerance, **options):
 
 
 #: Tolerances per method across its range (first order to 1e-7, as in run_tolerance.py).
-SWEEPS = {"cG(2)": (1e-3, 1e-6, 1e-9), "dG(1)": (1e-2, 1e-4, 1e-6), "dG(2)": (1e-4, 1e-7)}
+SWEEPS = {"cG(1)": (1e-2, 1e-4, 1e-6), "cG(2)": (1e-4, 1e-6, 1e-10), "cG(3)": (1e-3, 1e-6, 1e-9),
+          "dG(1)": (1e-2, 1e-4, 1e-6), "dG(2)": (1e-4, 1e-7), "dG(3)": (1e-4, 1e-6, 1e-8)}
+#: The sweeps within the band: all but cG(3) and dG(3) on VDPOL, which over-deliver
+#: (KNOWN_MISSES).
+BAND = [(name, method) for method in SWEEPS for name in PROBLEMS
+        if (name, method) not in {("VDPOL", "cG(3)"), ("VDPOL", "dG(3)")}]
 
 
-@pytest.mark.parametrize("name", PROBLEMS)
-@pytest.mark.parametrize("method", SWEEPS)
+@pytest.mark.parametrize("name, method", BAND)
 def test_delivered_error_within_ten_times_the_tolerance_and_monotone(name, method):
     """The default: the error at T within [0.1, 10] x tolerance, smaller for a smaller one."""
     problem = PROBLEMS[name]()
@@ -33,6 +40,20 @@ def test_delivered_error_within_ten_times_the_tolerance_and_monotone(name, metho
     for error, tolerance in zip(errors, SWEEPS[method]):
         assert 0.1 * tolerance <= error <= 10 * tolerance, (error, tolerance)
     assert np.all(np.diff(errors) < 0)
+
+
+#: Measured misses (error / tolerance in doc/benchmarks/tolerance.md): VDPOL's stiff
+#: components are held to the tolerance (adaptivity.stiff_factor) as HIRES's must be, but
+#: VDPOL damps their local errors before T (doc/design/tolerance.md).
+KNOWN_MISSES = {("VDPOL", "cG(3)", 1e-6): 0.049, ("VDPOL", "dG(3)", 1e-6): 0.033}
+
+
+@pytest.mark.xfail(strict=True, reason="known misses of the calibration (doc/design/tolerance.md)")
+@pytest.mark.parametrize("name, method, tolerance", KNOWN_MISSES)
+def test_known_misses(name, method, tolerance):
+    """Fails while the miss stands; passes (and so fails strictly) once it is fixed."""
+    error = scaled_error(PROBLEMS[name](), method, tolerance)
+    assert 0.1 * tolerance <= error <= 10 * tolerance, error / tolerance
 
 
 #: The multi-adaptive methods' sweeps (their own C: DELIVERED_MULTI).
@@ -70,6 +91,20 @@ def test_mono_and_multi_adaptive_deliver_alike():
     assert max(errors.values()) < 3 * min(errors.values()), errors
 
 
+def test_long_undamped_run_exceeds_the_band_and_the_dual_measures_it():
+    """The calibration is of the local error: over ~80 periods of the bank's fast oscillator
+    the errors add up to more than 10 x the tolerance (29 x measured), which no step
+    tolerance sees; estimate_error's dual does (exact for a linear problem)."""
+    problem = oscillator_bank(n=50, w=1000.0, T=0.5)
+    sol = dn.solve(problem.ode, method="cG(2)", tolerance=1e-4,
+                   absolute_tolerance=problem.atol_ratio * 1e-4)
+    error = sol(problem.T) - problem.final
+    i = np.argmax(np.abs(error) / (problem.atol_ratio + np.abs(problem.final)))
+    assert abs(error[i]) / (problem.atol_ratio + abs(problem.final[i])) > 10 * 1e-4
+    estimate = dn.estimate_error(sol, goal=np.eye(problem.ode.N)[i])
+    assert estimate.value == pytest.approx(error[i], rel=0.1)
+
+
 def test_uncalibrated_bounds_each_step_and_over_delivers():
     """calibrate_tolerance=False: the step estimate below the tolerance, the error at T far
     below it for cG(2) (superconvergent nodes)."""
@@ -97,6 +132,20 @@ def test_step_tolerance_is_monotone_bounded_and_identity_where_not_calibrated():
     for family, q in (("dG", 0), ("cG", 5)):
         assert step_tolerance(make_method(family, q), 1e-6) == 1e-6
         assert step_tolerance(make_method(family, q), 1e-6, multi_adaptive=True) == 1e-6
+
+
+def test_stiff_components_are_held_to_the_tolerance():
+    """stiff_factor takes the calibration's loosening back where the filter reduced a
+    component's estimate (no superconvergent nodes there), and only there."""
+    loosening = math.log(1e3)
+    assert stiff_factor(0.0, 1.0, loosening) == pytest.approx(1e3)
+    assert stiff_factor(STIFF_RATIO, 1.0, loosening) == 1.0
+    assert stiff_factor(1.0, 1.0, loosening) == stiff_factor(1.0, 0.0, loosening) == 1.0
+    assert 1.0 < stiff_factor(0.5 * STIFF_RATIO, 1.0, loosening) < 1e3
+    cg3 = make_method("cG", 3)
+    assert stiff_loosening(cg3, 1e-6, step_tolerance(cg3, 1e-6)) == pytest.approx(
+        math.log(step_tolerance(cg3, 1e-6) / (STIFF_TARGET["cG", 3] * 1e-6)))
+    assert stiff_loosening(make_method("cG", 1), 1e-6, 1e-7) == 0.0
 
 
 def test_rober_cg_says_it_cannot_damp_and_dg_steps_over():

@@ -29,6 +29,8 @@ dtol               discrete (iteration) tolerance, relative to the tolerance
 order              P in the error estimate eps = O(k^P)
 span               T - t0 of the whole solve (the step floor, the iteration tolerance)
 gamma              the error filter's constant |det A|^(1/S) (dolfinode.adaptivity)
+loosening          mono: log(step tolerance / (c tolerance)) of the calibration, taken back
+                   on stiff components (adaptivity.stiff_factor; 0: none)
 newton_units       mono: a Newton iteration's cost in f evaluations (mono.newton_costs)
 factor_units       mono: a Jacobian with its factorizations, in f evaluations
 theta, beta        multi: partitioning and interval thresholds (partition.build_slab)
@@ -58,7 +60,7 @@ OPTIONS = np.dtype([
     ("solver", np.int64), ("max_iter", np.int64), ("band_lower", np.int64),
     ("band_upper", np.int64), ("rtol", np.float64), ("T", np.float64), ("kmax", np.float64),
     ("safety", np.float64), ("dtol", np.float64), ("order", np.float64), ("span", np.float64),
-    ("gamma", np.float64), ("newton_units", np.float64), ("factor_units", np.float64),
+    ("gamma", np.float64), ("loosening", np.float64), ("newton_units", np.float64), ("factor_units", np.float64),
     ("theta", np.float64), ("beta", np.float64), ("fixed", np.bool_), ("is_dg", np.bool_),
     ("newton_ready", np.bool_), ("reuse", np.bool_), ("keep_factors", np.bool_),
     ("autonomous", np.bool_)], align=True)

@@ -11,7 +11,7 @@ from functools import cache
 import numpy as np
 from numba import njit, types
 
-from dolfinode.adaptivity import filter_estimate, next_step
+from dolfinode.adaptivity import filter_estimate, next_step, stiff_factor
 from dolfinode.compile.jit import Loop
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
 from dolfinode.linalg.newton_matrix import shift, store_jacobian
@@ -244,11 +244,13 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     # the estimate is O(k^(q+1)) for cG(q) and dG(q) (see dolfinode.adaptivity)
     order = o.order
     gamma = o.gamma
+    loosening = o.loosening
 
     X = np.empty(S * N)
     F = np.empty(S * N)
     G = np.empty(S * N)
     filter_rhs = np.empty(N)
+    unfiltered = np.empty(N)  # k R(t_n) before the filter
     fend = np.empty(N)
     jdata = np.empty(indices.shape[0])
     # the Newton workspace (one matrix I - k lambda J per real eigenvalue lambda of A and
@@ -411,14 +413,21 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                     xi = x[i] if j == 0 else X[(j - 1) * N + i]
                 kdu += end_derivative[j] * xi
             est[i] = kdu - k * fend[i]  # k R(t_n)
+        filtered = False
         if use_newton and not blowup:
             # (I - gamma k J)^-1 with the J and the step of the stage factors
             blowup = not filter_ok
             if not blowup:
+                filtered = loosening > 0.0
+                if filtered:
+                    unfiltered[:] = est
                 filter_estimate(jb, structure, ipiv_filter, est, filter_rhs)
         eps = 0.0
         for i in range(N):
-            eps = max(eps, abs(est[i]) / (atol[i] + rtol * abs(X[end + i])))
+            eps_i = abs(est[i]) / (atol[i] + rtol * abs(X[end + i]))
+            if filtered and eps_i > 0.0:
+                eps_i *= stiff_factor(abs(est[i]), abs(unfiltered[i]), loosening)
+            eps = max(eps, eps_i)
         if blowup or not math.isfinite(eps):
             if fixed:
                 return BLOWUP
