@@ -48,10 +48,8 @@ def variants():
     # the floor of a prepared call: its compiled start and loop alone, arguments kept
     prepared = dn.Solver(ode, method="dG(2)")
     prepared.solve()
-    compiled, atol, _, x, f0, steps, options, state, counters = prepared._kept[:9]
     advance, arguments = prepared._loop
-    started = (compiled.rhs.address, compiled.p, ode.t0, atol, prepared._params["tolerance"],
-               True, x, f0, steps, options, state, counters, True)
+    started = prepared._start
     calls["compiled start + loop of Solver.solve(), dG(2)"] = lambda: (
         start.unchecked(*started), advance.unchecked(*arguments))
     # a fit: a new parameter value at every call

@@ -28,11 +28,13 @@ from dolfinode.linalg.newton_matrix import sparse_candidate
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, Parameters, _parameter_value
 from dolfinode.parameters import check_parameters
+from dolfinode.solution import Solution
 from dolfinode.solve import (
     MIN_TOLERANCE,
     _absolute_tolerance,
     _check_resolvable_tolerance,
-    _finish,
+    _check_start,
+    _completed_stats,
     _floor,
     _initial_steps,
     _mono_arguments,
@@ -45,7 +47,6 @@ from dolfinode.solve import (
     _newton_options,
     _options,
     _signs,
-    _started,
     check_tolerance,
     lower,
     lowered,
@@ -53,6 +54,7 @@ from dolfinode.solve import (
     solve_lowered,
 )
 from dolfinode.timeslab import contract, mono
+from dolfinode.timeslab.start import start
 
 
 class Solver:
@@ -185,7 +187,8 @@ class Solver:
         """The loop's arguments for solves over ``work``'s interval (made again when it
         changes): the solver's own kernels, whose ``p`` each call overwrites, the options and
         tolerances, the start's and the loop's arrays, which each call refills, and the kept
-        buffers. The storage of the Newton matrices is decided here, once."""
+        buffers. The storage of the Newton matrices is decided here, once; the checks that
+        depend on the interval alone (sample times, given steps) are made here."""
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
         compiled = lower(work)
         rtol = params["tolerance"]
@@ -209,53 +212,67 @@ class Solver:
             arguments = _mono_arguments(compiled, structure, mono.method_tables(m), options,
                                         loop_atol, floor, x, f0, state, counters)
             advance = mono.advance
+        self._samples = history.sink(work, m, multi_adaptive, params).samples  # (checked)
         self._interval = (work.t0, work.T)
         self._values = self._signs = self._u0 = None  # p, floor: written by the next call
-        self._kept = (compiled, atol, given, x, f0, steps, options, state, counters, floor,
-                       frozen, structure)
+        self._kept = (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
+                      structure)
+        self._start = (compiled.rhs.address, compiled.p, work.t0, atol, rtol,
+                       params["initial_time_step"] is None, x, f0, steps, options, state,
+                       counters, not multi_adaptive)
         self._loop = (advance, (*arguments, *self._buffers))
 
     def _solve_prepared(self, work):
         """The solve of ``work`` as one call of the loop into the kept buffers; None when
-        that call did not reach T (the general path then solves it)."""
+        that call did not reach T (the general path then solves it). The Solution copies
+        the used part of the buffers; its ``ode`` and ``stats`` are made on first read
+        (:meth:`Solution.defer`)."""
         started = time.perf_counter()
         if (work.t0, work.T) != self._interval:
             self._workspace(work)
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
-        (compiled, atol, given, x, f0, steps, options, state, counters, floor, frozen,
+        (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
          structure) = self._kept
-        sink = history.sink(work, m, multi_adaptive, params)
         values = tuple(work.params.values())
         if values != self._values:
             compiled.p[:len(values)] = values
             self._values, signs = values, _signs(values)
+            self._solved = None
             if signs != self._signs:  # the floor depends on the values through their signs
                 self._signs, self._u0 = signs, None
         if work.u0 is not self._u0:
             floor[:] = _floor(work, atol)
-            self._u0 = work.u0
-        if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
-            _check_resolvable_tolerance(work, atol, params["tolerance"])
+            self._u0, self._solved = work.u0, None
+            if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
+                _check_resolvable_tolerance(work, atol, params["tolerance"])
         x[:] = work.u0
         if params["initial_time_step"] is not None:
             steps[:] = given
-        _started(work, compiled, params, multi_adaptive, atol, x, f0, steps, options, state,
-                 counters)
+        _check_start(work, params, start.unchecked(*self._start), f0, steps)
         if multi_adaptive:
             frozen.fill(np.nan)  # since when each component is frozen (NaN: active)
         advance, arguments = self._loop
         status = advance.unchecked(*arguments)
-        if status != ts.DONE or counters[ts.SLABS] > params["maximum_steps"]:
+        counts = counters.tolist()
+        if status != ts.DONE or counts[ts.SLABS] > params["maximum_steps"]:
             return None
-        n = counters[ts.STORED]
-        sink.add([b[:n] for b in self._buffers], float(state["t"][0]))
-        elements = sink.finish(True)  # copies: the next call refills the buffers
+        if self._solved is None:  # the values of this call, kept while they are unchanged
+            self._solved = work._snapshot()
+        n, seconds = counts[ts.STORED], time.perf_counter() - started
         if multi_adaptive:
-            stats = _multi_stats(counters, state, sink.per_component, steps)
+            sink = history.InMemory(work, True, self._samples)
+            sink.add([b[:n] for b in self._buffers], float(state["t"][0]))
+            stats = _completed_stats(
+                _multi_stats(counts, state["mono_elements"].item(), sink.per_component,
+                             steps), counts, True, m, params, compiled.compile_time, seconds)
+            sol = sink.solution(self._solved._snapshot(), m, sink.finish(True), stats, x)
         else:
-            stats = _mono_stats(work, structure, counters, state)
-        # (no (t, k) where the loop stopped: only a failure reads it, and the general path
-        # solves those)
-        return _finish(work, compiled, None, multi_adaptive, m, params, status, counters,
-                       None, x, stats, started,
-                       lambda solved: sink.solution(solved, m, elements, stats, x))
+            k_next, N = state["k_next"].item(), x.size
+            out_t, out_k, out_X = self._buffers
+            sol = Solution(None, m, out_t[:n].copy(), out_k[:n].copy(), out_X[:n].copy(), None,
+                           self._samples, {"ode": self._solved._snapshot, "stats": lambda: (
+                               _completed_stats(_mono_stats(N, structure, counts, k_next),
+                                                counts, False, m, params,
+                                                compiled.compile_time, seconds))})
+        sol.parameters = params
+        return sol
