@@ -16,6 +16,7 @@ writes the values that changed into it, runs the compiled start of dn.solve
 part of the buffers. Everything else, and a solve that outgrows the buffers or fails, goes
 through the general path (``solve_lowered``, the driver of dn.solve).
 """
+import math
 import time
 from collections.abc import Mapping
 
@@ -55,6 +56,9 @@ from dolfinode.solve import (
 )
 from dolfinode.timeslab import contract, mono
 from dolfinode.timeslab.start import start
+
+#: Longest u0 of a call checked value by value in Python; a longer one is checked as an array.
+_DIRECT_U0 = 64
 
 
 class Solver:
@@ -106,6 +110,7 @@ class Solver:
         compiled, plan = lowered(ode, params)
         self._declared = ode.params  # a new assignment ode.params = {...} prepares again
         self._by_name = {s.name: s for s in ode.params}
+        self._by_key = {**self._by_name, **{s: s for s in ode.params}}
         self._work = object.__new__(type(ode))
         self._work.__dict__.update(ode.__dict__)
         self._buffers = self._interval = None
@@ -159,29 +164,44 @@ class Solver:
         if ode.params is not self._declared:
             self._prepare()
         work = self._work
+        fields = work.__dict__
         # the declaration's values are checked already: only those given here are
-        if params is None:
-            work.__dict__["params"] = ode.params
-        else:
-            if not isinstance(params, Mapping):
-                raise TypeError("params must be a dict {parameter symbol or name: value}, got "
-                                f"{type(params).__name__}")
-            values = dict(ode.params.items())
-            for key, value in params.items():
-                symbol = parameter_symbol(self._by_name, key)
-                values[symbol] = _parameter_value(symbol, value)
-            work.__dict__["params"] = Parameters(values)
-        if u0 is None:
-            work.__dict__["u0"] = ode.u0
-        else:
-            if isinstance(u0, (list, tuple)) and all(isinstance(x, (int, float)) for x in u0):
-                u0 = np.array(u0, dtype=float)  # checked as an array: 4x faster than as a list
-            work.u0 = u0
+        fields["params"] = ode.params if params is None else self._parameters(params)
+        fields["u0"] = ode.u0 if u0 is None else self._initial_values(u0)
         if t0 is None and T is None:
-            work.__dict__.update(t0=ode.t0, T=ode.T)
+            fields["t0"], fields["T"] = ode.t0, ode.T
         else:
             work._set_interval(ode.t0 if t0 is None else t0, ode.T if T is None else T)
         return work
+
+    def _parameters(self, params):
+        """The declaration's parameter values with those of ``params`` (by symbol or name),
+        checked as :class:`~dolfinode.ODE` checks them; a float is taken as it is once
+        found finite."""
+        if type(params) is not dict and not isinstance(params, Mapping):
+            raise TypeError("params must be a dict {parameter symbol or name: value}, got "
+                            f"{type(params).__name__}")
+        values = dict(self.ode.params.items())
+        for key, value in params.items():
+            symbol = self._by_key.get(key) or parameter_symbol(self._by_name, key)
+            values[symbol] = (value if type(value) is float and math.isfinite(value)
+                              else _parameter_value(symbol, value))
+        return Parameters(values)
+
+    def _initial_values(self, u0):
+        """u0 of a call as :class:`~dolfinode.ODE` takes it (a read-only float vector): a
+        short list, tuple or vector of finite floats (as a fit passes) directly, anything
+        else through the declaration's check, which names what is wrong."""
+        values = u0.tolist() if type(u0) is np.ndarray and u0.dtype == float else u0
+        work = self._work
+        if (type(values) in (list, tuple) and len(values) == work.N <= _DIRECT_U0
+                and all(type(x) is float and math.isfinite(x) for x in values)
+                and not (work._constrained and min(values) < 0)):
+            u0 = np.array(values)
+            u0.flags.writeable = False
+            return u0
+        work.u0 = u0
+        return work.u0
 
     def _workspace(self, work):
         """The loop's arguments for solves over ``work``'s interval (made again when it
@@ -214,7 +234,8 @@ class Solver:
             advance = mono.advance
         self._samples = history.sink(work, m, multi_adaptive, params).samples  # (checked)
         self._interval = (work.t0, work.T)
-        self._values = self._signs = self._u0 = None  # p, floor: written by the next call
+        # p, floor: written by the next call
+        self._values = self._signs = self._u0 = self._floor_key = None
         self._kept = (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
                       structure)
         self._start = (compiled.rhs.address, compiled.p, work.t0, atol, rtol,
@@ -238,10 +259,13 @@ class Solver:
             compiled.p[:len(values)] = values
             self._values, signs = values, _signs(values)
             self._solved = None
-            if signs != self._signs:  # the floor depends on the values through their signs
+            if signs != self._signs:
                 self._signs, self._u0 = signs, None
         if work.u0 is not self._u0:
-            floor[:] = _floor(work, atol)
+            floor_key = (self._signs, min(work.u0.tolist()) < 0)  # all the floor depends on
+            if floor_key != self._floor_key:
+                floor[:] = _floor(work, atol)
+                self._floor_key = floor_key
             self._u0, self._solved = work.u0, None
             if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
                 _check_resolvable_tolerance(work, atol, params["tolerance"])
