@@ -41,8 +41,10 @@ _NEWTON_SMALL = 2**26
 def _absolute_tolerance(ode, value, rtol):
     """atol per component from the parameter: None (rtol), a number (checked by
     check_parameters) or values per state."""
-    if value is None or np.isscalar(value):
-        return np.full(ode.N, rtol if value is None else value)
+    if value is None:  # (first: np.isscalar costs 1-2 us)
+        return _filled(ode.N, rtol)
+    if np.isscalar(value):
+        return _filled(ode.N, value)
     atol = _vector_by_state(value, ode.states, "absolute_tolerance")
     if not (np.all(atol > 0) and np.all(np.isfinite(atol))):
         raise ValueError(f"absolute_tolerance must be positive and finite, got {value!r}")
@@ -79,11 +81,24 @@ def _keeps_nonnegative(ode):
     for systems of at most _QUASI_POSITIVE_N components (sympy's work grows with N), once per
     declaration and signs of the parameters (a parameter fit varies the values at every
     solve: a sympy check per value took ~3 ms a solve)."""
-    if hasattr(ode, "templates") or ode.N > _QUASI_POSITIVE_N or ode.u0.min() < 0:
+    if hasattr(ode, "templates") or ode.N > _QUASI_POSITIVE_N or _has_negative(ode.u0):
         return False
     signs = _signs(ode.params.values())
     return ode._derived("_keeps_nonnegative", (ode.rhs, signs),
                         lambda: _quasi_positive(ode, signs))
+
+
+def _has_negative(u0):
+    """Whether u0 has an entry < 0 (in Python for a short vector: a numpy reduction over a
+    few entries costs 1-3 us, a good part of a small solve)."""
+    return min(u0.tolist()) < 0 if u0.size <= 64 else bool(u0.min() < 0)
+
+
+def _filled(n, value):
+    """np.full(n, value) without its argument handling (1-2 us of a small solve)."""
+    array = np.empty(n)
+    array.fill(value)
+    return array
 
 
 def _signs(values):
@@ -122,7 +137,7 @@ def _initial_steps(ode, given, multi_adaptive):
     if given is None:
         return np.empty(ode.N)
     if np.isscalar(given):
-        return np.full(ode.N, float(given))
+        return _filled(ode.N, float(given))
     if not multi_adaptive:
         raise ValueError("initial_time_step per state needs a multi-adaptive method "
                          "(mcG(q) or mdG(q)); cG/dG share one step")
@@ -439,7 +454,7 @@ def _floor(ode, atol):
     there); -inf elsewhere."""
     if _keeps_nonnegative(ode):
         return -atol
-    return np.where(ode.nonnegative, -atol, -np.inf) if ode._constrained else np.full(ode.N,
+    return np.where(ode.nonnegative, -atol, -np.inf) if ode._constrained else _filled(ode.N,
                                                                                     -np.inf)
 
 
@@ -703,7 +718,7 @@ def _multi_workspace(ode, compiled, m, params, options, steps):
     options[["theta", "beta", "band_lower", "band_upper", "autonomous"]] = (
         params["partitioning_threshold"], params["interval_threshold"], kl, ku, ode.autonomous)
     kdes = steps.copy()
-    frozen = np.full(ode.N, np.nan)  # since when each component is frozen (NaN: active)
+    frozen = _filled(ode.N, np.nan)  # since when each component is frozen (NaN: active)
     return multi.method_tables(m), kdes, frozen
 
 

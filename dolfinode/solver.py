@@ -37,6 +37,7 @@ from dolfinode.solve import (
     _check_start,
     _completed_stats,
     _floor,
+    _has_negative,
     _initial_steps,
     _mono_arguments,
     _mono_capacity,
@@ -262,7 +263,7 @@ class Solver:
             if signs != self._signs:
                 self._signs, self._u0 = signs, None
         if work.u0 is not self._u0:
-            floor_key = (self._signs, min(work.u0.tolist()) < 0)  # all the floor depends on
+            floor_key = (self._signs, _has_negative(work.u0))  # all the floor depends on
             if floor_key != self._floor_key:
                 floor[:] = _floor(work, atol)
                 self._floor_key = floor_key
