@@ -13,8 +13,12 @@ own kernels, the options and tolerances, the arrays of the start and of the loop
 buffers as large as the first ones of dn.solve) and the loop's whole argument tuple; a call
 writes the values that changed into it, runs the compiled start of dn.solve
 (:mod:`dolfinode.timeslab.start`) and calls the loop once, and the Solution copies the used
-part of the buffers. Everything else, and a solve that outgrows the buffers or fails, goes
-through the general path (``solve_lowered``, the driver of dn.solve).
+part of the buffers. A call's u0 and parameter values are checked as the declaration checks
+them, floats directly; the floor of the values is made again only when the parameters'
+signs or the sign of u0 change. A mono-adaptive Solution's ``ode`` (the declaration as
+solved) and ``stats`` are made when first read. Everything else, and a solve that outgrows
+the buffers or fails, goes through the general path (``solve_lowered``, the driver of
+dn.solve).
 """
 import math
 import time
