@@ -243,10 +243,10 @@ class Solver:
         self._values = self._signs = self._u0 = self._floor_key = None
         self._kept = (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
                       structure)
-        self._start = (compiled.rhs.address, compiled.p, work.t0, atol, rtol,
-                       params["initial_time_step"] is None, x, f0, steps, options, state,
-                       counters, not multi_adaptive)
-        self._loop = (advance, (*arguments, *self._buffers))
+        self._start = (start.entry(), (compiled.rhs.address, compiled.p, work.t0, atol, rtol,
+                                       params["initial_time_step"] is None, x, f0, steps,
+                                       options, state, counters, not multi_adaptive))
+        self._loop = (advance.entry(), (*arguments, *self._buffers))
 
     def _solve_prepared(self, work):
         """The solve of ``work`` as one call of the loop into the kept buffers; None when
@@ -277,11 +277,12 @@ class Solver:
         x[:] = work.u0
         if params["initial_time_step"] is not None:
             steps[:] = given
-        _check_start(work, params, start.unchecked(*self._start), f0, steps)
+        started_at, arguments = self._start
+        _check_start(work, params, started_at(*arguments), f0, steps)
         if multi_adaptive:
             frozen.fill(np.nan)  # since when each component is frozen (NaN: active)
         advance, arguments = self._loop
-        status = advance.unchecked(*arguments)
+        status = advance(*arguments)
         counts = counters.tolist()
         if status != ts.DONE or counts[ts.SLABS] > params["maximum_steps"]:
             return None

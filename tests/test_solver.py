@@ -300,3 +300,16 @@ def test_the_floor_follows_the_sign_of_u0():
     for u0 in ([0.5], [-1e-4], [-0.25], [1e-4], np.array([0.0]), [-1e-4]):
         _assert_same_solution(solver.solve(u0=u0), dn.solve(dn.vary(ode, {"u0": u0}),
                                                             method="dG(1)", tolerance=1e-3))
+
+
+def test_the_kept_compiled_calls_are_type_checked_in_the_tests(oscillator):
+    """The solver keeps the loops' entry points (Loop.entry); while Loop.checked (this
+    module's fixture) they are numba's type-checking dispatchers, so these tests check the
+    argument types of every prepared call."""
+    from dolfinode.timeslab import mono
+    from dolfinode.timeslab.start import start
+
+    solver = dn.Solver(oscillator, method="dG(1)")
+    solver.solve()
+    assert solver._loop[0] is mono.advance.compile()
+    assert solver._start[0] is start.compile()
