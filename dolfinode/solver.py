@@ -212,8 +212,8 @@ class Solver:
         """The loop's arguments for solves over ``work``'s interval (made again when it
         changes): the solver's own kernels, whose ``p`` each call overwrites, the options and
         tolerances, the start's and the loop's arrays, which each call refills, and the kept
-        buffers. The storage of the Newton matrices is decided here, once; the checks that
-        depend on the interval alone (sample times, given steps) are made here."""
+        buffers, and the compiled start's and loop's entry points. The storage of the Newton
+        matrices is decided here, once, and the sample times are checked."""
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
         compiled = lower(work)
         rtol = params["tolerance"]
@@ -251,8 +251,8 @@ class Solver:
     def _solve_prepared(self, work):
         """The solve of ``work`` as one call of the loop into the kept buffers; None when
         that call did not reach T (the general path then solves it). The Solution copies
-        the used part of the buffers; its ``ode`` and ``stats`` are made on first read
-        (:meth:`Solution.defer`)."""
+        the used part of the buffers; a mono-adaptive one makes its ``ode`` and ``stats``
+        when first read (the ``makers`` of :class:`~dolfinode.Solution`)."""
         started = time.perf_counter()
         if (work.t0, work.T) != self._interval:
             self._workspace(work)
