@@ -29,7 +29,6 @@ import numpy as np
 import sympy as sp
 
 import dolfinode as dn
-from dolfinode.timeslab.start import start
 
 ROOT = Path(__file__).resolve().parents[1]
 METHODS = ("cG(1)", "cG(2)", "dG(0)", "dG(2)", "mcG(1)")
@@ -48,12 +47,9 @@ def variants():
     # the floor of a prepared call: its compiled start and loop alone, arguments kept
     prepared = dn.Solver(ode, method="dG(2)")
     prepared.solve()
-    compiled, atol, _, x, f0, steps, options, state, counters = prepared._kept[:9]
-    advance, arguments = prepared._loop
-    started = (compiled.rhs.address, compiled.p, ode.t0, atol, prepared._params["tolerance"],
-               True, x, f0, steps, options, state, counters, True)
+    (advance, arguments), (started_at, started) = prepared._loop, prepared._start
     calls["compiled start + loop of Solver.solve(), dG(2)"] = lambda: (
-        start.unchecked(*started), advance.unchecked(*arguments))
+        started_at(*started), advance(*arguments))
     # a fit: a new parameter value at every call
     fit, values = dn.Solver(ode, method="dG(2)"), itertools.count()
     calls["Solver.solve(params= new value), dG(2)"] = (

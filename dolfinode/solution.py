@@ -112,19 +112,39 @@ class Solution:
     #: without events=.
     t_events = y_events = None
 
+    @cached_property
+    def ode(self):
+        """The declaration as solved (its values at the solve; made on first read where the
+        solve gave its maker: see ``makers``)."""
+        return self._makers["ode"]()
+
+    @cached_property
+    def stats(self):
+        """dict of counters and timings (made on first read where the solve gave its maker)."""
+        return self._makers["stats"]()
+
+    def __getstate__(self):
+        # a deferred attribute is made now: its maker may hold what does not pickle
+        for name in self.__dict__.get("_makers", ()):
+            getattr(self, name)
+        state = self.__dict__.copy()
+        state.pop("_makers", None)
+        return state
+
     @property
     def success(self):
         """True unless the solve failed (status -1), as ``solve_ivp``'s ``success``."""
         return self.status >= 0
 
-    def __init__(self, ode, method, t_start, k, values, stats, number_of_samples):
-        self.ode = ode
-        self.method = method
-        self.t_start = t_start
-        self.k = k
-        self.values = values
-        self.stats = stats
+    def __init__(self, ode, method, t_start, k, values, stats, number_of_samples, makers=None):
+        """``makers``: {"ode": maker, "stats": maker} (``ode`` and ``stats`` then None), the
+        two made by maker() on first read: a loop of many small solves often reads neither."""
+        self.method, self.t_start, self.k, self.values = method, t_start, k, values
         self._component_ptr = None
+        if makers is None:
+            self.ode, self.stats = ode, stats
+        else:
+            self._makers = makers
         self._sample(number_of_samples)
 
     @classmethod

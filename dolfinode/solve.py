@@ -41,8 +41,10 @@ _NEWTON_SMALL = 2**26
 def _absolute_tolerance(ode, value, rtol):
     """atol per component from the parameter: None (rtol), a number (checked by
     check_parameters) or values per state."""
-    if value is None or np.isscalar(value):
-        return np.full(ode.N, rtol if value is None else value)
+    if value is None:  # (first: np.isscalar costs 1-2 us)
+        return _filled(ode.N, rtol)
+    if np.isscalar(value):
+        return _filled(ode.N, value)
     atol = _vector_by_state(value, ode.states, "absolute_tolerance")
     if not (np.all(atol > 0) and np.all(np.isfinite(atol))):
         raise ValueError(f"absolute_tolerance must be positive and finite, got {value!r}")
@@ -79,11 +81,24 @@ def _keeps_nonnegative(ode):
     for systems of at most _QUASI_POSITIVE_N components (sympy's work grows with N), once per
     declaration and signs of the parameters (a parameter fit varies the values at every
     solve: a sympy check per value took ~3 ms a solve)."""
-    if hasattr(ode, "templates") or ode.N > _QUASI_POSITIVE_N or ode.u0.min() < 0:
+    if hasattr(ode, "templates") or ode.N > _QUASI_POSITIVE_N or _has_negative(ode.u0):
         return False
     signs = _signs(ode.params.values())
     return ode._derived("_keeps_nonnegative", (ode.rhs, signs),
                         lambda: _quasi_positive(ode, signs))
+
+
+def _has_negative(u0):
+    """Whether u0 has an entry < 0 (in Python for a short vector: a numpy reduction over a
+    few entries costs 1-3 us, a good part of a small solve)."""
+    return min(u0.tolist()) < 0 if u0.size <= 64 else bool(u0.min() < 0)
+
+
+def _filled(n, value):
+    """np.full(n, value) without its argument handling (1-2 us of a small solve)."""
+    array = np.empty(n)
+    array.fill(value)
+    return array
 
 
 def _signs(values):
@@ -122,7 +137,7 @@ def _initial_steps(ode, given, multi_adaptive):
     if given is None:
         return np.empty(ode.N)
     if np.isscalar(given):
-        return np.full(ode.N, float(given))
+        return _filled(ode.N, float(given))
     if not multi_adaptive:
         raise ValueError("initial_time_step per state needs a multi-adaptive method "
                          "(mcG(q) or mdG(q)); cG/dG share one step")
@@ -443,7 +458,7 @@ def _floor(ode, atol):
     there); -inf elsewhere."""
     if _keeps_nonnegative(ode):
         return -atol
-    return np.where(ode.nonnegative, -atol, -np.inf) if ode._constrained else np.full(ode.N,
+    return np.where(ode.nonnegative, -atol, -np.inf) if ode._constrained else _filled(ode.N,
                                                                                     -np.inf)
 
 
@@ -453,10 +468,16 @@ def _started(ode, compiled, params, multi_adaptive, atol, x, f0, steps, options,
     the tolerances ``atol`` and ``params["tolerance"]`` (the first step's), into f0, the
     steps (guessed unless given), the state and the counters; raise ValueError for a check
     that fails, in words."""
-    given = params["initial_time_step"]
     status = start.unchecked(compiled.rhs.address, compiled.p, ode.t0, atol,
-                             params["tolerance"], given is None, x, f0, steps, options,
-                             state, counters, not multi_adaptive)
+                             params["tolerance"], params["initial_time_step"] is None, x, f0,
+                             steps, options, state, counters, not multi_adaptive)
+    _check_start(ode, params, status, f0, steps)
+
+
+def _check_start(ode, params, status, f0, steps):
+    """Raise ValueError, in words, for what the start returned ``status`` (f0 not finite, an
+    interval too short) or the given steps (``steps``) that double precision does not resolve.
+    """
     if status == F0_NOT_FINITE:
         bad = ode.states[int(np.flatnonzero(~np.isfinite(f0))[0])]
         raise ValueError(f"f(u0, t0) is not finite in the right-hand side of {bad}: check u0 "
@@ -465,7 +486,7 @@ def _started(ode, compiled, params, multi_adaptive, atol, x, f0, steps, options,
         raise ValueError(f"[t0, T] = [{ode.t0:.17g}, {ode.T:.17g}] is shorter than the smallest "
                          f"step double precision resolves there ({ts.ROUNDING:g} |t|): shift "
                          f"the time origin, e.g. t0 = 0 and T = {ode.T - ode.t0:.17g}")
-    if given is not None:
+    if params["initial_time_step"] is not None:
         _check_resolvable(ode, "initial_time_step", steps, ode.t0)
     if params["maximum_time_step"] is not None:
         _check_resolvable(ode, "maximum_time_step", params["maximum_time_step"],
@@ -477,10 +498,8 @@ def _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, st
     """The Solution ``solution(solved declaration)`` of a loop run that ended with
     ``status``, its ``stats`` completed from the loop's ``counters``; SolverError (naming
     the time ``state[0]`` and what to try) for a run that did not reach T."""
-    # mono-adaptive solves may return from Newton to fixed-point iteration (STIFF is then 0)
-    newton = (bool(counters[ts.STIFF]) or params["nonlinear_solver"] == "newton"
-              or stats.get("newton matrices") is not None)
     if status != ts.DONE:
+        newton = _uses_newton(counters, params, stats)
         fixed = bool(params["fixed_time_step"])
         outside = ode.states[counters[ts.OUTSIDE] - 1] if counters[ts.OUTSIDE] else None
         why = (undefined(ode, compiled, x, float(state[0]), float(state[1]))
@@ -492,7 +511,26 @@ def _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, st
         raise SolverError(why or failure_message(
             status, state, fixed, x, outside, params["maximum_time_step"], newton, ode,
             counters[ts.SLABS]), t=float(state[0]))
-    counts = counters.tolist()
+    _completed_stats(stats, counters.tolist(), multi_adaptive, m, params, compiled.compile_time,
+                     time.perf_counter() - start)
+    # the declaration as solved: later changes to ode do not reach sol
+    solved = ode._snapshot() if plan is None else plan.solved_ode(ode._snapshot())
+    sol = solution(solved)
+    sol.parameters = params
+    return sol
+
+
+def _uses_newton(counts, params, stats):
+    """Whether a run used Newton's method (mono-adaptive solves may return from Newton to
+    fixed-point iteration: STIFF is then 0, but the matrices were made)."""
+    return (bool(counts[ts.STIFF]) or params["nonlinear_solver"] == "newton"
+            or stats.get("newton matrices") is not None)
+
+
+def _completed_stats(stats, counts, multi_adaptive, m, params, compile_time, seconds):
+    """The ``stats`` of a run (:func:`_mono_stats`, :func:`_multi_stats`) completed with the
+    counts every solve reports (``counts``: its loop's counters as a list) and its times;
+    returns ``stats``."""
     stats.update({
         "method": ("m" if multi_adaptive else "") + m.name,
         "rejected steps": counts[ts.REJECTED],
@@ -500,15 +538,11 @@ def _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, st
         "jacobian evaluations": counts[ts.JACOBIANS],
         "nonlinear iterations": counts[ts.ITERATIONS],
         "failed nonlinear solves": counts[ts.FAILED_SOLVES],
-        "newton": newton,
-        "compile time": compiled.compile_time,
-        "solve time": time.perf_counter() - start,
+        "newton": _uses_newton(counts, params, stats),
+        "compile time": compile_time,
+        "solve time": seconds,
     })
-    # the declaration as solved: later changes to ode do not reach sol
-    solved = ode._snapshot() if plan is None else plan.solved_ode(ode._snapshot())
-    sol = solution(solved)
-    sol.parameters = params
-    return sol
+    return stats
 
 
 def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newton_ready=None):
@@ -661,7 +695,7 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, stat
             "Use smaller steps with fixed_time_step=True and nonlinear_solver='fixed-point', "
             "or a smaller system", t=float(state["t"][0]))
     return status, counters, _time_and_step(state, state["k_next"][0]), elements, _mono_stats(
-        ode, structure, counters, state)
+        ode.N, structure, counters, float(state["k_next"][0]))
 
 
 def _time_and_step(state, k):
@@ -669,13 +703,14 @@ def _time_and_step(state, k):
     return float(state["t"][0]), float(k)
 
 
-def _mono_stats(ode, structure, counters, state):
-    """The stats of a mono-adaptive run from its loop's counters."""
+def _mono_stats(N, structure, counters, k_next):
+    """The stats of a mono-adaptive run of N components from its loop's counters (an array
+    or a list) and its next step."""
     slabs = int(counters[ts.SLABS])
-    return {"time slabs": slabs, "elements": slabs * ode.N,
+    return {"time slabs": slabs, "elements": slabs * N,
             "factorizations": int(counters[ts.FACTORIZATIONS]),
             "newton matrices": structure.description if counters[ts.FACTORIZATIONS] else None,
-            "next time step": float(state["k_next"][0])}
+            "next time step": k_next}
 
 
 def _multi_workspace(ode, compiled, m, params, options, steps):
@@ -687,7 +722,7 @@ def _multi_workspace(ode, compiled, m, params, options, steps):
     options[["theta", "beta", "band_lower", "band_upper", "autonomous"]] = (
         params["partitioning_threshold"], params["interval_threshold"], kl, ku, ode.autonomous)
     kdes = steps.copy()
-    frozen = np.full(ode.N, np.nan)  # since when each component is frozen (NaN: active)
+    frozen = _filled(ode.N, np.nan)  # since when each component is frozen (NaN: active)
     return multi.method_tables(m), kdes, frozen
 
 
@@ -708,8 +743,9 @@ def _multi_capacity(ode, m):
     return int(max(64 * ode.N, min(2 ** 20, 2 ** 21 // (m.q + 1))))
 
 
-def _multi_stats(counters, state, per_component, kdes):
-    """The stats of a multi-adaptive run from its loop's counters and state."""
+def _multi_stats(counters, mono_elements, per_component, kdes):
+    """The stats of a multi-adaptive run from its loop's counters (an array or a list) and
+    the mono-adaptive elements its slabs stand for (``state["mono_elements"]``)."""
 
     total = int(counters[ts.ELEMENTS])
     return {"time slabs": int(counters[ts.SLABS]),
@@ -717,7 +753,7 @@ def _multi_stats(counters, state, per_component, kdes):
             "elements": total,
             "elements per component": per_component,
             "factorizations": int(counters[ts.FACTORIZATIONS]),
-            "efficiency index": float(state["mono_elements"][0]) / max(total, 1),
+            "efficiency index": mono_elements / max(total, 1),
             "synchronised slabs": int(counters[ts.SYNCHRONISED]),
             "next time step": kdes.copy()}
 
@@ -751,7 +787,7 @@ def _run_multi(ode, compiled, m, params, options, atol, floor, x, f0, steps, sta
             components=plan.detector.components)
         status, elements = _integrate(chunks, plan, pieces, ode, state, sink)
     return (status, counters, _time_and_step(state, np.min(kdes)), elements,
-            _multi_stats(counters, state, sink.per_component, kdes))
+            _multi_stats(counters, float(state["mono_elements"][0]), sink.per_component, kdes))
 
 
 class _NoProgress:

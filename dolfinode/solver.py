@@ -13,9 +13,14 @@ own kernels, the options and tolerances, the arrays of the start and of the loop
 buffers as large as the first ones of dn.solve) and the loop's whole argument tuple; a call
 writes the values that changed into it, runs the compiled start of dn.solve
 (:mod:`dolfinode.timeslab.start`) and calls the loop once, and the Solution copies the used
-part of the buffers. Everything else, and a solve that outgrows the buffers or fails, goes
-through the general path (``solve_lowered``, the driver of dn.solve).
+part of the buffers. A call's u0 and parameter values are checked as the declaration checks
+them, floats directly; the floor of the values is made again only when the parameters'
+signs or the sign of u0 change. A mono-adaptive Solution's ``ode`` (the declaration as
+solved) and ``stats`` are made when first read. Everything else, and a solve that outgrows
+the buffers or fails, goes through the general path (``solve_lowered``, the driver of
+dn.solve).
 """
+import math
 import time
 from collections.abc import Mapping
 
@@ -28,12 +33,15 @@ from dolfinode.linalg.newton_matrix import sparse_candidate
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, Parameters, _parameter_value
 from dolfinode.parameters import check_parameters
+from dolfinode.solution import Solution
 from dolfinode.solve import (
     MIN_TOLERANCE,
     _absolute_tolerance,
     _check_resolvable_tolerance,
-    _finish,
+    _check_start,
+    _completed_stats,
     _floor,
+    _has_negative,
     _initial_steps,
     _mono_arguments,
     _mono_capacity,
@@ -45,7 +53,6 @@ from dolfinode.solve import (
     _newton_options,
     _options,
     _signs,
-    _started,
     check_tolerance,
     lower,
     lowered,
@@ -53,6 +60,10 @@ from dolfinode.solve import (
     solve_lowered,
 )
 from dolfinode.timeslab import contract, mono
+from dolfinode.timeslab.start import start
+
+#: Longest u0 of a call checked value by value in Python; a longer one is checked as an array.
+_DIRECT_U0 = 64
 
 
 class Solver:
@@ -104,6 +115,7 @@ class Solver:
         compiled, plan = lowered(ode, params)
         self._declared = ode.params  # a new assignment ode.params = {...} prepares again
         self._by_name = {s.name: s for s in ode.params}
+        self._by_key = {**self._by_name, **{s: s for s in ode.params}}
         self._work = object.__new__(type(ode))
         self._work.__dict__.update(ode.__dict__)
         self._buffers = self._interval = None
@@ -157,35 +169,51 @@ class Solver:
         if ode.params is not self._declared:
             self._prepare()
         work = self._work
+        fields = work.__dict__
         # the declaration's values are checked already: only those given here are
-        if params is None:
-            work.__dict__["params"] = ode.params
-        else:
-            if not isinstance(params, Mapping):
-                raise TypeError("params must be a dict {parameter symbol or name: value}, got "
-                                f"{type(params).__name__}")
-            values = dict(ode.params.items())
-            for key, value in params.items():
-                symbol = parameter_symbol(self._by_name, key)
-                values[symbol] = _parameter_value(symbol, value)
-            work.__dict__["params"] = Parameters(values)
-        if u0 is None:
-            work.__dict__["u0"] = ode.u0
-        else:
-            if isinstance(u0, (list, tuple)) and all(isinstance(x, (int, float)) for x in u0):
-                u0 = np.array(u0, dtype=float)  # checked as an array: 4x faster than as a list
-            work.u0 = u0
+        fields["params"] = ode.params if params is None else self._parameters(params)
+        fields["u0"] = ode.u0 if u0 is None else self._initial_values(u0)
         if t0 is None and T is None:
-            work.__dict__.update(t0=ode.t0, T=ode.T)
+            fields["t0"], fields["T"] = ode.t0, ode.T
         else:
             work._set_interval(ode.t0 if t0 is None else t0, ode.T if T is None else T)
         return work
+
+    def _parameters(self, params):
+        """The declaration's parameter values with those of ``params`` (by symbol or name),
+        checked as :class:`~dolfinode.ODE` checks them; a float is taken as it is once
+        found finite."""
+        if type(params) is not dict and not isinstance(params, Mapping):
+            raise TypeError("params must be a dict {parameter symbol or name: value}, got "
+                            f"{type(params).__name__}")
+        values = dict(self.ode.params.items())
+        for key, value in params.items():
+            symbol = self._by_key.get(key) or parameter_symbol(self._by_name, key)
+            values[symbol] = (value if type(value) is float and math.isfinite(value)
+                              else _parameter_value(symbol, value))
+        return Parameters(values)
+
+    def _initial_values(self, u0):
+        """u0 of a call as :class:`~dolfinode.ODE` takes it (a read-only float vector): a
+        short list, tuple or vector of finite floats (as a fit passes) directly, anything
+        else through the declaration's check, which names what is wrong."""
+        values = u0.tolist() if type(u0) is np.ndarray and u0.dtype == float else u0
+        work = self._work
+        if (type(values) in (list, tuple) and len(values) == work.N <= _DIRECT_U0
+                and all(type(x) is float and math.isfinite(x) for x in values)
+                and not (work._constrained and min(values) < 0)):
+            u0 = np.array(values)
+            u0.flags.writeable = False
+            return u0
+        work.u0 = u0
+        return work.u0
 
     def _workspace(self, work):
         """The loop's arguments for solves over ``work``'s interval (made again when it
         changes): the solver's own kernels, whose ``p`` each call overwrites, the options and
         tolerances, the start's and the loop's arrays, which each call refills, and the kept
-        buffers. The storage of the Newton matrices is decided here, once."""
+        buffers, and the compiled start's and loop's entry points. The storage of the Newton
+        matrices is decided here, once, and the sample times are checked."""
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
         compiled = lower(work)
         rtol = params["tolerance"]
@@ -209,53 +237,72 @@ class Solver:
             arguments = _mono_arguments(compiled, structure, mono.method_tables(m), options,
                                         loop_atol, floor, x, f0, state, counters)
             advance = mono.advance
+        self._samples = history.sink(work, m, multi_adaptive, params).samples  # (checked)
         self._interval = (work.t0, work.T)
-        self._values = self._signs = self._u0 = None  # p, floor: written by the next call
-        self._kept = (compiled, atol, given, x, f0, steps, options, state, counters, floor,
-                       frozen, structure)
-        self._loop = (advance, (*arguments, *self._buffers))
+        # p, floor: written by the next call
+        self._values = self._signs = self._u0 = self._floor_key = None
+        self._kept = (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
+                      structure)
+        self._start = (start.entry(), (compiled.rhs.address, compiled.p, work.t0, atol, rtol,
+                                       params["initial_time_step"] is None, x, f0, steps,
+                                       options, state, counters, not multi_adaptive))
+        self._loop = (advance.entry(), (*arguments, *self._buffers))
 
     def _solve_prepared(self, work):
         """The solve of ``work`` as one call of the loop into the kept buffers; None when
-        that call did not reach T (the general path then solves it)."""
+        that call did not reach T (the general path then solves it). The Solution copies
+        the used part of the buffers; a mono-adaptive one makes its ``ode`` and ``stats``
+        when first read (the ``makers`` of :class:`~dolfinode.Solution`)."""
         started = time.perf_counter()
         if (work.t0, work.T) != self._interval:
             self._workspace(work)
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
-        (compiled, atol, given, x, f0, steps, options, state, counters, floor, frozen,
+        (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
          structure) = self._kept
-        sink = history.sink(work, m, multi_adaptive, params)
         values = tuple(work.params.values())
         if values != self._values:
             compiled.p[:len(values)] = values
             self._values, signs = values, _signs(values)
-            if signs != self._signs:  # the floor depends on the values through their signs
+            self._solved = None
+            if signs != self._signs:
                 self._signs, self._u0 = signs, None
         if work.u0 is not self._u0:
-            floor[:] = _floor(work, atol)
-            self._u0 = work.u0
-        if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
-            _check_resolvable_tolerance(work, atol, params["tolerance"])
+            floor_key = (self._signs, _has_negative(work.u0))  # all the floor depends on
+            if floor_key != self._floor_key:
+                floor[:] = _floor(work, atol)
+                self._floor_key = floor_key
+            self._u0, self._solved = work.u0, None
+            if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
+                _check_resolvable_tolerance(work, atol, params["tolerance"])
         x[:] = work.u0
         if params["initial_time_step"] is not None:
             steps[:] = given
-        _started(work, compiled, params, multi_adaptive, atol, x, f0, steps, options, state,
-                 counters)
+        started_at, arguments = self._start
+        _check_start(work, params, started_at(*arguments), f0, steps)
         if multi_adaptive:
             frozen.fill(np.nan)  # since when each component is frozen (NaN: active)
         advance, arguments = self._loop
-        status = advance.unchecked(*arguments)
-        if status != ts.DONE or counters[ts.SLABS] > params["maximum_steps"]:
+        status = advance(*arguments)
+        counts = counters.tolist()
+        if status != ts.DONE or counts[ts.SLABS] > params["maximum_steps"]:
             return None
-        n = counters[ts.STORED]
-        sink.add([b[:n] for b in self._buffers], float(state["t"][0]))
-        elements = sink.finish(True)  # copies: the next call refills the buffers
+        if self._solved is None:  # the values of this call, kept while they are unchanged
+            self._solved = work._snapshot()
+        n, seconds = counts[ts.STORED], time.perf_counter() - started
         if multi_adaptive:
-            stats = _multi_stats(counters, state, sink.per_component, steps)
+            sink = history.InMemory(work, True, self._samples)
+            sink.add([b[:n] for b in self._buffers], float(state["t"][0]))
+            stats = _completed_stats(
+                _multi_stats(counts, state["mono_elements"].item(), sink.per_component,
+                             steps), counts, True, m, params, compiled.compile_time, seconds)
+            sol = sink.solution(self._solved._snapshot(), m, sink.finish(True), stats, x)
         else:
-            stats = _mono_stats(work, structure, counters, state)
-        # (no (t, k) where the loop stopped: only a failure reads it, and the general path
-        # solves those)
-        return _finish(work, compiled, None, multi_adaptive, m, params, status, counters,
-                       None, x, stats, started,
-                       lambda solved: sink.solution(solved, m, elements, stats, x))
+            k_next, N = state["k_next"].item(), x.size
+            out_t, out_k, out_X = self._buffers
+            sol = Solution(None, m, out_t[:n].copy(), out_k[:n].copy(), out_X[:n].copy(), None,
+                           self._samples, {"ode": self._solved._snapshot, "stats": lambda: (
+                               _completed_stats(_mono_stats(N, structure, counts, k_next),
+                                                counts, False, m, params,
+                                                compiled.compile_time, seconds))})
+        sol.parameters = params
+        return sol

@@ -135,3 +135,28 @@ def test_a_failed_solve_raises_an_error_with_failure_status():
         dn.solve(dn.ODE({x: x**2}, u0=[1.0], T=2.0), "cG(1)", tolerance=1e-4)
     assert (info.value.success, info.value.status) == (False, -1)
     assert info.value.message == str(info.value)
+
+
+def test_ode_and_stats_given_by_makers_are_made_once_on_first_read():
+    """A solve may give makers for sol.ode and sol.stats (the prepared path of dn.Solver):
+    each is called once, when first read, or before pickling; the solution is the same."""
+    u = sp.Symbol("u")
+    eager = dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), method="dG(1)")
+    calls = []
+
+    def maker(value):
+        return lambda: calls.append(value) or value
+
+    lazy = dn.Solution(None, eager.method, eager.t_start, eager.k, eager.values, None, 11,
+                       makers={"ode": maker(eager.ode), "stats": maker(eager.stats)})
+    assert calls == [] and lazy.stats is eager.stats and lazy.stats is eager.stats
+    np.testing.assert_array_equal(lazy(0.5), eager(0.5))  # (reads ode)
+    assert calls == [eager.stats, eager.ode]
+    import pickle
+
+    fresh = dn.Solution(None, eager.method, eager.t_start, eager.k, eager.values, None, 11,
+                        makers={"ode": maker(eager.ode), "stats": maker(eager.stats)})
+    copy = pickle.loads(pickle.dumps(fresh))
+    np.testing.assert_array_equal(copy.y, eager(np.linspace(0.0, 1.0, 11)))
+    assert copy.stats == eager.stats and "_makers" not in vars(copy)
+    pickle.loads(pickle.dumps(eager))  # (an eager solution pickles as before)

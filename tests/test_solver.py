@@ -210,3 +210,106 @@ def test_the_prepared_path_keeps_the_given_steps_and_tolerances(oscillator, monk
                      **{name: call[name] for name in ("u0", "T") if name in call}}
         _assert_same_solution(solver.solve(**call), dn.solve(dn.vary(oscillator, variation),
                                                              method=method, **parameters))
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(1)"])
+def test_what_a_solution_makes_on_first_read_equals_dn_solve(oscillator, method):
+    """The prepared path makes sol.ode and sol.stats when first read: the same declaration
+    values and counters as dn.solve's; each solution makes its own, and a later call or a
+    change of the declaration does not reach them."""
+    solver = dn.Solver(oscillator, method=method, tolerance=1e-6)
+    first, second = solver.solve(), solver.solve()
+    reference = dn.solve(oscillator, method=method, tolerance=1e-6)
+    if method.startswith("m"):
+        assert "stats" in vars(first)  # multi-adaptive: made with the solution
+    else:
+        assert "ode" not in vars(first) and "stats" not in vars(first)
+    oscillator.params[k] = 9.0  # after the solves: their declarations keep k = 4
+    for sol in (first, second):
+        assert list(sol.stats) == list(reference.stats)
+        for name, value in reference.stats.items():
+            if name not in ("solve time", "compile time"):
+                np.testing.assert_array_equal(sol.stats[name], value)
+        assert dict(sol.ode.params) == {k: 4.0} and sol.ode.T == 2.0
+        np.testing.assert_array_equal(sol.ode.u0, reference.ode.u0)
+    assert first.ode is not second.ode and first.stats is not second.stats
+    first.ode.params[k] = 1.0
+    assert second.ode.params[k] == 4.0
+    for name in ("t_start", "k", "values"):
+        assert not np.shares_memory(getattr(first, name), getattr(second, name))
+    np.testing.assert_array_equal(first.values, second.values)
+
+
+@pytest.mark.parametrize("method", ["dG(1)", "mcG(1)"])
+def test_a_prepared_solution_pickles_with_what_it_makes_on_first_read(oscillator, method):
+    import pickle
+
+    sol = dn.Solver(oscillator, method=method).solve(params={k: 9.0})
+    copy = pickle.loads(pickle.dumps(sol))
+    np.testing.assert_array_equal(copy(1.5), sol(1.5))
+    assert copy.stats["f evaluations"] == sol.stats["f evaluations"]
+    assert copy.ode.params[k] == 9.0 and "_makers" not in vars(copy)
+
+
+@pytest.mark.parametrize("u0", [[0.5, 0.1], (0.5, 0.1), np.array([0.5, 0.1]), {u: 0.5, "v": 0.1},
+                                [1, 0.1], np.array([0.5, 0.1], dtype=np.float32)])
+def test_every_form_of_u0_and_params_solves_as_the_varied_declaration(oscillator, u0):
+    """Floats in a list, tuple or vector take the direct check; ints, other dtypes, dicts
+    the declaration's: the same solution either way."""
+    solver = dn.Solver(oscillator, method="dG(1)", tolerance=1e-5)
+    for params in ({k: 9.0}, {"k": np.float64(9.0)}, {k: 9}):
+        sol = solver.solve(u0=u0, params=params)
+        expected = [0.5, 0.1] if isinstance(u0, dict) else np.asarray(u0).astype(float)
+        _assert_same_solution(sol, dn.solve(dn.vary(oscillator, {k: 9.0, "u0": expected}),
+                                            method="dG(1)", tolerance=1e-5))
+        assert not sol.ode.u0.flags.writeable
+
+
+@pytest.mark.parametrize("call, error, match", [
+    ({"u0": [1.0, np.inf]}, ValueError, "u0 is not finite for v"),
+    ({"u0": np.array([np.nan, 1.0])}, ValueError, "u0 is not finite for u"),
+    ({"u0": [1.0]}, ValueError, "has 1 values but the system has 2"),
+    ({"u0": [1.0, "x"]}, TypeError, "u0 must hold real numbers"),
+    ({"u0": [1.0, 1j]}, TypeError, "complex"),
+    ({"params": {k: -np.inf}}, ValueError, "parameter k must be finite"),
+    ({"params": {sp.Symbol("k", positive=True): 1.0}}, ValueError, "neither a parameter"),
+    ({"params": {k: 1j}}, TypeError, "complex"),
+])
+def test_the_direct_checks_give_the_declaration_errors(oscillator, call, error, match):
+    solver = dn.Solver(oscillator, method="dG(1)")
+    solver.solve()  # (a prepared work space: the checks of a call come first all the same)
+    with pytest.raises(error, match=match):
+        solver.solve(**call)
+    np.testing.assert_array_equal(solver.solve().values, dn.solve(oscillator,
+                                                                  method="dG(1)").values)
+
+
+def test_a_negative_u0_in_a_nonnegative_declaration_is_refused_directly():
+    x, rate = sp.symbols("x rate")
+    ode = dn.ODE({x: -rate * x}, u0=[1.0], T=1.0, params={rate: 1.0}, nonnegative=True)
+    with pytest.raises(ValueError, match="declared nonnegative"):
+        dn.Solver(ode, method="dG(1)").solve(u0=[-0.5])
+
+
+def test_the_floor_follows_the_sign_of_u0():
+    """x' = -rate x keeps x >= 0 from x(0) >= 0 (the values are then kept >= -atol), not
+    from x(0) < 0: each call's floor is dn.solve's, in any order of the signs."""
+    x, rate = sp.symbols("x rate")
+    ode = dn.ODE({x: -rate * x}, u0=[0.5], T=3.0, params={rate: 2.0})
+    solver = dn.Solver(ode, method="dG(1)", tolerance=1e-3)
+    for u0 in ([0.5], [-1e-4], [-0.25], [1e-4], np.array([0.0]), [-1e-4]):
+        _assert_same_solution(solver.solve(u0=u0), dn.solve(dn.vary(ode, {"u0": u0}),
+                                                            method="dG(1)", tolerance=1e-3))
+
+
+def test_the_kept_compiled_calls_are_type_checked_in_the_tests(oscillator):
+    """The solver keeps the loops' entry points (Loop.entry); while Loop.checked (this
+    module's fixture) they are numba's type-checking dispatchers, so these tests check the
+    argument types of every prepared call."""
+    from dolfinode.timeslab import mono
+    from dolfinode.timeslab.start import start
+
+    solver = dn.Solver(oscillator, method="dG(1)")
+    solver.solve()
+    assert solver._loop[0] is mono.advance.compile()
+    assert solver._start[0] is start.compile()
