@@ -205,7 +205,8 @@ def _lazy_call(key, what, seconds, context, builder, sig, llargs):
     return result
 
 
-#: symbol -> (slot, resolver) of the lazily linked callees registered in this process
+#: slot symbol -> (link, slot, resolver) of the lazily linked callees registered in this
+#: process
 _SLOTS = {}
 _RESOLVER = ctypes.CFUNCTYPE(None)
 
@@ -229,7 +230,7 @@ class _LazyLink:
         if self.slot not in _SLOTS:
             slot = ctypes.c_void_p(0)
             resolver = _RESOLVER(functools.partial(self._resolve, slot))
-            _SLOTS[self.slot] = (slot, resolver)
+            _SLOTS[self.slot] = (self, slot, resolver)
             ll.add_symbol(self.slot, ctypes.addressof(slot))
             ll.add_symbol(self.resolver, ctypes.cast(resolver, ctypes.c_void_p).value)
 
@@ -251,6 +252,22 @@ class _LazyLink:
 
     def __hash__(self):
         return hash(self.slot)
+
+
+def compile_pending():
+    """Compile (or load) every lazily linked routine that the compiled functions of this
+    process may call and have not called yet, and those their compiles link in turn (for
+    ``dolfinode compile``); returns their names. Raises RuntimeError if one fails."""
+    names = []
+    pending = [entry for entry in _SLOTS.values() if not entry[1].value]
+    while pending:
+        for link, slot, _ in pending:
+            link._resolve(slot)
+            if not slot.value:
+                raise RuntimeError(f"dolfinode: compiling {link.link.key} failed (see the log)")
+            names.append(link.what)
+        pending = [entry for entry in _SLOTS.values() if not entry[1].value]
+    return names
 
 
 def linked(dispatcher=None, *, returns=None, what=None, seconds=0.0):

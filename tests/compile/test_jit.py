@@ -137,24 +137,47 @@ def _declared_wrong(x):
 
 
 @njit(cache=False)
-def _maybe(x, call, wrong):
-    if wrong:
-        return float(_declared_wrong(x))
+def _maybe(x, call):
     return _lazy_sum(x) if call else -1.0
+
+
+@njit(cache=False)
+def _call_declared_wrong(x):
+    return float(_declared_wrong(x))
 
 
 def test_a_lazily_linked_function_is_compiled_on_its_first_call_only():
     x = np.arange(4.0)
-    assert _maybe(x, False, False) == -1.0
+    assert _maybe(x, False) == -1.0
     assert not _lazy_sum.signatures  # the caller is compiled, the callee not
-    assert _maybe(x, True, False) == 6.0
+    assert _maybe(x, True) == 6.0
     assert len(_lazy_sum.signatures) == 1
-    assert _maybe(2 * x, True, False) == 12.0
+    assert _maybe(2 * x, True) == 12.0
 
 
-def test_a_lazily_linked_function_of_another_return_type_raises(caplog):
+@jit.linked(returns=types.float64, what="a pending test routine", seconds=1)
+@njit(cache=False)
+def _pending(x):
+    return x[0]
+
+
+@njit(cache=False)
+def _never(x, call):
+    return _pending(x) if call else 0.0
+
+
+def test_compile_pending_compiles_the_lazy_routines_not_called_yet():
+    assert _never(np.ones(1), False) == 0.0
+    assert not _pending.signatures
+    assert "a pending test routine" in jit.compile_pending()
+    assert len(_pending.signatures) == 1
+    assert _never(np.full(1, 2.0), True) == 2.0
+
+
+def test_a_lazily_linked_function_of_another_return_type_raises(caplog, monkeypatch):
+    monkeypatch.setattr(jit, "_SLOTS", dict(jit._SLOTS))  # (its failed link is not kept)
     with pytest.raises(RuntimeError, match="compiling .*_declared_wrong failed"):
-        _maybe(np.ones(2), False, True)
+        _call_declared_wrong(np.ones(2))
     assert "correct the declaration" in caplog.text
 
 

@@ -5,6 +5,8 @@ stopping test. :mod:`.loop` calls them in that order.
 """
 import math
 
+from numba import types
+
 from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.counters import F_EVALUATIONS, ITERATIONS, JACOBIANS
@@ -93,7 +95,8 @@ def solve_synchronised(f, p, x, f0, f0_time, t, b, A, b0, stage_nodes, atol, rto
     return iterations >= 0, f0_time
 
 
-@linked
+@linked(returns=types.Tuple((types.boolean, types.int64)),
+        what="the multi-adaptive sweeps", seconds=8)
 @helper(**NO_REFCOUNT)
 def sweep_slab(max_iter, retry, windows, nwin, ne, nroot, top_start, limit, dtol, K, fi, p,
                x, indptr, indices, position, jacobian, comp, prev, cptr, celems, ea, eb,
