@@ -226,8 +226,7 @@ def factor_stages(jb, k, eigenvalues, structure, ab_real, ab_complex, ipiv, coun
     return True
 
 
-@linked(returns=types.int64, what="the stiff solver (simplified Newton on the stages)",
-        seconds=5)
+@linked
 @njit(cache=True, **NO_REFCOUNT)
 def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_iter, theta_max,
            X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w, counters,
