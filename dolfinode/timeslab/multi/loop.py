@@ -480,5 +480,5 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         st.t = t
 
 
-advance = Loop(_advance, _SIGNATURE, "the multi-adaptive loop (mcG(q), mdG(q))", 25,
+advance = Loop(_advance, _SIGNATURE, "the multi-adaptive loop (mcG(q), mdG(q))", 20,
                error_model="numpy")
