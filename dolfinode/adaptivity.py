@@ -39,6 +39,7 @@ import math
 from functools import cache
 
 import numpy as np
+from numba import types
 
 from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
@@ -182,7 +183,7 @@ def filter_estimate(ab, structure, ipiv, v, rhs):
 FILTER_NEGLIGIBLE = 0.1
 
 
-@linked
+@linked(returns=types.none, what="the multi-adaptive error filter", seconds=3)
 @helper(**NO_REFCOUNT)
 def filter_residuals(ne, comp, ea, eb, res, position, indptr, indices, jacobian, jdiag,
                      coupling, gamma, elist, order, local, newton, counters):

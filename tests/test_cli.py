@@ -58,3 +58,7 @@ def test_compile_fills_the_caches(capsys):
     printed = capsys.readouterr().err
     for what in ("cG(2)", "dG(1)", "mcG(2)", "estimate_error"):
         assert f"{what}: compiled" in printed
+    from dolfinode.compile import jit
+
+    assert jit._SLOTS  # the stiff solvers' links, registered by their callers
+    assert all(slot.value for _, slot, _ in jit._SLOTS.values())  # ... and compiled

@@ -10,6 +10,7 @@ A compile that runs longer than :data:`NOTICE_AFTER` seconds is announced on the
 ``"dolfinode"`` logger at WARNING level (printed on stderr when logging is not configured);
 silence it with ``logging.getLogger("dolfinode").setLevel(logging.ERROR)``.
 """
+import ctypes
 import functools
 import hashlib
 import importlib
@@ -19,6 +20,7 @@ import threading
 from contextlib import contextmanager, nullcontext
 
 import llvmlite.binding as ll
+import llvmlite.ir as llvm_ir
 from numba import njit, types
 from numba.core import cgutils
 from numba.core.extending import _Intrinsic
@@ -68,16 +70,23 @@ class Linked(_Intrinsic):
     link as a reload hook, so a caller loaded from numba's disk cache links its callees
     (loading or compiling them) before its own code.
 
+    With ``returns`` (its numba return type, declared so that a caller is typed without it)
+    the routine is compiled on its first call instead of with its callers (:class:`_LazyLink`):
+    the stiff solvers, which a non-stiff problem never calls.
+
     Called from Python, it calls the numba function. Wrap a dispatcher: ``@linked`` over
     ``@njit(...)``.
     """
 
-    def __init__(self, dispatcher):
+    def __init__(self, dispatcher, returns=None, what=None, seconds=0.0):
         self.dispatcher = dispatcher
         key = f"{dispatcher.py_func.__module__}:{dispatcher.py_func.__qualname__}"
 
         def typer(typingctx, *args):
-            signature = _Link(key, tuple(types.unliteral(a) for a in args))()
+            args = tuple(types.unliteral(a) for a in args)
+            if returns is not None:
+                return returns(*args), functools.partial(_lazy_call, key, what, seconds)
+            signature = _Link(key, args)()
 
             def codegen(context, builder, sig, llargs):
                 link = _Link(key, sig.args, sig.return_type)
@@ -153,8 +162,9 @@ class _Link:
         signature = _LINKED[self.symbol]
         if self.return_type is not None and signature.return_type != self.return_type:
             raise RuntimeError(
-                f"a cached caller of {self.key} expects it to return {self.return_type}, "
-                f"it returns {signature.return_type}: clear numba's cache (NUMBA_CACHE_DIR)")
+                f"a caller of {self.key} expects it to return {self.return_type} (declared, "
+                f"or cached), it returns {signature.return_type}: correct the declaration or "
+                "clear numba's cache (NUMBA_CACHE_DIR)")
         return signature
 
     def __reduce__(self):
@@ -167,8 +177,105 @@ class _Link:
         return hash(self.symbol)
 
 
-def linked(dispatcher):
-    """Decorator: the numba ``dispatcher`` called through a symbol (:class:`Linked`)."""
+def _lazy_call(key, what, seconds, context, builder, sig, llargs):
+    """The code of a call of a lazily linked routine: load its address from the slot,
+    filling the slot first if it is empty (the resolver compiles the routine), and call it;
+    a slot still empty (the compile failed, logged) raises RuntimeError."""
+    link = _LazyLink(key, sig.args, sig.return_type, what, seconds)
+    link()
+    context.active_code_library._reload_init.add(link)
+    function_type = context.call_conv.get_function_type(sig.return_type, sig.args)
+    module = builder.module
+    try:
+        slot = module.get_global(link.slot)
+    except KeyError:
+        slot = llvm_ir.GlobalVariable(module, function_type.as_pointer(), link.slot)
+    resolve = cgutils.get_or_insert_function(
+        module, llvm_ir.FunctionType(llvm_ir.VoidType(), []), link.resolver)
+    with builder.if_then(cgutils.is_null(builder, builder.load(slot)), likely=False):
+        builder.call(resolve, [])
+    function = builder.load(slot)
+    with cgutils.if_unlikely(builder, cgutils.is_null(builder, function)):
+        context.call_conv.return_user_exc(
+            builder, RuntimeError, (f"dolfinode: compiling {key} failed (see the log)",))
+    status, result = context.call_conv.call_function(
+        builder, function, sig.return_type, sig.args, llargs)
+    with cgutils.if_unlikely(builder, status.is_error):
+        context.call_conv.return_status_propagate(builder, status)
+    return result
+
+
+#: slot symbol -> (link, slot, resolver) of the lazily linked callees registered in this
+#: process
+_SLOTS = {}
+_RESOLVER = ctypes.CFUNCTYPE(None)
+
+
+class _LazyLink:
+    """The lazy link of one callee (``key``: "module:qualname") for argument types ``args``:
+    calling it registers, once per process, the symbols ``<symbol>.slot``, a pointer to the
+    compiled callee (null until its first call), and ``<symbol>.resolve``, a function that
+    compiles or loads the callee (:class:`_Link`, announced as ``what`` when it takes a
+    while) and fills the slot. A caller's code calls the resolver when it finds the slot
+    empty. Picklable, stored with a caller's cache as :class:`_Link`."""
+
+    def __init__(self, key, args, return_type, what=None, seconds=0.0):
+        self.link = _Link(key, args, return_type)
+        self.what = what or key
+        self.seconds = seconds
+        self.slot = self.link.symbol + ".slot"
+        self.resolver = self.link.symbol + ".resolve"
+
+    def __call__(self):
+        if self.slot not in _SLOTS:
+            slot = ctypes.c_void_p(0)
+            resolver = _RESOLVER(functools.partial(self._resolve, slot))
+            _SLOTS[self.slot] = (self, slot, resolver)
+            ll.add_symbol(self.slot, ctypes.addressof(slot))
+            ll.add_symbol(self.resolver, ctypes.cast(resolver, ctypes.c_void_p).value)
+
+    def _resolve(self, slot):
+        # (a ctypes callback cannot raise into the compiled caller: an empty slot tells it)
+        try:
+            with announced(self.what, self.seconds):
+                self.link()
+            slot.value = ll.address_of_symbol(self.link.symbol)
+        except Exception:
+            logger.exception("dolfinode: compiling %s failed", self.link.key)
+
+    def __reduce__(self):
+        link = self.link
+        return _LazyLink, (link.key, link.args, link.return_type, self.what, self.seconds)
+
+    def __eq__(self, other):
+        return isinstance(other, _LazyLink) and self.slot == other.slot
+
+    def __hash__(self):
+        return hash(self.slot)
+
+
+def compile_pending():
+    """Compile (or load) every lazily linked routine that the compiled functions of this
+    process may call and have not called yet, and those their compiles link in turn (for
+    ``dolfinode compile``); returns their names. Raises RuntimeError if one fails."""
+    names = []
+    pending = [entry for entry in _SLOTS.values() if not entry[1].value]
+    while pending:
+        for link, slot, _ in pending:
+            link._resolve(slot)
+            if not slot.value:
+                raise RuntimeError(f"dolfinode: compiling {link.link.key} failed (see the log)")
+            names.append(link.what)
+        pending = [entry for entry in _SLOTS.values() if not entry[1].value]
+    return names
+
+
+def linked(dispatcher=None, *, returns=None, what=None, seconds=0.0):
+    """Decorator: the numba ``dispatcher`` called through a symbol (:class:`Linked`);
+    ``@linked(returns=..., what=..., seconds=...)``: compiled on its first call, announced as
+    ``what`` (about ``seconds``)."""
+    if dispatcher is None:
+        return functools.partial(Linked, returns=returns, what=what, seconds=seconds)
     return Linked(dispatcher)
 
 

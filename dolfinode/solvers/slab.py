@@ -18,7 +18,7 @@ Both return the number of iterations, or -1 if the iteration diverged or did not
 """
 import math
 
-from numba import njit
+from numba import njit, types
 
 from dolfinode.compile.jit import linked
 from dolfinode.compile.signatures import NO_REFCOUNT, address
@@ -199,7 +199,7 @@ def near_step(k, k_factored, ratio):
     return k_factored > 0.0 and k_factored <= ratio * k and k <= ratio * k_factored
 
 
-@linked
+@linked(returns=types.boolean, what="the stiff solver's factorization", seconds=2)
 @njit(cache=True, **NO_REFCOUNT)
 def factor(ab, structure, ipiv, counters):
     """LU-factor a Newton matrix in place; returns True on success."""
@@ -207,7 +207,8 @@ def factor(ab, structure, ipiv, counters):
     return lu_factor(ab, structure, ipiv) == 0
 
 
-@linked
+@linked(returns=types.boolean, what="the stiff solver's stage factorization",
+        seconds=2)
 @njit(cache=True, **NO_REFCOUNT)
 def factor_stages(jb, k, eigenvalues, structure, ab_real, ab_complex, ipiv, counters):
     """LU factors of I - k lambda_j J (J in the storage ``jb`` of ``structure``, see

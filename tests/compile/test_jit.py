@@ -122,3 +122,89 @@ def test_a_cached_caller_expecting_another_return_type_is_refused():
     assert jit._Link(key, args, types.float64)() == _axpy.dispatcher.overloads[args].signature
     with pytest.raises(RuntimeError, match="clear numba's cache"):
         jit._Link(key, args, types.int64)()
+
+
+@jit.linked(returns=types.float64, what="a lazy test routine", seconds=1)
+@njit(cache=False)
+def _lazy_sum(x):
+    return x.sum()
+
+
+@jit.linked(returns=types.int64, what="a wrongly declared routine", seconds=1)
+@njit(cache=False)
+def _declared_wrong(x):
+    return x.sum()  # a float, declared int64
+
+
+@njit(cache=False)
+def _maybe(x, call):
+    return _lazy_sum(x) if call else -1.0
+
+
+@njit(cache=False)
+def _call_declared_wrong(x):
+    return float(_declared_wrong(x))
+
+
+def test_a_lazily_linked_function_is_compiled_on_its_first_call_only():
+    x = np.arange(4.0)
+    assert _maybe(x, False) == -1.0
+    assert not _lazy_sum.signatures  # the caller is compiled, the callee not
+    assert _maybe(x, True) == 6.0
+    assert len(_lazy_sum.signatures) == 1
+    assert _maybe(2 * x, True) == 12.0
+
+
+@jit.linked(returns=types.float64, what="a pending test routine", seconds=1)
+@njit(cache=False)
+def _pending(x):
+    return x[0]
+
+
+@njit(cache=False)
+def _never(x, call):
+    return _pending(x) if call else 0.0
+
+
+def test_compile_pending_compiles_the_lazy_routines_not_called_yet():
+    assert _never(np.ones(1), False) == 0.0
+    assert not _pending.signatures
+    assert "a pending test routine" in jit.compile_pending()
+    assert len(_pending.signatures) == 1
+    assert _never(np.full(1, 2.0), True) == 2.0
+
+
+def test_a_lazily_linked_function_of_another_return_type_raises(caplog, monkeypatch):
+    monkeypatch.setattr(jit, "_SLOTS", dict(jit._SLOTS))  # (its failed link is not kept)
+    with pytest.raises(RuntimeError, match="compiling .*_declared_wrong failed"):
+        _call_declared_wrong(np.ones(2))
+    assert "correct the declaration" in caplog.text
+
+
+LAZY_MODULE = '''
+import numpy as np
+from numba import njit, types
+from dolfinode.compile.jit import linked
+
+@linked(returns=types.float64, what="a test routine", seconds=1)
+@njit(cache=True)
+def total(x):
+    return x.sum()
+
+@njit(cache=True)
+def caller(x, call):
+    return total(x) if call else 0.0
+'''
+
+
+def test_a_cached_caller_compiles_its_lazy_callee_only_when_called(tmp_path):
+    (tmp_path / "lazy_module.py").write_text(LAZY_MODULE)
+    script = ("import numpy as np, lazy_module as m\n"
+              "a = m.caller(np.ones(3), False)\n"
+              "print(a, len(m.total.signatures), m.caller(np.ones(3), True),\n"
+              "      sum(m.caller.stats.cache_hits.values()))\n")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"),
+               PYTHONPATH=os.pathsep.join([str(tmp_path), str(ROOT)]))
+    runs = [subprocess.run([sys.executable, "-c", script], env=env, cwd=tmp_path, check=True,
+                           capture_output=True, text=True).stdout.split() for _ in range(2)]
+    assert runs == [["0.0", "0", "3.0", "0"], ["0.0", "0", "3.0", "1"]]

@@ -47,12 +47,14 @@ step over their oscillation (mcG(3) on the stiff chain: 15x too long steps, erro
 10^3-10^5 x tolerance), and mdG(1) reached 2600x the error of dG(1) on the template lattice.
 
 Modules, in the order a slab goes through them: :mod:`dolfinode.timeslab.partition` builds
-it; :mod:`.moments` integrates f_i(U) on an element; :mod:`.sweeps` solves the slab
-(Gauss-Seidel sweeps, the group Newton step over a sub-slab with the band matrices of
-:mod:`dolfinode.linalg.group`); :mod:`dolfinode.adaptivity` filters the residuals and gives
-the next steps; :mod:`.steps` ties and grades them along couplings and limits the slab
-length; :mod:`.freezing` freezes and wakes components; :mod:`.loop` runs it all
-(:data:`advance`). The driver passes the options and state of
+it; :mod:`.slab` solves it (the initial guess, the synchronised path, the sweep driver);
+:mod:`.moments` integrates f_i(U) on an element; :mod:`.sweeps` holds the Gauss-Seidel sweeps
+and the group Newton step over a sub-slab with the band matrices of
+:mod:`dolfinode.linalg.group`; :mod:`.control` estimates the error of every component
+(filtered by :mod:`dolfinode.adaptivity`), accepts or rejects and chooses the next steps;
+:mod:`.steps` ties and grades them along couplings and limits the slab length;
+:mod:`.freezing` freezes, checks and wakes components; :mod:`.loop` runs it all
+(:data:`advance`) and holds the work space. The driver passes the options and state of
 :mod:`dolfinode.timeslab.contract`.
 """
 from dolfinode.timeslab.multi.loop import advance, method_tables  # noqa: F401

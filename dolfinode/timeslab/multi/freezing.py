@@ -7,7 +7,7 @@ import numpy as np
 
 from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
-from dolfinode.counters import ELEMENTS, STORED
+from dolfinode.counters import ELEMENTS, F_EVALUATIONS, STORED
 
 #: A component whose change on a slab and drift over the rest of the interval stay below QUIET
 #: times its error scale is frozen: a constant, with no elements, until it drifts (``freeze``).
@@ -106,3 +106,85 @@ def transpose_pattern(indptr, indices, N):
             readers[fill[j]] = i
             fill[j] += 1
     return rptr, readers
+
+
+@helper(**NO_REFCOUNT)
+def active_components(frozen, active):
+    """The components not frozen (``frozen[i]`` NaN) into active[:n], in order; returns n."""
+    n = 0
+    for i in range(frozen.shape[0]):
+        if math.isnan(frozen[i]):
+            active[n] = i
+            n += 1
+    return n
+
+
+@helper(**NO_REFCOUNT)
+def store_frozen(frozen, t, x, counters, out_comp, out_a, out_b, out_values):
+    """At the end t of the run: the constant element of every frozen component since it
+    froze, which makes it active again."""
+    for i in range(frozen.shape[0]):
+        if not math.isnan(frozen[i]):
+            store_constant(i, frozen[i], t, x, counters, out_comp, out_a, out_b, out_values)
+            frozen[i] = math.nan
+
+
+@helper(**NO_REFCOUNT)
+def check_frozen(stamp, active, nactive, autonomous, rptr, readers, check_stamp, frozen,
+                 checked, uw, values, cptr, celems, fi, p, t, b, T, x, out, jdiag, coupling,
+                 emax, umax, kact, drift, counters):
+    """Check the frozen components after a slab [t, b]: a frozen component is a constant on
+    the slab, its residual -f_i(U(b)) with every other component at its end value (uw
+    holds x_j for the frozen ones). For autonomous f only the frozen components that read
+    an active one (``readers``, marked with ``stamp`` in ``check_stamp``) can have changed;
+    for the others all are checked. Writes their indicator (k |f_i|, unscaled), scale and
+    step for :mod:`.control` and their drift bound; returns the number checked, listed in
+    ``checked``, and whether an f_i is not finite."""
+    nn = values.shape[1]
+    nchecked = 0
+    blowup = False
+    for r in range(nactive):
+        j = active[r]
+        uw[j] = values[celems[cptr[j + 1] - 1], nn - 1]
+        if not autonomous:
+            continue
+        for q in range(rptr[j], rptr[j + 1]):
+            i = readers[q]
+            if check_stamp[i] != stamp and not math.isnan(frozen[i]):
+                check_stamp[i] = stamp
+                checked[nchecked] = i
+                nchecked += 1
+    if not autonomous:
+        for i in range(frozen.shape[0]):
+            if not math.isnan(frozen[i]):
+                checked[nchecked] = i
+                nchecked += 1
+    for c in range(nchecked):
+        i = checked[c]
+        fi(i, uw.ctypes, b, p.ctypes, out.ctypes)
+        counters[F_EVALUATIONS] += 1
+        if not math.isfinite(out[0]):
+            blowup = True
+        emax[i] = (b - t) * abs(out[0])
+        umax[i] = abs(x[i])
+        kact[i] = b - t
+        drift[i] = drift_bound(0.0, out[0], T - b, jdiag[i] + coupling[i])
+    return nchecked, blowup
+
+
+@helper(**NO_REFCOUNT)
+def wake_failed(checked, nchecked, emax, margin, t, x, frozen, quiet, last_a, last_b,
+                counters, out_comp, out_a, out_b, out_values):
+    """Wake the checked frozen components whose scaled indicator exceeds ``margin`` (or is
+    NaN): their constant element up to the slab start t is stored and they take part in the
+    slab's retry. Returns whether any woke."""
+    woke = False
+    for c in range(nchecked):
+        i = checked[c]
+        if not emax[i] <= margin:
+            store_constant(i, frozen[i], t, x, counters, out_comp, out_a, out_b, out_values)
+            frozen[i] = math.nan
+            quiet[i] = False
+            last_b[i] = last_a[i]
+            woke = True
+    return woke

@@ -6,6 +6,8 @@ the top level moved; the initial values of a slab rebuilt after a rejection; a s
 slab (every component on one step) solved as one mono-adaptive slab (``synchronised``)."""
 import math
 
+from numba import types
+
 from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT, address
 from dolfinode.counters import F_EVALUATIONS
@@ -45,7 +47,7 @@ def damping(k, jii, A, D):
                     D[r, cc] -= factor * D[c, cc]
 
 
-@linked
+@linked(returns=types.float64, what="the multi-adaptive group Newton step", seconds=4)
 @helper(**NO_REFCOUNT)
 def group_newton(elist, n, fi, p, x, indptr, indices, position, jacobian, comp, prev, cptr,
                  celems, ea, eb, values, nodes, bary, qweights, Minv, stages, sptr, spts, dptr,

@@ -1,0 +1,192 @@
+"""Acceptance, rejection and step control of a multi-adaptive slab: each component's desired
+step at the slab start, the residual-based error indicator of every component, acceptance
+and each component's next step, the declared domain (reject a slab that leaves it, project
+an accepted one on it), and the rejected attempt kept as the guess of its retry.
+"""
+import math
+
+import numpy as np
+
+from dolfinode.adaptivity import MAX_FACTOR, filter_residuals, next_step
+from dolfinode.compile.jit import helper
+from dolfinode.compile.signatures import NO_REFCOUNT
+from dolfinode.counters import F_EVALUATIONS
+from dolfinode.timeslab import CONSTRAINT_CUT
+from dolfinode.timeslab.partition import grow_float
+
+#: A slab holds many elements of a fast component and one indicator above the margin rejects
+#: them all; steps are still chosen for indicators of 1 (DOLFIN G1 accepted up to 2 TOL too).
+ACCEPTANCE_MARGIN = 2.0
+
+
+@helper(**NO_REFCOUNT)
+def desired_steps(kdes, active, nactive, fixed, kmax, t, T):
+    """Cap the active components' desired steps at kmax (unless ``fixed``); returns the
+    largest desired step, the smallest within [t, T] and the elements per unit time of the
+    partition, sum_i 1 / min(kdes_i, T - t)."""
+    kcap = 0.0
+    kmin = math.inf
+    rate = 0.0
+    for r in range(nactive):
+        i = active[r]
+        if not fixed:
+            kdes[i] = min(kdes[i], kmax)
+        kcap = max(kcap, kdes[i])
+        ki = min(kdes[i], T - t)
+        kmin = min(kmin, ki)
+        rate += 1.0 / ki
+    return kcap, kmin, rate
+
+
+@helper(**NO_REFCOUNT)
+def residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid, filtered,
+                        position, indptr, indices, jacobian, jdiag, coupling, gamma, elist,
+                        group_order, local, newton, active, nactive, emax, kact, umax,
+                        counters):
+    """Every element's residual k R(t_e) = k U'(t_e) - k f_i(U(t_e)) at its end (f_i from
+    the last sweep, ``fend``), filtered on each sub-slab unless the slab was solved
+    synchronised by fixed point (not stiff: unfiltered, as in the mono loop), and per
+    active component its largest |k R| (``emax``), max |U_i| (``umax``) and longest element
+    (``kact``) in the slab: one step serves all of a component's elements in the slab, so
+    one scale (an element's own |U_i(t_e)| would let the zero crossings of an oscillation
+    dictate the step of every period). Returns whether a value or residual is not finite."""
+    nn = values.shape[1]
+    for r in range(nactive):
+        i = active[r]
+        emax[i] = 0.0
+        kact[i] = 0.0
+        umax[i] = 0.0
+    blowup = False
+    for e in range(ne):
+        kdu = 0.0
+        for j in range(nn):
+            kdu += end_derivative[j] * values[e, j]
+        resid[e] = kdu - (eb[e] - ea[e]) * fend[e]
+    # (overwrites newton: the loop resets ``factored`` at every slab start)
+    if filtered:
+        filter_residuals(ne, comp, ea, eb, resid, position, indptr, indices, jacobian, jdiag,
+                         coupling, gamma, elist, group_order, local, newton, counters)
+    for e in range(ne):
+        i = comp[e]
+        k = eb[e] - ea[e]
+        res = abs(resid[e])
+        uend = values[e, nn - 1]
+        if not (math.isfinite(uend) and math.isfinite(res)):
+            blowup = True
+        emax[i] = max(emax[i], res)
+        umax[i] = max(umax[i], abs(uend))
+        kact[i] = max(kact[i], k)
+    return blowup
+
+
+@helper(**NO_REFCOUNT)
+def scale_indicators(active, nactive, checked, nchecked, emax, atol, rtol, umax):
+    """emax_i / (atol_i + rtol umax_i) for the components with elements and the frozen ones
+    checked."""
+    for r in range(nactive + nchecked):
+        i = active[r] if r < nactive else checked[r - nactive]
+        emax[i] /= atol[i] + rtol * umax[i]
+
+
+@helper(**NO_REFCOUNT)
+def choose_steps(active, nactive, checked, nchecked, emax, kact, kdes, frozen, solved, order,
+                 safety, kmax):
+    """Accept the slab when every scaled indicator is <= ACCEPTANCE_MARGIN, and choose each
+    active component's next step from its indicator (``next_step``), smoothed by the
+    harmonic mean with its last desired step when accepted, below 0.9 times its step when
+    it failed. A component held on the synchronised step (``solved``) is judged on its own
+    step, its estimate scaled by (kdes / k)^order, so that the synchronised step does not
+    cap its growth. Returns the acceptance."""
+    efloor = (safety / MAX_FACTOR) ** order
+    nseen = nactive + nchecked
+    accept = True
+    for r in range(nseen):
+        i = active[r] if r < nactive else checked[r - nactive]
+        if emax[i] > ACCEPTANCE_MARGIN:
+            accept = False
+    for r in range(nseen):
+        i = active[r] if r < nactive else checked[r - nactive]
+        if not math.isnan(frozen[i]):
+            continue  # keeps its step until it wakes up
+        kref, eref = kact[i], emax[i]
+        if solved and kdes[i] > kref:
+            eref *= (kdes[i] / kref) ** order
+            kref = kdes[i]
+        # below efloor the factor is capped at MAX_FACTOR anyway: no pow() for idle components
+        knew = (kref * MAX_FACTOR if eref <= efloor else
+                next_step(kref, eref, 1.0, order, safety, False))
+        if accept:
+            knew = 2.0 * kdes[i] * knew / (kdes[i] + knew)  # harmonic-mean regulator
+        elif emax[i] > ACCEPTANCE_MARGIN:
+            knew = min(knew, 0.9 * kact[i])
+        else:
+            knew = kdes[i]
+        kdes[i] = min(knew, kmax)
+    return accept
+
+
+@helper(**NO_REFCOUNT)
+def leaves_domain(ne, comp, values, floor, kdes, kact):
+    """The first component with a nodal value below its floor (-atol_i for a component
+    declared nonnegative, -inf for the others), or -1; the steps of all such components are
+    cut to CONSTRAINT_CUT times their longest element of the slab."""
+    first = -1
+    for e in range(ne):
+        i = comp[e]
+        for m in range(values.shape[1]):
+            if values[e, m] < floor[i]:
+                kdes[i] = min(kdes[i], CONSTRAINT_CUT * kact[i])
+                first = i if first < 0 else first
+                break
+    return first
+
+
+@helper(**NO_REFCOUNT)
+def project(ne, comp, values, floor, projected):
+    """Set the nodal values of the nonnegative components in [floor, 0) to 0, marking those
+    components in ``projected``."""
+    for e in range(ne):
+        i = comp[e]
+        if floor[i] > -math.inf:
+            for m in range(values.shape[1]):
+                if values[e, m] < 0.0:
+                    values[e, m] = 0.0
+                    projected[i] = True
+
+
+@helper(**NO_REFCOUNT)
+def drives_out(active, nactive, projected, x, fi, p, b, T, floor, out, counters):
+    """Of the active components projected on the slab ending at b (``projected``, cleared):
+    the first one projected to zero that f drives below its floor by T, or -1 (f does not
+    keep it nonnegative, and the projected solution would stay at 0 where the exact one
+    turns negative); and whether any was projected."""
+    any_projected = False
+    for r in range(nactive):
+        i = active[r]
+        if projected[i]:
+            any_projected = True
+            projected[i] = False
+            if x[i] == 0.0:
+                fi(i, x.ctypes, b, p.ctypes, out.ctypes)
+                counters[F_EVALUATIONS] += 1
+                if out[0] * (T - b) < floor[i]:
+                    return i, any_projected
+    return -1, any_projected
+
+
+@helper()
+def keep_attempt(ne, ea, eb, values, oea, oeb, ovalues):
+    """Copy the slab's elements (their intervals and nodal values) into the rejected
+    attempt's arrays, grown as needed; returns them (the initial guess of the retry,
+    ``sweeps.guess_from``)."""
+    nn = values.shape[1]
+    oea = grow_float(oea, ne)
+    oeb = grow_float(oeb, ne)
+    if ovalues.shape[0] < ne:
+        ovalues = np.empty((max(ne, 2 * ovalues.shape[0]), nn))
+    for e in range(ne):  # (slice copies compile their shape checks and messages)
+        oea[e] = ea[e]
+        oeb[e] = eb[e]
+        for m in range(nn):
+            ovalues[e, m] = values[e, m]
+    return oea, oeb, ovalues
