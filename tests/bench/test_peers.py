@@ -137,6 +137,28 @@ def test_peers_option_plans_the_groups(monkeypatch):
     assert command.plan(args)[0] == [(["HIRES"], ["dG(2)", "CVODE-BDF"], [1e-4])]
 
 
+def test_peers_problems_keep_their_groups(monkeypatch):
+    """--peers --problems re-runs rows as the full run makes them: each named problem with its
+    group's methods and tolerances (the Brusselator: no scipy, from rtol 1e-1), a problem of
+    no group with every method."""
+    import argparse
+
+    monkeypatch.setattr(peers, "available", lambda: (["CVODE-BDF"], []))
+    monkeypatch.setattr(command, "get_problem", lambda name: name)
+    parser = argparse.ArgumentParser()
+    command.add_arguments(parser)
+    args = parser.parse_args(["--peers", "--problems", "bruss-4000,decay,MEDAKZO",
+                              "--output", "out"])
+    groups, _ = command.plan(args)
+    bruss = next(g for g in command.PEER_GROUPS if "bruss-4000" in g[0])
+    assert groups[0] == (["MEDAKZO"], list(command.PEER_GROUPS[0][1])
+                         + list(command.PEER_GROUPS[0][2]) + ["CVODE-BDF"],
+                         list(command.FULL_TOLERANCES))
+    assert groups[1] == (["bruss-4000"], list(bruss[1]) + ["CVODE-BDF"], list(bruss[3]))
+    assert groups[1][2][0] == 1e-1 and not set(groups[1][1]) & set(command.PEER_SCIPY)
+    assert groups[2][0] == ["decay"] and "cG(1)" in groups[2][1] and "BDF" in groups[2][1]
+
+
 def _rows(problem, curves):
     return [{"problem": problem, "solver": solver, "method": method, "status": "ok",
              "mescd": digits, "time_min_s": seconds}
