@@ -190,3 +190,21 @@ def test_level_ratios_and_targets():
     assert entries[4]["ratio"] == pytest.approx(0.01)          # cG(2) is dolfinode's best
     assert entries[4]["target_ratio"] == pytest.approx(0.3)    # but the target is mcG's
     assert entries[6]["target_met"]
+
+
+def test_cvode_keeps_its_parameter_vector():
+    """CVODE's callbacks pass the kernels a pointer to the parameters: after dolfinode has
+    compiled the ODE, ``lower`` returns a copy with a fresh parameter vector, which the peer
+    must keep alive (once freed, its memory is reused and CVODE solves another problem)."""
+    import gc
+
+    pytest.importorskip("sksundae")
+    problem = P.brusselator(n=30, T=1.0)
+    ref = dn.solve(problem.ode, method="cG(3)", tolerance=1e-9)(1.0)   # compiled first
+    peer = peers.make_peer("CVODE-BDF", problem.ode, np.linspace(0.0, 1.0, 5))
+    peer.build()
+    gc.collect()
+    garbage = [np.full(len(problem.ode.parameter_values), 1e6) for _ in range(2000)]
+    y, _ = peer.solve(1e-8, 1e-8)
+    del garbage
+    np.testing.assert_allclose(y[:, -1], ref, atol=1e-6)
