@@ -167,8 +167,8 @@ HOW = (
      "call); band linear solver where the Jacobian is banded and N >= 50, dense otherwise. "
      "The peer keeps the parameter vector its callbacks point to: before git 9a59794 it was "
      "freed once dolfinode had compiled the problem, and CVODE read reused memory (its mxstep "
-     "and t + h = t warnings on the Brusselator and MEDAKZO); the CVODE rows of problems not "
-     "re-run since may be affected."),
+     "warnings on the Brusselator); the CVODE rows of problems not re-run since may be "
+     "affected. On MEDAKZO at rtol 1e-3 CVODE's own step collapses at t = 12.66 (mxstep)."),
     ("diffrax (Kvaerno5 on the stiff problems, Tsit5 on the others), JAX CPU in double "
      "precision, PID step control with default coefficients, first step 1e-8 for Kvaerno5; "
      "the right-hand side lambdified to JAX; the whole solve jit-compiled once per problem "
