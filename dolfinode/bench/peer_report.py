@@ -164,7 +164,11 @@ HOW = (
      "finite differences and factors it dense (run for N <= 400); f evals counted by the cfunc."),
     ("CVODE (SUNDIALS BDF through scikit-sundae): dolfinode's compiled C right-hand side and "
      "exact Jacobian called from the Python callbacks scikit-sundae requires (a few us per "
-     "call); band linear solver where the Jacobian is banded and N >= 50, dense otherwise."),
+     "call); band linear solver where the Jacobian is banded and N >= 50, dense otherwise. "
+     "The peer keeps the parameter vector its callbacks point to: before git 9a59794 it was "
+     "freed once dolfinode had compiled the problem, and CVODE read reused memory (its mxstep "
+     "warnings on the Brusselator); the CVODE rows of problems not re-run since may be "
+     "affected. On MEDAKZO at rtol 1e-3 CVODE's own step collapses at t = 12.66 (mxstep)."),
     ("diffrax (Kvaerno5 on the stiff problems, Tsit5 on the others), JAX CPU in double "
      "precision, PID step control with default coefficients, first step 1e-8 for Kvaerno5; "
      "the right-hand side lambdified to JAX; the whole solve jit-compiled once per problem "

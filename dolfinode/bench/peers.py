@@ -193,6 +193,8 @@ class CVODE(Peer):
         from dolfinode.compile.lowering import lower
 
         c = lower(self.ode)
+        # the callbacks pass p's address: keep its owner (a later lower() makes a fresh p)
+        self._compiled = c
         n = c.N
         p = c.p.ctypes.data
         rhs, jac = c.rhs, c.jacobian

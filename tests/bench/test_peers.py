@@ -137,6 +137,28 @@ def test_peers_option_plans_the_groups(monkeypatch):
     assert command.plan(args)[0] == [(["HIRES"], ["dG(2)", "CVODE-BDF"], [1e-4])]
 
 
+def test_peers_problems_keep_their_groups(monkeypatch):
+    """--peers --problems re-runs rows as the full run makes them: each named problem with its
+    group's methods and tolerances (the Brusselator: no scipy, from rtol 1e-1), a problem of
+    no group with every method."""
+    import argparse
+
+    monkeypatch.setattr(peers, "available", lambda: (["CVODE-BDF"], []))
+    monkeypatch.setattr(command, "get_problem", lambda name: name)
+    parser = argparse.ArgumentParser()
+    command.add_arguments(parser)
+    args = parser.parse_args(["--peers", "--problems", "bruss-4000,decay,MEDAKZO",
+                              "--output", "out"])
+    groups, _ = command.plan(args)
+    bruss = next(g for g in command.PEER_GROUPS if "bruss-4000" in g[0])
+    assert groups[0] == (["MEDAKZO"], list(command.PEER_GROUPS[0][1])
+                         + list(command.PEER_GROUPS[0][2]) + ["CVODE-BDF"],
+                         list(command.FULL_TOLERANCES))
+    assert groups[1] == (["bruss-4000"], list(bruss[1]) + ["CVODE-BDF"], list(bruss[3]))
+    assert groups[1][2][0] == 1e-1 and not set(groups[1][1]) & set(command.PEER_SCIPY)
+    assert groups[2][0] == ["decay"] and "cG(1)" in groups[2][1] and "BDF" in groups[2][1]
+
+
 def _rows(problem, curves):
     return [{"problem": problem, "solver": solver, "method": method, "status": "ok",
              "mescd": digits, "time_min_s": seconds}
@@ -168,3 +190,21 @@ def test_level_ratios_and_targets():
     assert entries[4]["ratio"] == pytest.approx(0.01)          # cG(2) is dolfinode's best
     assert entries[4]["target_ratio"] == pytest.approx(0.3)    # but the target is mcG's
     assert entries[6]["target_met"]
+
+
+def test_cvode_keeps_its_parameter_vector():
+    """CVODE's callbacks pass the kernels a pointer to the parameters: after dolfinode has
+    compiled the ODE, ``lower`` returns a copy with a fresh parameter vector, which the peer
+    must keep alive (once freed, its memory is reused and CVODE solves another problem)."""
+    import gc
+
+    pytest.importorskip("sksundae")
+    problem = P.brusselator(n=30, T=1.0)
+    ref = dn.solve(problem.ode, method="cG(3)", tolerance=1e-9)(1.0)   # compiled first
+    peer = peers.make_peer("CVODE-BDF", problem.ode, np.linspace(0.0, 1.0, 5))
+    peer.build()
+    gc.collect()
+    garbage = [np.full(len(problem.ode.parameter_values), 1e6) for _ in range(2000)]
+    y, _ = peer.solve(1e-8, 1e-8)
+    del garbage
+    np.testing.assert_allclose(y[:, -1], ref, atol=1e-6)

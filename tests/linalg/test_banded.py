@@ -219,3 +219,67 @@ def test_diagonal_and_empty_patterns(n):
     assert check_ordering(indptr, indices, n)[2:] == (0, 0)
     indptr, indices = np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64)
     assert check_ordering(indptr, indices, n)[2:] == (0, 0)
+
+
+def dominant_banded(rng, n, kl, ku, dtype=float):
+    """Banded matrix whose diagonal entry is the largest of its column (no row interchanges),
+    as the Newton matrices I - c J of diffusion problems."""
+    A = random_banded(rng, n, kl, ku)
+    if dtype is complex:
+        A = A + 1j * random_banded(rng, n, kl, ku)
+    A[np.diag_indices(n)] = (kl + ku + 2.0) * (1.0 + 0.5j if dtype is complex else 1.0)
+    return A
+
+
+def band_of(A, kl, ku):
+    return to_band(A.real, kl, ku) + 1j * to_band(A.imag, kl, ku) if A.dtype.kind == "c" \
+        else to_band(A, kl, ku)
+
+
+@pytest.mark.parametrize("dtype", [float, complex])
+@pytest.mark.parametrize("n, kl, ku", [(1, 0, 0), (2, 1, 1), (3, 2, 2), (9, 0, 2), (9, 2, 0),
+                                       (10, 1, 1), (31, 2, 2), (31, 1, 2), (31, 2, 1)])
+def test_narrow_band_without_interchanges(n, kl, ku, dtype):
+    """kl, ku <= NARROW without row interchanges: the unrolled factorization and the solve by
+    rows (registers carrying the unknowns) agree with numpy, and no row was interchanged."""
+    rng = np.random.default_rng(10 * n + kl + ku)
+    A = dominant_banded(rng, n, kl, ku, dtype)
+    b = rng.standard_normal(n).astype(dtype)
+    ab = band_of(A, kl, ku)
+    ipiv = np.full(n, -1, dtype=np.int64)
+    assert band_lu(ab, kl, ku, ipiv) == 0
+    np.testing.assert_array_equal(ipiv, np.arange(n))
+    x = b.copy()
+    band_solve(ab, kl, ku, ipiv, x)
+    np.testing.assert_allclose(x, np.linalg.solve(A, b), rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("dtype", [float, complex])
+@pytest.mark.parametrize("kl, ku", [(1, 1), (2, 2), (2, 1)])
+def test_narrow_band_hands_over_at_an_interchange(kl, ku, dtype):
+    """A column whose largest entry is below the diagonal, midway: the unrolled columns stop
+    there and partial pivoting takes over (the interchange is made, as LAPACK's gbtrf would),
+    and the solve, now with interchanges, still matches numpy."""
+    n, j = 20, 11
+    rng = np.random.default_rng(kl + 3 * ku)
+    A = dominant_banded(rng, n, kl, ku, dtype)
+    A[j, j] = 0.1  # the sub-diagonal entries of column j are O(1)
+    A[j + 1, j] = 3.0
+    b = rng.standard_normal(n).astype(dtype)
+    ab = band_of(A, kl, ku)
+    ipiv = np.zeros(n, dtype=np.int64)
+    assert band_lu(ab, kl, ku, ipiv) == 0
+    assert ipiv[j] != j
+    np.testing.assert_array_equal(ipiv[:j], np.arange(j))
+    x = b.copy()
+    band_solve(ab, kl, ku, ipiv, x)
+    np.testing.assert_allclose(x, np.linalg.solve(A, b), rtol=1e-11, atol=1e-13)
+
+
+def test_narrow_band_singular_reports_the_column():
+    """A zero column midway stops the unrolled columns; the general loop reports it (info)."""
+    n, kl, ku = 12, 2, 2
+    A = dominant_banded(np.random.default_rng(5), n, kl, ku)
+    A[:, 6] = 0.0
+    ab = to_band(A, kl, ku)
+    assert band_lu(ab, kl, ku, np.zeros(n, dtype=np.int64)) == 7
