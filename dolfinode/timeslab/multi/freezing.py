@@ -29,14 +29,19 @@ def store_constant(i, a, b, x, counters, out_comp, out_a, out_b, out_values):
 
 
 @helper(inline="always")
-def drift_bound(change, rate, tau, mu):
+def drift_bound(change, rate, tau, mu, quiet):
     """|change| + |rate| tau (e^(mu tau) - 1) / (mu tau): a component's change on a slab and a
     bound of its drift over the time tau left, if it moves at ``rate`` now and its row of
     df/du has mu = J_ii + sum_j!=i |J_ij| (the row's bound of the logarithmic max-norm:
     rates of size r grow at most like e^(mu t) r). Without the growth factor u' = u from
-    u = 1e-12 would be frozen for good."""
+    u = 1e-12 would be frozen for good. Where |change| + |rate| tau already exceeds
+    ``quiet`` (the level of ``freeze``), that is returned: the growth factor (an expm1 per
+    component and slab) cannot change the decision."""
     if rate == 0.0:
         return abs(change)
+    drift = abs(change) + abs(rate) * tau
+    if drift > quiet:
+        return drift
     z = max(mu, 0.0) * tau
     growth = 1.0 if z < 1e-8 else (math.expm1(z) / z if z < 700.0 else math.inf)
     return abs(change) + abs(rate) * tau * growth

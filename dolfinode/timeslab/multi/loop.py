@@ -554,7 +554,8 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                 emax[i] = (b - t) * abs(out[0])
                 umax[i] = abs(x[i])
                 kact[i] = b - t
-                drift[i] = drift_bound(0.0, out[0], T - b, jdiag[i] + coupling[i])
+                drift[i] = drift_bound(0.0, out[0], T - b, jdiag[i] + coupling[i],
+                                       QUIET * (atol[i] + rtol * umax[i]))
         # (the components with elements, then the frozen ones checked)
         nseen = nactive + nchecked
         for r in range(nseen):
@@ -663,9 +664,8 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             i = active[r]
             last = celems[cptr[i + 1] - 1]
             change = values[last, nn - 1] - x[i]
-            # (a change alone above the threshold of ``freeze`` keeps i active: no bound needed)
-            drift[i] = (abs(change) if abs(change) > QUIET * (atol[i] + rtol * umax[i]) else
-                        drift_bound(change, fend[last], T - b, jdiag[i] + coupling[i]))
+            drift[i] = drift_bound(change, fend[last], T - b, jdiag[i] + coupling[i],
+                                   QUIET * (atol[i] + rtol * umax[i]))
             x[i] = values[last, nn - 1]
             last_a[i], last_b[i] = ea[last], eb[last]
             for m in range(nn):
