@@ -49,7 +49,7 @@ from dolfinode.timeslab.multi.freezing import (
     store_constant,
     transpose_pattern,
 )
-from dolfinode.timeslab.multi.steps import grade, propagate, slab_limit
+from dolfinode.timeslab.multi.steps import grade, power, propagate, slab_limit
 from dolfinode.timeslab.multi.sweeps import (
     converge,
     guess_from,
@@ -595,7 +595,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                     # held on the synchronised step: its estimate scaled to its own step
                     # (eps = O(k^order)), so that the synchronised step does not cap its
                     # growth and the partition can show what it saves again
-                    eref *= (kdes[i] / kref) ** order
+                    eref *= power(kdes[i] / kref, order)
                     kref = kdes[i]
                 # below efloor the factor is capped at MAX_FACTOR anyway: no pow() for idle
                 # components
