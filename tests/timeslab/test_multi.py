@@ -295,9 +295,11 @@ def test_growing_components_are_not_frozen():
     own steps are long, so only that it grows is checked here."""
     from dolfinode.timeslab.multi.freezing import drift_bound
 
-    assert drift_bound(0.0, 1e-12, 30.0, 1.0) == pytest.approx(1e-12 * np.expm1(30.0))
-    assert drift_bound(-2e-3, 1e-12, 30.0, -5.0) == pytest.approx(2e-3 + 3e-11)
-    assert drift_bound(0.0, 1e-300, 1e3, 1.0) == np.inf
+    assert drift_bound(0.0, 1e-12, 30.0, 1.0, np.inf) == pytest.approx(1e-12 * np.expm1(30.0))
+    assert drift_bound(-2e-3, 1e-12, 30.0, -5.0, np.inf) == pytest.approx(2e-3 + 3e-11)
+    assert drift_bound(0.0, 1e-300, 1e3, 1.0, np.inf) == np.inf
+    # above the quiet level without the growth factor: no growth factor, the same decision
+    assert drift_bound(-2e-3, 1e-12, 30.0, 1.0, 1e-3) == pytest.approx(2e-3 + 3e-11)
     u, x, y = sp.symbols("u x y")
     ode = dn.ODE({u: u, x: y, y: -x}, u0=[1e-12, 1.0, 0.0], T=30.0)
     sol = dn.solve(ode, method="mcG(1)", tolerance=1e-6, calibrate_tolerance=False)

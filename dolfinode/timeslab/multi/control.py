@@ -12,6 +12,7 @@ from dolfinode.compile.jit import helper
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.counters import F_EVALUATIONS
 from dolfinode.timeslab import CONSTRAINT_CUT
+from dolfinode.timeslab.multi.steps import power
 from dolfinode.timeslab.partition import grow_float
 
 #: A slab holds many elements of a fast component and one indicator above the margin rejects
@@ -110,7 +111,7 @@ def choose_steps(active, nactive, checked, nchecked, emax, kact, kdes, frozen, s
             continue  # keeps its step until it wakes up
         kref, eref = kact[i], emax[i]
         if solved and kdes[i] > kref:
-            eref *= (kdes[i] / kref) ** order
+            eref *= power(kdes[i] / kref, order)
             kref = kdes[i]
         # below efloor the factor is capped at MAX_FACTOR anyway: no pow() for idle components
         knew = (kref * MAX_FACTOR if eref <= efloor else

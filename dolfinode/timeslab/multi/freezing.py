@@ -29,14 +29,19 @@ def store_constant(i, a, b, x, counters, out_comp, out_a, out_b, out_values):
 
 
 @helper(inline="always")
-def drift_bound(change, rate, tau, mu):
+def drift_bound(change, rate, tau, mu, quiet):
     """|change| + |rate| tau (e^(mu tau) - 1) / (mu tau): a component's change on a slab and a
     bound of its drift over the time tau left, if it moves at ``rate`` now and its row of
     df/du has mu = J_ii + sum_j!=i |J_ij| (the row's bound of the logarithmic max-norm:
     rates of size r grow at most like e^(mu t) r). Without the growth factor u' = u from
-    u = 1e-12 would be frozen for good."""
+    u = 1e-12 would be frozen for good. Where |change| + |rate| tau already exceeds
+    ``quiet`` (the level of ``freeze``), that is returned: the growth factor (an expm1 per
+    component and slab) cannot change the decision."""
     if rate == 0.0:
         return abs(change)
+    drift = abs(change) + abs(rate) * tau
+    if drift > quiet:
+        return drift
     z = max(mu, 0.0) * tau
     growth = 1.0 if z < 1e-8 else (math.expm1(z) / z if z < 700.0 else math.inf)
     return abs(change) + abs(rate) * tau * growth
@@ -132,7 +137,7 @@ def store_frozen(frozen, t, x, counters, out_comp, out_a, out_b, out_values):
 @helper(**NO_REFCOUNT)
 def check_frozen(stamp, active, nactive, autonomous, rptr, readers, check_stamp, frozen,
                  checked, uw, values, cptr, celems, fi, p, t, b, T, x, out, jdiag, coupling,
-                 emax, umax, kact, drift, counters):
+                 emax, umax, kact, drift, atol, rtol, counters):
     """Check the frozen components after a slab [t, b]: a frozen component is a constant on
     the slab, its residual -f_i(U(b)) with every other component at its end value (uw
     holds x_j for the frozen ones). For autonomous f only the frozen components that read
@@ -168,7 +173,8 @@ def check_frozen(stamp, active, nactive, autonomous, rptr, readers, check_stamp,
         emax[i] = (b - t) * abs(out[0])
         umax[i] = abs(x[i])
         kact[i] = b - t
-        drift[i] = drift_bound(0.0, out[0], T - b, jdiag[i] + coupling[i])
+        drift[i] = drift_bound(0.0, out[0], T - b, jdiag[i] + coupling[i],
+                               QUIET * (atol[i] + rtol * umax[i]))
     return nchecked, blowup
 
 

@@ -157,9 +157,8 @@ def _move_to_end(active, nactive, cptr, celems, ea, eb, values, fend, x, drift, 
         i = active[r]
         last = celems[cptr[i + 1] - 1]
         change = values[last, nn - 1] - x[i]
-        # (a change alone above the threshold of ``freeze`` keeps i active: no bound needed)
-        drift[i] = (abs(change) if abs(change) > QUIET * (atol[i] + rtol * umax[i]) else
-                    drift_bound(change, fend[last], tau, jdiag[i] + coupling[i]))
+        drift[i] = drift_bound(change, fend[last], tau, jdiag[i] + coupling[i],
+                               QUIET * (atol[i] + rtol * umax[i]))
         x[i] = values[last, nn - 1]
         last_a[i], last_b[i] = ea[last], eb[last]
         for m in range(nn):
@@ -404,7 +403,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             nchecked, frozen_blowup = check_frozen(
                 check_round, active, nactive, o.autonomous, rptr, readers, check_stamp, frozen,
                 checked, uw, values, cptr, celems, fi, p, t, b, T, x, out, jdiag, coupling,
-                emax, umax, kact, drift, counters)
+                emax, umax, kact, drift, atol, rtol, counters)
             blowup = blowup or frozen_blowup
         scale_indicators(active, nactive, checked, nchecked, emax, atol, rtol, umax)
         if wake_failed(checked, nchecked, emax, ACCEPTANCE_MARGIN, t, x, frozen, quiet, last_a,
