@@ -74,7 +74,9 @@ def iteration_tolerance(dtol, k, span, rtol, delivered, n, rounding):
     (ROBER: k / (T - t0) < 1e-8 on every slab, 5-9 iterations a slab to rounding) and the
     share says nothing; the slab then takes c delivered / (n + 1) (c = ITERATION_SHARE,
     ``delivered`` = tolerance / rtol, the error the tolerance delivers at T), which sums over
-    n slabs to at most c (1 + ln n) of that error and shrinks with the tolerance.
+    n slabs to at most c (1 + ln n) of that error and shrinks with the tolerance. (cG(q) passes
+    delivered = 0: not L-stable, it keeps a stiff component's iteration error, and ROBER's
+    cG(2) at 1e-2 then failed.)
     """
     share = dtol * min(1.0, k / span)
     floor = rounding / rtol

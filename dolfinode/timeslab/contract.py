@@ -27,7 +27,8 @@ kmax               largest step
 safety             safety factor of the step control
 dtol               discrete (iteration) tolerance, relative to the tolerance
 delivered          mono: the error at T the tolerance is calibrated to, in units of rtol
-                   (tolerance / rtol; 1 uncalibrated): scales the iteration floor
+                   (tolerance / rtol; 1 uncalibrated): scales the iteration floor; 0 for
+                   cG(q), which does not damp a stiff component's iteration error
 order              P in the error estimate eps = O(k^P)
 span               T - t0 of the whole solve (the step floor, the iteration tolerance)
 gamma              the error filter's constant |det A|^(1/S) (dolfinode.adaptivity)
