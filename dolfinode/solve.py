@@ -418,7 +418,6 @@ def _options(ode, m, params, multi_adaptive, atol):
     solution size."""
     rtol = params["tolerance"]
     fixed = bool(params["fixed_time_step"])
-    scale = 1.0
     if fixed:
         atol, rtol, dtol = np.ones(ode.N), 1.0, 1e-15
     else:
@@ -430,8 +429,7 @@ def _options(ode, m, params, multi_adaptive, atol):
         solver=NONLINEAR_SOLVERS.index(params["nonlinear_solver"]), fixed=fixed,
         max_iter=params["maximum_iterations"], is_dg=m.family == "dG", rtol=rtol, T=ode.T,
         kmax=params["maximum_time_step"] or ode.T - ode.t0, safety=params["safety_factor"],
-        dtol=dtol, delivered=1.0 / scale if m.family == "dG" else 0.0, order=m.local_order,
-        span=ode.T - ode.t0, gamma=filter_constant(m))
+        dtol=dtol, order=m.local_order, span=ode.T - ode.t0, gamma=filter_constant(m))
 
 
 def _floor(ode, atol):

@@ -28,9 +28,6 @@ from dolfinode.linalg.newton_matrix import lu_factor, lu_solve, shift
 
 #: An iteration that stops contracting with scaled increments below this has reached rounding.
 ROUNDING_LEVEL = 1e-10
-#: Share of the error delivered at T that the iteration errors of slabs on steps graded over
-#: many decades may take (see iteration_tolerance).
-ITERATION_SHARE = 1e-2
 
 
 @njit(cache=True, inline="always")
@@ -62,27 +59,6 @@ def weighted_norm(dx, w):
     for j in range(dx.shape[0]):
         result = _weighted_max(result, dx[j], w[j])
     return result
-
-
-@njit(cache=True, inline="always")
-def iteration_tolerance(dtol, k, span, rtol, delivered, n, rounding):
-    """The stopping tolerance (scaled norm) of the iteration on the n-th slab (n = 0, 1, ...)
-    of step k: the share dtol min(1, k / (T - t0)), whose iteration errors sum to at most
-    dtol over [t0, T], not above dtol nor below the rounding level rounding / rtol.
-
-    Where the share falls below the rounding level, the steps are graded over many decades
-    (ROBER: k / (T - t0) < 1e-8 on every slab, 5-9 iterations a slab to rounding) and the
-    share says nothing; the slab then takes c delivered / (n + 1) (c = ITERATION_SHARE,
-    ``delivered`` = tolerance / rtol, the error the tolerance delivers at T), which sums over
-    n slabs to at most c (1 + ln n) of that error and shrinks with the tolerance. (cG(q) passes
-    delivered = 0: not L-stable, it keeps a stiff component's iteration error, and ROBER's
-    cG(2) at 1e-2 then failed.)
-    """
-    share = dtol * min(1.0, k / span)
-    floor = rounding / rtol
-    if share < floor:
-        floor = max(floor, ITERATION_SHARE * delivered / (n + 1))
-    return max(share, min(dtol, floor))
 
 
 @njit(cache=True, inline="always")
