@@ -661,8 +661,10 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, stat
         structure, newton_bytes, fits = _newton_options(compiled, m, options)
         return fits
 
-    if not sparse_candidate(structure):
-        newton_ready()  # nothing to analyse: decided up front, no return to the driver
+    if not sparse_candidate(structure) or m.name in compiled.newton_plans:
+        # nothing (left) to analyse: decided up front, no return to the driver (which cost
+        # a small sparse system such as POLLU a second loop call and its buffers)
+        newton_ready()
 
     def buffers(capacity):
         size = min(capacity, params["maximum_steps"] - counters[ts.SLABS])

@@ -131,7 +131,13 @@ def test_peers_option_plans_the_groups(monkeypatch):
     assert names == [n for g, *_ in command.PEER_GROUPS for n in g]
     assert all("CVODE-BDF" in ms for _, ms, _ in groups)
     assert any("mcG(2)" in ms for _, ms, _ in groups)
-    assert groups[0][2] == list(command.FULL_TOLERANCES) and groups[-1][2][-1] == 1e-11
+    assert groups[0][2] == list(command.STIFF_TOLERANCES) and groups[-1][2][-1] == 1e-11
+    assert groups[1][2] == list(command.FULL_TOLERANCES)
+    # --problems: each problem keeps its group's sweep
+    args = parser.parse_args(["--peers", "--problems", "ROBER,MEDAKZO,POLLU"])
+    assert [(names, tols) for names, _, tols in command.plan(args)[0]] == [
+        (["ROBER", "POLLU"], list(command.STIFF_TOLERANCES)),
+        (["MEDAKZO"], list(command.FULL_TOLERANCES))]
     args = parser.parse_args(["--peers", "--problems", "HIRES", "--methods", "dG(2)",
                               "--tolerances", "1e-4"])
     assert command.plan(args)[0] == [(["HIRES"], ["dG(2)", "CVODE-BDF"], [1e-4])]
