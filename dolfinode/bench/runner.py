@@ -238,9 +238,10 @@ def run_dolfinode(case, method, tol, maximum_steps):
                rejected=st["rejected steps"], elements=st["elements"])
 
     def timed():
-        stats = dn.solve(case.ode, **options).stats
+        sol = dn.solve(case.ode, **options)
+        sol(case.t_eval)   # the peers return the 100 points inside their timed call too
         # with modeling, "solve time" is the wall time of the whole pipeline, not a loop's
-        return None if modeling else stats["solve time"]
+        return None if modeling else sol.stats["solve time"]
 
     return row, timed
 
