@@ -5,8 +5,16 @@ import numpy as np
 import pytest
 
 import dolfinode as dn
-from dolfinode.adaptivity import (DELIVERED, DELIVERED_MULTI, MAX_STEP_TOLERANCE, STIFF_RATIO,
-                                  STIFF_TARGET, step_tolerance, stiff_factor, stiff_loosening)
+from dolfinode.adaptivity import (
+    DELIVERED,
+    DELIVERED_MULTI,
+    MAX_STEP_TOLERANCE,
+    STIFF_RATIO,
+    STIFF_TARGET,
+    step_tolerance,
+    stiff_factor,
+    stiff_loosening,
+)
 from dolfinode.bench import problems
 from dolfinode.bench.multirate import oscillator_bank
 from dolfinode.methods import make_method
