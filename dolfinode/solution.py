@@ -60,10 +60,10 @@ def _evaluate_shared(t_start, t_end, values, nodes, bary, times, out):
         tau = min(max((times[m] - t_start[n]) / (t_end[n] - t_start[n]), 0.0), 1.0)
         lagrange_weights(tau, nodes, bary, weights)
         for i in range(out.shape[0]):
-            value = 0.0
-            for j in range(nodes.shape[0]):
-                value += weights[j] * values[n, j, i]
-            out[i, m] = value
+            out[i, m] = 0.0
+        for j in range(nodes.shape[0]):  # (components innermost: contiguous in values)
+            for i in range(out.shape[0]):
+                out[i, m] += weights[j] * values[n, j, i]
 
 
 @njit(cache=True)
