@@ -9,13 +9,41 @@ from dolfinode.methods.method import element_value, lagrange_weights
 
 
 @njit(cache=True)
+def _locate(ends, t, n):
+    """The first element whose end ``ends[e]`` (increasing) is at or after t (the last
+    element if none): np.searchsorted(ends, t) capped, searched from the guess ``n``, the
+    answer for an earlier time. Sorted times walk forward, galloping (steps 1, 2, 4, ...)
+    then bisecting, so m times over M elements cost O(m + M) at most and O(m log M) when
+    they are sparse; an earlier time bisects [0, n)."""
+    last = ends.shape[0] - 1
+    if n > 0 and ends[n - 1] >= t:
+        lo, hi = 0, n - 1
+    else:
+        lo = hi = n
+        step = 1
+        while hi < last and ends[hi] < t:
+            lo = hi + 1
+            hi = min(hi + step, last)
+            step *= 2
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if ends[mid] >= t:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+@njit(cache=True)
 def _evaluate_components(ptr, t_start, t_end, values, nodes, bary, times, out):
     """out[i, m] = U_i(times[m]) from component i's elements ptr[i]:ptr[i+1] (time-sorted;
     values (E, q + 1)), each from the first element ending at or after the time."""
     for i in range(ptr.shape[0] - 1):
         ends = t_end[ptr[i]:ptr[i + 1]]
+        n = 0
         for m in range(times.shape[0]):
-            e = ptr[i] + min(np.searchsorted(ends, times[m]), ends.shape[0] - 1)
+            n = _locate(ends, times[m], n)
+            e = ptr[i] + n
             tau = min(max((times[m] - t_start[e]) / (t_end[e] - t_start[e]), 0.0), 1.0)
             out[i, m] = element_value(values, e, tau, nodes, bary)
 
@@ -26,15 +54,34 @@ def _evaluate_shared(t_start, t_end, values, nodes, bary, times, out):
     (M, q + 1, N)), from the first element ending at or after the time; the basis is
     evaluated once per time for all components."""
     weights = np.empty(nodes.shape[0])
+    n = 0
     for m in range(times.shape[0]):
-        n = min(np.searchsorted(t_end, times[m]), t_end.shape[0] - 1)
+        n = _locate(t_end, times[m], n)
         tau = min(max((times[m] - t_start[n]) / (t_end[n] - t_start[n]), 0.0), 1.0)
         lagrange_weights(tau, nodes, bary, weights)
         for i in range(out.shape[0]):
-            value = 0.0
-            for j in range(nodes.shape[0]):
-                value += weights[j] * values[n, j, i]
-            out[i, m] = value
+            out[i, m] = 0.0
+        for j in range(nodes.shape[0]):  # (components innermost: contiguous in values)
+            for i in range(out.shape[0]):
+                out[i, m] += weights[j] * values[n, j, i]
+
+
+@njit(cache=True)
+def _first_outside(times, t0, T):
+    """The index of the first time outside [t0, T] (or NaN), -1 if none."""
+    for m in range(times.shape[0]):
+        if not t0 <= times[m] <= T:
+            return m
+    return -1
+
+
+@njit(cache=True)
+def _set_initial(times, t0, u0, out):
+    """out[:, m] = u0 where times[m] == t0: U(t0) is the initial value (for dG the element
+    polynomial starts after the jump)."""
+    for m in range(times.shape[0]):
+        if times[m] == t0:
+            out[:, m] = u0
 
 
 @njit(cache=True)
@@ -212,21 +259,19 @@ class Solution:
                             f"of them), got {t!r}")
         shape = times.shape
         times = times.ravel()
-        outside = ~((times >= self.ode.t0) & (times <= self.ode.T))  # (True for nan)
-        if outside.any():
-            bad = times[outside][0]
+        ode = self.ode
+        outside = _first_outside(times, ode.t0, ode.T)
+        if outside >= 0:
+            bad = times[outside]
             what = " (not a number)" if math.isnan(bad) else ""
-            raise ValueError(f"the solution is defined on [{self.ode.t0}, {self.ode.T}], "
+            raise ValueError(f"the solution is defined on [{ode.t0}, {ode.T}], "
                              f"got t = {bad:.17g}{what}")
-        return self._values(times).reshape(self.ode.N, *shape)
+        return self._values(times).reshape(ode.N, *shape)
 
     def _values(self, times):
         """U at ``times`` in [t0, T], shape (N, len(times))."""
         out = self._evaluate(times)
-        # U(t0) is the initial value (for dG the element polynomial starts after the jump)
-        at_t0 = np.flatnonzero(times == self.ode.t0)
-        if at_t0.size:
-            out[:, at_t0] = self.ode.u0[:, None]
+        _set_initial(times, self.ode.t0, self.ode.u0, out)
         return out
 
     def _evaluate(self, times):

@@ -107,6 +107,48 @@ def test_evaluation_is_the_element_polynomial():
     np.testing.assert_array_equal(sol(t_end[:5]), sol.values[:5, -1].T)
 
 
+def _searched(sol, times):
+    """U at ``times`` located by one search per time (np.searchsorted in the element ends,
+    per component for multi-adaptive solutions), the reference of the walk in sol(t)."""
+    from dolfinode.methods.method import element_value, lagrange_weights
+
+    nodes, bary = sol.method.nodes, sol.method.barycentric_weights
+    weights = np.empty(nodes.size)
+    out = np.empty((sol.ode.N, times.size))
+    for i in range(sol.ode.N):
+        if sol.multi:
+            span = slice(sol._component_ptr[i], sol._component_ptr[i + 1])
+            t_start, t_end, values = sol.t_start[span], sol._t_end[span], sol.values[span]
+        else:
+            t_start, t_end, values = sol.t_start, sol.t_start + sol.k, sol.values[:, :, i]
+        for m, t in enumerate(times):
+            e = min(np.searchsorted(t_end, t), t_end.size - 1)
+            tau = min(max((t - t_start[e]) / (t_end[e] - t_start[e]), 0.0), 1.0)
+            if sol.multi:
+                out[i, m] = element_value(values, e, tau, nodes, bary)
+            else:  # the basis once per time for all components, as sol(t)
+                lagrange_weights(tau, nodes, bary, weights)
+                out[i, m] = sum(weights[j] * values[e, j] for j in range(nodes.size))
+    out[:, times == sol.ode.t0] = sol.ode.u0[:, None]
+    return out
+
+
+@pytest.mark.parametrize("method", ["dG(2)", "mcG(1)"])
+def test_evaluation_at_many_times_locates_as_a_search_per_time(method):
+    """sol(times) locates the elements by a walk over sorted times (galloping over sparse
+    ones, bisecting back for an earlier time): the same values bitwise as a search per time,
+    for sorted, shuffled and sparse times, element ends, t0 and T."""
+    u, v, w = sp.symbols("u v w")
+    ode = dn.ODE({u: v, v: -u, w: -20 * w}, u0=[0, 1, 1], T=3.0)
+    sol = dn.solve(ode, method=method, tolerance=1e-5)
+    rng = np.random.default_rng(0)
+    ends = np.concatenate([sol.t_start, sol.t_start + sol.k])
+    many = np.sort(np.concatenate([[0.0, 3.0], ends, rng.uniform(0, 3, 300)]))
+    for times in (many, rng.permutation(many), np.array([0.0, 1e-9, 2.9, 3.0]), many[::-1]):
+        np.testing.assert_array_equal(sol(times), _searched(sol, times))
+    assert sol.k.size > 20
+
+
 def test_join_elements_concatenates_and_empties_the_chunks():
     from dolfinode.solution import join_elements
 

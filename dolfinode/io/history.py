@@ -27,7 +27,8 @@ from numba import njit
 from dolfinode.errors import SolverError
 from dolfinode.memory import address_space_room, available_memory
 from dolfinode.methods.method import element_value
-from dolfinode.solution import Solution, _evaluate_shared, equispaced, join_elements
+from dolfinode.solution import (Solution, _evaluate_shared, _set_initial, equispaced,
+                                join_elements)
 
 #: A dense history is checked against the available memory once it holds this many bytes
 #: (reading /proc for every chunk of a small solve would cost more than it guards).
@@ -206,14 +207,28 @@ def _sample_elements(comp, t_start, t_end, values, nodes, bary, times, out):
             out[comp[e], m] = element_value(values, e, tau, nodes, bary)
 
 
+@njit(cache=True)
+def _sample_shared(t_start, k, values, nodes, bary, times, out):
+    """out[:, m] = U(times[m]) for the times in (t_start[0], t_start[-1] + k[-1]] of a chunk
+    of a shared partition (as :func:`~dolfinode.solution._evaluate_shared`, which the
+    Solution of the whole history evaluates)."""
+    if t_start.shape[0] == 0:
+        return
+    t_end = t_start + k
+    first = np.searchsorted(times, t_start[0], side="right")
+    last = np.searchsorted(times, t_end[-1], side="right")
+    _evaluate_shared(t_start, t_end, values, nodes, bary, times[first:last], out[:, first:last])
+
+
 class Samples:
     """``dense_output=False``: each chunk evaluated at the sample times it covers, then
     dropped (memory: the samples and one chunk, whatever the number of steps)."""
 
     def __init__(self, ode, method, multi_adaptive, times):
         self.ode, self.method, self.multi_adaptive, self.times = ode, method, multi_adaptive, times
-        self.y = np.full((ode.N, times.size), np.nan)
-        self.y[:, times == ode.t0] = ode.u0[:, None]  # U(t0) = u0, as Solution's
+        self.y = np.empty((times.size, ode.N)).T  # components contiguous, as Solution's y
+        self.y.fill(np.nan)  # (np.full costs 1-2 us more)
+        _set_initial(times, ode.t0, ode.u0, self.y)  # U(t0) = u0, as Solution's
         self.per_component = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
 
     def add(self, chunk, t):
@@ -223,16 +238,7 @@ class Samples:
             self.per_component += np.bincount(comp, minlength=self.ode.N)
             _sample_elements(comp, t_start, t_end, values, nodes, bary, self.times, self.y)
             return
-        t_start, k, values = chunk
-        if not len(k):
-            return
-        t_end = t_start + k
-        first = np.searchsorted(self.times, t_start[0], side="right")
-        last = np.searchsorted(self.times, t_end[-1], side="right")
-        if last > first:
-            out = np.empty((last - first, self.ode.N)).T
-            _evaluate_shared(t_start, t_end, values, nodes, bary, self.times[first:last], out)
-            self.y[:, first:last] = out
+        _sample_shared(*chunk, nodes, bary, self.times, self.y)
 
     def finish(self, completed):
         return None

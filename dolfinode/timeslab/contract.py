@@ -80,6 +80,8 @@ def _record(dtype, values):
     # one assignment of all fields (by name each costs as much as the whole tuple), into
     # zeroed bytes (np.zeros of a record dtype costs 5x more)
     record = np.frombuffer(bytearray(dtype.itemsize), dtype=dtype)
+    if not values:  # (the bytes are zero already)
+        return record
     record[0] = tuple(map(values.pop, dtype.names, itertools.repeat(0)))
     if values:
         raise TypeError(f"no field {next(iter(values))!r} in {dtype.names}")

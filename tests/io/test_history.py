@@ -50,6 +50,12 @@ def test_sample_times_of_a_dense_solve_are_its_t_and_y():
 
 @pytest.mark.parametrize("parameters, error, words", [
     ({"sample_times": [0.5, 0.2]}, ValueError, "strictly increasing, as solve_ivp's t_eval"),
+    # float arrays take a shorter check: the same errors
+    ({"sample_times": np.array([0.5, 0.5])}, ValueError, "strictly increasing"),
+    ({"sample_times": np.array([0.5, np.nan, 1.0])}, ValueError, "finite times"),
+    ({"sample_times": np.array([0.5, 1.0, np.inf])}, ValueError, "finite times"),
+    ({"sample_times": np.array([])}, ValueError, "non-empty"),
+    ({"sample_times": np.array([-0.5, 1.0])}, ValueError, r"sample_times must lie in \[t0, T\]"),
     ({"sample_times": [0.5, 3.0]}, ValueError, r"sample_times must lie in \[t0, T\]"),
     ({"sample_times": [[0.5]]}, ValueError, "1-D sequence"),
     ({"sample_times": [0.5j]}, TypeError, "sample_times is complex"),
