@@ -155,7 +155,7 @@ def compile_table(problems):
 HOW = (
     ("Time: CPU time (`time.process_time`, all threads of the process) of one whole solve "
      "with output at 100 points (dolfinode: the `dn.solve` call and the evaluation of its "
-     "Solution at the 100 points, 20-33 us of the time on HIRES, ROBER, VDPOL and POLLU; rows "
+     "Solution at the 100 points, 7-8 us of the time on HIRES, ROBER, VDPOL and POLLU; rows "
      "merged from runs before git 911915b timed the `dn.solve` call alone), the **minimum** of the timed repeats, taken in interleaved "
      "rounds (one call of every run per round) after an untimed run; compile and build times "
      "are excluded (table above; a peer's build is its code generation and compile plus one "
