@@ -72,24 +72,24 @@ def main():
         cold, notices = run_stages(cache)
         warm, _ = run_stages(cache)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                            capture_output=True, text=True).stdout.strip()
+                            capture_output=True, text=True, check=False).stdout.strip()
     record = {"commit": commit, "cold": cold, "warm": warm,
               "notices": [line for line in notices.splitlines() if "dolfinode:" in line]}
     output = Path(args.output)
     (output / "cold_start.json").write_text(json.dumps(record, indent=1) + "\n")
     lines = ["# Cold start", "",
-             "CPU seconds (user + system, with the C compiler) of each stage in a fresh process, "
+             ("CPU seconds (user + system, with the C compiler) of each stage in a fresh process, "
              "with empty caches and then with the caches the first process filled "
-             f"(`benchmarks/run_cold_start.py`, git {commit}).", "",
+             f"(`benchmarks/run_cold_start.py`, git {commit})."), "",
              "| stage | empty caches (s) | filled caches (s) |", "|---|---|---|"]
     for name in cold:
         lines.append(f"| {name} | {cold[name]:.1f} | {warm[name]:.2f} |")
     lines.append(f"| total | {sum(cold.values()):.1f} | {sum(warm.values()):.2f} |")
     lines += ["", "Notices printed on stderr with empty caches:", ""]
     lines += [f"    {line}" for line in record["notices"]] or ["    (none)"]
-    lines += ["", "They go to the `dolfinode` logger (WARNING); silence them with "
+    lines += ["", ("They go to the `dolfinode` logger (WARNING); silence them with "
               "`logging.getLogger(\"dolfinode\").setLevel(logging.ERROR)`. `dolfinode compile` "
-              "fills the caches ahead (images, CI)."]
+              "fills the caches ahead (images, CI).")]
     (output / "cold_start.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -121,8 +121,8 @@ def main(argv=None):
     fig.savefig(args.output / "modeling.png", dpi=110)
     meta = machine_info()
     lines = ["# Automatic modeling: cost of the simple model against kappa", "",
-             f"Measured {meta['date']} (git {meta['git_commit']}) on {meta['cpu']}, "
-             f"{meta['cpu_count']} CPUs.", "",
+             (f"Measured {meta['date']} (git {meta['git_commit']}) on {meta['cpu']}, "
+             f"{meta['cpu_count']} CPUs."), "",
              ("`python benchmarks/run_modeling.py` (cG(2), tolerance 1e-4, tau = 100/sqrt(kappa), "
               f"best of {args.repeat}; scipy rtol 1e-6, atol 1e-9, capped at {args.cap:g} s; "
               "'-' = not finished)."), "",
@@ -402,8 +402,8 @@ def write_classes(rows, output, cap):
         return fmt(r, "scipy CPU [s]", ".3g")
 
     lines = ["# Automatic modeling on the four classes of issue 28", "",
-             f"Measured {meta['date']} (git {meta['git_commit']}) on {meta['cpu']}, "
-             f"{meta['cpu_count']} CPUs (shared).", "",
+             (f"Measured {meta['date']} (git {meta['git_commit']}) on {meta['cpu']}, "
+             f"{meta['cpu_count']} CPUs (shared)."), "",
              ("`python benchmarks/run_modeling.py --classes`: cG(2), tolerance 1e-4, defaults "
               "otherwise; CPU seconds, best of 3 after a first solve that compiles. Error: max "
               "over [T / 10, T] of |U - u-bar| over the range of u-bar for the slow "
@@ -440,7 +440,7 @@ def write_classes(rows, output, cap):
                      f"{scipy_cpu(r)} "
                      f"| {ratio(r, 'scipy CPU [s]')} |")
     lines += ["", "![CPU time against the scale separation](modeling_classes.png)", "",
-              "Classes (dolfinode/bench/multiscale.py): adiabatic, x1'' = -x1 + x2^2/2, "
+              ("Classes (dolfinode/bench/multiscale.py): adiabatic, x1'' = -x1 + x2^2/2, "
               "x2'' = -kappa (1 + x1) x2, T = 50; fermi_pasta_ulam, m = 2 stiff springs of "
               "frequency sqrt(kappa), T = 50; michaelis_menten, s' = -s + (s + 0.5) c, "
               "c' = kappa (s - (s + 1) c), T = 5; proportional, y' = cos t - y x^2, "
@@ -459,7 +459,7 @@ def write_classes(rows, output, cap):
               "fit, so 'auto' adds an early check about 3e-3 after the start "
               "(ReducedModel.early_check, where the constant model's predicted error is a "
               "tenth of the tolerance) and rebuilds the model affine there; before, it "
-              "started constant and was rightly warned (defect times span 2.2).", ""]
+              "started constant and was rightly warned (defect times span 2.2)."), ""]
     (output / "modeling_classes.md").write_text("\n".join(lines))
 
 

@@ -98,16 +98,16 @@ def main():
     args = parser.parse_args()
     best = measure(variants(), args.repeats, args.number)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                            capture_output=True, text=True).stdout.strip()
+                            capture_output=True, text=True, check=False).stdout.strip()
     record = {"commit": commit, "machine": platform.processor() or platform.machine(),
               "microseconds": {name: 1e6 * seconds for name, seconds in best.items()}}
     output = Path(args.output)
     (output / "per_call.json").write_text(json.dumps(record, indent=1) + "\n")
     reference = best.get("numbalsoda lsoda")
     lines = ["# Per-call cost", "",
-             "A trivial solve, y' = -a y on [0, 1e-6], called in a loop: the minimum over "
+             ("A trivial solve, y' = -a y on [0, 1e-6], called in a loop: the minimum over "
              f"{args.repeats} interleaved repeats of {args.number} calls "
-             f"(`benchmarks/run_per_call.py`, git {commit}).", "",
+             f"(`benchmarks/run_per_call.py`, git {commit})."), "",
              "| call | us per call |" + (" ratio to numbalsoda |" if reference else ""),
              "|---|---|" + ("---|" if reference else "")]
     for name, seconds in best.items():

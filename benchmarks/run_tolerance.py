@@ -18,6 +18,7 @@ Usage::
     python benchmarks/run_tolerance.py --methods "mcG(1),mcG(2),mcG(3),mdG(1),mdG(2),mdG(3)"
 """
 import argparse
+import itertools
 import json
 import subprocess
 from pathlib import Path
@@ -63,7 +64,7 @@ def summary(rows):
     for key in dict.fromkeys((r["problem"], r["method"]) for r in rows):
         sweep = [r for r in rows if (r["problem"], r["method"]) == key]  # loosest first
         growing += [f"{key[1]} on {key[0]} at {b['tolerance']:.0e}" for a, b in
-                    zip(sweep, sweep[1:]) if b["error"] > 1.5 * a["error"]]
+                    itertools.pairwise(sweep) if b["error"] > 1.5 * a["error"]]
     return [f"- runs within [0.1, 10] x tolerance: {within} of {len(rows)}",
             f"- error growing > 1.5x as the tolerance tightens: {len(growing)}"
             + (f" ({', '.join(growing)})" if growing else ""),
@@ -77,7 +78,7 @@ def main():
     parser.add_argument("--uncalibrated", action="store_true")
     args = parser.parse_args()
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                            capture_output=True, text=True).stdout.strip()
+                            capture_output=True, text=True, check=False).stdout.strip()
     calibrate = not args.uncalibrated
     name = "tolerance" if calibrate else "tolerance_uncalibrated"
     methods = args.methods.split(",")
@@ -106,8 +107,8 @@ def main():
     commits = ", ".join(dict.fromkeys(r["commit"] for r in rows))
     lines = ["# Delivered error against tolerance"
              + ("" if calibrate else " (calibrate_tolerance=False)"), "",
-             "error / tolerance at T (scaled as the Test Set's mescd; `benchmarks/"
-             f"run_tolerance.py`, git {commits}); within [0.1, 10] is the target.", "",
+             ("error / tolerance at T (scaled as the Test Set's mescd; `benchmarks/"
+             f"run_tolerance.py`, git {commits}); within [0.1, 10] is the target."), "",
              "Mono-adaptive methods:", *summary([r for r in rows if r not in multi]), ""]
     if multi:
         lines += ["Multi-adaptive methods:", *summary(multi), ""]

@@ -27,8 +27,7 @@ from numba import njit
 from dolfinode.errors import SolverError
 from dolfinode.memory import address_space_room, available_memory
 from dolfinode.methods.method import element_value
-from dolfinode.solution import (Solution, _evaluate_shared, _set_initial, equispaced,
-                                join_elements)
+from dolfinode.solution import Solution, _evaluate_shared, _set_initial, equispaced, join_elements
 
 #: A dense history is checked against the available memory once it holds this many bytes
 #: (reading /proc for every chunk of a small solve would cost more than it guards).
