@@ -41,7 +41,7 @@ _NEWTON_SMALL = 2**26
 def _absolute_tolerance(ode, value, rtol):
     """atol per component from the parameter: None (rtol), a number (checked by
     check_parameters) or values per state."""
-    if value is None:  # (first: np.isscalar costs 1-2 us)
+    if value is None:  # (before np.isscalar, whose call outweighs a small solve's setup)
         return _filled(ode.N, rtol)
     if np.isscalar(value):
         return _filled(ode.N, value)
@@ -89,13 +89,13 @@ def _keeps_nonnegative(ode):
 
 
 def _has_negative(u0):
-    """Whether u0 has an entry < 0 (in Python for a short vector: a numpy reduction over a
-    few entries costs 1-3 us, a good part of a small solve)."""
+    """Whether u0 has an entry < 0 (in Python for a short vector, where a numpy reduction's
+    call overhead exceeds the work)."""
     return min(u0.tolist()) < 0 if u0.size <= 64 else bool(u0.min() < 0)
 
 
 def _filled(n, value):
-    """np.full(n, value) without its argument handling (1-2 us of a small solve)."""
+    """np.full(n, value) without its argument handling (a small solve pays it per call)."""
     array = np.empty(n)
     array.fill(value)
     return array
@@ -292,8 +292,7 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     tolerance; 126 of 144 runs within 0.1-10 x, doc/design/tolerance.md), and
     ``method="auto"`` calibrates each variant alike, so that its choice compares runs of
     equal accuracy. dG(0), q > 3 and automatic modeling's inner solves use the step
-    tolerance as given. For a bound on an
-    output, pass ``goal`` (dual-based estimate).
+    tolerance as given. For a bound on an output, pass ``goal`` (dual-based estimate).
 
     The defaults are ``dolfinode.default_parameters`` (DOLFIN's names).
     """

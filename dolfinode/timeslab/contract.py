@@ -60,7 +60,8 @@ OPTIONS = np.dtype([
     ("solver", np.int64), ("max_iter", np.int64), ("band_lower", np.int64),
     ("band_upper", np.int64), ("rtol", np.float64), ("T", np.float64), ("kmax", np.float64),
     ("safety", np.float64), ("dtol", np.float64), ("order", np.float64), ("span", np.float64),
-    ("gamma", np.float64), ("loosening", np.float64), ("newton_units", np.float64), ("factor_units", np.float64),
+    ("gamma", np.float64), ("loosening", np.float64), ("newton_units", np.float64),
+    ("factor_units", np.float64),
     ("theta", np.float64), ("beta", np.float64), ("fixed", np.bool_), ("is_dg", np.bool_),
     ("newton_ready", np.bool_), ("reuse", np.bool_), ("keep_factors", np.bool_),
     ("autonomous", np.bool_)], align=True)
