@@ -9,9 +9,10 @@ finds failing are raised by the driver, which words them (:data:`F0_NOT_FINITE`,
 """
 import math
 
+import numpy as np
 from numba import njit, types
 
-from dolfinode.adaptivity import initial_step
+from dolfinode.adaptivity import initial_step, refined_step
 from dolfinode.compile.jit import Loop
 from dolfinode.compile.signatures import call_rhs
 from dolfinode.timeslab import smallest_step
@@ -32,6 +33,16 @@ def first_step(f, x, t, atol, rtol, span):
     return min(max(initial_step(f, x, atol, rtol, span), 4 * smallest_step(t, span)), span)
 
 
+@njit(cache=True)
+def trial_step(rhs, p, t0, atol, rtol, x, f0, k0, order):
+    """The first step refined by a trial explicit Euler step of length k0
+    (:func:`dolfinode.adaptivity.refined_step`); k0 where f there is not finite."""
+    x1 = x + k0 * f0
+    f1 = np.empty_like(f0)
+    call_rhs(rhs, x1, t0 + k0, p, f1)
+    return refined_step(k0, f0, f1, x, atol, rtol, order)
+
+
 def _start(rhs, p, t0, atol, rtol, guess, x, f0, steps, options, state, counters, mono):
     """f0 = f(x, t0) from the kernel at address ``rhs``; if ``guess``, every entry of
     ``steps`` the :func:`first_step` for ``atol``, ``rtol`` (else ``steps`` as given); the
@@ -50,6 +61,8 @@ def _start(rhs, p, t0, atol, rtol, guess, x, f0, steps, options, state, counters
     span = op.span
     if guess:
         steps[:] = first_step(f0, x, t0, atol, rtol, span)
+        if mono and op.is_dg and steps[0] < span:
+            steps[:] = min(trial_step(rhs, p, t0, atol, rtol, x, f0, steps[0], op.order), span)
     if span < smallest_step(max(abs(t0), abs(op.T)), span):
         return INTERVAL_UNRESOLVED
     counters[:] = 0
