@@ -182,12 +182,14 @@ def test_refined_first_step_is_hnw_within_k0_and_100_k0():
     k0 = initial_step(f0, u0, atol, rtol, 10.0)
     f1 = -(u0 + k0 * f0)
     d = max(np.max(np.abs(f0) * w), np.max(np.abs(f1 - f0) * w) / k0)
-    assert refined_step(k0, f0, f1, u0, atol, rtol, order) == pytest.approx(
+    assert refined_step(k0, f0, f1, u0, atol, rtol, order, 10.0) == pytest.approx(
         min(100 * k0, max(k0, (0.01 / d) ** (1 / order))), rel=1e-12)
-    assert refined_step(k0, f0, f1, u0, atol, rtol, 1.0) == k0  # HNW's k1 below k0: k0
-    assert refined_step(k0, 0 * f0, 0 * f1, u0, atol, rtol, order) == k0
-    assert refined_step(k0, f0, np.array([np.nan, 1.0]), u0, atol, rtol, order) == k0
-    assert refined_step(1e-12, f0, f0, u0, atol, rtol, order) == pytest.approx(1e-10)
+    assert refined_step(k0, f0, f1, u0, atol, rtol, 1.0, 10.0) == k0  # HNW's k1 below k0: k0
+    assert refined_step(k0, 0 * f0, 0 * f1, u0, atol, rtol, order, 10.0) == k0
+    assert refined_step(k0, f0, np.array([np.nan, 1.0]), u0, atol, rtol, order, 10.0) == k0
+    assert refined_step(1e-12, f0, f0, u0, atol, rtol, order, 10.0) == pytest.approx(1e-10)
+    # an initial layer: |f0| / |f1 - f0| x k0 = 1 / 1000 below INITIAL_LAYER x span
+    assert refined_step(k0, f0, f0 + 1000 * (f1 - f0), u0, atol, rtol, order, 1e4) == k0
 
 
 @pytest.mark.parametrize("problem", [problems.hires_problem(), problems.brusselator(20)],

@@ -34,13 +34,13 @@ def first_step(f, x, t, atol, rtol, span):
 
 
 @njit(cache=True)
-def trial_step(rhs, p, t0, atol, rtol, x, f0, k0, order):
+def trial_step(rhs, p, t0, atol, rtol, x, f0, k0, order, span):
     """The first step refined by a trial explicit Euler step of length k0
     (:func:`dolfinode.adaptivity.refined_step`); k0 where f there is not finite."""
     x1 = x + k0 * f0
     f1 = np.empty_like(f0)
     call_rhs(rhs, x1, t0 + k0, p, f1)
-    return refined_step(k0, f0, f1, x, atol, rtol, order)
+    return refined_step(k0, f0, f1, x, atol, rtol, order, span)
 
 
 def _start(rhs, p, t0, atol, rtol, guess, x, f0, steps, options, state, counters, mono):
@@ -62,7 +62,8 @@ def _start(rhs, p, t0, atol, rtol, guess, x, f0, steps, options, state, counters
     if guess:
         steps[:] = first_step(f0, x, t0, atol, rtol, span)
         if mono and op.is_dg and steps[0] < span:
-            steps[:] = min(trial_step(rhs, p, t0, atol, rtol, x, f0, steps[0], op.order), span)
+            steps[:] = min(trial_step(rhs, p, t0, atol, rtol, x, f0, steps[0], op.order, span),
+                           span)
     if span < smallest_step(max(abs(t0), abs(op.T)), span):
         return INTERVAL_UNRESOLVED
     counters[:] = 0

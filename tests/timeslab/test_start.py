@@ -71,7 +71,8 @@ def test_dg_start_refines_the_first_step_by_a_trial_euler_step(mono):
     atol = np.full(2, 1e-6)
     _, f0, steps, _, _ = _start(ode, 1e-6, 1e-4, mono=mono, is_dg=True, order=4.0)
     k0 = first_step(f0, ode.u0, 0.0, atol, 1e-4, 3.0)
-    k = trial_step(lower(ode).rhs.address, lower(ode).p, 0.0, atol, 1e-4, ode.u0, f0, k0, 4.0)
+    k = trial_step(lower(ode).rhs.address, lower(ode).p, 0.0, atol, 1e-4, ode.u0, f0, k0, 4.0,
+                   3.0)
     assert k > k0
     np.testing.assert_array_equal(steps, [k, k] if mono else [k0, k0])
     assert _start(ode, 1e-6, 1e-4, is_dg=False, order=4.0)[2][0] == k0
