@@ -45,9 +45,10 @@ def trial_step(rhs, p, t0, atol, rtol, x, f0, k0, order, span):
 
 def _start(rhs, p, t0, atol, rtol, guess, x, f0, steps, options, state, counters, mono):
     """f0 = f(x, t0) from the kernel at address ``rhs``; if ``guess``, every entry of
-    ``steps`` the :func:`first_step` for ``atol``, ``rtol`` (else ``steps`` as given); the
-    loop's ``state`` at t0 (mono: the first step and the controller's start) and zero
-    ``counters``. Reads T and the span T - t0 from ``options``. Returns READY, or the first
+    ``steps`` the :func:`first_step` for ``atol``, ``rtol``, refined by :func:`trial_step`
+    for mono-adaptive dG(q) (else ``steps`` as given; cG(q) is not L-stable: its start must
+    resolve a transient that f(x, t0) may not show yet, as ROBER's); the loop's ``state`` at
+    t0 (mono: the first step and the controller's start) and zero ``counters``. Reads T and the span T - t0 from ``options``. Returns READY, or the first
     check that fails: F0_NOT_FINITE, INTERVAL_UNRESOLVED."""
     call_rhs(rhs, x, t0, p, f0)
     total = 0.0
