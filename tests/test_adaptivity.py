@@ -11,12 +11,15 @@ from dolfinode.adaptivity import (
     MAX_STEP_TOLERANCE,
     STIFF_RATIO,
     STIFF_TARGET,
+    initial_step,
+    refined_step,
     step_tolerance,
     stiff_factor,
     stiff_loosening,
 )
 from dolfinode.bench import problems
 from dolfinode.bench.multirate import oscillator_bank
+from dolfinode.compile import lower
 from dolfinode.methods import make_method
 
 PROBLEMS = {"HIRES": problems.hires_problem, "VDPOL": problems.vdpol,
@@ -170,3 +173,39 @@ def test_rober_cg_says_it_cannot_damp_and_dg_steps_over():
     error = np.max(np.abs(sol(problem.T) - problem.final)
                    / (problem.atol_ratio + np.abs(problem.final)))
     assert error <= 10 * 1e-3
+
+
+def test_refined_first_step_is_hnw_within_k0_and_100_k0():
+    u0, atol, rtol, order = np.array([1.0, 2.0]), np.full(2, 1e-6), 1e-3, 4.0
+    w = 1 / (atol + rtol * np.abs(u0))
+    f0 = -u0  # u' = -u: f1 - f0 = k0 u0, so d2 = |u0| w = d1
+    k0 = initial_step(f0, u0, atol, rtol, 10.0)
+    f1 = -(u0 + k0 * f0)
+    d = max(np.max(np.abs(f0) * w), np.max(np.abs(f1 - f0) * w) / k0)
+    assert refined_step(k0, f0, f1, u0, atol, rtol, order, 10.0) == pytest.approx(
+        min(100 * k0, max(k0, (0.01 / d) ** (1 / order))), rel=1e-12)
+    assert refined_step(k0, f0, f1, u0, atol, rtol, 1.0, 10.0) == k0  # HNW's k1 below k0: k0
+    assert refined_step(k0, 0 * f0, 0 * f1, u0, atol, rtol, order, 10.0) == k0
+    assert refined_step(k0, f0, np.array([np.nan, 1.0]), u0, atol, rtol, order, 10.0) == k0
+    assert refined_step(1e-12, f0, f0, u0, atol, rtol, order, 10.0) == pytest.approx(1e-10)
+    # an initial layer: |f0| / |f1 - f0| x k0 = 1 / 1000 below INITIAL_LAYER x span
+    assert refined_step(k0, f0, f0 + 1000 * (f1 - f0), u0, atol, rtol, order, 1e4) == k0
+
+
+@pytest.mark.parametrize("problem", [problems.hires_problem(), problems.brusselator(20)],
+                         ids=["HIRES", "bruss-20"])
+def test_dg_first_step_is_accepted_and_shortens_the_ramp(problem):
+    """The refined first step of dG(3) is accepted as it is (its estimate within the
+    acceptance band), is at least the HNW guess k0, and the run from it takes fewer slabs
+    than the run from k0 at a loose tolerance."""
+    ode, tol = problem.ode, 1e-2
+    atol = problem.atol_ratio * tol
+    sol = dn.solve(ode, method="dG(3)", tolerance=tol, absolute_tolerance=atol)
+    f0 = np.array(lower(ode).f(ode.u0, ode.t0))
+    k0 = initial_step(f0, ode.u0, np.full(ode.N, atol), tol, ode.T - ode.t0)
+    _, k = sol.time_steps()
+    assert k[0] > 5 * k0
+    assert sol.stats["rejected steps"] == 0
+    from_k0 = dn.solve(ode, method="dG(3)", tolerance=tol, absolute_tolerance=atol,
+                       initial_time_step=k0)
+    assert len(k) < from_k0.stats["time slabs"]

@@ -9,9 +9,10 @@ finds failing are raised by the driver, which words them (:data:`F0_NOT_FINITE`,
 """
 import math
 
+import numpy as np
 from numba import njit, types
 
-from dolfinode.adaptivity import initial_step
+from dolfinode.adaptivity import initial_step, refined_step
 from dolfinode.compile.jit import Loop
 from dolfinode.compile.signatures import call_rhs
 from dolfinode.timeslab import smallest_step
@@ -32,11 +33,22 @@ def first_step(f, x, t, atol, rtol, span):
     return min(max(initial_step(f, x, atol, rtol, span), 4 * smallest_step(t, span)), span)
 
 
+@njit(cache=True)
+def trial_step(rhs, p, t0, atol, rtol, x, f0, k0, order, span):
+    """The first step refined by a trial explicit Euler step of length k0
+    (:func:`dolfinode.adaptivity.refined_step`); k0 where f there is not finite."""
+    x1 = x + k0 * f0
+    f1 = np.empty_like(f0)
+    call_rhs(rhs, x1, t0 + k0, p, f1)
+    return refined_step(k0, f0, f1, x, atol, rtol, order, span)
+
+
 def _start(rhs, p, t0, atol, rtol, guess, x, f0, steps, options, state, counters, mono):
     """f0 = f(x, t0) from the kernel at address ``rhs``; if ``guess``, every entry of
-    ``steps`` the :func:`first_step` for ``atol``, ``rtol`` (else ``steps`` as given); the
-    loop's ``state`` at t0 (mono: the first step and the controller's start) and zero
-    ``counters``. Reads T and the span T - t0 from ``options``. Returns READY, or the first
+    ``steps`` the :func:`first_step` for ``atol``, ``rtol``, refined by :func:`trial_step`
+    for mono-adaptive dG(q) (else ``steps`` as given; cG(q) is not L-stable: its start must
+    resolve a transient that f(x, t0) may not show yet, as ROBER's); the loop's ``state`` at
+    t0 (mono: the first step and the controller's start) and zero ``counters``. Reads T and the span T - t0 from ``options``. Returns READY, or the first
     check that fails: F0_NOT_FINITE, INTERVAL_UNRESOLVED."""
     call_rhs(rhs, x, t0, p, f0)
     total = 0.0
@@ -50,6 +62,9 @@ def _start(rhs, p, t0, atol, rtol, guess, x, f0, steps, options, state, counters
     span = op.span
     if guess:
         steps[:] = first_step(f0, x, t0, atol, rtol, span)
+        if mono and op.is_dg and steps[0] < span:
+            steps[:] = min(trial_step(rhs, p, t0, atol, rtol, x, f0, steps[0], op.order, span),
+                           span)
     if span < smallest_step(max(abs(t0), abs(op.T)), span):
         return INTERVAL_UNRESOLVED
     counters[:] = 0

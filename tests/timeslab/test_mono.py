@@ -321,3 +321,22 @@ def test_newton_gives_way_to_cheaper_fixed_point_iteration():
     assert newton.stats["jacobian evaluations"] > 10 * default.stats["jacobian evaluations"]
     for sol in (default, newton):
         assert np.abs(sol.y[:, -1] - reference).max() < 1e-3
+
+
+def test_a_newton_failure_on_the_start_does_not_hold_the_growth():
+    """ROBER from a first step that overshoots its start: Newton fails early, and once
+    it contracts fast again the step grows as the error control asks, not by NEWTON_PROBE
+    per slab over the eleven decades to T (measured from a first step 6.25e-4 and one
+    failure: 166 slabs held, 69 free)."""
+    from dolfinode.bench.problems import mescd, rober
+    from dolfinode.timeslab import mono
+
+    problem = rober()
+    sol = dn.solve(problem.ode, method="dG(3)", tolerance=1e-2,
+                   absolute_tolerance=problem.atol_ratio * 1e-2, initial_time_step=1e-2)
+    assert sol.stats["failed nonlinear solves"] >= 1
+    _, k = sol.time_steps()
+    probing = np.isclose(k[1:-1] / k[:-2], mono.NEWTON_PROBE, rtol=1e-9)
+    assert probing.sum() < 10
+    assert len(k) < 100
+    assert mescd(sol(problem.T), problem.final, problem.atol_ratio) > 3

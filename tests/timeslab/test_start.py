@@ -13,17 +13,18 @@ from dolfinode.timeslab.start import (
     READY,
     first_step,
     start,
+    trial_step,
 )
 
 y, z, a = sp.symbols("y z a")
 
 
-def _start(ode, atol, rtol, guess=True, steps=None, mono=True, T=None):
+def _start(ode, atol, rtol, guess=True, steps=None, mono=True, T=None, **options):
     """Run the start on ``ode`` with fresh arrays (counters and state dirty, to see them
-    reset); (status, f0, steps, state, counters)."""
+    reset) and the loop ``options`` given; (status, f0, steps, state, counters)."""
     compiled = lower(ode)
     T = ode.T if T is None else T
-    options = contract.options(T=T, span=T - ode.t0)
+    options = contract.options(T=T, span=T - ode.t0, **options)
     state = contract.state(t=-1.0, k_next=7.0, mono_elements=3.0, newton_cost=2.0)
     counters = np.arange(ts.NUM_COUNTERS, dtype=np.int64)
     f0 = np.full(ode.N, np.nan)
@@ -60,6 +61,21 @@ def test_start_evaluates_f0_guesses_the_step_and_resets_state_and_counters(mono)
         assert started == (k, 1.0, True, 6.0)
     else:  # the multi-adaptive loop reads t and its own steps only
         assert started == (0.0, 0.0, False, 0.0)
+
+
+@pytest.mark.parametrize("mono", [True, False])
+def test_dg_start_refines_the_first_step_by_a_trial_euler_step(mono):
+    """dG(q) (mono-adaptive) takes HNW's refined first step; cG(q), whose start must resolve
+    a transient that f(u0) may not show yet (ROBER), and the multi-adaptive loops keep k0."""
+    ode = dn.ODE({y: -a * y, z: y}, u0=[2.0, 1.0], T=3.0, params={a: 1.5})
+    atol = np.full(2, 1e-6)
+    _, f0, steps, _, _ = _start(ode, 1e-6, 1e-4, mono=mono, is_dg=True, order=4.0)
+    k0 = first_step(f0, ode.u0, 0.0, atol, 1e-4, 3.0)
+    k = trial_step(lower(ode).rhs.address, lower(ode).p, 0.0, atol, 1e-4, ode.u0, f0, k0, 4.0,
+                   3.0)
+    assert k > k0
+    np.testing.assert_array_equal(steps, [k, k] if mono else [k0, k0])
+    assert _start(ode, 1e-6, 1e-4, is_dg=False, order=4.0)[2][0] == k0
 
 
 def test_start_keeps_given_steps():
