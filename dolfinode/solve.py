@@ -1,14 +1,21 @@
 """The driver: ``solve(ode, method, tolerance=..., **parameters) -> Solution``."""
 import time
+import warnings
 
 import numpy as np
 import sympy as sp
 
 from dolfinode import events as ev
 from dolfinode import timeslab as ts
-from dolfinode.adaptivity import filter_constant, step_tolerance, stiff_loosening
+from dolfinode.adaptivity import (
+    UNDAMPED_DEVIATION,
+    filter_constant,
+    step_tolerance,
+    stiff_loosening,
+    undamped_warning,
+)
 from dolfinode.compile import lower
-from dolfinode.errors import SolverError
+from dolfinode.errors import SolverError, ToleranceWarning
 from dolfinode.failures import STEP_LIMIT, failure_message, undamped_message, undefined
 from dolfinode.family import auto_base, solve_auto
 from dolfinode.io import history
@@ -695,8 +702,21 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, stat
             f"than {_NEWTON_MEMORY_FRACTION:g} x the {available / 2**30:.3g} GB available. "
             "Use smaller steps with fixed_time_step=True and nonlinear_solver='fixed-point', "
             "or a smaller system", t=float(state["t"][0]))
+    if status == ts.DONE:
+        _warn_undamped(ode, m, state)
     return status, counters, _time_and_step(state, state["k_next"][0]), elements, _mono_stats(
         ode.N, structure, counters, float(state["k_next"][0]))
+
+
+def _warn_undamped(ode, m, state):
+    """A ToleranceWarning where a mono-adaptive run's ``state`` shows a regime the
+    calibration does not hold in (:func:`dolfinode.adaptivity.undamped_warning`)."""
+    if state["last_deviation"][0] > UNDAMPED_DEVIATION:
+        why = undamped_warning(m, float(state["deviation"][0]),
+                               float(state["last_deviation"][0]),
+                               ode.states[state["deviated"][0]])
+        if why:
+            warnings.warn(why, ToleranceWarning, stacklevel=4)
 
 
 def _time_and_step(state, k):

@@ -53,6 +53,7 @@ from dolfinode.solve import (
     _newton_options,
     _options,
     _signs,
+    _warn_undamped,
     check_tolerance,
     lower,
     lowered,
@@ -297,6 +298,7 @@ class Solver:
                              steps), counts, True, m, params, compiled.compile_time, seconds)
             sol = sink.solution(self._solved._snapshot(), m, sink.finish(True), stats, x)
         else:
+            _warn_undamped(work, m, state)
             k_next, N = state["k_next"].item(), x.size
             out_t, out_k, out_X = self._buffers
             sol = Solution(None, m, out_t[:n].copy(), out_k[:n].copy(), out_X[:n].copy(), None,
