@@ -102,7 +102,7 @@ def summary(rows):
                     itertools.pairwise(sweep) if b["error"] > 1.5 * a["error"]]
     above = [r for r in rows if 10 < r["error"] / r["tolerance"] < float("inf")]
     silent = [f"{r['method']} on {r['problem']} at {r['tolerance']:.0e}: "
-              f"{r['error'] / r['tolerance']:.2g} x" for r in above if not r.get("warned")]
+              f"{r['error'] / r['tolerance']:.3g} x" for r in above if not r.get("warned")]
     failed = [f"{r['method']} on {r['problem']} at {r['tolerance']:.0e}" for r in rows
               if r["error"] == float("inf")]
     listed = "; ".join(silent[:LISTED]) + ("; ..." if len(silent) > LISTED else "")
@@ -120,7 +120,7 @@ def tables(rows, tolerances):
     """Markdown lines: per problem, error / tolerance per method and tolerance (W: the run
     warned, fails: SolverError)."""
     lines = []
-    methods = list(dict.fromkeys(r["method"] for r in rows))
+    methods = sorted({r["method"] for r in rows}, key=lambda m: (m.startswith("m"), m))
     for problem in dict.fromkeys(r["problem"] for r in rows):
         shown = [m for m in methods if any(r["problem"] == problem and r["method"] == m
                                            for r in rows)]
@@ -184,6 +184,11 @@ def main():
                       + (" (warned)" if warned else ""), flush=True)
     rows = kept + rows
     record.write_text(json.dumps({"runs": rows}, indent=1) + "\n")
+    report(rows, output / f"{name}.md", calibrate)
+
+
+def report(rows, path, calibrate):
+    """Write the markdown record of ``rows`` (summaries, then the tables) to ``path``."""
     fitted = [r for r in rows if r.get("sample", "fitted") == "fitted"]
     multi = [r for r in fitted if r["method"].startswith("m")]
     outside = [r for r in rows if r not in fitted]
@@ -203,7 +208,7 @@ def main():
     lines += tables(fitted, TOLERANCES)
     if outside:
         lines += ["# Out of sample", "", *tables(outside, OUT_OF_SAMPLE_TOLERANCES)]
-    (output / f"{name}.md").write_text("\n".join(lines))
+    path.write_text("\n".join(lines))
     print("\n".join(lines))
 
 

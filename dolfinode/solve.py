@@ -278,6 +278,13 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     SolverError
         When the solver cannot continue; the message names the time reached and what to try.
 
+    Warns
+    -----
+    ToleranceWarning
+        When the run reached a regime where the calibrated tolerance was measured not to
+        hold (:func:`dolfinode.adaptivity.undamped_warning`); the message names the
+        component and what to try.
+
     Notes
     -----
     ``tolerance`` (rtol) and ``absolute_tolerance`` (atol) aim at the error at T, scaled as
@@ -290,7 +297,11 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     harmonic oscillator over 1e-2..1e-10 (doc/design/tolerance.md): 125 of 144 runs within
     0.1-10 x the tolerance, none above (at most 8.7 x), down to 0.0015 x (dG(3) on VDPOL).
     It is a calibration of the local error, not a bound: a long non-dissipative run adds
-    its errors up (an oscillator bank: 29 x), which ``estimate_error`` measures. Values inside
+    its errors up (an oscillator bank: 29 x), which ``estimate_error`` measures. On problems
+    it was not fitted on (ROBER, POLLU, VDPOLM, a stiff heat equation; 1e-3..1e-9) one run
+    lands above 10 x with a warning (cG(2) on ROBER at 1e-7, 26 x: a :class:`~dolfinode.ToleranceWarning`
+    is raised where cG(q), q even, carries a stiff deviation it cannot damp into T) and one
+    at 10.1 x without (dG(2) on POLLU at 1e-9). Values inside
     elements (``sol(t)`` between element ends, samples, events) are accurate to O(k^(q+1))
     only, up to ~100 x the tolerance; ``calibrate_tolerance=False`` bounds each step's
     estimate by the tolerance instead, as scipy's rtol and atol do (the error at T then
