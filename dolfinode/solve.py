@@ -1,4 +1,6 @@
 """The driver: ``solve(ode, method, tolerance=..., **parameters) -> Solution``."""
+import os
+import sys
 import time
 import warnings
 
@@ -26,6 +28,9 @@ from dolfinode.ode import ODE, _vector_by_state
 from dolfinode.parameters import DEFAULTS, NONLINEAR_SOLVERS, check_parameters
 from dolfinode.timeslab import contract, mono
 from dolfinode.timeslab.start import F0_NOT_FINITE, INTERVAL_UNRESOLVED, first_step, start
+
+#: The package's folder (warnings name the first caller outside it).
+_PACKAGE = os.path.dirname(os.path.abspath(__file__)) + os.sep
 
 #: New solves with a smaller maximum_time_step when a switch was crossed inside an element.
 _SWITCH_RETRIES = 3
@@ -726,8 +731,11 @@ def _warn_undamped(ode, m, state):
         why = undamped_warning(m, float(state["deviation"][0]),
                                float(state["last_deviation"][0]),
                                ode.states[state["deviated"][0]])
-        if why:
-            warnings.warn(why, ToleranceWarning, stacklevel=4)
+        if why:  # (named at the first caller outside the package, however deep the call)
+            frame, level = sys._getframe(), 1
+            while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
+                frame, level = frame.f_back, level + 1
+            warnings.warn(why, ToleranceWarning, stacklevel=level)
 
 
 def _time_and_step(state, k):
