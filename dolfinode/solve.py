@@ -719,18 +719,22 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, stat
             "Use smaller steps with fixed_time_step=True and nonlinear_solver='fixed-point', "
             "or a smaller system", t=float(state["t"][0]))
     if status == ts.DONE:
-        _warn_undamped(ode, m, state)
+        _warn_undamped(ode, compiled, m, params, options, state)
     return status, counters, _time_and_step(state, state["k_next"][0]), elements, _mono_stats(
         ode.N, structure, counters, float(state["k_next"][0]))
 
 
-def _warn_undamped(ode, m, state):
+def _warn_undamped(ode, compiled, m, params, options, state):
     """A ToleranceWarning where a mono-adaptive run's ``state`` shows a regime the
     calibration does not hold in (:func:`dolfinode.adaptivity.undamped_warning`)."""
     if state["last_deviation"][0] > UNDAMPED_DEVIATION:
+        i = int(state["deviated"][0])
+        # the loop's scale is the step tolerance: options["rtol"] / tolerance x the given
+        size = float(state["deviation_error"][0] * options["rtol"][0] / params["tolerance"])
+        rows = np.repeat(np.arange(ode.N), np.diff(compiled.indptr))
+        drives = bool(np.any((compiled.indices == i) & (rows != i)))
         why = undamped_warning(m, float(state["deviation"][0]),
-                               float(state["last_deviation"][0]),
-                               ode.states[state["deviated"][0]])
+                               float(state["last_deviation"][0]), size, drives, ode.states[i])
         if why:  # (named at the first caller outside the package, however deep the call)
             frame, level = sys._getframe(), 1
             while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):

@@ -423,14 +423,14 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                     unfiltered[:] = est
                 filter_estimate(jb, structure, ipiv_filter, est, filter_rhs)
         eps = 0.0
-        deviation, deviated = 0.0, -1
+        deviation, deviated, deviated_eps = 0.0, -1, 0.0
         for i in range(N):
             eps_i = abs(est[i]) / (atol[i] + rtol * abs(X[end + i]))
             if filtered and eps_i > 0.0:
-                eps_i *= stiff_factor(abs(est[i]), abs(unfiltered[i]), loosening)
                 d = stiff_deviation(abs(est[i]), abs(unfiltered[i]), abs(X[end + i]))
                 if d > deviation:
-                    deviation, deviated = d, i
+                    deviation, deviated, deviated_eps = d, i, eps_i
+                eps_i *= stiff_factor(abs(est[i]), abs(unfiltered[i]), loosening)
             eps = max(eps, eps_i)
         if blowup or not math.isfinite(eps):
             if fixed:
@@ -468,7 +468,8 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             counters[STORED] += 1
             counters[SLABS] += 1
             st.deviation = max(st.deviation, deviation)  # (adaptivity.undamped_warning)
-            st.last_deviation, st.deviated = deviation, deviated
+            st.last_deviation, st.deviated, st.deviation_error = (deviation, deviated,
+                                                                  deviated_eps)
             t = t + k if k < remaining else T
             for i in range(N):
                 x[i] = X[end + i]
