@@ -202,8 +202,8 @@ def report(rows, path, calibrate):
     if multi:
         lines += ["Multi-adaptive methods:", *summary(multi), ""]
     if outside:
-        lines += ["Mono-adaptive methods on problems the mapping was not fitted on "
-                  "(`--problems out-of-sample`; W: the run raised a ToleranceWarning):",
+        lines += [("Mono-adaptive methods on problems the mapping was not fitted on "
+                   "(`--problems out-of-sample`; W: the run raised a ToleranceWarning):"),
                   *summary(outside), ""]
     lines += tables(fitted, TOLERANCES)
     if outside:
