@@ -9,18 +9,25 @@ the Test Set's scaled error at T, max_i |U_i(T) - u_i(T)| / (atol_ratio + |u_i(T
 comparable with the tolerance (mescd = -log10 of it). First-order methods stop at 1e-7 (their
 step count grows as tol^(-1/2)). Writes tolerance.{json,md} (the default mapping), or with
 ``--uncalibrated`` (``calibrate_tolerance=False``) tolerance_uncalibrated.{json,md}; the runs
-of the methods given replace theirs in the record, the others' are kept.
+of the problems and methods given replace theirs in the record, the others' are kept.
+
+``--problems out-of-sample`` runs the problems the mapping was not fitted on instead (ROBER,
+POLLU, VDPOLM and a stiff linear system, the heat equation of :func:`heat_problem`), with
+cG(2), cG(3), dG(1), dG(2), dG(3) at 1e-3..1e-9 unless ``--methods`` says otherwise; each run
+records whether it raised a :class:`dolfinode.ToleranceWarning` (marked W in the tables).
 
 Usage::
 
     python benchmarks/run_tolerance.py [--output doc/benchmarks] [--methods "cG(2),dG(2)"]
     python benchmarks/run_tolerance.py --uncalibrated
     python benchmarks/run_tolerance.py --methods "mcG(1),mcG(2),mcG(3),mdG(1),mdG(2),mdG(3)"
+    python benchmarks/run_tolerance.py --problems out-of-sample
 """
 import argparse
 import itertools
 import json
 import subprocess
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -31,10 +38,31 @@ from dolfinode.bench import problems
 ROOT = Path(__file__).resolve().parents[1]
 METHODS = ("cG(1)", "cG(2)", "cG(3)", "dG(1)", "dG(2)", "dG(3)")
 TOLERANCES = tuple(10.0 ** -e for e in range(2, 11))
+#: The out-of-sample check: methods and tolerances.
+OUT_OF_SAMPLE_METHODS = ("cG(2)", "cG(3)", "dG(1)", "dG(2)", "dG(3)")
+OUT_OF_SAMPLE_TOLERANCES = tuple(10.0 ** -e for e in range(3, 10))
 
 
-def cases(multi_adaptive):
-    """The calibration problems, with the multi-rate ones for multi-adaptive methods."""
+def heat_problem(n=50, T=0.1):
+    """A stiff linear system: the heat equation u_t = u_xx + 100 delta(x - 1/2) on (0, 1),
+    u = 0 at both ends, as n central differences (eigenvalues -10 .. -1e4), from u = 0 to
+    T = 0.1 (the slowest mode still decaying); exact solution by the matrix exponential."""
+    h = 1.0 / (n + 1)
+    L = (np.diag(-2.0 * np.ones(n)) + np.diag(np.ones(n - 1), 1)
+         + np.diag(np.ones(n - 1), -1)) / h**2
+    source = np.zeros(n)
+    source[n // 2] = 100.0 / h
+    ode, exact = problems.linear(L, np.zeros(n), T, b=source)
+    return problems.Problem("heat", ode, stiff=True, final=exact(T), exact=exact,
+                            reference="exact (matrix exponential)",
+                            description=f"heat equation, {n} points, T = {T:g}")
+
+
+def cases(multi_adaptive, sample="fitted"):
+    """The calibration problems, with the multi-rate ones for multi-adaptive methods; or the
+    problems the calibration was not fitted on (``sample="out-of-sample"``)."""
+    if sample == "out-of-sample":
+        return [problems.rober(), problems.pollu(), problems.vdpolm(), heat_problem()]
     chosen = [problems.hires_problem(), problems.vdpol(), problems.harmonic_problem()]
     if multi_adaptive:
         chosen += [problems.mass_spring_chain(), problems.seed_model(1e2)]
@@ -42,18 +70,25 @@ def cases(multi_adaptive):
 
 
 def delivered(problem, method, tolerance, calibrate):
-    """(scaled error at T, time slabs, elements) of a solve at ``tolerance``; (inf, 0, 0) if it
-    fails."""
-    try:
-        sol = dn.solve(problem.ode, method=method, tolerance=tolerance,
-                       absolute_tolerance=problem.atol_ratio * tolerance,
-                       maximum_steps=2_000_000, calibrate_tolerance=calibrate)
-    except dn.SolverError:
-        return float("inf"), 0, 0
+    """(scaled error at T, time slabs, elements, whether it warned (ToleranceWarning)) of a
+    solve at ``tolerance``; (inf, 0, 0, False) if it fails."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", dn.ToleranceWarning)
+        try:
+            sol = dn.solve(problem.ode, method=method, tolerance=tolerance,
+                           absolute_tolerance=problem.atol_ratio * tolerance,
+                           maximum_steps=2_000_000, calibrate_tolerance=calibrate)
+        except dn.SolverError:
+            return float("inf"), 0, 0, False
+    warned = any(issubclass(w.category, dn.ToleranceWarning) for w in caught)
     scored = list(problem.scored or range(problem.ode.N))
     final = problem.final[scored]
     error = np.max(np.abs(sol(problem.T)[scored] - final) / (problem.atol_ratio + np.abs(final)))
-    return float(error), sol.stats["time slabs"], sol.stats["elements"]
+    return float(error), sol.stats["time slabs"], sol.stats["elements"], warned
+
+
+#: The summary names at most this many runs above the band.
+LISTED = 8
 
 
 def summary(rows):
@@ -65,67 +100,115 @@ def summary(rows):
         sweep = [r for r in rows if (r["problem"], r["method"]) == key]  # loosest first
         growing += [f"{key[1]} on {key[0]} at {b['tolerance']:.0e}" for a, b in
                     itertools.pairwise(sweep) if b["error"] > 1.5 * a["error"]]
+    above = [r for r in rows if 10 < r["error"] / r["tolerance"] < float("inf")]
+    silent = [f"{r['method']} on {r['problem']} at {r['tolerance']:.0e}: "
+              f"{r['error'] / r['tolerance']:.3g} x" for r in above if not r.get("warned")]
+    failed = [f"{r['method']} on {r['problem']} at {r['tolerance']:.0e}" for r in rows
+              if r["error"] == float("inf")]
+    listed = "; ".join(silent[:LISTED]) + ("; ..." if len(silent) > LISTED else "")
     return [f"- runs within [0.1, 10] x tolerance: {within} of {len(rows)}",
+            f"- runs above 10 x: {len(above)}, without a ToleranceWarning: {len(silent)}"
+            + (f" ({listed})" if silent else ""),
+            f"- runs stopped by a SolverError: {len(failed)}"
+            + (f" ({', '.join(failed)})" if failed else ""),
             f"- error growing > 1.5x as the tolerance tightens: {len(growing)}"
             + (f" ({', '.join(growing)})" if growing else ""),
             f"- time slabs, all runs: {sum(r['slabs'] for r in rows):,}"]
 
 
+def tables(rows, tolerances):
+    """Markdown lines: per problem, error / tolerance per method and tolerance (W: the run
+    warned, fails: SolverError)."""
+    lines = []
+    methods = sorted({r["method"] for r in rows}, key=lambda m: (m.startswith("m"), m))
+    for problem in dict.fromkeys(r["problem"] for r in rows):
+        shown = [m for m in methods if any(r["problem"] == problem and r["method"] == m
+                                           for r in rows)]
+        lines += [f"## {problem}", "", "| tolerance | " + " | ".join(shown) + " |",
+                  "|---|" + "---|" * len(shown)]
+        for tolerance in tolerances:
+            cells = []
+            for method in shown:
+                run = [r for r in rows if r["problem"] == problem and r["method"] == method
+                       and r["tolerance"] == tolerance]
+                if not run:
+                    cells.append("")
+                elif run[0]["error"] == float("inf"):
+                    cells.append("fails")
+                else:
+                    cells.append(f"{run[0]['error'] / tolerance:.2g}"
+                                 + (" W" if run[0].get("warned") else ""))
+            lines.append(f"| {tolerance:.0e} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return lines
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--output", default=str(ROOT / "doc" / "benchmarks"))
-    parser.add_argument("--methods", default=",".join(METHODS))
+    parser.add_argument("--methods")
+    parser.add_argument("--problems", choices=("fitted", "out-of-sample"), default="fitted")
     parser.add_argument("--uncalibrated", action="store_true")
     args = parser.parse_args()
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
                             capture_output=True, text=True, check=False).stdout.strip()
     calibrate = not args.uncalibrated
     name = "tolerance" if calibrate else "tolerance_uncalibrated"
-    methods = args.methods.split(",")
+    out_of_sample = args.problems == "out-of-sample"
+    methods = (args.methods or ",".join(OUT_OF_SAMPLE_METHODS if out_of_sample
+                                        else METHODS)).split(",")
+    tolerances = OUT_OF_SAMPLE_TOLERANCES if out_of_sample else TOLERANCES
     output = Path(args.output)
     record = output / f"{name}.json"
     old = json.loads(record.read_text()) if record.exists() else {"runs": []}
-    kept = [{"commit": old.get("commit"), **r} for r in old["runs"] if r["method"] not in methods]
+    chosen = cases(any(m.startswith("m") for m in methods), args.problems)
+    redone = {(p.name, m) for p in chosen for m in methods}
+    kept = [{"commit": old.get("commit"), **r} for r in old["runs"]
+            if (r["problem"], r["method"]) not in redone]
     rows = []
-    for problem in cases(any(m.startswith("m") for m in methods)):
+    for problem in chosen:
         for method in methods:
             if problem.multiscale and not method.startswith("m"):
                 continue
-            for tolerance in TOLERANCES:
+            for tolerance in tolerances:
                 if method.endswith("(1)") and tolerance < 1e-7:
                     continue
-                error, slabs, elements = delivered(problem, method, tolerance, calibrate)
+                error, slabs, elements, warned = delivered(problem, method, tolerance,
+                                                           calibrate)
                 rows.append({"problem": problem.name, "method": method, "tolerance": tolerance,
                              "error": error, "slabs": slabs, "elements": elements,
-                             "commit": commit})
+                             "warned": warned, "commit": commit,
+                             "sample": args.problems})
                 print(f"{problem.name:8} {method:6} tol {tolerance:.0e} error {error:.2e} "
-                      f"ratio {error / tolerance:8.3g} elements {elements}", flush=True)
+                      f"ratio {error / tolerance:8.3g} elements {elements}"
+                      + (" (warned)" if warned else ""), flush=True)
     rows = kept + rows
     record.write_text(json.dumps({"runs": rows}, indent=1) + "\n")
-    methods = list(dict.fromkeys(r["method"] for r in rows))
-    multi = [r for r in rows if r["method"].startswith("m")]
+    report(rows, output / f"{name}.md", calibrate)
+
+
+def report(rows, path, calibrate):
+    """Write the markdown record of ``rows`` (summaries, then the tables) to ``path``."""
+    fitted = [r for r in rows if r.get("sample", "fitted") == "fitted"]
+    multi = [r for r in fitted if r["method"].startswith("m")]
+    outside = [r for r in rows if r not in fitted]
     commits = ", ".join(dict.fromkeys(r["commit"] for r in rows))
     lines = ["# Delivered error against tolerance"
              + ("" if calibrate else " (calibrate_tolerance=False)"), "",
              ("error / tolerance at T (scaled as the Test Set's mescd; `benchmarks/"
              f"run_tolerance.py`, git {commits}); within [0.1, 10] is the target."), "",
-             "Mono-adaptive methods:", *summary([r for r in rows if r not in multi]), ""]
+             "Mono-adaptive methods, on the problems the mapping was fitted on:",
+             *summary([r for r in fitted if r not in multi]), ""]
     if multi:
         lines += ["Multi-adaptive methods:", *summary(multi), ""]
-    for problem in dict.fromkeys(r["problem"] for r in rows):
-        shown = [m for m in methods if any(r["problem"] == problem and r["method"] == m
-                                           for r in rows)]
-        lines += [f"## {problem}", "", "| tolerance | " + " | ".join(shown) + " |",
-                  "|---|" + "---|" * len(shown)]
-        for tolerance in TOLERANCES:
-            cells = []
-            for method in shown:
-                run = [r for r in rows if r["problem"] == problem and r["method"] == method
-                       and r["tolerance"] == tolerance]
-                cells.append(f"{run[0]['error'] / tolerance:.2g}" if run else "")
-            lines.append(f"| {tolerance:.0e} | " + " | ".join(cells) + " |")
-        lines.append("")
-    (output / f"{name}.md").write_text("\n".join(lines))
+    if outside:
+        lines += [("Mono-adaptive methods on problems the mapping was not fitted on "
+                   "(`--problems out-of-sample`; W: the run raised a ToleranceWarning):"),
+                  *summary(outside), ""]
+    lines += tables(fitted, TOLERANCES)
+    if outside:
+        lines += ["# Out of sample", "", *tables(outside, OUT_OF_SAMPLE_TOLERANCES)]
+    path.write_text("\n".join(lines))
     print("\n".join(lines))
 
 

@@ -138,6 +138,56 @@ def stiff_factor(filtered, unfiltered, loosening):
     return math.exp(loosening * (1.0 - rho / STIFF_RATIO))
 
 
+@helper()
+def stiff_deviation(filtered, unfiltered, value):
+    """|e_i| / |U_i(t_n)| on a component the filter reduced (rho < STIFF_RATIO, see
+    :func:`stiff_factor`), else 0: its distance from the quasi-steady state relative to
+    itself (0 for a component at exactly 0)."""
+    if unfiltered == 0.0 or filtered >= STIFF_RATIO * unfiltered or value == 0.0:
+        return 0.0
+    return filtered / value
+
+
+#: A calibrated cG(q) run with q even warns (:func:`undamped_warning`) when a stiff
+#: component's distance from its quasi-steady state on the last slab exceeds this fraction
+#: of it, ...
+UNDAMPED_DEVIATION = 0.1
+#: ... it is still growing at T: at least this fraction of the largest of the run, ...
+UNDAMPED_GROWING = 0.9
+#: ... and it is not negligible: at least this fraction of the component's tolerance.
+UNDAMPED_NEGLIGIBLE = 1e-4
+
+
+def undamped_warning(method, largest, last, size, drives, state):
+    """The :class:`~dolfinode.ToleranceWarning` message for a calibrated run of ``method``
+    whose :func:`stiff_deviation` was ``largest`` over the run and ``last`` on its last slab,
+    of the component named ``state``: its deviation there is ``size`` x its tolerance
+    (atol_i + rtol |U_i|, as given), and ``drives`` says whether other components depend
+    on it; None where the calibration holds.
+
+    cG(q) is not L-stable: R(z) -> (-1)^q as z -> -inf, so on steps with |k lambda| >> 1 a
+    stiff component keeps its deviation from its quasi-steady state. For q odd it alternates
+    in sign, and its effect on the components it drives cancels over pairs of steps; for q
+    even it stays, and where the component decays below it, the components it drives drift
+    by an error no local estimate sees. ROBER with cG(2) at 1e-7: the deviation of y2 stays
+    at 8e-14 from t = 3e5 while y2 decays from 2e-8 to 1e-13 (its relative deviation grows
+    to 0.75 at T, 0.008 x its tolerance), and y1 ends 26 x the tolerance off. Measured
+    harmless, and so not warned about: a deviation that is large but not growing into T
+    (POLLU, HIRES at loose tolerances: the component grows, or the deviation is a local
+    error; HIRES, cG(2) at 1e-4: 0.14 at T after 0.22 at t = 236), one far below the
+    tolerance (ROBER with atol = rtol: 2e-10..1e-6 x) and one of a component that drives
+    nothing (its error is the deviation: u' = -1000 u, 0.004 x)."""
+    if (method.family != "cG" or method.q % 2 or last <= UNDAMPED_DEVIATION
+            or last < UNDAMPED_GROWING * largest or size < UNDAMPED_NEGLIGIBLE
+            or not drives):
+        return None
+    return (f"{method.name} carries stiff deviations undamped (it is not L-stable): at T, "
+            f"{state} is {last:.2g} x its value off its quasi-steady state, more than earlier "
+            f"in the run, so the components it drives may have drifted beyond the tolerance. "
+            f"Use dG({method.q}) (method='dG({method.q})'), which damps it, or check the error "
+            "with dn.estimate_error")
+
+
 def filter_constant(method):
     """gamma = |det A|^(1/s) of the method's stage matrix A: the local error estimate is
     (I - gamma k J)^{-1} k R(t_n), which is k R on non-stiff components and tends to the

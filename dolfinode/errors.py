@@ -29,3 +29,9 @@ class ModelingWarning(UserWarning):
     error estimate, or a defect found at a control point times the span it acted on, exceeds
     the tolerance (see :mod:`dolfinode.modeling.validity`; ``strict=True`` raises
     :class:`SolverError` instead)."""
+
+
+class ToleranceWarning(UserWarning):
+    """A solve whose error at T may exceed the tolerance although every step met its
+    estimate: the calibrated tolerance (see :func:`dolfinode.solve`) was measured not to hold
+    in the regime the run reached (:func:`dolfinode.adaptivity.undamped_warning`)."""

@@ -53,6 +53,7 @@ from dolfinode.solve import (
     _newton_options,
     _options,
     _signs,
+    _warn_undamped,
     check_tolerance,
     lower,
     lowered,
@@ -242,7 +243,7 @@ class Solver:
         # p, floor: written by the next call
         self._values = self._signs = self._u0 = self._floor_key = None
         self._kept = (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
-                      structure)
+                      structure, options)
         self._start = (start.entry(), (compiled.rhs.address, compiled.p, work.t0, atol, rtol,
                                        params["initial_time_step"] is None, x, f0, steps,
                                        options, state, counters, not multi_adaptive))
@@ -258,7 +259,7 @@ class Solver:
             self._workspace(work)
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
         (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
-         structure) = self._kept
+         structure, options) = self._kept
         values = tuple(work.params.values())
         if values != self._values:
             compiled.p[:len(values)] = values
@@ -297,6 +298,7 @@ class Solver:
                              steps), counts, True, m, params, compiled.compile_time, seconds)
             sol = sink.solution(self._solved._snapshot(), m, sink.finish(True), stats, x)
         else:
+            _warn_undamped(work, compiled, m, params, options, state)
             k_next, N = state["k_next"].item(), x.size
             out_t, out_k, out_X = self._buffers
             sol = Solution(None, m, out_t[:n].copy(), out_k[:n].copy(), out_X[:n].copy(), None,

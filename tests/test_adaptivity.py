@@ -1,5 +1,6 @@
 """The tolerance means the error at T: calibrated step tolerances (dolfinode.adaptivity)."""
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -11,11 +12,15 @@ from dolfinode.adaptivity import (
     MAX_STEP_TOLERANCE,
     STIFF_RATIO,
     STIFF_TARGET,
+    UNDAMPED_DEVIATION,
+    UNDAMPED_NEGLIGIBLE,
     initial_step,
     refined_step,
     step_tolerance,
+    stiff_deviation,
     stiff_factor,
     stiff_loosening,
+    undamped_warning,
 )
 from dolfinode.bench import problems
 from dolfinode.bench.multirate import oscillator_bank
@@ -209,3 +214,74 @@ def test_dg_first_step_is_accepted_and_shortens_the_ramp(problem):
     from_k0 = dn.solve(ode, method="dG(3)", tolerance=tol, absolute_tolerance=atol,
                        initial_time_step=k0)
     assert len(k) < from_k0.stats["time slabs"]
+def solve_warned(problem, method, tolerance):
+    """(scaled error at T, the ToleranceWarnings) of a default solve."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", dn.ToleranceWarning)
+        error = scaled_error(problem, method, tolerance)
+    return error, [w for w in caught if issubclass(w.category, dn.ToleranceWarning)]
+
+
+def test_out_of_sample_miss_is_not_silent():
+    """ROBER, not used in fitting: cG(2) at 1e-7 carries y2's deviation from its
+    quasi-steady state undamped while y2 decays below it, and y1 drifts (26 x measured).
+    The run is within the band, or it says so, naming y2 and dG(2)."""
+    error, warned = solve_warned(problems.rober(), "cG(2)", 1e-7)
+    assert error <= 10 * 1e-7 or warned, error / 1e-7
+    if warned:
+        assert "y2" in str(warned[0].message) and "dG(2)" in str(warned[0].message)
+
+
+@pytest.mark.parametrize("name, method, tolerance", [
+    ("POLLU", "cG(2)", 1e-5), ("POLLU", "dG(2)", 1e-7), ("VDPOLM", "cG(2)", 1e-7),
+    ("HIRES", "cG(2)", 1e-4)])
+def test_out_of_sample_within_the_band_without_warning(name, method, tolerance):
+    """Problems the mapping was not fitted on (and HIRES's run closest to a warning: a
+    deviation of 0.22 that is not growing into T): within [0.1, 10] x, no false alarm."""
+    problem = {"POLLU": problems.pollu, "VDPOLM": problems.vdpolm,
+               "HIRES": problems.hires_problem}[name]()
+    error, warned = solve_warned(problem, method, tolerance)
+    assert 0.1 * tolerance <= error <= 10 * tolerance, error / tolerance
+    assert not warned, str(warned[0].message)
+
+
+def test_undamped_warning_only_for_even_cg_growing_into_t():
+    """cG(q) keeps a stiff deviation for q even (R(-inf) = +1); q odd alternates it and dG
+    damps it; a deviation not still growing at T, one negligible against the tolerance and
+    one of a component that drives no other are not warned about."""
+    big, size = 2 * UNDAMPED_DEVIATION, 10 * UNDAMPED_NEGLIGIBLE
+    cg2 = make_method("cG", 2)
+    assert "dG(2)" in undamped_warning(cg2, big, big, size, True, "y2")
+    assert undamped_warning(make_method("cG", 3), big, big, size, True, "y2") is None
+    assert undamped_warning(make_method("dG", 2), big, big, size, True, "y2") is None
+    small = 0.5 * UNDAMPED_DEVIATION
+    assert undamped_warning(cg2, small, small, size, True, "y2") is None
+    assert undamped_warning(cg2, 10 * big, big, size, True, "y2") is None
+    assert undamped_warning(cg2, big, big, 0.1 * UNDAMPED_NEGLIGIBLE, True, "y2") is None
+    assert undamped_warning(cg2, big, big, size, False, "y2") is None
+    assert stiff_deviation(1e-3, 1.0, 1e-2) == pytest.approx(0.1)
+    assert stiff_deviation(STIFF_RATIO, 1.0, 1e-2) == 0.0  # not reduced by the filter
+    assert stiff_deviation(1e-3, 1.0, 0.0) == 0.0
+
+
+@pytest.mark.parametrize("declare", [
+    lambda: problems.stiff_decay(lam=1000.0, T=10.0)[0],  # drives nothing: 0.001 x
+    lambda: problems.rober().ode])  # atol = rtol: y2's deviation 1e-8 x its tolerance
+def test_no_warning_where_the_deviation_cannot_matter(declare):
+    """Runs whose last stiff deviation is large relative to its component (3.5 x, 1.7 x)
+    but harmless."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        dn.solve(declare(), method="cG(2)", tolerance=1e-4)
+
+
+def test_prepared_solver_warns_as_solve_does():
+    problem = problems.rober()
+    solver = dn.Solver(problem.ode, method="cG(2)", tolerance=1e-7,
+                       absolute_tolerance=problem.atol_ratio * 1e-7)
+    with pytest.warns(dn.ToleranceWarning, match="y2"):
+        solver.solve()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        dn.Solver(problem.ode, method="cG(2)", tolerance=1e-9,
+                  absolute_tolerance=problem.atol_ratio * 1e-9).solve()  # 1.6 x, no warning

@@ -49,6 +49,10 @@ newton_cost        mono: running mean of Newton's cost per slab in f evaluations
 k_newton           mono: Newton's step when it gave way to fixed point (0: it has not)
 mono_elements      multi: elements a mono-adaptive method with each slab's smallest step
                    would have needed (the efficiency index)
+deviation          mono, calibrated: the largest distance of a stiff component from its
+                   quasi-steady state relative to itself (adaptivity.stiff_deviation)
+last_deviation     the same on the last slab, of the component ``deviated``, whose estimate
+                   is ``deviation_error`` x its step tolerance there
 =================  ====================================================================
 """
 import itertools
@@ -68,7 +72,9 @@ OPTIONS = np.dtype([
 STATE = np.dtype([
     ("t", np.float64), ("k_next", np.float64), ("eps_prev", np.float64),
     ("fp_step", np.float64), ("fp_iterations", np.float64), ("newton_cost", np.float64),
-    ("k_newton", np.float64), ("mono_elements", np.float64), ("have_f0", np.bool_)], align=True)
+    ("k_newton", np.float64), ("mono_elements", np.float64), ("deviation", np.float64),
+    ("last_deviation", np.float64), ("deviation_error", np.float64), ("deviated", np.int64),
+    ("have_f0", np.bool_)], align=True)
 
 #: Their numba types, for the loops' signatures.
 OPTIONS_TYPE = numba.from_dtype(OPTIONS)[::1]

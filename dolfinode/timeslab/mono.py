@@ -11,7 +11,7 @@ from functools import cache
 import numpy as np
 from numba import njit, types
 
-from dolfinode.adaptivity import filter_estimate, next_step, stiff_factor
+from dolfinode.adaptivity import filter_estimate, next_step, stiff_deviation, stiff_factor
 from dolfinode.compile.jit import Loop
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
 from dolfinode.linalg.newton_matrix import shift, store_jacobian
@@ -427,9 +427,13 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                     unfiltered[:] = est
                 filter_estimate(jb, structure, ipiv_filter, est, filter_rhs)
         eps = 0.0
+        deviation, deviated, deviated_eps = 0.0, -1, 0.0
         for i in range(N):
             eps_i = abs(est[i]) / (atol[i] + rtol * abs(X[end + i]))
             if filtered and eps_i > 0.0:
+                d = stiff_deviation(abs(est[i]), abs(unfiltered[i]), abs(X[end + i]))
+                if d > deviation:
+                    deviation, deviated, deviated_eps = d, i, eps_i
                 eps_i *= stiff_factor(abs(est[i]), abs(unfiltered[i]), loosening)
             eps = max(eps, eps_i)
         if blowup or not math.isfinite(eps):
@@ -467,6 +471,9 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                         out_X[n, j, i] = x[i] if j == 0 else X[(j - 1) * N + i]
             counters[STORED] += 1
             counters[SLABS] += 1
+            st.deviation = max(st.deviation, deviation)  # (adaptivity.undamped_warning)
+            st.last_deviation, st.deviated, st.deviation_error = (deviation, deviated,
+                                                                  deviated_eps)
             t = t + k if k < remaining else T
             for i in range(N):
                 x[i] = X[end + i]
