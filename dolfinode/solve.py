@@ -296,6 +296,12 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
 
     The defaults are ``dolfinode.default_parameters`` (DOLFIN's names).
     """
+    if goal is None:
+        from dolfinode.solver import solve_kept  # (it imports this module)
+
+        sol = solve_kept(ode, method, tolerance, parameters)
+        if sol is not None:
+            return sol
     parameters["tolerance"] = tolerance
     if not isinstance(ode, ODE):
         raise TypeError(f"solve expects a dolfinode.ODE, got {type(ode).__name__}")
