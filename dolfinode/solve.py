@@ -12,6 +12,7 @@ from dolfinode.errors import SolverError
 from dolfinode.failures import STEP_LIMIT, failure_message, undamped_message, undefined
 from dolfinode.family import auto_base, solve_auto
 from dolfinode.io import history
+from dolfinode.kept import solve_kept
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
 from dolfinode.memory import available_memory
 from dolfinode.methods import parse_method
@@ -297,8 +298,6 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     The defaults are ``dolfinode.default_parameters`` (DOLFIN's names).
     """
     if goal is None:
-        from dolfinode.solver import solve_kept  # (it imports this module)
-
         sol = solve_kept(ode, method, tolerance, parameters)
         if sol is not None:
             return sol
