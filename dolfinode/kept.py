@@ -36,34 +36,33 @@ def solve_kept(ode, method, tolerance, parameters):
     Solution is bitwise dn.solve's."""
     if not isinstance(ode, ODE):
         return None
-    key = (method, type(tolerance), tolerance,
-           *[(name, type(value), value) for name, value in parameters.items()])
-    try:
-        hash(key)
-    except TypeError:
-        return None
     kept = ode.__dict__.get("_kept_solvers")
     if kept is None or kept.ode is not ode:
         kept = ode.__dict__["_kept_solvers"] = _Kept(ode)
-    if not kept.lock.acquire(blocking=False):
-        return None
+    key = (method, type(tolerance), tolerance,
+           *[(name, type(value), value) for name, value in parameters.items()])
     try:
         solver = kept.solvers.get(key, _UNSEEN)
-        if solver is _UNSEEN:
-            if len(kept.solvers) >= _KEPT_OPTIONS:
-                kept.solvers.clear()
-            kept.solvers[key] = None
-            return None
+    except TypeError:  # (option values that do not hash: arrays, lists, dicts)
+        return None
+    if solver is _UNSEEN:
+        if len(kept.solvers) >= _KEPT_OPTIONS:
+            kept.solvers.clear()
+        kept.solvers[key] = None
+        return None
+    if solver is False or not kept.lock.acquire(blocking=False):
+        return None
+    try:
         if solver is None:  # the second call: worth a solver
             solver = kept.solvers[key] = _kept_solver(ode, method, tolerance, parameters,
                                                       kept.pool)
-        if solver is False:
-            return None
+            if solver is False:
+                return None
         sol = solver.solve()
-        sol.parameters = dict(sol.parameters)  # (a solver's are shared by its solutions)
-        return sol
     finally:
         kept.lock.release()
+    sol.parameters = dict(sol.parameters)  # (a solver's are shared by its solutions)
+    return sol
 
 
 def _kept_solver(ode, method, tolerance, parameters, pool):
