@@ -314,11 +314,12 @@ class Solver:
         else:
             k_next, N = state["k_next"].item(), x.size
             out_t, out_k, out_X = self._buffers
+            makers = {"ode": self._solved._snapshot, "declared": self._solved,
+                      "stats": lambda: _completed_stats(
+                          _mono_stats(N, structure, counts, k_next), counts, False, m, params,
+                          compiled.compile_time, seconds)}
             sol = Solution(None, m, out_t[:n].copy(), out_k[:n].copy(), out_X[:n].copy(), None,
-                           self._samples, {"ode": self._solved._snapshot, "stats": lambda: (
-                               _completed_stats(_mono_stats(N, structure, counts, k_next),
-                                                counts, False, m, params,
-                                                compiled.compile_time, seconds))})
+                           self._samples, makers)
         sol.parameters = params
         return sol
 

@@ -60,7 +60,7 @@ def test_repeated_calls_are_kept_and_bitwise_a_first_call(method, no_general_pat
 def test_kept_solves_follow_every_value_of_the_declaration(no_general_path):
     references = [dn.solve(declare(**values), "dG(2)", tolerance=1e-6) for values in (
         {"k": 9.0}, {"k": 1.0, "c": 0.0}, {"u0": (0.5, -1.0), "k": 1.0, "c": 0.0},
-        {"u0": (0.5, -1.0), "t0": 0.5, "T": 3.0, "k": 1.0, "c": 0.0})]
+        {"u0": (0.5, -1.0), "t0": 0.5, "T": 3.0, "k": 1.0, "c": 0.0}, {})]
     ode = declare()
     for _ in range(2):
         before = dn.solve(ode, "dG(2)", tolerance=1e-6)
@@ -77,7 +77,10 @@ def test_kept_solves_follow_every_value_of_the_declaration(no_general_path):
     sol = dn.solve(ode, "dG(2)", tolerance=1e-6)
     assert_same(sol, references[3])
     assert sol.ode.T == 3.0 and sol.ode.params[k] == 1.0
-    np.testing.assert_array_equal(before.values, kept)  # earlier solutions are left alone
+    # earlier solutions are left alone: their values, and the declaration they evaluate on
+    np.testing.assert_array_equal(before.values, kept)
+    np.testing.assert_array_equal(before([0.0, 0.2]), references[4]([0.0, 0.2]))
+    assert before.ode.t0 == 0.0 and before.ode.params[k] == 4.0
 
 
 def test_other_options_are_never_served_by_a_kept_solver():
