@@ -3,6 +3,7 @@ same declaration takes the prepared path of a :class:`~dolfinode.Solver` kept fo
 that the checks and bookkeeping of the options run once (a loop of small solves, a
 benchmark's repeats); the solver reads the declaration's values at every call."""
 import threading
+import weakref
 
 from dolfinode.family import auto_base
 from dolfinode.ode import ODE
@@ -19,7 +20,14 @@ class _Kept:
     does not take them."""
 
     def __init__(self, ode=None):
-        self.ode, self.solvers, self.pool, self.lock = ode, {}, {}, threading.Lock()
+        # (a weak reference: a declaration solved once is freed as before, not by the
+        # cycle collector)
+        self.ode = weakref.ref(ode) if ode is not None else None
+        self.solvers, self.pool, self.lock = {}, {}, threading.Lock()
+
+    def of(self, ode):
+        """Whether these are the solvers of ``ode`` (not of the one it was copied from)."""
+        return self.ode is not None and self.ode() is ode
 
     def __reduce__(self):
         return _Kept, ()
@@ -37,7 +45,7 @@ def solve_kept(ode, method, tolerance, parameters):
     if not isinstance(ode, ODE):
         return None
     kept = ode.__dict__.get("_kept_solvers")
-    if kept is None or kept.ode is not ode:
+    if kept is None or not kept.of(ode):
         kept = ode.__dict__["_kept_solvers"] = _Kept(ode)
     key = (method, type(tolerance), tolerance,
            *[(name, type(value), value) for name, value in parameters.items()])

@@ -296,6 +296,12 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     tolerance as given. For a bound on an output, pass ``goal`` (dual-based estimate).
 
     The defaults are ``dolfinode.default_parameters`` (DOLFIN's names).
+
+    A declaration keeps, for options (method, tolerance, parameters) it was solved with
+    twice, a :class:`~dolfinode.Solver` whose prepared path later calls with them take
+    (:mod:`dolfinode.kept`): the options are checked once, the values (``ode.params``,
+    ``u0``, ``t0``, ``T``) are read at every call, and the result is bitwise that of a first
+    call.
     """
     if goal is None:
         sol = solve_kept(ode, method, tolerance, parameters)

@@ -1,8 +1,10 @@
 """dn.solve's kept solvers (dolfinode.solver.solve_kept): a repeated call with the same
 options takes a prepared Solver's path, bitwise as a first call, and never a stale state."""
+import gc
 import pickle
 import sys
 import threading
+import weakref
 
 import numpy as np
 import pytest
@@ -136,3 +138,15 @@ def test_copies_of_the_declaration_keep_their_own_solvers():
     for other in (again, dn.solve(copy, "cG(2)", tolerance=1e-6),
                   dn.solve(copy, "cG(2)", tolerance=1e-6)):
         assert_same(other, sol)
+
+
+def test_a_declaration_solved_once_is_freed_without_the_cycle_collector():
+    ode = declare()
+    dn.solve(ode, "cG(2)", tolerance=1e-6)
+    gone = weakref.ref(ode)
+    gc.disable()
+    try:
+        del ode
+        assert gone() is None
+    finally:
+        gc.enable()
