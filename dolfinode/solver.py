@@ -7,18 +7,19 @@ steps and values, bit for bit. The parameter values reach the compiled kernels a
 vector ``p`` of each call, never through the declaration the solver was made from.
 
 A solve without events, breakpoints, switches or automatic modeling, with its history in
-memory (and for cG/dG a Newton matrix storage decided up front, as for all but large sparse
-systems), takes the prepared path: the solver keeps, per interval [t0, T], a work space (its
-own kernels, the options and tolerances, the arrays of the start and of the loop, and output
-buffers as large as the first ones of dn.solve) and the loop's whole argument tuple; a call
-writes the values that changed into it, runs the compiled start of dn.solve
-(:mod:`dolfinode.timeslab.start`) and calls the loop once, and the Solution copies the used
-part of the buffers. A call's u0 and parameter values are checked as the declaration checks
-them, floats directly; the floor of the values is made again only when the parameters'
-signs or the sign of u0 change. A mono-adaptive Solution's ``ode`` (the declaration as
-solved) and ``stats`` are made when first read. Everything else, and a solve that outgrows
-the buffers or fails, goes through the general path (``solve_lowered``, the driver of
-dn.solve).
+memory (and for cG/dG a Newton matrix storage decided up front: all but sparse systems whose
+storage no earlier solve has analysed), takes the prepared path: the solver keeps, per
+interval [t0, T], a work space (its own kernels, the options and tolerances, the arrays of
+the start and of the loop, and output buffers as large as the first ones of dn.solve) and
+the loop's whole argument tuple; a call writes the values that changed into it, runs the
+compiled start of dn.solve (:mod:`dolfinode.timeslab.start`) and calls the loop once, and
+the Solution copies the used part of the buffers. A call's u0 and parameter values are
+checked as the declaration checks them, floats directly; the floor of the values is made
+again only when the parameters' signs or the sign of u0 change. A mono-adaptive Solution's
+``ode`` (the declaration as solved) and ``stats`` are made when first read. Everything
+else, and a solve that outgrows the buffers or fails, goes through the general path
+(``solve_lowered``, the driver of dn.solve). dn.solve itself keeps Solvers for options it
+was called with before (:mod:`dolfinode.kept`).
 """
 import math
 import time
@@ -322,4 +323,3 @@ class Solver:
                            self._samples, makers)
         sol.parameters = params
         return sol
-
