@@ -1,5 +1,5 @@
-"""dn.solve's kept solvers (dolfinode.solver.solve_kept): a repeated call with the same
-options takes a prepared Solver's path, bitwise as a first call, and never a stale state."""
+"""dn.solve's kept solvers (dolfinode.kept): a repeated call with the same options takes
+a prepared Solver's path, bitwise as a first call, and never a stale state."""
 import gc
 import pickle
 import sys
