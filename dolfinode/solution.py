@@ -172,11 +172,20 @@ class Solution:
 
     def __getstate__(self):
         # a deferred attribute is made now: its maker may hold what does not pickle
-        for name in self.__dict__.get("_makers", ()):
-            getattr(self, name)
+        if "_makers" in self.__dict__:
+            self.ode, self.stats  # noqa: B018 (made now)
         state = self.__dict__.copy()
         state.pop("_makers", None)
         return state
+
+    @property
+    def _declaration(self):
+        """What evaluation reads of the declaration (t0, T, N, u0): ``ode``, or before it is
+        made the declaration it copies (copying it cost a small solve 2-5 us)."""
+        ode = self.__dict__.get("ode")
+        if ode is None:
+            ode = self._makers.get("declared")
+        return self.ode if ode is None else ode
 
     @property
     def success(self):
@@ -185,7 +194,9 @@ class Solution:
 
     def __init__(self, ode, method, t_start, k, values, stats, number_of_samples, makers=None):
         """``makers``: {"ode": maker, "stats": maker} (``ode`` and ``stats`` then None), the
-        two made by maker() on first read: a loop of many small solves often reads neither."""
+        two made by maker() on first read: a loop of many small solves often reads neither;
+        with "declared": the declaration the ode maker copies (never changed), which
+        evaluation reads instead."""
         self.method, self.t_start, self.k, self.values = method, t_start, k, values
         self._component_ptr = None
         if makers is None:
@@ -227,15 +238,17 @@ class Solution:
     @cached_property
     def t(self):
         """Sample times: np.linspace's values (t0 + i (T - t0)/(n - 1), the last T)."""
-        return equispaced(self.ode.t0, self.ode.T, self._number_of_samples)
+        declared = self._declaration
+        return equispaced(declared.t0, declared.T, self._number_of_samples)
 
     @cached_property
     def y(self):
         """U at the sample times, shape (N, M)."""
         y = self._evaluate(self.t)
         # U(t0), as in _values, set directly: only the first sample can be t0
-        if self.t[0] == self.ode.t0:
-            y[:, 0] = self.ode.u0
+        declared = self._declaration
+        if self.t[0] == declared.t0:
+            y[:, 0] = declared.u0
         return y
 
     @property
@@ -259,7 +272,7 @@ class Solution:
                             f"of them), got {t!r}")
         shape = times.shape
         times = times.ravel()
-        ode = self.ode
+        ode = self._declaration
         outside = _first_outside(times, ode.t0, ode.T)
         if outside >= 0:
             bad = times[outside]
@@ -271,12 +284,13 @@ class Solution:
     def _values(self, times):
         """U at ``times`` in [t0, T], shape (N, len(times))."""
         out = self._evaluate(times)
-        _set_initial(times, self.ode.t0, self.ode.u0, out)
+        declared = self._declaration
+        _set_initial(times, declared.t0, declared.u0, out)
         return out
 
     def _evaluate(self, times):
         """U at ``times`` in [t0, T], shape (N, len(times)), from the elements."""
-        out = np.empty((times.size, self.ode.N)).T  # components contiguous at each time
+        out = np.empty((times.size, self._declaration.N)).T  # components contiguous at each time
         nodes, bary = self.method.nodes, self.method.barycentric_weights
         if self.multi:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,

@@ -21,6 +21,7 @@ from dolfinode.errors import SolverError, ToleranceWarning
 from dolfinode.failures import STEP_LIMIT, failure_message, undamped_message, undefined
 from dolfinode.family import auto_base, solve_auto
 from dolfinode.io import history
+from dolfinode.kept import solve_kept
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
 from dolfinode.memory import available_memory
 from dolfinode.methods import parse_method
@@ -318,7 +319,17 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     tolerance as given. For a bound on an output, pass ``goal`` (dual-based estimate).
 
     The defaults are ``dolfinode.default_parameters`` (DOLFIN's names).
+
+    A declaration keeps, for options (method, tolerance, parameters) it was solved with
+    twice, a :class:`~dolfinode.Solver` whose prepared path later calls with them take
+    (:mod:`dolfinode.kept`): the options are checked once, the values (``ode.params``,
+    ``u0``, ``t0``, ``T``) are read at every call, and the result is bitwise that of a first
+    call.
     """
+    if goal is None:
+        sol = solve_kept(ode, method, tolerance, parameters)
+        if sol is not None:
+            return sol
     parameters["tolerance"] = tolerance
     if not isinstance(ode, ODE):
         raise TypeError(f"solve expects a dolfinode.ODE, got {type(ode).__name__}")

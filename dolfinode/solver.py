@@ -7,18 +7,19 @@ steps and values, bit for bit. The parameter values reach the compiled kernels a
 vector ``p`` of each call, never through the declaration the solver was made from.
 
 A solve without events, breakpoints, switches or automatic modeling, with its history in
-memory (and for cG/dG a Newton matrix storage decided up front, as for all but large sparse
-systems), takes the prepared path: the solver keeps, per interval [t0, T], a work space (its
-own kernels, the options and tolerances, the arrays of the start and of the loop, and output
-buffers as large as the first ones of dn.solve) and the loop's whole argument tuple; a call
-writes the values that changed into it, runs the compiled start of dn.solve
-(:mod:`dolfinode.timeslab.start`) and calls the loop once, and the Solution copies the used
-part of the buffers. A call's u0 and parameter values are checked as the declaration checks
-them, floats directly; the floor of the values is made again only when the parameters'
-signs or the sign of u0 change. A mono-adaptive Solution's ``ode`` (the declaration as
-solved) and ``stats`` are made when first read. Everything else, and a solve that outgrows
-the buffers or fails, goes through the general path (``solve_lowered``, the driver of
-dn.solve).
+memory (and for cG/dG a Newton matrix storage decided up front: all but sparse systems whose
+storage no earlier solve has analysed), takes the prepared path: the solver keeps, per
+interval [t0, T], a work space (its own kernels, the options and tolerances, the arrays of
+the start and of the loop, and output buffers as large as the first ones of dn.solve) and
+the loop's whole argument tuple; a call writes the values that changed into it, runs the
+compiled start of dn.solve (:mod:`dolfinode.timeslab.start`) and calls the loop once, and
+the Solution copies the used part of the buffers. A call's u0 and parameter values are
+checked as the declaration checks them, floats directly; the floor of the values is made
+again only when the parameters' signs or the sign of u0 change. A mono-adaptive Solution's
+``ode`` (the declaration as solved) and ``stats`` are made when first read. Everything
+else, and a solve that outgrows the buffers or fails, goes through the general path
+(``solve_lowered``, the driver of dn.solve). dn.solve itself keeps Solvers for options it
+was called with before (:mod:`dolfinode.kept`).
 """
 import math
 import time
@@ -96,6 +97,11 @@ class Solver:
     """
 
     def __init__(self, ode, method="cG(1)", **parameters):
+        self._setup(ode, method, parameters, {})
+
+    def _setup(self, ode, method, parameters, pool):
+        """The solver of ``ode`` with ``method`` and ``parameters``, its output buffers taken
+        from ``pool`` (shape -> arrays, shared by solvers that are never called at once)."""
         if not isinstance(ode, ODE):
             raise TypeError(f"Solver expects a dolfinode.ODE, got {type(ode).__name__}")
         if "goal" in parameters:
@@ -107,6 +113,7 @@ class Solver:
         self.ode = ode
         self.method = method
         self.parameters = dict(parameters)
+        self._pool = pool
         self._prepare()
 
     def _prepare(self):
@@ -119,18 +126,27 @@ class Solver:
         self._by_key = {**self._by_name, **{s: s for s in ode.params}}
         self._work = object.__new__(type(ode))
         self._work.__dict__.update(ode.__dict__)
+        self._work.__dict__.pop("_kept_solvers", None)  # (its solutions would keep them alive)
         self._buffers = self._interval = None
         if (plan is None and params["dense_output"] is True and not params["progress"]
                 and not params["automatic_modeling"]):
             m = self._method
             if self._multi_adaptive:  # (the loop's first buffers, as in _run_multi)
                 size = _multi_capacity(ode, m)
-                self._buffers = (np.empty(size, dtype=np.int64), np.empty(size),
-                                 np.empty(size), np.empty((size, m.q + 1)))
-            elif not sparse_candidate(compiled.band_structure):  # (as in _run_mono)
+                self._buffers = self._kept_buffers(
+                    ((size, np.int64), (size, float), (size, float), ((size, m.q + 1), float)))
+            elif (not sparse_candidate(compiled.band_structure)
+                  or m.name in compiled.newton_plans):  # (as in _run_mono)
                 size = min(_mono_capacity(ode, m), params["maximum_steps"])
-                self._buffers = (np.empty(size), np.empty(size),
-                                 np.empty((size, m.q + 1, ode.N)))
+                self._buffers = self._kept_buffers(
+                    ((size, float), (size, float), ((size, m.q + 1, ode.N), float)))
+
+    def _kept_buffers(self, shapes):
+        """Output buffers of the given (shape, dtype)s from the pool, made when missing."""
+        buffers = self._pool.get(shapes)
+        if buffers is None:
+            buffers = self._pool[shapes] = tuple(np.empty(shape, dtype) for shape, dtype in shapes)
+        return buffers
 
     def solve(self, u0=None, params=None, T=None, t0=None):
         """Solve with the given initial values, parameter values and interval (each defaults
@@ -301,10 +317,11 @@ class Solver:
             _warn_undamped(work, compiled, m, params, options, state)
             k_next, N = state["k_next"].item(), x.size
             out_t, out_k, out_X = self._buffers
+            makers = {"ode": self._solved._snapshot, "declared": self._solved,
+                      "stats": lambda: _completed_stats(
+                          _mono_stats(N, structure, counts, k_next), counts, False, m, params,
+                          compiled.compile_time, seconds)}
             sol = Solution(None, m, out_t[:n].copy(), out_k[:n].copy(), out_X[:n].copy(), None,
-                           self._samples, {"ode": self._solved._snapshot, "stats": lambda: (
-                               _completed_stats(_mono_stats(N, structure, counts, k_next),
-                                                counts, False, m, params,
-                                                compiled.compile_time, seconds))})
+                           self._samples, makers)
         sol.parameters = params
         return sol

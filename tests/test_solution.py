@@ -201,4 +201,12 @@ def test_ode_and_stats_given_by_makers_are_made_once_on_first_read():
     copy = pickle.loads(pickle.dumps(fresh))
     np.testing.assert_array_equal(copy.y, eager(np.linspace(0.0, 1.0, 11)))
     assert copy.stats == eager.stats and "_makers" not in vars(copy)
+    # given the declaration the ode maker copies, evaluation reads it and makes no ode
+    calls.clear()
+    declared = dn.Solution(None, eager.method, eager.t_start, eager.k, eager.values, None, 11,
+                           makers={"ode": maker(eager.ode), "stats": maker(eager.stats),
+                                   "declared": eager.ode})
+    np.testing.assert_array_equal(declared([0.0, 0.5]), eager([0.0, 0.5]))
+    np.testing.assert_array_equal(declared.y, eager(np.linspace(0.0, 1.0, 11)))
+    assert calls == [] and declared.ode is eager.ode and calls == [eager.ode]
     pickle.loads(pickle.dumps(eager))  # (an eager solution pickles as before)
