@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sps
-from numba import njit
+from numba import njit, types
 
 from dolfinode.compile.jit import HELPER, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
@@ -167,6 +167,7 @@ def newton_structure(band, make_sparse, eigenvalues):
     return sparse if cost(sparse) < SPARSE_MARGIN * cost(band) else band
 
 
+@linked(returns=types.none, what="the Newton matrices' storage", seconds=1)
 @njit(**HELPER, **NO_REFCOUNT)
 def store_jacobian(jdata, indptr, indices, structure, jb):
     """J (its CSR values ``jdata``) into the storage ``jb``: scattered once per Jacobian,
@@ -185,6 +186,7 @@ def store_jacobian(jdata, indptr, indices, structure, jb):
             jb[col, kv + r - col] += jdata[nz]
 
 
+@linked(returns=types.none, what="the Newton matrices' shift", seconds=1)
 @njit(**HELPER, **NO_REFCOUNT)
 def shift(jb, c, structure, ab):
     """ab = I - c J (c real or complex) from J in the storage ``jb`` (ab may be jb); the band

@@ -420,7 +420,10 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             if not blowup:
                 filtered = loosening > 0.0
                 if filtered:
-                    unfiltered[:] = est
+                    # by element: a slice assigned from an array compiles numba's long
+                    # shape-error message
+                    for i in range(N):
+                        unfiltered[i] = est[i]
                 filter_estimate(jb, structure, ipiv_filter, est, filter_rhs)
         eps = 0.0
         for i in range(N):
