@@ -500,5 +500,5 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     return DONE if t >= T else FULL
 
 
-advance = Loop(_advance, _SIGNATURE, "the mono-adaptive loop (cG(q), dG(q))", 15,
+advance = Loop(_advance, _SIGNATURE, "the mono-adaptive loop (cG(q), dG(q))", 8,
                error_model="numpy")
