@@ -215,6 +215,9 @@ def _lazy_call(key, what, seconds, context, builder, sig, llargs):
 #: process
 _SLOTS = {}
 _RESOLVER = ctypes.CFUNCTYPE(None)
+#: what the lazily linked compiles of this process have announced: once each (a routine's
+#: real and complex specialisations are one notice)
+_ANNOUNCED = set()
 
 
 class _LazyLink:
@@ -243,7 +246,10 @@ class _LazyLink:
     def _resolve(self, slot):
         # (a ctypes callback cannot raise into the compiled caller: an empty slot tells it)
         try:
-            with announced(self.what, self.seconds):
+            notice = (nullcontext() if self.what in _ANNOUNCED
+                      else announced(self.what, self.seconds))
+            _ANNOUNCED.add(self.what)
+            with notice:
                 self.link()
             slot.value = ll.address_of_symbol(self.link.symbol)
         except Exception:

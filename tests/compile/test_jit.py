@@ -233,3 +233,24 @@ def test_a_lazily_linked_function_keeps_its_error_model_when_compiled_at_run_tim
     assert _ratio_caller(1.0, 0.0) == np.inf  # numpy's model, not ZeroDivisionError
     overload = _lazy_ratio.dispatcher.overloads[_lazy_ratio.signatures[0]]
     assert "ZeroDivisionError" not in overload.library.get_llvm_str()
+
+
+@jit.linked(returns=types.float64, what="a twice specialised routine", seconds=1)
+@njit(cache=False, error_model="numpy")
+def _first(x):
+    return float(x[0])
+
+
+@njit(cache=False)
+def _both(x, y):
+    return _first(x) + _first(y)
+
+
+def test_a_lazy_routine_is_announced_once_for_all_its_specialisations(monkeypatch, caplog):
+    monkeypatch.setattr(jit, "NOTICE_AFTER", 0.0)
+    with caplog.at_level(logging.WARNING, logger="dolfinode"):
+        assert _both(np.ones(1), np.ones(1, dtype=np.int64)) == 2.0
+        threading.Event().wait(0.2)  # (the notice's timer thread)
+    assert len(_first.signatures) == 2
+    notices = [r.getMessage() for r in caplog.records if "twice specialised" in r.getMessage()]
+    assert len(notices) == 1
