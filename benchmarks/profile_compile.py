@@ -15,7 +15,9 @@ codegen    machine code (the JIT's object, also written to numba's cache)
 =========  ==================================================================
 
 It also counts each function's compiled specialisations and the size (lines of LLVM IR)
-of its linked module. Prints a table; ``--json FILE`` writes the records.
+of its linked module, splits the compile by stage, and charges numba's own functions (its
+``np.empty``, string formatting, ...) to the dolfinode function whose compile needs them.
+Prints the tables; ``--json FILE`` writes the records.
 
 Usage::
 
@@ -41,9 +43,11 @@ def cpu():
     return own.ru_utime + own.ru_stime
 
 stack = []  # [name, kind, start, children]
-seconds = defaultdict(float)  # (function, phase) -> exclusive CPU seconds
+seconds = defaultdict(float)  # (function, phase, stage) -> exclusive CPU seconds
 compiles = defaultdict(int)
 lines = {}
+stage = ["import"]
+within = defaultdict(float)  # (numba's own function, the dolfinode function compiling it) -> s
 
 def current():
     for frame in reversed(stack):
@@ -60,7 +64,10 @@ def leave():
     if stack:
         stack[-1][3] += total
     seconds[(current() if kind != "compile" else name,
-             kind if kind != "compile" else "other")] += total - children
+             kind if kind != "compile" else "other", stage[0])] += total - children
+    owner = current()
+    if kind == "compile" and not name.startswith("dolfinode") and owner.startswith("dolfinode"):
+        within[(name, owner)] += total  # with the numba functions it compiles in turn
 
 LOWERING = {"native_lowering", "nopython_backend"}
 
@@ -107,16 +114,20 @@ marks["import"] = cpu() - start
 u, v = sp.symbols("u v")
 ode = dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=10.0)
 start = cpu()
+stage[0] = "cG(2)"
 sol = dn.solve(ode, method="cG(2)", tolerance=1e-6)
 marks["cG(2)"] = cpu() - start
 start = cpu()
+stage[0] = "mcG(2)"
 dn.solve(ode, method="mcG(2)", tolerance=1e-6)
 marks["mcG(2)"] = cpu() - start
 start = cpu()
+stage[0] = "estimate_error"
 dn.estimate_error(sol, goal={u: 1.0})
 marks["estimate_error"] = cpu() - start
 print(json.dumps({"marks": marks, "compiles": compiles, "lines": lines,
-                  "seconds": [[f, p, s] for (f, p), s in seconds.items()]}))
+                  "seconds": [[f, p, g, s] for (f, p, g), s in seconds.items()],
+                  "within": [[f, o, s] for (f, o), s in within.items()]}))
 """
 
 
@@ -133,6 +144,11 @@ def profile():
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def _short(name):
+    """module.function of a dotted name (numba's: the overloaded function)."""
+    return ".".join(name.replace(".<locals>", "").split(".")[-2:])
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--json")
@@ -142,9 +158,11 @@ def main():
     if args.json:
         Path(args.json).write_text(json.dumps(record, indent=1) + "\n")
     phases = ["typing", "lowering", "opt-fn", "opt-mod", "codegen", "other"]
-    table = {}
-    for function, phase, seconds in record["seconds"]:
+    table, stages = {}, {}
+    for function, phase, stage, seconds in record["seconds"]:
         table.setdefault(function, dict.fromkeys(phases, 0.0))[phase] += seconds
+        stages.setdefault(stage, {}).setdefault(function, 0.0)
+        stages[stage][function] += seconds
     print("stages (CPU s):", {k: round(v, 2) for k, v in record["marks"].items()})
     totals = {p: sum(row[p] for row in table.values()) for p in phases}
     print("phases (CPU s):", {k: round(v, 2) for k, v in totals.items()})
@@ -155,6 +173,16 @@ def main():
         print(f"{function[-60:]:60s} {record['compiles'].get(function, 0):3d} "
               f"{record['lines'].get(function, 0):7d} "
               + " ".join(f"{row[p]:8.2f}" for p in phases) + f" {sum(row.values()):8.2f}")
+    for stage, functions in stages.items():
+        top = sorted(functions.items(), key=lambda item: -item[1])[:args.top // 3]
+        print(f"\n{stage}: compile {sum(functions.values()):.2f} s; "
+              + ", ".join(f"{_short(name)} {s:.2f}" for name, s in top))
+    owners = {}
+    for function, owner, seconds in record["within"]:
+        owners[owner] = owners.get(owner, 0.0) + seconds
+    print("\nnumba's own functions, by the dolfinode function compiling them (inclusive s): "
+          + ", ".join(f"{_short(o)} {s:.2f}"
+                      for o, s in sorted(owners.items(), key=lambda item: -item[1])[:12]))
 
 
 if __name__ == "__main__":

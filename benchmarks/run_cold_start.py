@@ -68,19 +68,20 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--output", default=str(ROOT / "doc" / "benchmarks"))
     args = parser.parse_args()
+    load = os.getloadavg()[0]  # (CPU time is the measure; a loaded machine inflates it a little)
     with tempfile.TemporaryDirectory(prefix="dolfinode-cold-") as cache:
         cold, notices = run_stages(cache)
         warm, _ = run_stages(cache)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
                             capture_output=True, text=True, check=False).stdout.strip()
-    record = {"commit": commit, "cold": cold, "warm": warm,
+    record = {"commit": commit, "load": load, "cold": cold, "warm": warm,
               "notices": [line for line in notices.splitlines() if "dolfinode:" in line]}
     output = Path(args.output)
     (output / "cold_start.json").write_text(json.dumps(record, indent=1) + "\n")
     lines = ["# Cold start", "",
              ("CPU seconds (user + system, with the C compiler) of each stage in a fresh process, "
              "with empty caches and then with the caches the first process filled "
-             f"(`benchmarks/run_cold_start.py`, git {commit})."), "",
+             f"(`benchmarks/run_cold_start.py`, git {commit}, load average {load:.1f})."), "",
              "| stage | empty caches (s) | filled caches (s) |", "|---|---|---|"]
     for name in cold:
         lines.append(f"| {name} | {cold[name]:.1f} | {warm[name]:.2f} |")

@@ -244,6 +244,7 @@ def _filter_constant(family, q):
     return abs(np.linalg.det(A)) ** (1.0 / A.shape[0])
 
 
+@linked(returns=types.none, what="the stiff error filter", seconds=2)
 @helper()
 def filter_estimate(ab, structure, ipiv, v, rhs):
     """Apply (I - gamma k J)^{-1} to v in place.

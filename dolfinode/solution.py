@@ -81,7 +81,8 @@ def _set_initial(times, t0, u0, out):
     polynomial starts after the jump)."""
     for m in range(times.shape[0]):
         if times[m] == t0:
-            out[:, m] = u0
+            for i in range(u0.shape[0]):  # (not out[:, m] = u0: see io.history)
+                out[i, m] = u0[i]
 
 
 @njit(cache=True)

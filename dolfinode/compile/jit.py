@@ -30,6 +30,9 @@ logger = logging.getLogger("dolfinode")
 #: njit options of the loops' helpers: numba's disk cache, and numpy's error model (as the
 #: loops themselves): a division by zero gives inf or nan, which the loops check, instead of
 #: raising ZeroDivisionError, whose check and raise every division carried into the compile.
+#: Declared, not left to numba: a function without an error model takes that of the
+#: compile it is first compiled in, the caller's or python's when compiled on its own
+#: (a lazily linked routine): its divisions then carry the checks after all.
 HELPER = {"cache": True, "error_model": "numpy"}
 
 
@@ -79,6 +82,9 @@ class Linked(_Intrinsic):
     """
 
     def __init__(self, dispatcher, returns=None, what=None, seconds=0.0):
+        if "error_model" not in dispatcher.targetoptions:
+            raise TypeError(f"linked {dispatcher.py_func.__qualname__}: declare its error model "
+                            "(njit(**HELPER, ...)), or it depends on what compiles it first")
         self.dispatcher = dispatcher
         key = f"{dispatcher.py_func.__module__}:{dispatcher.py_func.__qualname__}"
 
@@ -209,6 +215,9 @@ def _lazy_call(key, what, seconds, context, builder, sig, llargs):
 #: process
 _SLOTS = {}
 _RESOLVER = ctypes.CFUNCTYPE(None)
+#: what the lazily linked compiles of this process have announced: once each (a routine's
+#: real and complex specialisations are one notice)
+_ANNOUNCED = set()
 
 
 class _LazyLink:
@@ -237,7 +246,10 @@ class _LazyLink:
     def _resolve(self, slot):
         # (a ctypes callback cannot raise into the compiled caller: an empty slot tells it)
         try:
-            with announced(self.what, self.seconds):
+            notice = (nullcontext() if self.what in _ANNOUNCED
+                      else announced(self.what, self.seconds))
+            _ANNOUNCED.add(self.what)
+            with notice:
                 self.link()
             slot.value = ll.address_of_symbol(self.link.symbol)
         except Exception:

@@ -27,10 +27,9 @@ whose intervals every component of U and of phi is a polynomial.
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from dolfinode.compile import lower
-from dolfinode.compile.jit import first_use
+from dolfinode.compile.jit import first_use, helper
 from dolfinode.compile.signatures import rhs_kernel
 from dolfinode.dual.goal import resolve
 from dolfinode.dual.problem import (
@@ -89,7 +88,7 @@ class ErrorEstimate:
         return float(self.contributions[names.index(key)])
 
 
-@njit(cache=True)
+@helper()
 def _legendre(x, degree, out):
     """out[m] = P_m(x), m = 0..degree (three-term recurrence)."""
     out[0] = 1.0
@@ -99,7 +98,7 @@ def _legendre(x, degree, out):
         out[m + 1] = ((2 * m + 1) * x * out[m] - m * out[m - 1]) / (m + 1)
 
 
-@njit(cache=True)
+@helper()
 def _weighted_residuals(rhs_address, p, grid, ptr, t_start, t_end, coef, phi, x, w, projection,
                         first_pass, phi_start, r_phi, phi_moments, r_moments, abs_weighted,
                         norms):
@@ -121,7 +120,8 @@ def _weighted_residuals(rhs_address, p, grid, ptr, t_start, t_end, coef, phi, x,
     previous = current.copy()
     for l in range(L):
         h = grid[l + 1] - grid[l]
-        previous[:] = current
+        for i in range(N):  # (not previous[:] = current: see io.history)
+            previous[i] = current[i]
         advance_forward(ptr, t_end, grid[l], grid[l + 1], current)
         if first_pass:
             for i in range(N):
@@ -224,7 +224,7 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None,
     gauss = _positive_int(quadrature_points, "quadrature_points", q + r + 2)
     # (a kernel called from Python: one called only from compiled code keeps no signatures,
     # and the notice's timer thread then started on every estimate)
-    with first_use(_weighted_residuals, "the error estimate's kernels", 5):
+    with first_use(_weighted_residuals, "the error estimate's kernels", 6):
         dual, primal = solve_dual(sol, final, integral, r, linear_solver=linear_solver)
         parts = _error_representation(sol, primal, dual, gauss)
         coarse, _ = solve_dual(sol, final, integral, r - 1, primal, linear_solver)

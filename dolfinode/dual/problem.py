@@ -17,10 +17,10 @@ coupling costs O(N) per interval, or, when the band is wide (2-D lattices, see
 """
 import numpy as np
 import scipy.sparse as sps
-from numba import njit
 from scipy.sparse.linalg import splu
 
 from dolfinode.compile import lower
+from dolfinode.compile.jit import helper
 from dolfinode.compile.pattern import assemble_pattern
 from dolfinode.compile.signatures import rhs_kernel
 from dolfinode.errors import SolverError
@@ -28,7 +28,7 @@ from dolfinode.linalg import band_lu, band_solve, wide_band
 from dolfinode.methods import make_method
 
 
-@njit(cache=True)
+@helper()
 def horner(c, x):
     """sum_i c[i] x^i."""
     value = 0.0
@@ -37,7 +37,7 @@ def horner(c, x):
     return value
 
 
-@njit(cache=True)
+@helper()
 def horner_derivative(c, x):
     """d/dx sum_i c[i] x^i."""
     value = 0.0
@@ -46,7 +46,7 @@ def horner_derivative(c, x):
     return value
 
 
-@njit(cache=True)
+@helper()
 def evaluate_primal(coef, t_start, t_end, current, t, out):
     """out[i] = U_i(t) on the element current[i] of component i."""
     for i in range(out.shape[0]):
@@ -54,7 +54,7 @@ def evaluate_primal(coef, t_start, t_end, current, t, out):
         out[i] = horner(coef[e], (t - t_start[e]) / (t_end[e] - t_start[e]))
 
 
-@njit(cache=True)
+@helper()
 def advance_forward(ptr, t_end, a, b, current):
     """Move current[i] forward to the element of component i that contains (a, b)."""
     middle = 0.5 * (a + b)
@@ -65,7 +65,7 @@ def advance_forward(ptr, t_end, a, b, current):
         current[i] = e
 
 
-@njit(cache=True)
+@helper()
 def advance_backward(ptr, t_start, a, b, current):
     """Move current[i] backward to the element of component i that contains (a, b)."""
     middle = 0.5 * (a + b)
@@ -76,7 +76,7 @@ def advance_backward(ptr, t_start, a, b, current):
         current[i] = e
 
 
-@njit(cache=True)
+@helper()
 def add_transpose_product(indptr, indices, jdata, y, scale, out):
     """out += scale J^T y for J in CSR form (values ``jdata`` of the generated Jacobian)."""
     for c in range(indptr.shape[0] - 1):
@@ -84,7 +84,7 @@ def add_transpose_product(indptr, indices, jdata, y, scale, out):
             out[indices[nz]] += scale * jdata[nz] * y[c]
 
 
-@njit(cache=True)
+@helper()
 def assemble_dual_matrix(jdata, indptr, indices, position, A, h, kl, ku, ab):
     """Band storage of I - h (A (x) I) diag(J_m^T), the stage matrix of one dual interval.
 
@@ -108,7 +108,7 @@ def assemble_dual_matrix(jdata, indptr, indices, position, A, h, kl, ku, ab):
         ab[n, kv] += 1.0
 
 
-@njit(cache=True)
+@helper()
 def _interval(jac_address, p, indptr, indices, position, l, grid, ptr, t_start, t_end, coef, A,
               b0, nodes, source, y, current, u, jdata, stages):
     """Set up the stage system of interval l (from the end): J (the kernel at ``jac_address``)
@@ -135,17 +135,18 @@ def _interval(jac_address, p, indptr, indices, position, l, grid, ptr, t_start, 
     return h
 
 
-@njit(cache=True)
+@helper()
 def _store(phi, l, y, stages, position, r):
     """phi[l] from the interval's start value y and its solved stages."""
     R = phi.shape[1]
-    phi[l, R - 1, :] = y
+    for i in range(y.shape[0]):  # (not phi[l, R - 1, :] = y: see io.history)
+        phi[l, R - 1, i] = y[i]
     for s in range(r):
         for i in range(y.shape[0]):
             phi[l, R - 2 - s, i] = stages[position[i] * r + s]
 
 
-@njit(cache=True)
+@helper()
 def _backward_cg(jac_address, p, indptr, indices, position, kl, ku, grid, ptr, t_start, t_end,
                  coef, A, b0, nodes, source, psi, phi):
     """cG(r) for y' = J(U(T - s))^T y + source in s = T - t, interval by interval from T.

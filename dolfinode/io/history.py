@@ -191,7 +191,9 @@ def _scatter_by_component(comp, t_start, t_end, values, cursor, out_start, out_e
         i = comp[e]
         n = cursor[i]
         out_start[n], out_end[n] = t_start[e], t_end[e]
-        out_values[n, :] = values[e, :]
+        # by element: a slice assigned from an array compiles numba's long shape-error message
+        for j in range(values.shape[1]):
+            out_values[n, j] = values[e, j]
         cursor[i] = n + 1
 
 

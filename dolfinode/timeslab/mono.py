@@ -425,7 +425,10 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             if not blowup:
                 filtered = loosening > 0.0
                 if filtered:
-                    unfiltered[:] = est
+                    # by element: a slice assigned from an array compiles numba's long
+                    # shape-error message
+                    for i in range(N):
+                        unfiltered[i] = est[i]
                 filter_estimate(jb, structure, ipiv_filter, est, filter_rhs)
         eps = 0.0
         deviation, deviated, deviated_eps = 0.0, -1, 0.0
@@ -511,5 +514,5 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     return DONE if t >= T else FULL
 
 
-advance = Loop(_advance, _SIGNATURE, "the mono-adaptive loop (cG(q), dG(q))", 15,
+advance = Loop(_advance, _SIGNATURE, "the mono-adaptive loop (cG(q), dG(q))", 8,
                error_model="numpy")

@@ -10,6 +10,7 @@ components fill [a, a + K] with sub-slabs built the same way. Elements live in f
 """
 
 import numpy as np
+from numba import types
 
 from dolfinode.compile.jit import helper, linked
 
@@ -160,7 +161,9 @@ def _sort(buf, count):
         gap //= 3
 
 
-@linked
+@linked(returns=types.Tuple((types.int64[::1], types.float64[::1], types.int64[::1],
+                             types.int64[::1])),
+        what="the multi-adaptive dependency structure", seconds=1)
 @helper()
 def dependency_structure(ne, comp, indptr, indices, cptr, celems, ea, eb):
     """Per element e of component i: the breakpoints that split it into intervals where the

@@ -55,7 +55,7 @@ def test_a_short_block_and_a_compiled_function_are_not_announced(monkeypatch, ca
 
 
 @jit.linked
-@njit(cache=False)
+@njit(cache=False, error_model="numpy")
 def _axpy(a, x, y):
     """y += a x; returns sum(y)."""
     total = 0.0
@@ -87,7 +87,7 @@ from numba import njit
 from dolfinode.compile.jit import linked
 
 @linked
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def scale(x, c):
     for i in range(x.shape[0]):
         x[i] *= c
@@ -125,13 +125,13 @@ def test_a_cached_caller_expecting_another_return_type_is_refused():
 
 
 @jit.linked(returns=types.float64, what="a lazy test routine", seconds=1)
-@njit(cache=False)
+@njit(cache=False, error_model="numpy")
 def _lazy_sum(x):
     return x.sum()
 
 
 @jit.linked(returns=types.int64, what="a wrongly declared routine", seconds=1)
-@njit(cache=False)
+@njit(cache=False, error_model="numpy")
 def _declared_wrong(x):
     return x.sum()  # a float, declared int64
 
@@ -156,7 +156,7 @@ def test_a_lazily_linked_function_is_compiled_on_its_first_call_only():
 
 
 @jit.linked(returns=types.float64, what="a pending test routine", seconds=1)
-@njit(cache=False)
+@njit(cache=False, error_model="numpy")
 def _pending(x):
     return x[0]
 
@@ -187,7 +187,7 @@ from numba import njit, types
 from dolfinode.compile.jit import linked
 
 @linked(returns=types.float64, what="a test routine", seconds=1)
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def total(x):
     return x.sum()
 
@@ -208,3 +208,49 @@ def test_a_cached_caller_compiles_its_lazy_callee_only_when_called(tmp_path):
     runs = [subprocess.run([sys.executable, "-c", script], env=env, cwd=tmp_path, check=True,
                            capture_output=True, text=True).stdout.split() for _ in range(2)]
     assert runs == [["0.0", "0", "3.0", "0"], ["0.0", "0", "3.0", "1"]]
+
+
+def test_a_linked_function_must_declare_its_error_model():
+    """numba gives a function without one the error model of the compile it first runs in:
+    a lazily linked routine would get python's (zero-division checks) where its eager twin
+    got its caller's."""
+    with pytest.raises(TypeError, match="declare its error model"):
+        jit.linked(njit(cache=False)(_square))
+
+
+@jit.linked(returns=types.float64, what="a lazy division", seconds=1)
+@njit(cache=False, error_model="numpy")
+def _lazy_ratio(a, b):
+    return a / b
+
+
+@njit(cache=False)  # python's error model: its own divisions by zero raise
+def _ratio_caller(a, b):
+    return _lazy_ratio(a, b)
+
+
+def test_a_lazily_linked_function_keeps_its_error_model_when_compiled_at_run_time():
+    assert _ratio_caller(1.0, 0.0) == np.inf  # numpy's model, not ZeroDivisionError
+    overload = _lazy_ratio.dispatcher.overloads[_lazy_ratio.signatures[0]]
+    assert "ZeroDivisionError" not in overload.library.get_llvm_str()
+
+
+@jit.linked(returns=types.float64, what="a twice specialised routine", seconds=1)
+@njit(cache=False, error_model="numpy")
+def _first(x):
+    return float(x[0])
+
+
+@njit(cache=False)
+def _both(x, y):
+    return _first(x) + _first(y)
+
+
+def test_a_lazy_routine_is_announced_once_for_all_its_specialisations(monkeypatch, caplog):
+    monkeypatch.setattr(jit, "NOTICE_AFTER", 0.0)
+    with caplog.at_level(logging.WARNING, logger="dolfinode"):
+        assert _both(np.ones(1), np.ones(1, dtype=np.int64)) == 2.0
+        threading.Event().wait(0.2)  # (the notice's timer thread)
+    assert len(_first.signatures) == 2
+    notices = [r.getMessage() for r in caplog.records if "twice specialised" in r.getMessage()]
+    assert len(notices) == 1

@@ -6,9 +6,10 @@ an accepted one on it), and the rejected attempt kept as the guess of its retry.
 import math
 
 import numpy as np
+from numba import types
 
 from dolfinode.adaptivity import MAX_FACTOR, filter_residuals, next_step
-from dolfinode.compile.jit import helper
+from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.counters import F_EVALUATIONS
 from dolfinode.timeslab import CONSTRAINT_CUT
@@ -175,6 +176,8 @@ def drives_out(active, nactive, projected, x, fi, p, b, T, floor, out, counters)
     return -1, any_projected
 
 
+@linked(returns=types.Tuple((types.float64[::1], types.float64[::1], types.float64[:, ::1])),
+        what="the multi-adaptive rejected attempt", seconds=1)
 @helper()
 def keep_attempt(ne, ea, eb, values, oea, oeb, ovalues):
     """Copy the slab's elements (their intervals and nodal values) into the rejected

@@ -4,6 +4,7 @@ is stored."""
 import math
 
 import numpy as np
+from numba import types
 
 from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
@@ -134,6 +135,8 @@ def store_frozen(frozen, t, x, counters, out_comp, out_a, out_b, out_values):
             frozen[i] = math.nan
 
 
+@linked(returns=types.Tuple((types.int64, types.boolean)),
+        what="the multi-adaptive frozen components' check", seconds=1)
 @helper(**NO_REFCOUNT)
 def check_frozen(stamp, active, nactive, autonomous, rptr, readers, check_stamp, frozen,
                  checked, uw, values, cptr, celems, fi, p, t, b, T, x, out, jdiag, coupling,

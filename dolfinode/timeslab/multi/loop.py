@@ -479,5 +479,5 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         st.t = t
 
 
-advance = Loop(_advance, _SIGNATURE, "the multi-adaptive loop (mcG(q), mdG(q))", 20,
+advance = Loop(_advance, _SIGNATURE, "the multi-adaptive loop (mcG(q), mdG(q))", 13,
                error_model="numpy")

@@ -296,7 +296,7 @@ def windows_settled(nroot, comp, values, saved, indptr, indices, jacobian, atol,
     return True
 
 
-@linked
+@linked(returns=types.none, what="the multi-adaptive retry's guess", seconds=1)
 @helper(**NO_REFCOUNT)
 def guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues, nodes,
                bary):
