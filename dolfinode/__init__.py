@@ -2,13 +2,15 @@
 
 The public surface is this package's namespace (``__all__``): declarations ``ODE``, ``t`` and
 the structured systems ``Template``, ``TemplateODE``, ``ParticleSystem`` (``systems``);
-``solve`` and ``Solver`` (many small solves), their ``Solution``, ``SolverError``, ``ModelingWarning`` and ``ToleranceWarning``; error estimates
-``estimate_error``, ``Goal``, ``ErrorEstimate``; events ``Event``; stored solutions
-``load_solution``; ensembles ``solve_ensemble``, ``vary``; the methods ``Method``,
-``make_method``, ``parse_method``; ``default_parameters``. The documentation's API reference
+``solve`` and ``Solver`` (many small solves), their ``Solution``, ``SolverError``,
+``ModelingWarning`` and ``ToleranceWarning``; error estimates ``estimate_error``, ``Goal``,
+``ErrorEstimate``; events ``Event``; stored solutions ``load_solution``; ensembles
+``solve_ensemble``, ``vary``; the methods ``Method``, ``make_method``, ``parse_method``;
+``default_parameters``. The documentation's API reference
 has a page for each.
 """
-from dolfinode import systems
+# (source_stamp first: before any compiled function is declared)
+from dolfinode import source_stamp, systems  # noqa: F401
 from dolfinode.dual import ErrorEstimate, Goal, estimate_error
 from dolfinode.ensemble import solve_ensemble, vary
 from dolfinode.errors import ModelingWarning, SolverError, ToleranceWarning
