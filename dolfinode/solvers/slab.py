@@ -28,6 +28,11 @@ from dolfinode.linalg.newton_matrix import lu_factor, lu_solve, shift
 
 #: An iteration that stops contracting with scaled increments below this has reached rounding.
 ROUNDING_LEVEL = 1e-10
+#: Share of the error delivered at T that Newton's iteration errors on steps graded over many
+#: decades may take (see newton_tolerance).
+ITERATION_SHARE = 1e-2
+#: The unit roundoff, the floor of the contraction factor carried to the next slab.
+UROUND = 2.2e-16
 
 
 @njit(cache=True, inline="always")
@@ -59,6 +64,36 @@ def weighted_norm(dx, w):
     for j in range(dx.shape[0]):
         result = _weighted_max(result, dx[j], w[j])
     return result
+
+
+@njit(cache=True, inline="always")
+def newton_tolerance(dtol_k, dtol, floor, delivered, n):
+    """Newton's stopping tolerance on the n-th slab (n = 0, 1, ...), from the loop's
+    tolerance ``dtol_k`` = max(dtol k/(T - t0), min(dtol, floor)) (floor = the rounding
+    level), at most dtol.
+
+    Where dtol_k sits at the floor, the steps are graded over many decades (ROBER: k/(T - t0)
+    < 1e-8 on every slab, 5-9 iterations a slab to rounding) and the share k/(T - t0) says
+    nothing; the slab then stops at c delivered / (n + 1) (c = ITERATION_SHARE, ``delivered``
+    = the error at T in units of rtol), which sums over n slabs to at most c (1 + ln n) of
+    that error and shrinks with the tolerance. Fixed-point iteration keeps dtol_k: its
+    iteration error drifts the energy of oscillations with one sign, where Newton's, exact on
+    a linear system, leaves none.
+    """
+    if dtol_k > floor:
+        return dtol_k
+    return min(dtol, max(dtol_k, ITERATION_SHARE * delivered / (n + 1)))
+
+
+@njit(cache=True, inline="always")
+def next_contraction(eta, rate, iterations):
+    """The contraction factor eta = theta/(1 - theta) that the next slab's first increment is
+    tested with (RADAU5's faccon, Hairer-Wanner IV.8): this slab's, from its largest rate
+    theta when it made two or more iterations (else the last one's), raised to the power 0.8
+    so that it creeps back towards 1 while slabs stop after one iteration."""
+    if iterations >= 2:
+        eta = rate / (1.0 - rate) if rate < 1.0 else math.inf
+    return max(eta, UROUND) ** 0.8
 
 
 @njit(cache=True, inline="always")
@@ -230,7 +265,7 @@ def factor_stages(jb, k, eigenvalues, structure, ab_real, ab_complex, ipiv, coun
 @njit(cache=True, **NO_REFCOUNT)
 def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_iter, theta_max,
            X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w, counters,
-           rate):
+           rate, eta):
     """Simplified Newton iteration on the stages, (I - k A (x) J) dX = -G(X), with the
     factors of :func:`factor_stages`: with A = T B T^{-1} (``T``, ``T_inverse``) the system is
     (I - k B (x) J) Z = -(T^{-1} (x) I) G, dX = (T (x) I) Z, and B's blocks decouple it into
@@ -239,7 +274,11 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
 
     It fails when an increment shrinks by less than ``theta_max`` (1: when it grows); the
     largest contraction rate theta = |dX_(m+1)| / |dX_m| seen goes to ``rate[0]`` (0 after
-    one iteration), which tells the caller how well J and the factors still fit."""
+    one iteration), which tells the caller how well J and the factors still fit.
+
+    The first increment converges when eta |dX_0| <= dtol, eta the contraction factor of the
+    earlier slabs (:func:`next_contraction`; inf: unknown): on a linear system (eta at
+    rounding) one iteration with J is exact."""
     position = structure[0]
     S = A.shape[0]
     N = x0.shape[0]
@@ -278,7 +317,7 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
             return -1
         if it >= 1 and d > ROUNDING_LEVEL:  # not a stagnation at rounding level
             rate[0] = max(rate[0], d / d_prev)
-        if _converged(d, d_prev, it, dtol):
+        if _converged(d, d_prev, it, dtol) or (it == 0 and eta * d <= dtol):
             return it + 1
         if it >= 1 and d >= theta_max * d_prev:
             return -1

@@ -1,4 +1,5 @@
 """Nonlinear solvers of one slab: the transformed simplified Newton iteration."""
+import importlib
 import math
 
 import numpy as np
@@ -37,7 +38,7 @@ def _newton_steps(f_address, p, x0, f0, k, A, b0, tau, T, T_inverse, atol, X, F,
     f = rhs_kernel(f_address)
     return slab.newton(f, p, x0, f0, 0.0, k, A, b0, tau, T, T_inverse, atol, 1e-6, 0.0, steps,
                        1.0, X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex,
-                       w, counters, np.zeros(1))
+                       w, counters, np.zeros(1), math.inf)
 
 
 @pytest.mark.parametrize("storage", ["banded", "sparse"])
@@ -102,8 +103,9 @@ def _newton_solve(ode, keep, monkeypatch, **parameters):
 
 def test_factors_are_kept_on_a_linear_system(monkeypatch):
     """u' = M u on fixed steps: J and the factors are exact for every slab, so they are kept
-    for REUSE_AGE slabs at a time, and the solution and iterations are those of factoring
-    every slab afresh."""
+    for REUSE_AGE slabs at a time, and the solution is that of factoring every slab afresh;
+    with kept factors the first increment is tested with the last slab's contraction rate
+    (at rounding level here), so that some slabs stop after the one exact iteration."""
     ode, _ = permuted_band_system()
     steps = {"method": "dG(2)", "fixed_time_step": True, "initial_time_step": 0.01}
     kept = _newton_solve(ode, True, monkeypatch, **steps)
@@ -112,7 +114,8 @@ def test_factors_are_kept_on_a_linear_system(monkeypatch):
     assert slabs == fresh.stats["time slabs"] == fresh.stats["jacobian evaluations"] == 100
     # + 1: the last step, which absorbs the rounding of t0 + n k, is not exactly theirs
     assert kept.stats["jacobian evaluations"] <= math.ceil(slabs / (mono.REUSE_AGE + 1)) + 1
-    assert kept.stats["nonlinear iterations"] == fresh.stats["nonlinear iterations"]
+    assert slabs <= kept.stats["nonlinear iterations"] < fresh.stats["nonlinear iterations"]
+    assert fresh.stats["nonlinear iterations"] == 2 * slabs
     np.testing.assert_allclose(kept(ode.T), fresh(ode.T), rtol=1e-12, atol=1e-15)
 
 
@@ -131,3 +134,51 @@ def test_kept_factors_are_refreshed_as_the_jacobian_changes(method, monkeypatch)
     assert slabs == fresh.stats["jacobian evaluations"] == 1000
     assert slabs / (mono.REUSE_AGE + 1) + 10 < kept.stats["jacobian evaluations"] < slabs / 10
     np.testing.assert_allclose(kept(ode.T), fresh(ode.T), rtol=1e-10)
+
+
+def test_newton_tolerance_on_graded_steps():
+    """Above the rounding floor the loop's tolerance stands; at the floor the n-th slab takes
+    c delivered / (n + 1), at most dtol, whose sum over n slabs is at most c (1 + ln n) of the
+    delivered error; without a delivered error (cG(q), fixed steps) the floor stands."""
+    dtol, floor, delivered = 1e-3, 1e-11, 1e-3
+    assert slab.newton_tolerance(2e-11, dtol, floor, delivered, 5) == 2e-11
+    assert slab.newton_tolerance(floor, dtol, floor, 0.0, 5) == floor
+    assert slab.newton_tolerance(floor, dtol, floor, 1.0, 0) == dtol
+    n = 10_000
+    total = sum(slab.newton_tolerance(floor, dtol, floor, delivered, i) for i in range(n))
+    assert total <= slab.ITERATION_SHARE * delivered * (1 + math.log(n))
+
+
+def _rober_dg3(monkeypatch, share):
+    """ROBER (T = 1e11: every step below 1e-8 (T - t0)) with dG(3) at 1e-6, Newton's share of
+    the delivered error on graded steps on or off; (Newton iterations, scaled error at T)."""
+    from dolfinode.bench.problems import rober
+
+    solve_module = importlib.import_module("dolfinode.solve")  # (dolfinode.solve: the function)
+
+    if not share:
+        options = solve_module._options
+
+        def without_share(*args):
+            atol, record = options(*args)
+            record["delivered"] = 0.0
+            return atol, record
+
+        monkeypatch.setattr(solve_module, "_options", without_share)
+    problem = rober()
+    sol = dn.solve(problem.ode, method="dG(3)", tolerance=1e-6,
+                   absolute_tolerance=problem.atol_ratio * 1e-6)
+    monkeypatch.undo()
+    error = np.max(np.abs(sol(problem.T) - problem.final)
+                   / (problem.atol_ratio + np.abs(problem.final)))
+    return sol.stats["nonlinear iterations"], error
+
+
+def test_graded_steps_save_newton_iterations_at_equal_accuracy(monkeypatch):
+    """On steps graded over decades the iteration stops at a share of the delivered error
+    instead of rounding level: at least 8 % fewer iterations (measured 13 %), the error at T
+    as small within a factor 1.5 (measured smaller)."""
+    iterations, error = _rober_dg3(monkeypatch, True)
+    iterations_floor, error_floor = _rober_dg3(monkeypatch, False)
+    assert iterations < 0.92 * iterations_floor
+    assert error < 1.5 * error_floor
