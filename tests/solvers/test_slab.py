@@ -149,13 +149,10 @@ def test_newton_tolerance_on_graded_steps():
     assert total <= slab.ITERATION_SHARE * delivered * (1 + math.log(n))
 
 
-def _rober_dg3(monkeypatch, share):
-    """ROBER (T = 1e11: every step below 1e-8 (T - t0)) with dG(3) at 1e-6, Newton's share of
-    the delivered error on graded steps on or off; (Newton iterations, scaled error at T)."""
-    from dolfinode.bench.problems import rober
-
+def _with_share(monkeypatch, share, ode, **parameters):
+    """dn.solve with Newton's share of the delivered error on graded steps on or off (the
+    loop option ``delivered`` zeroed: iteration to the rounding floor)."""
     solve_module = importlib.import_module("dolfinode.solve")  # (dolfinode.solve: the function)
-
     if not share:
         options = solve_module._options
 
@@ -165,10 +162,19 @@ def _rober_dg3(monkeypatch, share):
             return atol, record
 
         monkeypatch.setattr(solve_module, "_options", without_share)
-    problem = rober()
-    sol = dn.solve(problem.ode, method="dG(3)", tolerance=1e-6,
-                   absolute_tolerance=problem.atol_ratio * 1e-6)
+    sol = dn.solve(ode, **parameters)
     monkeypatch.undo()
+    return sol
+
+
+def _rober_dg3(monkeypatch, share):
+    """ROBER (T = 1e11: every step below 1e-8 (T - t0)) with dG(3) at 1e-6; (Newton
+    iterations, scaled error at T)."""
+    from dolfinode.bench.problems import rober
+
+    problem = rober()
+    sol = _with_share(monkeypatch, share, problem.ode, method="dG(3)", tolerance=1e-6,
+                      absolute_tolerance=problem.atol_ratio * 1e-6)
     error = np.max(np.abs(sol(problem.T) - problem.final)
                    / (problem.atol_ratio + np.abs(problem.final)))
     return sol.stats["nonlinear iterations"], error
@@ -182,3 +188,25 @@ def test_graded_steps_save_newton_iterations_at_equal_accuracy(monkeypatch):
     iterations_floor, error_floor = _rober_dg3(monkeypatch, False)
     assert iterations < 0.92 * iterations_floor
     assert error < 1.5 * error_floor
+
+
+@pytest.mark.parametrize("solver", ["newton", "default"])
+def test_graded_steps_leave_a_linear_answer_unchanged(solver, monkeypatch):
+    """u' = M u, M symmetric with eigenvalues -1e-9..-1e3, over T = 1e10 (steps graded over
+    decades: the share k/(T - t0) below rounding) with dG(2): one Newton iteration with J is
+    exact, so Newton's looser stopping test changes the answer by rounding only; the default
+    solver's fixed-point slabs (the first, short ones) keep their tolerance."""
+    N = 5
+    rng = np.random.default_rng(1)
+    Q, _ = np.linalg.qr(rng.standard_normal((N, N)))
+    M = -(Q * np.geomspace(1e-9, 1e3, N)) @ Q.T
+    u = sp.symbols(f"u0:{N}")
+    ode = dn.ODE({u[i]: sum(M[i, j] * u[j] for j in range(N)) for i in range(N)},
+                 u0=rng.uniform(-1, 1, N), T=1e10)
+    parameters = {"method": "dG(2)", "tolerance": 1e-6, "nonlinear_solver": solver}
+    shared = _with_share(monkeypatch, True, ode, **parameters)
+    floor = _with_share(monkeypatch, False, ode, **parameters)
+    assert shared.stats["time slabs"] == floor.stats["time slabs"]
+    np.testing.assert_allclose(shared.values, floor.values, rtol=1e-12, atol=1e-15)
+    exact = sl.expm(M * ode.T) @ np.asarray(ode.u0)
+    assert np.abs(shared(ode.T) - exact).max() < 1e-4
