@@ -31,8 +31,6 @@ ROUNDING_LEVEL = 1e-10
 #: Share of the error delivered at T that Newton's iteration errors on steps graded over many
 #: decades may take (see newton_tolerance).
 ITERATION_SHARE = 1e-2
-#: The unit roundoff, the floor of the contraction factor carried to the next slab.
-UROUND = 2.2e-16
 
 
 @njit(cache=True, inline="always")
@@ -83,17 +81,6 @@ def newton_tolerance(dtol_k, dtol, floor, delivered, n):
     if dtol_k > floor:
         return dtol_k
     return min(dtol, max(dtol_k, ITERATION_SHARE * delivered / (n + 1)))
-
-
-@njit(cache=True, inline="always")
-def next_contraction(eta, rate, iterations):
-    """The contraction factor eta = theta/(1 - theta) that the next slab's first increment is
-    tested with (RADAU5's faccon, Hairer-Wanner IV.8): this slab's, from its largest rate
-    theta when it made two or more iterations (else the last one's), raised to the power 0.8
-    so that it creeps back towards 1 while slabs stop after one iteration."""
-    if iterations >= 2:
-        eta = rate / (1.0 - rate) if rate < 1.0 else math.inf
-    return max(eta, UROUND) ** 0.8
 
 
 @njit(cache=True, inline="always")
@@ -265,7 +252,7 @@ def factor_stages(jb, k, eigenvalues, structure, ab_real, ab_complex, ipiv, coun
 @njit(cache=True, **NO_REFCOUNT)
 def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_iter, theta_max,
            X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w, counters,
-           rate, eta):
+           rate):
     """Simplified Newton iteration on the stages, (I - k A (x) J) dX = -G(X), with the
     factors of :func:`factor_stages`: with A = T B T^{-1} (``T``, ``T_inverse``) the system is
     (I - k B (x) J) Z = -(T^{-1} (x) I) G, dX = (T (x) I) Z, and B's blocks decouple it into
@@ -274,11 +261,7 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
 
     It fails when an increment shrinks by less than ``theta_max`` (1: when it grows); the
     largest contraction rate theta = |dX_(m+1)| / |dX_m| seen goes to ``rate[0]`` (0 after
-    one iteration), which tells the caller how well J and the factors still fit.
-
-    The first increment converges when eta |dX_0| <= dtol, eta the contraction factor of the
-    earlier slabs (:func:`next_contraction`; inf: unknown): on a linear system (eta at
-    rounding) one iteration with J is exact."""
+    one iteration), which tells the caller how well J and the factors still fit."""
     position = structure[0]
     S = A.shape[0]
     N = x0.shape[0]
@@ -317,7 +300,7 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
             return -1
         if it >= 1 and d > ROUNDING_LEVEL:  # not a stagnation at rounding level
             rate[0] = max(rate[0], d / d_prev)
-        if _converged(d, d_prev, it, dtol) or (it == 0 and eta * d <= dtol):
+        if _converged(d, d_prev, it, dtol):
             return it + 1
         if it >= 1 and d >= theta_max * d_prev:
             return -1

@@ -23,7 +23,6 @@ from dolfinode.solvers.slab import (
     near_step,
     newton,
     newton_tolerance,
-    next_contraction,
 )
 from dolfinode.timeslab import (
     BLOWUP,
@@ -282,7 +281,6 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     age = 0  # Newton slabs since the Jacobian was evaluated
     rate = np.zeros(1)  # Newton's contraction rate on the last slab (see slab.newton)
     theta = math.inf  # ... with the current factors (inf: unknown)
-    eta = math.inf  # the contraction factor the next first increment is tested with
     # Newton's share of the delivered error on graded steps (newton_tolerance), dG(q) only:
     # cG(q) is not L-stable and keeps a stiff component's iteration error (ROBER cG(2), 1e-2)
     delivered = o.delivered if is_dg else 0.0
@@ -393,12 +391,11 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                                                     counters[SLABS]),
                                    max_iter, 1.0 if fresh == 1 else THETA_KEPT, X, F, G, Z,
                                    ab_real, ab_complex, structure, ipiv, z_real, z_complex,
-                                   w, counters, rate, math.inf if fresh == 1 else eta)
+                                   w, counters, rate)
                     if iters >= 0:
                         break
                 if iters >= 0:
                     theta = rate[0]
-                    eta = next_contraction(eta, theta, iters)
                     break
         if iters < 0:
             counters[FAILED_SOLVES] += 1
