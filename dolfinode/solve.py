@@ -468,6 +468,7 @@ def _options(ode, m, params, multi_adaptive, atol):
     rtol = params["tolerance"]
     fixed = bool(params["fixed_time_step"])
     loosening = 0.0
+    delivered = 0.0 if fixed else 1.0  # the error at T in units of rtol
     if fixed:
         atol, rtol, dtol = np.ones(ode.N), 1.0, 1e-15
     else:
@@ -475,13 +476,14 @@ def _options(ode, m, params, multi_adaptive, atol):
         if params["calibrate_tolerance"] and rtol >= MIN_TOLERANCE:
             step = step_tolerance(m, rtol, multi_adaptive)
             loosening = 0.0 if multi_adaptive else stiff_loosening(m, rtol, step)
+            delivered = rtol / step
             atol, rtol = atol * (step / rtol), step
     return atol, contract.options(
         solver=NONLINEAR_SOLVERS.index(params["nonlinear_solver"]), fixed=fixed,
         max_iter=params["maximum_iterations"], is_dg=m.family == "dG", rtol=rtol, T=ode.T,
         kmax=params["maximum_time_step"] or ode.T - ode.t0, safety=params["safety_factor"],
         dtol=dtol, order=m.local_order, span=ode.T - ode.t0, gamma=filter_constant(m),
-        loosening=loosening)
+        loosening=loosening, delivered=delivered)
 
 
 def _floor(ode, atol):

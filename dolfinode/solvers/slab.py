@@ -28,6 +28,9 @@ from dolfinode.linalg.newton_matrix import lu_factor, lu_solve, shift
 
 #: An iteration that stops contracting with scaled increments below this has reached rounding.
 ROUNDING_LEVEL = 1e-10
+#: Share of the error delivered at T that Newton's iteration errors on steps graded over many
+#: decades may take (see newton_tolerance).
+ITERATION_SHARE = 1e-2
 
 
 @njit(cache=True, inline="always")
@@ -59,6 +62,25 @@ def weighted_norm(dx, w):
     for j in range(dx.shape[0]):
         result = _weighted_max(result, dx[j], w[j])
     return result
+
+
+@njit(cache=True, inline="always")
+def newton_tolerance(dtol_k, dtol, floor, delivered, n):
+    """Newton's stopping tolerance on the n-th slab (n = 0, 1, ...), from the loop's
+    tolerance ``dtol_k`` = max(dtol k/(T - t0), min(dtol, floor)) (floor = the rounding
+    level), at most dtol.
+
+    Where dtol_k sits at the floor, the steps are graded over many decades (ROBER: k/(T - t0)
+    < 1e-8 on every slab, 5-9 iterations a slab to rounding) and the share k/(T - t0) says
+    nothing; the slab then stops at c delivered / (n + 1) (c = ITERATION_SHARE, ``delivered``
+    = the error at T in units of rtol), which sums over n slabs to at most c (1 + ln n) of
+    that error and shrinks with the tolerance. Fixed-point iteration keeps dtol_k: its
+    iteration error drifts the energy of oscillations with one sign, where Newton's, exact on
+    a linear system, leaves none.
+    """
+    if dtol_k > floor:
+        return dtol_k
+    return min(dtol, max(dtol_k, ITERATION_SHARE * delivered / (n + 1)))
 
 
 @njit(cache=True, inline="always")

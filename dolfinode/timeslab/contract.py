@@ -26,6 +26,8 @@ T                  end time of this call
 kmax               largest step
 safety             safety factor of the step control
 dtol               discrete (iteration) tolerance, relative to the tolerance
+delivered          mono: the error at T the tolerance delivers, in units of rtol (tolerance /
+                   rtol; 1 uncalibrated, 0: none): Newton's tolerance on graded steps
 order              P in the error estimate eps = O(k^P)
 span               T - t0 of the whole solve (the step floor, the iteration tolerance)
 gamma              the error filter's constant |det A|^(1/S) (dolfinode.adaptivity)
@@ -65,7 +67,7 @@ OPTIONS = np.dtype([
     ("band_upper", np.int64), ("rtol", np.float64), ("T", np.float64), ("kmax", np.float64),
     ("safety", np.float64), ("dtol", np.float64), ("order", np.float64), ("span", np.float64),
     ("gamma", np.float64), ("loosening", np.float64), ("newton_units", np.float64),
-    ("factor_units", np.float64),
+    ("factor_units", np.float64), ("delivered", np.float64),
     ("theta", np.float64), ("beta", np.float64), ("fixed", np.bool_), ("is_dg", np.bool_),
     ("newton_ready", np.bool_), ("reuse", np.bool_), ("keep_factors", np.bool_),
     ("autonomous", np.bool_)], align=True)

@@ -16,7 +16,14 @@ from dolfinode.compile.jit import Loop
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
 from dolfinode.linalg.newton_matrix import shift, store_jacobian
 from dolfinode.methods.method import lagrange_weights, real_eigenvalues
-from dolfinode.solvers.slab import factor, factor_stages, fixed_point, near_step, newton
+from dolfinode.solvers.slab import (
+    factor,
+    factor_stages,
+    fixed_point,
+    near_step,
+    newton,
+    newton_tolerance,
+)
 from dolfinode.timeslab import (
     BLOWUP,
     CONSTRAINT,
@@ -279,6 +286,9 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     age = 0  # Newton slabs since the Jacobian was evaluated
     rate = np.zeros(1)  # Newton's contraction rate on the last slab (see slab.newton)
     theta = math.inf  # ... with the current factors (inf: unknown)
+    # Newton's share of the delivered error on graded steps (newton_tolerance), dG(q) only:
+    # cG(q) is not L-stable and keeps a stiff component's iteration error (ROBER cG(2), 1e-2)
+    delivered = o.delivered if is_dg else 0.0
     filter_ok = False  # the error filter's factors are usable
     est = np.empty(N)
     w = np.empty(S * N)  # weights of the scaled norm (solvers' work space)
@@ -381,10 +391,12 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                         # before reducing k.
                         euler_stages(x, f0, 0.0, tau, X)
                     iters = newton(f, p, x, f0, t, k, A, b0, tau, transform,
-                                   transform_inverse, atol, rtol, dtol_k, max_iter,
-                                   1.0 if fresh == 1 else THETA_KEPT, X, F, G, Z, ab_real,
-                                   ab_complex, structure, ipiv, z_real, z_complex, w,
-                                   counters, rate)
+                                   transform_inverse, atol, rtol,
+                                   newton_tolerance(dtol_k, dtol, ROUNDING / rtol, delivered,
+                                                    counters[SLABS]),
+                                   max_iter, 1.0 if fresh == 1 else THETA_KEPT, X, F, G, Z,
+                                   ab_real, ab_complex, structure, ipiv, z_real, z_complex,
+                                   w, counters, rate)
                     if iters >= 0:
                         break
                 if iters >= 0:

@@ -1,4 +1,5 @@
 """Nonlinear solvers of one slab: the transformed simplified Newton iteration."""
+import importlib
 import math
 
 import numpy as np
@@ -131,3 +132,79 @@ def test_kept_factors_are_refreshed_as_the_jacobian_changes(method, monkeypatch)
     assert slabs == fresh.stats["jacobian evaluations"] == 1000
     assert slabs / (mono.REUSE_AGE + 1) + 10 < kept.stats["jacobian evaluations"] < slabs / 10
     np.testing.assert_allclose(kept(ode.T), fresh(ode.T), rtol=1e-10)
+
+
+def test_newton_tolerance_on_graded_steps():
+    """Above the rounding floor the loop's tolerance stands; at the floor the n-th slab takes
+    c delivered / (n + 1), at most dtol, whose sum over n slabs is at most c (1 + ln n) of the
+    delivered error; without a delivered error (cG(q), fixed steps) the floor stands."""
+    dtol, floor, delivered = 1e-3, 1e-11, 1e-3
+    assert slab.newton_tolerance(2e-11, dtol, floor, delivered, 5) == 2e-11
+    assert slab.newton_tolerance(floor, dtol, floor, 0.0, 5) == floor
+    assert slab.newton_tolerance(floor, dtol, floor, 1.0, 0) == dtol
+    n = 10_000
+    total = sum(slab.newton_tolerance(floor, dtol, floor, delivered, i) for i in range(n))
+    assert total <= slab.ITERATION_SHARE * delivered * (1 + math.log(n))
+
+
+def _with_share(monkeypatch, share, ode, **parameters):
+    """dn.solve with Newton's share of the delivered error on graded steps on or off (the
+    loop option ``delivered`` zeroed: iteration to the rounding floor)."""
+    solve_module = importlib.import_module("dolfinode.solve")  # (dolfinode.solve: the function)
+    if not share:
+        options = solve_module._options
+
+        def without_share(*args):
+            atol, record = options(*args)
+            record["delivered"] = 0.0
+            return atol, record
+
+        monkeypatch.setattr(solve_module, "_options", without_share)
+    sol = dn.solve(ode, **parameters)
+    monkeypatch.undo()
+    return sol
+
+
+def _rober_dg3(monkeypatch, share):
+    """ROBER (T = 1e11: every step below 1e-8 (T - t0)) with dG(3) at 1e-6; (Newton
+    iterations, scaled error at T)."""
+    from dolfinode.bench.problems import rober
+
+    problem = rober()
+    sol = _with_share(monkeypatch, share, problem.ode, method="dG(3)", tolerance=1e-6,
+                      absolute_tolerance=problem.atol_ratio * 1e-6)
+    error = np.max(np.abs(sol(problem.T) - problem.final)
+                   / (problem.atol_ratio + np.abs(problem.final)))
+    return sol.stats["nonlinear iterations"], error
+
+
+def test_graded_steps_save_newton_iterations_at_equal_accuracy(monkeypatch):
+    """On steps graded over decades the iteration stops at a share of the delivered error
+    instead of rounding level: at least 8 % fewer iterations (measured 13 %), the error at T
+    as small within a factor 1.5 (measured smaller)."""
+    iterations, error = _rober_dg3(monkeypatch, True)
+    iterations_floor, error_floor = _rober_dg3(monkeypatch, False)
+    assert iterations < 0.92 * iterations_floor
+    assert error < 1.5 * error_floor
+
+
+@pytest.mark.parametrize("solver", ["newton", "default"])
+def test_graded_steps_leave_a_linear_answer_unchanged(solver, monkeypatch):
+    """u' = M u, M symmetric with eigenvalues -1e-9..-1e3, over T = 1e10 (steps graded over
+    decades: the share k/(T - t0) below rounding) with dG(2): one Newton iteration with J is
+    exact, so Newton's looser stopping test changes the answer by rounding only; the default
+    solver's fixed-point slabs (the first, short ones) keep their tolerance."""
+    N = 5
+    rng = np.random.default_rng(1)
+    Q, _ = np.linalg.qr(rng.standard_normal((N, N)))
+    M = -(Q * np.geomspace(1e-9, 1e3, N)) @ Q.T
+    u = sp.symbols(f"u0:{N}")
+    ode = dn.ODE({u[i]: sum(M[i, j] * u[j] for j in range(N)) for i in range(N)},
+                 u0=rng.uniform(-1, 1, N), T=1e10)
+    parameters = {"method": "dG(2)", "tolerance": 1e-6, "nonlinear_solver": solver}
+    shared = _with_share(monkeypatch, True, ode, **parameters)
+    floor = _with_share(monkeypatch, False, ode, **parameters)
+    assert shared.stats["time slabs"] == floor.stats["time slabs"]
+    np.testing.assert_allclose(shared.values, floor.values, rtol=1e-12, atol=1e-15)
+    exact = sl.expm(M * ode.T) @ np.asarray(ode.u0)
+    assert np.abs(shared(ode.T) - exact).max() < 1e-4
