@@ -63,27 +63,21 @@ def _evaluate_components(ptr, t_start, t_end, values, nodes, bary, times, out):
 
 
 @njit(cache=True)
-def _slab_value(t_start, t_end, values, n, nodes, bary, t, weights, out, m):
-    """out[:, m] = U(t) on the shared slab n (values (M, q + 1, N)); the basis is evaluated
-    once for all components."""
-    tau = min(max((t - t_start[n]) / (t_end[n] - t_start[n]), 0.0), 1.0)
-    lagrange_weights(tau, nodes, bary, weights)
-    for i in range(out.shape[0]):
-        out[i, m] = 0.0
-    for j in range(nodes.shape[0]):  # (components innermost: contiguous in values)
-        for i in range(out.shape[0]):
-            out[i, m] += weights[j] * values[n, j, i]
-
-
-@njit(cache=True)
 def _evaluate_shared(t_start, t_end, values, nodes, bary, times, out):
     """out[i, m] = U_i(times[m]) on a partition shared by all components (values
-    (M, q + 1, N)), from the first element ending at or after the time."""
+    (M, q + 1, N)), from the first element ending at or after the time; the basis is
+    evaluated once per time for all components."""
     weights = np.empty(nodes.shape[0])
     n = 0
     for m in range(times.shape[0]):
         n = _locate(t_end, times[m], n)
-        _slab_value(t_start, t_end, values, n, nodes, bary, times[m], weights, out, m)
+        tau = min(max((times[m] - t_start[n]) / (t_end[n] - t_start[n]), 0.0), 1.0)
+        lagrange_weights(tau, nodes, bary, weights)
+        for i in range(out.shape[0]):
+            out[i, m] = 0.0
+        for j in range(nodes.shape[0]):  # (components innermost: contiguous in values)
+            for i in range(out.shape[0]):
+                out[i, m] += weights[j] * values[n, j, i]
 
 
 @njit(cache=True)
@@ -92,16 +86,35 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
     """out[i, m] = U_i(times[m]) from a mixed history: shared slabs (s_start, s_end,
     s_values (S, q + 1, N), time-sorted) where a time lies in one, (s_start, s_end] (or t0
     at a first slab starting there), else component i's own elements (as
-    :func:`_evaluate_components`)."""
+    :func:`_evaluate_components`). A slab's value is element_value's arithmetic, its
+    barycentric weights formed once for all components: the same bits as the slab's
+    elements give (a history on disk and the samples of dense_output=False read those)."""
     weights = np.empty(nodes.shape[0])
     slab = np.full(times.shape[0], -1, dtype=np.int64)
     n = 0
     for m in range(times.shape[0]):
         t = times[m]
         n = _locate(s_end, t, n)
-        if t <= s_end[n] and (s_start[n] < t or (t == s_start[n] and t == t0)):
-            slab[m] = n
-            _slab_value(s_start, s_end, s_values, n, nodes, bary, t, weights, out, m)
+        if not (t <= s_end[n] and (s_start[n] < t or (t == s_start[n] and t == t0))):
+            continue
+        slab[m] = n
+        tau = min(max((t - s_start[n]) / (s_end[n] - s_start[n]), 0.0), 1.0)
+        node, den = -1, 0.0
+        for j in range(nodes.shape[0]):
+            d = tau - nodes[j]
+            if d == 0.0:
+                node = j
+                break
+            weights[j] = bary[j] / d
+            den += weights[j]
+        for i in range(out.shape[0]):
+            if node >= 0:
+                out[i, m] = s_values[n, node, i]
+                continue
+            num = 0.0
+            for j in range(nodes.shape[0]):
+                num += weights[j] * s_values[n, j, i]
+            out[i, m] = num / den
     for i in range(ptr.shape[0] - 1):
         _evaluate_component(i, ptr, t_start, t_end, values, nodes, bary, times, slab, out)
 
