@@ -409,7 +409,8 @@ def _merge_slabs(ptr, t_start, t_end, values, s_start, s_end, s_values, out_ptr,
 
 
 class _Merged:
-    """An attribute of a :class:`MixedSolution`'s grouped elements, made on first read."""
+    """An attribute of a :class:`MixedSolution`'s grouped elements, made on first read or
+    write (a reader that shifts them then shifts what U(t) reads)."""
 
     def __set_name__(self, owner, name):
         self.name = name
@@ -419,6 +420,10 @@ class _Merged:
             return self
         sol._merge()
         return sol.__dict__[self.name]
+
+    def __set__(self, sol, value):
+        sol._merge()
+        sol.__dict__[self.name] = value
 
 
 class MixedSolution(Solution):
@@ -450,7 +455,9 @@ class MixedSolution(Solution):
 
     def _merge(self):
         """Join the slabs into every component's elements (once)."""
-        parts = self.__dict__.pop("_parts")
+        parts = self.__dict__.pop("_parts", None)
+        if parts is None:
+            return
         ptr, values, s_start = parts[0], parts[3], parts[4]
         N, S = self.ode.N, s_start.shape[0]
         merged = np.arange(N + 1) * S + ptr

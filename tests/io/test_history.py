@@ -230,6 +230,10 @@ def test_synchronised_slabs_are_kept_as_shared_slabs(stiff_springs, method, monk
     assert "_parts" not in sol.__dict__  # joined once, in place of the two parts
     np.testing.assert_array_equal(sol(times), grouped(times))
     np.testing.assert_array_equal(sol.time_steps(3)[1], grouped.time_steps(3)[1])
+    doubled = pickle.loads(pickle.dumps(again))  # written before any read: merged first
+    doubled.values = 2.0 * grouped.values
+    later = times[times > 0.0]  # (U(t0) is u0)
+    np.testing.assert_array_equal(doubled(later), 2.0 * grouped(later))
     np.testing.assert_array_equal(sol.stats["elements per component"],
                                   np.diff(grouped.elements()[0]))
 
