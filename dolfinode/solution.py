@@ -35,17 +35,31 @@ def _locate(ends, t, n):
 
 
 @njit(cache=True)
+def _evaluate_component(i, ptr, t_start, t_end, values, nodes, bary, times, done, out):
+    """out[i, m] = U_i(times[m]) from component i's elements ptr[i]:ptr[i+1] (time-sorted;
+    values (E, q + 1)), each from the first element ending at or after the time; times with
+    done[m] >= 0 are skipped (``done`` empty: none)."""
+    ends = t_end[ptr[i]:ptr[i + 1]]
+    n = 0
+    for m in range(times.shape[0]):
+        if done.shape[0] > 0 and done[m] >= 0:
+            continue
+        if ends.shape[0] == 0:  # (a mixed history covers every other time by slabs)
+            out[i, m] = np.nan
+            continue
+        n = _locate(ends, times[m], n)
+        e = ptr[i] + n
+        tau = min(max((times[m] - t_start[e]) / (t_end[e] - t_start[e]), 0.0), 1.0)
+        out[i, m] = element_value(values, e, tau, nodes, bary)
+
+
+@njit(cache=True)
 def _evaluate_components(ptr, t_start, t_end, values, nodes, bary, times, out):
     """out[i, m] = U_i(times[m]) from component i's elements ptr[i]:ptr[i+1] (time-sorted;
     values (E, q + 1)), each from the first element ending at or after the time."""
+    none = np.empty(0, dtype=np.int64)
     for i in range(ptr.shape[0] - 1):
-        ends = t_end[ptr[i]:ptr[i + 1]]
-        n = 0
-        for m in range(times.shape[0]):
-            n = _locate(ends, times[m], n)
-            e = ptr[i] + n
-            tau = min(max((times[m] - t_start[e]) / (t_end[e] - t_start[e]), 0.0), 1.0)
-            out[i, m] = element_value(values, e, tau, nodes, bary)
+        _evaluate_component(i, ptr, t_start, t_end, values, nodes, bary, times, none, out)
 
 
 @njit(cache=True)
@@ -64,6 +78,45 @@ def _evaluate_shared(t_start, t_end, values, nodes, bary, times, out):
         for j in range(nodes.shape[0]):  # (components innermost: contiguous in values)
             for i in range(out.shape[0]):
                 out[i, m] += weights[j] * values[n, j, i]
+
+
+@njit(cache=True)
+def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, bary, t0,
+                    times, out):
+    """out[i, m] = U_i(times[m]) from a mixed history: shared slabs (s_start, s_end,
+    s_values (S, q + 1, N), time-sorted) where a time lies in one, (s_start, s_end] (or t0
+    at a first slab starting there), else component i's own elements (as
+    :func:`_evaluate_components`). A slab's value is element_value's arithmetic, its
+    barycentric weights formed once for all components: the same bits as the slab's
+    elements give (a history on disk and the samples of dense_output=False read those)."""
+    weights = np.empty(nodes.shape[0])
+    slab = np.full(times.shape[0], -1, dtype=np.int64)
+    n = 0
+    for m in range(times.shape[0]):
+        t = times[m]
+        n = _locate(s_end, t, n)
+        if not (t <= s_end[n] and (s_start[n] < t or (t == s_start[n] and t == t0))):
+            continue
+        slab[m] = n
+        tau = min(max((t - s_start[n]) / (s_end[n] - s_start[n]), 0.0), 1.0)
+        node, den = -1, 0.0
+        for j in range(nodes.shape[0]):
+            d = tau - nodes[j]
+            if d == 0.0:
+                node = j
+                break
+            weights[j] = bary[j] / d
+            den += weights[j]
+        for i in range(out.shape[0]):
+            if node >= 0:
+                out[i, m] = s_values[n, node, i]
+                continue
+            num = 0.0
+            for j in range(nodes.shape[0]):
+                num += weights[j] * s_values[n, j, i]
+            out[i, m] = num / den
+    for i in range(ptr.shape[0] - 1):
+        _evaluate_component(i, ptr, t_start, t_end, values, nodes, bary, times, slab, out)
 
 
 @njit(cache=True)
@@ -92,6 +145,16 @@ def _grouped(comp, t_start):
         if comp[e] < comp[e - 1] or (comp[e] == comp[e - 1] and t_start[e] < t_start[e - 1]):
             return False
     return True
+
+
+def _group(N, comp, t_start, t_end, values):
+    """(ptr, t_start, t_end, values) of elements of N components ordered by component and,
+    within one, by start time (sorted copies only if they are not), component i owning
+    ptr[i]:ptr[i + 1]."""
+    if not _grouped(comp, t_start):
+        order = np.lexsort((t_start, comp))
+        comp, t_start, t_end, values = comp[order], t_start[order], t_end[order], values[order]
+    return np.searchsorted(comp, np.arange(N + 1)), t_start, t_end, values
 
 
 def equispaced(t0, T, n):
@@ -210,11 +273,8 @@ class Solution:
     def multi_adaptive(cls, ode, method, comp, t_start, t_end, values, stats, number_of_samples):
         """A solution whose component i has its own elements (comp == i), in any order
         (already grouped by component and in time, they are not sorted or copied)."""
-        if not _grouped(comp, t_start):
-            order = np.lexsort((t_start, comp))
-            comp, t_start, t_end, values = comp[order], t_start[order], t_end[order], values[order]
-        return cls.grouped(ode, method, np.searchsorted(comp, np.arange(ode.N + 1)), t_start,
-                           t_end, values, stats, number_of_samples)
+        return cls.grouped(ode, method, *_group(ode.N, comp, t_start, t_end, values), stats,
+                           number_of_samples)
 
     @classmethod
     def grouped(cls, ode, method, ptr, t_start, t_end, values, stats, number_of_samples):
@@ -343,3 +403,97 @@ class Solution:
         kind = "multi-adaptive" if self.multi else "mono-adaptive"
         return (f"Solution({self.method.name}, {kind}, N={self.ode.N}, elements={len(self.k)}, "
                 f"t=[{self.ode.t0}, {self.ode.T}])")
+
+
+@njit(cache=True)
+def _merge_slabs(ptr, t_start, t_end, values, s_start, s_end, s_values, out_ptr, out_start,
+                 out_end, out_values):
+    """Component i's elements ptr[i]:ptr[i+1] and the shared slabs (both time-sorted), merged
+    in time order into out_ptr[i]:out_ptr[i+1]."""
+    for i in range(ptr.shape[0] - 1):
+        e, n = ptr[i], 0
+        for r in range(out_ptr[i], out_ptr[i + 1]):
+            if n < s_start.shape[0] and (e == ptr[i + 1] or s_start[n] < t_start[e]):
+                out_start[r], out_end[r] = s_start[n], s_end[n]
+                out_values[r, :] = s_values[n, :, i]
+                n += 1
+            else:
+                out_start[r], out_end[r] = t_start[e], t_end[e]
+                out_values[r, :] = values[e, :]
+                e += 1
+
+
+class _Merged:
+    """An attribute of a :class:`MixedSolution`'s grouped elements, made on first read or
+    write (a reader that shifts them then shifts what U(t) reads)."""
+
+    def __set_name__(self, owner, name):
+        self.name = name
+
+    def __get__(self, sol, owner=None):
+        if sol is None:
+            return self
+        sol._merge()
+        return sol.__dict__[self.name]
+
+    def __set__(self, sol, value):
+        sol._merge()
+        sol.__dict__[self.name] = value
+
+
+class MixedSolution(Solution):
+    """A multi-adaptive solution whose synchronised slabs (every component on one interval,
+    as the multi-adaptive loop solves them in one mono-adaptive slab) are kept as shared
+    slabs, the other elements by component.
+
+    ``sol(t)`` and the samples are evaluated from the two parts; the grouped elements of
+    :meth:`Solution.grouped` (``t_start``, ``k``, ``values``, ``elements()``, the dual) are
+    joined on first read, which then replaces the two parts. A history that is mostly
+    synchronised slabs is stored with (q + 1) doubles per element instead of an element's
+    component, end points and values, and joined without a sort by component.
+    """
+
+    multi = True
+    t_start = _Merged()
+    k = _Merged()
+    values = _Merged()
+    _t_end = _Merged()
+    _component_ptr = _Merged()
+
+    def __init__(self, ode, method, elements, slabs, stats, number_of_samples):
+        """``elements`` (ptr, t_start, t_end, values) grouped by component as
+        :meth:`Solution.grouped` takes them; ``slabs`` (s_start, s_end, s_values (S, q + 1,
+        N)), time-sorted; the two cover each component's [t0, T] without overlap."""
+        self.ode, self.method, self.stats = ode, method, stats
+        self._parts = (*elements, *slabs)
+        self._sample(number_of_samples)
+
+    def _merge(self):
+        """Join the slabs into every component's elements (once)."""
+        parts = self.__dict__.pop("_parts", None)
+        if parts is None:
+            return
+        ptr, values, s_start = parts[0], parts[3], parts[4]
+        N, S = self.ode.N, s_start.shape[0]
+        merged = np.arange(N + 1) * S + ptr
+        t_start, t_end = np.empty(merged[-1]), np.empty(merged[-1])
+        joined = np.empty((merged[-1], values.shape[1]))
+        _merge_slabs(*parts, merged, t_start, t_end, joined)
+        self.__dict__.update(_component_ptr=merged, t_start=t_start, _t_end=t_end,
+                             values=joined, k=t_end - t_start)
+
+    def _evaluate(self, times):
+        parts = self.__dict__.get("_parts")
+        if parts is None:  # joined (and maybe shifted by its reader)
+            return super()._evaluate(times)
+        out = np.empty((times.size, self.ode.N)).T
+        _evaluate_mixed(*parts, self.method.nodes, self.method.barycentric_weights,
+                        self.ode.t0, times, out)
+        return out
+
+    def __repr__(self):
+        parts = self.__dict__.get("_parts")
+        elements = (len(self.k) if parts is None
+                    else len(parts[1]) + len(parts[4]) * self.ode.N)
+        return (f"Solution({self.method.name}, multi-adaptive, N={self.ode.N}, "
+                f"elements={elements}, t=[{self.ode.t0}, {self.ode.T}])")

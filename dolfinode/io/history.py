@@ -27,7 +27,14 @@ from numba import njit
 from dolfinode.errors import SolverError
 from dolfinode.memory import address_space_room, available_memory
 from dolfinode.methods.method import element_value
-from dolfinode.solution import Solution, _evaluate_shared, _set_initial, equispaced, join_elements
+from dolfinode.solution import (
+    MixedSolution,
+    Solution,
+    _evaluate_shared,
+    _set_initial,
+    equispaced,
+    join_elements,
+)
 
 #: A dense history is checked against the available memory once it holds this many bytes
 #: (reading /proc for every chunk of a small solve would cost more than it guards).
@@ -65,7 +72,9 @@ class InMemory:
     Multi-adaptive chunks are joined grouped by component (a counting sort as they are
     copied), so that the Solution is built without a global sort: the join peaks at the
     history plus one chunk, the Solution at 1.2 x the history (a lexsort with reordered
-    copies peaked at 2.35 x).
+    copies peaked at 2.35 x). A synchronised slab (N elements, components 0..N-1 in order on
+    one interval, as the loop stores a slab it solved as one mono-adaptive slab) is kept as
+    one shared slab, its values (q + 1, N) (a :class:`~dolfinode.solution.MixedSolution`).
     """
 
     def __init__(self, ode, multi_adaptive, samples):
@@ -73,13 +82,19 @@ class InMemory:
         self.chunks = []
         self.bytes = 0
         self.per_component = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
+        # (multi-adaptive) the elements outside synchronised slabs, per component, and
+        # where each chunk's synchronised slabs start
+        self.elements_left = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
+        self.slab_starts = []
 
     def add(self, chunk, t):
         """Keep ``chunk`` (views of the loop's buffers, which it keeps alive); raise
         SolverError when the history reached at the time ``t`` leaves no room for more."""
         self.chunks.append(chunk)
         if self.multi_adaptive:
-            self.per_component += np.bincount(chunk[0], minlength=self.ode.N)
+            starts = np.empty(len(chunk[0]) // self.ode.N + 1, dtype=np.int64)
+            found = _find_slabs(*chunk[:3], self.per_component, self.elements_left, starts)
+            self.slab_starts.append(starts[:found])
         size = sum(part.nbytes if part.base is None else part.base.nbytes for part in chunk)
         self.bytes += size
         if self.bytes >= CHECK_FROM:
@@ -108,35 +123,48 @@ class InMemory:
 
     def finish(self, completed):
         """The joined elements: [t_start, k, values] as Solution takes them, or (multi-
-        adaptive) [ptr, t_start, t_end, values] as Solution.grouped does."""
+        adaptive) [ptr, t_start, t_end, values] as Solution.grouped does and the synchronised
+        slabs [s_start, s_end, s_values (S, q + 1, N)]."""
         if not completed:  # a failed solve: the elements are not used
             self.chunks.clear()
             return None
         if not self.multi_adaptive:
             return join_elements(self.chunks)
-        ptr = np.zeros(self.ode.N + 1, dtype=np.int64)
-        np.cumsum(self.per_component, out=ptr[1:])
+        N = self.ode.N
+        ptr = np.zeros(N + 1, dtype=np.int64)
+        np.cumsum(self.elements_left, out=ptr[1:])
+        S = sum(len(starts) for starts in self.slab_starts)
         large = self.bytes >= CHECK_FROM  # (a small join is not worth the system calls)
         empty = _small_pages if large else np.empty
         joined = [empty((ptr[-1], *part.shape[1:]), part.dtype) for part in self.chunks[0][1:]]
-        cursor = ptr[:-1].copy()
+        slabs = [np.empty(S), np.empty(S), empty((S, joined[2].shape[1], N), joined[2].dtype)]
+        cursor = np.append(ptr[:-1], 0)  # (the last: the next slab)
         self.chunks.reverse()
+        self.slab_starts.reverse()
         while self.chunks:  # each chunk released once copied
-            _scatter_by_component(*self.chunks.pop(), cursor, *joined)
+            _scatter_by_component(*self.chunks.pop(), self.slab_starts.pop(), cursor, *joined,
+                                  *slabs)
             if large:
                 _return_freed_memory()
-        return [ptr, *joined]
+        return [ptr, *joined, *slabs]
 
     def solution(self, ode, method, elements, stats, final):
         """The Solution of the joined ``elements`` (``final``: the state at T, unused)."""
         if not self.multi_adaptive:
             return Solution(ode, method, *elements, stats, self.samples)
-        ptr, t_start, t_end, values = elements
-        if not _in_time_order(ptr, t_start):  # the loop made a component's elements out of order
-            comp = np.repeat(np.arange(ode.N), np.diff(ptr))
-            return Solution.multi_adaptive(ode, method, comp, t_start, t_end, values, stats,
-                                           self.samples)
-        return Solution.grouped(ode, method, *elements, stats, self.samples)
+        ptr, t_start, t_end, values, s_start, s_end, s_values = elements
+        if _in_time_order(ptr, t_start) and np.all(s_start[1:] > s_start[:-1]):
+            if s_start.size == 0:
+                return Solution.grouped(ode, method, *elements[:4], stats, self.samples)
+            return MixedSolution(ode, method, elements[:4], elements[4:], stats, self.samples)
+        # the loop made a component's elements or its slabs out of order: sorted, as elements
+        N, S = ode.N, s_start.size
+        comp = np.concatenate([np.repeat(np.arange(N), np.diff(ptr)), np.tile(np.arange(N), S)])
+        return Solution.multi_adaptive(
+            ode, method, comp, np.concatenate([t_start, np.repeat(s_start, N)]),
+            np.concatenate([t_end, np.repeat(s_end, N)]),
+            np.concatenate([values, s_values.transpose(0, 2, 1).reshape(S * N, -1)]), stats,
+            self.samples)
 
 
 def _small_pages(shape, dtype):
@@ -184,10 +212,53 @@ def _in_time_order(ptr, t_start):
 
 
 @njit(cache=True)
-def _scatter_by_component(comp, t_start, t_end, values, cursor, out_start, out_end, out_values):
-    """Copy a chunk's elements to their component's next free places (``cursor``): a stable
-    counting sort by component."""
-    for e in range(comp.shape[0]):
+def _find_slabs(comp, t_start, t_end, per_component, elements_left, starts):
+    """Find a chunk's synchronised slabs: runs of N elements of components 0..N-1 in order on
+    one interval; their first elements go to ``starts`` (returns how many). Counts every
+    element in ``per_component`` and those outside the slabs in ``elements_left``. (A single
+    component's elements are all kept as elements: nothing to share.)"""
+    N = per_component.shape[0]
+    found = 0
+    e = 0
+    while e < comp.shape[0]:
+        run = 0
+        if N > 1 and comp[e] == 0 and e + N <= comp.shape[0]:
+            while (run < N and comp[e + run] == run and t_start[e + run] == t_start[e]
+                   and t_end[e + run] == t_end[e]):
+                run += 1
+        if run == N:
+            starts[found] = e
+            found += 1
+            for i in range(N):
+                per_component[i] += 1
+            e += N
+        else:
+            per_component[comp[e]] += 1
+            elements_left[comp[e]] += 1
+            e += 1
+    return found
+
+
+@njit(cache=True)
+def _scatter_by_component(comp, t_start, t_end, values, starts, cursor, out_start, out_end,
+                          out_values, s_start, s_end, s_values):
+    """Copy a chunk's elements to their component's next free places (``cursor[i]``): a
+    stable counting sort by component; the synchronised slabs starting at ``starts`` to the
+    next shared slab (``cursor[-1]``), values transposed to (q + 1, N)."""
+    N = cursor.shape[0] - 1
+    e = 0
+    j = 0
+    while e < comp.shape[0]:
+        if j < starts.shape[0] and starts[j] == e:
+            n = cursor[N]
+            s_start[n], s_end[n] = t_start[e], t_end[e]
+            for m in range(values.shape[1]):
+                for i in range(N):
+                    s_values[n, m, i] = values[e + i, m]
+            cursor[N] = n + 1
+            j += 1
+            e += N
+            continue
         i = comp[e]
         n = cursor[i]
         out_start[n], out_end[n] = t_start[e], t_end[e]
@@ -195,6 +266,7 @@ def _scatter_by_component(comp, t_start, t_end, values, cursor, out_start, out_e
         for j in range(values.shape[1]):
             out_values[n, j] = values[e, j]
         cursor[i] = n + 1
+        e += 1
 
 
 @njit(cache=True)
@@ -231,6 +303,10 @@ class Samples:
         self.y.fill(np.nan)
         _set_initial(times, ode.t0, ode.u0, self.y)  # U(t0) = u0, as Solution's
         self.per_component = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
+        # (multi-adaptive) the elements outside synchronised slabs, per component, and
+        # where each chunk's synchronised slabs start
+        self.elements_left = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
+        self.slab_starts = []
 
     def add(self, chunk, t):
         nodes, bary = self.method.nodes, self.method.barycentric_weights

@@ -180,3 +180,93 @@ def test_a_dense_solve_that_would_not_fit_stops_naming_dense_output(run_python):
     message = result.stdout.strip().splitlines()[-2]
     assert message.startswith("SolverError the solution history kept for dense output")
     assert "dense_output=False" in message and "RLIMIT_AS" in message
+
+
+@pytest.fixture(scope="module")
+def stiff_springs():
+    """40 masses, two springs 1e4 times stiffer: some slabs synchronised (every component on
+    one interval), the others partitioned."""
+    from dolfinode.bench.problems import mass_spring_chain as chain_with_stiff_springs
+
+    return chain_with_stiff_springs(n=40, stiffness=1e4, stiff_springs=2, T=0.1).ode
+
+
+@pytest.mark.parametrize("method", ["mcG(1)", "mdG(1)", "mcG(2)"])
+def test_synchronised_slabs_are_kept_as_shared_slabs(stiff_springs, method, monkeypatch):
+    """A mixed history (shared slabs and elements) holds the elements the loop stored: its
+    grouped elements equal those sorted from the loop's chunks bitwise, and so does U(t) at
+    every element's end points and between them, in order and not, before and after
+    pickling."""
+    import pickle
+
+    from dolfinode.io import history
+    from dolfinode.solution import MixedSolution, Solution
+
+    chunks = []
+    add = history.InMemory.add
+    monkeypatch.setattr(history.InMemory, "add", lambda self, chunk, t: (
+        chunks.append([part.copy() for part in chunk]), add(self, chunk, t))[1])
+    ode = stiff_springs
+    sol = dn.solve(ode, method, tolerance=1e-6)
+    assert isinstance(sol, MixedSolution)
+    slabs, synchronised = sol.stats["time slabs"], sol.stats["synchronised slabs"]
+    assert 0 < synchronised < slabs
+    shared = sol._parts[4:]
+    assert len(shared[0]) >= synchronised  # (a partitioned slab may put all on one step)
+    grouped = Solution.multi_adaptive(ode, sol.method, *map(np.concatenate, zip(*chunks)), {},
+                                     sol.t)
+    rng = np.random.default_rng(5)
+    inner = rng.uniform(0.0, 0.1, 400)
+    times = np.concatenate([[0.0, 0.1], *shared[:2], grouped.t_start, grouped._t_end, inner,
+                            np.sort(inner)])
+    again = pickle.loads(pickle.dumps(sol))
+    for mixed in (sol, again):
+        np.testing.assert_array_equal(mixed(times), grouped(times))
+        np.testing.assert_array_equal(mixed.y, grouped.y)
+    assert repr(sol) == repr(grouped)
+    assert "_parts" in sol.__dict__  # evaluated without joining
+    for mine, theirs in zip(sol.elements(), grouped.elements()):
+        np.testing.assert_array_equal(mine, theirs)
+    assert "_parts" not in sol.__dict__  # joined once, in place of the two parts
+    np.testing.assert_array_equal(sol(times), grouped(times))
+    np.testing.assert_array_equal(sol.time_steps(3)[1], grouped.time_steps(3)[1])
+    doubled = pickle.loads(pickle.dumps(again))  # written before any read: merged first
+    doubled.values = 2.0 * grouped.values
+    later = times[times > 0.0]  # (U(t0) is u0)
+    np.testing.assert_array_equal(doubled(later), 2.0 * grouped(later))
+    np.testing.assert_array_equal(sol.stats["elements per component"],
+                                  np.diff(grouped.elements()[0]))
+
+
+def test_shared_slabs_are_found_only_where_every_component_shares_one_interval():
+    """Runs of components 0..N-1 on one interval are slabs; a run with one component off the
+    interval, out of order or cut by the chunk's end stays elements."""
+    from dolfinode.io.history import _find_slabs
+
+    N = 3
+    comp = np.array([0, 1, 2, 0, 1, 2, 0, 2, 1, 2, 0, 1, 2, 0, 1])
+    a = np.array([0, 0, 0, 1, 1, 1, 2, 2, 2, 3, 4, 4, 4, 5, 5], dtype=float)
+    b = a + 1.0
+    b[4] = 1.5  # component 1 of the second run on another interval
+    per_component, left, starts = np.zeros(N, np.int64), np.zeros(N, np.int64), np.empty(6, np.int64)
+    found = _find_slabs(comp, a, b, per_component, left, starts)
+    np.testing.assert_array_equal(starts[:found], [0, 10])
+    np.testing.assert_array_equal(per_component, np.bincount(comp))
+    np.testing.assert_array_equal(left, np.bincount(comp) - 2)
+
+
+def test_a_mixed_history_out_of_time_order_is_sorted():
+    """Slabs handed over out of time order (not what the loop does) still give a correct
+    solution: they are sorted as elements."""
+    from dolfinode.io import history
+    from dolfinode.solution import MixedSolution
+
+    ode = dn.ODE({sp.Symbol("a"): 1.0, sp.Symbol("b"): 2.0}, u0=[0.0, 0.0], T=2.0)
+    method = dn.parse_method("mcG(1)")[1]
+    sink = history.InMemory(ode, True, 5)
+    for start in (1.0, 0.0):  # U_a = t, U_b = 2 t on two slabs
+        sink.add([np.array([0, 1]), np.full(2, start), np.full(2, start + 1.0),
+                  np.array([[start, start + 1.0], [2 * start, 2 * start + 2.0]])], 2.0)
+    sol = sink.solution(ode, method, sink.finish(True), {}, None)
+    assert not isinstance(sol, MixedSolution)
+    np.testing.assert_allclose(sol([0.5, 1.0, 1.5]), [[0.5, 1.0, 1.5], [1.0, 2.0, 3.0]])

@@ -147,18 +147,18 @@ def _store_slab(ne, comp, ea, eb, values, counters, out_comp, out_a, out_b, out_
 
 
 @helper(**NO_REFCOUNT)
-def _move_to_end(active, nactive, cptr, celems, ea, eb, values, fend, x, drift, atol, rtol,
-                 umax, tau, jdiag, coupling, last_a, last_b, last_values):
+def _move_to_end(active, nactive, cptr, celems, ea, eb, values, fend, x, fixed, drift, atol,
+                 rtol, umax, tau, jdiag, coupling, last_a, last_b, last_values):
     """Move every active component to the end of its last element of the accepted slab
     (x_i, and that element, which the next slab's guess continues), with its drift bound
-    over the time ``tau`` left (``freeze``)."""
+    over the time ``tau`` left (``freeze``; not with ``fixed`` steps, which never freeze)."""
     nn = values.shape[1]
     for r in range(nactive):
         i = active[r]
         last = celems[cptr[i + 1] - 1]
-        change = values[last, nn - 1] - x[i]
-        drift[i] = drift_bound(change, fend[last], tau, jdiag[i] + coupling[i],
-                               QUIET * (atol[i] + rtol * umax[i]))
+        if not fixed:
+            drift[i] = drift_bound(values[last, nn - 1] - x[i], fend[last], tau,
+                                   jdiag[i] + coupling[i], QUIET * (atol[i] + rtol * umax[i]))
         x[i] = values[last, nn - 1]
         last_a[i], last_b[i] = ea[last], eb[last]
         for m in range(nn):
@@ -456,8 +456,8 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         counters[SYNCHRONISED] += solved
         hold = max(0, hold - 1)
         counters[SUBSLABS] += nsub
-        _move_to_end(active, nactive, cptr, celems, ea, eb, values, fend, x, drift, atol, rtol,
-                     umax, T - b, jdiag, coupling, last_a, last_b, last_values)
+        _move_to_end(active, nactive, cptr, celems, ea, eb, values, fend, x, fixed, drift, atol,
+                     rtol, umax, T - b, jdiag, coupling, last_a, last_b, last_values)
         if solved:  # f(x, b), unless a value was projected
             f0_time = b
             for i in range(N):
