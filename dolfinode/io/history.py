@@ -263,8 +263,8 @@ def _scatter_by_component(comp, t_start, t_end, values, starts, cursor, out_star
         n = cursor[i]
         out_start[n], out_end[n] = t_start[e], t_end[e]
         # by element: a slice assigned from an array compiles numba's long shape-error message
-        for j in range(values.shape[1]):
-            out_values[n, j] = values[e, j]
+        for m in range(values.shape[1]):
+            out_values[n, m] = values[e, m]
         cursor[i] = n + 1
         e += 1
 

@@ -255,6 +255,33 @@ def test_shared_slabs_are_found_only_where_every_component_shares_one_interval()
     np.testing.assert_array_equal(left, np.bincount(comp) - 2)
 
 
+def test_a_chunk_of_elements_then_slabs_is_joined_in_place():
+    """Elements of single components, then a slab, then an element, then a slab, in one
+    chunk (as the loop hands over partitioned and synchronised slabs): each element lands at
+    its component's place and each slab, transposed, at the next shared slab."""
+    from dolfinode.io.history import _find_slabs, _scatter_by_component
+
+    N = 2
+    comp = np.array([0, 1, 0, 0, 1, 1, 0, 1])
+    a = np.array([0.0, 0.0, 0.5, 1.0, 1.0, 2.0, 2.5, 2.5])
+    b = np.array([0.5, 1.0, 1.0, 2.0, 2.0, 2.5, 3.0, 3.0])
+    values = np.arange(16.0).reshape(8, 2)
+    per_component, left, starts = np.zeros(N, np.int64), np.zeros(N, np.int64), np.empty(5, np.int64)
+    found = _find_slabs(comp, a, b, per_component, left, starts)
+    np.testing.assert_array_equal(starts[:found], [3, 6])
+    ptr = np.concatenate([[0], np.cumsum(left)])
+    cursor = np.append(ptr[:-1], 0)
+    out = np.empty(ptr[-1]), np.empty(ptr[-1]), np.empty((ptr[-1], 2))
+    shared = np.empty(found), np.empty(found), np.empty((found, 2, N))
+    _scatter_by_component(comp, a, b, values, starts[:found], cursor, *out, *shared)
+    elements = [0, 2, 1, 5]  # component 0's, then component 1's
+    np.testing.assert_array_equal(out[0], a[elements])
+    np.testing.assert_array_equal(out[2], values[elements])
+    np.testing.assert_array_equal(shared[0], [1.0, 2.5])
+    np.testing.assert_array_equal(shared[2][0], values[3:5].T)
+    np.testing.assert_array_equal(shared[2][1], values[6:8].T)
+
+
 def test_a_mixed_history_out_of_time_order_is_sorted():
     """Slabs handed over out of time order (not what the loop does) still give a correct
     solution: they are sorted as elements."""
