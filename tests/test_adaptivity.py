@@ -232,6 +232,17 @@ def test_out_of_sample_miss_is_not_silent():
         assert "y2" in str(warned[0].message) and "dG(2)" in str(warned[0].message)
 
 
+
+@pytest.mark.xfail(strict=True, reason="issue 29 item 3: the multi-adaptive loop does not "
+                   "record stiff deviations, so mcG(2) misses ROBER silently")
+def test_multi_adaptive_out_of_sample_miss_is_not_silent():
+    """mcG(2) on ROBER at 1e-6 carries y2's deviation undamped as cG(2) does (70 x
+    measured, no warning): the run must be within the band or say so, naming y2."""
+    error, warned = solve_warned(problems.rober(), "mcG(2)", 1e-6)
+    assert error <= 10 * 1e-6 or warned, error / 1e-6
+    if warned:
+        assert "y2" in str(warned[0].message)
+
 @pytest.mark.parametrize("name, method, tolerance", [
     ("POLLU", "cG(2)", 1e-5), ("POLLU", "dG(2)", 1e-7), ("VDPOLM", "cG(2)", 1e-7),
     ("HIRES", "cG(2)", 1e-4)])
