@@ -158,8 +158,9 @@ UNDAMPED_GROWING = 0.9
 UNDAMPED_NEGLIGIBLE = 1e-4
 
 
-def undamped_warning(method, largest, last, size, drives, state):
+def undamped_warning(method, largest, last, size, drives, state, multi_adaptive=False):
     """The :class:`~dolfinode.ToleranceWarning` message for a calibrated run of ``method``
+    (its multi-adaptive variant if ``multi_adaptive``)
     whose :func:`stiff_deviation` was ``largest`` over the run and ``last`` on its last slab,
     of the component named ``state``: its deviation there is ``size`` x its tolerance
     (atol_i + rtol |U_i|, as given), and ``drives`` says whether other components depend
@@ -181,11 +182,12 @@ def undamped_warning(method, largest, last, size, drives, state):
             or last < UNDAMPED_GROWING * largest or size < UNDAMPED_NEGLIGIBLE
             or not drives):
         return None
-    return (f"{method.name} carries stiff deviations undamped (it is not L-stable): at T, "
+    m = "m" if multi_adaptive else ""
+    return (f"{m}{method.name} carries stiff deviations undamped (it is not L-stable): at T, "
             f"{state} is {last:.2g} x its value off its quasi-steady state, more than earlier "
             f"in the run, so the components it drives may have drifted beyond the tolerance. "
-            f"Use dG({method.q}) (method='dG({method.q})'), which damps it, or check the error "
-            "with dn.estimate_error")
+            f"Use {m}dG({method.q}) (method='{m}dG({method.q})'), which damps it, or check the "
+            "error with dn.estimate_error")
 
 
 def filter_constant(method):

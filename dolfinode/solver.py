@@ -306,6 +306,7 @@ class Solver:
         if self._solved is None:  # the values of this call, kept while they are unchanged
             self._solved = work._snapshot()
         n, seconds = counts[ts.STORED], time.perf_counter() - started
+        _warn_undamped(work, compiled, m, params, options, state, multi_adaptive)
         if multi_adaptive:
             sink = history.InMemory(work, True, self._samples)
             sink.add([b[:n] for b in self._buffers], float(state["t"][0]))
@@ -314,7 +315,6 @@ class Solver:
                              steps), counts, True, m, params, compiled.compile_time, seconds)
             sol = sink.solution(self._solved._snapshot(), m, sink.finish(True), stats, x)
         else:
-            _warn_undamped(work, compiled, m, params, options, state)
             k_next, N = state["k_next"].item(), x.size
             out_t, out_k, out_X = self._buffers
             makers = {"ode": self._solved._snapshot, "declared": self._solved,

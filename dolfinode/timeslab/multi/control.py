@@ -8,7 +8,7 @@ import math
 import numpy as np
 from numba import types
 
-from dolfinode.adaptivity import MAX_FACTOR, filter_residuals, next_step
+from dolfinode.adaptivity import MAX_FACTOR, filter_residuals, next_step, stiff_deviation
 from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.counters import F_EVALUATIONS
@@ -41,17 +41,18 @@ def desired_steps(kdes, active, nactive, fixed, kmax, t, T):
 
 
 @helper(**NO_REFCOUNT)
-def residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid, filtered,
-                        position, indptr, indices, jacobian, jdiag, coupling, gamma, elist,
-                        group_order, local, newton, active, nactive, emax, kact, umax,
+def residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid, unfiltered,
+                        filtered, position, indptr, indices, jacobian, jdiag, coupling, gamma,
+                        elist, group_order, local, newton, active, nactive, emax, kact, umax,
                         counters):
     """Every element's residual k R(t_e) = k U'(t_e) - k f_i(U(t_e)) at its end (f_i from
     the last sweep, ``fend``), filtered on each sub-slab unless the slab was solved
-    synchronised by fixed point (not stiff: unfiltered, as in the mono loop), and per
-    active component its largest |k R| (``emax``), max |U_i| (``umax``) and longest element
-    (``kact``) in the slab: one step serves all of a component's elements in the slab, so
-    one scale (an element's own |U_i(t_e)| would let the zero crossings of an oscillation
-    dictate the step of every period). Returns whether a value or residual is not finite."""
+    synchronised by fixed point (not stiff: unfiltered, as in the mono loop; ``unfiltered``
+    keeps the residuals before the filter), and per active component its largest |k R|
+    (``emax``), max |U_i| (``umax``) and longest element (``kact``) in the slab: one step
+    serves all of a component's elements in the slab, so one scale (an element's own
+    |U_i(t_e)| would let the zero crossings of an oscillation dictate the step of every
+    period). Returns whether a value or residual is not finite."""
     nn = values.shape[1]
     for r in range(nactive):
         i = active[r]
@@ -66,6 +67,8 @@ def residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid, f
         resid[e] = kdu - (eb[e] - ea[e]) * fend[e]
     # (overwrites newton: the loop resets ``factored`` at every slab start)
     if filtered:
+        for e in range(ne):
+            unfiltered[e] = resid[e]
         filter_residuals(ne, comp, ea, eb, resid, position, indptr, indices, jacobian, jdiag,
                          coupling, gamma, elist, group_order, local, newton, counters)
     for e in range(ne):
@@ -79,6 +82,23 @@ def residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid, f
         umax[i] = max(umax[i], abs(uend))
         kact[i] = max(kact[i], k)
     return blowup
+
+
+@helper(**NO_REFCOUNT)
+def slab_deviation(ne, comp, values, resid, unfiltered, atol, rtol):
+    """(d, i, eps): the largest :func:`~dolfinode.adaptivity.stiff_deviation` of a filtered
+    slab's elements, its component and its filtered residual in units of atol_i + rtol
+    |U_i(t_e)| (the mono loop's record for :func:`~dolfinode.adaptivity.undamped_warning`)."""
+    nn = values.shape[1]
+    deviation, deviated, deviated_eps = 0.0, -1, 0.0
+    for e in range(ne):
+        uend = abs(values[e, nn - 1])
+        d = stiff_deviation(abs(resid[e]), abs(unfiltered[e]), uend)
+        if d > deviation:
+            i = comp[e]
+            deviation, deviated = d, i
+            deviated_eps = abs(resid[e]) / (atol[i] + rtol * uend)
+    return deviation, deviated, deviated_eps
 
 
 @helper(**NO_REFCOUNT)

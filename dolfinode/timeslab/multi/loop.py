@@ -49,6 +49,7 @@ from dolfinode.timeslab.multi.control import (
     project,
     residual_indicators,
     scale_indicators,
+    slab_deviation,
 )
 from dolfinode.timeslab.multi.freezing import (
     QUIET,
@@ -201,6 +202,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     values = np.empty((4 * N, nn))
     fend = np.empty(4 * N)  # f_i at each element's end
     resid = np.empty(4 * N)  # k R at each element's end, filtered
+    unfiltered = np.empty(4 * N)  # ... and before the filter
     mom = np.empty(S)
     delta = np.empty(S)
     D = np.empty((S, S))
@@ -325,6 +327,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             values = np.empty((max(ne, 2 * values.shape[0]), nn))
             fend = np.empty(values.shape[0])
             resid = np.empty(values.shape[0])
+            unfiltered = np.empty(values.shape[0])
             computed = np.empty(values.shape[0], dtype=np.int64)
         computed[:ne] = -1
         changed[:] = 0
@@ -394,9 +397,13 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                 return NONCONVERGENCE
             continue
         blowup = residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid,
-                                     not solved, position, indptr, indices, jacobian, jdiag,
-                                     coupling, gamma, elist, group_order, local, newton, active,
-                                     nactive, emax, kact, umax, counters)
+                                     unfiltered, not solved, position, indptr, indices,
+                                     jacobian, jdiag, coupling, gamma, elist, group_order, local,
+                                     newton, active, nactive, emax, kact, umax, counters)
+        deviation, deviated, deviated_eps = 0.0, -1, 0.0
+        if not solved:
+            deviation, deviated, deviated_eps = slab_deviation(ne, comp, values, resid,
+                                                               unfiltered, atol, rtol)
         nchecked = 0
         if nfrozen > 0:
             check_round += 1
@@ -452,6 +459,8 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         kmin = _store_slab(ne, comp, ea, eb, values, counters, out_comp, out_a, out_b,
                            out_values)
         st.mono_elements += (b - t) / kmin * N
+        st.deviation = max(st.deviation, deviation)  # (adaptivity.undamped_warning)
+        st.last_deviation, st.deviated, st.deviation_error = deviation, deviated, deviated_eps
         counters[SLABS] += 1
         counters[SYNCHRONISED] += solved
         hold = max(0, hold - 1)
