@@ -51,7 +51,7 @@ newton_cost        mono: running mean of Newton's cost per slab in f evaluations
 k_newton           mono: Newton's step when it gave way to fixed point (0: it has not)
 mono_elements      multi: elements a mono-adaptive method with each slab's smallest step
                    would have needed (the efficiency index)
-deviation          mono, calibrated: the largest distance of a stiff component from its
+deviation          calibrated runs: the largest distance of a stiff component from its
                    quasi-steady state relative to itself (adaptivity.stiff_deviation)
 last_deviation     the same on the last slab, of the component ``deviated``, whose estimate
                    is ``deviation_error`` x its step tolerance there
