@@ -202,9 +202,13 @@ def report(rows, path, calibrate):
     if multi:
         lines += ["Multi-adaptive methods:", *summary(multi), ""]
     if outside:
-        lines += [("Mono-adaptive methods on problems the mapping was not fitted on "
-                   "(`--problems out-of-sample`; W: the run raised a ToleranceWarning):"),
-                  *summary(outside), ""]
+        multi_outside = [r for r in outside if r["method"].startswith("m")]
+        note = "(`--problems out-of-sample`; W: the run raised a ToleranceWarning):"
+        lines += [f"Mono-adaptive methods on problems the mapping was not fitted on {note}",
+                  *summary([r for r in outside if r not in multi_outside]), ""]
+        if multi_outside:
+            lines += [f"Multi-adaptive methods on problems the mapping was not fitted on {note}",
+                      *summary(multi_outside), ""]
     lines += tables(fitted, TOLERANCES)
     if outside:
         lines += ["# Out of sample", "", *tables(outside, OUT_OF_SAMPLE_TOLERANCES)]
