@@ -8,10 +8,11 @@ DOP853 and LSODA (rtol 1e-6, atol 1e-9) on the full model over [0, 100], each st
 ``--classes``: instead, the four classes of issue 28 (dolfinode.bench.multiscale) at scale
 separations 1e4 ... 1e12 (``--kappas``; beyond 1e8 the modeling CPU time only): error of
 the slow components against the full model resolved by numbalsoda's DOP853 (scipy's Radau
-for Michaelis-Menten, rtol 1e-12) and averaged with the modeling kernel, the modeling error estimate, whether a ModelingWarning fired, CPU
-time, and the CPU time of the resolving solvers at the same accuracy: numbalsoda's DOP853
-(LSODA for Michaelis-Menten) and scipy's, each at the loosest rtol whose kernel averages are
-as close to the reference as the modeling's. Writes doc/benchmarks/modeling_classes.{md,csv,png}.
+for Michaelis-Menten, rtol 1e-12) and averaged with the modeling kernel, the modeling error
+estimate, whether a ModelingWarning fired, CPU time, and the CPU time of the resolving solvers at
+the same accuracy: numbalsoda's DOP853 (LSODA for Michaelis-Menten) and scipy's, each at the loosest
+rtol whose kernel averages are as close to the reference as the modeling's. Writes
+doc/benchmarks/modeling_classes.{md,csv,png}.
 
 ``--lattice``: instead, the paper's figure 5 (the lattice with m = 1e-4, tau = 1, T = 100,
 p = 3 and 5): max |D - D-bar| on [2 tau, T] against the full model's averaged diameter

@@ -2,10 +2,10 @@
 
 Each variant is called ``--number`` times per repeat after an untimed warm-up (compile
 excluded); the repeats of all variants are interleaved, in a new random order each time,
-and the minimum time per call over the repeats is reported (wall clock, ``time.perf_counter``: a call is microseconds, and the
-minimum is the least disturbed by the other processes of a shared machine). Variants:
-``dn.solve`` per method; ``dn.Solver(...).solve()``, with other u0 and parameter values,
-and with a new parameter value at every call (a fit); the compiled start and loop of a
+and the minimum time per call over the repeats is reported (wall clock, ``time.perf_counter``: a
+call is microseconds, and the minimum is the least disturbed by the other processes of a shared
+machine). Variants: ``dn.solve`` per method; ``dn.Solver(...).solve()``, with other u0 and parameter
+values, and with a new parameter value at every call (a fit); the compiled start and loop of a
 prepared call alone, with its kept arguments (from the state the last call left);
 numbalsoda's LSODA (its C code, a numba cfunc right-hand side) with its arrays ready, when
 numbalsoda is installed (``pip install numbalsoda``).

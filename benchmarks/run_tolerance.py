@@ -3,8 +3,8 @@
 For HIRES (T = 321.8122), VDPOL (eps = 1e-6, T = 2) and the harmonic oscillator (T = 100)
 of :mod:`dolfinode.bench.problems`, and for the multi-adaptive methods also two problems whose
 components take different steps (the chain of 50 masses with two springs 1e4 x stiffer, T =
-10, and the seed model at kappa = 1e2, scored on x1), each method solves at tolerances 1e-2..1e-10 with
-absolute_tolerance = atol_ratio x tolerance (the problem's ratio), and the delivered error is
+10, and the seed model at kappa = 1e2, scored on x1), each method solves at tolerances 1e-2..1e-10
+with absolute_tolerance = atol_ratio x tolerance (the problem's ratio), and the delivered error is
 the Test Set's scaled error at T, max_i |U_i(T) - u_i(T)| / (atol_ratio + |u_i(T)|), which is
 comparable with the tolerance (mescd = -log10 of it). First-order methods stop at 1e-7 (their
 step count grows as tol^(-1/2)). Writes tolerance.{json,md} (the default mapping), or with

@@ -81,8 +81,8 @@ def refined_step(k0, f0, f1, u0, atol, rtol, order, span):
 
         k1 = (0.01 / max(d1, d2))^(1/P),   k = min(100 k0, max(k0, k1)),
 
-    never below k0, the first step before: from it the PI controller's ramp took about half
-    of the slabs of loose runs (HIRES, the Brusselator). k0 where f1 is not finite, and on
+    never below k0 (from k0 the PI controller's ramp takes about half of the slabs of loose
+    runs: HIRES, the Brusselator). k0 where f1 is not finite, and on
     an initial layer, d1 / d2 < INITIAL_LAYER x ``span`` (VDPOL 2e-7, ROBER 3e-13, POLLU
     6e-10; HIRES 3e-4, the Brusselator 0.02): there a step across the layer moved VDPOL's
     error at T by up to 100x either way, erratically in the tolerance."""

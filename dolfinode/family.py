@@ -52,8 +52,8 @@ Limitation: a change of scales is seen at the end of the stretch it happens in (
 of [t0, T] later, more where multi-adaptive restarts are dear), and the prediction of the
 multi-adaptive elements and their cost is a prior until a trial measured them
 (MULTI_ELEMENTS x COST_RATIO = 24 x the mono-adaptive cost per estimated element; measured /
-predicted 0.9-1.6 on the benchmark problems): a variant predicted no cheaper is not measured. Each stretch
-restarts the variant (its fixed cost per call; a multi-adaptive one finds its components at
+predicted 0.9-1.6 on the benchmark problems): a variant predicted no cheaper is not measured. Each
+stretch restarts the variant (its fixed cost per call; a multi-adaptive one finds its components at
 rest again).
 """
 import re
@@ -127,9 +127,9 @@ def solve_auto(solve, ode, base, goal, parameters, params):
         ``sol.stats["method"]`` names the variants in turn ("cG(2) -> mcG(2)");
         ``sol.stats["family choice"]`` holds "method" (the variant at the end, or the one
         chosen once), "stretches" (per kept stretch: method, interval, CPU time, and the
-        rate and the other's predicted rate (None after the last), or "trial"), "checks" (per trial of the other
-        variant: time, the current, predicted and measured rates, whether it switched, or
-        the trial's error) and, when decided once, "decided once".
+        rate and the other's predicted rate (None after the last), or "trial"), "checks" (per trial
+        of the other variant: time, the current, predicted and measured rates, whether it switched,
+        or the trial's error) and, when decided once, "decided once".
     """
     lower(ode)  # compiled once, shared by the stretches (a copy would compile again)
     switching = _Switching(solve, ode, base, {**parameters, **_STRETCH_PARAMETERS}, params)

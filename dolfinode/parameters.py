@@ -29,7 +29,7 @@ DEFAULTS = {
     "partitioning_threshold": 0.5,  # mcG/mdG: components with k >= theta max k share a sub-slab
     "interval_threshold": 0.9,     # mcG/mdG: a step >= beta times what is left is stretched to it
     "automatic_modeling": False,   # build a reduced model for unresolvable fast time scales
-    "average_length": None,        # tau of the averages; None: from the fast and slow scales of df/du(u0)
+    "average_length": None,        # tau of the averages; None: from df/du(u0)'s scales
     "average_samples": 1000,       # samples per half averaging window
     "average_tolerance": 0.1,      # inactivate components whose average drifts less than this
     "control_points": 10,          # checks of the reduced model against the full model

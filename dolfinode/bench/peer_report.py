@@ -160,9 +160,9 @@ HOW = (
      "a repeated call takes the prepared path dn.solve keeps per option set, 50-90 us less "
      "Python per call on those four problems, as a user's repeated calls do), the **minimum** "
      "of the timed repeats, taken in interleaved rounds (one call of every run per round) "
-     "after an untimed run; compile and build times are excluded (table above; a peer's build is its code generation and compile plus one "
-     "warm-up solve at rtol 1e-3, and includes numbalsoda's driver compile on its first "
-     "problem and JAX tracing)."),
+     "after an untimed run; compile and build times are excluded (table above; a peer's build "
+     "is its code generation and compile plus one warm-up solve at rtol 1e-3, and includes "
+     "numbalsoda's driver compile on its first problem and JAX tracing)."),
     ("numbalsoda (C++ LSODA, DOP853): a numba cfunc right-hand side generated from the same "
      "sympy expressions (`dolfinode.bench.peers.numba_rhs_source`); LSODA forms its Jacobian by "
      "finite differences and factors it dense (run for N <= 400); f evals counted by the cfunc."),

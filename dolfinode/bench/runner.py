@@ -41,8 +41,9 @@ TIME_LIMIT, MAXIMUM_STEPS = 20.0, 200_000
 MODELING = "+modeling"
 
 ROW_FIELDS = ("problem", "solver", "method", "tolerance", "atol", "status", "note",
-              "time_median_s", "time_min_s", "repeats", "first_call_s", "dn_solve_time_s", "mescd", "err_T",
-              "err_L2", "f_evals", "jacobians", "factorizations", "steps", "rejected", "elements")
+              "time_median_s", "time_min_s", "repeats", "first_call_s", "dn_solve_time_s", "mescd",
+              "err_T", "err_L2", "f_evals", "jacobians", "factorizations", "steps", "rejected",
+              "elements")
 
 
 def check_methods(methods):

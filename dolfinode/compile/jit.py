@@ -377,8 +377,8 @@ class Loop:
 
     def entry(self):
         """What :meth:`unchecked` calls: the compiled entry point (the type-checked
-        dispatcher while ``Loop.checked``), for a caller that keeps it over many calls (a prepared solve is a
-        few microseconds: the lookup would be a large part of it)."""
+        dispatcher while ``Loop.checked``), for a caller that keeps it over many calls (a prepared
+        solve is a few microseconds: the lookup would be a large part of it)."""
         if Loop.checked:
             return self.compile()
         if self._entry is None:

@@ -118,8 +118,9 @@ class InMemory:
             f"{self.bytes / 2**30:.3g} GB at t = {t:.6g} ({100 * done:.3g}% of [t0, T])"
             f"{projected}; going on and joining it needs {more / 2**30:.3g} GB more, and the "
             f"memory left to this process is {room / 2**30:.3g} GB (the least of the machine's "
-            "available memory, its cgroup limit and RLIMIT_AS). Solve with dense_output=False to keep only the samples (choose them with "
-            "sample_times=) and the final state", t=t)
+            "available memory, its cgroup limit and RLIMIT_AS). Solve with dense_output=False "
+            "to keep only the samples (choose them with sample_times=) and the final state",
+            t=t)
 
     def finish(self, completed):
         """The joined elements: [t_start, k, values] as Solution takes them, or (multi-

@@ -289,6 +289,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     # Newton's share of the delivered error on graded steps (newton_tolerance), dG(q) only:
     # cG(q) is not L-stable and keeps a stiff component's iteration error (ROBER cG(2), 1e-2)
     delivered = o.delivered if is_dg else 0.0
+    rounding = ROUNDING / rtol  # the rounding level of the scaled norm
     filter_ok = False  # the error filter's factors are usable
     est = np.empty(N)
     w = np.empty(S * N)  # weights of the scaled norm (solvers' work space)
@@ -324,7 +325,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         # taken below the rounding level ROUNDING/rtol of the scaled norm (nor above dtol).
         dtol_k = dtol
         if not fixed:
-            dtol_k = max(dtol * min(1.0, k / o.span), min(dtol, ROUNDING / rtol))
+            dtol_k = max(dtol * min(1.0, k / o.span), min(dtol, rounding))
         use_newton = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         n_prev = counters[STORED] - 1
         if not use_newton and n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
@@ -392,7 +393,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                         euler_stages(x, f0, 0.0, tau, X)
                     iters = newton(f, p, x, f0, t, k, A, b0, tau, transform,
                                    transform_inverse, atol, rtol,
-                                   newton_tolerance(dtol_k, dtol, ROUNDING / rtol, delivered,
+                                   newton_tolerance(dtol_k, dtol, rounding, delivered,
                                                     counters[SLABS]),
                                    max_iter, 1.0 if fresh == 1 else THETA_KEPT, X, F, G, Z,
                                    ab_real, ab_complex, structure, ipiv, z_real, z_complex,

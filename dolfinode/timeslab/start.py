@@ -48,8 +48,9 @@ def _start(rhs, p, t0, atol, rtol, guess, x, f0, steps, options, state, counters
     ``steps`` the :func:`first_step` for ``atol``, ``rtol``, refined by :func:`trial_step`
     for mono-adaptive dG(q) (else ``steps`` as given; cG(q) is not L-stable: its start must
     resolve a transient that f(x, t0) may not show yet, as ROBER's); the loop's ``state`` at
-    t0 (mono: the first step and the controller's start) and zero ``counters``. Reads T and the span T - t0 from ``options``. Returns READY, or the first
-    check that fails: F0_NOT_FINITE, INTERVAL_UNRESOLVED."""
+    t0 (mono: the first step and the controller's start) and zero ``counters``. Reads T and the span
+    T - t0 from ``options``. Returns READY, or the first check that fails: F0_NOT_FINITE,
+    INTERVAL_UNRESOLVED."""
     call_rhs(rhs, x, t0, p, f0)
     total = 0.0
     for value in f0:

@@ -106,8 +106,9 @@ def test_hires_y7_plus_y8_is_conserved(method, finite):
     assert np.max(np.abs(sol.y[6] + sol.y[7] - 0.0057)) <= 10 * tol * (1 + 0.0057)
 
 
-# Measured (tolerance 1e-8, mescd at T; 8 meets the tolerance, and is required): VDPOL cG(2) 11.7, dG(2) 14.3,
-# dG(3) 14.0 (the former indicator k^p |R(t_n)|, not scaled by the time scale, gave 2.7-4.3).
+# Measured (tolerance 1e-8, mescd at T; 8 meets the tolerance, and is required): VDPOL cG(2) 11.7,
+# dG(2) 14.3, dG(3) 14.0 (the former indicator k^p |R(t_n)|, not scaled by the time scale, gave
+# 2.7-4.3).
 @pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "dG(2)", "dG(3)"])
 def test_vdpol_meets_the_tolerance(method, finite):
     p = P.vdpol()

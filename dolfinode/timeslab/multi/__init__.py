@@ -25,10 +25,10 @@ every component on the smallest desired step, ``loop.SYNCHRONISE``; an eighth af
 synchronised slab) is synchronised: every active component on that step, solved as one
 mono-adaptive slab by the mono loop's fixed-point iteration with the whole system's f
 (``sweeps.synchronised``; the element equations with equal steps are cG(q)'s and dG(q)'s), at
-a fraction of the cost of component kernels and moments per element. Its residuals are not filtered (fixed point converged: not stiff), and a component
-held below its own desired step scales its estimate to that step, so that the slabs return to
-the partition when the steps spread again. Stiff slabs (Newton) and slabs with frozen
-components keep the element-wise solve.
+a fraction of the cost of component kernels and moments per element. Its residuals are not filtered
+(fixed point converged: not stiff), and a component held below its own desired step scales its
+estimate to that step, so that the slabs return to the partition when the steps spread again. Stiff
+slabs (Newton) and slabs with frozen components keep the element-wise solve.
 
 Components at rest are frozen (``freezing.freeze``): no elements, the constant x_i for the others,
 until they drift; then their constant element over the whole span is stored. After a slab the
