@@ -413,13 +413,16 @@ def _merge_slabs(ptr, t_start, t_end, values, s_start, s_end, s_values, out_ptr,
     for i in range(ptr.shape[0] - 1):
         e, n = ptr[i], 0
         for r in range(out_ptr[i], out_ptr[i + 1]):
+            # (by entry, not slices: see io.history)
             if n < s_start.shape[0] and (e == ptr[i + 1] or s_start[n] < t_start[e]):
                 out_start[r], out_end[r] = s_start[n], s_end[n]
-                out_values[r, :] = s_values[n, :, i]
+                for j in range(values.shape[1]):
+                    out_values[r, j] = s_values[n, j, i]
                 n += 1
             else:
                 out_start[r], out_end[r] = t_start[e], t_end[e]
-                out_values[r, :] = values[e, :]
+                for j in range(values.shape[1]):
+                    out_values[r, j] = values[e, j]
                 e += 1
 
 
