@@ -150,8 +150,10 @@ def stiff_deviation(filtered, unfiltered, value):
 
 #: A calibrated cG(q) run with q even warns (:func:`undamped_warning`) when a stiff
 #: component's distance from its quasi-steady state on the last slab exceeds this fraction
-#: of it, ...
-UNDAMPED_DEVIATION = 0.1
+#: of it (over the 565 runs of benchmarks/run_tolerance.py, the runs the other conditions
+#: pass have 0.025 (ROBER cG(2) at 1e-9: 1.6 x) or at least 0.075 (mcG(2) at 1e-9: 14 x);
+#: 0.04 lies between, in log scale), ...
+UNDAMPED_DEVIATION = 0.04
 #: ... it is still growing at T: at least this fraction of the largest of the run, ...
 UNDAMPED_GROWING = 0.9
 #: ... and it is not negligible: at least this fraction of the component's tolerance.

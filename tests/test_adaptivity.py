@@ -232,11 +232,11 @@ def test_out_of_sample_miss_is_not_silent():
         assert "y2" in str(warned[0].message) and "dG(2)" in str(warned[0].message)
 
 
-@pytest.mark.parametrize("tolerance", [1e-6, 1e-8])
+@pytest.mark.parametrize("tolerance", [1e-6, 1e-8, 1e-9])
 def test_multi_adaptive_out_of_sample_miss_is_not_silent(tolerance):
-    """mcG(2) on ROBER carries y2's deviation undamped as cG(2) does (70 x and 45 x
-    measured, no warning before the multi-adaptive loop recorded it): the run is within
-    the band or says so, naming y2 and mdG(2)."""
+    """mcG(2) on ROBER carries y2's deviation undamped as cG(2) does (70 x, 45 x and 14 x
+    measured, no warning before the multi-adaptive loop recorded it; at 1e-9 the deviation
+    at T is 0.075 x y2): the run is within the band or says so, naming y2 and mdG(2)."""
     error, warned = solve_warned(problems.rober(), "mcG(2)", tolerance)
     assert error <= 10 * tolerance or warned, error / tolerance
     if warned:
