@@ -8,13 +8,7 @@ import math
 import numpy as np
 from numba import types
 
-from dolfinode.adaptivity import (
-    MAX_FACTOR,
-    STIFF_RATIO,
-    filter_residuals,
-    next_step,
-    stiff_deviation,
-)
+from dolfinode.adaptivity import MAX_FACTOR, filter_residuals, next_step, stiff_deviation
 from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.counters import F_EVALUATIONS
@@ -50,7 +44,7 @@ def desired_steps(kdes, active, nactive, fixed, kmax, t, T):
 def residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid, unfiltered,
                         filtered, position, indptr, indices, jacobian, jdiag, coupling, gamma,
                         elist, group_order, local, newton, active, nactive, emax, kact, umax,
-                        delivered, exponent, counters):
+                        counters):
     """Every element's residual k R(t_e) = k U'(t_e) - k f_i(U(t_e)) at its end (f_i from
     the last sweep, ``fend``), filtered on each sub-slab unless the slab was solved
     synchronised by fixed point (not stiff: unfiltered, as in the mono loop; ``unfiltered``
@@ -58,10 +52,7 @@ def residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid, u
     (``emax``), max |U_i| (``umax``) and longest element (``kact``) in the slab: one step
     serves all of a component's elements in the slab, so one scale (an element's own
     |U_i(t_e)| would let the zero crossings of an oscillation dictate the step of every
-    period). In a calibrated run (``delivered`` = tolerance / step tolerance < 1) an
-    element the filter leaves alone counts with at least its :func:`nodal_error` /
-    ``delivered`` (``exponent`` = q / (q + 1)). Returns whether a value or residual is not
-    finite."""
+    period). Returns whether a value or residual is not finite."""
     nn = values.shape[1]
     for r in range(nactive):
         i = active[r]
@@ -74,7 +65,6 @@ def residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid, u
         for j in range(nn):
             kdu += end_derivative[j] * values[e, j]
         resid[e] = kdu - (eb[e] - ea[e]) * fend[e]
-        umax[comp[e]] = max(umax[comp[e]], abs(values[e, nn - 1]))
     # (overwrites newton: the loop resets ``factored`` at every slab start)
     if filtered:
         for e in range(ne):
@@ -85,35 +75,13 @@ def residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid, u
         i = comp[e]
         k = eb[e] - ea[e]
         res = abs(resid[e])
-        if delivered < 1.0 and not (filtered and res < STIFF_RATIO * abs(unfiltered[e])):
-            res = max(res, nodal_error(values, e, res, umax[i], exponent) / delivered)
         uend = values[e, nn - 1]
         if not (math.isfinite(uend) and math.isfinite(res)):
             blowup = True
         emax[i] = max(emax[i], res)
+        umax[i] = max(umax[i], abs(uend))
         kact[i] = max(kact[i], k)
     return blowup
-
-
-@helper(inline="always")
-def nodal_error(values, e, estimate, size, exponent):
-    """The error at element e's end predicted from its estimate e_k = |(I - gamma k J)^-1 k R|:
-
-        e_k min(1, e_k / max(size, max_m |U_m|))^(q / (q + 1))   (``exponent`` = q / (q + 1)).
-
-    e_k ~ (k / tau)^(q+1) |u| on an element of length k where u varies on the time scale
-    tau, and the superconvergent node gains (k / tau)^q on it, which the element's relative
-    estimate gives. The calibration assumes the gain tolerance / step tolerance of the
-    runs it was fitted on; an element long against its component's time scale gains less
-    (HIRES, mdG(3) at 1e-7: y6, 0.04 of its size and decaying at a rate that grows tenfold
-    over the last slab, had an end error 0.045 x its estimate where the fit assumes 9e-4,
-    42 x the tolerance at T; predicted 0.011 x). ``size`` is the component's largest end
-    value in the slab (its own zero crossing does not make an element long)."""
-    for m in range(values.shape[1]):
-        size = max(size, abs(values[e, m]))
-    if estimate >= size:
-        return estimate
-    return estimate * (estimate / size) ** exponent
 
 
 @helper(**NO_REFCOUNT)

@@ -194,7 +194,6 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     # sweeps stop a tenth below the discrete tolerance, but not below the rounding level
     # (fixed steps iterate to dtol = 1e-15 of |U| + 1: Gauss-Seidel stalls above 1e-16)
     sweep_limit = max(0.1 * dtol, ROUNDING / rtol)
-    delivered = o.delivered if o.delivered > 0.0 else 1.0  # (control.nodal_error)
 
     comp = np.empty(4 * N, dtype=np.int64)
     ea = np.empty(4 * N)
@@ -400,8 +399,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         blowup = residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid,
                                      unfiltered, not solved, position, indptr, indices,
                                      jacobian, jdiag, coupling, gamma, elist, group_order, local,
-                                     newton, active, nactive, emax, kact, umax, delivered,
-                                     1.0 - 1.0 / o.order, counters)
+                                     newton, active, nactive, emax, kact, umax, counters)
         deviation, deviated, deviated_eps = 0.0, -1, 0.0
         if not solved:
             deviation, deviated, deviated_eps = slab_deviation(ne, comp, values, resid,
