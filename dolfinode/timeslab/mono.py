@@ -396,9 +396,9 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                                    transform_inverse, atol, rtol,
                                    newton_tolerance(dtol_k, min(dtol, rounding), dtol,
                                                     delivered, k / o.span, counters[SLABS]),
-                                   max_iter, 1.0 if fresh == 1 else THETA_KEPT, X, F, G, Z,
-                                   ab_real, ab_complex, structure, ipiv, z_real, z_complex,
-                                   w, counters, rate)
+                                   max_iter, 1.0 if fresh == 1 else THETA_KEPT, is_dg, X, F,
+                                   G, Z, ab_real, ab_complex, structure, ipiv, z_real,
+                                   z_complex, w, counters, rate)
                     if iters >= 0:
                         break
                 if iters >= 0:
