@@ -68,21 +68,22 @@ def weighted_norm(dx, w):
 def newton_tolerance(dtol_k, floor, dtol, delivered, share, n):
     """Newton's stopping tolerance on the n-th slab (n = 0, 1, ...) of length k: a share of
     kappa x the error at T the tolerance delivers (kappa = KAPPA, ``delivered`` in units of
-    the scaled norm's rtol), max(k/(T - t0), 1/(n + 1)) of it (``share`` = k/(T - t0)), at
-    most ``dtol`` and at least the loop's tolerance ``dtol_k`` = max(dtol k/(T - t0),
-    min(dtol, floor)).
+    the scaled norm's rtol), max(k/(T - t0), 1/(n + 1)) of it (``share`` = k/(T - t0)),
+    between the rounding level ``floor`` and ``dtol``.
 
     RADAU5 stops its Newton iteration at kappa x its local tolerance (kappa ~ 0.03,
     Hairer-Wanner IV.8). Here the step tolerance is looser than the error asked at T (the
     nodes superconverge, :func:`dolfinode.adaptivity.step_tolerance`), and the slabs'
     iteration errors add up with one sign where the solution oscillates (VDPOLM, dG(3) at
-    1e-9: 20 x the tolerance at kappa x delivered on every slab), so the slabs share the
-    budget: over n slabs the shares sum to at most 2 + ln n. Steps graded over many decades
-    (ROBER: k/(T - t0) < 1e-8) take the share 1/(n + 1) where k/(T - t0) says nothing.
-    Without a delivered error (cG(q), fixed steps: ``delivered`` = 0) the loop's tolerance
-    stands: cG(q) is not L-stable and keeps a stiff component's iteration error; the
-    fixed-point iteration keeps dtol_k, as its iteration error drifts the energy of
-    oscillations with one sign, where Newton's, exact on a linear system, leaves none.
+    1e-9: 20 x the tolerance with the loop's dtol k/(T - t0) in step-tolerance units, 5 x
+    the delivered error in all), so the slabs share a budget of the delivered error: over n
+    slabs the shares sum to at most 2 + ln n. Steps graded over many decades (ROBER:
+    k/(T - t0) < 1e-8) take the share 1/(n + 1) where k/(T - t0) says nothing. Without a
+    delivered error (cG(q), fixed steps: ``delivered`` = 0) the loop's tolerance ``dtol_k``
+    = max(dtol k/(T - t0), min(dtol, floor)) stands: cG(q) is not L-stable and keeps a
+    stiff component's iteration error; the fixed-point iteration keeps dtol_k, as its
+    iteration error drifts the energy of oscillations with one sign, where Newton's, exact on
+    a linear system, leaves none.
     """
     if delivered == 0.0:
         return dtol_k

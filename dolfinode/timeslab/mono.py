@@ -62,7 +62,7 @@ SOLVER_FREE = 0.1
 #: (see :func:`extrapolate`) when the step is at most EXTRAPOLATE times the last one, else
 #: from explicit Euler, whose first increment on stiff slabs is 5-70 x the tolerance (HIRES,
 #: ROBER, VDPOL): with the stop relative to the delivered error (slab.newton_tolerance) the
-#: extrapolated start saves 10-25 % of dG(3)'s iterations there (doc/design/newton.md).
+#: extrapolated start saves 8-27 % of dG(3)'s iterations there (doc/design/newton.md).
 #: Newton on cG(q) starts from Euler: extrapolated, cG(3) on HIRES at 1e-2 and 1e-3
 #: delivered 0.02-0.08 x the tolerance (0.6 and 1.3 from Euler), outside the calibration.
 EXTRAPOLATE = 2.0
