@@ -58,12 +58,13 @@ NEWTON_PROBE = 1.2
 #: step of 6.25e-4: 166 slabs, 69 without the hold; VDPOL at 1e-1: 194 and 129). cG(q) keeps
 #: the limit: its failures come back with the undamped deviation (ROBER cG(2) at 1e-4 fails).
 SOLVER_FREE = 0.1
-#: Fixed-point iteration starts from the last element extrapolated (see :func:`extrapolate`)
-#: when the step is at most EXTRAPOLATE times the last one, else from explicit Euler. Newton
-#: starts from explicit Euler: extrapolated, it saves 10-30% of the f evaluations (q = 3) but
-#: moves the digits by up to 1.4 either way, the iteration stopping at another point inside
-#: its tolerance, and the calibrated tolerance then loses its monotonicity (6 of 48 sweeps of
-#: benchmarks/run_tolerance.py grow > 1.5x as the tolerance tightens; 0 from Euler).
+#: Fixed-point iteration, and Newton's on dG(q), start from the last element extrapolated
+#: (see :func:`extrapolate`) when the step is at most EXTRAPOLATE times the last one, else
+#: from explicit Euler, whose first increment on stiff slabs is 5-70 x the tolerance (HIRES,
+#: ROBER, VDPOL): with the stop relative to the delivered error (slab.newton_tolerance) the
+#: extrapolated start saves 8-27 % of dG(3)'s iterations there (doc/design/newton.md).
+#: Newton on cG(q) starts from Euler: extrapolated, cG(3) on HIRES at 1e-2 and 1e-3
+#: delivered 0.02-0.08 x the tolerance (0.6 and 1.3 from Euler), outside the calibration.
 EXTRAPOLATE = 2.0
 #: cG(q) is not L-stable (|R(-inf)| = 1): a stiff component's deviation from its
 #: quasi-steady state is never damped, and once the state decays below it, Newton fails on
@@ -286,8 +287,8 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     age = 0  # Newton slabs since the Jacobian was evaluated
     rate = np.zeros(1)  # Newton's contraction rate on the last slab (see slab.newton)
     theta = math.inf  # ... with the current factors (inf: unknown)
-    # Newton's share of the delivered error on graded steps (newton_tolerance), dG(q) only:
-    # cG(q) is not L-stable and keeps a stiff component's iteration error (ROBER cG(2), 1e-2)
+    # Newton stops relative to the delivered error (newton_tolerance), dG(q) only: cG(q) is
+    # not L-stable and keeps a stiff component's iteration error (ROBER cG(2), 1e-2)
     delivered = o.delivered if is_dg else 0.0
     rounding = ROUNDING / rtol  # the rounding level of the scaled norm
     filter_ok = False  # the error filter's factors are usable
@@ -328,7 +329,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             dtol_k = max(dtol * min(1.0, k / o.span), min(dtol, rounding))
         use_newton = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         n_prev = counters[STORED] - 1
-        if not use_newton and n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
+        if (is_dg or not use_newton) and n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
             extrapolate(out_X, n_prev, nodes, bary, out_k[n_prev], k, tau, X, weights)
         else:
             euler_stages(x, f0, k, tau, X)
@@ -393,11 +394,11 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                         euler_stages(x, f0, 0.0, tau, X)
                     iters = newton(f, p, x, f0, t, k, A, b0, tau, transform,
                                    transform_inverse, atol, rtol,
-                                   newton_tolerance(dtol_k, dtol, rounding, delivered,
-                                                    counters[SLABS]),
-                                   max_iter, 1.0 if fresh == 1 else THETA_KEPT, X, F, G, Z,
-                                   ab_real, ab_complex, structure, ipiv, z_real, z_complex,
-                                   w, counters, rate)
+                                   newton_tolerance(dtol_k, min(dtol, rounding), dtol,
+                                                    delivered, k / o.span, counters[SLABS]),
+                                   max_iter, 1.0 if fresh == 1 else THETA_KEPT, is_dg, X, F,
+                                   G, Z, ab_real, ab_complex, structure, ipiv, z_real,
+                                   z_complex, w, counters, rate)
                     if iters >= 0:
                         break
                 if iters >= 0:
