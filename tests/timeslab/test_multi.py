@@ -232,8 +232,35 @@ def test_ties_are_passed_on_along_chains_of_strong_couplings():
     indptr = np.array([0, 1, 2, 2])
     indices = np.array([1, 2])
     kdes = np.array([1e-3, 2e-3, 4e-3])
-    propagate(kdes, np.array([1, 0]), np.full(3, np.nan), indptr, indices, np.full(2, 1e4))
+    propagate(kdes, np.array([1, 0]), np.full(3, np.nan), indptr, indices, np.full(2, 1e4),
+              np.zeros(3, dtype=np.bool_))
     np.testing.assert_allclose(kdes, [1e-3, 1e-3, 1e-3])
+
+
+def test_propagation_leaves_no_tie_unresolved():
+    """On random patterns (rows visited in a random order, stale flags in the work array),
+    the steps after ``propagate`` are a fixed point: no strong or lopsided coupling of a
+    row i to an active j with k_j > k_i is left, although after the first pass only the
+    rows whose step was lowered are visited again."""
+    from dolfinode.timeslab.multi.steps import ASYMMETRY, propagate
+
+    rng = np.random.default_rng(3)
+    n = 6
+    for _ in range(200):
+        dense = rng.random((n, n)) < 0.4
+        values = np.where(dense, 10.0 ** rng.uniform(-1, 4, (n, n)), 0.0)
+        indptr = np.concatenate([[0], np.cumsum(dense.sum(axis=1))])
+        indices = np.concatenate([np.flatnonzero(row) for row in dense]).astype(np.int64)
+        jacobian = values[dense]
+        kdes = 10.0 ** rng.uniform(-4, -1, n)
+        frozen = np.where(rng.random(n) < 0.2, 0.0, np.nan)
+        rows = rng.permutation(np.flatnonzero(np.isnan(frozen))).astype(np.int64)
+        propagate(kdes, rows, frozen, indptr, indices, jacobian, rng.random(n) < 0.5)
+        for i in rows:
+            for j in np.flatnonzero(dense[i]):
+                lopsided = values[j, i] > 0 and values[i, j] >= ASYMMETRY**2 * values[j, i]
+                if j != i and np.isnan(frozen[j]) and (values[i, j] * kdes[i] > 1 or lopsided):
+                    assert kdes[j] <= kdes[i]
 
 
 def _front(n, T):

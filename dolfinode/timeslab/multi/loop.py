@@ -256,6 +256,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     top_start = np.zeros(1, dtype=np.int64)
     top_change = np.zeros(N)
     mark = np.zeros(N, dtype=np.int64)
+    lowered = np.zeros(N, dtype=np.bool_)  # (``propagate``)
     # the last rejected attempt, the initial guess of its retry
     retry = False
     oea = np.empty(0)
@@ -437,7 +438,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                 return CONSTRAINT
             accept = False
         if not fixed:
-            propagate(kdes, active[:nactive], frozen, indptr, indices, jacobian)
+            propagate(kdes, active[:nactive], frozen, indptr, indices, jacobian, lowered)
             grade(kdes, active[:nactive], frozen, indptr, indices, jacobian)
         if not accept:
             counters[REJECTED] += 1

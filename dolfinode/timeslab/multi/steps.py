@@ -18,7 +18,7 @@ SLAB_CLIMB = 1.5
 
 @linked
 @helper(**NO_REFCOUNT)
-def propagate(kdes, rows, frozen, indptr, indices, jacobian):
+def propagate(kdes, rows, frozen, indptr, indices, jacobian, lowered):
     """Small steps travel along strong dependencies: k_j <= k_i when f_i reacts to u_j within
     one step of i (|J_ij| k_i > 1; DOLFIN's "poor man's dual weighting", restricted to the
     couplings that matter), or when the coupling is mutual and lopsided,
@@ -29,10 +29,17 @@ def propagate(kdes, rows, frozen, indptr, indices, jacobian):
     their velocities, 2 10^4 x tolerance). Only the components ``rows`` and the active ones
     they read take part (frozen components have no step). Passes repeat until no step
     changes (at most PROPAGATION_SWEEPS): a step lowered by a tie is passed on along the
-    next one (on POLLU, y4 -> y3 -> the species with J_ii = -4.4e11)."""
+    next one (on POLLU, y4 -> y3 -> the species with J_ii = -4.4e11).
+
+    After the first pass a row is visited again only if its own step was lowered since its
+    last visit (``lowered``, a work array of N flags): steps only decrease and a tie depends
+    on k_i alone, so any other row would change nothing (the same steps as visiting all)."""
     for sweep in range(PROPAGATION_SWEEPS):
         moved = False
         for i in rows:
+            if sweep > 0 and not lowered[i]:
+                continue
+            lowered[i] = False
             for nz in range(indptr[i], indptr[i + 1]):
                 j = indices[nz]
                 jij = abs(jacobian[nz])
@@ -47,6 +54,7 @@ def propagate(kdes, rows, frozen, indptr, indices, jacobian):
                             break
                 if tie:
                     kdes[j] = kdes[i]
+                    lowered[j] = True
                     moved = True
         if not moved:
             return
