@@ -11,7 +11,6 @@ error at T over the tolerance and each estimate over the error at T.
     python benchmarks/probe_global_error_nonlinear.py
 """
 import sys
-import time
 import warnings
 
 import numpy as np
