@@ -40,7 +40,8 @@ from dolfinode.problems import mass_spring_chain as uniform_chain
 TARGET = 1.3
 #: What the last run showed, in words (kept with the script that measures it).
 NOTES = [
-    ("Within 1.3x on all 9 problems in this run (load 0.7-1.0 at its start, 2 cores). During the "
+    ("Within 1.3x on all 9 problems in this run (load 2.1 at its start, falling, 2 cores); a "
+     "run beside a test suite the same day (load 3.4-5.1) gave the front 1.34x. During the "
      "rework, at a load of 11-12, the reaction front and the moving source came out at "
      "1.31-1.32x; over five runs the ratios moved by up to 0.1 (front 1.27-1.32, moving "
      "source 1.19-1.38, late fast bank 1.25-1.34, uniform chain 1.12-1.29). What changed for "
