@@ -305,9 +305,9 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     It is a calibration of the local error, not a bound: a long non-dissipative run adds
     its errors up (an oscillator bank: 29 x), which ``estimate_error`` measures. On problems
     it was not fitted on (ROBER, POLLU, VDPOLM, a stiff heat equation; 1e-3..1e-9) one run
-    lands above 10 x with a warning (cG(2) on ROBER at 1e-7, 26 x: a
+    lands above 10 x, with a warning (cG(2) on ROBER at 1e-7, 26 x: a
     :class:`~dolfinode.ToleranceWarning` is raised where cG(q), q even, carries a stiff deviation it
-    cannot damp into T) and one at 10.1 x without (dG(2) on POLLU at 1e-9). Values inside
+    cannot damp into T). Values inside
     elements (``sol(t)`` between element ends, samples, events) are accurate to O(k^(q+1))
     only, up to ~100 x the tolerance; ``calibrate_tolerance=False`` bounds each step's
     estimate by the tolerance instead, as scipy's rtol and atol do (the error at T then
