@@ -26,6 +26,10 @@ Soederlind's digital filters, as DOLFIN's H211PI intended), with P = q + 1:
 
     k_new = k * clamp(safety * eps^(-0.7/P) * eps_prev^(0.4/P), 0.2, 5).
 
+On a step that must keep shrinking this lags one step behind and alternates accepted and
+rejected steps; the mono-adaptive dG(q) loop then takes Gustafsson's predictive step where
+smaller (:func:`accepted_step`).
+
 With the calibrated tolerance (:func:`step_tolerance`, looser than rtol since the nodes
 superconverge), the mono-adaptive loop scales each component's e_{n,i} by
 :func:`stiff_factor`: a component the filter reduced (stiff) has no superconvergent node and
@@ -125,7 +129,7 @@ PREDICTED_FLOOR = 1e-2
 @helper()
 def predicted_step(k, eps, k_prev, eps_prev, order, safety):
     """Gustafsson's predictive step after two accepted steps, k_prev with estimate eps_prev
-    and then k with eps (Hairer and Wanner, Sec. IV.8, eq. (8.21)):
+    and then k with eps (Hairer and Wanner, Sec. IV.8):
 
         k_new = k * clamp(safety (k / k_prev) (max(eps_prev, PREDICTED_FLOOR) / eps^2)^(1/P),
                           0.2, 5).
@@ -133,7 +137,7 @@ def predicted_step(k, eps, k_prev, eps_prev, order, safety):
     It models eps = C k^P with log C changing linearly from step to step, so that it
     follows a step that must keep shrinking (VDPOL approaching its fast transitions), where
     the PI controller of :func:`next_step` lags one step behind and alternates between
-    accepted and rejected slabs. The mono-adaptive loop takes the smaller of the two."""
+    accepted and rejected slabs (:func:`accepted_step` says where it is taken)."""
     eps = max(eps, 1e-10)
     factor = (safety * (k / k_prev)
               * (max(eps_prev, PREDICTED_FLOOR) / (eps * eps)) ** (1.0 / order))
