@@ -603,7 +603,7 @@ class MonoPieces(_Pieces):
         """A fresh start at the current time with the branches sigma."""
         self.p[self.n_params:] = sigma
         self.f0[:] = self.f(self.x, self.t())
-        self.state[["have_f0", "eps_prev"]] = True, 1.0
+        self.state[["have_f0", "eps_prev", "k_accepted"]] = True, 1.0, 0.0
         self.state["k_next"] = min(self.state["k_next"][0], self.step_guess(self.x, self.t()))
 
     def view(self, chunk):

@@ -14,7 +14,10 @@ from dolfinode.adaptivity import (
     STIFF_TARGET,
     UNDAMPED_DEVIATION,
     UNDAMPED_NEGLIGIBLE,
+    accepted_step,
     initial_step,
+    next_step,
+    predicted_step,
     refined_step,
     step_tolerance,
     stiff_deviation,
@@ -212,6 +215,62 @@ def test_refined_first_step_is_hnw_within_k0_and_100_k0():
     assert refined_step(1e-12, f0, f0, u0, atol, rtol, order, 10.0) == pytest.approx(1e-10)
     # an initial layer: |f0| / |f1 - f0| x k0 = 1 / 1000 below INITIAL_LAYER x span
     assert refined_step(k0, f0, f0 + 1000 * (f1 - f0), u0, atol, rtol, order, 1e4) == k0
+
+
+def test_predicted_step_follows_an_error_constant_changing_geometrically():
+    """On eps_n = C_n k_n^P with C_(n+1) / C_n constant (a step that must keep shrinking),
+    Gustafsson's step from two accepted steps gives eps = safety^P exactly."""
+    order, safety, growth = 4.0, 0.9, 2.0
+
+    def eps(n, k):
+        return 1e6 * growth**n * k**order
+
+    k_prev, k = 0.03, 0.025
+    for n in range(1, 6):
+        k_new = predicted_step(k, eps(n, k), k_prev, eps(n - 1, k_prev), order, safety)
+        assert eps(n + 1, k_new) == pytest.approx(safety**order, rel=1e-12)
+        k_prev, k = k, k_new
+
+
+def test_accepted_step_follows_a_shrinking_step_without_rejections():
+    """The model above from an accepted step: the PI step alone (next_step) lags and every
+    other step is rejected (VDPOL with dG(3) at 1e-6 approaching its fast transitions: 56
+    of its 62 rejections); the mono-adaptive dG(q) rule (accepted_step) rejects none. On
+    growing steps it is the PI step."""
+    order, safety, growth = 4.0, 0.9, 2.0
+
+    def rejections(rule):
+        n, k, k_prev, eps_prev, count = 0, 0.02, 0.0, 0.5, 0
+        while n < 40:
+            eps = 1e6 * growth**n * k**order
+            if eps > 1.0:
+                count, k = count + 1, next_step(k, eps, 1.0, order, safety, False)
+                continue
+            n, k_prev, eps_prev, k = n + 1, k, eps, rule(k, eps, k_prev, eps_prev)
+        return count
+
+    assert rejections(lambda k, eps, k_prev, eps_prev:
+                      next_step(k, eps, eps_prev, order, safety, True)) >= 15
+    assert rejections(lambda k, eps, k_prev, eps_prev:
+                      accepted_step(k, eps, k_prev, eps_prev, order, safety)) == 0
+    for k_prev in (0.0, 0.5):  # none before, or a shorter one
+        assert accepted_step(1.0, 0.3, k_prev, 0.01, order, safety) == next_step(
+            1.0, 0.3, 0.01, order, safety, True)
+
+
+def test_vdpol_rejects_few_slabs():
+    """VDPOL with dG(3) at 1e-6 approaches its fast transitions without alternating
+    accepted and rejected slabs (62 rejected besides 256 accepted with the PI step alone),
+    at the same accuracy (7.6 digits)."""
+    problem = problems.vdpol()
+    options = {"method": "dG(3)", "tolerance": 1e-6,
+               "absolute_tolerance": problem.atol_ratio * 1e-6}
+    sol = dn.solve(problem.ode, **options)
+    assert sol.stats["rejected steps"] <= 15
+    assert problems.mescd(sol(problem.T), problem.final, problem.atol_ratio) > 7.0
+    for _ in range(2):  # the third call takes the prepared path: the controller starts afresh
+        again = dn.solve(problem.ode, **options)
+    np.testing.assert_array_equal(again.time_steps()[1], sol.time_steps()[1])
 
 
 @pytest.mark.parametrize("problem", [problems.hires_problem(), problems.brusselator(20)],

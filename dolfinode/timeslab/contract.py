@@ -44,6 +44,7 @@ State (kept by the driver across calls, and saved/restored by the piecewise driv
 t                  the current time
 k_next             mono: the next step
 eps_prev           mono: the last accepted error estimate (PI controller)
+k_accepted         mono: the last accepted step (predictive controller; 0: none yet)
 have_f0            mono: f(x, t) is in the f0 argument
 fp_step            mono: the last step fixed-point iteration converged on (0: none)
 fp_iterations      mono: running mean of fixed-point iterations per slab
@@ -76,6 +77,7 @@ STATE = np.dtype([
     ("fp_step", np.float64), ("fp_iterations", np.float64), ("newton_cost", np.float64),
     ("k_newton", np.float64), ("mono_elements", np.float64), ("deviation", np.float64),
     ("last_deviation", np.float64), ("deviation_error", np.float64), ("deviated", np.int64),
+    ("k_accepted", np.float64),
     ("have_f0", np.bool_)], align=True)
 
 #: Their numba types, for the loops' signatures.

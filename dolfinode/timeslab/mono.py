@@ -11,7 +11,13 @@ from functools import cache
 import numpy as np
 from numba import njit, types
 
-from dolfinode.adaptivity import filter_estimate, next_step, stiff_deviation, stiff_factor
+from dolfinode.adaptivity import (
+    accepted_step,
+    filter_estimate,
+    next_step,
+    stiff_deviation,
+    stiff_factor,
+)
 from dolfinode.compile.jit import Loop
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
 from dolfinode.linalg.newton_matrix import shift, store_jacobian
@@ -496,7 +502,13 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             for i in range(N):
                 x[i] = X[end + i]
                 f0[i] = fend[i]
-            k_new = k if fixed else next_step(k, eps, st.eps_prev, order, safety, True)
+            if fixed:
+                k_new = k
+            elif is_dg:
+                k_new = accepted_step(k, eps, st.k_accepted, st.eps_prev, order, safety)
+            else:
+                k_new = next_step(k, eps, st.eps_prev, order, safety, True)
+            st.k_accepted = k
             k_accuracy = k_new
             if use_newton and mode == DEFAULT:
                 cost = ((counters[ITERATIONS] - iterations_before) * o.newton_units

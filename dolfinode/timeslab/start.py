@@ -75,7 +75,7 @@ def _start(rhs, p, t0, atol, rtol, guess, x, f0, steps, options, state, counters
     st.eps_prev = 1.0 if mono else 0.0
     st.have_f0 = mono
     st.fp_iterations = FIXED_POINT_ITERATIONS if mono else 0.0
-    st.fp_step = st.newton_cost = st.k_newton = st.mono_elements = 0.0
+    st.fp_step = st.newton_cost = st.k_newton = st.mono_elements = st.k_accepted = 0.0
     st.deviation = st.last_deviation = 0.0
     return READY
 
