@@ -649,9 +649,10 @@ class MultiPieces(_Pieces):
 
     def view(self, chunk):
         """The chunk as a Solution, the frozen components as constants since they froze."""
+        from dolfinode.io.history import as_elements
         from dolfinode.solution import Solution
 
-        comp, a, b, values = chunk
+        comp, a, b, values = as_elements(chunk, self.ode.N)
         frozen = np.flatnonzero(~np.isnan(self.frozen))
         begin = float(self.saved[0]["t"][0])
         times = b[np.isin(comp, self.components)] if self.components else b

@@ -15,7 +15,10 @@ and, at the end, asks the sink for the :class:`~dolfinode.Solution`. The paramet
 A chunk is ``[t_start (n,), k (n,), values (n, q + 1, N)]`` from a mono-adaptive loop (a
 shared partition) and ``[comp (n,), t_start (n,), t_end (n,), values (n, q + 1)]`` from a
 multi-adaptive one, each element covering (t_start, t_end] (the value at a shared end point is
-the left element's, as :class:`~dolfinode.Solution` returns).
+the left element's, as :class:`~dolfinode.Solution` returns). There a synchronised slab (every
+component on one interval) takes N rows with comp = :data:`~dolfinode.timeslab.SHARED`, its
+interval on the first, their values the slab's block (q + 1, N) row-major: the loop writes it
+as one block and the join copies it as one (:func:`as_elements` spells it out by element).
 """
 import ctypes
 import ctypes.util
@@ -35,6 +38,7 @@ from dolfinode.solution import (
     equispaced,
     join_elements,
 )
+from dolfinode.timeslab import SHARED
 
 #: A dense history is checked against the available memory once it holds this many bytes
 #: (reading /proc for every chunk of a small solve would cost more than it guards).
@@ -72,9 +76,9 @@ class InMemory:
     Multi-adaptive chunks are joined grouped by component (a counting sort as they are
     copied), so that the Solution is built without a global sort: the join peaks at the
     history plus one chunk, the Solution at 1.2 x the history (a lexsort with reordered
-    copies peaked at 2.35 x). A synchronised slab (N elements, components 0..N-1 in order on
-    one interval, as the loop stores a slab it solved as one mono-adaptive slab) is kept as
-    one shared slab, its values (q + 1, N) (a :class:`~dolfinode.solution.MixedSolution`).
+    copies peaked at 2.35 x). A synchronised slab (the loop's block of N rows, see above) is
+    kept as one shared slab, its values (q + 1, N) (a
+    :class:`~dolfinode.solution.MixedSolution`).
     """
 
     def __init__(self, ode, multi_adaptive, samples):
@@ -93,7 +97,7 @@ class InMemory:
         self.chunks.append(chunk)
         if self.multi_adaptive:
             starts = np.empty(len(chunk[0]) // self.ode.N + 1, dtype=np.int64)
-            found = _find_slabs(*chunk[:3], self.per_component, self.elements_left, starts)
+            found = _find_slabs(chunk[0], self.per_component, self.elements_left, starts)
             self.slab_starts.append(starts[:found])
         size = sum(part.nbytes if part.base is None else part.base.nbytes for part in chunk)
         self.bytes += size
@@ -212,22 +216,33 @@ def _in_time_order(ptr, t_start):
     return True
 
 
+def as_elements(chunk, N):
+    """The multi-adaptive ``chunk`` with one element per row: its synchronised slabs' blocks
+    spelt out as N elements (component i on the slab's interval, its values column i)."""
+    comp, t_start, t_end, values = chunk
+    starts = np.flatnonzero(comp == SHARED)[::N]  # (a slab's N rows are all SHARED)
+    if starts.size == 0:
+        return chunk
+    rows = (starts[:, None] + np.arange(N)).ravel()
+    comp, t_start, t_end, values = (part.copy() for part in chunk)
+    comp[rows] = np.tile(np.arange(N), starts.size)
+    t_start[rows] = np.repeat(t_start[starts], N)
+    t_end[rows] = np.repeat(t_end[starts], N)
+    nn = values.shape[1]
+    values[rows] = values[rows].reshape(starts.size, nn, N).transpose(0, 2, 1).reshape(-1, nn)
+    return [comp, t_start, t_end, values]
+
+
 @njit(cache=True)
-def _find_slabs(comp, t_start, t_end, per_component, elements_left, starts):
-    """Find a chunk's synchronised slabs: runs of N elements of components 0..N-1 in order on
-    one interval; their first elements go to ``starts`` (returns how many). Counts every
-    element in ``per_component`` and those outside the slabs in ``elements_left``. (A single
-    component's elements are all kept as elements: nothing to share.)"""
+def _find_slabs(comp, per_component, elements_left, starts):
+    """Find a chunk's synchronised slabs (blocks of N rows marked SHARED); their first rows
+    go to ``starts`` (returns how many). Counts every element in ``per_component`` and those
+    outside the slabs in ``elements_left``."""
     N = per_component.shape[0]
     found = 0
     e = 0
     while e < comp.shape[0]:
-        run = 0
-        if N > 1 and comp[e] == 0 and e + N <= comp.shape[0]:
-            while (run < N and comp[e + run] == run and t_start[e + run] == t_start[e]
-                   and t_end[e + run] == t_end[e]):
-                run += 1
-        if run == N:
+        if comp[e] == SHARED:
             starts[found] = e
             found += 1
             for i in range(N):
@@ -245,17 +260,16 @@ def _scatter_by_component(comp, t_start, t_end, values, starts, cursor, out_star
                           out_values, s_start, s_end, s_values):
     """Copy a chunk's elements to their component's next free places (``cursor[i]``): a
     stable counting sort by component; the synchronised slabs starting at ``starts`` to the
-    next shared slab (``cursor[-1]``), values transposed to (q + 1, N)."""
+    next shared slab (``cursor[-1]``), their blocks (q + 1, N) as they are."""
     N = cursor.shape[0] - 1
+    nn = values.shape[1]
     e = 0
     j = 0
     while e < comp.shape[0]:
         if j < starts.shape[0] and starts[j] == e:
             n = cursor[N]
             s_start[n], s_end[n] = t_start[e], t_end[e]
-            for m in range(values.shape[1]):
-                for i in range(N):
-                    s_values[n, m, i] = values[e + i, m]
+            s_values[n] = values[e:e + N].reshape((nn, N))
             cursor[N] = n + 1
             j += 1
             e += N
@@ -272,13 +286,25 @@ def _scatter_by_component(comp, t_start, t_end, values, starts, cursor, out_star
 
 @njit(cache=True)
 def _sample_elements(comp, t_start, t_end, values, nodes, bary, times, out):
-    """out[comp[e], m] = U(times[m]) for the times in (t_start[e], t_end[e]] of each element."""
-    for e in range(comp.shape[0]):
+    """out[comp[e], m] = U(times[m]) for the times in (t_start[e], t_end[e]] of each element
+    (of every component on a synchronised slab, by the same arithmetic)."""
+    N, nn = out.shape[0], values.shape[1]
+    e = 0
+    while e < comp.shape[0]:
         first = np.searchsorted(times, t_start[e], side="right")
         last = np.searchsorted(times, t_end[e], side="right")
+        if comp[e] != SHARED:
+            for m in range(first, last):
+                tau = (times[m] - t_start[e]) / (t_end[e] - t_start[e])
+                out[comp[e], m] = element_value(values, e, tau, nodes, bary)
+            e += 1
+            continue
+        by_component = values[e:e + N].reshape((nn, N)).T
         for m in range(first, last):
             tau = (times[m] - t_start[e]) / (t_end[e] - t_start[e])
-            out[comp[e], m] = element_value(values, e, tau, nodes, bary)
+            for i in range(N):
+                out[i, m] = element_value(by_component, i, tau, nodes, bary)
+        e += N
 
 
 @njit(cache=True)
@@ -304,17 +330,15 @@ class Samples:
         self.y.fill(np.nan)
         _set_initial(times, ode.t0, ode.u0, self.y)  # U(t0) = u0, as Solution's
         self.per_component = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
-        # (multi-adaptive) the elements outside synchronised slabs, per component, and
-        # where each chunk's synchronised slabs start
+        # (multi-adaptive, counted by _find_slabs) the elements outside synchronised slabs
         self.elements_left = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
-        self.slab_starts = []
 
     def add(self, chunk, t):
         nodes, bary = self.method.nodes, self.method.barycentric_weights
         if self.multi_adaptive:
-            comp, t_start, t_end, values = chunk
-            self.per_component += np.bincount(comp, minlength=self.ode.N)
-            _sample_elements(comp, t_start, t_end, values, nodes, bary, self.times, self.y)
+            _find_slabs(chunk[0], self.per_component, self.elements_left,
+                        np.empty(len(chunk[0]) // self.ode.N + 1, dtype=np.int64))
+            _sample_elements(*chunk, nodes, bary, self.times, self.y)
             return
         _sample_shared(*chunk, nodes, bary, self.times, self.y)
 

@@ -92,6 +92,7 @@ _BUILD = textwrap.dedent("""
     import dolfinode as dn
     from dolfinode.io import history
     from dolfinode.problems import mass_spring_chain
+    from dolfinode.timeslab import SHARED
 
     def rss(field):
         with open("/proc/self/status") as status:
@@ -99,9 +100,9 @@ _BUILD = textwrap.dedent("""
 
     def stored_history(ode, slabs, per_chunk):
         sink = history.InMemory(ode, True, 11)
-        for first in range(0, slabs, per_chunk):  # each slab: one element per component
+        for first in range(0, slabs, per_chunk):  # each slab: a block of N rows, as the loop's
             starts = np.repeat(np.arange(first, first + per_chunk) * 1e-3, ode.N)
-            comp = np.tile(np.arange(ode.N, dtype=np.int64), per_chunk)
+            comp = np.full(starts.size, SHARED)
             sink.add([comp, starts, starts + 1e-3, np.ones((comp.size, 2))], starts[-1])
         return sink
 
@@ -182,15 +183,6 @@ def test_a_dense_solve_that_would_not_fit_stops_naming_dense_output(run_python):
     assert "dense_output=False" in message and "RLIMIT_AS" in message
 
 
-@pytest.fixture(scope="module")
-def stiff_springs():
-    """40 masses, two springs 1e4 times stiffer: some slabs synchronised (every component on
-    one interval), the others partitioned."""
-    from dolfinode.bench.problems import mass_spring_chain as chain_with_stiff_springs
-
-    return chain_with_stiff_springs(n=40, stiffness=1e4, stiff_springs=2, T=0.1).ode
-
-
 @pytest.mark.parametrize("method", ["mcG(1)", "mdG(1)", "mcG(2)"])
 def test_synchronised_slabs_are_kept_as_shared_slabs(stiff_springs, method, monkeypatch):
     """A mixed history (shared slabs and elements) holds the elements the loop stored: its
@@ -213,8 +205,9 @@ def test_synchronised_slabs_are_kept_as_shared_slabs(stiff_springs, method, monk
     assert 0 < synchronised < slabs
     shared = sol._parts[4:]
     assert len(shared[0]) >= synchronised  # (a partitioned slab may put all on one step)
-    grouped = Solution.multi_adaptive(ode, sol.method, *map(np.concatenate, zip(*chunks)), {},
-                                     sol.t)
+    elements = [history.as_elements(chunk, ode.N) for chunk in chunks]
+    grouped = Solution.multi_adaptive(ode, sol.method, *map(np.concatenate, zip(*elements)),
+                                     {}, sol.t)
     rng = np.random.default_rng(5)
     inner = rng.uniform(0.0, 0.1, 400)
     times = np.concatenate([[0.0, 0.1], *shared[:2], grouped.t_start, grouped._t_end, inner,
@@ -238,39 +231,26 @@ def test_synchronised_slabs_are_kept_as_shared_slabs(stiff_springs, method, monk
                                   np.diff(grouped.elements()[0]))
 
 
-def test_shared_slabs_are_found_only_where_every_component_shares_one_interval():
-    """Runs of components 0..N-1 on one interval are slabs; a run with one component off the
-    interval, out of order or cut by the chunk's end stays elements."""
-    from dolfinode.io.history import _find_slabs
-
-    N = 3
-    comp = np.array([0, 1, 2, 0, 1, 2, 0, 2, 1, 2, 0, 1, 2, 0, 1])
-    a = np.array([0, 0, 0, 1, 1, 1, 2, 2, 2, 3, 4, 4, 4, 5, 5], dtype=float)
-    b = a + 1.0
-    b[4] = 1.5  # component 1 of the second run on another interval
-    per_component, left = np.zeros(N, np.int64), np.zeros(N, np.int64)
-    starts = np.empty(6, np.int64)
-    found = _find_slabs(comp, a, b, per_component, left, starts)
-    np.testing.assert_array_equal(starts[:found], [0, 10])
-    np.testing.assert_array_equal(per_component, np.bincount(comp))
-    np.testing.assert_array_equal(left, np.bincount(comp) - 2)
-
-
 def test_a_chunk_of_elements_then_slabs_is_joined_in_place():
     """Elements of single components, then a slab, then an element, then a slab, in one
-    chunk (as the loop hands over partitioned and synchronised slabs): each element lands at
-    its component's place and each slab, transposed, at the next shared slab."""
-    from dolfinode.io.history import _find_slabs, _scatter_by_component
+    chunk (as the loop hands over partitioned and synchronised slabs, a slab's N rows marked
+    SHARED, its values the block (q + 1, N)): each element lands at its component's place
+    and each slab's block at the next shared slab; spelt out by element, the slabs are
+    their components' elements."""
+    from dolfinode.io.history import _find_slabs, _scatter_by_component, as_elements
+    from dolfinode.timeslab import SHARED
 
     N = 2
-    comp = np.array([0, 1, 0, 0, 1, 1, 0, 1])
-    a = np.array([0.0, 0.0, 0.5, 1.0, 1.0, 2.0, 2.5, 2.5])
-    b = np.array([0.5, 1.0, 1.0, 2.0, 2.0, 2.5, 3.0, 3.0])
+    comp = np.array([0, 1, 0, SHARED, SHARED, 1, SHARED, SHARED])
+    a = np.array([0.0, 0.0, 0.5, 1.0, np.nan, 2.0, 2.5, np.nan])
+    b = np.array([0.5, 1.0, 1.0, 2.0, np.nan, 2.5, 3.0, np.nan])
     values = np.arange(16.0).reshape(8, 2)
     per_component, left = np.zeros(N, np.int64), np.zeros(N, np.int64)
     starts = np.empty(5, np.int64)
-    found = _find_slabs(comp, a, b, per_component, left, starts)
+    found = _find_slabs(comp, per_component, left, starts)
     np.testing.assert_array_equal(starts[:found], [3, 6])
+    np.testing.assert_array_equal(per_component, [4, 4])
+    np.testing.assert_array_equal(left, [2, 2])
     ptr = np.concatenate([[0], np.cumsum(left)])
     cursor = np.append(ptr[:-1], 0)
     out = np.empty(ptr[-1]), np.empty(ptr[-1]), np.empty((ptr[-1], 2))
@@ -280,8 +260,15 @@ def test_a_chunk_of_elements_then_slabs_is_joined_in_place():
     np.testing.assert_array_equal(out[0], a[elements])
     np.testing.assert_array_equal(out[2], values[elements])
     np.testing.assert_array_equal(shared[0], [1.0, 2.5])
-    np.testing.assert_array_equal(shared[2][0], values[3:5].T)
-    np.testing.assert_array_equal(shared[2][1], values[6:8].T)
+    np.testing.assert_array_equal(shared[2][0], values[3:5].reshape(2, N))
+    np.testing.assert_array_equal(shared[2][1], values[6:8].reshape(2, N))
+    spelt = as_elements([comp, a, b, values], N)
+    np.testing.assert_array_equal(spelt[0], [0, 1, 0, 0, 1, 1, 0, 1])
+    np.testing.assert_array_equal(spelt[1], [0.0, 0.0, 0.5, 1.0, 1.0, 2.0, 2.5, 2.5])
+    np.testing.assert_array_equal(spelt[2], [0.5, 1.0, 1.0, 2.0, 2.0, 2.5, 3.0, 3.0])
+    np.testing.assert_array_equal(spelt[3][3:5], [[6.0, 8.0], [7.0, 9.0]])
+    np.testing.assert_array_equal(spelt[3][6:8], [[12.0, 14.0], [13.0, 15.0]])
+    np.testing.assert_array_equal(spelt[3][[0, 1, 2, 5]], values[[0, 1, 2, 5]])
 
 
 def test_a_mixed_history_out_of_time_order_is_sorted():
@@ -289,13 +276,14 @@ def test_a_mixed_history_out_of_time_order_is_sorted():
     solution: they are sorted as elements."""
     from dolfinode.io import history
     from dolfinode.solution import MixedSolution
+    from dolfinode.timeslab import SHARED
 
     ode = dn.ODE({sp.Symbol("a"): 1.0, sp.Symbol("b"): 2.0}, u0=[0.0, 0.0], T=2.0)
     method = dn.parse_method("mcG(1)")[1]
     sink = history.InMemory(ode, True, 5)
-    for start in (1.0, 0.0):  # U_a = t, U_b = 2 t on two slabs
-        sink.add([np.array([0, 1]), np.full(2, start), np.full(2, start + 1.0),
-                  np.array([[start, start + 1.0], [2 * start, 2 * start + 2.0]])], 2.0)
+    for start in (1.0, 0.0):  # U_a = t, U_b = 2 t on two slabs, blocks (q + 1, N)
+        sink.add([np.full(2, SHARED), np.full(2, start), np.full(2, start + 1.0),
+                  np.array([[start, 2 * start], [start + 1.0, 2 * start + 2.0]])], 2.0)
     sol = sink.solution(ode, method, sink.finish(True), {}, None)
     assert not isinstance(sol, MixedSolution)
     np.testing.assert_allclose(sol([0.5, 1.0, 1.5]), [[0.5, 1.0, 1.5], [1.0, 2.0, 3.0]])

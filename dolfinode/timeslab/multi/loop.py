@@ -35,6 +35,7 @@ from dolfinode.timeslab import (
     NEWTON,
     NONCONVERGENCE,
     ROUNDING,
+    SHARED,
     UNDERFLOW,
     smallest_step,
 )
@@ -145,6 +146,25 @@ def _store_slab(ne, comp, ea, eb, values, counters, out_comp, out_a, out_b, out_
     for e in range(ne):
         kmin = min(kmin, eb[e] - ea[e])
     return kmin
+
+
+@helper(**NO_REFCOUNT)
+def _store_shared(N, t, b, values, counters, out_comp, out_a, out_b, out_flat):
+    """Append a synchronised slab (element i < N: component i on [t, b]) as one block: its
+    N rows marked SHARED, [t, b] on the first, their values the block (q + 1, N) (row-major
+    in ``out_flat``, the values buffer flattened), the layout of a shared partition."""
+    nn = values.shape[1]
+    n0 = counters[STORED]
+    for r in range(N):
+        out_comp[n0 + r] = SHARED
+    out_a[n0] = t
+    out_b[n0] = b
+    base = n0 * nn
+    for m in range(nn):
+        for i in range(N):
+            out_flat[base + m * N + i] = values[i, m]
+    counters[STORED] += N
+    counters[ELEMENTS] += N
 
 
 @helper(**NO_REFCOUNT)
@@ -286,6 +306,11 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     spts = np.zeros(1)
     dptr = np.zeros(1, dtype=np.int64)
     dcur = np.zeros(1, dtype=np.int64)
+    # the per-component index arrays of a synchronised slab (``component_elements`` of
+    # comp[e] = e): element i is component i's only one
+    ident = np.arange(N + 1)
+    no_prev = np.full(N, -1, dtype=np.int64)
+    out_flat = out_values.reshape(out_values.size)
     counters[STORED] = 0
     capacity = out_a.shape[0]
     t = st.t
@@ -310,6 +335,8 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, active[:nactive],
                                                               0.0 if sync else theta, beta,
                                                               kslab, comp, ea, eb, windows)
+        # every component on one element of [t, b], in order (comp[e] = e): the fused path
+        fused = nsub == 1 and nfrozen == 0 and not o.unfused
         # the Jacobian at the slab start: its diagonal damps the element updates, its
         # couplings propagate small steps, and it is the Newton matrix of coupled sub-slabs.
         # A slab solved synchronised needs it only for the steps (ties, grading, drift):
@@ -330,11 +357,11 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             resid = np.empty(values.shape[0])
             unfiltered = np.empty(values.shape[0])
             computed = np.empty(values.shape[0], dtype=np.int64)
-        computed[:ne] = -1
-        changed[:] = 0
-        clock[0] = 0
-        cptr, celems, prev = component_elements(comp, ne, N)
-        largest = _largest_sub_slab(ne, ea, eb)
+        if fused:
+            cptr, celems, prev, largest = ident, ident[:N], no_prev, N
+        else:
+            cptr, celems, prev = component_elements(comp, ne, N)
+            largest = _largest_sub_slab(ne, ea, eb)
         if largest > newton[4].shape[0]:  # (its real vector has a row per component)
             newton = group_workspace(max(n_real, 1), eigenvalues.shape[0] - n_real, S,
                                      largest, band_width)
@@ -365,6 +392,9 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         converged = solved
         last_it = -1
         if not solved:
+            computed[:ne] = -1
+            changed[:] = 0
+            clock[0] = 0
             # the moments' breakpoints and dependency cursors
             sptr, spts, dptr, dcur = dependency_structure(ne, comp, indptr, indices, cptr,
                                                           celems, ea, eb)
@@ -457,8 +487,12 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             continue
         retry = False
         project(ne, comp, values, floor, projected)
-        kmin = _store_slab(ne, comp, ea, eb, values, counters, out_comp, out_a, out_b,
-                           out_values)
+        if fused and N > 1:  # (one component: its elements, nothing to share)
+            _store_shared(N, t, b, values, counters, out_comp, out_a, out_b, out_flat)
+            kmin = b - t
+        else:
+            kmin = _store_slab(ne, comp, ea, eb, values, counters, out_comp, out_a, out_b,
+                               out_values)
         st.mono_elements += (b - t) / kmin * N
         st.deviation = max(st.deviation, deviation)  # (adaptivity.undamped_warning)
         st.last_deviation, st.deviated, st.deviation_error = deviation, deviated, deviated_eps
