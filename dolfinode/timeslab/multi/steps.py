@@ -101,6 +101,16 @@ def power(x, order):
     return x**order
 
 
+@helper(inline="always")
+def inverse_root(x, order):
+    """x^(-1/order), by a square root for the order 2 (mcG(1), mdG(1)): the step control's
+    root runs per component and slab, where a pow call took about 55 of an adaptive mcG(1)
+    element's 300 cycles. (1 / sqrt(x) may differ from x**-0.5 in the last bit.)"""
+    if order == 2.0:
+        return 1.0 / math.sqrt(x)
+    return x ** (-1.0 / order)
+
+
 @helper(**NO_REFCOUNT)
 def slab_limit(kslab, kmax, K, converged, nwin, cost, climb):
     """The next slab length limit. A slab with windows costs its top-level elements about
