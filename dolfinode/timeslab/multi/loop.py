@@ -311,6 +311,10 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     ident = np.arange(N + 1)
     no_prev = np.full(N, -1, dtype=np.int64)
     out_flat = out_values.reshape(out_values.size)
+    # whether a component is declared nonnegative (floor > -inf): else no domain checks
+    bounded = False
+    for i in range(N):
+        bounded = bounded or floor[i] > -math.inf
     counters[STORED] = 0
     capacity = out_a.shape[0]
     t = st.t
@@ -461,7 +465,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         if not fixed:
             accept = choose_steps(active, nactive, checked, nchecked, emax, kact, kdes, frozen,
                                   solved, o.order, o.safety, kmax)
-        outside = leaves_domain(ne, comp, values, floor, kdes, kact)
+        outside = leaves_domain(ne, comp, values, floor, kdes, kact) if bounded else -1
         if outside >= 0:
             counters[OUTSIDE] = outside + 1
             if fixed:
@@ -486,7 +490,8 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             retry = True
             continue
         retry = False
-        project(ne, comp, values, floor, projected)
+        if bounded:
+            project(ne, comp, values, floor, projected)
         if fused and N > 1:  # (one component: its elements, nothing to share)
             _store_shared(N, t, b, values, counters, out_comp, out_a, out_b, out_flat)
             kmin = b - t
@@ -506,8 +511,10 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             f0_time = b
             for i in range(N):
                 f0[i] = fvec[i]
-        leaving, any_projected = drives_out(active, nactive, projected, x, fi, p, b, T, floor,
-                                            out, counters)
+        leaving, any_projected = -1, False
+        if bounded:
+            leaving, any_projected = drives_out(active, nactive, projected, x, fi, p, b, T,
+                                                floor, out, counters)
         if any_projected:
             f0_time = math.nan
         if leaving >= 0:

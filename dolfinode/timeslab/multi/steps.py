@@ -78,10 +78,12 @@ def grade(kdes, rows, frozen, indptr, indices, jacobian):
                 j = indices[nz]
                 if j == i or jacobian[nz] == 0.0 or not math.isnan(frozen[j]):
                     continue
-                cap = max(GRADING * kdes[j], 1.0 / abs(jacobian[nz]))
-                if kdes[i] > cap:
-                    kdes[i] = cap
-                    moved = True
+                # (k_i > max(a, b) iff k_i > a and k_i > b: the division only when needed)
+                if kdes[i] > GRADING * kdes[j]:
+                    cap = max(GRADING * kdes[j], 1.0 / abs(jacobian[nz]))
+                    if kdes[i] > cap:
+                        kdes[i] = cap
+                        moved = True
         if not moved:
             return
 
