@@ -70,7 +70,12 @@ from dolfinode.timeslab.multi.slab import (
 )
 from dolfinode.timeslab.multi.steps import grade, propagate, slab_limit
 from dolfinode.timeslab.multi.sweeps import guess_from
-from dolfinode.timeslab.partition import build_slab, component_elements, dependency_structure
+from dolfinode.timeslab.partition import (
+    build_slab,
+    component_elements,
+    dependency_structure,
+    one_group_end,
+)
 
 #: Accepted slabs after a rejection during which the slab length limit does not grow.
 REJECTION_HOLD = 4
@@ -146,6 +151,15 @@ def _store_slab(ne, comp, ea, eb, values, counters, out_comp, out_a, out_b, out_
     for e in range(ne):
         kmin = min(kmin, eb[e] - ea[e])
     return kmin
+
+
+@helper(**NO_REFCOUNT)
+def _fill_synchronised(N, t, b, comp, ea, eb):
+    """The elements of a synchronised slab: component e on [t, b] (as ``build_slab``)."""
+    for e in range(N):
+        comp[e] = e
+        ea[e] = t
+        eb[e] = b
 
 
 @helper(**NO_REFCOUNT)
@@ -336,11 +350,22 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         sync = (not fixed and not stiff and nfrozen == 0 and kmin < sync_fail
                 and nactive <= (2.0 if solved else 1.0) * SYNCHRONISE * kmin * rate)
         # (threshold 0: one group, on the smallest step)
-        b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, active[:nactive],
-                                                              0.0 if sync else theta, beta,
-                                                              kslab, comp, ea, eb, windows)
-        # every component on one element of [t, b], in order (comp[e] = e): the fused path
-        fused = nsub == 1 and nfrozen == 0 and not o.unfused
+        threshold = 0.0 if sync else theta
+        # every component on one element of [t, b], in order (comp[e] = e): the fused path,
+        # whose slab is known from kcap and kmin
+        b = math.nan
+        if nfrozen == 0 and not o.unfused:
+            b = one_group_end(t, T, kcap, kmin, threshold, beta, kslab)
+        fused = not math.isnan(b)
+        if fused:
+            ne, nsub, nwin = N, 1, 0
+            _fill_synchronised(N, t, b, comp, ea, eb)
+        else:
+            b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, active[:nactive],
+                                                                  threshold, beta, kslab,
+                                                                  comp, ea, eb, windows)
+            # (a partition may still put every component on one step)
+            fused = nsub == 1 and nfrozen == 0 and not o.unfused
         # the Jacobian at the slab start: its diagonal damps the element updates, its
         # couplings propagate small steps, and it is the Newton matrix of coupled sub-slabs.
         # A slab solved synchronised needs it only for the steps (ties, grading, drift):
