@@ -485,7 +485,7 @@ def march(plan, loop, t0, T):
             for status, chunk in loop.chunks(end):
                 if status not in (loop.DONE, loop.FULL):
                     return status, elements, loop.t()
-                if len(chunk[0]) == 0:
+                if not any(len(part) for part in chunk):  # (multi: elements or blocks)
                     continue
                 sol, *samples = loop.view(chunk)
                 a, b, which, after = plan.detector.brackets(*samples)

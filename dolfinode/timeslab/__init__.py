@@ -21,6 +21,7 @@ from dolfinode.counters import (  # noqa: F401
     SLABS,
     STIFF,
     STORED,
+    STORED_BLOCKS,
     SUBSLABS,
     SYNCHRONISED,
 )
@@ -30,10 +31,6 @@ from dolfinode.counters import (  # noqa: F401
 # CONSTRAINT: a component declared nonnegative fell below its floor however short the step, or
 # the right-hand side drives it below zero from zero).
 DONE, FULL, NONCONVERGENCE, BLOWUP, UNDERFLOW, NEWTON_NEEDED, CONSTRAINT = range(7)
-#: The component of the rows of a multi-adaptive loop's output that hold a synchronised slab
-#: (every component on one interval): its N rows, the interval on the first, their values
-#: the slab's (q + 1, N) block (:mod:`dolfinode.io.history`).
-SHARED = -1
 # Nonlinear solver modes, in the order of parameters.NONLINEAR_SOLVERS.
 DEFAULT, FIXED_POINT, NEWTON = range(3)
 #: Relative size of the smallest increment an iteration still resolves (about 50 ulp).

@@ -408,3 +408,25 @@ def test_the_fused_path_changes_no_bit(stiff_springs, method, dense_output, requ
             np.testing.assert_array_equal(mine, theirs)
         times = np.random.default_rng(2).uniform(0.0, ode.T, 300)
         np.testing.assert_array_equal(fused(times), plain(times))
+
+
+def test_blocks_over_several_chunks(monkeypatch):
+    """With output buffers of 64 blocks the uniform chain's history arrives in several chunks
+    of blocks: the dense solution holds every block as a shared slab, each component's
+    elements in time order, and its samples are those of dense_output=False."""
+    import sys
+
+    for module in (sys.modules["dolfinode.solve"], sys.modules["dolfinode.solver"]):
+        monkeypatch.setattr(module, "_multi_capacity", lambda ode, m: 64 * ode.N)
+    ode, _ = problems.mass_spring_chain(12, T=4.0)
+    sol = dn.solve(ode, method="mcG(1)", tolerance=1e-5, number_of_samples=50)
+    slabs = sol.stats["time slabs"]
+    assert slabs > 2 * 64 and _shared_slabs(sol) == slabs
+    ptr, a, b, _ = sol.elements()
+    for i in (0, ode.N - 1):
+        mine = slice(ptr[i], ptr[i + 1])
+        assert np.all(b[mine][:-1] == a[mine][1:]) and b[mine][-1] == ode.T
+    sampled = dn.solve(ode, method="mcG(1)", tolerance=1e-5, number_of_samples=50,
+                       dense_output=False)
+    np.testing.assert_array_equal(sampled.y, sol.y)
+

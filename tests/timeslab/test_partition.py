@@ -58,7 +58,7 @@ def test_one_group_end_is_build_slabs_end_when_it_makes_one_group():
         a, T = rng.uniform(0, 1), 2.0
         theta, beta = rng.choice([0.0, 0.5, 0.99]), rng.choice([0.5, 0.9])
         kslab = rng.choice([np.inf, rng.uniform(0.01, 1.0)])
-        b, ne, nsub, _, comp, ea, eb, windows = build_slab(a, T, kdes, np.arange(n), theta, beta,
+        b, _, nsub, _, comp, ea, eb, windows = build_slab(a, T, kdes, np.arange(n), theta, beta,
                                                            kslab, comp, ea, eb, windows)
         kmin = np.minimum(kdes, T - a).min()
         end = one_group_end(a, T, kdes.max(), kmin, theta, beta, kslab)

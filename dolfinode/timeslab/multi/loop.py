@@ -21,6 +21,7 @@ from dolfinode.counters import (
     SLABS,
     STIFF,
     STORED,
+    STORED_BLOCKS,
     SUBSLABS,
     SYNCHRONISED,
 )
@@ -35,7 +36,6 @@ from dolfinode.timeslab import (
     NEWTON,
     NONCONVERGENCE,
     ROUNDING,
-    SHARED,
     UNDERFLOW,
     smallest_step,
 )
@@ -108,6 +108,7 @@ _SIGNATURE = types.int64(
     OPTIONS_TYPE, _f8, _f8,                        # options, atol, floor
     _f8, _f8, _f8, STATE_TYPE, _i8,                # x, kdes, frozen, state, counters
     _i8, _f8, _f8, types.float64[:, ::1],          # out_comp, out_a, out_b, out_values
+    _f8, _f8, types.float64[:, ::1],               # out_block_a, out_block_b, out_blocks
 )
 
 
@@ -163,21 +164,18 @@ def _fill_synchronised(N, t, b, comp, ea, eb):
 
 
 @helper(**NO_REFCOUNT)
-def _store_shared(N, t, b, values, counters, out_comp, out_a, out_b, out_flat):
-    """Append a synchronised slab (element i < N: component i on [t, b]) as one block: its
-    N rows marked SHARED, [t, b] on the first, their values the block (q + 1, N) (row-major
-    in ``out_flat``, the values buffer flattened), the layout of a shared partition."""
+def _store_block(N, t, b, values, counters, out_block_a, out_block_b, out_blocks):
+    """Append a synchronised slab (element i < N: component i on [t, b]) to the block
+    buffers: [t, b] and the values as a block (q + 1, N), row-major, the layout of a
+    mono-adaptive slab."""
     nn = values.shape[1]
-    n0 = counters[STORED]
-    for r in range(N):
-        out_comp[n0 + r] = SHARED
-    out_a[n0] = t
-    out_b[n0] = b
-    base = n0 * nn
+    n = counters[STORED_BLOCKS]
+    out_block_a[n] = t
+    out_block_b[n] = b
     for m in range(nn):
         for i in range(N):
-            out_flat[base + m * N + i] = values[i, m]
-    counters[STORED] += N
+            out_blocks[n, m * N + i] = values[i, m]
+    counters[STORED_BLOCKS] += 1
     counters[ELEMENTS] += N
 
 
@@ -203,7 +201,7 @@ def _move_to_end(active, nactive, cptr, celems, ea, eb, values, fend, x, fixed, 
 def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Minv, A, b0,
              stage_nodes, transform, transform_inverse, eigenvalues, nodes, qweights, bary,
              end_derivative, options, atol, floor, x, kdes, frozen, state, counters, out_comp,
-             out_a, out_b, out_values):
+             out_a, out_b, out_values, out_block_a, out_block_b, out_blocks):
     """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status.
     ``frozen[i]`` is the time since which component i is frozen (NaN: active). A slab on
     which a value leaves the declared domain is rejected (``leaves_domain``); an accepted
@@ -324,12 +322,12 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     # comp[e] = e): element i is component i's only one
     ident = np.arange(N + 1)
     no_prev = np.full(N, -1, dtype=np.int64)
-    out_flat = out_values.reshape(out_values.size)
     # whether a component is declared nonnegative (floor > -inf): else no domain checks
     bounded = False
     for i in range(N):
         bounded = bounded or floor[i] > -math.inf
     counters[STORED] = 0
+    counters[STORED_BLOCKS] = 0
     capacity = out_a.shape[0]
     t = st.t
     while True:
@@ -375,7 +373,9 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             jacobian_rows(ji, active, nactive, x, t, p, indptr, indices, jrow, jacobian, jdiag,
                           coupling, jacobian_time, counters)
             jacobian_age = 0
-        if ne + nfrozen > capacity - counters[STORED]:
+        block = fused and N > 1  # stored as a block (one component: its elements)
+        if (counters[STORED_BLOCKS] == out_block_a.shape[0] if block
+                else ne + nfrozen > capacity - counters[STORED]):
             # (room for the frozen components' elements too, stored when they wake up)
             return FULL  # with nothing stored: the driver grows the buffers
         if b - t < smallest_step(t, o.span) and b < T:
@@ -517,8 +517,8 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         retry = False
         if bounded:
             project(ne, comp, values, floor, projected)
-        if fused and N > 1:  # (one component: its elements, nothing to share)
-            _store_shared(N, t, b, values, counters, out_comp, out_a, out_b, out_flat)
+        if block:
+            _store_block(N, t, b, values, counters, out_block_a, out_block_b, out_blocks)
             kmin = b - t
         else:
             kmin = _store_slab(ne, comp, ea, eb, values, counters, out_comp, out_a, out_b,
