@@ -485,7 +485,7 @@ def march(plan, loop, t0, T):
             for status, chunk in loop.chunks(end):
                 if status not in (loop.DONE, loop.FULL):
                     return status, elements, loop.t()
-                if len(chunk[0]) == 0:
+                if not any(len(part) for part in chunk):  # (multi: elements or blocks)
                     continue
                 sol, *samples = loop.view(chunk)
                 a, b, which, after = plan.detector.brackets(*samples)
@@ -649,9 +649,10 @@ class MultiPieces(_Pieces):
 
     def view(self, chunk):
         """The chunk as a Solution, the frozen components as constants since they froze."""
+        from dolfinode.io.history import as_elements
         from dolfinode.solution import Solution
 
-        comp, a, b, values = chunk
+        comp, a, b, values = as_elements(chunk, self.ode.N)
         frozen = np.flatnonzero(~np.isnan(self.frozen))
         begin = float(self.saved[0]["t"][0])
         times = b[np.isin(comp, self.components)] if self.components else b

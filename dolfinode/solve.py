@@ -594,8 +594,7 @@ def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newto
     while True:
         buffers = make_buffers(capacity)
         status = advance(*buffers)
-        n = counters[ts.STORED]
-        chunk = [b[:n] for b in buffers]
+        chunk = history.filled(buffers, counters)
         del buffers
         if bar is not None:
             bar.update(state["t"][0] - bar.n)
@@ -604,7 +603,7 @@ def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newto
         elif status == ts.NEWTON_NEEDED and newton_ready is not None and newton_ready():
             status = ts.FULL
         elif status == ts.FULL:
-            if n == 0:
+            if counters[ts.STORED] == 0 and counters[ts.STORED_BLOCKS] == 0:
                 capacity *= 2
             if counters[ts.SLABS] >= params["maximum_steps"]:
                 status = STEP_LIMIT
@@ -796,6 +795,16 @@ def _multi_arguments(compiled, tables, options, atol, floor, x, kdes, frozen, st
             counters)
 
 
+def _multi_buffers(ode, m, capacity):
+    """The (shape, dtype)s of the multi-adaptive loop's output buffers for ``capacity``
+    elements: component, start, end and values of each element, and start, end and values
+    (q + 1, N) of the slabs stored as blocks, as many as fill as much memory."""
+    blocks = max(1, capacity // ode.N)
+    return ((capacity, np.int64), (capacity, float), (capacity, float),
+            ((capacity, m.q + 1), float), (blocks, float), (blocks, float),
+            ((blocks, (m.q + 1) * ode.N), float))
+
+
 def _multi_capacity(ode, m):
     """Elements per loop call: values at most 2^21 doubles, as mono's (from 32 MB on, each
     solve would map fresh pages)."""
@@ -824,8 +833,7 @@ def _run_multi(ode, compiled, m, params, options, atol, floor, x, f0, steps, sta
     tables, kdes, frozen = _multi_workspace(ode, compiled, m, params, options, steps)
 
     def buffers(capacity):
-        return (np.empty(capacity, dtype=np.int64), np.empty(capacity), np.empty(capacity),
-                np.empty((capacity, m.q + 1)))
+        return tuple(np.empty(shape, dtype) for shape, dtype in _multi_buffers(ode, m, capacity))
 
     arguments = _multi_arguments(compiled, tables, options, atol, floor, x, kdes, frozen, state,
                                  counters)

@@ -48,6 +48,7 @@ from dolfinode.solve import (
     _mono_capacity,
     _mono_stats,
     _multi_arguments,
+    _multi_buffers,
     _multi_capacity,
     _multi_stats,
     _multi_workspace,
@@ -132,9 +133,8 @@ class Solver:
                 and not params["automatic_modeling"]):
             m = self._method
             if self._multi_adaptive:  # (the loop's first buffers, as in _run_multi)
-                size = _multi_capacity(ode, m)
                 self._buffers = self._kept_buffers(
-                    ((size, np.int64), (size, float), (size, float), ((size, m.q + 1), float)))
+                    _multi_buffers(ode, m, _multi_capacity(ode, m)))
             elif (not sparse_candidate(compiled.band_structure)
                   or m.name in compiled.newton_plans):  # (as in _run_mono)
                 size = min(_mono_capacity(ode, m), params["maximum_steps"])
@@ -309,7 +309,7 @@ class Solver:
         _warn_undamped(work, compiled, m, params, options, state, multi_adaptive)
         if multi_adaptive:
             sink = history.InMemory(work, True, self._samples)
-            sink.add([b[:n] for b in self._buffers], float(state["t"][0]))
+            sink.add(history.filled(self._buffers, counts), float(state["t"][0]))
             stats = _completed_stats(
                 _multi_stats(counts, state["mono_elements"].item(), sink.per_component,
                              steps), counts, True, m, params, compiled.compile_time, seconds)

@@ -62,3 +62,12 @@ def run_python():
 def kill_python():
     """:func:`_kill_python`: a script killed while it writes."""
     return _kill_python
+
+
+@pytest.fixture(scope="session")
+def stiff_springs():
+    """40 masses, two springs 1e4 times stiffer: some multi-adaptive slabs synchronised
+    (every component on one interval), the others partitioned."""
+    from dolfinode.bench.problems import mass_spring_chain as chain_with_stiff_springs
+
+    return chain_with_stiff_springs(n=40, stiffness=1e4, stiff_springs=2, T=0.1).ode

@@ -13,9 +13,12 @@ and, at the end, asks the sink for the :class:`~dolfinode.Solution`. The paramet
   file, which :func:`dolfinode.load_solution` opens lazily.
 
 A chunk is ``[t_start (n,), k (n,), values (n, q + 1, N)]`` from a mono-adaptive loop (a
-shared partition) and ``[comp (n,), t_start (n,), t_end (n,), values (n, q + 1)]`` from a
-multi-adaptive one, each element covering (t_start, t_end] (the value at a shared end point is
-the left element's, as :class:`~dolfinode.Solution` returns).
+shared partition) and ``[comp (n,), t_start (n,), t_end (n,), values (n, q + 1), s_start (S,),
+s_end (S,), s_values (S, (q + 1) N)]`` from a multi-adaptive one, each element covering
+(t_start, t_end] (the value at a shared end point is the left element's, as
+:class:`~dolfinode.Solution` returns), and each slab on which every component took one element
+of one interval stored as a block, its values (q + 1, N) row-major (:func:`filled` cuts a
+chunk from the loop's buffers; :func:`as_elements` spells the blocks out by element).
 """
 import ctypes
 import ctypes.util
@@ -35,10 +38,37 @@ from dolfinode.solution import (
     equispaced,
     join_elements,
 )
+from dolfinode.timeslab import STORED, STORED_BLOCKS
 
 #: A dense history is checked against the available memory once it holds this many bytes
 #: (reading /proc for every chunk of a small solve would cost more than it guards).
 CHECK_FROM = 2**26
+
+
+def filled(buffers, counters):
+    """The chunk a loop call stored in its output ``buffers``: their first counters[STORED]
+    rows, and of a multi-adaptive loop's block buffers (its last three of seven) the first
+    counters[STORED_BLOCKS]."""
+    n = counters[STORED]
+    if len(buffers) == 7:
+        blocks = counters[STORED_BLOCKS]
+        return [b[:n] for b in buffers[:4]] + [b[:blocks] for b in buffers[4:]]
+    return [b[:n] for b in buffers]
+
+
+def as_elements(chunk, N):
+    """A multi-adaptive ``chunk`` as its elements [comp, t_start, t_end, values (n, q + 1)]:
+    each block spelt out as N elements (component i on the block's interval, its values
+    column i), after the others."""
+    comp, t_start, t_end, values, s_start, s_end, s_values = chunk
+    S, nn = s_start.size, values.shape[1]
+    if S == 0:
+        return chunk[:4]
+    return [np.concatenate([comp, np.tile(np.arange(N), S)]),
+            np.concatenate([t_start, np.repeat(s_start, N)]),
+            np.concatenate([t_end, np.repeat(s_end, N)]),
+            np.concatenate([values, s_values.reshape(S, nn, N).transpose(0, 2, 1)
+                            .reshape(S * N, nn)])]
 
 
 def sink(ode, method, multi_adaptive, params):
@@ -72,9 +102,9 @@ class InMemory:
     Multi-adaptive chunks are joined grouped by component (a counting sort as they are
     copied), so that the Solution is built without a global sort: the join peaks at the
     history plus one chunk, the Solution at 1.2 x the history (a lexsort with reordered
-    copies peaked at 2.35 x). A synchronised slab (N elements, components 0..N-1 in order on
-    one interval, as the loop stores a slab it solved as one mono-adaptive slab) is kept as
-    one shared slab, its values (q + 1, N) (a :class:`~dolfinode.solution.MixedSolution`).
+    copies peaked at 2.35 x). The blocks (slabs with every component on one interval) are
+    kept as shared slabs, their values (q + 1, N) (a
+    :class:`~dolfinode.solution.MixedSolution`).
     """
 
     def __init__(self, ode, multi_adaptive, samples):
@@ -82,20 +112,18 @@ class InMemory:
         self.chunks = []
         self.bytes = 0
         self.per_component = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
-        # (multi-adaptive) the elements outside synchronised slabs, per component, and
-        # where each chunk's synchronised slabs start
+        # (multi-adaptive) the elements outside blocks, per component
         self.elements_left = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
-        self.slab_starts = []
 
     def add(self, chunk, t):
         """Keep ``chunk`` (views of the loop's buffers, which it keeps alive); raise
         SolverError when the history reached at the time ``t`` leaves no room for more."""
         self.chunks.append(chunk)
         if self.multi_adaptive:
-            starts = np.empty(len(chunk[0]) // self.ode.N + 1, dtype=np.int64)
-            found = _find_slabs(*chunk[:3], self.per_component, self.elements_left, starts)
-            self.slab_starts.append(starts[:found])
-        size = sum(part.nbytes if part.base is None else part.base.nbytes for part in chunk)
+            _count_elements(chunk[0], len(chunk[4]), self.per_component, self.elements_left)
+        # (a buffer the loop wrote into is kept whole)
+        size = sum(part.nbytes if part.base is None else part.base.nbytes for part in chunk
+                   if len(part))
         self.bytes += size
         if self.bytes >= CHECK_FROM:
             self._check_room(2 * size, t)
@@ -134,17 +162,23 @@ class InMemory:
         N = self.ode.N
         ptr = np.zeros(N + 1, dtype=np.int64)
         np.cumsum(self.elements_left, out=ptr[1:])
-        S = sum(len(starts) for starts in self.slab_starts)
+        S = sum(len(chunk[4]) for chunk in self.chunks)
         large = self.bytes >= CHECK_FROM  # (a small join is not worth the system calls)
         empty = _small_pages if large else np.empty
-        joined = [empty((ptr[-1], *part.shape[1:]), part.dtype) for part in self.chunks[0][1:]]
-        slabs = [np.empty(S), np.empty(S), empty((S, joined[2].shape[1], N), joined[2].dtype)]
-        cursor = np.append(ptr[:-1], 0)  # (the last: the next slab)
+        joined = [empty((ptr[-1], *part.shape[1:]), part.dtype) for part in self.chunks[0][1:4]]
+        nn = joined[2].shape[1]
+        slabs = [np.empty(S), np.empty(S), empty((S, nn, N), joined[2].dtype)]
+        cursor = ptr[:-1].copy()
+        n = 0  # (the next slab)
         self.chunks.reverse()
-        self.slab_starts.reverse()
         while self.chunks:  # each chunk released once copied
-            _scatter_by_component(*self.chunks.pop(), self.slab_starts.pop(), cursor, *joined,
-                                  *slabs)
+            comp, t_start, t_end, values, s_start, s_end, s_values = self.chunks.pop()
+            _scatter_by_component(comp, t_start, t_end, values, cursor, *joined)
+            blocks = len(s_start)
+            slabs[0][n:n + blocks], slabs[1][n:n + blocks] = s_start, s_end
+            slabs[2][n:n + blocks] = s_values.reshape(blocks, nn, N)
+            n += blocks
+            del comp, t_start, t_end, values, s_start, s_end, s_values
             if large:
                 _return_freed_memory()
         return [ptr, *joined, *slabs]
@@ -213,53 +247,22 @@ def _in_time_order(ptr, t_start):
 
 
 @njit(cache=True)
-def _find_slabs(comp, t_start, t_end, per_component, elements_left, starts):
-    """Find a chunk's synchronised slabs: runs of N elements of components 0..N-1 in order on
-    one interval; their first elements go to ``starts`` (returns how many). Counts every
-    element in ``per_component`` and those outside the slabs in ``elements_left``. (A single
-    component's elements are all kept as elements: nothing to share.)"""
-    N = per_component.shape[0]
-    found = 0
-    e = 0
-    while e < comp.shape[0]:
-        run = 0
-        if N > 1 and comp[e] == 0 and e + N <= comp.shape[0]:
-            while (run < N and comp[e + run] == run and t_start[e + run] == t_start[e]
-                   and t_end[e + run] == t_end[e]):
-                run += 1
-        if run == N:
-            starts[found] = e
-            found += 1
-            for i in range(N):
-                per_component[i] += 1
-            e += N
-        else:
-            per_component[comp[e]] += 1
-            elements_left[comp[e]] += 1
-            e += 1
-    return found
+def _count_elements(comp, blocks, per_component, elements_left):
+    """Count a chunk's elements (components ``comp``) and its ``blocks`` (every component
+    once) in ``per_component``, the elements alone in ``elements_left``."""
+    for e in range(comp.shape[0]):
+        per_component[comp[e]] += 1
+        elements_left[comp[e]] += 1
+    for i in range(per_component.shape[0]):
+        per_component[i] += blocks
 
 
 @njit(cache=True)
-def _scatter_by_component(comp, t_start, t_end, values, starts, cursor, out_start, out_end,
-                          out_values, s_start, s_end, s_values):
+def _scatter_by_component(comp, t_start, t_end, values, cursor, out_start, out_end,
+                          out_values):
     """Copy a chunk's elements to their component's next free places (``cursor[i]``): a
-    stable counting sort by component; the synchronised slabs starting at ``starts`` to the
-    next shared slab (``cursor[-1]``), values transposed to (q + 1, N)."""
-    N = cursor.shape[0] - 1
-    e = 0
-    j = 0
-    while e < comp.shape[0]:
-        if j < starts.shape[0] and starts[j] == e:
-            n = cursor[N]
-            s_start[n], s_end[n] = t_start[e], t_end[e]
-            for m in range(values.shape[1]):
-                for i in range(N):
-                    s_values[n, m, i] = values[e + i, m]
-            cursor[N] = n + 1
-            j += 1
-            e += N
-            continue
+    stable counting sort by component."""
+    for e in range(comp.shape[0]):
         i = comp[e]
         n = cursor[i]
         out_start[n], out_end[n] = t_start[e], t_end[e]
@@ -267,7 +270,6 @@ def _scatter_by_component(comp, t_start, t_end, values, starts, cursor, out_star
         for m in range(values.shape[1]):
             out_values[n, m] = values[e, m]
         cursor[i] = n + 1
-        e += 1
 
 
 @njit(cache=True)
@@ -279,6 +281,21 @@ def _sample_elements(comp, t_start, t_end, values, nodes, bary, times, out):
         for m in range(first, last):
             tau = (times[m] - t_start[e]) / (t_end[e] - t_start[e])
             out[comp[e], m] = element_value(values, e, tau, nodes, bary)
+
+
+@njit(cache=True)
+def _sample_blocks(s_start, s_end, s_values, nodes, bary, times, out):
+    """out[:, m] = U(times[m]) for the times in (s_start[n], s_end[n]] of each block (values
+    (q + 1, N) row-major), each component by element_value's arithmetic."""
+    N = out.shape[0]
+    for n in range(s_start.shape[0]):
+        first = np.searchsorted(times, s_start[n], side="right")
+        last = np.searchsorted(times, s_end[n], side="right")
+        by_component = s_values[n].reshape((s_values.shape[1] // N, N)).T
+        for m in range(first, last):
+            tau = (times[m] - s_start[n]) / (s_end[n] - s_start[n])
+            for i in range(N):
+                out[i, m] = element_value(by_component, i, tau, nodes, bary)
 
 
 @njit(cache=True)
@@ -304,17 +321,15 @@ class Samples:
         self.y.fill(np.nan)
         _set_initial(times, ode.t0, ode.u0, self.y)  # U(t0) = u0, as Solution's
         self.per_component = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
-        # (multi-adaptive) the elements outside synchronised slabs, per component, and
-        # where each chunk's synchronised slabs start
+        # (multi-adaptive) the elements outside blocks, per component
         self.elements_left = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
-        self.slab_starts = []
 
     def add(self, chunk, t):
         nodes, bary = self.method.nodes, self.method.barycentric_weights
         if self.multi_adaptive:
-            comp, t_start, t_end, values = chunk
-            self.per_component += np.bincount(comp, minlength=self.ode.N)
-            _sample_elements(comp, t_start, t_end, values, nodes, bary, self.times, self.y)
+            _count_elements(chunk[0], len(chunk[4]), self.per_component, self.elements_left)
+            _sample_elements(*chunk[:4], nodes, bary, self.times, self.y)
+            _sample_blocks(*chunk[4:], nodes, bary, self.times, self.y)
             return
         _sample_shared(*chunk, nodes, bary, self.times, self.y)
 

@@ -17,6 +17,7 @@ from functools import cached_property
 import numpy as np
 
 from dolfinode.io.atomic import new_file
+from dolfinode.io.history import as_elements
 from dolfinode.methods import parse_method
 from dolfinode.solution import Solution, _evaluate_components, _evaluate_shared
 
@@ -70,6 +71,8 @@ class ToFile:
         self.datasets = None
 
     def add(self, chunk, t):
+        if self.multi_adaptive:  # (the file keeps one element per row)
+            chunk = as_elements(chunk, self.ode.N)
         if self.datasets is None:
             # chunks of about 1 MB: h5py's guess for a dataset that starts empty is small,
             # and the chunk index grows with their number

@@ -21,6 +21,7 @@ from dolfinode.counters import (  # noqa: F401
     SLABS,
     STIFF,
     STORED,
+    STORED_BLOCKS,
     SUBSLABS,
     SYNCHRONISED,
 )

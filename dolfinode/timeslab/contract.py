@@ -36,6 +36,8 @@ loosening          mono: log(step tolerance / (c tolerance)) of the calibration,
 newton_units       mono: a Newton iteration's cost in f evaluations (mono.newton_costs)
 factor_units       mono: a Jacobian with its factorizations, in f evaluations
 theta, beta        multi: partitioning and interval thresholds (partition.build_slab)
+unfused            multi: no fused path for synchronised slabs (every component on one
+                   step): they are built, solved and stored as any slab (tests compare)
 =================  ====================================================================
 
 State (kept by the driver across calls, and saved/restored by the piecewise driver):
@@ -71,7 +73,7 @@ OPTIONS = np.dtype([
     ("factor_units", np.float64), ("delivered", np.float64),
     ("theta", np.float64), ("beta", np.float64), ("fixed", np.bool_), ("is_dg", np.bool_),
     ("newton_ready", np.bool_), ("reuse", np.bool_), ("keep_factors", np.bool_),
-    ("autonomous", np.bool_)], align=True)
+    ("autonomous", np.bool_), ("unfused", np.bool_)], align=True)
 STATE = np.dtype([
     ("t", np.float64), ("k_next", np.float64), ("eps_prev", np.float64),
     ("fp_step", np.float64), ("fp_iterations", np.float64), ("newton_cost", np.float64),

@@ -9,10 +9,13 @@ components fill [a, a + K] with sub-slabs built the same way. Elements live in f
 (component, interval), in creation order, with per-component index arrays.
 """
 
+import math
+
 import numpy as np
 from numba import types
 
 from dolfinode.compile.jit import helper, linked
+from dolfinode.compile.signatures import NO_REFCOUNT
 
 
 @helper()
@@ -119,6 +122,21 @@ def build_slab(a, T, kdes, active, theta, beta, kslab, comp, ea, eb, windows):
             return fb[0], ne, nsub, nwin, comp, ea, eb, windows
         f = depth - 1
         offset, lo, hi = fend[f], ft[f], fb[f]
+
+
+@helper(**NO_REFCOUNT)
+def one_group_end(a, T, kcap, kmin, theta, beta, kslab):
+    """The end b of the slab :func:`build_slab` makes when all components form one group,
+    from the largest desired step ``kcap`` and the smallest ``kmin`` of min(k_i, T - a),
+    without a pass over the components; NaN when they do not (then build it). The group is
+    every component with k_i >= theta min(kcap, L), L = min(T - a, kslab): all of them iff
+    kmin reaches it (if kmin = T - a, every k_i >= T - a >= L does), and its step is
+    min(kcap, L, min k_i) = min(min(kcap, L), kmin), as ``_partition`` finds it."""
+    kmax = min(kcap, min(T - a, kslab))
+    if kmin < theta * kmax:
+        return math.nan
+    K = min(kmax, kmin)
+    return a + K if K < beta * (T - a) else T
 
 
 @linked

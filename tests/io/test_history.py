@@ -99,10 +99,11 @@ _BUILD = textwrap.dedent("""
 
     def stored_history(ode, slabs, per_chunk):
         sink = history.InMemory(ode, True, 11)
-        for first in range(0, slabs, per_chunk):  # each slab: one element per component
-            starts = np.repeat(np.arange(first, first + per_chunk) * 1e-3, ode.N)
-            comp = np.tile(np.arange(ode.N, dtype=np.int64), per_chunk)
-            sink.add([comp, starts, starts + 1e-3, np.ones((comp.size, 2))], starts[-1])
+        none = np.empty(0, np.int64), np.empty(0), np.empty(0), np.empty((0, 2))
+        for first in range(0, slabs, per_chunk):  # each slab a block, as the loop stores it
+            starts = np.arange(first, first + per_chunk) * 1e-3
+            sink.add([*none, starts, starts + 1e-3, np.ones((per_chunk, 2 * ode.N))],
+                     starts[-1])
         return sink
 
     ode = mass_spring_chain(100)[0]
@@ -110,7 +111,7 @@ _BUILD = textwrap.dedent("""
     small = stored_history(ode, 10, 5)  # compiles the join's kernels
     small.solution(ode, method, small.finish(True), {}, None)
     base = rss("VmRSS:")
-    sink = stored_history(ode, 40_000, 5_000)  # 8 chunks of 40 MB
+    sink = stored_history(ode, 40_000, 5_000)  # 8 chunks of 16 MB
     stored = sink.bytes
     sol = sink.solution(ode, method, sink.finish(True), {}, None)
     assert sol.multi and sol(0.5).shape == (ode.N,)
@@ -124,7 +125,7 @@ def test_building_a_multi_adaptive_solution_takes_at_most_1_2_times_its_history(
     result = run_python(_BUILD)
     assert result.returncode == 0, result.stderr
     stored, peak = map(int, result.stdout.split())
-    assert stored == 40_000 * 200 * 40  # comp, t_start, t_end and two values per element
+    assert stored == 40_000 * (200 * 2 + 2) * 8  # per slab: two values per component, t, b
     assert peak <= 1.2 * stored, f"{peak / stored:.2f} x the history"
 
 
@@ -182,15 +183,6 @@ def test_a_dense_solve_that_would_not_fit_stops_naming_dense_output(run_python):
     assert "dense_output=False" in message and "RLIMIT_AS" in message
 
 
-@pytest.fixture(scope="module")
-def stiff_springs():
-    """40 masses, two springs 1e4 times stiffer: some slabs synchronised (every component on
-    one interval), the others partitioned."""
-    from dolfinode.bench.problems import mass_spring_chain as chain_with_stiff_springs
-
-    return chain_with_stiff_springs(n=40, stiffness=1e4, stiff_springs=2, T=0.1).ode
-
-
 @pytest.mark.parametrize("method", ["mcG(1)", "mdG(1)", "mcG(2)"])
 def test_synchronised_slabs_are_kept_as_shared_slabs(stiff_springs, method, monkeypatch):
     """A mixed history (shared slabs and elements) holds the elements the loop stored: its
@@ -213,8 +205,9 @@ def test_synchronised_slabs_are_kept_as_shared_slabs(stiff_springs, method, monk
     assert 0 < synchronised < slabs
     shared = sol._parts[4:]
     assert len(shared[0]) >= synchronised  # (a partitioned slab may put all on one step)
-    grouped = Solution.multi_adaptive(ode, sol.method, *map(np.concatenate, zip(*chunks)), {},
-                                     sol.t)
+    elements = [history.as_elements(chunk, ode.N) for chunk in chunks]
+    grouped = Solution.multi_adaptive(ode, sol.method, *map(np.concatenate, zip(*elements)),
+                                     {}, sol.t)
     rng = np.random.default_rng(5)
     inner = rng.uniform(0.0, 0.1, 400)
     times = np.concatenate([[0.0, 0.1], *shared[:2], grouped.t_start, grouped._t_end, inner,
@@ -238,50 +231,42 @@ def test_synchronised_slabs_are_kept_as_shared_slabs(stiff_springs, method, monk
                                   np.diff(grouped.elements()[0]))
 
 
-def test_shared_slabs_are_found_only_where_every_component_shares_one_interval():
-    """Runs of components 0..N-1 on one interval are slabs; a run with one component off the
-    interval, out of order or cut by the chunk's end stays elements."""
-    from dolfinode.io.history import _find_slabs
+def test_a_chunk_of_elements_and_blocks_is_joined_in_place():
+    """Elements of single components and two blocks (slabs with every component on one
+    interval, values (q + 1, N) row-major) in one chunk, as the loop stores partitioned and
+    synchronised slabs, in two chunks: each element lands at its component's place and each
+    block at the next shared slab; spelt out by element, a block is its components'
+    elements."""
+    from dolfinode.io import history
 
-    N = 3
-    comp = np.array([0, 1, 2, 0, 1, 2, 0, 2, 1, 2, 0, 1, 2, 0, 1])
-    a = np.array([0, 0, 0, 1, 1, 1, 2, 2, 2, 3, 4, 4, 4, 5, 5], dtype=float)
-    b = a + 1.0
-    b[4] = 1.5  # component 1 of the second run on another interval
-    per_component, left = np.zeros(N, np.int64), np.zeros(N, np.int64)
-    starts = np.empty(6, np.int64)
-    found = _find_slabs(comp, a, b, per_component, left, starts)
-    np.testing.assert_array_equal(starts[:found], [0, 10])
-    np.testing.assert_array_equal(per_component, np.bincount(comp))
-    np.testing.assert_array_equal(left, np.bincount(comp) - 2)
-
-
-def test_a_chunk_of_elements_then_slabs_is_joined_in_place():
-    """Elements of single components, then a slab, then an element, then a slab, in one
-    chunk (as the loop hands over partitioned and synchronised slabs): each element lands at
-    its component's place and each slab, transposed, at the next shared slab."""
-    from dolfinode.io.history import _find_slabs, _scatter_by_component
-
+    ode = dn.ODE({sp.Symbol("a"): 1.0, sp.Symbol("b"): 2.0}, u0=[0.0, 0.0], T=3.0)
     N = 2
-    comp = np.array([0, 1, 0, 0, 1, 1, 0, 1])
-    a = np.array([0.0, 0.0, 0.5, 1.0, 1.0, 2.0, 2.5, 2.5])
-    b = np.array([0.5, 1.0, 1.0, 2.0, 2.0, 2.5, 3.0, 3.0])
-    values = np.arange(16.0).reshape(8, 2)
-    per_component, left = np.zeros(N, np.int64), np.zeros(N, np.int64)
-    starts = np.empty(5, np.int64)
-    found = _find_slabs(comp, a, b, per_component, left, starts)
-    np.testing.assert_array_equal(starts[:found], [3, 6])
-    ptr = np.concatenate([[0], np.cumsum(left)])
-    cursor = np.append(ptr[:-1], 0)
-    out = np.empty(ptr[-1]), np.empty(ptr[-1]), np.empty((ptr[-1], 2))
-    shared = np.empty(found), np.empty(found), np.empty((found, 2, N))
-    _scatter_by_component(comp, a, b, values, starts[:found], cursor, *out, *shared)
-    elements = [0, 2, 1, 5]  # component 0's, then component 1's
-    np.testing.assert_array_equal(out[0], a[elements])
-    np.testing.assert_array_equal(out[2], values[elements])
-    np.testing.assert_array_equal(shared[0], [1.0, 2.5])
-    np.testing.assert_array_equal(shared[2][0], values[3:5].T)
-    np.testing.assert_array_equal(shared[2][1], values[6:8].T)
+    comp = np.array([0, 1, 0, 1])
+    a = np.array([0.0, 0.0, 0.5, 2.0])
+    b = np.array([0.5, 1.0, 1.0, 2.5])
+    values = np.arange(8.0).reshape(4, 2)
+    blocks = [np.array([1.0, 2.5]), np.array([2.0, 3.0]), np.arange(8.0, 16.0).reshape(2, 4)]
+    chunk = [comp, a, b, values, *blocks]
+    sink = history.InMemory(ode, True, 5)
+    sink.add([part[:3] for part in chunk[:4]] + [part[:1] for part in blocks], 3.0)
+    sink.add([part[3:] for part in chunk[:4]] + [part[1:] for part in blocks], 3.0)
+    ptr, t_start, t_end, joined, s_start, s_end, s_values = sink.finish(True)
+    np.testing.assert_array_equal(ptr, [0, 2, 4])
+    elements = [0, 2, 1, 3]  # component 0's, then component 1's
+    np.testing.assert_array_equal(t_start, a[elements])
+    np.testing.assert_array_equal(t_end, b[elements])
+    np.testing.assert_array_equal(s_end, [2.0, 3.0])
+    np.testing.assert_array_equal(joined, values[elements])
+    np.testing.assert_array_equal(s_start, [1.0, 2.5])
+    np.testing.assert_array_equal(s_values, blocks[2].reshape(2, 2, N))
+    np.testing.assert_array_equal(sink.per_component, [4, 4])
+    spelt = history.as_elements(chunk, N)
+    np.testing.assert_array_equal(spelt[0], [0, 1, 0, 1, 0, 1, 0, 1])
+    np.testing.assert_array_equal(spelt[1], [0.0, 0.0, 0.5, 2.0, 1.0, 1.0, 2.5, 2.5])
+    np.testing.assert_array_equal(spelt[2], [0.5, 1.0, 1.0, 2.5, 2.0, 2.0, 3.0, 3.0])
+    np.testing.assert_array_equal(spelt[3][4:], [[8.0, 10.0], [9.0, 11.0], [12.0, 14.0],
+                                                 [13.0, 15.0]])
+    np.testing.assert_array_equal(spelt[3][:4], values)
 
 
 def test_a_mixed_history_out_of_time_order_is_sorted():
@@ -293,9 +278,10 @@ def test_a_mixed_history_out_of_time_order_is_sorted():
     ode = dn.ODE({sp.Symbol("a"): 1.0, sp.Symbol("b"): 2.0}, u0=[0.0, 0.0], T=2.0)
     method = dn.parse_method("mcG(1)")[1]
     sink = history.InMemory(ode, True, 5)
-    for start in (1.0, 0.0):  # U_a = t, U_b = 2 t on two slabs
-        sink.add([np.array([0, 1]), np.full(2, start), np.full(2, start + 1.0),
-                  np.array([[start, start + 1.0], [2 * start, 2 * start + 2.0]])], 2.0)
+    none = np.empty(0), np.empty(0), np.empty((0, 2))
+    for start in (1.0, 0.0):  # U_a = t, U_b = 2 t on two slabs, blocks (q + 1, N)
+        sink.add([np.empty(0, np.int64), *none, np.array([start]), np.array([start + 1.0]),
+                  np.array([[start, 2 * start, start + 1.0, 2 * start + 2.0]])], 2.0)
     sol = sink.solution(ode, method, sink.finish(True), {}, None)
     assert not isinstance(sol, MixedSolution)
     np.testing.assert_allclose(sol([0.5, 1.0, 1.5]), [[0.5, 1.0, 1.5], [1.0, 2.0, 3.0]])

@@ -1,4 +1,6 @@
 """Multi-adaptive mcG(q)/mdG(q): reduction to mono-adaptive, orders with individual steps."""
+import pickle
+
 import numpy as np
 import pytest
 import scipy.linalg as sl
@@ -345,3 +347,86 @@ def test_fixed_unequal_steps_on_a_stiff_nonnormal_system(ratio):
     steps = {u[0]: 1e-6 * ratio ** 0.5, u[1]: 1e-6 / ratio ** 0.5}
     sol = dn.solve(ode, method="mdG(0)", fixed_time_step=True, initial_time_step=steps)
     assert np.abs(sol(ode.T) - sl.expm(A * ode.T) @ u0).max() < 1e-5
+
+
+@pytest.fixture
+def unfused(monkeypatch):
+    """dn.solve with the loop's fused path for synchronised slabs switched off (the option
+    ``unfused``): every slab built, solved and stored element by element. (A declaration
+    solved before with the same options takes its kept solver: solve a copy.)"""
+    import sys
+
+    driver = sys.modules["dolfinode.solve"]
+    workspace = driver._multi_workspace
+
+    def without_fusing(ode, compiled, m, params, options, steps):
+        options["unfused"] = True
+        return workspace(ode, compiled, m, params, options, steps)
+
+    for module in (driver, sys.modules["dolfinode.solver"]):
+        monkeypatch.setattr(module, "_multi_workspace", without_fusing)
+
+
+def _shared_slabs(sol):
+    """The number of slabs a multi-adaptive solution keeps as shared blocks."""
+    from dolfinode.solution import MixedSolution
+
+    return len(sol._parts[4]) if isinstance(sol, MixedSolution) else 0
+
+
+def test_synchronised_slabs_take_the_fused_path(stiff_springs):
+    """Every slab of the uniform chain has all components on one step: each is stored as one
+    block. On the chain with two stiff springs only the slabs on one step are (some solved
+    by sweeps: every one solved as a mono-adaptive slab is among them)."""
+    ode, _ = problems.mass_spring_chain(12, T=4.0)
+    sol = dn.solve(ode, method="mcG(1)", tolerance=1e-5)
+    assert _shared_slabs(sol) == sol.stats["time slabs"]
+    graded = dn.solve(stiff_springs, method="mcG(1)", tolerance=1e-6)
+    shared, slabs = _shared_slabs(graded), graded.stats["time slabs"]
+    assert graded.stats["synchronised slabs"] <= shared < slabs
+
+
+@pytest.mark.parametrize("method", ["mcG(1)", "mdG(1)", "mcG(2)"])
+@pytest.mark.parametrize("dense_output", [True, False])
+def test_the_fused_path_changes_no_bit(stiff_springs, method, dense_output, request):
+    """A run that mixes synchronised and partitioned slabs gives the same counts, elements and
+    values, bitwise, with the fused path and without it (dense and sampled output)."""
+    ode = stiff_springs
+    kwargs = {"tolerance": 1e-6, "dense_output": dense_output, "number_of_samples": 37}
+    fused = dn.solve(ode, method=method, **kwargs)
+    request.getfixturevalue("unfused")
+    plain = dn.solve(pickle.loads(pickle.dumps(ode)), method=method, **kwargs)
+    assert not dense_output or _shared_slabs(fused) > 0
+    assert _shared_slabs(plain) == 0
+    for key in ("time slabs", "elements", "f evaluations", "synchronised slabs"):
+        assert fused.stats[key] == plain.stats[key], key
+    np.testing.assert_array_equal(fused.stats["elements per component"],
+                                  plain.stats["elements per component"])
+    np.testing.assert_array_equal(fused.y, plain.y)
+    if dense_output:
+        for mine, theirs in zip(fused.elements(), plain.elements()):
+            np.testing.assert_array_equal(mine, theirs)
+        times = np.random.default_rng(2).uniform(0.0, ode.T, 300)
+        np.testing.assert_array_equal(fused(times), plain(times))
+
+
+def test_blocks_over_several_chunks(monkeypatch):
+    """With output buffers of 64 blocks the uniform chain's history arrives in several chunks
+    of blocks: the dense solution holds every block as a shared slab, each component's
+    elements in time order, and its samples are those of dense_output=False."""
+    import sys
+
+    for module in (sys.modules["dolfinode.solve"], sys.modules["dolfinode.solver"]):
+        monkeypatch.setattr(module, "_multi_capacity", lambda ode, m: 64 * ode.N)
+    ode, _ = problems.mass_spring_chain(12, T=4.0)
+    sol = dn.solve(ode, method="mcG(1)", tolerance=1e-5, number_of_samples=50)
+    slabs = sol.stats["time slabs"]
+    assert slabs > 2 * 64 and _shared_slabs(sol) == slabs
+    ptr, a, b, _ = sol.elements()
+    for i in (0, ode.N - 1):
+        mine = slice(ptr[i], ptr[i + 1])
+        assert np.all(b[mine][:-1] == a[mine][1:]) and b[mine][-1] == ode.T
+    sampled = dn.solve(ode, method="mcG(1)", tolerance=1e-5, number_of_samples=50,
+                       dense_output=False)
+    np.testing.assert_array_equal(sampled.y, sol.y)
+

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from dolfinode.timeslab.partition import build_slab
+from dolfinode.timeslab.partition import build_slab, one_group_end
 
 
 def test_slab_structure():
@@ -41,3 +41,31 @@ def test_frozen_components_get_no_element():
                                               np.inf, comp, ea, eb, np.empty(1, np.int64))
     assert b == pytest.approx(0.1)
     np.testing.assert_array_equal(np.bincount(comp[:ne], minlength=4), [1, 0, 2, 1])
+
+
+def test_one_group_end_is_build_slabs_end_when_it_makes_one_group():
+    """On random desired steps, thresholds, slab limits and start times (steps beyond T - a
+    included): one_group_end is NaN exactly when build_slab makes more than one sub-slab,
+    and otherwise build_slab's end, bitwise."""
+    rng = np.random.default_rng(7)
+    comp, ea, eb, windows = np.empty(1, np.int64), np.empty(1), np.empty(1), np.empty(1, np.int64)
+    ones = 0
+    for _ in range(400):
+        n = int(rng.integers(1, 6))
+        kdes = 10.0 ** rng.uniform(-2, 0.3, n)
+        if rng.random() < 0.3:  # (nearly shared steps)
+            kdes[:] = kdes[0] * rng.uniform(0.8, 1.0, n)
+        a, T = rng.uniform(0, 1), 2.0
+        theta, beta = rng.choice([0.0, 0.5, 0.99]), rng.choice([0.5, 0.9])
+        kslab = rng.choice([np.inf, rng.uniform(0.01, 1.0)])
+        b, _, nsub, _, comp, ea, eb, windows = build_slab(a, T, kdes, np.arange(n), theta, beta,
+                                                           kslab, comp, ea, eb, windows)
+        kmin = np.minimum(kdes, T - a).min()
+        end = one_group_end(a, T, kdes.max(), kmin, theta, beta, kslab)
+        if nsub == 1:
+            ones += 1
+            assert end == b
+        else:
+            assert np.isnan(end)
+    assert 50 < ones < 400
+

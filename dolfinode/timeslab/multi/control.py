@@ -8,12 +8,12 @@ import math
 import numpy as np
 from numba import types
 
-from dolfinode.adaptivity import MAX_FACTOR, filter_residuals, next_step, stiff_deviation
+from dolfinode.adaptivity import MAX_FACTOR, MIN_FACTOR, filter_residuals, stiff_deviation
 from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.counters import F_EVALUATIONS
 from dolfinode.timeslab import CONSTRAINT_CUT
-from dolfinode.timeslab.multi.steps import power
+from dolfinode.timeslab.multi.steps import inverse_root, power
 from dolfinode.timeslab.partition import grow_float
 
 #: A slab holds many elements of a fast component and one indicator above the margin rejects
@@ -134,9 +134,13 @@ def choose_steps(active, nactive, checked, nchecked, emax, kact, kdes, frozen, s
         if solved and kdes[i] > kref:
             eref *= power(kdes[i] / kref, order)
             kref = kdes[i]
-        # below efloor the factor is capped at MAX_FACTOR anyway: no pow() for idle components
-        knew = (kref * MAX_FACTOR if eref <= efloor else
-                next_step(kref, eref, 1.0, order, safety, False))
+        # below efloor the factor is capped at MAX_FACTOR anyway: no root for idle components;
+        # above it the controller of ``next_step`` without history, by ``inverse_root``
+        knew = kref * MAX_FACTOR
+        if not eref <= efloor:
+            factor = safety * inverse_root(max(eref, 1e-10), order)
+            knew = kref * (min(MAX_FACTOR, max(MIN_FACTOR, factor)) if math.isfinite(factor)
+                           else MIN_FACTOR)
         if accept:
             knew = 2.0 * kdes[i] * knew / (kdes[i] + knew)  # harmonic-mean regulator
         elif emax[i] > ACCEPTANCE_MARGIN:

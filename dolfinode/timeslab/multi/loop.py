@@ -21,6 +21,7 @@ from dolfinode.counters import (
     SLABS,
     STIFF,
     STORED,
+    STORED_BLOCKS,
     SUBSLABS,
     SYNCHRONISED,
 )
@@ -69,7 +70,12 @@ from dolfinode.timeslab.multi.slab import (
 )
 from dolfinode.timeslab.multi.steps import grade, propagate, slab_limit
 from dolfinode.timeslab.multi.sweeps import guess_from
-from dolfinode.timeslab.partition import build_slab, component_elements, dependency_structure
+from dolfinode.timeslab.partition import (
+    build_slab,
+    component_elements,
+    dependency_structure,
+    one_group_end,
+)
 
 #: Accepted slabs after a rejection during which the slab length limit does not grow.
 REJECTION_HOLD = 4
@@ -102,6 +108,7 @@ _SIGNATURE = types.int64(
     OPTIONS_TYPE, _f8, _f8,                        # options, atol, floor
     _f8, _f8, _f8, STATE_TYPE, _i8,                # x, kdes, frozen, state, counters
     _i8, _f8, _f8, types.float64[:, ::1],          # out_comp, out_a, out_b, out_values
+    _f8, _f8, types.float64[:, ::1],               # out_block_a, out_block_b, out_blocks
 )
 
 
@@ -148,6 +155,31 @@ def _store_slab(ne, comp, ea, eb, values, counters, out_comp, out_a, out_b, out_
 
 
 @helper(**NO_REFCOUNT)
+def _fill_synchronised(N, t, b, comp, ea, eb):
+    """The elements of a synchronised slab: component e on [t, b] (as ``build_slab``)."""
+    for e in range(N):
+        comp[e] = e
+        ea[e] = t
+        eb[e] = b
+
+
+@helper(**NO_REFCOUNT)
+def _store_block(N, t, b, values, counters, out_block_a, out_block_b, out_blocks):
+    """Append a synchronised slab (element i < N: component i on [t, b]) to the block
+    buffers: [t, b] and the values as a block (q + 1, N), row-major, the layout of a
+    mono-adaptive slab."""
+    nn = values.shape[1]
+    n = counters[STORED_BLOCKS]
+    out_block_a[n] = t
+    out_block_b[n] = b
+    for m in range(nn):
+        for i in range(N):
+            out_blocks[n, m * N + i] = values[i, m]
+    counters[STORED_BLOCKS] += 1
+    counters[ELEMENTS] += N
+
+
+@helper(**NO_REFCOUNT)
 def _move_to_end(active, nactive, cptr, celems, ea, eb, values, fend, x, fixed, drift, atol,
                  rtol, umax, tau, jdiag, coupling, last_a, last_b, last_values):
     """Move every active component to the end of its last element of the accepted slab
@@ -169,7 +201,7 @@ def _move_to_end(active, nactive, cptr, celems, ea, eb, values, fend, x, fixed, 
 def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Minv, A, b0,
              stage_nodes, transform, transform_inverse, eigenvalues, nodes, qweights, bary,
              end_derivative, options, atol, floor, x, kdes, frozen, state, counters, out_comp,
-             out_a, out_b, out_values):
+             out_a, out_b, out_values, out_block_a, out_block_b, out_blocks):
     """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status.
     ``frozen[i]`` is the time since which component i is frozen (NaN: active). A slab on
     which a value leaves the declared domain is rejected (``leaves_domain``); an accepted
@@ -286,7 +318,16 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     spts = np.zeros(1)
     dptr = np.zeros(1, dtype=np.int64)
     dcur = np.zeros(1, dtype=np.int64)
+    # the per-component index arrays of a synchronised slab (``component_elements`` of
+    # comp[e] = e): element i is component i's only one
+    ident = np.arange(N + 1)
+    no_prev = np.full(N, -1, dtype=np.int64)
+    # whether a component is declared nonnegative (floor > -inf): else no domain checks
+    bounded = False
+    for i in range(N):
+        bounded = bounded or floor[i] > -math.inf
     counters[STORED] = 0
+    counters[STORED_BLOCKS] = 0
     capacity = out_a.shape[0]
     t = st.t
     while True:
@@ -307,9 +348,22 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         sync = (not fixed and not stiff and nfrozen == 0 and kmin < sync_fail
                 and nactive <= (2.0 if solved else 1.0) * SYNCHRONISE * kmin * rate)
         # (threshold 0: one group, on the smallest step)
-        b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, active[:nactive],
-                                                              0.0 if sync else theta, beta,
-                                                              kslab, comp, ea, eb, windows)
+        threshold = 0.0 if sync else theta
+        # every component on one element of [t, b], in order (comp[e] = e): the fused path,
+        # whose slab is known from kcap and kmin
+        b = math.nan
+        if nfrozen == 0 and not o.unfused:
+            b = one_group_end(t, T, kcap, kmin, threshold, beta, kslab)
+        fused = not math.isnan(b)
+        if fused:
+            ne, nsub, nwin = N, 1, 0
+            _fill_synchronised(N, t, b, comp, ea, eb)
+        else:
+            b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, active[:nactive],
+                                                                  threshold, beta, kslab,
+                                                                  comp, ea, eb, windows)
+            # (a partition may still put every component on one step)
+            fused = nsub == 1 and nfrozen == 0 and not o.unfused
         # the Jacobian at the slab start: its diagonal damps the element updates, its
         # couplings propagate small steps, and it is the Newton matrix of coupled sub-slabs.
         # A slab solved synchronised needs it only for the steps (ties, grading, drift):
@@ -319,7 +373,9 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             jacobian_rows(ji, active, nactive, x, t, p, indptr, indices, jrow, jacobian, jdiag,
                           coupling, jacobian_time, counters)
             jacobian_age = 0
-        if ne + nfrozen > capacity - counters[STORED]:
+        block = fused and N > 1  # stored as a block (one component: its elements)
+        if (counters[STORED_BLOCKS] == out_block_a.shape[0] if block
+                else ne + nfrozen > capacity - counters[STORED]):
             # (room for the frozen components' elements too, stored when they wake up)
             return FULL  # with nothing stored: the driver grows the buffers
         if b - t < smallest_step(t, o.span) and b < T:
@@ -330,11 +386,11 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             resid = np.empty(values.shape[0])
             unfiltered = np.empty(values.shape[0])
             computed = np.empty(values.shape[0], dtype=np.int64)
-        computed[:ne] = -1
-        changed[:] = 0
-        clock[0] = 0
-        cptr, celems, prev = component_elements(comp, ne, N)
-        largest = _largest_sub_slab(ne, ea, eb)
+        if fused:
+            cptr, celems, prev, largest = ident, ident[:N], no_prev, N
+        else:
+            cptr, celems, prev = component_elements(comp, ne, N)
+            largest = _largest_sub_slab(ne, ea, eb)
         if largest > newton[4].shape[0]:  # (its real vector has a row per component)
             newton = group_workspace(max(n_real, 1), eigenvalues.shape[0] - n_real, S,
                                      largest, band_width)
@@ -365,6 +421,9 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         converged = solved
         last_it = -1
         if not solved:
+            computed[:ne] = -1
+            changed[:] = 0
+            clock[0] = 0
             # the moments' breakpoints and dependency cursors
             sptr, spts, dptr, dcur = dependency_structure(ne, comp, indptr, indices, cptr,
                                                           celems, ea, eb)
@@ -431,7 +490,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         if not fixed:
             accept = choose_steps(active, nactive, checked, nchecked, emax, kact, kdes, frozen,
                                   solved, o.order, o.safety, kmax)
-        outside = leaves_domain(ne, comp, values, floor, kdes, kact)
+        outside = leaves_domain(ne, comp, values, floor, kdes, kact) if bounded else -1
         if outside >= 0:
             counters[OUTSIDE] = outside + 1
             if fixed:
@@ -456,9 +515,14 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             retry = True
             continue
         retry = False
-        project(ne, comp, values, floor, projected)
-        kmin = _store_slab(ne, comp, ea, eb, values, counters, out_comp, out_a, out_b,
-                           out_values)
+        if bounded:
+            project(ne, comp, values, floor, projected)
+        if block:
+            _store_block(N, t, b, values, counters, out_block_a, out_block_b, out_blocks)
+            kmin = b - t
+        else:
+            kmin = _store_slab(ne, comp, ea, eb, values, counters, out_comp, out_a, out_b,
+                               out_values)
         st.mono_elements += (b - t) / kmin * N
         st.deviation = max(st.deviation, deviation)  # (adaptivity.undamped_warning)
         st.last_deviation, st.deviated, st.deviation_error = deviation, deviated, deviated_eps
@@ -472,8 +536,10 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             f0_time = b
             for i in range(N):
                 f0[i] = fvec[i]
-        leaving, any_projected = drives_out(active, nactive, projected, x, fi, p, b, T, floor,
-                                            out, counters)
+        leaving, any_projected = -1, False
+        if bounded:
+            leaving, any_projected = drives_out(active, nactive, projected, x, fi, p, b, T,
+                                                floor, out, counters)
         if any_projected:
             f0_time = math.nan
         if leaving >= 0:

@@ -78,10 +78,12 @@ def grade(kdes, rows, frozen, indptr, indices, jacobian):
                 j = indices[nz]
                 if j == i or jacobian[nz] == 0.0 or not math.isnan(frozen[j]):
                     continue
-                cap = max(GRADING * kdes[j], 1.0 / abs(jacobian[nz]))
-                if kdes[i] > cap:
-                    kdes[i] = cap
-                    moved = True
+                # (k_i > max(a, b) iff k_i > a and k_i > b: the division only when needed)
+                if kdes[i] > GRADING * kdes[j]:
+                    cap = max(GRADING * kdes[j], 1.0 / abs(jacobian[nz]))
+                    if kdes[i] > cap:
+                        kdes[i] = cap
+                        moved = True
         if not moved:
             return
 
@@ -99,6 +101,16 @@ def power(x, order):
     if order == 1.0:
         return x
     return x**order
+
+
+@helper(inline="always")
+def inverse_root(x, order):
+    """x^(-1/order), by a square root for the order 2 (mcG(1), mdG(1)): the step control's
+    root runs per component and slab, where a pow call took about 55 of an adaptive mcG(1)
+    element's 300 cycles. (1 / sqrt(x) may differ from x**-0.5 in the last bit.)"""
+    if order == 2.0:
+        return 1.0 / math.sqrt(x)
+    return x ** (-1.0 / order)
 
 
 @helper(**NO_REFCOUNT)
