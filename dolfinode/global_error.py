@@ -20,8 +20,11 @@ cancel in it, and errors that grow (a period drifting with the energy) grow in i
 """
 import numpy as np
 import sympy as sp
+from numba import njit
 from numpy.polynomial import legendre
 
+from dolfinode.compile import lower
+from dolfinode.compile.signatures import address, rhs_kernel
 from dolfinode.ode import t as time_symbol
 
 
@@ -62,27 +65,45 @@ def lagrange_matrices(nodes, x):
     return B, D
 
 
-def _lambdified(ode):
-    """f(t, U) and J(t, U) for U of shape (P, N), vectorised over the P points."""
-    subs = dict(ode.params) if ode.params else {}
-    rhs = [sp.sympify(e).subs(subs) for e in ode.rhs]
-    states = list(ode.states)
-    jac = sp.Matrix(rhs).jacobian(states)
-    N = len(states)
-    f_l = sp.lambdify([time_symbol, *states], rhs, "numpy")
-    J_l = sp.lambdify([time_symbol, *states], list(jac), "numpy")
-    constant = not (jac.free_symbols & (set(states) | {time_symbol}))
+@njit(cache=True)
+def _kernel_at(kernel_address, U, t, p, out):
+    """out[i] = kernel(U[i], t[i]) at each point i: f, or the Jacobian's CSR values."""
+    kernel = rhs_kernel(kernel_address)
+    N, width = U.shape[1], out.shape[1]
+    for i in range(U.shape[0]):
+        kernel(address(U, i * N), t[i], address(p, 0), address(out, i * width))
+
+
+def _evaluators(compiled):
+    """f(t, U) and J(t, U) (dense) for U of shape (P, N), through the compiled kernels."""
+    N = compiled.N
+    rows = np.repeat(np.arange(N), np.diff(compiled.indptr))
 
     def f(t, U):
-        out = f_l(t, *U.T)
-        return np.stack([np.broadcast_to(np.asarray(v, dtype=float), t.shape) for v in out], -1)
+        out = np.empty(U.shape)
+        _kernel_at(compiled.rhs.address, np.ascontiguousarray(U), t, compiled.p, out)
+        return out
 
     def J(t, U):
-        out = J_l(t, *U.T)
-        J = np.stack([np.broadcast_to(np.asarray(v, dtype=float), t.shape) for v in out], -1)
-        return J.reshape(len(t), N, N)
+        data = np.empty((len(t), max(compiled.nnz, 1)))
+        _kernel_at(compiled.jacobian.address, np.ascontiguousarray(U), t, compiled.p, data)
+        out = np.zeros((len(t), N, N))
+        out[:, rows, compiled.indices] = data[:, :compiled.nnz]
+        return out
 
-    return f, J, constant
+    return f, J
+
+
+def _constant_jacobian(ode, compiled):
+    """Whether df/du is constant (a linear system with coefficients free of t): from the
+    declaration's expressions on the Jacobian's pattern (False for template systems)."""
+    rhs = getattr(ode, "rhs", None)
+    if rhs is None or hasattr(ode, "templates"):
+        return False
+    variables = set(ode.states) | {time_symbol}
+    rows = np.repeat(np.arange(compiled.N), np.diff(compiled.indptr))
+    return not any(sp.diff(rhs[i], ode.states[j]).free_symbols & variables
+                   for i, j in zip(rows, compiled.indices))
 
 
 def _residual(sol, f, nodes_at):
@@ -107,22 +128,19 @@ def _propagation_nodes(method):
 
 def _modal(sol, J0, R, jump, a_err, a_prop, b_prop):
     """The recursion in the eigenbasis of a constant J0: every slab's operators are scalar
-    per mode, so that all slabs are computed at once."""
+    per mode, (I - z a)^{-1} = T diag(1 / (1 - z mu)) T^{-1} with a = T diag(mu) T^{-1},
+    so that all slabs are computed at once."""
     lam, V = np.linalg.eig(J0)
     Vi = np.linalg.inv(V)
     k = sol.k
-    z = k[:, None] * lam[None, :]  # (M, N)
-    Rm = np.einsum("ij,msj->msi", Vi, R.astype(complex))  # (M, s, N)
-    jm = jump @ Vi.T
-    s = len(a_err)
-    # stage equations per mode: (I - z a) E = 1 e0 + k a R
-    lhs = np.eye(s)[None, None] - z[:, :, None, None] * a_err[None, None]
-    rhs = jm[:, :, None] + k[:, None, None] * np.einsum("ij,mjn->mni", a_err, Rm)
-    d = np.linalg.solve(lhs, rhs[..., None])[..., -1, 0]  # stiffly accurate: the last stage
-    sp_ = len(b_prop)
-    lhs = np.eye(sp_)[None, None] - z[:, :, None, None] * a_prop[None, None]
-    Y = np.linalg.solve(lhs, np.ones((1, 1, sp_, 1)))[..., 0]
-    Rn = 1 + z * (Y @ b_prop)  # the stability function R(z) per slab and mode
+    z = (k[:, None] * lam[None, :])[..., None]  # (M, N, 1)
+    mu, T = np.linalg.eig(a_err)
+    # the stage right-hand sides 1 e0 + k a R in the stage eigenbasis T^{-1}, per mode: (M, N, s)
+    w = ((np.linalg.inv(T) @ a_err) @ (R @ Vi.T) * k[:, None, None]).transpose(0, 2, 1)
+    w += (jump @ Vi.T)[..., None] * np.linalg.solve(T, np.ones(len(mu)))
+    d = w / (1 - z * mu) @ T[-1]  # stiffly accurate: the last stage
+    mu, T = np.linalg.eig(a_prop)
+    Rn = 1 + z[..., 0] * ((1 / (1 - z * mu)) @ ((b_prop @ T) * np.linalg.solve(T, np.ones(len(mu)))))
     # e_M = sum_n (prod_{m > n} R_m) d_n
     after = np.cumprod(Rn[::-1], axis=0)[::-1]
     after = np.concatenate([after[1:], np.ones((1, len(lam)))])
@@ -166,13 +184,33 @@ def _dense(sol, J, R, jump, c_err, a_err, c_prop, a_prop, b_prop, chunk=1024):
     return e
 
 
-def estimate(sol):
+#: Systems with a non-constant Jacobian are estimated with dense stage matrices of
+#: (q + 2) N rows per slab: at most MAX_DENSE components.
+MAX_DENSE = 200
+
+
+def estimate(sol, compiled=None):
     """The signed estimate e(T) ~ U(T) - u(T), shape (N,), of a mono-adaptive cG(q)/dG(q)
-    solution (see the module docstring)."""
+    solution (see the module docstring); ``compiled``: the kernels it was solved with
+    (default: those of ``sol.ode``).
+
+    Raises
+    ------
+    ValueError
+        For a multi-adaptive solution, or more than MAX_DENSE components with a Jacobian
+        that is not constant.
+    """
+    if sol._component_ptr is not None:
+        raise ValueError("the global error estimate is for mono-adaptive solutions (cG(q), "
+                         "dG(q)); a multi-adaptive one has no common time slabs")
+    compiled = lower(sol.ode) if compiled is None else compiled
+    constant = _constant_jacobian(sol.ode, compiled)
+    if not constant and compiled.N > MAX_DENSE:
+        raise ValueError(f"the global error estimate of a nonlinear system is dense: at most "
+                         f"{MAX_DENSE} components, got {compiled.N}")
+    f, J = _evaluators(compiled)
     method = sol.method
-    f, J, constant = _lambdified(sol.ode)
-    s = method.q + 2
-    c_err = radau_nodes(s)
+    c_err = radau_nodes(method.q + 2)
     a_err, _ = collocation_tableau(c_err)
     c_prop = _propagation_nodes(method)
     a_prop, b_prop = collocation_tableau(c_prop)
@@ -181,3 +219,28 @@ def estimate(sol):
         J0 = J(sol.t_start[:1], sol.values[:1, -1, :])[0]
         return _modal(sol, J0, R, jump, a_err, a_prop, b_prop)
     return _dense(sol, J, R, jump, c_err, a_err, c_prop, a_prop, b_prop)
+
+
+#: A solve with ``estimate_global_error=True`` warns when the estimate exceeds WARN_FACTOR
+#: times the tolerance (the tolerance record's band is 0.1-10 x).
+WARN_FACTOR = 10.0
+
+
+def scaled(e, U, atol, rtol):
+    """(max_i |e_i| / (atol_i / rtol + |U_i|), i at the maximum): the error ``e`` at T scaled
+    as the tolerance means it (comparable with rtol)."""
+    ratio = np.abs(e) / (atol / rtol + np.abs(U))
+    i = int(np.argmax(ratio))
+    return float(ratio[i]), i
+
+
+def warning(size, rtol, state):
+    """The ToleranceWarning's message for an estimate ``size`` (as :func:`scaled`) above
+    WARN_FACTOR x the tolerance ``rtol``, largest in ``state``; None below."""
+    if not size > WARN_FACTOR * rtol:
+        return None
+    return (f"the estimated error at T is {size / rtol:.3g} x the tolerance (largest in {state}; "
+            f"sol.stats['global error estimate'] = {size:.3g}): the slabs' errors add up over "
+            "this run (a long oscillatory or drifting solution); the tolerance bounds each "
+            "slab's error, not their sum. Try a tighter tolerance, a higher order or dG(q), "
+            "or dn.estimate_error with a goal for a bound on an output")

@@ -8,6 +8,7 @@ import numpy as np
 import sympy as sp
 
 from dolfinode import events as ev
+from dolfinode import global_error
 from dolfinode import timeslab as ts
 from dolfinode.adaptivity import (
     UNDAMPED_DEVIATION,
@@ -335,6 +336,9 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         raise TypeError(f"solve expects a dolfinode.ODE, got {type(ode).__name__}")
     params = check_parameters(parameters)
     base = auto_base(method)
+    if params["estimate_global_error"] and (base is not None or params["automatic_modeling"]):
+        raise ValueError("estimate_global_error is for mono-adaptive solves (cG(q), dG(q)), "
+                         "not for method='auto' or automatic_modeling")
     if base is not None:
         return solve_auto(solve, ode, base, goal, parameters, params)
     if goal is not None:
@@ -392,12 +396,17 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
     (:meth:`dolfinode.events.Plan.unresolved_switch_step`), is solved again with a step
     bound from the crossings seen, at most _SWITCH_RETRIES times, else SolverError."""
     given = params["maximum_time_step"]
+    if params["estimate_global_error"] and (multi_adaptive or plan is not None):
+        raise ValueError("estimate_global_error is for mono-adaptive solves (cG(q), dG(q)) "
+                         "without events, breakpoints or switches in f")
     for _ in range(_SWITCH_RETRIES + 1):
         sol = _solve_once(ode, compiled, plan, multi_adaptive, m, params)
         step = None if plan is None else plan.unresolved_switch_step(sol)
         if step is None:
             if params["maximum_time_step"] != given:
                 sol.stats["switch step bound"] = params["maximum_time_step"]
+            if params["estimate_global_error"]:
+                _warn_global_error(ode, compiled, params, sol)
             return sol
         bound = params["maximum_time_step"]
         params = {**params, "maximum_time_step": step if bound is None else min(bound, step)}
@@ -750,11 +759,31 @@ def _warn_undamped(ode, compiled, m, params, options, state, multi_adaptive=Fals
         why = undamped_warning(m, float(state["deviation"][0]),
                                float(state["last_deviation"][0]), size, drives, ode.states[i],
                                multi_adaptive)
-        if why:  # (named at the first caller outside the package, however deep the call)
-            frame, level = sys._getframe(), 1
-            while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
-                frame, level = frame.f_back, level + 1
-            warnings.warn(why, ToleranceWarning, stacklevel=level)
+        if why:
+            _warn(why)
+
+
+def _warn_global_error(ode, compiled, params, sol):
+    """sol.stats["global error estimate"] (:mod:`dolfinode.global_error`, scaled as the
+    tolerance means it) and a ToleranceWarning when it exceeds 10 x the tolerance (not with
+    fixed steps, which have no tolerance to compare with)."""
+    rtol = params["tolerance"]
+    atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
+    e = global_error.estimate(sol, compiled)
+    size, i = global_error.scaled(e, sol.values[-1, -1], atol, rtol)
+    sol.stats["global error estimate"] = size
+    why = None if params["fixed_time_step"] else global_error.warning(size, rtol, ode.states[i])
+    if why:
+        _warn(why)
+
+
+def _warn(why):
+    """A ToleranceWarning named at the first caller outside the package, however deep the
+    call."""
+    frame, level = sys._getframe(), 1
+    while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(why, ToleranceWarning, stacklevel=level)
 
 
 def _time_and_step(state, k):
