@@ -32,13 +32,13 @@ def probe(problem, method, tol):
         sol = dn.solve(problem.ode, method=method, tolerance=tol,
                        absolute_tolerance=problem.atol_ratio * tol, maximum_steps=2_000_000)
         t1 = time.perf_counter()
-    e = global_error.estimate(sol)
+    e, nu = global_error.estimate(sol)
     t2 = time.perf_counter()
     scale = problem.atol_ratio + np.abs(problem.final)
     err = np.max(np.abs(sol.values[-1, -1] - problem.final) / scale)
     est = np.max(np.abs(e) / scale)
     print(f"{problem.name:9s} {method:6s} {tol:7.0e} slabs {len(sol.k):7d} err/tol {err / tol:9.3g} "
-          f"est/tol {est / tol:9.3g} est/err {est / err:9.3g}  solve {t1 - t0:7.3f}s "
+          f"est/tol {est / tol:9.3g} est/err {est / err:9.3g} nu {nu:8.2g}  solve {t1 - t0:7.3f}s "
           f"estimate {t2 - t1:7.3f}s", flush=True)
 
 

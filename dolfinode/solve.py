@@ -765,14 +765,17 @@ def _warn_undamped(ode, compiled, m, params, options, state, multi_adaptive=Fals
 
 def _warn_global_error(ode, compiled, params, sol):
     """sol.stats["global error estimate"] (:mod:`dolfinode.global_error`, scaled as the
-    tolerance means it) and a ToleranceWarning when it exceeds 10 x the tolerance (not with
-    fixed steps, which have no tolerance to compare with)."""
+    tolerance means it) and "global error nonlinearity", and a ToleranceWarning when the
+    estimate exceeds 10 x the tolerance where it holds (not with fixed steps, which have no
+    tolerance to compare with)."""
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
-    e = global_error.estimate(sol, compiled)
+    e, nu = global_error.estimate(sol, compiled)
     size, i = global_error.scaled(e, sol.values[-1, -1], atol, rtol)
     sol.stats["global error estimate"] = size
-    why = None if params["fixed_time_step"] else global_error.warning(size, rtol, ode.states[i])
+    sol.stats["global error nonlinearity"] = nu
+    why = (None if params["fixed_time_step"]
+           else global_error.warning(size, nu, rtol, ode.states[i]))
     if why:
         _warn(why)
 

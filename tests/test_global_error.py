@@ -1,0 +1,96 @@
+"""The estimate of the error at T (dolfinode.global_error) and solve's warning from it."""
+import warnings
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import dolfinode as dn
+from dolfinode import global_error
+from dolfinode.bench import problems
+
+
+def _solve(problem, method, tol, **parameters):
+    """(sol, measured scaled error at T, ToleranceWarnings) of a solve with the estimate."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", dn.ToleranceWarning)
+        sol = dn.solve(problem.ode, method=method, tolerance=tol,
+                       absolute_tolerance=problem.atol_ratio * tol, estimate_global_error=True,
+                       **parameters)
+    scale = problem.atol_ratio + np.abs(problem.final)
+    error = np.max(np.abs(sol.values[-1, -1] - problem.final) / scale)
+    return sol, error, [w for w in caught if issubclass(w.category, dn.ToleranceWarning)]
+
+
+@pytest.mark.parametrize("q", [1, 2, 3])
+def test_tableaus_have_the_pade_stability_functions(q):
+    """R(z) = 1 + z b (I - z a)^{-1} 1 of the propagators: cG(q)'s q-stage Gauss is the (q, q)
+    Pade function (|R(iy)| = 1), dG(q)'s (q + 1)-stage Radau IIA the (q, q + 1) one (R(-inf)
+    = 0); both agree with e^z to order 2q (cG) and 2q + 1 (dG)."""
+    def R(nodes, z):
+        a, b = global_error.collocation_tableau(nodes)
+        return 1 + z * b @ np.linalg.solve(np.eye(len(b)) - z * a, np.ones(len(b)))
+
+    gauss, radau = global_error.gauss_nodes(q), global_error.radau_nodes(q + 1)
+    assert radau[-1] == pytest.approx(1.0)
+    assert abs(R(gauss, 3.7j)) == pytest.approx(1.0)
+    assert abs(R(radau, -1e12)) < 1e-10
+    for nodes, order in ((gauss, 2 * q), (radau, 2 * q + 1)):
+        h = np.array([0.2, 0.1])
+        err = [abs(R(nodes, z) - np.exp(z)) for z in h]
+        assert np.log2(err[0] / err[1]) == pytest.approx(order + 1, abs=0.3)
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)"])
+def test_the_estimate_tracks_the_exact_error_of_a_linear_problem(method):
+    """Harmonic oscillator over 8 periods: the signed estimate is the error vector at T
+    within 10 % (measured 0.99-1.00 over cG(1..3), dG(1..3), 1e-3..1e-7)."""
+    problem = problems.harmonic_problem(T=50.0)
+    sol, _, _ = _solve(problem, method, 1e-5)
+    e, nu = global_error.estimate(sol)
+    error = sol.values[-1, -1] - problem.final
+    assert nu == 0.0
+    assert np.max(np.abs(e - error)) < 0.1 * np.max(np.abs(error))
+
+
+def test_a_stiff_spring_chain_far_above_the_tolerance_warns():
+    """10 masses, two springs 1e4 stiffer, T = 10: cG(2) at 1e-4 lands about 200 x the
+    tolerance; the estimate says so (within 2 x) and solve warns, naming what to try."""
+    problem = problems.mass_spring_chain(n=10, T=10.0)
+    sol, error, caught = _solve(problem, "cG(2)", 1e-4)
+    assert error > 10 * 1e-4
+    assert 0.5 < sol.stats["global error estimate"] / error < 2.0
+    assert len(caught) == 1
+    assert "tighter tolerance" in str(caught[0].message)
+
+
+@pytest.mark.parametrize("name, tol", [("hires", 1e-4), ("rober", 1e-5)])
+def test_stiff_runs_within_the_band_do_not_warn(name, tol):
+    """HIRES and ROBER with dG(2) land within 0.1-10 x the tolerance (or below): the
+    estimate, propagated with the method's damping, follows the error (measured 0.75-1.4 x)
+    and raises no warning."""
+    problem = {"hires": problems.hires_problem, "rober": problems.rober}[name]()
+    sol, error, caught = _solve(problem, "dG(2)", tol)
+    assert error < 10 * tol and not caught
+    assert 1 / 3 < sol.stats["global error estimate"] / error < 3
+    assert sol.stats["global error nonlinearity"] < global_error.NONLINEAR_LIMIT
+
+
+def test_an_error_equation_out_of_its_linear_range_does_not_warn():
+    """VDPOL (eps = 1e-6) at 1e-3: across the folds the linearised error grows far beyond
+    the error (estimate 700 x it); the nonlinearity measure shows it, and no warning."""
+    problem = problems.vdpol()
+    sol, error, caught = _solve(problem, "dG(2)", 1e-3)
+    assert error < 10 * 1e-3
+    assert sol.stats["global error nonlinearity"] > global_error.NONLINEAR_LIMIT
+    assert not caught
+
+
+def test_the_estimate_is_for_mono_adaptive_solves():
+    x = sp.Symbol("x")
+    ode = dn.ODE({x: -x}, u0=[1.0], T=1.0)
+    for method in ("mcG(1)", "auto"):
+        with pytest.raises(ValueError, match="mono-adaptive"):
+            dn.solve(ode, method=method, estimate_global_error=True)
+    sol = dn.solve(ode, method="cG(1)")
+    assert "global error estimate" not in sol.stats
