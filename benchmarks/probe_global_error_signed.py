@@ -6,6 +6,10 @@ scaled the same way over the tolerance, and their ratio. doc/design/global_error
 results.
 
     python benchmarks/probe_global_error_signed.py [harmonic,chain,...] [cG(2),dG(2)] [1e-3,1e-5]
+    python benchmarks/probe_global_error_signed.py --cost [hires,chain] [dG(2)] [1e-5]
+
+``--cost``: the time of dn.solve with estimate_global_error=True over the time without, the
+two interleaved, the minimum of 7 repeats each (compile excluded).
 """
 import sys
 import time
@@ -42,7 +46,26 @@ def probe(problem, method, tol):
           f"estimate {t2 - t1:7.3f}s", flush=True)
 
 
+def cost(problem, method, tol, repeats=7):
+    def run(estimate):
+        start = time.perf_counter()
+        dn.solve(problem.ode, method=method, tolerance=tol,
+                 absolute_tolerance=problem.atol_ratio * tol, estimate_global_error=estimate)
+        return time.perf_counter() - start
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run(True)
+        times = np.array([[run(False), run(True)] for _ in range(repeats)]).min(axis=0)
+    print(f"{problem.name:9s} {method:6s} {tol:7.0e} solve {times[0] * 1e3:9.3f} ms  with the "
+          f"estimate {times[1] * 1e3:9.3f} ms  ratio {times[1] / times[0]:6.2f}", flush=True)
+
+
 def main():
+    measure = probe
+    if sys.argv[1:2] == ["--cost"]:
+        measure = cost
+        del sys.argv[1]
     names = sys.argv[1].split(",") if len(sys.argv) > 1 else list(PROBLEMS)
     methods = sys.argv[2].split(",") if len(sys.argv) > 2 else ["cG(2)", "dG(2)"]
     tols = [float(x) for x in sys.argv[3].split(",")] if len(sys.argv) > 3 else [1e-3, 1e-5, 1e-7]
@@ -51,7 +74,7 @@ def main():
         for method in methods:
             for tol in tols:
                 try:
-                    probe(problem, method, tol)
+                    measure(problem, method, tol)
                 except dn.SolverError as error:
                     print(f"{problem.name:9s} {method:6s} {tol:7.0e} failed: {error}"[:120])
 

@@ -229,7 +229,8 @@ def estimate(sol, compiled=None):
         raise ValueError("the global error estimate is for mono-adaptive solutions (cG(q), "
                          "dG(q)); a multi-adaptive one has no common time slabs")
     compiled = lower(sol.ode) if compiled is None else compiled
-    constant = _constant_jacobian(sol.ode, compiled)
+    constant = compiled._derived("constant jacobian",
+                                 lambda: _constant_jacobian(sol.ode, compiled))
     if not constant and compiled.N > MAX_DENSE:
         raise ValueError(f"the global error estimate of a nonlinear system is dense: at most "
                          f"{MAX_DENSE} components, got {compiled.N}")
