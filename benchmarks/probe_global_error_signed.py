@@ -22,7 +22,7 @@ from dolfinode import global_error
 from dolfinode.bench import problems
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
-from run_tolerance import heat_problem  # noqa: E402
+from run_tolerance import heat_problem
 
 PROBLEMS = {"harmonic": problems.harmonic_problem, "chain": problems.mass_spring_chain,
             "hires": problems.hires_problem, "rober": problems.rober, "vdpol": problems.vdpol,
@@ -41,8 +41,8 @@ def probe(problem, method, tol):
     scale = problem.atol_ratio + np.abs(problem.final)
     err = np.max(np.abs(sol.values[-1, -1] - problem.final) / scale)
     est = np.max(np.abs(e) / scale)
-    print(f"{problem.name:9s} {method:6s} {tol:7.0e} slabs {len(sol.k):7d} err/tol {err / tol:9.3g} "
-          f"est/tol {est / tol:9.3g} est/err {est / err:9.3g} nu {nu:8.2g}  solve {t1 - t0:7.3f}s "
+    print(f"{problem.name:9s} {method:6s} {tol:7.0e} slabs {len(sol.k):7d} "
+          f"err/tol {err / tol:9.3g} est/tol {est / tol:9.3g} est/err {est / err:9.3g} nu {nu:8.2g}  solve {t1 - t0:7.3f}s "
           f"estimate {t2 - t1:7.3f}s", flush=True)
 
 

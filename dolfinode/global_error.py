@@ -171,8 +171,8 @@ def _dense(sol, J, R, jump, c, a, chunk=1024):
             "ij,mjab->miajb", a, Js).reshape(-1, s * N, s * N)
         forced = (np.tile(jump[part], (1, s))
                   + k[part, None] * np.einsum("ij,mjn->min", a, R[part]).reshape(-1, s * N))
-        rhs = np.concatenate([forced[..., None], np.broadcast_to(start, lhs.shape[:1] + start.shape)],
-                             axis=2)
+        starts = np.broadcast_to(start, lhs.shape[:1] + start.shape)
+        rhs = np.concatenate([forced[..., None], starts], axis=2)
         last = np.linalg.solve(lhs, rhs)[:, -N:, :]
         d[part], flow[part] = last[..., 0], last[..., 1:]
     e = np.zeros((M, N))

@@ -271,10 +271,11 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         error at T (:mod:`dolfinode.global_error`: each slab's local error propagated with the
         method's own linearised slab map) into ``sol.stats["global error estimate"]``,
         scaled as the tolerance (see Notes), with ``sol.stats["global error nonlinearity"]``,
-        and warn when it exceeds 10 x the tolerance. Measured within 0.75-1.5 x the error on
-        HIRES, ROBER, POLLU, a heat equation and long oscillatory runs; it costs 6-35 x a
-        small solve and 7-10 x the 50-mass chain's (Python after the solve), hence off by
-        default.
+        and warn when it exceeds 10 x the tolerance (not where the error equation leaves
+        its linear range: ``sol.stats["global error nonlinearity"]`` > 100). Measured within
+        0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
+        and the harmonic oscillator (doc/design/global_error.md); it costs 7-35 x a small
+        solve and 7-10 x the 50-mass chain's (Python after the solve), hence off by default.
 
     Returns
     -------
