@@ -105,11 +105,11 @@ def _constant_jacobian(ode, compiled):
                    for i, j in zip(rows, compiled.indices))
 
 
-def _residual(sol, f, nodes_at):
-    """R = U' - f(t, U) of each slab at the relative points ``nodes_at``: (M, len, N); and
-    the jumps U(t_n^+) - U(t_n^-): (M, N)."""
+def _residual(sol, f, nodes_at, part):
+    """R = U' - f(t, U) of the slabs ``part`` (a slice) at the relative points ``nodes_at``:
+    (M, len, N); and their jumps U(t_n^+) - U(t_n^-): (M, N)."""
     nodes = np.asarray(sol.method.nodes, dtype=float)
-    vals, k, t0 = sol.values, sol.k, sol.t_start
+    vals, k, t0 = sol.values[part], sol.k[part], sol.t_start[part]
     M, _, N = vals.shape
     B, D = lagrange_matrices(nodes, nodes_at)
     U = np.einsum("ij,mjn->min", B, vals)
@@ -117,11 +117,14 @@ def _residual(sol, f, nodes_at):
     t = (t0[:, None] + nodes_at[None, :] * k[:, None]).ravel()
     R = dU - f(t, U.reshape(-1, N)).reshape(M, len(nodes_at), N)
     start = lagrange_matrices(nodes, [0.0])[0][0] @ vals  # (M, N)
-    before = np.concatenate([np.asarray(sol.ode.u0, dtype=float)[None, :], vals[:-1, -1, :]])
+    first = part.start or 0
+    previous = (np.asarray(sol.ode.u0, dtype=float) if first == 0
+                else sol.values[first - 1, -1, :])
+    before = np.concatenate([previous[None, :], vals[:-1, -1, :]])
     return R, start - before
 
 
-def _modal(sol, J0, R, jump, a, chunk=4096):
+def _modal(sol, f, J0, c, a, chunk=4096):
     """The recursion in the eigenbasis of a constant J0, where each slab's stage system is
     scalar per mode z = k lambda: with a = T diag(mu) T^{-1}, the last stage of
     (I - z a)^{-1} x is T[-1] diag(1 / (1 - z mu)) T^{-1} x, for ``chunk`` slabs at once."""
@@ -132,12 +135,13 @@ def _modal(sol, J0, R, jump, a, chunk=4096):
     forcing = np.linalg.inv(T) @ a
     e = np.zeros(len(lam), dtype=complex)
     for lo in range(0, len(sol.k), chunk):
-        part = slice(lo, lo + chunk)
+        part = slice(lo, min(lo + chunk, len(sol.k)))
+        R, jump = _residual(sol, f, c, part)
         k = sol.k[part]
         z = (k[:, None] * lam[None, :])[..., None]  # (M, N, 1)
         # the stage right-hand sides 1 [U]_n + k a R in the stage eigenbasis: (M, N, s)
-        w = (forcing @ (R[part] @ Vi.T) * k[:, None, None]).transpose(0, 2, 1)
-        w += (jump[part] @ Vi.T)[..., None] * ones
+        w = (forcing @ (R @ Vi.T) * k[:, None, None]).transpose(0, 2, 1)
+        w += (jump @ Vi.T)[..., None] * ones
         d = w / (1 - z * mu) @ T[-1]
         flow = (ones / (1 - z * mu)) @ T[-1]  # the slab's map of e_n, per mode
         # e after the chunk: prod flow e + sum_n (prod_{m > n} flow_m) d_n
@@ -155,22 +159,23 @@ def _stage_jacobians(sol, J, nodes, part):
     return J(t, U.reshape(-1, N)).reshape(M, s, N, N)
 
 
-def _dense(sol, J, R, jump, c, a, chunk=1024):
+def _dense(sol, f, J, c, a, chunk=1024):
     """The recursion with J_j at each slab's stage points (dense, for small systems): one
     stage system (I - k a (x) J_j) per slab, solved for the local error d_n and for the
     slab's map of e_n (its last stage, the method being stiffly accurate)."""
-    M, s, N = R.shape
+    M, N, s = len(sol.k), sol.values.shape[2], len(c)
     k = sol.k
     d = np.empty((M, N))
     flow = np.empty((M, N, N))
     start = np.tile(np.eye(N), (s, 1))  # e(t_n) = 1 x e_n at every stage
     for lo in range(0, M, chunk):
         part = slice(lo, min(lo + chunk, M))
+        R, jump = _residual(sol, f, c, part)
         Js = _stage_jacobians(sol, J, c, part)
         lhs = np.eye(s * N) - k[part, None, None] * np.einsum(
             "ij,mjab->miajb", a, Js).reshape(-1, s * N, s * N)
-        forced = (np.tile(jump[part], (1, s))
-                  + k[part, None] * np.einsum("ij,mjn->min", a, R[part]).reshape(-1, s * N))
+        forced = (np.tile(jump, (1, s))
+                  + k[part, None] * np.einsum("ij,mjn->min", a, R).reshape(-1, s * N))
         starts = np.broadcast_to(start, lhs.shape[:1] + start.shape)
         rhs = np.concatenate([forced[..., None], starts], axis=2)
         last = np.linalg.solve(lhs, rhs)[:, -N:, :]
@@ -229,11 +234,10 @@ def estimate(sol, compiled=None):
     f, J = _evaluators(compiled)
     c = radau_nodes(sol.method.q + 2)
     a = collocation_matrix(c)
-    R, jump = _residual(sol, f, c)
     if constant:
         J0 = J(sol.t_start[:1], sol.values[:1, -1, :])[0]
-        return _modal(sol, J0, R, jump, a), 0.0
-    e = _dense(sol, J, R, jump, c, a)
+        return _modal(sol, f, J0, c, a), 0.0
+    e = _dense(sol, f, J, c, a)
     return e[-1], _nonlinearity(sol, f, J, e)
 
 
