@@ -27,6 +27,8 @@ It holds while the error stays small enough for the linearised equation: the mea
 that is the nonlinearity nu = max_n |f(U_n - e_n) - f(U_n) + J_n e_n| / |J_n e_n| at the
 slabs' ends (0 for linear systems); where nu > NONLINEAR_LIMIT the estimate is not used.
 """
+from types import SimpleNamespace
+
 import numpy as np
 import sympy as sp
 from numba import njit
@@ -186,6 +188,21 @@ def _dense(sol, f, J, c, a, chunk=1024):
     return e
 
 
+def _common_slabs(sol):
+    """A multi-adaptive solution as slabs: the intervals between consecutive element ends of
+    all components, on each of which every component is one polynomial of degree q, with
+    their values at the method's nodes (each from the element ending at or after the node:
+    left limits at the ends, as the mono-adaptive values)."""
+    ends = np.unique(np.concatenate([sol.t_start, sol._t_end]))
+    # (ends that differ by rounding only would make intervals of no length)
+    ends = ends[np.concatenate([[True], np.diff(ends) > 1e-13 * np.max(np.abs(ends))])]
+    t_start, k = ends[:-1], np.diff(ends)
+    nodes = np.asarray(sol.method.nodes, dtype=float)
+    values = sol((t_start[:, None] + nodes[None, :] * k[:, None]).ravel())
+    values = np.ascontiguousarray(values.T.reshape(len(k), len(nodes), -1))
+    return SimpleNamespace(method=sol.method, ode=sol.ode, t_start=t_start, k=k, values=values)
+
+
 #: Systems with a non-constant Jacobian are estimated with dense stage matrices of
 #: (q + 2) N rows per slab: at most MAX_DENSE components.
 MAX_DENSE = 200
@@ -211,20 +228,18 @@ def _nonlinearity(sol, f, J, e):
 
 
 def estimate(sol, compiled=None):
-    """(e, nu): the signed estimate e ~ U(T) - u(T), shape (N,), of a mono-adaptive
-    cG(q)/dG(q) solution, and the nonlinearity nu of the error equation along the run (see
-    the module docstring); ``compiled``: the kernels it was solved with (default: those of
-    ``sol.ode``).
+    """(e, nu): the signed estimate e ~ U(T) - u(T), shape (N,), of a cG(q)/dG(q) solution,
+    and the nonlinearity nu of the error equation along the run (see the module docstring);
+    ``compiled``: the kernels it was solved with (default: those of ``sol.ode``). A
+    multi-adaptive solution is taken on the common refinement of its elements.
 
     Raises
     ------
     ValueError
-        For a multi-adaptive solution, or more than MAX_DENSE components with a Jacobian
-        that is not constant.
+        For more than MAX_DENSE components with a Jacobian that is not constant.
     """
     if sol._component_ptr is not None:
-        raise ValueError("the global error estimate is for mono-adaptive solutions (cG(q), "
-                         "dG(q)); a multi-adaptive one has no common time slabs")
+        sol = _common_slabs(sol)
     compiled = lower(sol.ode) if compiled is None else compiled
     constant = compiled._derived("constant jacobian",
                                  lambda: _constant_jacobian(sol.ode, compiled))

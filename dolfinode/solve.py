@@ -267,15 +267,16 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         every component >= 0 from u0 >= 0 (f_i >= 0 where u_i = 0: mass-action kinetics),
         the values are kept >= -atol as for components declared nonnegative.
     estimate_global_error : bool, default False
-        cG(q)/dG(q) without events, breakpoints or switches: after the solve, estimate the
+        Without events, breakpoints or switches in f: after the solve, estimate the
         error at T (:mod:`dolfinode.global_error`: each slab's local error propagated with the
         method's own linearised slab map) into ``sol.stats["global error estimate"]``,
         scaled as the tolerance (see Notes), with ``sol.stats["global error nonlinearity"]``,
         and warn when it exceeds 10 x the tolerance (not where the error equation leaves
         its linear range: ``sol.stats["global error nonlinearity"]`` > 100). Measured within
         0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
-        and the harmonic oscillator (doc/design/global_error.md); it costs 7-35 x a small
-        solve and 7-10 x the 50-mass chain's (Python after the solve), hence off by default.
+        and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md); it
+        costs 7-35 x a small solve and 7-10 x the 50-mass chain's (Python after the solve),
+        hence off by default.
 
     Returns
     -------
@@ -349,8 +350,8 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     params = check_parameters(parameters)
     base = auto_base(method)
     if params["estimate_global_error"] and (base is not None or params["automatic_modeling"]):
-        raise ValueError("estimate_global_error is for mono-adaptive solves (cG(q), dG(q)), "
-                         "not for method='auto' or automatic_modeling")
+        raise ValueError("estimate_global_error is for cG(q), dG(q), mcG(q) and mdG(q), not "
+                         "for method='auto' or automatic_modeling")
     if base is not None:
         return solve_auto(solve, ode, base, goal, parameters, params)
     if goal is not None:
@@ -408,9 +409,9 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
     (:meth:`dolfinode.events.Plan.unresolved_switch_step`), is solved again with a step
     bound from the crossings seen, at most _SWITCH_RETRIES times, else SolverError."""
     given = params["maximum_time_step"]
-    if params["estimate_global_error"] and (multi_adaptive or plan is not None):
-        raise ValueError("estimate_global_error is for mono-adaptive solves (cG(q), dG(q)) "
-                         "without events, breakpoints or switches in f")
+    if params["estimate_global_error"] and plan is not None:
+        raise ValueError("estimate_global_error is for solves without events, breakpoints or "
+                         "switches in f")
     for _ in range(_SWITCH_RETRIES + 1):
         sol = _solve_once(ode, compiled, plan, multi_adaptive, m, params)
         step = None if plan is None else plan.unresolved_switch_step(sol)
@@ -783,7 +784,7 @@ def _warn_global_error(ode, compiled, params, sol):
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
     e, nu = global_error.estimate(sol, compiled)
-    size, i = global_error.scaled(e, sol.values[-1, -1], atol, rtol)
+    size, i = global_error.scaled(e, sol(ode.T), atol, rtol)
     sol.stats["global error estimate"] = size
     sol.stats["global error nonlinearity"] = nu
     why = (None if params["fixed_time_step"]

@@ -18,7 +18,7 @@ def _solve(problem, method, tol, **parameters):
                        absolute_tolerance=problem.atol_ratio * tol, estimate_global_error=True,
                        **parameters)
     scale = problem.atol_ratio + np.abs(problem.final)
-    error = np.max(np.abs(sol.values[-1, -1] - problem.final) / scale)
+    error = np.max(np.abs(sol(problem.T) - problem.final) / scale)
     return sol, error, [w for w in caught if issubclass(w.category, dn.ToleranceWarning)]
 
 
@@ -46,16 +46,18 @@ def test_the_estimate_tracks_the_exact_error_of_a_linear_problem(method):
     problem = problems.harmonic_problem(T=50.0)
     sol, _, _ = _solve(problem, method, 1e-5)
     e, nu = global_error.estimate(sol)
-    error = sol.values[-1, -1] - problem.final
+    error = sol(problem.T) - problem.final
     assert nu == 0.0
     assert np.max(np.abs(e - error)) < 0.1 * np.max(np.abs(error))
 
 
-def test_a_stiff_spring_chain_far_above_the_tolerance_warns():
-    """10 masses, two springs 1e4 stiffer, T = 10: cG(2) at 1e-4 lands about 200 x the
-    tolerance; the estimate says so (within 2 x) and solve warns, naming what to try."""
+@pytest.mark.parametrize("method", ["cG(2)", "mdG(2)"])
+def test_a_stiff_spring_chain_far_above_the_tolerance_warns(method):
+    """10 masses, two springs 1e4 stiffer, T = 10: cG(2) and mdG(2) at 1e-4 land far above
+    the tolerance; the estimate says so (within 2 x; a multi-adaptive solution on the common
+    refinement of its elements) and solve warns, naming what to try."""
     problem = problems.mass_spring_chain(n=10, T=10.0)
-    sol, error, caught = _solve(problem, "cG(2)", 1e-4)
+    sol, error, caught = _solve(problem, method, 1e-4)
     assert error > 10 * 1e-4
     assert 0.5 < sol.stats["global error estimate"] / error < 2.0
     assert len(caught) == 1
@@ -84,11 +86,12 @@ def test_an_error_equation_out_of_its_linear_range_does_not_warn():
     assert not caught
 
 
-def test_the_estimate_is_for_mono_adaptive_solves():
+def test_the_estimate_is_asked_for():
     x = sp.Symbol("x")
     ode = dn.ODE({x: -x}, u0=[1.0], T=1.0)
-    for method in ("mcG(1)", "auto"):
-        with pytest.raises(ValueError, match="mono-adaptive"):
-            dn.solve(ode, method=method, estimate_global_error=True)
+    with pytest.raises(ValueError, match="not for method='auto'"):
+        dn.solve(ode, method="auto", estimate_global_error=True)
+    with pytest.raises(ValueError, match="without events"):
+        dn.solve(ode, method="cG(1)", estimate_global_error=True, breakpoints=[0.5])
     sol = dn.solve(ode, method="cG(1)")
     assert "global error estimate" not in sol.stats
