@@ -32,10 +32,10 @@ from types import SimpleNamespace
 import numpy as np
 import sympy as sp
 from numba import njit
-from numpy.polynomial import legendre
 
 from dolfinode.compile import lower
 from dolfinode.compile.signatures import address, rhs_kernel
+from dolfinode.methods.quadrature import radau
 from dolfinode.ode import t as time_symbol
 
 
@@ -49,10 +49,8 @@ def collocation_matrix(nodes):
 
 
 def radau_nodes(s):
-    """The s right Radau points on [0, 1] (the last is 1): roots of P_s - P_{s-1} on [-1, 1]."""
-    c = np.zeros(s + 1)
-    c[s], c[s - 1] = 1.0, -1.0
-    return np.sort((legendre.legroots(c).real + 1) / 2)
+    """The s right Radau points on [0, 1] (the last is 1), as floats."""
+    return np.array(radau(s)[0], dtype=float)
 
 
 def lagrange_matrices(nodes, x):
