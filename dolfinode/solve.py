@@ -317,7 +317,8 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     harmonic oscillator over 1e-2..1e-10 (doc/design/tolerance.md): 125 of 144 runs within
     0.1-10 x the tolerance, none above (at most 8.7 x), down to 0.0015 x (dG(3) on VDPOL).
     It is a calibration of the local error, not a bound: a long non-dissipative run adds
-    its errors up (an oscillator bank: 29 x), which ``estimate_error`` measures. On problems
+    its errors up (an oscillator bank: 29 x), which ``estimate_error`` measures for a goal
+    and ``estimate_global_error=True`` estimates at T, with a warning above 10 x. On problems
     it was not fitted on (ROBER, POLLU, VDPOLM, a stiff heat equation; 1e-3..1e-9) one run
     lands above 10 x, with a warning (cG(2) on ROBER at 1e-7, 26 x: a
     :class:`~dolfinode.ToleranceWarning` is raised where cG(q), q even, carries a stiff deviation it
