@@ -124,11 +124,10 @@ def _residual(sol, f, nodes_at, part):
     return R, start - before
 
 
-def _modal(sol, f, J0, c, a, chunk=4096):
-    """The recursion in the eigenbasis of a constant J0, where each slab's stage system is
-    scalar per mode z = k lambda: with a = T diag(mu) T^{-1}, the last stage of
+def _modal(sol, f, lam, V, c, a, chunk=4096):
+    """The recursion in the eigenbasis (lam, V) of a constant J, where each slab's stage
+    system is scalar per mode z = k lambda: with a = T diag(mu) T^{-1}, the last stage of
     (I - z a)^{-1} x is T[-1] diag(1 / (1 - z mu)) T^{-1} x, for ``chunk`` slabs at once."""
-    lam, V = np.linalg.eig(J0)
     Vi = np.linalg.inv(V)
     mu, T = np.linalg.eig(a)
     ones = np.linalg.solve(T, np.ones(len(mu)))
@@ -201,9 +200,11 @@ def _common_slabs(sol):
     return SimpleNamespace(method=sol.method, ode=sol.ode, t_start=t_start, k=k, values=values)
 
 
-#: Systems with a non-constant Jacobian are estimated with dense stage matrices of
-#: (q + 2) N rows per slab: at most MAX_DENSE components.
+#: Systems with a non-constant Jacobian, or a constant one whose eigenvectors have a condition
+#: number above MODAL_CONDITION (a Jordan block: x' = v, v' = c), are estimated with dense
+#: stage matrices of (q + 2) N rows per slab: at most MAX_DENSE components.
 MAX_DENSE = 200
+MODAL_CONDITION = 1e8
 
 
 #: The linearised error equation is taken not to describe the error where the propagated
@@ -241,15 +242,17 @@ def estimate(sol, compiled=None):
     compiled = lower(sol.ode) if compiled is None else compiled
     constant = compiled._derived("constant jacobian",
                                  lambda: _constant_jacobian(sol.ode, compiled))
-    if not constant and compiled.N > MAX_DENSE:
-        raise ValueError(f"the global error estimate of a nonlinear system is dense: at most "
-                         f"{MAX_DENSE} components, got {compiled.N}")
     f, J = _evaluators(compiled)
     c = radau_nodes(sol.method.q + 2)
     a = collocation_matrix(c)
     if constant:
-        J0 = J(sol.t_start[:1], sol.values[:1, -1, :])[0]
-        return _modal(sol, f, J0, c, a), 0.0
+        lam, V = np.linalg.eig(J(sol.t_start[:1], sol.values[:1, -1, :])[0])
+        if np.linalg.cond(V) < MODAL_CONDITION:
+            return _modal(sol, f, lam, V, c, a), 0.0
+    if compiled.N > MAX_DENSE:
+        raise ValueError(f"the global error estimate of a nonlinear system, or of a linear one "
+                         f"whose Jacobian has no well-conditioned eigenbasis, is dense: at most "
+                         f"{MAX_DENSE} components, got {compiled.N}")
     e = _dense(sol, f, J, c, a)
     return e[-1], _nonlinearity(sol, f, J, e)
 

@@ -51,6 +51,18 @@ def test_the_estimate_tracks_the_exact_error_of_a_linear_problem(method):
     assert np.max(np.abs(e - error)) < 0.1 * np.max(np.abs(error))
 
 
+def test_a_linear_system_without_an_eigenbasis_is_estimated_densely():
+    """The free fall x' = v, v' = 1: J = [[0, 1], [0, 0]] has no eigenbasis; cG(2) solves it
+    exactly, and the estimate (dense) says so instead of inverting a singular eigenvector
+    matrix."""
+    x, v = sp.symbols("x v")
+    sol = dn.solve(dn.ODE({x: v, v: 1}, u0=[0.0, 0.0], T=10.0), method="cG(2)",
+                   tolerance=1e-6, estimate_global_error=True)
+    e, nu = global_error.estimate(sol)
+    assert np.all(np.isfinite(e)) and np.max(np.abs(e)) < 1e-10
+    assert sol.stats["global error estimate"] < 1e-10
+
+
 @pytest.mark.parametrize("method", ["cG(2)", "mdG(2)"])
 def test_a_stiff_spring_chain_far_above_the_tolerance_warns(method):
     """10 masses, two springs 1e4 stiffer, T = 10: cG(2) and mdG(2) at 1e-4 land far above
