@@ -58,7 +58,7 @@ def test_a_linear_system_without_an_eigenbasis_is_estimated_densely():
     x, v = sp.symbols("x v")
     sol = dn.solve(dn.ODE({x: v, v: 1}, u0=[0.0, 0.0], T=10.0), method="cG(2)",
                    tolerance=1e-6, estimate_global_error=True)
-    e, nu = global_error.estimate(sol)
+    e, _ = global_error.estimate(sol)
     assert np.all(np.isfinite(e)) and np.max(np.abs(e)) < 1e-10
     assert sol.stats["global error estimate"] < 1e-10
 
