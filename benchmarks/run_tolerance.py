@@ -22,6 +22,12 @@ Usage::
     python benchmarks/run_tolerance.py --uncalibrated
     python benchmarks/run_tolerance.py --methods "mcG(1),mcG(2),mcG(3),mdG(1),mdG(2),mdG(3)"
     python benchmarks/run_tolerance.py --problems out-of-sample
+    python benchmarks/run_tolerance.py --global-error [--problems out-of-sample]
+
+``--global-error`` solves every run with ``estimate_global_error=True`` (the
+estimate of :mod:`dolfinode.global_error`, which warns above 10 x the tolerance); the summary
+counts the runs within the band that warned (false alarms) besides those above it without a
+warning.
 """
 import argparse
 import itertools
@@ -69,15 +75,17 @@ def cases(multi_adaptive, sample="fitted"):
     return chosen
 
 
-def delivered(problem, method, tolerance, calibrate):
+def delivered(problem, method, tolerance, calibrate, global_error=False):
     """(scaled error at T, time slabs, elements, whether it warned (ToleranceWarning)) of a
-    solve at ``tolerance``; (inf, 0, 0, False) if it fails."""
+    solve at ``tolerance`` (with ``estimate_global_error=global_error``); (inf, 0, 0, False)
+    if it fails."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", dn.ToleranceWarning)
         try:
             sol = dn.solve(problem.ode, method=method, tolerance=tolerance,
                            absolute_tolerance=problem.atol_ratio * tolerance,
-                           maximum_steps=2_000_000, calibrate_tolerance=calibrate)
+                           maximum_steps=2_000_000, calibrate_tolerance=calibrate,
+                           estimate_global_error=global_error)
         except dn.SolverError:
             return float("inf"), 0, 0, False
     warned = any(issubclass(w.category, dn.ToleranceWarning) for w in caught)
@@ -106,9 +114,16 @@ def summary(rows):
     failed = [f"{r['method']} on {r['problem']} at {r['tolerance']:.0e}" for r in rows
               if r["error"] == float("inf")]
     listed = "; ".join(silent[:LISTED]) + ("; ..." if len(silent) > LISTED else "")
+    alarms = [f"{r['method']} on {r['problem']} at {r['tolerance']:.0e}: "
+              f"{r['error'] / r['tolerance']:.3g} x" for r in rows
+              if r.get("warned") and 0.1 <= r["error"] / r["tolerance"] <= 10]
+    estimated = sum(bool(r.get("global_error")) for r in rows)
     return [f"- runs within [0.1, 10] x tolerance: {within} of {len(rows)}",
             f"- runs above 10 x: {len(above)}, without a ToleranceWarning: {len(silent)}"
             + (f" ({listed})" if silent else ""),
+            f"- runs within [0.1, 10] x with a ToleranceWarning (false alarms): {len(alarms)}"
+            + (f" ({'; '.join(alarms)})" if alarms else "")
+            + (f"; {estimated} runs with estimate_global_error=True" if estimated else ""),
             f"- runs stopped by a SolverError: {len(failed)}"
             + (f" ({', '.join(failed)})" if failed else ""),
             f"- error growing > 1.5x as the tolerance tightens: {len(growing)}"
@@ -149,6 +164,8 @@ def main():
     parser.add_argument("--methods")
     parser.add_argument("--problems", choices=("fitted", "out-of-sample"), default="fitted")
     parser.add_argument("--uncalibrated", action="store_true")
+    parser.add_argument("--global-error", action="store_true",
+                        help="solve with estimate_global_error=True")
     args = parser.parse_args()
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
                             capture_output=True, text=True, check=False).stdout.strip()
@@ -173,12 +190,13 @@ def main():
             for tolerance in tolerances:
                 if method.endswith("(1)") and tolerance < 1e-7:
                     continue
+                estimated = args.global_error
                 error, slabs, elements, warned = delivered(problem, method, tolerance,
-                                                           calibrate)
+                                                           calibrate, estimated)
                 rows.append({"problem": problem.name, "method": method, "tolerance": tolerance,
                              "error": error, "slabs": slabs, "elements": elements,
                              "warned": warned, "commit": commit,
-                             "sample": args.problems})
+                             "sample": args.problems, "global_error": estimated})
                 print(f"{problem.name:8} {method:6} tol {tolerance:.0e} error {error:.2e} "
                       f"ratio {error / tolerance:8.3g} elements {elements}"
                       + (" (warned)" if warned else ""), flush=True)

@@ -39,6 +39,7 @@ DEFAULTS = {
     "strict": False,               # automatic modeling: raise instead of a ModelingWarning
     "events": None,                # g(u, t) expressions or dn.Event: zero crossings located
     "breakpoints": None,           # times where f(t) is not smooth that the declaration hides
+    "estimate_global_error": False,  # estimate the error at T after the solve (mono, warns at 10x)
 }
 
 #: The defaults as users see them (``dn.default_parameters``): read-only, so that a change
@@ -216,6 +217,7 @@ _CHECKS = {
     "events": _events,
     "breakpoints": _times,
     "strict": _switch,
+    "estimate_global_error": _switch,
 }
 
 

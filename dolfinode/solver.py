@@ -130,7 +130,8 @@ class Solver:
         self._work.__dict__.pop("_kept_solvers", None)  # (its solutions would keep them alive)
         self._buffers = self._interval = None
         if (plan is None and params["dense_output"] is True and not params["progress"]
-                and not params["automatic_modeling"]):
+                and not params["automatic_modeling"]
+                and not params["estimate_global_error"]):
             m = self._method
             if self._multi_adaptive:  # (the loop's first buffers, as in _run_multi)
                 self._buffers = self._kept_buffers(

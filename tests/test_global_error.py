@@ -1,0 +1,109 @@
+"""The estimate of the error at T (dolfinode.global_error) and solve's warning from it."""
+import warnings
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import dolfinode as dn
+from dolfinode import global_error
+from dolfinode.bench import problems
+
+
+def _solve(problem, method, tol, **parameters):
+    """(sol, measured scaled error at T, ToleranceWarnings) of a solve with the estimate."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", dn.ToleranceWarning)
+        sol = dn.solve(problem.ode, method=method, tolerance=tol,
+                       absolute_tolerance=problem.atol_ratio * tol, estimate_global_error=True,
+                       **parameters)
+    scale = problem.atol_ratio + np.abs(problem.final)
+    error = np.max(np.abs(sol(problem.T) - problem.final) / scale)
+    return sol, error, [w for w in caught if issubclass(w.category, dn.ToleranceWarning)]
+
+
+@pytest.mark.parametrize("s", [2, 3, 4])
+def test_the_error_equation_solver_is_radau_iia(s):
+    """The s-stage collocation on the right Radau points: R(z) = 1 + z a_s (I - z a)^{-1} 1
+    (stiffly accurate) is L-stable, A-stable on the imaginary axis, and agrees with e^z to
+    order 2s - 1."""
+    nodes = global_error.radau_nodes(s)
+    a = global_error.collocation_matrix(nodes)
+
+    def R(z):
+        return 1 + z * a[-1] @ np.linalg.solve(np.eye(s) - z * a, np.ones(s))
+
+    assert nodes[-1] == pytest.approx(1.0)
+    assert abs(R(-1e12)) < 1e-10 and abs(R(3.7j)) < 1.0
+    err = [abs(R(z) - np.exp(z)) for z in (0.4, 0.2)]
+    assert np.log2(err[0] / err[1]) == pytest.approx(2 * s, abs=0.5)
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)"])
+def test_the_estimate_tracks_the_exact_error_of_a_linear_problem(method):
+    """Harmonic oscillator over 8 periods: the signed estimate is the error vector at T
+    within 10 % (measured 0.99-1.00 over cG(1..3), dG(1..3), 1e-3..1e-7)."""
+    problem = problems.harmonic_problem(T=50.0)
+    sol, _, _ = _solve(problem, method, 1e-5)
+    e, nu = global_error.estimate(sol)
+    error = sol(problem.T) - problem.final
+    assert nu == 0.0
+    assert np.max(np.abs(e - error)) < 0.1 * np.max(np.abs(error))
+
+
+def test_a_linear_system_without_an_eigenbasis_is_estimated_densely():
+    """The free fall x' = v, v' = 1: J = [[0, 1], [0, 0]] has no eigenbasis; cG(2) solves it
+    exactly, and the estimate (dense) says so instead of inverting a singular eigenvector
+    matrix."""
+    x, v = sp.symbols("x v")
+    sol = dn.solve(dn.ODE({x: v, v: 1}, u0=[0.0, 0.0], T=10.0), method="cG(2)",
+                   tolerance=1e-6, estimate_global_error=True)
+    e, _ = global_error.estimate(sol)
+    assert np.all(np.isfinite(e)) and np.max(np.abs(e)) < 1e-10
+    assert sol.stats["global error estimate"] < 1e-10
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "mdG(2)"])
+def test_a_stiff_spring_chain_far_above_the_tolerance_warns(method):
+    """10 masses, two springs 1e4 stiffer, T = 10: cG(2) and mdG(2) at 1e-4 land far above
+    the tolerance; the estimate says so (within 2 x; a multi-adaptive solution on the common
+    refinement of its elements) and solve warns, naming what to try."""
+    problem = problems.mass_spring_chain(n=10, T=10.0)
+    sol, error, caught = _solve(problem, method, 1e-4)
+    assert error > 10 * 1e-4
+    assert 0.5 < sol.stats["global error estimate"] / error < 2.0
+    assert len(caught) == 1
+    assert "tighter tolerance" in str(caught[0].message)
+
+
+@pytest.mark.parametrize("name, tol", [("hires", 1e-4), ("rober", 1e-5)])
+def test_stiff_runs_within_the_band_do_not_warn(name, tol):
+    """HIRES and ROBER with dG(2) land within 0.1-10 x the tolerance (or below): the
+    estimate, propagated with the method's damping, follows the error (measured 0.75-1.4 x)
+    and raises no warning."""
+    problem = {"hires": problems.hires_problem, "rober": problems.rober}[name]()
+    sol, error, caught = _solve(problem, "dG(2)", tol)
+    assert error < 10 * tol and not caught
+    assert 1 / 3 < sol.stats["global error estimate"] / error < 3
+    assert sol.stats["global error nonlinearity"] < global_error.NONLINEAR_LIMIT
+
+
+def test_an_error_equation_out_of_its_linear_range_does_not_warn():
+    """VDPOL (eps = 1e-6) at 1e-3: across the folds the linearised error grows far beyond
+    the error (estimate 700 x it); the nonlinearity measure shows it, and no warning."""
+    problem = problems.vdpol()
+    sol, error, caught = _solve(problem, "dG(2)", 1e-3)
+    assert error < 10 * 1e-3
+    assert sol.stats["global error nonlinearity"] > global_error.NONLINEAR_LIMIT
+    assert not caught
+
+
+def test_the_estimate_is_asked_for():
+    x = sp.Symbol("x")
+    ode = dn.ODE({x: -x}, u0=[1.0], T=1.0)
+    with pytest.raises(ValueError, match="not for method='auto'"):
+        dn.solve(ode, method="auto", estimate_global_error=True)
+    with pytest.raises(ValueError, match="without events"):
+        dn.solve(ode, method="cG(1)", estimate_global_error=True, breakpoints=[0.5])
+    sol = dn.solve(ode, method="cG(1)")
+    assert "global error estimate" not in sol.stats
