@@ -40,8 +40,10 @@ from dolfinode.problems import mass_spring_chain as uniform_chain
 TARGET = 1.3
 #: What the last run showed, in words (kept with the script that measures it).
 NOTES = [
-    ("Within 1.3x on all 9 problems in this run (load 2.1 at its start, falling, 2 cores); a "
-     "run beside a test suite the same day (load 3.4-5.1) gave the front 1.34x. During the "
+    ("0.94-1.34x in this run (load 0.0-0.5, 2 cores): above 1.3x the chain with 2 stiff "
+     "springs (1.34x) and the reaction front (1.32x), as in a run an hour before at load 1.0 "
+     "(1.33x, 1.32x); they were 1.24x and 1.29x before the fused path of synchronised slabs made "
+     "mcG(2) faster, while the cG(2) stretches before the switch cost the same. During the "
      "rework, at a load of 11-12, the reaction front and the moving source came out at "
      "1.31-1.32x; over five runs the ratios moved by up to 0.1 (front 1.27-1.32, moving "
      "source 1.19-1.38, late fast bank 1.25-1.34, uniform chain 1.12-1.29). What changed for "
