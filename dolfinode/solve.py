@@ -268,11 +268,12 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         the values are kept >= -atol as for components declared nonnegative.
     estimate_global_error : bool, default False
         Without events, breakpoints or switches in f: after the solve, estimate the
-        error at T (:mod:`dolfinode.global_error`: each slab's local error propagated with the
-        method's own linearised slab map) into ``sol.stats["global error estimate"]``,
+        error at T (:mod:`dolfinode.global_error`: each slab's local error propagated to T
+        by the linearised flow) into ``sol.stats["global error estimate"]``,
         scaled as the tolerance (see Notes), with ``sol.stats["global error nonlinearity"]``,
-        and warn when it exceeds 10 x the tolerance (not where the error equation leaves
-        its linear range: ``sol.stats["global error nonlinearity"]`` > 100). Measured within
+        and warn when it exceeds 10 x the tolerance (where the error equation leaves its
+        linear range, ``sol.stats["global error nonlinearity"]`` > 100, the warning says that
+        the error could not be estimated). Measured within
         0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
         and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md); it
         costs 7-35 x a small solve and 7-10 x the 50-mass chain's (Python after the solve),
