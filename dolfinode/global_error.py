@@ -32,10 +32,10 @@ from types import SimpleNamespace
 
 import numpy as np
 import sympy as sp
-from numba import njit
 
 from dolfinode.compile import lower
-from dolfinode.compile.signatures import address, rhs_kernel
+from dolfinode.compile.signatures import call_rhs_rows
+from dolfinode.dual.problem import monomial_coefficients
 from dolfinode.methods.quadrature import radau
 from dolfinode.ode import t as time_symbol
 
@@ -44,7 +44,7 @@ def collocation_matrix(nodes):
     """The Butcher matrix of the collocation method on ``nodes`` in [0, 1]:
     a_ij = int_0^{c_i} l_j, with l_j the Lagrange basis on the nodes."""
     nodes = np.asarray(nodes, dtype=float)
-    C = np.linalg.inv(np.vander(nodes, increasing=True))  # l_j(x) = sum_p C[p, j] x^p
+    C = monomial_coefficients(nodes).T  # l_j(x) = sum_p C[p, j] x^p
     powers = np.arange(1, len(nodes) + 1)
     return (nodes[:, None] ** powers[None, :] / powers[None, :]) @ C
 
@@ -56,22 +56,12 @@ def radau_nodes(s):
 
 def lagrange_matrices(nodes, x):
     """(B, D): B[i, j] = l_j(x_i), D[i, j] = l_j'(x_i) for the Lagrange basis on ``nodes``."""
-    nodes = np.asarray(nodes, dtype=float)
-    C = np.linalg.inv(np.vander(nodes, increasing=True))
+    C = monomial_coefficients(np.asarray(nodes, dtype=float)).T
     p = np.arange(len(nodes))
     X = np.asarray(x, dtype=float)[:, None]
     B = (X ** p) @ C
     D = (p * X ** np.maximum(p - 1, 0)) @ C
     return B, D
-
-
-@njit(cache=True)
-def _kernel_at(kernel_address, U, t, p, out):
-    """out[i] = kernel(U[i], t[i]) at each point i: f, or the Jacobian's CSR values."""
-    kernel = rhs_kernel(kernel_address)
-    N, width = U.shape[1], out.shape[1]
-    for i in range(U.shape[0]):
-        kernel(address(U, i * N), t[i], address(p, 0), address(out, i * width))
 
 
 def _evaluators(compiled):
@@ -81,12 +71,12 @@ def _evaluators(compiled):
 
     def f(t, U):
         out = np.empty(U.shape)
-        _kernel_at(compiled.rhs.address, np.ascontiguousarray(U), t, compiled.p, out)
+        call_rhs_rows(compiled.rhs.address, np.ascontiguousarray(U), t, compiled.p, out)
         return out
 
     def J(t, U):
         data = np.empty((len(t), max(compiled.nnz, 1)))
-        _kernel_at(compiled.jacobian.address, np.ascontiguousarray(U), t, compiled.p, data)
+        call_rhs_rows(compiled.jacobian.address, np.ascontiguousarray(U), t, compiled.p, data)
         out = np.zeros((len(t), N, N))
         out[:, rows, compiled.indices] = data[:, :compiled.nnz]
         return out

@@ -39,7 +39,7 @@ DEFAULTS = {
     "strict": False,               # automatic modeling: raise instead of a ModelingWarning
     "events": None,                # g(u, t) expressions or dn.Event: zero crossings located
     "breakpoints": None,           # times where f(t) is not smooth that the declaration hides
-    "estimate_global_error": False,  # estimate the error at T after the solve (mono, warns at 10x)
+    "estimate_global_error": False,  # estimate the error at T after the solve, warn above 10x
 }
 
 #: The defaults as users see them (``dn.default_parameters``): read-only, so that a change

@@ -105,3 +105,13 @@ def call_rhs(kernel_address, u, t, p, out):
     from Python an order of magnitude cheaper than through ctypes, which makes an object per
     pointer."""
     rhs_kernel(kernel_address)(address(u, 0), t, address(p, 0), address(out, 0))
+
+
+@njit(cache=True)
+def call_rhs_rows(kernel_address, U, t, p, out):
+    """out[j] = f(U[j], t[j]) (or the Jacobian's values) for every row j: one compiled call
+    for many points (U and out C-contiguous, one row per point)."""
+    kernel = rhs_kernel(kernel_address)
+    N, width = U.shape[1], out.shape[1]
+    for j in range(U.shape[0]):
+        kernel(address(U, j * N), t[j], address(p, 0), address(out, j * width))

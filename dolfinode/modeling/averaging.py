@@ -20,9 +20,8 @@ from dataclasses import dataclass
 from functools import cache
 
 import numpy as np
-from numba import njit, types
 
-from dolfinode.compile.signatures import rhs_kernel
+from dolfinode.compile.signatures import call_rhs_rows
 
 
 @cache
@@ -90,16 +89,6 @@ def window_times(center, tau, samples, t0, T):
             sample(center + tau / 2, tau / 2, samples // 2))
 
 
-@njit(types.void(types.intp, types.float64[::1], types.float64[:, ::1], types.float64[::1],
-                 types.float64[:, ::1]), cache=True)
-def _rhs_at(rhs_address, p, states, times, out):
-    """out[j] = f(states[j], times[j]) for every row j, compiled (from Python, one call of
-    the kernel per averaging time was most of automatic modeling's time on small systems)."""
-    rhs = rhs_kernel(rhs_address)
-    for j in range(times.shape[0]):
-        rhs(states[j].ctypes, times[j], p.ctypes, out[j].ctypes)
-
-
 class WindowAverager:
     """The sums of :func:`average_window` accumulated from consecutive pieces of a resolved
     window, so that the window is never held: neither its elements nor its values at the
@@ -141,8 +130,8 @@ class WindowAverager:
             self._sums[row] += values @ weights[start:end]
             states = np.ascontiguousarray(values.T)
             f_values = np.empty_like(states)
-            _rhs_at(self.compiled.rhs.address, self.compiled.p, states,
-                    np.ascontiguousarray(times[start:end]), f_values)
+            call_rhs_rows(self.compiled.rhs.address, states,
+                          np.ascontiguousarray(times[start:end]), self.compiled.p, f_values)
             self._sums[f_row] += weights[start:end] @ f_values
             if row == 0:
                 np.maximum(self._max, values.max(axis=1), out=self._max)
