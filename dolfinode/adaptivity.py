@@ -105,7 +105,7 @@ def refined_step(k0, f0, f1, u0, atol, rtol, order, span):
 
 
 @helper()
-def _scaled(k, factor):
+def clamped_step(k, factor):
     """k times the controller's ``factor`` clamped to [MIN_FACTOR, MAX_FACTOR] (MIN_FACTOR
     where it is not finite)."""
     if not math.isfinite(factor):
@@ -124,7 +124,7 @@ def next_step(k, eps, eps_prev, order, safety, accepted):
         factor = safety * eps ** (-0.7 / order) * max(eps_prev, 1e-10) ** (0.4 / order)
     else:
         factor = safety * eps ** (-1.0 / order)
-    return _scaled(k, factor)
+    return clamped_step(k, factor)
 
 
 #: The predictive controller (:func:`predicted_step`) takes the last accepted estimate as at
@@ -148,7 +148,7 @@ def predicted_step(k, eps, k_prev, eps_prev, order, safety):
     eps = max(eps, 1e-10)
     factor = (safety * (k / k_prev)
               * (max(eps_prev, PREDICTED_FLOOR) / (eps * eps)) ** (1.0 / order))
-    return _scaled(k, factor)
+    return clamped_step(k, factor)
 
 
 @helper()

@@ -8,7 +8,7 @@ import math
 import numpy as np
 from numba import types
 
-from dolfinode.adaptivity import MAX_FACTOR, MIN_FACTOR, filter_residuals, stiff_deviation
+from dolfinode.adaptivity import MAX_FACTOR, clamped_step, filter_residuals, stiff_deviation
 from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.counters import F_EVALUATIONS
@@ -138,9 +138,7 @@ def choose_steps(active, nactive, checked, nchecked, emax, kact, kdes, frozen, s
         # above it the controller of ``next_step`` without history, by ``inverse_root``
         knew = kref * MAX_FACTOR
         if not eref <= efloor:
-            factor = safety * inverse_root(max(eref, 1e-10), order)
-            knew = kref * (min(MAX_FACTOR, max(MIN_FACTOR, factor)) if math.isfinite(factor)
-                           else MIN_FACTOR)
+            knew = clamped_step(kref, safety * inverse_root(max(eref, 1e-10), order))
         if accept:
             knew = 2.0 * kdes[i] * knew / (kdes[i] + knew)  # harmonic-mean regulator
         elif emax[i] > ACCEPTANCE_MARGIN:
