@@ -41,6 +41,23 @@ def kernel_weights(samples):
     return weights
 
 
+#: Degree of the polynomial in time that stands for a slow component across a window when its
+#: fast oscillation is measured: the least-squares residual of a smooth u over [-tau, tau]
+#: is then O(tau^6 |u^(6)| / 6!), below the oscillation of any fast scale worth modeling.
+TREND_DEGREE = 5
+
+
+@cache
+def trend_basis(samples):
+    """Orthonormal columns (2 ``samples`` + 1, TREND_DEGREE + 1) spanning the polynomials of
+    degree <= TREND_DEGREE at the equispaced averaging times of a window (the QR factor of
+    their Legendre-Vandermonde matrix)."""
+    s = np.linspace(-1.0, 1.0, 2 * samples + 1)
+    basis = np.linalg.qr(np.polynomial.legendre.legvander(s, TREND_DEGREE))[0]
+    basis.setflags(write=False)
+    return basis
+
+
 @dataclass
 class WindowAverages:
     """Averages of the full model over one resolved window [t_c - tau, t_c + tau].
@@ -57,6 +74,9 @@ class WindowAverages:
         perturbation that restarts the full model at control points
     halves : the averages of the two half windows, :class:`HalfWindow` about t_c -+ tau / 2
         (two more samples of the slow state and the force for the affine model's first fit)
+    amplitude : sqrt(2) x the root mean square of u - p over the window's samples, p the
+        least-squares polynomial of degree TREND_DEGREE in t: the amplitude of u's fast
+        oscillation (of a sinusoid, exactly), by which u differs from u-bar pointwise
     """
 
     center: float
@@ -66,6 +86,7 @@ class WindowAverages:
     drift: np.ndarray
     fluctuation: np.ndarray
     halves: tuple = ()
+    amplitude: np.ndarray = None
 
 
 @dataclass
@@ -116,6 +137,11 @@ class WindowAverager:
         self._sums = np.zeros((6, compiled.N))
         self._max, self._min = np.full(compiled.N, -np.inf), np.full(compiled.N, np.inf)
         self._last = None
+        # the window's values projected on trend_basis and their squares, shifted by the
+        # first value (the squares then do not cancel the solution's size)
+        self._trend = np.zeros((compiled.N, TREND_DEGREE + 1))
+        self._squares = np.zeros(compiled.N)
+        self._shift = None
 
     def record(self, piece):
         """Add the averaging times in a piece of the window (a solution on a sub-interval;
@@ -137,6 +163,11 @@ class WindowAverager:
                 np.maximum(self._max, values.max(axis=1), out=self._max)
                 np.minimum(self._min, values.min(axis=1), out=self._min)
                 self._last = values[:, -1].copy()
+                if self._shift is None:
+                    self._shift = values[:, 0].copy()
+                shifted = values - self._shift[:, None]
+                self._trend += shifted @ trend_basis(len(times) // 2)[start:end]
+                self._squares += np.einsum("ij,ij->i", shifted, shifted)
 
     def averages(self):
         """The :class:`WindowAverages` once every piece is recorded."""
@@ -146,9 +177,11 @@ class WindowAverager:
             drift = np.where(spread > 0, np.abs(second - first) / spread, np.inf)
         halves = (HalfWindow(self.center - self.tau / 2, first, f_first),
                   HalfWindow(self.center + self.tau / 2, second, f_second))
+        residual = np.maximum(self._squares - np.sum(self._trend**2, axis=1), 0.0)
+        amplitude = np.sqrt(2 * residual / len(self._reads[0][0]))
         return WindowAverages(self.center, u_bar, f_bar,
                               f_bar - self.compiled.f(u_bar, self.center), drift,
-                              self._last - u_bar, halves)
+                              self._last - u_bar, halves, amplitude)
 
 
 def average_window(solution, compiled, center, tau, samples):

@@ -48,7 +48,7 @@ from dolfinode.modeling.reduced import (
     fast_time_scale,
     inactive_components,
 )
-from dolfinode.modeling.validity import check_validity
+from dolfinode.modeling.validity import check_oscillation, check_validity
 from dolfinode.solution import Solution, join_elements
 
 #: Solver parameters that configure the modeling, not the inner solves.
@@ -310,6 +310,7 @@ def _checked(sol, model, runs, params, start_time, stacklevel=5):
     model.estimate = check_validity(model, params["tolerance"], params["model_tolerance"],
                                     params["strict"], stacklevel)
     sol.stats["modeling error estimate"] = model.estimate.total if model.estimate else np.nan
+    sol.stats["fast oscillation"] = check_oscillation(model, params["tolerance"], stacklevel)
     return sol
 
 

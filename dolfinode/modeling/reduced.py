@@ -390,6 +390,12 @@ class ReducedModel:
         rows, cols = self._pattern
         return np.bincount(rows, weights=self._G * v[cols], minlength=self.ode.N)
 
+    @property
+    def windows(self):
+        """The :class:`~dolfinode.modeling.averaging.WindowAverages` of every resolved window,
+        in time order."""
+        return tuple(self._windows)
+
     def record(self, averages):
         """Keep a window's averages as data for the affine fit."""
         self._windows.append(averages)

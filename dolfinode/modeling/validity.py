@@ -21,6 +21,11 @@ that error before the dynamics propagate it, and is checked against the toleranc
 default goal
 is every slow (active) component at T, each on its own (one dual per component, up to
 DUAL_COMPONENTS of them; the sum of the active components beyond).
+
+The estimate is against u-bar: pointwise the full solution u differs from it also by the fast
+oscillation of the slow components (a slow y' = -y + x^2 forced by x = cos(omega t) carries
+y - y-bar = sin(2 omega t) / (4 omega)). Its amplitude, measured in every resolved window, is
+checked against the tolerance too (:func:`check_oscillation`).
 """
 import warnings
 from dataclasses import dataclass
@@ -217,3 +222,30 @@ def check_validity(model, tolerance, model_tolerance, strict, stacklevel=5):
         raise SolverError("automatic modeling: " + message, t=estimate.worst_time)
     warnings.warn(message, ModelingWarning, stacklevel=stacklevel)
     return estimate
+
+
+#: The words that tell the warning of :func:`check_oscillation` from the model's own.
+OSCILLATION = "oscillates about it on the fast scale"
+
+
+def check_oscillation(model, tolerance, stacklevel=5):
+    """Warn (``ModelingWarning``) when a slow (active) component oscillates on the fast scale,
+    in a resolved window, with an amplitude above ``tolerance``: the solution, an average,
+    then differs from the full one pointwise by about that much whatever its error estimate.
+    Returns the largest amplitude (0 for the flow-averaged model, which resolves no window
+    of the full model)."""
+    if model.subgrid_model == "flow":
+        return 0.0
+    amplitudes = [np.where(model.active, w.amplitude, 0.0) for w in model.windows]
+    window, i = np.unravel_index(np.argmax(amplitudes), (len(amplitudes), model.ode.N))
+    largest = float(amplitudes[window][i])
+    if largest > tolerance:
+        warnings.warn(
+            f"the solution is the average of the full one over the averaging kernel "
+            f"(average_length {model.average_length:.3g}): its slow component {model.ode.states[i]} "
+            f"{OSCILLATION} with amplitude {largest:.3g} (measured in "
+            f"the window at t = {model.windows[window].center:.4g}), above the tolerance "
+            f"{tolerance:g}, so pointwise the full solution differs from the returned one by "
+            "about that much; sol.stats['fast oscillation'] holds it. For pointwise accuracy "
+            "solve without automatic_modeling", ModelingWarning, stacklevel=stacklevel)
+    return largest

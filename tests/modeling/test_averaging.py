@@ -67,7 +67,28 @@ def test_window_averaged_piece_by_piece_equals_the_whole_window():
     for T in (0.5, 1.25, 2.0):  # 0.5 and 1.25 are averaging times
         averager.record(Piece(T))
     pieces = averager.averages()
-    for name in ("u_bar", "f_bar", "g_bar", "drift", "fluctuation"):
+    for name in ("u_bar", "f_bar", "g_bar", "drift", "fluctuation", "amplitude"):
         np.testing.assert_allclose(getattr(pieces, name), getattr(expected, name), rtol=0,
                                    atol=1e-12, err_msg=name)
     assert pieces.center == expected.center == tau
+
+
+@pytest.mark.parametrize("amplitude", [0.0, 1e-7, 3e-3])
+def test_amplitude_of_a_fast_oscillation_about_a_slow_trend(amplitude):
+    """u = 1 + t - t^2 / 3 + exp(t) / 5 + a sin(omega t + 0.4) on a window: the amplitude is a
+    within 2 % (the slow trend leaves below 1e-9), whatever the slow part; f is not read."""
+    omega, tau, center = 377.0, 0.1, 0.7
+
+    class Piece:
+        ode = SimpleNamespace(T=center + tau)
+
+        def __call__(self, t):
+            return np.array([1 + t - t**2 / 3 + np.exp(t) / 5
+                             + amplitude * np.sin(omega * t + 0.4)])
+
+    u = sp.symbols("u")
+    averager = WindowAverager(lower(dn.ODE({u: -u}, u0=[1.0], T=1.0)), center, tau, 1000,
+                              0.0, 1.0)
+    averager.record(Piece())
+    measured = averager.averages().amplitude[0]
+    assert measured == pytest.approx(amplitude, rel=0.02, abs=1e-9)

@@ -14,6 +14,7 @@ from dolfinode.bench import multiscale
 from dolfinode.bench.problems import seed_model
 from dolfinode.modeling.flow import FlowModel, stiffness_parameter
 from dolfinode.modeling.reduced import ReducedModel
+from dolfinode.modeling.validity import OSCILLATION
 
 SETTINGS = {"method": "cG(2)", "tolerance": 1e-4, "automatic_modeling": True}
 #: rho = sqrt(kappa) above 150 rho_slow (1.4 for the adiabatic class, 4 for Fermi-Pasta-Ulam,
@@ -23,8 +24,11 @@ SPAN = {"fermi_pasta_ulam": {"T": 25.0}}
 
 
 def _solve(ode, **extra):
+    """(solution, its ModelingWarnings on the model; the fast oscillation's is
+    test_validity's)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
+        warnings.filterwarnings("ignore", message=f".*{OSCILLATION}")
         sol = dn.solve(ode, **SETTINGS, **extra)
     return sol, [w for w in caught if issubclass(w.category, dn.ModelingWarning)]
 
