@@ -646,6 +646,7 @@ class MultiPieces(_Pieces):
     def restart(self, sigma):
         self.p[self.n_params:] = sigma
         self.kdes[:] = np.minimum(self.kdes, self.step_guess(self.x, self.t()))
+        self.state["carried"] = False  # (the loop's carried state predates the jump)
 
     def view(self, chunk):
         """The chunk as a Solution, the frozen components as constants since they froze."""
@@ -669,6 +670,7 @@ class MultiPieces(_Pieces):
         where all components meet), which is te when te is just past it (``located``)."""
         state, x, kdes, frozen = self.saved
         self.state[:], self.x[:], self.kdes[:], self.frozen[:] = state, x, kdes, frozen
+        self.state["carried"] = False  # (its carried arrays are the chunk's end's)
         if te - state["t"][0] <= self.located(te):
             te = float(state["t"][0])
         return [a[:0] for a in chunk], te
