@@ -603,7 +603,7 @@ class MonoPieces(_Pieces):
         """A fresh start at the current time with the branches sigma."""
         self.p[self.n_params:] = sigma
         self.f0[:] = self.f(self.x, self.t())
-        self.state[["have_f0", "eps_prev", "k_accepted"]] = True, 1.0, 0.0
+        self.state[["have_f0", "eps_prev", "k_accepted", "carried"]] = True, 1.0, 0.0, False
         self.state["k_next"] = min(self.state["k_next"][0], self.step_guess(self.x, self.t()))
 
     def view(self, chunk):
@@ -631,7 +631,7 @@ class MonoPieces(_Pieces):
         else:
             keep, t, x = n, t_start[n], left
         self.x[:] = x
-        self.state[["t", "k_next", "have_f0"]] = t, k[n], False
+        self.state[["t", "k_next", "have_f0", "carried"]] = t, k[n], False, False
         return [a[:keep] for a in chunk], te
 
 

@@ -708,13 +708,14 @@ def _newton_options(compiled, m, options):
 
 
 def _mono_arguments(compiled, structure, tables, options, atol, floor, x, f0, state,
-                    counters):
-    """The mono-adaptive loop's arguments but its output buffers: a call
+                    counters, carried):
+    """The mono-adaptive loop's arguments but its output buffers, with the arrays it carries
+    over calls (:func:`dolfinode.timeslab.mono.carry`): a call
     ``mono.advance.unchecked(*arguments, out_t, out_k, out_X)`` runs slabs until T or until
     the buffers are full, and returns its status."""
     return (compiled.rhs.address, compiled.jacobian.address, compiled.p, compiled.indptr,
             compiled.indices, structure.tuple, *tables, options, atol, floor, x, f0, state,
-            counters)
+            counters, carried)
 
 
 def _mono_capacity(ode, m):
@@ -758,9 +759,17 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, stat
 
     buffers = _mono_buffers(ode, m, params, counters)
 
+    carried = None
+
     def advance(*buffers):
+        nonlocal carried
+        ready = bool(options["newton_ready"][0])
+        if carried is None or (ready and carried[4].size == 0):  # (decided since: made)
+            carried = mono.carry(ode.N, m, structure, ready,
+                                 None if carried is None else carried[0])
         return mono.advance.unchecked(*_mono_arguments(
-            compiled, structure, tables, options, atol, floor, x, f0, state, counters), *buffers)
+            compiled, structure, tables, options, atol, floor, x, f0, state, counters,
+            carried), *buffers)
 
     first = None
     if kept is not None:

@@ -255,7 +255,9 @@ class Solver:
             structure, _, _ = _newton_options(compiled, m, options)
             steps, frozen = given.copy(), None
             arguments = _mono_arguments(compiled, structure, mono.method_tables(m), options,
-                                        loop_atol, floor, x, f0, state, counters)
+                                        loop_atol, floor, x, f0, state, counters,
+                                        mono.carry(n, m, structure,
+                                                   bool(options["newton_ready"][0])))
             advance = mono.advance
         self._samples = history.sink(work, m, multi_adaptive, params).samples  # (checked)
         self._interval = (work.t0, work.T)
