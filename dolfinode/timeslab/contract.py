@@ -58,7 +58,7 @@ deviation          calibrated runs: the largest distance of a stiff component fr
                    quasi-steady state relative to itself (adaptivity.stiff_deviation)
 last_deviation     the same on the last slab, of the component ``deviated``, whose estimate
                    is ``deviation_error`` x its step tolerance there
-carried            the loop's carried state below and its ``carry`` arrays hold (False: a
+carried            the loop's carried state below and its ``carried`` arrays hold (False: a
                    fresh start, set by start and by a restart of the events' driver)
 k_solver           mono: the largest step the nonlinear solver is trusted with: its last
                    failure's, raised by NEWTON_PROBE per accepted step
@@ -80,7 +80,6 @@ synchronised       multi: the last slab was solved synchronised
 f0_time            multi: the time at which the carried f(x, t) holds (NaN: none)
 outside            multi: the component that left its domain on the last slab, or -1
 retry              multi: the last slab was rejected; the carried attempt guesses its retry
-attempt            multi: the rejected attempt's number of elements
 =================  ====================================================================
 
 Each loop carries all it needs from one call to the next in the state and its ``carried``
@@ -110,7 +109,7 @@ STATE = np.dtype([
     ("k_accepted", np.float64), ("k_slab", np.float64), ("climb_cost", np.float64),
     ("climb_direction", np.float64), ("sync_fail", np.float64), ("f0_time", np.float64),
     ("hold", np.int64), ("jacobian_age", np.int64), ("outside", np.int64),
-    ("attempt", np.int64), ("k_solver", np.float64), ("k_accuracy", np.float64),
+    ("k_solver", np.float64), ("k_accuracy", np.float64),
     ("newton_rate", np.float64), ("k_last", np.float64),
     ("k_factored", np.float64), ("theta", np.float64), ("age", np.int64),
     ("filter_ok", np.bool_),

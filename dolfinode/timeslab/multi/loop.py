@@ -248,7 +248,7 @@ def _fresh(st, kmax, last_a, last_b, jdiag, coupling, jacobian_time):
         jacobian_time[i] = math.nan
     st.k_slab, st.hold, st.climb_cost, st.climb_direction = kmax, 0, math.inf, 1.0
     st.sync_fail, st.f0_time, st.outside = math.inf, math.nan, -1
-    st.regroup, st.synchronised, st.retry, st.attempt = True, False, False, 0
+    st.regroup, st.synchronised, st.retry = True, False, False
     st.carried = True
 
 
@@ -548,10 +548,9 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                 st.retry = False
                 continue
             st.k_slab = min(st.k_slab, b - t)
-            # (into the carried arrays, whose room the output buffers' bounds: see carry)
+            # (into the carried arrays: the output buffers' room bounds ne, see carry)
             keep_attempt(ne, ea, eb, values, oea, oeb, ovalues)
             _keep_partition(N, ne, cptr, celems, ocptr, ocelems)
-            st.attempt = ne
             st.retry = True
             continue
         st.retry = False
