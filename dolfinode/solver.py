@@ -116,7 +116,7 @@ class Solver:
         self.method = method
         self.parameters = dict(parameters)
         self._pool = pool
-        self._continued = 0  # prepared calls that went on past the kept buffers
+        self._continued = 0  # prepared calls that did not end in the kept buffers
         self._prepare()
 
     def _prepare(self):
