@@ -1,4 +1,5 @@
 """The driver: ``solve(ode, method, tolerance=..., **parameters) -> Solution``."""
+import functools
 import os
 import sys
 import time
@@ -759,7 +760,7 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, stat
 
     buffers = _mono_buffers(ode, m, params, counters)
 
-    carried = None
+    carried, first = None, None
 
     def advance(*buffers):
         nonlocal carried
@@ -771,12 +772,9 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, stat
             compiled, structure, tables, options, atol, floor, x, f0, state, counters,
             carried), *buffers)
 
-    first = None
-    if kept is not None:
+    if kept is not None:  # (its arguments hold its structure and carried arrays)
         call, arguments, first = kept
-
-        def advance(*buffers):
-            return call(*arguments, *buffers)
+        advance = functools.partial(call, *arguments)
 
     capacity = _mono_capacity(ode, m)
     if plan is not None and plan.truncates:  # a terminal event or a switch redoes the rest
@@ -885,7 +883,7 @@ def _multi_arguments(compiled, tables, options, atol, floor, x, kdes, frozen, st
     runs elements until T or until the buffers are full, and returns its status."""
     from dolfinode.timeslab import multi
 
-    nn = tables[7].shape[0]  # (the nodes)
+    nn = tables[7].shape[0]  # (the nodes, in multi.method_tables' order)
     return (compiled.rhs.address, compiled.rhs_component.address,
             compiled.jacobian_row.address, compiled.p, compiled.indptr, compiled.indices,
             compiled.ordering[1], *tables, options, atol, floor, x, kdes, frozen, state,
