@@ -603,7 +603,7 @@ class MonoPieces(_Pieces):
         """A fresh start at the current time with the branches sigma."""
         self.p[self.n_params:] = sigma
         self.f0[:] = self.f(self.x, self.t())
-        self.state[["have_f0", "eps_prev", "k_accepted"]] = True, 1.0, 0.0
+        self.state[["have_f0", "eps_prev", "k_accepted", "carried"]] = True, 1.0, 0.0, False
         self.state["k_next"] = min(self.state["k_next"][0], self.step_guess(self.x, self.t()))
 
     def view(self, chunk):
@@ -631,7 +631,7 @@ class MonoPieces(_Pieces):
         else:
             keep, t, x = n, t_start[n], left
         self.x[:] = x
-        self.state[["t", "k_next", "have_f0"]] = t, k[n], False
+        self.state[["t", "k_next", "have_f0", "carried"]] = t, k[n], False, False
         return [a[:keep] for a in chunk], te
 
 
@@ -646,6 +646,7 @@ class MultiPieces(_Pieces):
     def restart(self, sigma):
         self.p[self.n_params:] = sigma
         self.kdes[:] = np.minimum(self.kdes, self.step_guess(self.x, self.t()))
+        self.state["carried"] = False  # (the loop's carried state predates the jump)
 
     def view(self, chunk):
         """The chunk as a Solution, the frozen components as constants since they froze."""
@@ -669,6 +670,7 @@ class MultiPieces(_Pieces):
         where all components meet), which is te when te is just past it (``located``)."""
         state, x, kdes, frozen = self.saved
         self.state[:], self.x[:], self.kdes[:], self.frozen[:] = state, x, kdes, frozen
+        self.state["carried"] = False  # (its carried arrays are the chunk's end's)
         if te - state["t"][0] <= self.located(te):
             te = float(state["t"][0])
         return [a[:0] for a in chunk], te

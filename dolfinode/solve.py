@@ -1,4 +1,5 @@
 """The driver: ``solve(ode, method, tolerance=..., **parameters) -> Solution``."""
+import functools
 import os
 import sys
 import time
@@ -39,6 +40,9 @@ _SWITCH_RETRIES = 3
 #: Slabs (elements: multi-adaptive) per loop call of a solve with events or switches: what a
 #: terminal event or a switch in the chunk makes the loop redo.
 _EVENT_CHUNK = 1024
+#: When set, the most slabs (mono-adaptive) or elements (multi-adaptive) a loop call
+#: stores: tests cut a run into many calls with it, which must not change the run.
+_CHUNK_LIMIT = None
 #: The smallest tolerance without an absolute_tolerance (scipy's solve_ivp bound, 100 machine
 #: epsilons): below it the step error estimate is rounding (tolerance=1e-300 failed with
 #: "Newton's method did not converge at t = 0 ... check the right-hand side for a
@@ -436,16 +440,23 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
 def _solve_once(ode, compiled, plan, multi_adaptive, m, params):
     """One solve of :func:`solve_lowered`."""
     start = time.perf_counter()
-    atol, floor, x, f0, steps, options, state, counters = _start(ode, compiled, plan,
-                                                                 multi_adaptive, m, params)
+    started = _start(ode, compiled, plan, multi_adaptive, m, params)
     if plan is not None and plan.events and params["dense_output"] is False:
         raise ValueError("events are located on the solution's history: give "
                          "dense_output=True or a file name with events=")
+    return run_started(ode, compiled, plan, multi_adaptive, m, params, started, start)
+
+
+def run_started(ode, compiled, plan, multi_adaptive, m, params, started, start, kept=None):
+    """The run of a solve started by :func:`_start` (its arrays ``started``; at the time
+    ``start``) to its Solution; ``kept``: a :class:`dolfinode.Solver`'s prepared call that
+    did not finish (:func:`_run_mono`), which the run continues."""
+    atol, floor, x, f0, steps, options, state, counters = started
     sink = history.sink(ode, m, multi_adaptive, params)
     run = _run_multi if multi_adaptive else _run_mono
     status, counters, state, elements, stats = run(ode, compiled, m, params, options, atol,
                                                    floor, x, f0, steps, state, counters, plan,
-                                                   sink)
+                                                   sink, kept)
     sol = _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, state, x,
                   stats, start, lambda solved: sink.solution(solved, m, elements, stats, x))
     if plan is not None:
@@ -604,9 +615,11 @@ def _completed_stats(stats, counts, multi_adaptive, m, params, compile_time, sec
     return stats
 
 
-def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newton_ready=None):
+def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newton_ready=None,
+            first=None):
     """Call a compiled time-slab loop until it reaches T, yielding (status, stored elements)
-    after each call.
+    after each call; ``first``: (status, buffers) of a first call made already (the kept
+    buffers of :class:`dolfinode.Solver`), of ``capacity``.
 
     The loop returns FULL when its output buffers are full (so results arrive in chunks, and
     progress can be shown); a FULL with nothing stored means one slab needs larger buffers.
@@ -616,8 +629,11 @@ def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newto
     multi-adaptive loop (whose buffers count elements) is checked after each chunk.
     """
     while True:
-        buffers = make_buffers(capacity)
-        status = advance(*buffers)
+        if first is None:
+            buffers = make_buffers(capacity)
+            status = advance(*buffers)
+        else:
+            (status, buffers), first = first, None
         chunk = history.filled(buffers, counters)
         del buffers
         if bar is not None:
@@ -693,24 +709,42 @@ def _newton_options(compiled, m, options):
 
 
 def _mono_arguments(compiled, structure, tables, options, atol, floor, x, f0, state,
-                    counters):
-    """The mono-adaptive loop's arguments but its output buffers: a call
+                    counters, carried):
+    """The mono-adaptive loop's arguments but its output buffers, with the arrays it carries
+    over calls (:func:`dolfinode.timeslab.mono.carry`): a call
     ``mono.advance.unchecked(*arguments, out_t, out_k, out_X)`` runs slabs until T or until
     the buffers are full, and returns its status."""
     return (compiled.rhs.address, compiled.jacobian.address, compiled.p, compiled.indptr,
             compiled.indices, structure.tuple, *tables, options, atol, floor, x, f0, state,
-            counters)
+            counters, carried)
 
 
 def _mono_capacity(ode, m):
     """Slabs per loop call: the stored values at most 2^21 doubles."""
-    return int(max(64, min(20000, 2 ** 21 // ((m.q + 1) * ode.N))))
+    return _limited(int(max(64, min(20000, 2 ** 21 // ((m.q + 1) * ode.N)))))
+
+
+def _limited(capacity):
+    """``capacity``, at most _CHUNK_LIMIT when that is set."""
+    return capacity if _CHUNK_LIMIT is None else min(capacity, _CHUNK_LIMIT)
+
+
+def _mono_buffers(ode, m, params, counters):
+    """The mono-adaptive loop's output buffers of a call (t, k, values) for at most
+    ``capacity`` slabs, and no more than ``maximum_steps`` allows, as a function of it."""
+    def buffers(capacity):
+        size = min(capacity, params["maximum_steps"] - counters[ts.SLABS])
+        return np.empty(size), np.empty(size), np.empty((size, m.q + 1, ode.N))
+    return buffers
 
 
 def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, state, counters,
-              plan, sink):
+              plan, sink, kept=None):
+    """The mono-adaptive loop's chunks to T into ``sink``; (status, counters, (t, k), the
+    elements, stats). ``kept``: (call, arguments, first) of a :class:`dolfinode.Solver`'s
+    prepared solve, its loop's entry and arguments but the buffers, and its first call's
+    (status, buffers), which the run goes on from as this one would have."""
     tables = mono.method_tables(m)
-    nodes = m.q + 1
     structure = compiled.band_structure  # until Newton is needed: see newton_ready
     newton_bytes = 0
 
@@ -724,13 +758,23 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, stat
         # a small sparse system such as POLLU a second loop call and its buffers)
         newton_ready()
 
-    def buffers(capacity):
-        size = min(capacity, params["maximum_steps"] - counters[ts.SLABS])
-        return np.empty(size), np.empty(size), np.empty((size, nodes, ode.N))
+    buffers = _mono_buffers(ode, m, params, counters)
+
+    carried, first = None, None
 
     def advance(*buffers):
+        nonlocal carried
+        ready = bool(options["newton_ready"][0])
+        if carried is None or (ready and carried[4].size == 0):  # (decided since: made)
+            carried = mono.carry(ode.N, m, structure, ready,
+                                 None if carried is None else carried[0])
         return mono.advance.unchecked(*_mono_arguments(
-            compiled, structure, tables, options, atol, floor, x, f0, state, counters), *buffers)
+            compiled, structure, tables, options, atol, floor, x, f0, state, counters,
+            carried), *buffers)
+
+    if kept is not None:  # (its arguments hold its structure and carried arrays)
+        call, arguments, first = kept
+        advance = functools.partial(call, *arguments)
 
     capacity = _mono_capacity(ode, m)
     if plan is not None and plan.truncates:  # a terminal event or a switch redoes the rest
@@ -738,7 +782,7 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, stat
     with _progress(ode, params) as bar:
         def chunks():
             return _chunks(advance, buffers, capacity, counters, params, state, bar,
-                           newton_ready)
+                           newton_ready, first)
 
         pieces = plan and ev.MonoPieces(
             ode, m, chunks, options, state, x, compiled.p, len(ode.params),
@@ -832,14 +876,37 @@ def _multi_workspace(ode, compiled, m, params, options, steps):
 
 
 def _multi_arguments(compiled, tables, options, atol, floor, x, kdes, frozen, state,
-                     counters):
-    """The multi-adaptive loop's arguments but its output buffers: a call
-    ``multi.advance.unchecked(*arguments, out_comp, out_a, out_b, out_values)`` runs
-    elements until T or until the buffers are full, and returns its status."""
+                     counters, capacity):
+    """The multi-adaptive loop's arguments but its output buffers, with the arrays it
+    carries over calls (:func:`dolfinode.timeslab.multi.carry`) for buffers of ``capacity``
+    elements: a call ``multi.advance.unchecked(*arguments, *buffers)`` (``_multi_buffers``)
+    runs elements until T or until the buffers are full, and returns its status."""
+    from dolfinode.timeslab import multi
+
+    nn = tables[7].shape[0]  # (the nodes, in multi.method_tables' order)
     return (compiled.rhs.address, compiled.rhs_component.address,
             compiled.jacobian_row.address, compiled.p, compiled.indptr, compiled.indices,
             compiled.ordering[1], *tables, options, atol, floor, x, kdes, frozen, state,
-            counters)
+            counters, multi.carry(x.size, nn, compiled.indices.size, capacity))
+
+
+def _multi_calls(ode, m, call, arguments):
+    """(buffers, advance) of :func:`_chunks` for the multi-adaptive loop: buffers(capacity)
+    makes the output buffers and grows the carried arrays (the last of ``arguments``) with
+    them (:func:`dolfinode.timeslab.multi.grown`); advance(*buffers) is ``call(*arguments,
+    *buffers)``."""
+    from dolfinode.timeslab import multi
+
+    arguments = list(arguments)
+
+    def buffers(capacity):
+        arguments[-1] = multi.grown(arguments[-1], capacity)
+        return tuple(np.empty(shape, dtype) for shape, dtype in _multi_buffers(ode, m, capacity))
+
+    def advance(*buffers):
+        return call(*arguments, *buffers)
+
+    return buffers, advance
 
 
 def _multi_buffers(ode, m, capacity):
@@ -855,7 +922,7 @@ def _multi_buffers(ode, m, capacity):
 def _multi_capacity(ode, m):
     """Elements per loop call: values at most 2^21 doubles, as mono's (from 32 MB on, each
     solve would map fresh pages)."""
-    return int(max(64 * ode.N, min(2 ** 20, 2 ** 21 // (m.q + 1))))
+    return _limited(int(max(64 * ode.N, min(2 ** 20, 2 ** 21 // (m.q + 1)))))
 
 
 def _multi_stats(counters, mono_elements, per_component, kdes):
@@ -874,26 +941,26 @@ def _multi_stats(counters, mono_elements, per_component, kdes):
 
 
 def _run_multi(ode, compiled, m, params, options, atol, floor, x, f0, steps, state, counters,
-               plan, sink):
+               plan, sink, kept=None):
+    """:func:`_run_mono` for the multi-adaptive loop (``kept``: its ``steps`` are the
+    loop's desired steps)."""
     from dolfinode.timeslab import multi
-
-    tables, kdes, frozen = _multi_workspace(ode, compiled, m, params, options, steps)
-
-    def buffers(capacity):
-        return tuple(np.empty(shape, dtype) for shape, dtype in _multi_buffers(ode, m, capacity))
-
-    arguments = _multi_arguments(compiled, tables, options, atol, floor, x, kdes, frozen, state,
-                                 counters)
-
-    def advance(*buffers):
-        return multi.advance.unchecked(*arguments, *buffers)
 
     capacity = _multi_capacity(ode, m)
     if plan is not None and plan.truncates:
         capacity = min(capacity, max(4 * ode.N, _EVENT_CHUNK))
+    if kept is None:
+        tables, kdes, frozen = _multi_workspace(ode, compiled, m, params, options, steps)
+        call, arguments, first = multi.advance.unchecked, _multi_arguments(
+            compiled, tables, options, atol, floor, x, kdes, frozen, state, counters,
+            capacity), None
+    else:
+        (call, arguments, first), kdes, frozen = kept, steps, None
+    buffers, advance = _multi_calls(ode, m, call, arguments)
     with _progress(ode, params) as bar:
         def chunks():
-            return _chunks(advance, buffers, capacity, counters, params, state, bar)
+            return _chunks(advance, buffers, capacity, counters, params, state, bar,
+                           first=first)
 
         pieces = plan and ev.MultiPieces(
             ode, m, chunks, options, state, x, compiled.p, len(ode.params),

@@ -59,6 +59,7 @@ from dolfinode.solve import (
     check_tolerance,
     lower,
     lowered,
+    run_started,
     solve,
     solve_lowered,
 )
@@ -115,6 +116,7 @@ class Solver:
         self.method = method
         self.parameters = dict(parameters)
         self._pool = pool
+        self._continued = 0  # prepared calls that did not end in the kept buffers
         self._prepare()
 
     def _prepare(self):
@@ -247,28 +249,31 @@ class Solver:
 
             tables, steps, frozen = _multi_workspace(work, compiled, m, params, options, given)
             arguments = _multi_arguments(compiled, tables, options, loop_atol, floor, x, steps,
-                                         frozen, state, counters)
+                                         frozen, state, counters, _multi_capacity(work, m))
             advance, structure = multi.advance, None
         else:
             structure, _, _ = _newton_options(compiled, m, options)
             steps, frozen = given.copy(), None
             arguments = _mono_arguments(compiled, structure, mono.method_tables(m), options,
-                                        loop_atol, floor, x, f0, state, counters)
+                                        loop_atol, floor, x, f0, state, counters,
+                                        mono.carry(n, m, structure,
+                                                   bool(options["newton_ready"][0])))
             advance = mono.advance
         self._samples = history.sink(work, m, multi_adaptive, params).samples  # (checked)
         self._interval = (work.t0, work.T)
         # p, floor: written by the next call
         self._values = self._signs = self._u0 = self._floor_key = None
         self._kept = (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
-                      structure, options)
+                      structure, options, loop_atol)
         self._start = (start.entry(), (compiled.rhs.address, compiled.p, work.t0, atol, rtol,
                                        params["initial_time_step"] is None, x, f0, steps,
                                        options, state, counters, not multi_adaptive))
         self._loop = (advance.entry(), (*arguments, *self._buffers))
 
     def _solve_prepared(self, work):
-        """The solve of ``work`` as one call of the loop into the kept buffers; None when
-        that call did not reach T (the general path then solves it). The Solution copies
+        """The solve of ``work`` as one call of the loop into the kept buffers, a run that
+        does not fit them going on into new ones as dn.solve's does (:func:`run_started`:
+        the same chunks, the same Solution). The Solution copies
         the used part of the buffers; a mono-adaptive one makes its ``ode`` and ``stats``
         when first read (the ``makers`` of :class:`~dolfinode.Solution`)."""
         started = time.perf_counter()
@@ -276,7 +281,7 @@ class Solver:
             self._workspace(work)
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
         (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
-         structure, options) = self._kept
+         structure, options, loop_atol) = self._kept
         values = tuple(work.params.values())
         if values != self._values:
             compiled.p[:len(values)] = values
@@ -303,7 +308,12 @@ class Solver:
         status = advance(*arguments)
         counts = counters.tolist()
         if status != ts.DONE or counts[ts.SLABS] > params["maximum_steps"]:
-            return None
+            # the run goes on into new buffers, as dn.solve's would
+            self._continued += 1
+            kept = (advance, arguments[:-len(self._buffers)], (status, self._buffers))
+            return run_started(work, compiled, None, multi_adaptive, m, params,
+                               (loop_atol, floor, x, f0, steps, options, state, counters),
+                               started, kept)
         if self._solved is None:  # the values of this call, kept while they are unchanged
             self._solved = work._snapshot()
         n, seconds = counts[ts.STORED], time.perf_counter() - started

@@ -59,6 +59,25 @@ def test_repeated_calls_are_kept_and_bitwise_a_first_call(method, no_general_pat
     assert third.ode.params[k] == 4.0
 
 
+@pytest.mark.parametrize("method", ["cG(1)", "mcG(1)"])
+def test_a_repeated_long_solve_goes_on_from_the_kept_buffers(method, no_general_path,
+                                                             monkeypatch):
+    """A kept solve longer than its buffers (5 slabs or elements here) goes on into new
+    ones as the first call did: bitwise the first call, and not solved again."""
+    monkeypatch.setattr(sys.modules["dolfinode.solve"], "_CHUNK_LIMIT", 5)
+    ode = declare()
+    first = dn.solve(ode, method, tolerance=1e-5)
+    assert first.stats["time slabs"] > 10
+    second = dn.solve(ode, method, tolerance=1e-5)
+    no_general_path()
+    monkeypatch.setattr(sys.modules["dolfinode.solver"], "solve_lowered", None)
+    third = dn.solve(ode, method, tolerance=1e-5)
+    solver, = [s for s in ode._kept_solvers.solvers.values() if s]
+    assert solver._continued == 2
+    for sol in (second, third):
+        assert_same(sol, first)
+
+
 def test_kept_solves_follow_every_value_of_the_declaration(no_general_path):
     references = [dn.solve(declare(**values), "dG(2)", tolerance=1e-6) for values in (
         {"k": 9.0}, {"k": 1.0, "c": 0.0}, {"u0": (0.5, -1.0), "k": 1.0, "c": 0.0},

@@ -1,4 +1,6 @@
 """dn.Solver: validated once, then solves as dn.solve does, with the values of each call."""
+import sys
+
 import numpy as np
 import pytest
 import sympy as sp
@@ -117,10 +119,15 @@ def test_solver_takes_the_prepared_path_where_it_can(oscillator, monkeypatch):
 
 
 @pytest.mark.parametrize("method", ["cG(1)", "mcG(1)"])
-def test_a_solve_longer_than_the_kept_buffers_goes_the_general_way(oscillator, method):
+def test_a_solve_longer_than_the_kept_buffers_goes_on_from_them(oscillator, method,
+                                                                monkeypatch):
+    """Kept buffers of 3 slabs (elements): the prepared solve goes on into new buffers as
+    dn.solve does, to the same Solution, without solving again."""
+    monkeypatch.setattr(sys.modules["dolfinode.solve"], "_CHUNK_LIMIT", 3)
+    monkeypatch.setattr(sys.modules["dolfinode.solver"], "solve_lowered", None)
     solver = dn.Solver(oscillator, method=method, tolerance=1e-3, maximum_steps=400)
-    solver._buffers = tuple(b[:3] for b in solver._buffers)  # 55 slabs do not fit in 3
     sol = solver.solve(T=1.0)
+    assert solver._continued == 1
     _assert_same_solution(sol, dn.solve(dn.vary(oscillator, {"T": 1.0}), method=method,
                                         tolerance=1e-3, maximum_steps=400))
     with pytest.raises(dn.SolverError, match="maximum_steps"):

@@ -58,7 +58,34 @@ deviation          calibrated runs: the largest distance of a stiff component fr
                    quasi-steady state relative to itself (adaptivity.stiff_deviation)
 last_deviation     the same on the last slab, of the component ``deviated``, whose estimate
                    is ``deviation_error`` x its step tolerance there
+carried            the loop's carried state below and its ``carried`` arrays hold (False: a
+                   fresh start, set by start and by a restart of the events' driver)
+k_solver           mono: the largest step the nonlinear solver is trusted with: its last
+                   failure's, raised by NEWTON_PROBE per accepted step
+k_accuracy         mono: the step the error control asks for (solver failures aside)
+k_last             mono: the step of the last slab in the carried arrays (0: none)
+k_factored         mono: the step of the carried factors (0: none)
+theta              mono: Newton's contraction rate with them (inf: unknown)
+newton_rate        mono: Newton's contraction rate on the last slab it solved
+age                mono: Newton slabs since the Jacobian was evaluated
+filter_ok          mono: the carried error filter's factors are usable
+k_slab             multi: the slab length limit (steps.slab_limit)
+hold               multi: accepted slabs before the limit may grow after a rejection
+climb_cost         multi: the last slab's cost per unit time, and the direction
+climb_direction    of the limit's climb (steps.slab_limit)
+sync_fail          multi: slabs are synchronised only below this length (loop.SYNCHRONISE_PROBE)
+jacobian_age       multi: synchronised slabs since the Jacobian rows were evaluated
+regroup            multi: the active set changed (its Jacobian rows are all evaluated anew)
+synchronised       multi: the last slab was solved synchronised
+f0_time            multi: the time at which the carried f(x, t) holds (NaN: none)
+outside            multi: the component that left its domain on the last slab, or -1
+retry              multi: the last slab was rejected; the carried attempt guesses its retry
 =================  ====================================================================
+
+Each loop carries all it needs from one call to the next in the state and its ``carried``
+arrays (:func:`dolfinode.timeslab.mono.carry`, :func:`dolfinode.timeslab.multi.loop.carry`),
+so that a run cut into calls by its output buffers steps as one call would, whatever their
+size.
 """
 import itertools
 
@@ -79,8 +106,15 @@ STATE = np.dtype([
     ("fp_step", np.float64), ("fp_iterations", np.float64), ("newton_cost", np.float64),
     ("k_newton", np.float64), ("mono_elements", np.float64), ("deviation", np.float64),
     ("last_deviation", np.float64), ("deviation_error", np.float64), ("deviated", np.int64),
-    ("k_accepted", np.float64),
-    ("have_f0", np.bool_)], align=True)
+    ("k_accepted", np.float64), ("k_slab", np.float64), ("climb_cost", np.float64),
+    ("climb_direction", np.float64), ("sync_fail", np.float64), ("f0_time", np.float64),
+    ("hold", np.int64), ("jacobian_age", np.int64), ("outside", np.int64),
+    ("k_solver", np.float64), ("k_accuracy", np.float64),
+    ("newton_rate", np.float64), ("k_last", np.float64),
+    ("k_factored", np.float64), ("theta", np.float64), ("age", np.int64),
+    ("filter_ok", np.bool_),
+    ("have_f0", np.bool_), ("carried", np.bool_), ("regroup", np.bool_),
+    ("synchronised", np.bool_), ("retry", np.bool_)], align=True)
 
 #: Their numba types, for the loops' signatures.
 OPTIONS_TYPE = numba.from_dtype(OPTIONS)[::1]

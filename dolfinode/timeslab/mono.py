@@ -21,7 +21,7 @@ from dolfinode.adaptivity import (
 from dolfinode.compile.jit import Loop
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
 from dolfinode.linalg.newton_matrix import shift, store_jacobian
-from dolfinode.methods.method import lagrange_weights, real_eigenvalues
+from dolfinode.methods.method import lagrange_weights
 from dolfinode.solvers.slab import (
     factor,
     factor_stages,
@@ -134,6 +134,9 @@ _SIGNATURE = types.int64(
     _f8, _f8, _f8,                           # nodes, barycentric weights, end_derivative
     OPTIONS_TYPE, _f8, _f8,                  # options, atol, floor
     _f8, _f8, STATE_TYPE, _i8,               # x, f0, state, counters
+    types.Tuple((types.float64[:, :, ::1], types.float64[:, ::1],  # carried (see ``carry``)
+                 types.float64[:, :, ::1], types.complex128[:, :, ::1],
+                 types.int64[:, ::1], _i8)),
     _f8, _f8, types.float64[:, :, ::1],      # out_t, out_k, out_X
 )
 
@@ -148,6 +151,49 @@ def method_tables(method):
     tables = (m.A, m.b0, m.nodes[m.stages], m.stage_transform, m.stage_transform_inverse,
               m.stage_eigenvalues, m.nodes, m.barycentric_weights, m.end_derivative)
     return tuple(np.array(table) for table in tables)
+
+
+def carry(N, method, structure, ready, last=None):
+    """The arrays the loop carries from one call to the next (with the state's fields, see
+    :mod:`dolfinode.timeslab.contract`): the last slab's nodal values (1, q + 1, N), which
+    predict the next slab's stages (``last``: those of an earlier carry, kept), and the
+    Newton workspace for the matrices' ``structure`` (:class:`~dolfinode.linalg.
+    newton_matrix.NewtonStructure`) once their storage is decided (``ready``; else empty):
+    J, then the error filter's factors, in the structure's storage, the factors of one
+    matrix I - k lambda J per real eigenvalue lambda of A and per complex pair, and their
+    pivots."""
+    if last is None:
+        last = np.empty((1, method.q + 1, N))
+    n_real = n_complex = rows = columns = n = 0  # (no workspace before it is decided)
+    if ready:
+        _, kl, ku, ptr, idx, _, _ = structure.tuple
+        rows, columns = (1, idx.shape[0]) if ptr.shape[0] > 0 else (N, 2 * kl + ku + 1)
+        n_real, n_complex = _stage_systems(method)
+        n = N
+    return (last, np.zeros((rows, columns)), np.zeros((n_real, rows, columns)),
+            np.zeros((n_complex, rows, columns), dtype=np.complex128),
+            np.zeros((n_real + n_complex, n), dtype=np.int64), np.zeros(n, dtype=np.int64))
+
+
+@cache
+def _stage_systems(method):
+    """The real and complex systems of a Newton step of ``method``: one per real eigenvalue
+    of its stage matrix, one per complex pair (made once: numpy's count costs 3 us)."""
+    real = sum(1 for lam in method.stage_eigenvalues if lam.imag == 0.0)
+    return real, len(method.stage_eigenvalues) - real
+
+
+@njit(cache=True, **NO_REFCOUNT)
+def _suspend(out_k, out_X, counters, last_X, rate, st):
+    """Keep what the next call goes on from: the last slab stored by this call (if any) in
+    the carried ``last_X``, Newton's last contraction rate in the state."""
+    st.newton_rate = rate[0]
+    n = counters[STORED] - 1
+    if n >= 0:
+        st.k_last = out_k[n]
+        for j in range(out_X.shape[1]):
+            for i in range(out_X.shape[2]):
+                last_X[0, j, i] = out_X[n, j, i]
 
 
 @njit(cache=True, **NO_REFCOUNT)
@@ -243,8 +289,10 @@ def fixed_point_cheaper(k_fp, k_newton, S, st):
 
 def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             transform, transform_inverse, eigenvalues, nodes, bary, end_derivative, options,
-            atol, floor, x, f0, state, counters, out_t, out_k, out_X):
+            atol, floor, x, f0, state, counters, carried, out_t, out_k, out_X):
     """Advance (x, t) towards T, storing accepted elements in out_*; returns a status code.
+    It carries its state from one call to the next in ``state`` and ``carried``
+    (:func:`carry`), unless ``state[0].carried`` is False (a fresh start).
 
     A step on which a stage value leaves the declared domain (``leaves_domain``) is
     shortened by CONSTRAINT_CUT and retried; an accepted one is projected on it."""
@@ -272,44 +320,31 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     unfiltered = np.empty(N)  # k R(t_n) before the filter
     fend = np.empty(N)
     jdata = np.empty(indices.shape[0])
-    # the Newton workspace (one matrix I - k lambda J per real eigenvalue lambda of A and
-    # per complex pair) is allocated when Newton is first used (fixed point needs none)
-    n_real = real_eigenvalues(eigenvalues)
-    _, kl, ku, ptr, idx, _, _ = structure
-    rows, columns = (1, idx.shape[0]) if ptr.shape[0] > 0 else (N, 2 * kl + ku + 1)
-    # J in the structure's storage; once the stage matrices are factored, the error filter's
+    # the last slab's values, the Newton workspace (its factors are used over slabs), in
+    # the structure's storage: J, once the stage matrices are factored the error filter's
     # I - gamma k J and its factors (the filter is applied with Newton only)
-    jb = np.zeros((0, 0))
-    ab_real = np.zeros((0, 0, 0))
-    ab_complex = np.zeros((0, 0, 0), dtype=np.complex128)
-    ipiv = np.zeros((0, 0), dtype=np.int64)
+    last_X, jb, ab_real, ab_complex, ipiv, ipiv_filter = carried
+    if not st.carried:
+        st.k_solver, st.k_last, st.k_factored, st.theta = math.inf, 0.0, 0.0, math.inf
+        st.k_accuracy = st.k_next
+        st.age, st.filter_ok, st.newton_rate, st.carried = 0, False, 0.0, True
     Z = np.empty(S * N)
     z_real = np.empty(N)
     z_complex = np.empty(N, dtype=np.complex128)
-    ipiv_filter = np.zeros(0, dtype=np.int64)
     reuse = o.reuse
     keep = o.keep_factors
-    k_factored = 0.0  # the step of the current factors (0: none)
-    age = 0  # Newton slabs since the Jacobian was evaluated
-    rate = np.zeros(1)  # Newton's contraction rate on the last slab (see slab.newton)
-    theta = math.inf  # ... with the current factors (inf: unknown)
+    rate = np.full(1, st.newton_rate)  # Newton's contraction rate on the last slab (newton)
     # Newton stops relative to the delivered error (newton_tolerance), dG(q) only: cG(q) is
     # not L-stable and keeps a stiff component's iteration error (ROBER cG(2), 1e-2)
     delivered = o.delivered if is_dg else 0.0
     rounding = ROUNDING / rtol  # the rounding level of the scaled norm
-    filter_ok = False  # the error filter's factors are usable
     est = np.empty(N)
     w = np.empty(S * N)  # weights of the scaled norm (solvers' work space)
     weights = np.empty(n_nodes)  # extrapolate's work space
     counters[STORED] = 0
 
     t = st.t
-    # Largest step the nonlinear solver is trusted with: the length of its last failure,
-    # raised by NEWTON_PROBE per accepted step, so that the controller does not grow the step
-    # straight back into a failure (a step limited by convergence, not by accuracy).
-    k_solver = math.inf
     k = st.k_next
-    k_accuracy = k  # the step the error control asks for (solver failures aside)
     if not st.have_f0:
         f(address(x, 0), t, address(p, 0), address(f0, 0))
         counters[F_EVALUATIONS] += 1
@@ -317,6 +352,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     capacity = out_t.shape[0]
     while counters[STORED] < capacity:
         if t >= T:
+            _suspend(out_k, out_X, counters, last_X, rate, st)  # (a piece of events goes on)
             return DONE
         remaining = T - t
         if not fixed:
@@ -337,6 +373,8 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         n_prev = counters[STORED] - 1
         if (is_dg or not use_newton) and n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
             extrapolate(out_X, n_prev, nodes, bary, out_k[n_prev], k, tau, X, weights)
+        elif (is_dg or not use_newton) and n_prev < 0 and 0.0 < k <= EXTRAPOLATE * st.k_last:
+            extrapolate(last_X, 0, nodes, bary, st.k_last, k, tau, X, weights)  # (last call's)
         else:
             euler_stages(x, f0, k, tau, X)
         iters = -1
@@ -351,31 +389,25 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                 if st.fp_step >= k:  # it converged on this step before, not now
                     st.fp_step = 0.5 * k
                 k_fp = min(st.fp_step, 0.5 * k)
-                if fixed_point_cheaper(k_fp, k_accuracy, S, st) and k_fp >= kmin:
+                if fixed_point_cheaper(k_fp, st.k_accuracy, S, st) and k_fp >= kmin:
                     counters[FAILED_SOLVES] += 1  # on the shorter step, as with "fixed-point"
-                    k_solver = k
+                    st.k_solver = k
                     k = k_fp
                     continue
                 counters[STIFF] = 1  # treat the problem as stiff
                 use_newton = True
                 euler_stages(x, f0, k, tau, X)
-        if use_newton and ipiv.shape[0] == 0:
-            if not o.newton_ready:
-                st.t = t
-                st.k_next = k
-                return NEWTON_NEEDED
-            jb = np.zeros((rows, columns))
-            ab_real = np.zeros((n_real, rows, columns))
-            ab_complex = np.zeros((eigenvalues.shape[0] - n_real, rows, columns),
-                                  dtype=np.complex128)
-            ipiv = np.zeros((eigenvalues.shape[0], N), dtype=np.int64)
-            ipiv_filter = np.zeros(N, dtype=np.int64)
+        if use_newton and not o.newton_ready:  # (the driver carries its workspace then)
+            st.t = t
+            st.k_next = k
+            _suspend(out_k, out_X, counters, last_X, rate, st)
+            return NEWTON_NEEDED
         if use_newton:
             iterations_before = counters[ITERATIONS]  # not the failed fixed point's
-            age += 1
-            kept = age <= REUSE_AGE and (
-                (keep and theta <= THETA_KEEP and k == k_factored)
-                or (reuse and near_step(k, k_factored, REUSE_RATIO)))
+            st.age += 1
+            kept = st.age <= REUSE_AGE and (
+                (keep and st.theta <= THETA_KEEP and k == st.k_factored)
+                or (reuse and near_step(k, st.k_factored, REUSE_RATIO)))
             for fresh in range(0 if kept else 1, 2):
                 if fresh == 1:
                     if kept:  # the kept factors did not converge: afresh, from the start
@@ -385,13 +417,13 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                     store_jacobian(jdata, indptr, indices, structure, jb)
                     factored = factor_stages(jb, k, eigenvalues, structure, ab_real,
                                              ab_complex, ipiv, counters)
-                    k_factored = k if factored else 0.0
-                    age = 0
+                    st.k_factored = k if factored else 0.0
+                    st.age = 0
                     if not factored:
                         break
                     # J is not needed once factored: jb takes the error filter's factors
                     shift(jb, gamma * k, structure, jb)
-                    filter_ok = factor(jb, structure, ipiv_filter, counters)
+                    st.filter_ok = factor(jb, structure, ipiv_filter, counters)
                 for attempt in range(2 if fresh == 1 else 1):  # kept factors: one try
                     if attempt == 1:
                         # On stiff components the Euler predictor overshoots by |k lambda|
@@ -408,7 +440,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                     if iters >= 0:
                         break
                 if iters >= 0:
-                    theta = rate[0]
+                    st.theta = rate[0]
                     break
         if iters < 0:
             counters[FAILED_SOLVES] += 1
@@ -416,7 +448,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                          and undamped(counters[FAILED_SOLVES], counters[SLABS])):
                 st.k_next = k
                 return NONCONVERGENCE
-            k_solver = k
+            st.k_solver = k
             k *= 0.25
             if k < kmin:
                 return NONCONVERGENCE
@@ -441,7 +473,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         filtered = False
         if use_newton and not blowup:
             # (I - gamma k J)^-1 with the J and the step of the stage factors
-            blowup = not filter_ok
+            blowup = not st.filter_ok
             if not blowup:
                 filtered = loosening > 0.0
                 if filtered:
@@ -509,7 +541,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             else:
                 k_new = next_step(k, eps, st.eps_prev, order, safety, True)
             st.k_accepted = k
-            k_accuracy = k_new
+            st.k_accuracy = k_new
             if use_newton and mode == DEFAULT:
                 cost = ((counters[ITERATIONS] - iterations_before) * o.newton_units
                         + (counters[JACOBIANS] - jacobians_before) * o.factor_units)
@@ -518,25 +550,26 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                 k_fp = min(st.fp_step, k_new)
                 if k_new <= SETTLED * k and fixed_point_cheaper(k_fp, k_new, S, st):
                     counters[STIFF] = 0  # back to fixed point, on steps up to k_fp
-                    k_solver = k_fp / SOLVER_MARGIN
+                    st.k_solver = k_fp / SOLVER_MARGIN
                     st.k_newton = k_new
             elif mode == DEFAULT and k_new < RETURN * st.k_newton:
                 counters[STIFF] = 1  # fixed point's error control throttles: Newton again
                 st.k_newton = 0.0
-            k_new = min(k_new, SOLVER_MARGIN * k_solver)
+            k_new = min(k_new, SOLVER_MARGIN * st.k_solver)
             # a fast contraction says dG's failure is behind; cG's recurs (undamped)
-            k_solver = math.inf if use_newton and is_dg and theta <= SOLVER_FREE else (
-                k_solver * NEWTON_PROBE)
+            st.k_solver = math.inf if use_newton and is_dg and st.theta <= SOLVER_FREE else (
+                st.k_solver * NEWTON_PROBE)
             st.eps_prev = eps
             k = k_new
         else:
             counters[REJECTED] += 1
             k = next_step(k, eps, 1.0, order, safety, False)
-            k_accuracy = k
+            st.k_accuracy = k
         st.t = t
         st.k_next = k
     st.t = t
     st.k_next = k
+    _suspend(out_k, out_X, counters, last_X, rate, st)
     return DONE if t >= T else FULL
 
 

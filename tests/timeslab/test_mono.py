@@ -340,3 +340,23 @@ def test_a_newton_failure_on_the_start_does_not_hold_the_growth():
     assert probing.sum() < 10
     assert len(k) < 100
     assert mescd(sol(problem.T), problem.final, problem.atol_ratio) > 3
+
+
+@pytest.mark.parametrize("problem, method", [("springs", "cG(1)"), ("springs", "dG(1)"),
+                                             ("HIRES", "cG(2)"), ("HIRES", "dG(1)")])
+def test_a_run_cut_into_many_loop_calls_steps_as_one(stiff_springs, problem, method,
+                                                     monkeypatch):
+    """The loop carries its state (the predictor's last slab, the step controller's and the
+    nonlinear solver's limits, Newton's factors, their step, age and contraction rate) from
+    one call to the next: output buffers of 7 slabs cut the run into many calls, and it takes
+    the same slabs, f evaluations, Jacobians and values, bitwise."""
+    ode = stiff_springs if problem == "springs" else problems.hires()
+    whole = dn.solve(ode, method=method, tolerance=1e-6, dense_output=False)
+    monkeypatch.setattr(importlib.import_module("dolfinode.solve"), "_CHUNK_LIMIT", 7)
+    cut = dn.solve(ode, method=method, tolerance=1e-6, dense_output=False)
+    assert whole.stats["time slabs"] > 10 * 7  # (many calls)
+    assert problem == "springs" or whole.stats["jacobian evaluations"] > 0
+    for key in ("time slabs", "f evaluations", "jacobian evaluations", "factorizations",
+                "rejected steps", "nonlinear iterations"):
+        assert cut.stats[key] == whole.stats[key], key
+    np.testing.assert_array_equal(cut.y, whole.y)

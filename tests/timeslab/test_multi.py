@@ -1,4 +1,5 @@
 """Multi-adaptive mcG(q)/mdG(q): reduction to mono-adaptive, orders with individual steps."""
+import importlib
 import pickle
 
 import numpy as np
@@ -414,11 +415,8 @@ def test_blocks_over_several_chunks(monkeypatch):
     """With output buffers of 64 blocks the uniform chain's history arrives in several chunks
     of blocks: the dense solution holds every block as a shared slab, each component's
     elements in time order, and its samples are those of dense_output=False."""
-    import sys
-
-    for module in (sys.modules["dolfinode.solve"], sys.modules["dolfinode.solver"]):
-        monkeypatch.setattr(module, "_multi_capacity", lambda ode, m: 64 * ode.N)
     ode, _ = problems.mass_spring_chain(12, T=4.0)
+    monkeypatch.setattr(importlib.import_module("dolfinode.solve"), "_CHUNK_LIMIT", 64 * ode.N)
     sol = dn.solve(ode, method="mcG(1)", tolerance=1e-5, number_of_samples=50)
     slabs = sol.stats["time slabs"]
     assert slabs > 2 * 64 and _shared_slabs(sol) == slabs
@@ -430,3 +428,23 @@ def test_blocks_over_several_chunks(monkeypatch):
                        dense_output=False)
     np.testing.assert_array_equal(sampled.y, sol.y)
 
+
+
+@pytest.mark.parametrize("method", ["mcG(1)", "mdG(1)", "mcG(2)"])
+def test_a_run_cut_into_many_loop_calls_steps_as_one(stiff_springs, method, monkeypatch):
+    """The loop carries its state (slab length limit, guesses, Jacobian rows and their age,
+    synchronisation, a rejected attempt) from one call to the next: output buffers of a few
+    hundred elements cut the run into many calls (with a call per block), and it takes the same slabs, elements,
+    f evaluations and values, bitwise."""
+    driver = importlib.import_module("dolfinode.solve")  # (the package's solve is the function)
+    whole = dn.solve(stiff_springs, method=method, tolerance=1e-6, dense_output=False)
+    limit = 2 * stiff_springs.N  # elements per call (a synchronised slab: one block of N)
+    monkeypatch.setattr(driver, "_CHUNK_LIMIT", limit)
+    cut = dn.solve(stiff_springs, method=method, tolerance=1e-6, dense_output=False)
+    assert whole.stats["elements"] > 15 * limit  # (many calls)
+    assert whole.stats["synchronised slabs"] > 0
+    assert method != "mcG(1)" or whole.stats["rejected steps"] > 0
+    for key in ("time slabs", "elements", "f evaluations", "jacobian evaluations",
+                "rejected steps", "synchronised slabs", "nonlinear iterations"):
+        assert cut.stats[key] == whole.stats[key], key
+    np.testing.assert_array_equal(cut.y, whole.y)

@@ -57,4 +57,4 @@ and the group Newton step over a sub-slab with the band matrices of
 (:data:`advance`) and holds the work space. The driver passes the options and state of
 :mod:`dolfinode.timeslab.contract`.
 """
-from dolfinode.timeslab.multi.loop import advance, method_tables  # noqa: F401
+from dolfinode.timeslab.multi.loop import advance, carry, grown, method_tables  # noqa: F401

@@ -107,6 +107,9 @@ _SIGNATURE = types.int64(
     _f8,                                           # end_derivative
     OPTIONS_TYPE, _f8, _f8,                        # options, atol, floor
     _f8, _f8, _f8, STATE_TYPE, _i8,                # x, kdes, frozen, state, counters
+    types.Tuple((_f8, _f8, types.float64[:, ::1],  # carry (see ``carry``)
+                 _f8, _f8, _f8, _f8, _f8,
+                 _f8, _f8, types.float64[:, ::1], _i8, _i8)),
     _i8, _f8, _f8, types.float64[:, ::1],          # out_comp, out_a, out_b, out_values
     _f8, _f8, types.float64[:, ::1],               # out_block_a, out_block_b, out_blocks
 )
@@ -123,6 +126,44 @@ def method_tables(method):
               m.stage_transform_inverse, m.stage_eigenvalues, m.nodes, m.quadrature_weights,
               m.barycentric_weights, m.end_derivative)
     return tuple(np.array(table) for table in tables)
+
+
+def carry(N, nn, nnz, capacity):
+    """The arrays the loop carries from one call to the next (with the state's fields, see
+    :mod:`dolfinode.timeslab.contract`), for N components of nn nodal values, nnz entries
+    in df/du and output buffers of ``capacity`` elements: each component's last element
+    (start, end, nodal values), the Jacobian rows (CSR values, diagonal, sum of the
+    off-diagonal |J_ij|, when each was evaluated), f(x, t) of the synchronised slabs, and
+    the rejected attempt that guesses its retry (starts, ends, nodal values, CSR of each
+    component's elements). An attempt is solved only when it fits in the buffers' room
+    (or is one block of N), so it fits in these: :func:`grown` keeps them as large as the
+    buffers."""
+    room = max(capacity, N)
+    return (np.zeros(N), np.zeros(N), np.empty((N, nn)),
+            np.empty(max(1, nnz)), np.zeros(N), np.zeros(N), np.full(N, np.nan), np.empty(N),
+            np.empty(room), np.empty(room), np.empty((room, nn)),
+            np.zeros(N + 1, dtype=np.int64), np.empty(room, dtype=np.int64))
+
+
+def grown(carried, capacity):
+    """``carried`` (:func:`carry`) with room for an attempt of ``capacity`` elements, its
+    contents kept."""
+    if carried[8].shape[0] >= capacity:
+        return carried
+    attempt = [np.empty((capacity, *a.shape[1:]), a.dtype) for a in carried[8:11]]
+    attempt.append(np.empty(capacity, dtype=np.int64))
+    for new, old in zip(attempt, carried[8:11] + carried[12:]):
+        new[:old.shape[0]] = old
+    return carried[:8] + tuple(attempt[:3]) + (carried[11], attempt[3])
+
+
+@helper(**NO_REFCOUNT)
+def _keep_partition(N, ne, cptr, celems, ocptr, ocelems):
+    """Copy the CSR of each component's elements of a rejected attempt."""
+    for i in range(N + 1):
+        ocptr[i] = cptr[i]
+    for e in range(ne):
+        ocelems[e] = celems[e]
 
 
 @helper(**NO_REFCOUNT)
@@ -198,16 +239,30 @@ def _move_to_end(active, nactive, cptr, celems, ea, eb, values, fend, x, fixed, 
             last_values[i, m] = values[last, m]
 
 
+@helper(**NO_REFCOUNT)
+def _fresh(st, kmax, last_a, last_b, jdiag, coupling, jacobian_time):
+    """The carried state of a fresh start: no last elements, no Jacobian rows, the slab
+    length limit at kmax, no synchronisation failure, no rejected attempt."""
+    for i in range(last_a.shape[0]):
+        last_a[i] = last_b[i] = jdiag[i] = coupling[i] = 0.0
+        jacobian_time[i] = math.nan
+    st.k_slab, st.hold, st.climb_cost, st.climb_direction = kmax, 0, math.inf, 1.0
+    st.sync_fail, st.f0_time, st.outside = math.inf, math.nan, -1
+    st.regroup, st.synchronised, st.retry = True, False, False
+    st.carried = True
+
+
 def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Minv, A, b0,
              stage_nodes, transform, transform_inverse, eigenvalues, nodes, qweights, bary,
-             end_derivative, options, atol, floor, x, kdes, frozen, state, counters, out_comp,
-             out_a, out_b, out_values, out_block_a, out_block_b, out_blocks):
+             end_derivative, options, atol, floor, x, kdes, frozen, state, counters, carried,
+             out_comp, out_a, out_b, out_values, out_block_a, out_block_b, out_blocks):
     """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status.
     ``frozen[i]`` is the time since which component i is frozen (NaN: active). A slab on
     which a value leaves the declared domain is rejected (``leaves_domain``); an accepted
     one is projected on it. The slab's phases live in :mod:`.slab` (solve), :mod:`.control`
     (indicators, acceptance, steps), :mod:`.steps` and :mod:`.freezing`; this function holds
-    the work space and the state carried from slab to slab."""
+    the work space and the state carried from slab to slab, and from one call to the next
+    (``state`` and ``carried``: :func:`carry`) unless ``state[0].carried`` is False."""
     f = rhs_kernel(f_address)
     fi = component_kernel(fi_address)
     ji = component_kernel(ji_address)
@@ -216,6 +271,10 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     nn = nodes.shape[0]
     o = options[0]
     st = state[0]
+    (last_a, last_b, last_values, jacobian, jdiag, coupling, jacobian_time, f0,
+     oea, oeb, ovalues, ocptr, ocelems) = carried
+    if not st.carried:
+        _fresh(st, o.kmax, last_a, last_b, jdiag, coupling, jacobian_time)
     fixed = o.fixed
     mode = o.solver
     max_iter = o.max_iter
@@ -248,9 +307,6 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     changed = np.zeros(N, dtype=np.int64)  # clock stamps of the lazy sweeps (see converge)
     computed = np.empty(4 * N, dtype=np.int64)
     clock = np.zeros(1, dtype=np.int64)
-    last_a = np.zeros(N)  # each component's last element of the previous slab
-    last_b = np.zeros(N)
-    last_values = np.empty((N, nn))
     # Newton workspace for sub-slab groups (group_newton), grown to the largest group (band:
     # the global one); at least one real matrix, which the error filter uses
     band_width = 2 * o.band_lower + o.band_upper + 1
@@ -262,25 +318,17 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     states = np.empty((nn, N))  # the states at an interval's nodes (``moments``)
     out = np.empty(1)
     jrow = np.empty(max(1, indices.shape[0]))
-    jacobian = np.empty(max(1, indices.shape[0]))  # df/du at the slab start (CSR values)
-    jdiag = np.zeros(N)
-    coupling = np.zeros(N)  # sum_j!=i |J_ij|
-    jacobian_time = np.full(N, np.nan)  # when each row of ``jacobian`` was evaluated
     # the active (not frozen) components, rebuilt when that set changes (``regroup``), and
     # the frozen ones checked after a slab: per slab, the work stays proportional to the
     # active components and their frozen readers, not to N
     active = np.empty(N, dtype=np.int64)
-    nactive = 0
-    regroup = True
     checked = np.empty(N, dtype=np.int64)
     check_stamp = np.zeros(N, dtype=np.int64)
     check_round = 0
     rptr, readers = transpose_pattern(indptr, indices, N)
     drift = np.empty(N)  # change on the slab and bound of the drift until T (``drift_bound``)
     quiet = np.ones(N, dtype=np.bool_)  # (stays True for a frozen component until it wakes)
-    kslab = kmax  # slab length limit, adapted to the cost per unit time (``slab_limit``)
-    hold = 0  # accepted slabs to go before the limit may grow again after a rejection
-    climb = np.array([math.inf, 1.0])  # the last slab's cost per unit time, the direction
+    climb = np.array([st.climb_cost, st.climb_direction])  # (``slab_limit``)
     emax = np.empty(N)
     kact = np.empty(N)
     umax = np.empty(N)
@@ -289,28 +337,13 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     top_change = np.zeros(N)
     mark = np.zeros(N, dtype=np.int64)
     lowered = np.zeros(N, dtype=np.bool_)  # (``propagate``)
-    # the last rejected attempt, the initial guess of its retry
-    retry = False
-    oea = np.empty(0)
-    oeb = np.empty(0)
-    ovalues = np.empty((0, nn))
-    ocptr = np.zeros(N + 1, dtype=np.int64)
-    ocelems = np.empty(0, dtype=np.int64)
-    outside = -1  # the component that left its domain on the last slab (rejected), or -1
     projected = np.zeros(N, dtype=np.bool_)
-    # the synchronised slabs' workspace: f(x, t) (valid at f0_time), stages, f at the end
-    f0 = np.empty(N)
-    f0_time = math.nan
+    # the synchronised slabs' workspace: stages, f at the end
     fvec = np.empty(N)
     X = np.empty(S * N)
     F = np.empty(S * N)
     G = np.empty(S * N)
     w = np.empty(S * N)
-    sync_fail = math.inf  # (see SYNCHRONISE_PROBE)
-    # synchronised slabs since the Jacobian rows were evaluated (at the start and after the
-    # active set changed: JACOBIAN_AGE, so that every active row is evaluated)
-    jacobian_age = JACOBIAN_AGE
-    solved = False  # the last slab was solved synchronised
     guess_weights = np.empty((nn, nn))  # (``initial_guess``)
     guess_key = np.full(4, np.nan)
     guess_far = np.zeros(nn, dtype=np.bool_)
@@ -330,56 +363,59 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     counters[STORED_BLOCKS] = 0
     capacity = out_a.shape[0]
     t = st.t
+    nactive = active_components(frozen, active)
     while True:
-        if regroup:
+        if st.regroup:  # (JACOBIAN_AGE: every active row is evaluated anew)
             nactive = active_components(frozen, active)
-            regroup = False
-            jacobian_age = JACOBIAN_AGE
+            st.regroup = False
+            st.jacobian_age = JACOBIAN_AGE
         nfrozen = N - nactive
         if t >= T:
             if nfrozen > capacity - counters[STORED]:
                 return FULL
             store_frozen(frozen, t, x, counters, out_comp, out_a, out_b, out_values)
+            st.regroup = st.regroup or nfrozen > 0
             return DONE
         factored[0] = 0
         kcap, kmin, rate = desired_steps(kdes, active, nactive, fixed, kmax, t, T)
         stiff = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         # (twice the gain to leave it: a slab that flips back and forth pays both)
-        sync = (not fixed and not stiff and nfrozen == 0 and kmin < sync_fail
-                and nactive <= (2.0 if solved else 1.0) * SYNCHRONISE * kmin * rate)
+        sync = (not fixed and not stiff and nfrozen == 0 and kmin < st.sync_fail
+                and nactive <= (2.0 if st.synchronised else 1.0) * SYNCHRONISE * kmin * rate)
         # (threshold 0: one group, on the smallest step)
         threshold = 0.0 if sync else theta
         # every component on one element of [t, b], in order (comp[e] = e): the fused path,
         # whose slab is known from kcap and kmin
         b = math.nan
         if nfrozen == 0 and not o.unfused:
-            b = one_group_end(t, T, kcap, kmin, threshold, beta, kslab)
+            b = one_group_end(t, T, kcap, kmin, threshold, beta, st.k_slab)
         fused = not math.isnan(b)
         if fused:
             ne, nsub, nwin = N, 1, 0
             _fill_synchronised(N, t, b, comp, ea, eb)
         else:
             b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, active[:nactive],
-                                                                  threshold, beta, kslab,
+                                                                  threshold, beta, st.k_slab,
                                                                   comp, ea, eb, windows)
             # (a partition may still put every component on one step)
             fused = nsub == 1 and nfrozen == 0 and not o.unfused
+        block = fused and N > 1  # stored as a block (one component: its elements)
+        if (counters[STORED_BLOCKS] == out_block_a.shape[0] if block
+                else ne + nfrozen > capacity - counters[STORED]):
+            # (room for the frozen components' elements too, stored when they wake up; the
+            # next call builds this slab again from the carried state)
+            return FULL  # with nothing stored: the driver grows the buffers
         # the Jacobian at the slab start: its diagonal damps the element updates, its
         # couplings propagate small steps, and it is the Newton matrix of coupled sub-slabs.
         # A slab solved synchronised needs it only for the steps (ties, grading, drift):
         # one up to JACOBIAN_AGE synchronised slabs old serves them.
-        try_sync = nsub == 1 and nfrozen == 0 and not stiff and b - t < sync_fail
-        if not (try_sync and jacobian_age < JACOBIAN_AGE):
+        try_sync = nsub == 1 and nfrozen == 0 and not stiff and b - t < st.sync_fail
+        if not (try_sync and st.jacobian_age < JACOBIAN_AGE):
             jacobian_rows(ji, active, nactive, x, t, p, indptr, indices, jrow, jacobian, jdiag,
                           coupling, jacobian_time, counters)
-            jacobian_age = 0
-        block = fused and N > 1  # stored as a block (one component: its elements)
-        if (counters[STORED_BLOCKS] == out_block_a.shape[0] if block
-                else ne + nfrozen > capacity - counters[STORED]):
-            # (room for the frozen components' elements too, stored when they wake up)
-            return FULL  # with nothing stored: the driver grows the buffers
+            st.jacobian_age = 0
         if b - t < smallest_step(t, o.span) and b < T:
-            return CONSTRAINT if outside >= 0 else UNDERFLOW
+            return CONSTRAINT if st.outside >= 0 else UNDERFLOW
         if values.shape[0] < ne:
             values = np.empty((max(ne, 2 * values.shape[0]), nn))
             fend = np.empty(values.shape[0])
@@ -394,7 +430,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         if largest > newton[4].shape[0]:  # (its real vector has a row per component)
             newton = group_workspace(max(n_real, 1), eigenvalues.shape[0] - n_real, S,
                                      largest, band_width)
-        if retry:  # the rejected attempt
+        if st.retry:  # the rejected attempt
             guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues,
                        nodes, bary)
         else:
@@ -406,18 +442,19 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         f_attempt = counters[F_EVALUATIONS]
         solved = False  # as one mono-adaptive slab (every component on [t, b])
         if try_sync:
-            solved, f0_time = solve_synchronised(f, p, x, f0, f0_time, t, b, A, b0, stage_nodes,
+            solved, st.f0_time = solve_synchronised(f, p, x, f0, st.f0_time, t, b, A, b0, stage_nodes,
                                                  atol, rtol, dtol, o.span, fixed, max_iter,
                                                  comp, ne, values, fend, X, F, G, w, fvec,
                                                  counters)
             if solved:
-                sync_fail *= SYNCHRONISE_PROBE
-                jacobian_age += 1
+                st.sync_fail *= SYNCHRONISE_PROBE
+                st.jacobian_age += 1
             else:
-                sync_fail = b - t
+                st.sync_fail = b - t
                 jacobian_rows(ji, active, nactive, x, t, p, indptr, indices, jrow, jacobian,
                               jdiag, coupling, jacobian_time, counters)
-                jacobian_age = 0
+                st.jacobian_age = 0
+        st.synchronised = solved
         converged = solved
         last_it = -1
         if not solved:
@@ -428,7 +465,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             sptr, spts, dptr, dcur = dependency_structure(ne, comp, indptr, indices, cptr,
                                                           celems, ea, eb)
             converged, last_it = sweep_slab(
-                max_iter, retry, windows, nwin, ne, nroot, top_start, sweep_limit, dtol, T - t,
+                max_iter, st.retry, windows, nwin, ne, nroot, top_start, sweep_limit, dtol, T - t,
                 fi, p, x, indptr, indices, position, jacobian, comp, prev, cptr, celems, ea, eb,
                 values, saved, nodes, bary, qweights, Minv, A, stages, sptr, spts, dptr, dcur,
                 jdiag, coupling, stiff, atol, rtol, states, out, cur, mom, fend, D, delta,
@@ -437,12 +474,13 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         if converged and mode == DEFAULT and last_it >= 7:
             counters[STIFF] = 1  # Gauss-Seidel converges too slowly: Newton from here on
         # (a synchronised slab shorter than the limit says nothing about the windows' cost)
-        if not fixed and not (solved and b - t < kslab):
-            limit = slab_limit(min(kslab, kcap), kmax, b - t, converged, nwin,
+        if not fixed and not (solved and b - t < st.k_slab):
+            limit = slab_limit(min(st.k_slab, kcap), kmax, b - t, converged, nwin,
                                (counters[F_EVALUATIONS] - f_attempt) / (b - t), climb)
+            st.climb_cost, st.climb_direction = climb[0], climb[1]
             # no growth for REJECTION_HOLD slabs after a rejection: growing straight back
             # into the length that was rejected costs another whole slab
-            kslab = limit if hold == 0 else min(limit, max(kslab, b - t))
+            st.k_slab = limit if st.hold == 0 else min(limit, max(st.k_slab, b - t))
         if not converged:
             counters[FAILED_SOLVES] += 1
             if mode == DEFAULT and counters[STIFF] == 0:
@@ -475,9 +513,9 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         scale_indicators(active, nactive, checked, nchecked, emax, atol, rtol, umax)
         if wake_failed(checked, nchecked, emax, ACCEPTANCE_MARGIN, t, x, frozen, quiet, last_a,
                        last_b, counters, out_comp, out_a, out_b, out_values):
-            regroup = True
+            st.regroup = True
         if blowup:
-            retry = False
+            st.retry = False
             if fixed:
                 return BLOWUP
             for i in range(N):
@@ -490,9 +528,9 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         if not fixed:
             accept = choose_steps(active, nactive, checked, nchecked, emax, kact, kdes, frozen,
                                   solved, o.order, o.safety, kmax)
-        outside = leaves_domain(ne, comp, values, floor, kdes, kact) if bounded else -1
-        if outside >= 0:
-            counters[OUTSIDE] = outside + 1
+        st.outside = leaves_domain(ne, comp, values, floor, kdes, kact) if bounded else -1
+        if st.outside >= 0:
+            counters[OUTSIDE] = st.outside + 1
             if fixed:
                 return CONSTRAINT
             accept = False
@@ -504,17 +542,18 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             # the steps chosen at the slab's start no longer fit its end (a front arrives):
             # retry the same slab with the failed components refined, from the rejected
             # values; a second rejection in a row shortens the slab
-            hold = REJECTION_HOLD
-            if retry:
-                kslab = min(kslab, 0.5 * (b - t))
-                retry = False
+            st.hold = REJECTION_HOLD
+            if st.retry or ne > oea.shape[0]:  # (no room: never with the driver's carry)
+                st.k_slab = min(st.k_slab, 0.5 * (b - t))
+                st.retry = False
                 continue
-            kslab = min(kslab, b - t)
-            oea, oeb, ovalues = keep_attempt(ne, ea, eb, values, oea, oeb, ovalues)
-            ocptr, ocelems = cptr, celems
-            retry = True
+            st.k_slab = min(st.k_slab, b - t)
+            # (into the carried arrays: the output buffers' room bounds ne, see carry)
+            keep_attempt(ne, ea, eb, values, oea, oeb, ovalues)
+            _keep_partition(N, ne, cptr, celems, ocptr, ocelems)
+            st.retry = True
             continue
-        retry = False
+        st.retry = False
         if bounded:
             project(ne, comp, values, floor, projected)
         if block:
@@ -528,12 +567,12 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         st.last_deviation, st.deviated, st.deviation_error = deviation, deviated, deviated_eps
         counters[SLABS] += 1
         counters[SYNCHRONISED] += solved
-        hold = max(0, hold - 1)
+        st.hold = max(0, st.hold - 1)
         counters[SUBSLABS] += nsub
         _move_to_end(active, nactive, cptr, celems, ea, eb, values, fend, x, fixed, drift, atol,
                      rtol, umax, T - b, jdiag, coupling, last_a, last_b, last_values)
         if solved:  # f(x, b), unless a value was projected
-            f0_time = b
+            st.f0_time = b
             for i in range(N):
                 f0[i] = fvec[i]
         leaving, any_projected = -1, False
@@ -541,7 +580,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             leaving, any_projected = drives_out(active, nactive, projected, x, fi, p, b, T,
                                                 floor, out, counters)
         if any_projected:
-            f0_time = math.nan
+            st.f0_time = math.nan
         if leaving >= 0:
             counters[OUTSIDE] = leaving + 1
             st.t = b
@@ -550,7 +589,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                                           indptr, indices, drift, atol, rtol, umax, x, frozen,
                                           kdes, last_a, last_b, quiet, uw, counters, out_comp,
                                           out_a, out_b, out_values):
-            regroup = True
+            st.regroup = True
         t = b
         st.t = t
 
