@@ -36,7 +36,10 @@ does not change from paying for trials; the trial itself is measured, so a noisy
 measurement costs one stretch at most. The stretches and trials with their evidence are in
 ``sol.stats["family choice"]``; a solution with stretches of both variants is represented
 in the multi-adaptive form (a mono-adaptive slab is one element per component: mcG(q) on a
-common partition is cG(q)), so evaluation, samples and ``estimate_error`` see one solution.
+common partition is cG(q)), so evaluation, samples and ``estimate_error`` see one solution;
+the mono-adaptive slabs are kept as its shared slabs (a
+:class:`~dolfinode.solution.MixedSolution`), copied into every component's elements only
+when those are read.
 
 A small system is not cut into stretches: with N < COST_RATIO x MULTI_ELEMENTS x
 SWITCH_MARGIN components the multi-adaptive variant cannot be predicted cheaper even with
@@ -64,7 +67,7 @@ from numba import njit
 
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
-from dolfinode.solution import Solution
+from dolfinode.solution import MixedSolution, Solution
 
 #: "auto" is "auto:cG(2)"; "auto:cG(q)" and "auto:dG(q)" switch between cG(q)/mcG(q), dG(q)/mdG(q).
 _AUTO_PATTERN = re.compile(r"^\s*auto\s*(?::\s*((?:cG|dG)\(\s*\d+\s*\)))?\s*$", re.IGNORECASE)
@@ -435,7 +438,11 @@ def _next_step(sol, per_component):
 
 def _joined(ode, pieces, samples):
     """One Solution on [t0, T] with ``samples`` equispaced samples of the stretches
-    ``pieces``: the mono-adaptive form if all are, else the multi-adaptive one."""
+    ``pieces``: the mono-adaptive form if all are, else a
+    :class:`~dolfinode.solution.MixedSolution` whose shared slabs are the mono-adaptive
+    stretches' slabs and the multi-adaptive ones' synchronised slabs, its elements by
+    component those of the multi-adaptive stretches (joined into one grouping on first read,
+    as a multi-adaptive solve's own)."""
     methods = [piece.stats["method"] for piece in pieces]
     solved = pieces[0].ode._snapshot()
     solved.__dict__.update(t0=ode.t0, T=ode.T, u0=ode.u0)
@@ -458,23 +465,37 @@ def _joined(ode, pieces, samples):
         return Solution(solved, method, np.concatenate([p.t_start for p in pieces]),
                         np.concatenate([p.k for p in pieces]),
                         np.concatenate([p.values for p in pieces]), stats, samples)
+    parts = [_parts(piece) for piece in pieces]
     # each component's elements, piece after piece: component i's elements of piece p start
     # at ptr[i] + (component i's elements in the pieces before p)
-    counts = np.array([np.diff(p._component_ptr) if p.multi else np.full(ode.N, len(p.k))
-                       for p in pieces])  # (pieces, N)
-    stats["elements per component"] = counts.sum(axis=0)
-    ptr = np.concatenate([[0], np.cumsum(stats["elements per component"])])
+    counts = np.array([np.diff(elements[0]) for elements, _ in parts])  # (pieces, N)
+    slabs = [np.concatenate(part) for part in zip(*(slabs for _, slabs in parts))]
+    stats["elements per component"] = counts.sum(axis=0) + len(slabs[0])
+    ptr = np.concatenate([[0], np.cumsum(counts.sum(axis=0))])
     offsets = ptr[:-1] + np.cumsum(counts, axis=0) - counts
     t_start, t_end = np.empty(ptr[-1]), np.empty(ptr[-1])
     values = np.empty((ptr[-1], method.q + 1))
-    for piece, offset in zip(pieces, offsets):
-        if piece.multi:
-            _place_elements(offset, piece._component_ptr, piece.t_start, piece._t_end,
-                            piece.values, t_start, t_end, values)
-        else:
-            _place_slabs(offset, piece.t_start, piece.ode.T, piece.values, t_start, t_end,
-                         values)
-    return Solution.grouped(solved, method, ptr, t_start, t_end, values, stats, samples)
+    for (elements, _), offset in zip(parts, offsets):
+        _place_elements(offset, *elements, t_start, t_end, values)
+    if len(slabs[0]) == 0:
+        return Solution.grouped(solved, method, ptr, t_start, t_end, values, stats, samples)
+    return MixedSolution(solved, method, (ptr, t_start, t_end, values), slabs, stats,
+                         samples)
+
+
+def _parts(sol):
+    """((ptr, t_start, t_end, values) of the elements by component, (s_start, s_end,
+    s_values) of the shared slabs) of a stretch, without joining a MixedSolution's parts."""
+    N, nn = sol.ode.N, sol.method.q + 1
+    if not sol.multi:
+        end = np.append(sol.t_start[1:], sol.ode.T)
+        return ((np.zeros(N + 1, dtype=np.int64), np.empty(0), np.empty(0),
+                 np.empty((0, nn))), (sol.t_start, end, sol.values))
+    parts = sol.__dict__.get("_parts")
+    if parts is not None:
+        return parts[:4], parts[4:]
+    return ((sol._component_ptr, sol.t_start, sol._t_end, sol.values),
+            (np.empty(0), np.empty(0), np.empty((0, nn, N))))
 
 
 @njit(cache=True)
@@ -485,21 +506,6 @@ def _place_elements(offset, ptr, t_start, t_end, values, out_t_start, out_t_end,
         row = offset[i]
         for e in range(ptr[i], ptr[i + 1]):
             out_t_start[row], out_t_end[row] = t_start[e], t_end[e]
-            out_values[row, :] = values[e, :]
+            for j in range(values.shape[1]):  # (by entry, not slices: see io.history)
+                out_values[row, j] = values[e, j]
             row += 1
-
-
-@njit(cache=True)
-def _place_slabs(offset, t_start, T, values, out_t_start, out_t_end, out_values):
-    """Copy the slabs of a mono-adaptive solution on [t_start[0], T] (``values`` (M, q+1, N))
-    as component i's elements to the rows from offset[i] of the out arrays."""
-    M, N = t_start.shape[0], offset.shape[0]
-    for i in range(N):
-        row = offset[i]
-        out_t_start[row:row + M] = t_start
-        out_t_end[row:row + M - 1] = t_start[1:]
-        out_t_end[row + M - 1] = T
-    for n in range(M):  # the values row by row of the input: its reads stay sequential
-        for j in range(values.shape[1]):
-            for i in range(N):
-                out_values[offset[i] + n, j] = values[n, j, i]

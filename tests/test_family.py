@@ -16,6 +16,7 @@ from dolfinode import family
 from dolfinode.bench.multirate import oscillator_bank
 from dolfinode.family import auto_base
 from dolfinode.problems import mass_spring_chain
+from dolfinode.solution import MixedSolution
 
 TOL = 1e-5
 driver = importlib.import_module("dolfinode.solve")  # (dn.solve is the function)
@@ -252,10 +253,16 @@ def test_joined_stretches_evaluate_as_the_stretches(late_fast):
     joined = family._joined(late_fast, [first, second], 5)
     assert joined.multi and joined.stats["method"] == "cG(2) -> mcG(2)"
     assert joined.stats["elements"] == first.stats["elements"] + second.stats["elements"]
+    # the cG(2) slabs stay shared slabs until the elements are read, then every
+    # component owns them: the same polynomials either way
+    assert isinstance(joined, MixedSolution)
     times = np.random.default_rng(1).uniform(0.0, 3.0, 50)
-    for t in times:
-        piece = first if t <= 2.5 else second
-        np.testing.assert_allclose(joined(t), piece(t), rtol=0, atol=1e-13)
+    for merged in (False, True):
+        if merged:
+            assert len(joined.t_start) == joined.stats["elements per component"].sum()
+        for t in times:
+            piece = first if t <= 2.5 else second
+            np.testing.assert_allclose(joined(t), piece(t), rtol=0, atol=1e-13)
 
 
 def test_carried_steps_follow_the_components_errors():
