@@ -79,9 +79,9 @@ FIRST_STRETCH, MAX_STRETCH, STRETCH_GROWTH = 1e-2, 0.25, 4
 #: (the prediction is a heuristic, within 2x on the benchmark problems).
 SWITCH_MARGIN = 1.5
 #: CPU time per multi-adaptive element / per mono-adaptive one until both were measured: the
-#: smallest measured on the benchmark problems (11-22 on those of doc/benchmarks/auto.md), so
-#: that a multi-adaptive variant is rather measured than missed.
-COST_RATIO = 12.0
+#: low end of the problems of doc/benchmarks/auto.md whose steps spread (6.8-20; 3-4 where
+#: every slab is synchronised), so that a multi-adaptive variant is rather measured than missed.
+COST_RATIO = 7.0
 #: Multi-adaptive elements / :func:`_multi_elements_late`' estimate (2-2.5 on the benchmarks).
 MULTI_ELEMENTS = 2.0
 #: A stretch is at least so long that its restart (:func:`_shortest_stretch`) is at most this
@@ -89,7 +89,9 @@ MULTI_ELEMENTS = 2.0
 #: multi-adaptive one, whose components are all active again at a restart until found at
 #: rest, is not cut up for nothing.
 RESTART_SHARE = 0.1
-#: ... but at most this fraction of T - t0, so that a change of scales is still seen.
+#: ... but at most this fraction of T - t0, so that a change of scales is still seen; a
+#: multi-adaptive stretch runs to T when what would be left after it is shorter than that
+#: least length (the reaction front's restarts after the trial cost 0.6-1 ms of 11 ms).
 LONGEST_STRETCH = 0.5
 #: A component's first multi-adaptive step after a mono-adaptive stretch is at most this
 #: multiple of the common step (a component at rest has no error to size it by).
@@ -130,7 +132,8 @@ def solve_auto(solve, ode, base, goal, parameters, params):
         ``sol.stats["method"]`` names the variants in turn ("cG(2) -> mcG(2)");
         ``sol.stats["family choice"]`` holds "method" (the variant at the end, or the one
         chosen once), "stretches" (per kept stretch: method, interval, CPU time, and the
-        rate and the other's predicted rate (None after the last), or "trial"), "checks" (per trial
+        rate, the other's predicted rate and the cost ratio it assumed (None after the last),
+        or "trial"), "checks" (per trial
         of the other variant: time, the current, predicted and measured rates, whether it switched,
         or the trial's error) and, when decided once, "decided once".
     """
@@ -203,7 +206,9 @@ class _Switching:
             longest = LONGEST_STRETCH * (ode.T - ode.t0)
             if self.current == self.base:  # a mono-adaptive restart has no start to spread
                 longest = min(MAX_STRETCH * (ode.T - ode.t0), STRETCH_GROWTH * last)
-            end = _stretch_end(t, max(length, min(shortest, longest)), ode.T)
+            # a multi-adaptive stretch is not followed by one too short to pay its restart
+            end = _stretch_end(t, max(length, min(shortest, longest)), ode.T,
+                               0.0 if self.current == self.base else shortest)
             piece, cpu = self.stretch(t, end, x, self.current, step)
             last = end - t
             rate = _steady_rate(piece, cpu)
@@ -219,7 +224,8 @@ class _Switching:
             predicted = None if final else self.predicted(other, piece, rate)
             self.evidence["stretches"].append(
                 {"method": self.current, "interval": [t, end], "cpu time": cpu, "rate": rate,
-                 "predicted rate of " + other: predicted})
+                 "predicted rate of " + other: predicted,
+                 "cost ratio": None if final else self.cost_ratio()})
             pieces.append(piece)
             t, x = end, piece(end)
             step = _next_step(piece, self.current != self.base)
@@ -265,11 +271,16 @@ class _Switching:
             other_elements = _mono_elements_late(piece)
         else:
             other_elements = MULTI_ELEMENTS * _multi_elements_late(piece, self.atol, self.rtol)
-        multi, mono = self.per_element.get("m" + self.base), self.per_element.get(self.base)
-        ratio = multi / mono if multi and mono else COST_RATIO
+        ratio = self.cost_ratio()[0]
         predicted = rate * other_elements * (1 / ratio if piece.multi else ratio)
         self.uncalibrated[name] = predicted
         return predicted * self.calibration.get(name, 1.0)
+
+    def cost_ratio(self):
+        """(CPU time per multi-adaptive element / per mono-adaptive one, "measured" or
+        "prior"): of the latest stretches of both variants, else COST_RATIO."""
+        multi, mono = self.per_element.get("m" + self.base), self.per_element.get(self.base)
+        return (multi / mono, "measured") if multi and mono else (COST_RATIO, "prior")
 
     def trial(self, name, t, x, step, length):
         """(solution, CPU time) of variant ``name`` over the next ``length`` from (t, x)
@@ -325,10 +336,10 @@ def _steady_rate(sol, cpu):
     return cpu / len(sol.t_start) * late / (0.5 * (sol.ode.T - sol.ode.t0))
 
 
-def _stretch_end(t, length, T):
-    """The end of a stretch of ``length`` from t: T when less than half a stretch would
-    be left after it (no sliver at the end)."""
-    return T if T - t < 1.5 * length else t + length
+def _stretch_end(t, length, T, rest=0.0):
+    """The end of a stretch of ``length`` from t: T when less than half a stretch, or less
+    than ``rest``, would be left after it (no sliver at the end)."""
+    return T if T - t - length < max(0.5 * length, rest) else t + length
 
 
 def _solve_on(solve, ode, t0, T, u0, method, parameters):
