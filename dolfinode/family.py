@@ -73,8 +73,9 @@ from dolfinode.solution import MixedSolution, Solution
 _AUTO_PATTERN = re.compile(r"^\s*auto\s*(?::\s*((?:cG|dG)\(\s*\d+\s*\)))?\s*$", re.IGNORECASE)
 DEFAULT_BASE = "cG(2)"
 #: The first stretch and the longest, as fractions of T - t0, and the growth of the next ones
-#: (1, 4, 16, 25, 25, 29 %: a change is seen within 29 % of [t0, T]).
-FIRST_STRETCH, MAX_STRETCH, STRETCH_GROWTH = 1e-2, 0.25, 4
+#: (1, 4, 16, 20, 20, 20, 19 %: a change is seen within 20 % of [t0, T]; 25 % let the late
+#: fast bank of doc/benchmarks/auto.md run cG(2) 0.3 longer over its ramp, at 1.23-1.26x).
+FIRST_STRETCH, MAX_STRETCH, STRETCH_GROWTH = 1e-2, 0.2, 4
 #: The other variant is tried when predicted SWITCH_MARGIN x cheaper than the current one
 #: (the prediction is a heuristic, within 2x on the benchmark problems).
 SWITCH_MARGIN = 1.5
@@ -88,7 +89,7 @@ MULTI_ELEMENTS = 2.0
 #: share of it: a small problem, whose solve is mostly a solve's fixed cost, or a
 #: multi-adaptive one, whose components are all active again at a restart until found at
 #: rest, is not cut up for nothing.
-RESTART_SHARE = 0.1
+RESTART_SHARE = 0.05
 #: ... but at most this fraction of T - t0, so that a change of scales is still seen; a
 #: multi-adaptive stretch runs to T when what would be left after it is shorter than that
 #: least length (the reaction front's restarts after the trial cost 0.6-1 ms of 11 ms).
@@ -180,6 +181,7 @@ class _Switching:
         # measured / predicted rate of the last trial of each variant since its last
         # stretch, and its latest uncalibrated prediction
         self.calibration, self.uncalibrated = {}, {}
+        self.restart = {}  # the largest restart measured of each variant
         self.evidence = {"stretches": [], "checks": []}
 
     def other(self, name):
@@ -216,7 +218,7 @@ class _Switching:
                 costs.append((end - t, cpu))  # (the first carries the steps' growth from 0)
                 per_call = _restart_cost(costs) if len(costs) == 2 else 0.0
             if pieces:  # (the first stretch's start is no restart: the steps grow from 0)
-                shortest = _shortest_stretch(cpu, rate, end - t, per_call)
+                shortest = self.shortest(self.current, cpu, rate, end - t, per_call)
             self.per_element[self.current] = cpu / piece.stats["elements"]
             self.calibration.pop(self.current, None)
             other = self.other(self.current)
@@ -246,8 +248,9 @@ class _Switching:
                     x = trial(t)
                     if self.current == other:
                         step = _next_step(trial, other != self.base)
-                        shortest = _shortest_stretch(cpu, self.evidence["checks"][-1][
-                            "measured"], t - self.evidence["checks"][-1]["t"], per_call)
+                        check = self.evidence["checks"][-1]
+                        shortest = self.shortest(other, cpu, check["measured"],
+                                                 t - check["t"], per_call)
                 elif trial is not None:
                     self.steps_left += trial.stats["time slabs"]  # solved again
         return _joined(ode, pieces, samples)
@@ -263,6 +266,15 @@ class _Switching:
                                 "maximum_steps": self.steps_left})
         self.steps_left -= piece.stats["time slabs"]
         return piece, cpu
+
+    def shortest(self, name, cpu, rate, length, per_call):
+        """:func:`_shortest_stretch` after a stretch of variant ``name``, its restart at least
+        the largest measured before (a stretch's start can look cheap where the restart's
+        cost spreads over it: the chain's mcG(2) restarts cost about 1 ms each, while the
+        second half's rate put some at 0.1 ms)."""
+        shortest, self.restart[name] = _shortest_stretch(
+            cpu, rate, length, max(per_call, self.restart.get(name, 0.0)))
+        return shortest
 
     def predicted(self, name, piece, rate):
         """The rate of variant ``name`` over the stretch ``piece`` that the other solved at
@@ -310,14 +322,15 @@ def _restart_cost(costs):
     return min(max((L2 * c1 - L1 * c2) / (L2 - L1), 0.0), c1, c2)
 
 
-def _shortest_stretch(cpu, rate, length, per_call):
-    """The shortest stretch whose restart costs at most RESTART_SHARE of it, after one of
-    ``length`` that took ``cpu`` at ``rate`` (:func:`_steady_rate`): the restart is its
-    start, cpu - rate x length, or the fixed cost ``per_call`` of a solve if larger, and
-    the rest of a stretch costs (cpu - restart) / length per unit time."""
-    restart = max(cpu - rate * length, per_call)
+def _shortest_stretch(cpu, rate, length, least):
+    """(the shortest stretch whose restart costs at most RESTART_SHARE of it, the restart)
+    after one of ``length`` that took ``cpu`` at ``rate`` (:func:`_steady_rate`): the
+    restart is its start, cpu - rate x length, or ``least`` (a solve's fixed cost, a
+    restart measured before) if larger, and the rest of a stretch costs (cpu - restart) /
+    length per unit time."""
+    restart = max(cpu - rate * length, least)
     beyond = (cpu - restart) / length
-    return restart / (RESTART_SHARE * beyond) if beyond > 0.0 else np.inf
+    return (restart / (RESTART_SHARE * beyond) if beyond > 0.0 else np.inf), restart
 
 
 def _late(sol):
