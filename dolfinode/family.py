@@ -10,8 +10,9 @@ MAX_STRETCH (T - t0), each from the end value of the last with its last step(s).
 mono-adaptive stretch follows this schedule (its restart is a solve's fixed cost); a
 multi-adaptive one is at least so long that its restart (its start, all components active
 until found at rest, or a solve's fixed cost from the 2nd and 3rd stretches,
-:func:`_restart_cost`) is RESTART_SHARE of it (:func:`_shortest_stretch`), at most
-LONGEST_STRETCH (T - t0). After each stretch the current variant's rate r at its end (CPU
+:func:`_restart_cost`; the largest measured so far) is RESTART_SHARE of it
+(:func:`_shortest_stretch`), at most LONGEST_STRETCH (T - t0), and runs to T when what would
+be left after it is shorter than that (:func:`_stretch_end`). After each stretch the current variant's rate r at its end (CPU
 time per element x the elements per unit time of the stretch's second half,
 :func:`_steady_rate`) is measured and the other's predicted from the elements it would take
 over that second half,
@@ -23,7 +24,7 @@ component step (the solve's "efficiency index", scaled by the fastest component'
 elements in the second half, :func:`_mono_elements_late`); E_multi / E of a mono-adaptive
 stretch from the spread of its components' local errors in the second half
 (:func:`_multi_elements_late`) x MULTI_ELEMENTS; c_multi / c_mono the latest ratio measured
-on stretches, COST_RATIO before both were; r_other is scaled by measured / predicted of the
+on stretches, COST_RATIO before both were (each prediction records which); r_other is scaled by measured / predicted of the
 last trial of the other variant, until that variant runs a stretch. When r_other < r /
 SWITCH_MARGIN, the next stretch (a stretch of the schedule, not the first: a short trial
 would be mostly its start) is a trial of the other variant from the current state, a
@@ -51,13 +52,15 @@ Decided once (after the first stretch and its trial, the chosen variant solving 
 from the start): with a goal, events, breakpoints, automatic modeling, a progress bar,
 sample times, or a history kept only as samples or in a file.
 
-Limitation: a change of scales is seen at the end of the stretch it happens in (up to 29 %
-of [t0, T] later, more where multi-adaptive restarts are dear), and the prediction of the
-multi-adaptive elements and their cost is a prior until a trial measured them
-(MULTI_ELEMENTS x COST_RATIO = 24 x the mono-adaptive cost per estimated element; measured /
-predicted 0.9-1.6 on the benchmark problems): a variant predicted no cheaper is not measured. Each
-stretch restarts the variant (its fixed cost per call; a multi-adaptive one finds its components at
-rest again).
+Limitation: a change of scales is seen at the end of the stretch it happens in (up to 20 %
+of [t0, T] later, more where multi-adaptive restarts are dear: up to the rest of [t0, T]),
+and the prediction of the multi-adaptive elements and their cost is a prior until a trial
+measured them (MULTI_ELEMENTS x COST_RATIO = 14 x the mono-adaptive cost per estimated
+element): a variant predicted no cheaper is not measured. Each stretch restarts the variant
+(its fixed cost per call, about 0.2 ms; a multi-adaptive one finds its components at rest
+again), so on a solve of a few ms the stretches cost 10-40 % (doc/benchmarks/auto.md). A
+trial is compared with the rate of the stretch before it, an earlier window: a transient
+there that makes the current variant dear can switch to a variant only as cheap later.
 """
 import re
 import time
