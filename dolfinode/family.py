@@ -12,10 +12,10 @@ multi-adaptive one is at least so long that its restart (its start, all componen
 until found at rest, or a solve's fixed cost from the 2nd and 3rd stretches,
 :func:`_restart_cost`; the largest measured so far) is RESTART_SHARE of it
 (:func:`_shortest_stretch`), at most LONGEST_STRETCH (T - t0), and runs to T when what would
-be left after it is shorter than that (:func:`_stretch_end`). After each stretch the current variant's rate r at its end (CPU
-time per element x the elements per unit time of the stretch's second half,
-:func:`_steady_rate`) is measured and the other's predicted from the elements it would take
-over that second half,
+be left after it is shorter than that (:func:`_stretch_end`). After each stretch the
+current variant's rate r at its end (CPU time per element x the elements per unit time of
+the stretch's second half, :func:`_steady_rate`) is measured and the other's predicted from
+the elements it would take over that second half,
 
     r_other = r x (E_other / E) x (c_other / c),
 
@@ -24,8 +24,9 @@ component step (the solve's "efficiency index", scaled by the fastest component'
 elements in the second half, :func:`_mono_elements_late`); E_multi / E of a mono-adaptive
 stretch from the spread of its components' local errors in the second half
 (:func:`_multi_elements_late`) x MULTI_ELEMENTS; c_multi / c_mono the latest ratio measured
-on stretches, COST_RATIO before both were (each prediction records which); r_other is scaled by measured / predicted of the
-last trial of the other variant, until that variant runs a stretch. When r_other < r /
+on stretches, COST_RATIO before both were (each prediction records which); r_other is
+scaled by measured / predicted of the last trial of the other variant, until that variant
+runs a stretch. When r_other < r /
 SWITCH_MARGIN, the next stretch (a stretch of the schedule, not the first: a short trial
 would be mostly its start) is a trial of the other variant from the current state, a
 multi-adaptive one starting each component at its own step (:func:`_component_steps`, not
@@ -136,10 +137,10 @@ def solve_auto(solve, ode, base, goal, parameters, params):
         ``sol.stats["method"]`` names the variants in turn ("cG(2) -> mcG(2)");
         ``sol.stats["family choice"]`` holds "method" (the variant at the end, or the one
         chosen once), "stretches" (per kept stretch: method, interval, CPU time, and the
-        rate, the other's predicted rate and the cost ratio it assumed (None after the last),
-        or "trial"), "checks" (per trial
-        of the other variant: time, the current, predicted and measured rates, whether it switched,
-        or the trial's error) and, when decided once, "decided once".
+        rate, the other's predicted rate and the cost ratio it assumed with "measured" or
+        "prior" (None after the last), or "trial"), "checks" (per trial of the other
+        variant: time, the current, predicted and measured rates, whether it switched, or
+        the trial's error) and, when decided once, "decided once".
     """
     lower(ode)  # compiled once, shared by the stretches (a copy would compile again)
     switching = _Switching(solve, ode, base, {**parameters, **_STRETCH_PARAMETERS}, params)
