@@ -10,11 +10,12 @@ MAX_STRETCH (T - t0), each from the end value of the last with its last step(s).
 mono-adaptive stretch follows this schedule (its restart is a solve's fixed cost); a
 multi-adaptive one is at least so long that its restart (its start, all components active
 until found at rest, or a solve's fixed cost from the 2nd and 3rd stretches,
-:func:`_restart_cost`) is RESTART_SHARE of it (:func:`_shortest_stretch`), at most
-LONGEST_STRETCH (T - t0). After each stretch the current variant's rate r at its end (CPU
-time per element x the elements per unit time of the stretch's second half,
-:func:`_steady_rate`) is measured and the other's predicted from the elements it would take
-over that second half,
+:func:`_restart_cost`; the largest measured so far) is RESTART_SHARE of it
+(:func:`_shortest_stretch`), at most LONGEST_STRETCH (T - t0), and runs to T when what would
+be left after it is shorter than that (:func:`_stretch_end`). After each stretch the
+current variant's rate r at its end (CPU time per element x the elements per unit time of
+the stretch's second half, :func:`_steady_rate`) is measured and the other's predicted from
+the elements it would take over that second half,
 
     r_other = r x (E_other / E) x (c_other / c),
 
@@ -23,8 +24,9 @@ component step (the solve's "efficiency index", scaled by the fastest component'
 elements in the second half, :func:`_mono_elements_late`); E_multi / E of a mono-adaptive
 stretch from the spread of its components' local errors in the second half
 (:func:`_multi_elements_late`) x MULTI_ELEMENTS; c_multi / c_mono the latest ratio measured
-on stretches, COST_RATIO before both were; r_other is scaled by measured / predicted of the
-last trial of the other variant, until that variant runs a stretch. When r_other < r /
+on stretches, COST_RATIO before both were (each prediction records which); r_other is
+scaled by measured / predicted of the last trial of the other variant, until that variant
+runs a stretch. When r_other < r /
 SWITCH_MARGIN, the next stretch (a stretch of the schedule, not the first: a short trial
 would be mostly its start) is a trial of the other variant from the current state, a
 multi-adaptive one starting each component at its own step (:func:`_component_steps`, not
@@ -36,7 +38,10 @@ does not change from paying for trials; the trial itself is measured, so a noisy
 measurement costs one stretch at most. The stretches and trials with their evidence are in
 ``sol.stats["family choice"]``; a solution with stretches of both variants is represented
 in the multi-adaptive form (a mono-adaptive slab is one element per component: mcG(q) on a
-common partition is cG(q)), so evaluation, samples and ``estimate_error`` see one solution.
+common partition is cG(q)), so evaluation, samples and ``estimate_error`` see one solution;
+the mono-adaptive slabs are kept as its shared slabs (a
+:class:`~dolfinode.solution.MixedSolution`), copied into every component's elements only
+when those are read.
 
 A small system is not cut into stretches: with N < COST_RATIO x MULTI_ELEMENTS x
 SWITCH_MARGIN components the multi-adaptive variant cannot be predicted cheaper even with
@@ -48,13 +53,15 @@ Decided once (after the first stretch and its trial, the chosen variant solving 
 from the start): with a goal, events, breakpoints, automatic modeling, a progress bar,
 sample times, or a history kept only as samples or in a file.
 
-Limitation: a change of scales is seen at the end of the stretch it happens in (up to 29 %
-of [t0, T] later, more where multi-adaptive restarts are dear), and the prediction of the
-multi-adaptive elements and their cost is a prior until a trial measured them
-(MULTI_ELEMENTS x COST_RATIO = 24 x the mono-adaptive cost per estimated element; measured /
-predicted 0.9-1.6 on the benchmark problems): a variant predicted no cheaper is not measured. Each
-stretch restarts the variant (its fixed cost per call; a multi-adaptive one finds its components at
-rest again).
+Limitation: a change of scales is seen at the end of the stretch it happens in (up to 20 %
+of [t0, T] later, more where multi-adaptive restarts are dear: up to the rest of [t0, T]),
+and the prediction of the multi-adaptive elements and their cost is a prior until a trial
+measured them (MULTI_ELEMENTS x COST_RATIO = 14 x the mono-adaptive cost per estimated
+element): a variant predicted no cheaper is not measured. Each stretch restarts the variant
+(its fixed cost per call, about 0.2 ms; a multi-adaptive one finds its components at rest
+again), so on a solve of a few ms the stretches cost 10-40 % (doc/benchmarks/auto.md). A
+trial is compared with the rate of the stretch before it, an earlier window: a transient
+there that makes the current variant dear can switch to a variant only as cheap later.
 """
 import re
 import time
@@ -64,29 +71,32 @@ from numba import njit
 
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
-from dolfinode.solution import Solution
+from dolfinode.solution import MixedSolution, Solution
 
 #: "auto" is "auto:cG(2)"; "auto:cG(q)" and "auto:dG(q)" switch between cG(q)/mcG(q), dG(q)/mdG(q).
 _AUTO_PATTERN = re.compile(r"^\s*auto\s*(?::\s*((?:cG|dG)\(\s*\d+\s*\)))?\s*$", re.IGNORECASE)
 DEFAULT_BASE = "cG(2)"
 #: The first stretch and the longest, as fractions of T - t0, and the growth of the next ones
-#: (1, 4, 16, 25, 25, 29 %: a change is seen within 29 % of [t0, T]).
-FIRST_STRETCH, MAX_STRETCH, STRETCH_GROWTH = 1e-2, 0.25, 4
+#: (1, 4, 16, 20, 20, 20, 19 %: a change is seen within 20 % of [t0, T]; 25 % let the late
+#: fast bank of doc/benchmarks/auto.md run cG(2) 0.3 longer over its ramp, at 1.23-1.26x).
+FIRST_STRETCH, MAX_STRETCH, STRETCH_GROWTH = 1e-2, 0.2, 4
 #: The other variant is tried when predicted SWITCH_MARGIN x cheaper than the current one
 #: (the prediction is a heuristic, within 2x on the benchmark problems).
 SWITCH_MARGIN = 1.5
 #: CPU time per multi-adaptive element / per mono-adaptive one until both were measured: the
-#: smallest measured on the benchmark problems (11-22 on those of doc/benchmarks/auto.md), so
-#: that a multi-adaptive variant is rather measured than missed.
-COST_RATIO = 12.0
+#: low end of the problems of doc/benchmarks/auto.md whose steps spread (6.8-20; 3-4 where
+#: every slab is synchronised), so that a multi-adaptive variant is rather measured than missed.
+COST_RATIO = 7.0
 #: Multi-adaptive elements / :func:`_multi_elements_late`' estimate (2-2.5 on the benchmarks).
 MULTI_ELEMENTS = 2.0
 #: A stretch is at least so long that its restart (:func:`_shortest_stretch`) is at most this
 #: share of it: a small problem, whose solve is mostly a solve's fixed cost, or a
 #: multi-adaptive one, whose components are all active again at a restart until found at
 #: rest, is not cut up for nothing.
-RESTART_SHARE = 0.1
-#: ... but at most this fraction of T - t0, so that a change of scales is still seen.
+RESTART_SHARE = 0.05
+#: ... but at most this fraction of T - t0, so that a change of scales is still seen; a
+#: multi-adaptive stretch runs to T when what would be left after it is shorter than that
+#: least length (the reaction front's restarts after the trial cost 0.6-1 ms of 11 ms).
 LONGEST_STRETCH = 0.5
 #: A component's first multi-adaptive step after a mono-adaptive stretch is at most this
 #: multiple of the common step (a component at rest has no error to size it by).
@@ -127,9 +137,10 @@ def solve_auto(solve, ode, base, goal, parameters, params):
         ``sol.stats["method"]`` names the variants in turn ("cG(2) -> mcG(2)");
         ``sol.stats["family choice"]`` holds "method" (the variant at the end, or the one
         chosen once), "stretches" (per kept stretch: method, interval, CPU time, and the
-        rate and the other's predicted rate (None after the last), or "trial"), "checks" (per trial
-        of the other variant: time, the current, predicted and measured rates, whether it switched,
-        or the trial's error) and, when decided once, "decided once".
+        rate, the other's predicted rate and the cost ratio it assumed with "measured" or
+        "prior" (None after the last), or "trial"), "checks" (per trial of the other
+        variant: time, the current, predicted and measured rates, whether it switched, or
+        the trial's error) and, when decided once, "decided once".
     """
     lower(ode)  # compiled once, shared by the stretches (a copy would compile again)
     switching = _Switching(solve, ode, base, {**parameters, **_STRETCH_PARAMETERS}, params)
@@ -174,6 +185,7 @@ class _Switching:
         # measured / predicted rate of the last trial of each variant since its last
         # stretch, and its latest uncalibrated prediction
         self.calibration, self.uncalibrated = {}, {}
+        self.restart = {}  # the largest restart measured of each variant
         self.evidence = {"stretches": [], "checks": []}
 
     def other(self, name):
@@ -200,7 +212,9 @@ class _Switching:
             longest = LONGEST_STRETCH * (ode.T - ode.t0)
             if self.current == self.base:  # a mono-adaptive restart has no start to spread
                 longest = min(MAX_STRETCH * (ode.T - ode.t0), STRETCH_GROWTH * last)
-            end = _stretch_end(t, max(length, min(shortest, longest)), ode.T)
+            # a multi-adaptive stretch is not followed by one too short to pay its restart
+            end = _stretch_end(t, max(length, min(shortest, longest)), ode.T,
+                               0.0 if self.current == self.base else shortest)
             piece, cpu = self.stretch(t, end, x, self.current, step)
             last = end - t
             rate = _steady_rate(piece, cpu)
@@ -208,7 +222,7 @@ class _Switching:
                 costs.append((end - t, cpu))  # (the first carries the steps' growth from 0)
                 per_call = _restart_cost(costs) if len(costs) == 2 else 0.0
             if pieces:  # (the first stretch's start is no restart: the steps grow from 0)
-                shortest = _shortest_stretch(cpu, rate, end - t, per_call)
+                shortest = self.shortest(self.current, cpu, rate, end - t, per_call)
             self.per_element[self.current] = cpu / piece.stats["elements"]
             self.calibration.pop(self.current, None)
             other = self.other(self.current)
@@ -216,7 +230,8 @@ class _Switching:
             predicted = None if final else self.predicted(other, piece, rate)
             self.evidence["stretches"].append(
                 {"method": self.current, "interval": [t, end], "cpu time": cpu, "rate": rate,
-                 "predicted rate of " + other: predicted})
+                 "predicted rate of " + other: predicted,
+                 "cost ratio": None if final else self.cost_ratio()})
             pieces.append(piece)
             t, x = end, piece(end)
             step = _next_step(piece, self.current != self.base)
@@ -237,8 +252,9 @@ class _Switching:
                     x = trial(t)
                     if self.current == other:
                         step = _next_step(trial, other != self.base)
-                        shortest = _shortest_stretch(cpu, self.evidence["checks"][-1][
-                            "measured"], t - self.evidence["checks"][-1]["t"], per_call)
+                        check = self.evidence["checks"][-1]
+                        shortest = self.shortest(other, cpu, check["measured"],
+                                                 t - check["t"], per_call)
                 elif trial is not None:
                     self.steps_left += trial.stats["time slabs"]  # solved again
         return _joined(ode, pieces, samples)
@@ -255,6 +271,15 @@ class _Switching:
         self.steps_left -= piece.stats["time slabs"]
         return piece, cpu
 
+    def shortest(self, name, cpu, rate, length, per_call):
+        """:func:`_shortest_stretch` after a stretch of variant ``name``, its restart at least
+        the largest measured before (a stretch's start can look cheap where the restart's
+        cost spreads over it: the chain's mcG(2) restarts cost about 1 ms each, while the
+        second half's rate put some at 0.1 ms)."""
+        shortest, self.restart[name] = _shortest_stretch(
+            cpu, rate, length, max(per_call, self.restart.get(name, 0.0)))
+        return shortest
+
     def predicted(self, name, piece, rate):
         """The rate of variant ``name`` over the stretch ``piece`` that the other solved at
         ``rate``."""
@@ -262,11 +287,16 @@ class _Switching:
             other_elements = _mono_elements_late(piece)
         else:
             other_elements = MULTI_ELEMENTS * _multi_elements_late(piece, self.atol, self.rtol)
-        multi, mono = self.per_element.get("m" + self.base), self.per_element.get(self.base)
-        ratio = multi / mono if multi and mono else COST_RATIO
+        ratio = self.cost_ratio()[0]
         predicted = rate * other_elements * (1 / ratio if piece.multi else ratio)
         self.uncalibrated[name] = predicted
         return predicted * self.calibration.get(name, 1.0)
+
+    def cost_ratio(self):
+        """(CPU time per multi-adaptive element / per mono-adaptive one, "measured" or
+        "prior"): of the latest stretches of both variants, else COST_RATIO."""
+        multi, mono = self.per_element.get("m" + self.base), self.per_element.get(self.base)
+        return (multi / mono, "measured") if multi and mono else (COST_RATIO, "prior")
 
     def trial(self, name, t, x, step, length):
         """(solution, CPU time) of variant ``name`` over the next ``length`` from (t, x)
@@ -296,14 +326,15 @@ def _restart_cost(costs):
     return min(max((L2 * c1 - L1 * c2) / (L2 - L1), 0.0), c1, c2)
 
 
-def _shortest_stretch(cpu, rate, length, per_call):
-    """The shortest stretch whose restart costs at most RESTART_SHARE of it, after one of
-    ``length`` that took ``cpu`` at ``rate`` (:func:`_steady_rate`): the restart is its
-    start, cpu - rate x length, or the fixed cost ``per_call`` of a solve if larger, and
-    the rest of a stretch costs (cpu - restart) / length per unit time."""
-    restart = max(cpu - rate * length, per_call)
+def _shortest_stretch(cpu, rate, length, least):
+    """(the shortest stretch whose restart costs at most RESTART_SHARE of it, the restart)
+    after one of ``length`` that took ``cpu`` at ``rate`` (:func:`_steady_rate`): the
+    restart is its start, cpu - rate x length, or ``least`` (a solve's fixed cost, a
+    restart measured before) if larger, and the rest of a stretch costs (cpu - restart) /
+    length per unit time."""
+    restart = max(cpu - rate * length, least)
     beyond = (cpu - restart) / length
-    return restart / (RESTART_SHARE * beyond) if beyond > 0.0 else np.inf
+    return (restart / (RESTART_SHARE * beyond) if beyond > 0.0 else np.inf), restart
 
 
 def _late(sol):
@@ -322,10 +353,10 @@ def _steady_rate(sol, cpu):
     return cpu / len(sol.t_start) * late / (0.5 * (sol.ode.T - sol.ode.t0))
 
 
-def _stretch_end(t, length, T):
-    """The end of a stretch of ``length`` from t: T when less than half a stretch would
-    be left after it (no sliver at the end)."""
-    return T if T - t < 1.5 * length else t + length
+def _stretch_end(t, length, T, rest=0.0):
+    """The end of a stretch of ``length`` from t: T when less than half a stretch, or less
+    than ``rest``, would be left after it (no sliver at the end)."""
+    return T if T - t - length < max(0.5 * length, rest) else t + length
 
 
 def _solve_on(solve, ode, t0, T, u0, method, parameters):
@@ -435,7 +466,11 @@ def _next_step(sol, per_component):
 
 def _joined(ode, pieces, samples):
     """One Solution on [t0, T] with ``samples`` equispaced samples of the stretches
-    ``pieces``: the mono-adaptive form if all are, else the multi-adaptive one."""
+    ``pieces``: the mono-adaptive form if all are, else a
+    :class:`~dolfinode.solution.MixedSolution` whose shared slabs are the mono-adaptive
+    stretches' slabs and the multi-adaptive ones' synchronised slabs, its elements by
+    component those of the multi-adaptive stretches (joined into one grouping on first read,
+    as a multi-adaptive solve's own)."""
     methods = [piece.stats["method"] for piece in pieces]
     solved = pieces[0].ode._snapshot()
     solved.__dict__.update(t0=ode.t0, T=ode.T, u0=ode.u0)
@@ -458,23 +493,37 @@ def _joined(ode, pieces, samples):
         return Solution(solved, method, np.concatenate([p.t_start for p in pieces]),
                         np.concatenate([p.k for p in pieces]),
                         np.concatenate([p.values for p in pieces]), stats, samples)
+    parts = [_parts(piece) for piece in pieces]
     # each component's elements, piece after piece: component i's elements of piece p start
     # at ptr[i] + (component i's elements in the pieces before p)
-    counts = np.array([np.diff(p._component_ptr) if p.multi else np.full(ode.N, len(p.k))
-                       for p in pieces])  # (pieces, N)
-    stats["elements per component"] = counts.sum(axis=0)
-    ptr = np.concatenate([[0], np.cumsum(stats["elements per component"])])
+    counts = np.array([np.diff(elements[0]) for elements, _ in parts])  # (pieces, N)
+    slabs = [np.concatenate(part) for part in zip(*(slabs for _, slabs in parts))]
+    stats["elements per component"] = counts.sum(axis=0) + len(slabs[0])
+    ptr = np.concatenate([[0], np.cumsum(counts.sum(axis=0))])
     offsets = ptr[:-1] + np.cumsum(counts, axis=0) - counts
     t_start, t_end = np.empty(ptr[-1]), np.empty(ptr[-1])
     values = np.empty((ptr[-1], method.q + 1))
-    for piece, offset in zip(pieces, offsets):
-        if piece.multi:
-            _place_elements(offset, piece._component_ptr, piece.t_start, piece._t_end,
-                            piece.values, t_start, t_end, values)
-        else:
-            _place_slabs(offset, piece.t_start, piece.ode.T, piece.values, t_start, t_end,
-                         values)
-    return Solution.grouped(solved, method, ptr, t_start, t_end, values, stats, samples)
+    for (elements, _), offset in zip(parts, offsets):
+        _place_elements(offset, *elements, t_start, t_end, values)
+    if len(slabs[0]) == 0:
+        return Solution.grouped(solved, method, ptr, t_start, t_end, values, stats, samples)
+    return MixedSolution(solved, method, (ptr, t_start, t_end, values), slabs, stats,
+                         samples)
+
+
+def _parts(sol):
+    """((ptr, t_start, t_end, values) of the elements by component, (s_start, s_end,
+    s_values) of the shared slabs) of a stretch, without joining a MixedSolution's parts."""
+    N, nn = sol.ode.N, sol.method.q + 1
+    if not sol.multi:
+        end = np.append(sol.t_start[1:], sol.ode.T)
+        return ((np.zeros(N + 1, dtype=np.int64), np.empty(0), np.empty(0),
+                 np.empty((0, nn))), (sol.t_start, end, sol.values))
+    parts = sol.__dict__.get("_parts")
+    if parts is not None:
+        return parts[:4], parts[4:]
+    return ((sol._component_ptr, sol.t_start, sol._t_end, sol.values),
+            (np.empty(0), np.empty(0), np.empty((0, nn, N))))
 
 
 @njit(cache=True)
@@ -485,21 +534,6 @@ def _place_elements(offset, ptr, t_start, t_end, values, out_t_start, out_t_end,
         row = offset[i]
         for e in range(ptr[i], ptr[i + 1]):
             out_t_start[row], out_t_end[row] = t_start[e], t_end[e]
-            out_values[row, :] = values[e, :]
+            for j in range(values.shape[1]):  # (by entry, not slices: see io.history)
+                out_values[row, j] = values[e, j]
             row += 1
-
-
-@njit(cache=True)
-def _place_slabs(offset, t_start, T, values, out_t_start, out_t_end, out_values):
-    """Copy the slabs of a mono-adaptive solution on [t_start[0], T] (``values`` (M, q+1, N))
-    as component i's elements to the rows from offset[i] of the out arrays."""
-    M, N = t_start.shape[0], offset.shape[0]
-    for i in range(N):
-        row = offset[i]
-        out_t_start[row:row + M] = t_start
-        out_t_end[row:row + M - 1] = t_start[1:]
-        out_t_end[row + M - 1] = T
-    for n in range(M):  # the values row by row of the input: its reads stay sequential
-        for j in range(values.shape[1]):
-            for i in range(N):
-                out_values[offset[i] + n, j] = values[n, j, i]
