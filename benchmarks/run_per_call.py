@@ -6,7 +6,8 @@ and the minimum time per call over the repeats is reported (wall clock, ``time.p
 call is microseconds, and the minimum is the least disturbed by the other processes of a shared
 machine). Variants: ``dn.solve`` per method; ``dn.Solver(...).solve()``, with other u0 and parameter
 values, and with a new parameter value at every call (a fit); the compiled start and loop of a
-prepared call alone, with its kept arguments (from the state the last call left);
+prepared call alone (their one compiled call, :mod:`dolfinode.timeslab.prepared`), with its
+kept work space (from the state the last call left);
 numbalsoda's LSODA (its C code, a numba cfunc right-hand side) with its arrays ready, when
 numbalsoda is installed (``pip install numbalsoda``).
 
@@ -48,12 +49,11 @@ def variants():
         calls[f"Solver.solve(), {m}"] = solver.solve
         calls[f"Solver.solve(u0=, params=), {m}"] = (
             lambda solver=solver: solver.solve(u0=[2.0], params={a: 1.5}))
-    # the floor of a prepared call: its compiled start and loop alone, arguments kept
+    # the floor of a prepared call: its compiled start and loop alone (one call), arguments kept
     prepared = dn.Solver(ode, method="dG(2)")
     prepared.solve()
-    (advance, arguments), (started_at, started) = prepared._loop, prepared._start
-    calls["compiled start + loop of Solver.solve(), dG(2)"] = lambda: (
-        started_at(*started), advance(*arguments))
+    run, workspace = prepared._prepared
+    calls["compiled start + loop of Solver.solve(), dG(2)"] = lambda: run(workspace)
     # a fit: a new parameter value at every call
     fit, values = dn.Solver(ode, method="dG(2)"), itertools.count()
     calls["Solver.solve(params= new value), dG(2)"] = (
@@ -92,7 +92,7 @@ def stiff_variants():
         sol = dn.solve(ode, "dG(3)", **options)
         solver = dn.Solver(ode, "dG(3)", **options)
         solver.solve()
-        (advance, arguments), (started_at, started) = solver._loop, solver._start
+        run, workspace = solver._prepared
         x = solver._kept[3]
         calls.update({
             (name, "dn.solve, options new to the declaration"): lambda ode=ode, options=options: (
@@ -103,9 +103,8 @@ def stiff_variants():
                 lambda ode=ode, options=options, times=times: dn.solve(ode, "dG(3)",
                                                                        **options)(times)),
             (name, "Solver.solve()"): solver.solve,
-            (name, "compiled start + loop"): lambda ode=ode, x=x, advance=advance,
-            arguments=arguments, started_at=started_at, started=started: (
-                x.__setitem__(slice(None), ode.u0), started_at(*started), advance(*arguments)),
+            (name, "compiled start + loop"): lambda ode=ode, x=x, run=run, workspace=workspace: (
+                x.__setitem__(slice(None), ode.u0), run(workspace)),
             (name, "sol(t_eval)"): lambda sol=sol, times=times: sol(times)})
     return calls
 

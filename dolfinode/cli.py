@@ -66,8 +66,9 @@ def _cache(action):
 def _compile_everything():
     """Compile (or load from the caches) the mono- and multi-adaptive loops, the dual's and
     the solution's kernels: a small oscillator solved with cG(2), dG(1), mcG(2) and its
-    error estimated, each path once; then the routines compiled on first use that it did
-    not call (the stiff solvers, the multi-adaptive sweeps and error filter)."""
+    error estimated, each path once, and by a prepared dn.Solver; then the routines
+    compiled on first use that it did not call (the stiff solvers, the multi-adaptive
+    sweeps and error filter)."""
     import sympy as sp
 
     import dolfinode as dn
@@ -80,6 +81,8 @@ def _compile_everything():
         print(f"{method}: compiled", file=sys.stderr)
     dn.estimate_error(dn.solve(ode, method="cG(2)", tolerance=1e-4), goal={u: 1.0})
     print("estimate_error: compiled", file=sys.stderr)
+    dn.Solver(ode, method="dG(1)", tolerance=1e-4).solve()  # (its one compiled call)
+    print("Solver.solve: compiled", file=sys.stderr)
     from dolfinode.compile.jit import compile_pending
 
     for what in compile_pending():  # (the paths the oscillator does not take: stiff, multi-rate)

@@ -12,7 +12,8 @@ storage no earlier solve has analysed), takes the prepared path: the solver keep
 interval [t0, T], a work space (its own kernels, the options and tolerances, the arrays of
 the start and of the loop, and output buffers as large as the first ones of dn.solve) and
 the loop's whole argument tuple; a call writes the values that changed into it, runs the
-compiled start of dn.solve (:mod:`dolfinode.timeslab.start`) and calls the loop once, and
+compiled start of dn.solve (:mod:`dolfinode.timeslab.start`) and calls the loop once (for
+cG/dG in one compiled call, :mod:`dolfinode.timeslab.prepared`), and
 the Solution copies the used part of the buffers. A call's u0 and parameter values are
 checked as the declaration checks them, floats directly; the floor of the values is made
 again only when the parameters' signs or the sign of u0 change. A mono-adaptive Solution's
@@ -63,8 +64,8 @@ from dolfinode.solve import (
     solve,
     solve_lowered,
 )
-from dolfinode.timeslab import contract, mono
-from dolfinode.timeslab.start import start
+from dolfinode.timeslab import contract, mono, prepared
+from dolfinode.timeslab.start import READY, start
 
 #: Longest u0 of a call checked value by value in Python; a longer one is checked as an array.
 _DIRECT_U0 = 64
@@ -232,14 +233,17 @@ class Solver:
         """The loop's arguments for solves over ``work``'s interval (made again when it
         changes): the solver's own kernels, whose ``p`` each call overwrites, the options and
         tolerances, the start's and the loop's arrays, which each call refills, and the kept
-        buffers, and the compiled start's and loop's entry points. The storage of the Newton
-        matrices is decided here, once, and the sample times are checked."""
+        buffers, and the compiled start's and loop's entry points (mono-adaptive: both in one
+        compiled call over one object, :mod:`dolfinode.timeslab.prepared`). The storage of the
+        Newton matrices is decided here, once, and the sample times and given steps are
+        checked."""
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
         compiled = lower(work)
         rtol = params["tolerance"]
         atol = _absolute_tolerance(work, params["absolute_tolerance"], rtol)
         loop_atol, options = _options(work, m, params, multi_adaptive, atol)
         given = _initial_steps(work, params["initial_time_step"], multi_adaptive)
+        _check_start(work, params, READY, None, given)  # (the given steps: once per interval)
         n = work.N
         x, f0, floor = np.empty(n), np.empty(n), np.empty(n)
         state = contract.state()
@@ -269,6 +273,9 @@ class Solver:
                                        params["initial_time_step"] is None, x, f0, steps,
                                        options, state, counters, not multi_adaptive))
         self._loop = (advance.entry(), (*arguments, *self._buffers))
+        # mono: both in one compiled call, which unboxes one object instead of ~40 arrays
+        self._prepared = None if multi_adaptive else (prepared.run.entry(), prepared.workspace(
+            start.compile(), self._start[1], advance.compile(), self._loop[1]))
 
     def _solve_prepared(self, work):
         """The solve of ``work`` as one call of the loop into the kept buffers, a run that
@@ -300,12 +307,18 @@ class Solver:
         x[:] = work.u0
         if params["initial_time_step"] is not None:
             steps[:] = given
-        started_at, arguments = self._start
-        _check_start(work, params, started_at(*arguments), f0, steps)
         if multi_adaptive:
+            started_at, arguments = self._start
+            _check_start(work, params, started_at(*arguments), f0, steps)
             frozen.fill(np.nan)  # since when each component is frozen (NaN: active)
-        advance, arguments = self._loop
-        status = advance(*arguments)
+            advance, arguments = self._loop
+            status = advance(*arguments)
+        else:
+            run, workspace = self._prepared
+            status = run(workspace)
+            if status < 0:
+                _check_start(work, params, -status, f0, steps)
+            advance, arguments = self._loop
         counts = counters.tolist()
         if status != ts.DONE or counts[ts.SLABS] > params["maximum_steps"]:
             # the run goes on into new buffers, as dn.solve's would

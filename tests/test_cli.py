@@ -56,9 +56,12 @@ def test_bench_rejects_empty_lists_and_values_out_of_range(tmp_path, capsys, arg
 def test_compile_fills_the_caches(capsys):
     assert main(["compile"]) == 0
     printed = capsys.readouterr().err
-    for what in ("cG(2)", "dG(1)", "mcG(2)", "estimate_error"):
+    for what in ("cG(2)", "dG(1)", "mcG(2)", "estimate_error", "Solver.solve"):
         assert f"{what}: compiled" in printed
     from dolfinode.compile import jit
+    from dolfinode.timeslab import prepared
+
+    assert prepared.run.is_compiled and prepared.workspace.is_compiled
 
     assert jit._SLOTS  # the stiff solvers' links, registered by their callers
     assert all(slot.value for _, slot, _ in jit._SLOTS.values())  # ... and compiled

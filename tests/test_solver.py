@@ -313,10 +313,36 @@ def test_the_kept_compiled_calls_are_type_checked_in_the_tests(oscillator):
     """The solver keeps the loops' entry points (Loop.entry); while Loop.checked (this
     module's fixture) they are numba's type-checking dispatchers, so these tests check the
     argument types of every prepared call."""
-    from dolfinode.timeslab import mono
+    from dolfinode.timeslab import mono, prepared
     from dolfinode.timeslab.start import start
 
     solver = dn.Solver(oscillator, method="dG(1)")
     solver.solve()
     assert solver._loop[0] is mono.advance.compile()
     assert solver._start[0] is start.compile()
+    assert solver._prepared[0] is prepared.run.compile()
+
+
+def test_a_start_failing_in_the_one_compiled_call_is_named_and_the_next_call_is_fresh(
+        monkeypatch):
+    """The prepared mono-adaptive call runs the start and the loop in one compiled call
+    (:mod:`dolfinode.timeslab.prepared`): a start that fails there (f(u0, t0) not finite, an
+    interval too short to resolve) raises dn.solve's error, and a later call of the same
+    work space is bitwise dn.solve."""
+    x, rate = sp.symbols("x rate")
+    ode = dn.ODE({x: -rate * x}, u0=[1e10], T=1e6 + 1.0, t0=1e6, params={rate: 1.0})
+    solver = dn.Solver(ode, method="dG(2)", tolerance=1e-6)
+
+    def general_path(*args):
+        raise AssertionError("the prepared path gave way to the general one")
+
+    monkeypatch.setattr("dolfinode.solver.solve_lowered", general_path)
+    solver.solve()
+    with pytest.raises(ValueError, match=r"f\(u0, t0\) is not finite in the right-hand side "
+                                         "of x"):
+        solver.solve(params={rate: 1e308})
+    with pytest.raises(ValueError, match="shorter than the smallest step"):
+        solver.solve(T=1e6 + 1e-9)
+    for call in ({"params": {rate: 2.0}}, {}):
+        _assert_same_solution(solver.solve(**call), dn.solve(
+            dn.vary(ode, call.get("params", {})), method="dG(2)", tolerance=1e-6))

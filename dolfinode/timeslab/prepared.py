@@ -1,0 +1,58 @@
+"""The start and the mono-adaptive loop of a prepared solve (:class:`dolfinode.Solver`) in one
+compiled call over a work space made once per interval.
+
+Called from Python, a compiled function unboxes each argument (about 40 ns an array, more
+in a tuple): the ~40 arrays of :func:`~dolfinode.timeslab.start.start` and
+:func:`~dolfinode.timeslab.mono.advance` were half the compiled time of a small solve. The
+work space is a numba structref holding both argument tuples and both compiled functions (as
+first-class functions: called through their addresses, so this module's cached code holds
+no copy of theirs); a call unboxes that one object.
+"""
+from numba import types
+from numba.experimental import structref
+
+from dolfinode.compile.jit import Loop
+from dolfinode.timeslab import mono
+from dolfinode.timeslab.start import READY, start
+
+
+@structref.register
+class _WorkspaceType(types.StructRef):
+    pass
+
+
+class Workspace(structref.StructRefProxy):
+    """The compiled start and loop with their arguments (made by :data:`workspace`)."""
+
+
+structref.define_boxing(_WorkspaceType, Workspace)
+
+_START, _LOOP = types.FunctionType(start.signature), types.FunctionType(mono.advance.signature)
+_START_ARGUMENTS, _LOOP_ARGUMENTS = (types.Tuple(start.signature.args),
+                                     types.Tuple(mono.advance.signature.args))
+WORKSPACE_TYPE = _WorkspaceType([("start", _START), ("start_arguments", _START_ARGUMENTS),
+                                 ("loop", _LOOP), ("loop_arguments", _LOOP_ARGUMENTS)])
+
+
+def _workspace(start, start_arguments, loop, loop_arguments):
+    """The work space of :func:`run` (``start``, ``loop``: the compiled dispatchers)."""
+    w = structref.new(WORKSPACE_TYPE)
+    w.start, w.start_arguments = start, start_arguments
+    w.loop, w.loop_arguments = loop, loop_arguments
+    return w
+
+
+def _run(w):
+    """start(*start_arguments), then, if it returned READY, loop(*loop_arguments); returns
+    the loop's status (>= 0), or minus the start's where it is not READY."""
+    started = w.start(*w.start_arguments)
+    if started != READY:
+        return -started
+    return w.loop(*w.loop_arguments)
+
+
+#: Workspace(start dispatcher, start's arguments, loop dispatcher, loop's arguments), type
+#: checked (called through the dispatcher: once per interval of a Solver).
+workspace = Loop(_workspace, WORKSPACE_TYPE(_START, _START_ARGUMENTS, _LOOP, _LOOP_ARGUMENTS),
+                 "the prepared call's work space", 1)
+run = Loop(_run, types.int64(WORKSPACE_TYPE), "the prepared call", 1)
