@@ -101,10 +101,11 @@ LONGEST_STRETCH = 0.5
 #: A component's first multi-adaptive step after a mono-adaptive stretch is at most this
 #: multiple of the common step (a component at rest has no error to size it by).
 MAX_STEP_GROWTH = 10.0
-#: Parameters a stretch overrides: output, progress, modeling and events are the whole
-#: solve's business (sample times and a history file refer to [t0, T]).
+#: Parameters a stretch overrides: output, progress, modeling, events and the error at T are
+#: the whole solve's business (sample times and a history file refer to [t0, T]).
 _STRETCH_PARAMETERS = {"number_of_samples": 2, "sample_times": None, "dense_output": True,
-                       "progress": False, "automatic_modeling": False, "events": None}
+                       "progress": False, "automatic_modeling": False, "events": None,
+                       "estimate_global_error": False}
 #: The CPU clock the rates are measured with.
 _clock = time.process_time
 

@@ -39,7 +39,8 @@ DEFAULTS = {
     "strict": False,               # automatic modeling: raise instead of a ModelingWarning
     "events": None,                # g(u, t) expressions or dn.Event: zero crossings located
     "breakpoints": None,           # times where f(t) is not smooth that the declaration hides
-    "estimate_global_error": False,  # estimate the error at T after the solve, warn above 10x
+    "estimate_global_error": "auto",  # the error at T after the solve, a warning above 10x:
+                                      # True, False, or "auto" (long runs of small systems)
 }
 
 #: The defaults as users see them (``dn.default_parameters``): read-only, so that a change
@@ -108,6 +109,14 @@ def _switch(name, value):
     if not isinstance(value, (bool, int)):
         raise TypeError(f"{name} must be True or False, got {value!r}")
     return value
+
+
+def _switch_or_auto(name, value):
+    if isinstance(value, str) and value.lower() == "auto":
+        return "auto"
+    if not isinstance(value, (bool, int)):
+        raise TypeError(f"{name} must be True, False or 'auto', got {value!r}")
+    return bool(value)
 
 
 def _choice(choices):
@@ -217,7 +226,7 @@ _CHECKS = {
     "events": _events,
     "breakpoints": _times,
     "strict": _switch,
-    "estimate_global_error": _switch,
+    "estimate_global_error": _switch_or_auto,
 }
 
 

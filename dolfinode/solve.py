@@ -270,7 +270,7 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         switches on the state written in f are found from the declaration. When f keeps
         every component >= 0 from u0 >= 0 (f_i >= 0 where u_i = 0: mass-action kinetics),
         the values are kept >= -atol as for components declared nonnegative.
-    estimate_global_error : bool, default False
+    estimate_global_error : bool or "auto", default "auto"
         Without events, breakpoints or switches in f: after the solve, estimate the
         error at T (:mod:`dolfinode.global_error`: each slab's local error propagated to T
         by the linearised flow) into ``sol.stats["global error estimate"]``,
@@ -279,9 +279,13 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         linear range, ``sol.stats["global error nonlinearity"]`` > 100, the warning says that
         the error could not be estimated). Measured within
         0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
-        and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md); it
-        costs 7-35 x a small solve and 7-10 x the 50-mass chain's (Python after the solve),
-        hence off by default.
+        and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md).
+        "auto" estimates runs of at least ``LONG_RUN`` (100) slabs whose stage system
+        ((q + 2) N rows) has at most ``AUTO_ROWS`` (64), where the slabs' errors add up on
+        long undamped or drifting runs and the estimate costs about the solve; other runs
+        (and automatic modeling, events, breakpoints, switches, method="auto" where it
+        solves in stretches) are not estimated and have no such key. True estimates every run (a ValueError where it
+        cannot), False none.
 
     Returns
     -------
@@ -323,7 +327,8 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     0.1-10 x the tolerance, none above (at most 8.7 x), down to 0.0015 x (dG(3) on VDPOL).
     It is a calibration of the local error, not a bound: a long non-dissipative run adds
     its errors up (an oscillator bank: 29 x), which ``estimate_error`` measures for a goal
-    and ``estimate_global_error=True`` estimates at T, with a warning above 10 x. On problems
+    and ``estimate_global_error`` estimates at T (by default on long runs of small systems),
+    with a warning above 10 x. On problems
     it was not fitted on (ROBER, POLLU, VDPOLM, a stiff heat equation; 1e-3..1e-9) one run
     lands above 10 x, with a warning (cG(2) on ROBER at 1e-7, 26 x: a
     :class:`~dolfinode.ToleranceWarning` is raised where cG(q), q even, carries a stiff deviation it
@@ -355,7 +360,8 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         raise TypeError(f"solve expects a dolfinode.ODE, got {type(ode).__name__}")
     params = check_parameters(parameters)
     base = auto_base(method)
-    if params["estimate_global_error"] and (base is not None or params["automatic_modeling"]):
+    if params["estimate_global_error"] is True and (base is not None
+                                                    or params["automatic_modeling"]):
         raise ValueError("estimate_global_error is for cG(q), dG(q), mcG(q) and mdG(q), not "
                          "for method='auto' or automatic_modeling")
     if base is not None:
@@ -415,7 +421,7 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
     (:meth:`dolfinode.events.Plan.unresolved_switch_step`), is solved again with a step
     bound from the crossings seen, at most _SWITCH_RETRIES times, else SolverError."""
     given = params["maximum_time_step"]
-    if params["estimate_global_error"] and plan is not None:
+    if params["estimate_global_error"] is True and plan is not None:
         raise ValueError("estimate_global_error is for solves without events, breakpoints or "
                          "switches in f")
     for _ in range(_SWITCH_RETRIES + 1):
@@ -424,8 +430,9 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
         if step is None:
             if params["maximum_time_step"] != given:
                 sol.stats["switch step bound"] = params["maximum_time_step"]
-            if params["estimate_global_error"]:
-                _warn_global_error(ode, compiled, params, sol)
+            if plan is None:
+                estimate_global_error(ode, compiled, m, params, sol,
+                                      sol.stats["time slabs"])
             return sol
         bound = params["maximum_time_step"]
         params = {**params, "maximum_time_step": step if bound is None else min(bound, step)}
@@ -819,6 +826,28 @@ def _warn_undamped(ode, compiled, m, params, options, state, multi_adaptive=Fals
                                multi_adaptive)
         if why:
             _warn(why)
+
+
+#: With ``estimate_global_error="auto"`` (the default) the error at T is estimated for runs
+#: of at least LONG_RUN slabs, where the slabs' errors can add up past the tolerance (undamped
+#: and drifting solutions: Kepler's orbit, a pendulum, 12-16,500 x unwarned without it), of
+#: systems whose stage system has at most AUTO_ROWS rows ((q + 2) N; its dense solve per slab
+#: then costs about what the slab's own solve does); True: every run, False: none.
+LONG_RUN = 100
+AUTO_ROWS = 64
+
+
+def estimate_global_error(ode, compiled, m, params, sol, slabs):
+    """Estimate the error at T of ``sol`` (a solve of ``ode`` by the method ``m`` with
+    ``params`` in ``slabs`` time slabs, without events or switches) when
+    ``params["estimate_global_error"]`` asks for it (True, or "auto" for a long run of a small
+    system: LONG_RUN, AUTO_ROWS), with its warning (:func:`_warn_global_error`)."""
+    choice = params["estimate_global_error"]
+    if choice == "auto":
+        choice = (slabs >= LONG_RUN and (m.q + 2) * ode.N <= AUTO_ROWS and sol.success
+                  and params["dense_output"] is True)
+    if choice:
+        _warn_global_error(ode, compiled, params, sol)
 
 
 def _warn_global_error(ode, compiled, params, sol):

@@ -58,6 +58,7 @@ from dolfinode.solve import (
     _signs,
     _warn_undamped,
     check_tolerance,
+    estimate_global_error,
     lower,
     lowered,
     run_started,
@@ -134,7 +135,7 @@ class Solver:
         self._buffers = self._interval = None
         if (plan is None and params["dense_output"] is True and not params["progress"]
                 and not params["automatic_modeling"]
-                and not params["estimate_global_error"]):
+                and params["estimate_global_error"] is not True):
             m = self._method
             if self._multi_adaptive:  # (the loop's first buffers, as in _run_multi)
                 self._buffers = self._kept_buffers(
@@ -324,9 +325,11 @@ class Solver:
             # the run goes on into new buffers, as dn.solve's would
             self._continued += 1
             kept = (advance, arguments[:-len(self._buffers)], (status, self._buffers))
-            return run_started(work, compiled, None, multi_adaptive, m, params,
-                               (loop_atol, floor, x, f0, steps, options, state, counters),
-                               started, kept)
+            sol = run_started(work, compiled, None, multi_adaptive, m, params,
+                              (loop_atol, floor, x, f0, steps, options, state, counters),
+                              started, kept)
+            estimate_global_error(work, compiled, m, params, sol, sol.stats["time slabs"])
+            return sol
         if self._solved is None:  # the values of this call, kept while they are unchanged
             self._solved = work._snapshot()
         n, seconds = counts[ts.STORED], time.perf_counter() - started
@@ -348,4 +351,5 @@ class Solver:
             sol = Solution(None, m, out_t[:n].copy(), out_k[:n].copy(), out_X[:n].copy(), None,
                            self._samples, makers)
         sol.parameters = params
+        estimate_global_error(work, compiled, m, params, sol, counts[ts.SLABS])
         return sol

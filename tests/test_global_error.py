@@ -121,5 +121,40 @@ def test_the_estimate_is_asked_for():
         dn.solve(ode, method="auto", estimate_global_error=True)
     with pytest.raises(ValueError, match="without events"):
         dn.solve(ode, method="cG(1)", estimate_global_error=True, breakpoints=[0.5])
-    sol = dn.solve(ode, method="cG(1)")
-    assert "global error estimate" not in sol.stats
+    assert "global error estimate" not in dn.solve(ode, method="cG(1)",
+                                                   estimate_global_error=False).stats
+    with pytest.raises(TypeError, match="True, False or 'auto'"):
+        dn.solve(ode, method="cG(1)", estimate_global_error="yes")
+
+
+def _pendulum(T):
+    th, w = sp.symbols("th w")
+    return dn.ODE({th: w, w: -sp.sin(th)}, u0=[2.0, 0.0], T=T)
+
+
+def test_by_default_long_runs_of_small_systems_are_estimated_and_warned():
+    """The pendulum of amplitude 2 over 12 periods at 1e-3: its error at T is about 200 x
+    the tolerance (measured 53-680 x over cG(2), dG(2), mcG(2), mdG(2) at 1e-3 and 1e-6,
+    unwarned when the estimate was opt-in); by default it is estimated and warned, the same
+    through a Solver's prepared path and method="auto" (which solves a system this small in
+    one piece); a run of fewer than LONG_RUN slabs, a stage system of more than AUTO_ROWS rows
+    and events are not estimated and do not fail."""
+    ode = _pendulum(100.0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", dn.ToleranceWarning)
+        sol = dn.solve(ode, method="dG(2)", tolerance=1e-3)
+        prepared = dn.Solver(ode, method="dG(2)", tolerance=1e-3).solve()
+        auto = dn.solve(ode, method="auto", tolerance=1e-3)
+    assert "global error estimate" in auto.stats
+    assert sol.stats["time slabs"] >= dn.solve.__globals__["LONG_RUN"]
+    assert sol.stats["global error estimate"] > 10 * 1e-3
+    assert prepared.stats["global error estimate"] == sol.stats["global error estimate"]
+    assert sum("estimated error at T" in str(w.message) for w in caught) == 3
+    short = dn.solve(_pendulum(1.0), method="dG(2)", tolerance=1e-3)
+    assert short.stats["time slabs"] < dn.solve.__globals__["LONG_RUN"]
+    for sol in (short, dn.solve(ode, method="dG(2)", tolerance=1e-3, events=[ode.states[0]])):
+        assert "global error estimate" not in sol.stats
+    chain = problems.mass_spring_chain()  # 100 components: 400 stage rows for cG(2)
+    assert (2 + 2) * chain.ode.N > dn.solve.__globals__["AUTO_ROWS"]
+    assert "global error estimate" not in dn.solve(chain.ode, method="cG(2)",
+                                                   tolerance=1e-3).stats
