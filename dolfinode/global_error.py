@@ -32,10 +32,9 @@ from types import SimpleNamespace
 
 import numpy as np
 import sympy as sp
-
-from dolfinode.compile import lower
 from numba import njit
 
+from dolfinode.compile import lower
 from dolfinode.compile.signatures import address, call_rhs_rows, rhs_kernel
 from dolfinode.dual.problem import monomial_coefficients
 from dolfinode.methods.quadrature import radau
