@@ -321,8 +321,12 @@ def warning(size, nu, rtol, state):
     nonlinearity ``nu`` exceeds NONLINEAR_LIMIT the estimate cannot certify the error either
     way (it over-estimates across VDPOL's folds, and Lorenz's error at 1e-3 is of the size of
     the solution): the message says that it is not reliable, not that the error is large."""
-    if not size > WARN_FACTOR * rtol:
+    if size <= WARN_FACTOR * rtol:
         return None
+    if not np.isfinite(size):  # a singular stage system (k mu lambda = 1 for a growing mode)
+        return ("the error at T could not be estimated: the linearised error equation's "
+                "stage system was singular on a step. Compare with a solve at a tighter "
+                "tolerance, or use dn.estimate_error with a goal")
     if nu > NONLINEAR_LIMIT:
         return (f"the error at T could not be estimated: the linearised estimate is "
                 f"{size / rtol:.3g} x the tolerance (largest in {state}), but the error "

@@ -141,3 +141,9 @@ def test_the_estimate_is_asked_for():
         dn.solve(ode, method="cG(1)", estimate_global_error=True, breakpoints=[0.5])
     sol = dn.solve(ode, method="cG(1)")
     assert "global error estimate" not in sol.stats
+
+
+def test_an_estimate_that_is_not_finite_warns_that_it_could_not_estimate():
+    """A NaN estimate (a singular stage system) is not taken as a small error."""
+    assert "could not be estimated" in global_error.warning(np.nan, 0.0, 1e-6, "x")
+    assert global_error.warning(5e-6, 0.0, 1e-6, "x") is None
