@@ -279,13 +279,14 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         linear range, ``sol.stats["global error nonlinearity"]`` > 100, the warning says that
         the error could not be estimated). Measured within
         0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
-        and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md).
-        "auto" estimates runs of at least ``LONG_RUN`` (100) slabs whose stage system
-        ((q + 2) N rows) has at most ``AUTO_ROWS`` (64), where the slabs' errors add up on
-        long undamped or drifting runs and the estimate costs about the solve; other runs
-        (and automatic modeling, events, breakpoints, switches, method="auto" where it
-        solves in stretches) are not estimated and have no such key. True estimates every run (a ValueError where it
-        cannot), False none.
+        and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md); it
+        costs 0.4-8 x a small solve (a compiled pass over the slabs, one dense stage solve
+        of (q + 2) N rows each). "auto" estimates runs of at least ``LONG_RUN`` (100) slabs
+        whose stage system has at most ``AUTO_ROWS`` (64) rows, where the slabs' errors add
+        up on long undamped or drifting runs; other runs (and automatic modeling, events,
+        breakpoints, switches, method="auto" where it solves in stretches) are not estimated
+        and have no such key. True estimates every run (a ValueError where it cannot), False
+        none.
 
     Returns
     -------

@@ -63,6 +63,24 @@ def test_a_linear_system_without_an_eigenbasis_is_estimated_densely():
     assert sol.stats["global error estimate"] < 1e-10
 
 
+def test_the_slab_recursion_tracks_the_exact_error_of_a_time_dependent_system():
+    """A rotation at the rate w(t) = 1 + cos(t) / 2 (J depends on t: the compiled slab
+    recursion, J at each stage point), 10 turns: u = (cos theta, -sin theta), theta = t +
+    sin(t) / 2. The signed estimate is the error vector at T within 5 %, nu ~ 0 (linear)."""
+    x, y = sp.symbols("x y")
+    w = 1 + sp.cos(dn.t) / 2
+    T = 60.0
+    for method in ("cG(1)", "dG(2)"):
+        sol = dn.solve(dn.ODE({x: w * y, y: -w * x}, u0=[1.0, 0.0], T=T), method=method,
+                       tolerance=1e-5)
+        e, nu = global_error.estimate(sol)
+        theta = T + np.sin(T) / 2
+        error = sol(T) - [np.cos(theta), -np.sin(theta)]
+        assert np.max(np.abs(error)) > 2e-5  # above the tolerance: the slabs' errors add up
+        assert np.max(np.abs(e - error)) < 0.05 * np.max(np.abs(error))
+        assert nu < 1e-6
+
+
 @pytest.mark.parametrize("method", ["cG(2)", "mdG(2)"])
 def test_a_stiff_spring_chain_far_above_the_tolerance_warns(method):
     """10 masses, two springs 1e4 stiffer, T = 10: cG(2) and mdG(2) at 1e-4 land far above
@@ -158,3 +176,9 @@ def test_by_default_long_runs_of_small_systems_are_estimated_and_warned():
     assert (2 + 2) * chain.ode.N > dn.solve.__globals__["AUTO_ROWS"]
     assert "global error estimate" not in dn.solve(chain.ode, method="cG(2)",
                                                    tolerance=1e-3).stats
+
+
+def test_an_estimate_that_is_not_finite_warns_that_it_could_not_estimate():
+    """A NaN estimate (a singular stage system) is not taken as a small error."""
+    assert "could not be estimated" in global_error.warning(np.nan, 0.0, 1e-6, "x")
+    assert global_error.warning(5e-6, 0.0, 1e-6, "x") is None
