@@ -236,8 +236,8 @@ def settings(options):
     limit = options.get("time_limit", TIME_LIMIT)
     steps = options.get("maximum_steps", MAXIMUM_STEPS)
     return "; ".join([f"scipy runs abandoned after {limit:g} CPU s",
-                      f"dolfinode maximum_steps = {steps:,}, estimate_global_error=False (the "
-                      "peers estimate no error at T)",
+                      (f"dolfinode maximum_steps = {steps:,}, estimate_global_error=False "
+                       "(the peers estimate no error at T)"),
                       f"load average {os.getloadavg()[0]:.1f} at the start", *env])
 
 
