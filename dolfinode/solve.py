@@ -281,9 +281,10 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
         and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md); it
         costs 0.4-8 x a small solve (a compiled pass over the slabs, one dense stage solve
-        of (q + 2) N rows each). "auto" estimates runs of at least ``LONG_RUN`` (100) slabs
-        whose stage system has at most ``AUTO_ROWS`` (64) rows, where the slabs' errors add
-        up on long undamped or drifting runs; other runs (and automatic modeling, events,
+        of (q + 2) N rows each). "auto" estimates runs of at least ``LONG_RUN`` (100) steps
+        of one component (slabs, or a multi-adaptive component's elements) whose stage
+        system has at most ``AUTO_ROWS`` (64) rows, where the steps' errors add up on long
+        undamped or drifting runs; other runs (and automatic modeling, events,
         breakpoints, switches, method="auto" where it solves in stretches) are not estimated
         and have no such key. True estimates every run (a ValueError where it cannot), False
         none.
@@ -437,7 +438,7 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
                 sol.stats["switch step bound"] = params["maximum_time_step"]
             if plan is None:
                 estimate_global_error(ode, compiled, m, params, sol,
-                                      sol.stats["time slabs"])
+                                      longest_run(sol, multi_adaptive))
             return sol
         bound = params["maximum_time_step"]
         params = {**params, "maximum_time_step": step if bound is None else min(bound, step)}
@@ -834,22 +835,32 @@ def _warn_undamped(ode, compiled, m, params, options, state, multi_adaptive=Fals
 
 
 #: With ``estimate_global_error="auto"`` (the default) the error at T is estimated for runs
-#: of at least LONG_RUN slabs, where the slabs' errors can add up past the tolerance (undamped
-#: and drifting solutions: Kepler's orbit, a pendulum, 12-16,500 x unwarned without it), of
-#: systems whose stage system has at most AUTO_ROWS rows ((q + 2) N; its dense solve per slab
-#: then costs about what the slab's own solve does); True: every run, False: none.
+#: of at least LONG_RUN steps of one component, where the steps' errors can add up past the
+#: tolerance (undamped and drifting solutions: Kepler's orbit, a pendulum, 12-16,500 x
+#: unwarned without it), of systems whose stage system has at most AUTO_ROWS rows
+#: ((q + 2) N; its dense solve per slab then costs about what the slab's own solve does);
+#: True: every run, False: none.
 LONG_RUN = 100
 AUTO_ROWS = 64
 
 
-def estimate_global_error(ode, compiled, m, params, sol, slabs):
+def longest_run(sol, multi_adaptive):
+    """The most steps one component took in ``sol``: its time slabs (cG(q), dG(q)), or the
+    elements of the busiest component (mcG(q), mdG(q): few slabs may hold long runs)."""
+    if multi_adaptive:
+        return int(np.max(sol.stats["elements per component"]))
+    return sol.stats["time slabs"]
+
+
+def estimate_global_error(ode, compiled, m, params, sol, steps):
     """Estimate the error at T of ``sol`` (a solve of ``ode`` by the method ``m`` with
-    ``params`` in ``slabs`` time slabs, without events or switches) when
-    ``params["estimate_global_error"]`` asks for it (True, or "auto" for a long run of a small
-    system: LONG_RUN, AUTO_ROWS), with its warning (:func:`_warn_global_error`)."""
+    ``params``, without events or switches, whose busiest component took ``steps`` steps,
+    :func:`longest_run`) when ``params["estimate_global_error"]`` asks for it (True, or "auto"
+    for a long run of a small system: LONG_RUN, AUTO_ROWS), with its warning
+    (:func:`_warn_global_error`)."""
     choice = params["estimate_global_error"]
     if choice == "auto":
-        choice = (slabs >= LONG_RUN and (m.q + 2) * ode.N <= AUTO_ROWS and sol.success
+        choice = (steps >= LONG_RUN and (m.q + 2) * ode.N <= AUTO_ROWS and sol.success
                   and params["dense_output"] is True)
     if choice:
         _warn_global_error(ode, compiled, params, sol)

@@ -59,6 +59,7 @@ from dolfinode.solve import (
     _warn_undamped,
     check_tolerance,
     estimate_global_error,
+    longest_run,
     lower,
     lowered,
     run_started,
@@ -328,7 +329,8 @@ class Solver:
             sol = run_started(work, compiled, None, multi_adaptive, m, params,
                               (loop_atol, floor, x, f0, steps, options, state, counters),
                               started, kept)
-            estimate_global_error(work, compiled, m, params, sol, sol.stats["time slabs"])
+            estimate_global_error(work, compiled, m, params, sol,
+                                  longest_run(sol, multi_adaptive))
             return sol
         if self._solved is None:  # the values of this call, kept while they are unchanged
             self._solved = work._snapshot()
@@ -351,5 +353,6 @@ class Solver:
             sol = Solution(None, m, out_t[:n].copy(), out_k[:n].copy(), out_X[:n].copy(), None,
                            self._samples, makers)
         sol.parameters = params
-        estimate_global_error(work, compiled, m, params, sol, counts[ts.SLABS])
+        estimate_global_error(work, compiled, m, params, sol, longest_run(sol, True)
+                              if multi_adaptive else counts[ts.SLABS])
         return sol
