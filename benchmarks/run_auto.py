@@ -43,7 +43,9 @@ from dolfinode.problems import mass_spring_chain as uniform_chain
 TARGET = 1.3
 #: What the last run showed, in words (kept with the script that measures it).
 NOTES = [
-    ("0.93-1.27x in this run (load 2.6-2.7: three helpers on 2 cores), 0.92-1.26x in one four "
+    ("0.99-1.28x in this run (the merged tree, load 1.0; the front 1.28x, the moving source "
+     "1.25x); on the helper's branch 0.93-1.27x (load 2.6-2.7: three helpers on 2 cores), "
+     "0.92-1.26x in one four "
      "minutes before (load 1.5-1.7); the code before this change gave 0.92-1.32x in a run "
      "between them (2-spring chain 1.31x, front 1.32x, late fast bank 1.27x). Above 1.2x: "
      "the front (1.25-1.26x), the moving source (1.24-1.27x: seven cG(2) stretches on a 7 ms "
