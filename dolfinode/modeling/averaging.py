@@ -140,6 +140,7 @@ class WindowAverager:
         # the window's values projected on trend_basis and their squares, shifted by the
         # first value (the squares then do not cancel the solution's size)
         self._trend = np.zeros((compiled.N, TREND_DEGREE + 1))
+        self._basis = trend_basis(samples)
         self._squares = np.zeros(compiled.N)
         self._shift = None
 
@@ -166,7 +167,7 @@ class WindowAverager:
                 if self._shift is None:
                     self._shift = values[:, 0].copy()
                 shifted = values - self._shift[:, None]
-                self._trend += shifted @ trend_basis(len(times) // 2)[start:end]
+                self._trend += shifted @ self._basis[start:end]
                 self._squares += np.einsum("ij,ij->i", shifted, shifted)
 
     def averages(self):
