@@ -5,6 +5,8 @@ benchmark's repeats); the solver reads the declaration's values at every call.""
 import threading
 import weakref
 
+import numpy as np
+
 from dolfinode.family import auto_base
 from dolfinode.ode import ODE
 
@@ -37,8 +39,8 @@ def solve_kept(ode, method, tolerance, parameters):
     """:func:`dolfinode.solve` (ode, method, tolerance=tolerance, **parameters) through a
     :class:`~dolfinode.Solver` that ``ode`` keeps for these options (the method, the tolerance
     and the parameters, each with its type), made at their second call; None when the call
-    is to take dn.solve's general path: options first seen, not hashable (arrays, lists,
-    dicts), without a prepared path (events, breakpoints, automatic modeling, a progress bar,
+    is to take dn.solve's general path: options first seen, not hashable (dicts, lists of
+    arrays; a numpy array or a list of numbers is keyed by its values), without a prepared path (events, breakpoints, automatic modeling, a progress bar,
     dense_output other than True, ...), or another thread using the solvers. The solver
     reads the declaration's values at every call, so changes of them reach the solve; the
     Solution is bitwise dn.solve's."""
@@ -48,10 +50,10 @@ def solve_kept(ode, method, tolerance, parameters):
     if kept is None or not kept.of(ode):
         kept = ode.__dict__["_kept_solvers"] = _Kept(ode)
     key = (method, type(tolerance), tolerance,
-           *[(name, type(value), value) for name, value in parameters.items()])
+           *[(name, type(value), _by_value(value)) for name, value in parameters.items()])
     try:
         solver = kept.solvers.get(key, _UNSEEN)
-    except TypeError:  # (option values that do not hash: arrays, lists, dicts)
+    except TypeError:  # (option values that do not hash: dicts, lists of arrays)
         return None
     if solver is _UNSEEN:
         if len(kept.solvers) >= _KEPT_OPTIONS:
@@ -62,8 +64,8 @@ def solve_kept(ode, method, tolerance, parameters):
         return None
     try:
         if solver is None:  # the second call: worth a solver
-            solver = kept.solvers[key] = _kept_solver(ode, method, tolerance, parameters,
-                                                      kept.pool)
+            solver = kept.solvers[key] = _kept_solver(ode, method, tolerance,
+                                                      _copied(parameters), kept.pool)
             if solver is False:
                 return None
         sol = solver.solve()
@@ -71,6 +73,22 @@ def solve_kept(ode, method, tolerance, parameters):
         kept.lock.release()
     sol.parameters = dict(sol.parameters)  # (a solver's are shared by its solutions)
     return sol
+
+
+def _by_value(value):
+    """An option value as a key: a numeric array (an absolute_tolerance per state) by its
+    dtype, shape and bytes, a list as a tuple (whose hash fails on unhashable items), others as
+    they are."""
+    if type(value) is np.ndarray and not value.dtype.hasobject:
+        return value.dtype.str, value.shape, value.tobytes()
+    return tuple(value) if type(value) is list else value
+
+
+def _copied(parameters):
+    """``parameters`` with arrays and lists copied: the kept solver is found by their values
+    at a call, which a later change of the caller's array must not alter."""
+    return {name: value.copy() if type(value) in (np.ndarray, list) else value
+            for name, value in parameters.items()}
 
 
 def _kept_solver(ode, method, tolerance, parameters, pool):

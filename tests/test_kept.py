@@ -123,6 +123,27 @@ def test_other_options_are_never_served_by_a_kept_solver():
         dn.solve(ode, "cG(2)", tolerance=1e-6, maximum_steps=1000.0)
 
 
+def test_an_absolute_tolerance_per_state_is_kept_by_its_values(no_general_path):
+    def reference(atol):  # (a fresh declaration: the general path)
+        return dn.solve(declare(), "dG(2)", tolerance=1e-4, absolute_tolerance=np.array(atol))
+
+    loose, tight = reference([1e-7, 1e-6]), reference([1e-7, 1e-9])
+    ode = declare()
+    atol = np.array([1e-7, 1e-6])
+
+    def solve(atol):
+        return dn.solve(ode, "dG(2)", tolerance=1e-4, absolute_tolerance=atol)
+
+    seen = [solve(atol), solve(atol), solve([1e-7, 1e-6]), solve([1e-7, 1e-6])]
+    atol[1] = 1e-9  # changed in place: the solver kept for the old values is not taken
+    seen += [solve(atol), solve(atol)]
+    no_general_path()
+    seen += [solve(atol), solve([1e-7, 1e-6])]
+    for sol, expected in zip(seen[1:], [loose, loose, loose, tight, tight, tight, loose]):
+        assert_same(sol, expected)
+    assert tight.stats["time slabs"] > loose.stats["time slabs"]
+
+
 def test_events_and_invalid_options_take_the_general_path():
     ode = declare()
     for _ in range(3):
