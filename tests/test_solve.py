@@ -50,3 +50,24 @@ def test_quasi_positive_systems_are_recognised():
     assert _keeps_nonnegative(ode) and ode._keeps_nonnegative[0][1] == (1,)
     ode.params[c] = -1.0  # b' = c a < 0 at b = 0
     assert not _keeps_nonnegative(ode)
+
+
+def test_a_solve_takes_the_workspace_an_earlier_solve_left_unread():
+    """The Newton workspace a finished solve leaves for the next solve of its system holds
+    that solve's factors: a fresh start must not read them (bitwise a first solve's run)."""
+    a, b = sp.symbols("a b")
+
+    def declare():
+        return dn.ODE({a: -1000.0 * (a - sp.cos(b)), b: 1.0}, u0=[0.0, 0.0], T=5.0)
+
+    atol = {a: 1e-8, b: 1e-8}  # (a dict: dn.solve's general path at every call)
+    first = dn.solve(declare(), "dG(2)", tolerance=1e-6, absolute_tolerance=atol)
+    ode = declare()
+    dn.solve(ode, "dG(2)", tolerance=1e-3, absolute_tolerance=atol)  # other steps, factors
+    workspaces = ode._compiled.workspaces["dG(2)"]
+    assert len(workspaces) == 1 and first.stats["jacobian evaluations"] > 0
+    left = workspaces[0][1]
+    again = dn.solve(ode, "dG(2)", tolerance=1e-6, absolute_tolerance=atol)
+    assert ode._compiled.workspaces["dG(2)"][0][1] is left  # taken, and left again
+    np.testing.assert_array_equal(again.values, first.values)
+    np.testing.assert_array_equal(again.t_start, first.t_start)

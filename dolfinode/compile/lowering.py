@@ -47,6 +47,8 @@ class CompiledODE:
     header : the template header that follows the parameter values in ``p`` (None: ``p``
         is the parameter values)
     derived : the orderings and structures derived from the pattern (see ``_derived``)
+    workspaces : loop workspaces a finished solve left for the next one, by method (see
+        :func:`dolfinode.solve._carried`); shared, as ``derived``, by every :meth:`again` copy
     """
 
     N: int
@@ -64,6 +66,7 @@ class CompiledODE:
     newton_plans: dict = field(default_factory=dict)
     header: np.ndarray = None
     derived: dict = field(default_factory=dict)
+    workspaces: dict = field(default_factory=dict)
 
     def again(self, values):
         """This lowering as a later ``lower`` of the same ODE returns it: loaded, no compile
