@@ -436,7 +436,7 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
         if step is None:
             if params["maximum_time_step"] != given:
                 sol.stats["switch step bound"] = params["maximum_time_step"]
-            if plan is None:
+            if plan is None and params["estimate_global_error"] is not False:
                 estimate_global_error(ode, compiled, m, params, sol,
                                       longest_run(sol, multi_adaptive))
             return sol
