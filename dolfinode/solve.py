@@ -64,7 +64,7 @@ def _absolute_tolerance(ode, value, rtol):
     if np.isscalar(value):
         return _filled(ode.N, value)
     atol = _vector_by_state(value, ode.states, "absolute_tolerance")
-    if not (np.all(atol > 0) and np.all(np.isfinite(atol))):
+    if not ((atol > 0.0).all() and np.isfinite(atol).all()):  # (np.all: 4-5 us a call)
         raise ValueError(f"absolute_tolerance must be positive and finite, got {value!r}")
     return atol
 
