@@ -71,3 +71,12 @@ def test_a_solve_takes_the_workspace_an_earlier_solve_left_unread():
     assert ode._compiled.workspaces["dG(2)"][0][1] is left  # taken, and left again
     np.testing.assert_array_equal(again.values, first.values)
     np.testing.assert_array_equal(again.t_start, first.t_start)
+
+
+@pytest.mark.parametrize("atol, message", [([1e-6, 0.0], "positive and finite"),
+                                           ([1e-6, -1.0], "positive and finite"),
+                                           (np.array([1e-6, np.inf]), "not finite for b")])
+def test_an_absolute_tolerance_per_state_must_be_positive_and_finite(atol, message):
+    a, b = sp.symbols("a b")
+    with pytest.raises(ValueError, match=message):
+        dn.solve(dn.ODE({a: -a, b: -b}, u0=[1.0, 1.0], T=1.0), "dG(1)", absolute_tolerance=atol)
