@@ -11,7 +11,8 @@ kept work space (from the state the last call left);
 numbalsoda's LSODA (its C code, a numba cfunc right-hand side) with its arrays ready, when
 numbalsoda is installed (``pip install numbalsoda``).
 
-Writes per_call.json and per_call.md to the output folder.
+Writes per_call.json to the output folder and the "Latest" section of its per_call.md; the
+section it replaces and the dated ones after it, the record's history, are kept.
 
 Usage::
 
@@ -20,10 +21,12 @@ Usage::
 import argparse
 import itertools
 import json
+import os
 import platform
 import random
 import subprocess
 import time
+from datetime import date
 from pathlib import Path
 
 import numpy as np
@@ -151,10 +154,10 @@ def main():
     output = Path(args.output)
     (output / "per_call.json").write_text(json.dumps(record, indent=1) + "\n")
     reference = best.get("numbalsoda lsoda")
-    lines = ["# Per-call cost", "",
+    load = ", ".join(f"{value:.1f}" for value in os.getloadavg())
+    lines = [f"## Latest (git {commit}, {date.today()}; load average {load})", "",
              ("A trivial solve, y' = -a y on [0, 1e-6], called in a loop: the minimum over "
-             f"{args.repeats} interleaved repeats of {args.number} calls "
-             f"(`benchmarks/run_per_call.py`, git {commit})."), "",
+              f"{args.repeats} interleaved repeats of {args.number} calls."), "",
              "| call | us per call |" + (" ratio to numbalsoda |" if reference else ""),
              "|---|---|" + ("---|" if reference else "")]
     for name, seconds in best.items():
@@ -173,9 +176,17 @@ def main():
         lines.append(f"| Python of {name} | " + " | ".join(
             f"{1e6 * (stiff[p, name] - stiff[p, 'compiled start + loop']):.1f}" for p in STIFF)
             + " |")
-    (output / "per_call.md").write_text("\n".join(lines) + "\n")
+    write_latest(output / "per_call.md", lines)
     print("\n".join(lines))
 
+
+def write_latest(path, lines):
+    """Make ``lines`` the "## Latest" section of ``path``: the text before it is kept, and the
+    section it replaces becomes the first dated one after it ("## Earlier (git ...)")."""
+    text = path.read_text() if path.exists() else "# Per-call cost\n\n"
+    head, found, previous = text.partition("## Latest")
+    previous = "## Earlier" + previous if found else ""
+    path.write_text(head + "\n".join(lines) + "\n" + ("\n" + previous if previous else ""))
 
 if __name__ == "__main__":
     main()
