@@ -1,4 +1,8 @@
-"""A tiny benchmark problem shared by the bench tests: u' = -2 u on [0, 1], u(0) = 1."""
+"""Shared by the bench tests: a tiny benchmark problem, u' = -2 u on [0, 1], u(0) = 1, and
+the scripts of benchmarks/ as modules."""
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 import sympy as sp
@@ -26,3 +30,15 @@ def tiny_registered(monkeypatch):
     """The tiny problem registered as "decay" for ``dolfinode bench --problems decay``."""
     monkeypatch.setitem(P.PROBLEMS, "decay", _decay)
     return _decay
+
+
+@pytest.fixture(scope="session")
+def benchmark_script():
+    """The loader of a script of benchmarks/ by its name, as a module (its ``main`` not run)."""
+    def load(name):
+        path = Path(__file__).resolve().parents[2] / "benchmarks" / f"{name}.py"
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+    return load

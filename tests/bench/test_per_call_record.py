@@ -1,21 +1,10 @@
 """The record file of benchmarks/run_per_call.py: a new "Latest" section, the history kept."""
-import importlib.util
-from pathlib import Path
-
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "run_per_call.py"
 
 
-def _script():
-    spec = importlib.util.spec_from_file_location("run_per_call", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_a_run_replaces_the_latest_section_and_keeps_the_history(tmp_path):
+def test_a_run_replaces_the_latest_section_and_keeps_the_history(tmp_path, benchmark_script):
     """The text before "## Latest" stays, the replaced section becomes "## Earlier", and the
     dated sections after it stay in order; a missing file gets a title."""
-    write_latest = _script().write_latest
+    write_latest = benchmark_script("run_per_call").write_latest
     path = tmp_path / "per_call.md"
     path.write_text("# Per-call cost\n\nHow it is measured.\n\n## Latest (git a)\n\nold table\n\n"
                     "## 2026-11-27: the first record\n\nfirst table\n")

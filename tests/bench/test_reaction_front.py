@@ -1,22 +1,14 @@
 """The NumPy right-hand side and Jacobian of benchmarks/run_reaction_front.py (scipy's input)."""
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 import dolfinode as dn
 from dolfinode.compile import lower
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "run_reaction_front.py"
-
 
 @pytest.fixture(scope="module")
-def rf():
-    spec = importlib.util.spec_from_file_location("run_reaction_front", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def rf(benchmark_script):
+    return benchmark_script("run_reaction_front")
 
 
 def test_numpy_f_and_jacobian_match_the_compiled_kernels(rf):
