@@ -142,7 +142,20 @@ def failure_message(status, state, fixed, x, outside, kmax, newton, ode, slabs):
     return (f"the time step fell to {k:.3g} at t = {t:.6g}, below what double precision "
             f"resolves, but max |u| did not grow ({size}): not a blow-up. The error control or "
             f"{solver} kept cutting the step: for a stiff problem use a dG(q) method (L-stable) "
-            "with nonlinear_solver='newton'; else loosen tolerance or absolute_tolerance")
+            "with nonlinear_solver='newton'; else loosen tolerance or absolute_tolerance"
+            + _far_origin(ode))
+
+
+def _far_origin(ode):
+    """The hint for an interval far from t = 0 against its length, where the rounding of t
+    (not the problem) sets the smallest step; '' elsewhere."""
+    span = ode.T - ode.t0
+    if abs(ode.t0) < span:
+        return ""
+    return (f". t0 = {ode.t0:.6g} lies far from t = 0 against the interval's length "
+            f"{span:.6g}, so double precision resolves its steps only down to about "
+            f"{ts.smallest_step(ode.T, span):.2g}: solve on t0 = 0 and T = {span:.6g} "
+            "(dn.t + t0 for dn.t in f) to resolve shorter ones")
 
 
 def _growth(ode, x):

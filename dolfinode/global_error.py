@@ -239,8 +239,9 @@ def _common_slabs(sol):
     their values at the method's nodes (each from the element ending at or after the node:
     left limits at the ends, as the mono-adaptive values)."""
     ends = np.unique(np.concatenate([sol.t_start, sol._t_end]))
-    # (ends that differ by rounding only would make intervals of no length)
-    ends = ends[np.concatenate([[True], np.diff(ends) > 1e-13 * np.max(np.abs(ends))])]
+    # (ends that differ by rounding only would make intervals of no length; a few ulps of
+    # each end's own size, not of the largest: far from t = 0 the elements are short of it)
+    ends = ends[np.concatenate([[True], np.diff(ends) > 16 * np.spacing(np.abs(ends[1:]))])]
     t_start, k = ends[:-1], np.diff(ends)
     nodes = np.asarray(sol.method.nodes, dtype=float)
     values = sol((t_start[:, None] + nodes[None, :] * k[:, None]).ravel())

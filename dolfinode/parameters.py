@@ -180,11 +180,12 @@ def _dense_output(name, value):
 
 
 def _sample_times(name, value):
-    """None, or increasing finite times as a float array (their range is checked by solve)."""
+    """None, or increasing finite times as a read-only float array of their own (their range
+    is checked by solve): the Solution's t, which the caller's array must not change later."""
     if (type(value) is np.ndarray and value.dtype == np.float64 and value.ndim == 1
             and value.size and math.isfinite(value[0]) and math.isfinite(value[-1])
             and (value[1:] > value[:-1]).all()):
-        return value  # strictly increasing between finite ends: finite (no general checks)
+        return _own(value)  # strictly increasing between finite ends: finite (no general checks)
     times = _times(name, value)
     if times is None:
         return None
@@ -192,6 +193,13 @@ def _sample_times(name, value):
         raise ValueError(f"{name} must be a non-empty sequence of times")
     if np.any(np.diff(times) <= 0):
         raise ValueError(f"{name} must be finite and strictly increasing, as solve_ivp's t_eval")
+    return _own(times)
+
+
+def _own(times):
+    """A read-only copy of ``times``: shared by every solve of a Solver and its Solutions."""
+    times = times.copy()
+    times.flags.writeable = False
     return times
 
 

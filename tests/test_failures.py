@@ -166,3 +166,14 @@ def test_a_step_underflow_without_growth_is_not_called_a_blowup():
     grown = failure_message(ts.UNDERFLOW, (0.99, 1e-16), False, np.array([1e6]), None, None,
                             True, ode, 1000)
     assert "may blow up" in grown and "1e+06-fold since t0" in grown
+
+
+def test_a_step_floor_far_from_t_zero_says_to_shift_the_origin():
+    """dG(1) at 1e-8 on [1e12, 1e12 + 10] needs steps below the 0.01 that double precision
+    resolves at t = 1e12: the stiff-problem advice alone misled; the origin is the cause."""
+    x, v = sp.symbols("x v")
+    ode = dn.ODE({x: v, v: -x}, u0=[1.0, 0.0], t0=1e12, T=1e12 + 10.0)
+    with pytest.raises(dn.SolverError, match=r"far from t = 0 .* t0 = 0 and T = 10 "):
+        dn.solve(ode, "dG(1)", tolerance=1e-8)
+    sol = dn.solve(dn.ODE({x: v, v: -x}, u0=[1.0, 0.0], T=10.0), "dG(1)", tolerance=1e-8)
+    assert abs(sol(10.0)[0] - np.cos(10.0)) < 1e-7

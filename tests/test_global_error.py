@@ -182,3 +182,13 @@ def test_an_estimate_that_is_not_finite_warns_that_it_could_not_estimate():
     """A NaN estimate (a singular stage system) is not taken as a small error."""
     assert "could not be estimated" in global_error.warning(np.nan, 0.0, 1e-6, "x")
     assert global_error.warning(5e-6, 0.0, 1e-6, "x") is None
+
+
+def test_a_multi_adaptive_run_far_from_t_zero_is_estimated():
+    """mcG(2) at 1e-8 on [1e12, 1e12 + 10]: the common slabs dropped every end closer than
+    1e-13 x 1e12 = 0.1 to the last (elements of 0.01), and the default estimate failed
+    with a reshape ValueError. Now it estimates as from t0 = 0."""
+    u, v = sp.symbols("u v")
+    estimates = [dn.solve(dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=t0 + 10.0, t0=t0), "mcG(2)",
+                          tolerance=1e-8).stats["global error estimate"] for t0 in (0.0, 1e12)]
+    assert estimates[1] == pytest.approx(estimates[0], rel=0.2)

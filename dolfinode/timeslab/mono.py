@@ -359,6 +359,8 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             k = min(k, kmax)
         if k >= remaining * (1.0 - 1e-9) or (not fixed and 1.1 * k >= remaining):
             k = remaining  # also absorbs the rounding of t0 + n k in fixed steps
+        elif abs(t) >= o.span:  # far from 0 (near it, ulps that would only vary kept k)
+            k = (t + k) - t  # the step t + k represents: slabs that tile [t0, T]
         kmin = smallest_step(t, o.span)
         if k < kmin and k < remaining:
             return UNDERFLOW

@@ -48,6 +48,18 @@ def test_sample_times_of_a_dense_solve_are_its_t_and_y():
     np.testing.assert_allclose(sol.y[0], np.exp(-np.array(times)), rtol=1e-7)
 
 
+@pytest.mark.parametrize("dense_output", [True, False])
+def test_the_callers_sample_times_array_reused_after_a_solve_leaves_its_t_alone(dense_output):
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: -u}, u0=[1.0], T=1.0)
+    times = np.linspace(0.0, 1.0, 5)
+    sol = dn.solve(ode, "cG(1)", sample_times=times, dense_output=dense_output)
+    times[:] = 0.0  # a buffer the caller fills for the next solve
+    np.testing.assert_array_equal(sol.t, np.linspace(0.0, 1.0, 5))
+    with pytest.raises(ValueError, match="read-only"):
+        sol.t[0] = 0.5  # shared by a Solver's solves: not writable
+
+
 @pytest.mark.parametrize("parameters, error, words", [
     ({"sample_times": [0.5, 0.2]}, ValueError, "strictly increasing, as solve_ivp's t_eval"),
     # float arrays take a shorter check: the same errors

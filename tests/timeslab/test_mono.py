@@ -169,6 +169,31 @@ def test_nonzero_initial_time():
     assert sol.t[0] == 3.0 and abs(sol(5.0)[0] - 2 * np.exp(-2.0)) < 1e-7
 
 
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)"])
+def test_a_large_initial_time_keeps_the_tolerance(method):
+    """At t0 = 1e9 double precision resolves t to 1.2e-7: the slabs are the steps t + k
+    represents, so that they tile [t0, T] (taking k as given drifted by up to ulp(t) per
+    slab: 53 x, 186 x the tolerance here)."""
+    u, v = sp.symbols("u v")
+    ode = dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=1e9 + 10.0, t0=1e9)
+    sol = dn.solve(ode, method=method, tolerance=1e-8)
+    assert np.max(np.abs(sol(ode.T) - [np.cos(10.0), -np.sin(10.0)])) < 3e-8
+    t_start, k = sol.time_steps()
+    np.testing.assert_array_equal((t_start + k) - t_start, k)  # each slab is its own length
+
+
+def test_fixed_steps_far_from_t_zero_are_as_accurate_as_near_it():
+    # 0.01 at t = 1e9 is 0.01 +- 6e-8: taken as 0.01 the end was 8e-6 off, 70,000 x the error
+    # of the same steps from t0 = 0
+    u, v = sp.symbols("u v")
+    errors = []
+    for t0 in (0.0, 1e9):
+        ode = dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=t0 + 10.0, t0=t0)
+        sol = dn.solve(ode, "cG(2)", fixed_time_step=True, initial_time_step=0.01)
+        errors.append(np.max(np.abs(sol(ode.T) - [np.cos(10.0), -np.sin(10.0)])))
+    assert errors[1] < 2 * errors[0]
+
 def test_stats_are_counted():
     sol = dn.solve(problems.hires(), method="dG(1)", tolerance=1e-4)
     stats = sol.stats
