@@ -355,8 +355,11 @@ def announced(what, seconds):
 
 def first_use(dispatcher, what, seconds):
     """:func:`announced` if the numba ``dispatcher`` (one of the functions a block compiles)
-    has not been compiled or loaded in this process yet, else a context that does nothing."""
-    return nullcontext() if dispatcher.signatures else announced(what, seconds)
+    has not been compiled or loaded in this process yet (a helper called from Python: its
+    copy, :class:`_Callee`), else a context that does nothing."""
+    python = dispatcher.__dict__.get("_from_python")
+    compiled = dispatcher.signatures or (python is not None and python.signatures)
+    return nullcontext() if compiled else announced(what, seconds)
 
 
 class Loop:

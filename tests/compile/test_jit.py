@@ -282,3 +282,14 @@ def test_a_helper_has_no_python_wrapper_and_runs_from_python_too():
     assert _dot(x, 2.0 * x) == 28.0  # from Python: the copy
     assert _dot._from_python.signatures == [signature]
     assert len(_dot.signatures) == 1
+
+
+def test_a_helper_run_from_python_is_not_announced_again(monkeypatch, caplog):
+    """first_use knows a helper compiled for Python (its copy) as compiled."""
+    x = np.array([1.0, 2.0])
+    _dot(x, x)
+    monkeypatch.setattr(jit, "NOTICE_AFTER", 0.01)
+    with caplog.at_level(logging.WARNING, logger="dolfinode"):
+        with first_use(_dot, "the test helper", 20):
+            threading.Event().wait(0.2)
+    assert not [r for r in caplog.records if r.name == "dolfinode"]
