@@ -5,10 +5,11 @@ from functools import cached_property
 import numpy as np
 from numba import njit
 
+from dolfinode.compile.jit import helper
 from dolfinode.methods.method import element_value, lagrange_weights
 
 
-@njit(cache=True)
+@helper()
 def _locate(ends, t, n):
     """The first element whose end ``ends[e]`` (increasing) is at or after t (the last
     element if none): np.searchsorted(ends, t) capped, searched from the guess ``n``, the
@@ -34,7 +35,7 @@ def _locate(ends, t, n):
     return lo
 
 
-@njit(cache=True)
+@helper()
 def _evaluate_component(i, ptr, t_start, t_end, values, nodes, bary, times, done, out):
     """out[i, m] = U_i(times[m]) from component i's elements ptr[i]:ptr[i+1] (time-sorted;
     values (E, q + 1)), each from the first element ending at or after the time; times with
@@ -344,6 +345,8 @@ class Solution:
 
     def _values(self, times):
         """U at ``times`` in [t0, T], shape (N, len(times))."""
+        if times.size == 1:  # (an (N, 1) result is C- as well as F-contiguous: numba would
+            return self._values(np.repeat(times, 2))[:, :1]  # compile the kernels again)
         out = self._evaluate(times)
         declared = self._declaration
         _set_initial(times, declared.t0, declared.u0, out)

@@ -17,29 +17,71 @@ import importlib
 import inspect
 import logging
 import threading
+import types as pytypes
 from contextlib import contextmanager, nullcontext
 
 import llvmlite.binding as ll
 import llvmlite.ir as llvm_ir
 from numba import njit, types
 from numba.core import cgutils
+from numba.core.registry import CPUDispatcher
 from numba.core.extending import _Intrinsic
 
 logger = logging.getLogger("dolfinode")
 
-#: njit options of the loops' helpers: numba's disk cache, and numpy's error model (as the
+#: njit options of the loops' helpers (with numba's disk cache): numpy's error model (as the
 #: loops themselves): a division by zero gives inf or nan, which the loops check, instead of
 #: raising ZeroDivisionError, whose check and raise every division carried into the compile.
 #: Declared, not left to numba: a function without an error model takes that of the
 #: compile it is first compiled in, the caller's or python's when compiled on its own
 #: (a lazily linked routine): its divisions then carry the checks after all.
-HELPER = {"cache": True, "error_model": "numpy"}
+HELPER = {"error_model": "numpy"}
 
+
+class _Callee(CPUDispatcher):
+    """A numba function compiled for compiled callers only: without numba's CPython and C
+    wrappers (``no_cpython_wrapper``, ``no_cfunc_wrapper``), which unbox and box every
+    argument for a call from Python and which a compiled caller never uses. Lowered,
+    optimised and turned into machine code, they were ~4 s of the cold start (a helper takes
+    up to 40 arrays).
+
+    Called from Python (tests, a driver) it runs a copy compiled with the wrappers, cached
+    under its own name (``<qualname>_from_python``): numba's disk cache does not key an entry
+    by these options, and the entry point of a function without them is null."""
+
+    def __call__(self, *args, **kwargs):
+        python = self.__dict__.get("_from_python")
+        if python is None:
+            f = self.py_func
+            copy = pytypes.FunctionType(f.__code__, f.__globals__, f.__name__, f.__defaults__,
+                                        f.__closure__)
+            copy.__qualname__ = f"{f.__qualname__}_from_python"
+            copy.__module__ = f.__module__
+            options = {name: value for name, value in self.targetoptions.items()
+                       if name not in _NO_WRAPPERS and name != "nopython"}
+            python = self._from_python = njit(cache=True, **options)(copy)
+        return python(*args, **kwargs)
+
+
+#: The options that make a :class:`_Callee`.
+_NO_WRAPPERS = {"no_cpython_wrapper": True, "no_cfunc_wrapper": True}
+
+
+def callee(**options):
+    """``njit(**options)`` for a function that compiled code calls (:class:`_Callee`):
+    numba's disk cache (``cache=True``) is on."""
+    def decorate(func):
+        dispatcher = _Callee(py_func=func, locals={},
+                             targetoptions={"nopython": True, **options, **_NO_WRAPPERS})
+        dispatcher.enable_caching()
+        return dispatcher
+    return decorate
 
 
 def helper(**options):
-    """``njit`` for the loops' helper functions (:data:`HELPER` and ``options``), compiled
-    for argument types without literal values.
+    """``njit`` for the loops' helper functions (:data:`HELPER` and ``options``, without the
+    wrappers for calls from Python: :class:`_Callee`), compiled for argument types without
+    literal values.
 
     Called from compiled code, numba compiles a function once more for every constant
     argument (``f(x, True)``, ``f(x, 1)``), and for the literal first value of a counter
@@ -47,7 +89,7 @@ def helper(**options):
     empty caches the sweeps of the multi-adaptive loop were compiled twice, the band
     assembly of its Newton groups eight times."""
     def decorate(func):
-        dispatcher = njit(**HELPER, **options)(func)
+        dispatcher = callee(**HELPER, **options)(func)
         typed = dispatcher.get_call_template
 
         def get_call_template(args, kws):
@@ -78,13 +120,13 @@ class Linked(_Intrinsic):
     the stiff solvers, which a non-stiff problem never calls.
 
     Called from Python, it calls the numba function. Wrap a dispatcher: ``@linked`` over
-    ``@njit(...)``.
+    ``@helper(...)``.
     """
 
     def __init__(self, dispatcher, returns=None, what=None, seconds=0.0):
         if "error_model" not in dispatcher.targetoptions:
             raise TypeError(f"linked {dispatcher.py_func.__qualname__}: declare its error model "
-                            "(njit(**HELPER, ...)), or it depends on what compiles it first")
+                            "(helper()), or it depends on what compiles it first")
         self.dispatcher = dispatcher
         key = f"{dispatcher.py_func.__module__}:{dispatcher.py_func.__qualname__}"
 
@@ -313,8 +355,11 @@ def announced(what, seconds):
 
 def first_use(dispatcher, what, seconds):
     """:func:`announced` if the numba ``dispatcher`` (one of the functions a block compiles)
-    has not been compiled or loaded in this process yet, else a context that does nothing."""
-    return nullcontext() if dispatcher.signatures else announced(what, seconds)
+    has not been compiled or loaded in this process yet (a helper called from Python: its
+    copy, :class:`_Callee`), else a context that does nothing."""
+    python = dispatcher.__dict__.get("_from_python")
+    compiled = dispatcher.signatures or (python is not None and python.signatures)
+    return nullcontext() if compiled else announced(what, seconds)
 
 
 class Loop:

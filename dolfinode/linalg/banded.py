@@ -14,7 +14,7 @@ import scipy.sparse as sps
 from numba import njit
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from dolfinode.compile.jit import HELPER, linked
+from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 
 #: Column indices of the band storage are cast to unsigned in the inner loops: numba wraps a
@@ -39,7 +39,7 @@ def _magnitude(a):
     return abs(a.real) + abs(a.imag)
 
 
-@njit(**HELPER, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def _narrow_lu(ab, kl, ku, ipiv):
     """The columns of :func:`band_lu` for kl, ku <= NARROW while no row interchange is needed
     (|A[j, j]| the largest of its column, as in diagonally dominant Newton matrices):
@@ -78,7 +78,7 @@ def _narrow_lu(ab, kl, ku, ipiv):
 
 
 @linked
-@njit(**HELPER, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def band_lu(ab, kl, ku, ipiv):
     """Factor the band matrix (real or complex) in place, P A = L U. Returns 0, or j + 1 if
     U[j, j] is zero."""
@@ -122,7 +122,7 @@ def band_lu(ab, kl, ku, ipiv):
     return info
 
 
-@njit(**HELPER, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def _interchanged(ipiv):
     """Whether the factorization interchanged any rows (ipiv[j] != j for some j)."""
     for j in range(ipiv.shape[0]):
@@ -131,7 +131,7 @@ def _interchanged(ipiv):
     return False
 
 
-@njit(**HELPER, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def _narrow_solve(ab, kl, ku, b):
     """:func:`band_solve` for kl, ku <= NARROW and factors without row interchanges, by rows:
 
@@ -167,7 +167,7 @@ def _narrow_solve(ab, kl, ku, b):
         x1 = v
 
 
-@njit(**HELPER, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def band_solve(ab, kl, ku, ipiv, b):
     """Solve A x = b in place with the factors from :func:`band_lu`."""
     n = ab.shape[0]

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sps
-from numba import njit, types
+from numba import types
 
-from dolfinode.compile.jit import HELPER, linked
+from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.linalg.sparse import (
@@ -168,7 +168,7 @@ def newton_structure(band, make_sparse, eigenvalues):
 
 
 @linked(returns=types.none, what="the Newton matrices' storage", seconds=1)
-@njit(**HELPER, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def store_jacobian(jdata, indptr, indices, structure, jb):
     """J (its CSR values ``jdata``) into the storage ``jb``: scattered once per Jacobian,
     then shifted by :func:`shift` into each matrix I - c J the slab needs."""
@@ -187,7 +187,7 @@ def store_jacobian(jdata, indptr, indices, structure, jb):
 
 
 @linked(returns=types.none, what="the Newton matrices' shift", seconds=1)
-@njit(**HELPER, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def shift(jb, c, structure, ab):
     """ab = I - c J (c real or complex) from J in the storage ``jb`` (ab may be jb); the band
     storage's kl fill-in columns are band_lu's to clear."""
@@ -206,7 +206,7 @@ def shift(jb, c, structure, ab):
 
 
 @linked
-@njit(**HELPER, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def lu_factor(ab, structure, ipiv):
     """LU-factor I - c J in place (pivots into ``ipiv``, banded only). Returns 0 on
     success."""
@@ -216,7 +216,7 @@ def lu_factor(ab, structure, ipiv):
     return band_lu(ab, kl, ku, ipiv)
 
 
-@njit(**HELPER, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def lu_solve(ab, structure, ipiv, b):
     """Solve (I - c J) x = b in place, b in the matrices' ordering, with the factors of
     :func:`lu_factor`."""

@@ -19,7 +19,7 @@ import scipy.sparse as sps
 from numba import njit
 from scipy.sparse.linalg import splu
 
-from dolfinode.compile.jit import HELPER
+from dolfinode.compile.jit import helper
 from dolfinode.compile.signatures import NO_REFCOUNT
 
 #: splu is used when the stage matrix's band r (kl + ku + 2) exceeds this ...
@@ -136,7 +136,7 @@ def lu_flops(ptr, idx, diag):
 
 # allocates its work row: reference counting stays on when the factorizations (compiled
 # without it, NO_REFCOUNT, an option numba passes on to the functions they call) call it
-@njit(**HELPER, _nrt=True)
+@helper(_nrt=True)
 def sparse_lu(values, ptr, idx, diag):
     """Factor in place, A = L U (real or complex), row by row: row i is scattered into a
     dense work row w, w_k <- w_k / U_kk and w <- w - w_k U_k. for its L columns k in
@@ -163,7 +163,7 @@ def sparse_lu(values, ptr, idx, diag):
     return 0
 
 
-@njit(**HELPER, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def sparse_solve(values, ptr, idx, diag, b):
     """Solve A x = b in place with the factors of :func:`sparse_lu`: L y = b forward, then
     U x = y backward."""

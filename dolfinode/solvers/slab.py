@@ -20,7 +20,7 @@ import math
 
 from numba import njit, types
 
-from dolfinode.compile.jit import HELPER, linked
+from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT, address
 from dolfinode.counters import F_EVALUATIONS, FACTORIZATIONS, ITERATIONS
 from dolfinode.linalg.banded import _u
@@ -192,7 +192,7 @@ def _residual(x0, f0, X, F, A, b0, k, G):
 
 # The iterations run without reference counting (NO_REFCOUNT), their helpers inlined.
 @linked
-@njit(**HELPER, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def fixed_point(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F, G, w,
                 counters):
     """Fixed-point iteration X <- x0 + k (b0 f0 + A F(X)) on the stages (in place in X); G[:N]
@@ -238,7 +238,7 @@ def near_step(k, k_factored, ratio):
 
 
 @linked(returns=types.boolean, what="the stiff solver's factorization", seconds=2)
-@njit(**HELPER, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def factor(ab, structure, ipiv, counters):
     """LU-factor a Newton matrix in place; returns True on success."""
     counters[FACTORIZATIONS] += 1
@@ -247,7 +247,7 @@ def factor(ab, structure, ipiv, counters):
 
 @linked(returns=types.boolean, what="the stiff solver's stage factorization",
         seconds=2)
-@njit(**HELPER, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def factor_stages(jb, k, eigenvalues, structure, ab_real, ab_complex, ipiv, counters):
     """LU factors of I - k lambda_j J (J in the storage ``jb`` of ``structure``, see
     :mod:`dolfinode.linalg.newton_matrix`) for the eigenvalues of the stage matrix: the real
@@ -265,7 +265,7 @@ def factor_stages(jb, k, eigenvalues, structure, ab_real, ab_complex, ipiv, coun
 
 
 @linked(returns=types.int64, what="the stiff solver", seconds=4)
-@njit(**HELPER, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_iter, theta_max,
            give_up, X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w,
            counters, rate):

@@ -5,7 +5,7 @@ return codes, the nonlinear solver modes and the smallest resolvable step. The l
 options and state are the named records of :mod:`dolfinode.timeslab.contract`; the work
 counters live in :mod:`dolfinode.counters`.
 """
-from numba import njit
+from dolfinode.compile.jit import helper
 
 # The work counters (indices, re-exported: their home is dolfinode.counters).
 from dolfinode.counters import (  # noqa: F401
@@ -40,7 +40,7 @@ ROUNDING = 1e-14
 STEP_FLOOR = 1e-20
 
 
-@njit(cache=True)
+@helper()
 def smallest_step(t, span):
     """The smallest step double precision resolves at the time t: ROUNDING |t| (t + k must
     differ from t by some 50 ulp), plus the floor STEP_FLOOR min(span, 1) near t = 0."""

@@ -18,7 +18,7 @@ from dolfinode.adaptivity import (
     stiff_deviation,
     stiff_factor,
 )
-from dolfinode.compile.jit import Loop
+from dolfinode.compile.jit import Loop, helper
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
 from dolfinode.linalg.newton_matrix import shift, store_jacobian
 from dolfinode.methods.method import lagrange_weights
@@ -183,7 +183,7 @@ def _stage_systems(method):
     return real, len(method.stage_eigenvalues) - real
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def _suspend(out_k, out_X, counters, last_X, rate, st):
     """Keep what the next call goes on from: the last slab stored by this call (if any) in
     the carried ``last_X``, Newton's last contraction rate in the state."""
@@ -196,7 +196,7 @@ def _suspend(out_k, out_X, counters, last_X, rate, st):
                 last_X[0, j, i] = out_X[n, j, i]
 
 
-@njit(cache=True, **NO_REFCOUNT)
+@helper(**NO_REFCOUNT)
 def extrapolate(out_X, n, nodes, bary, k_prev, k, tau, X, weights):
     """Predict the stages from the polynomial of stored element n (nodal values out_X[n]),
     continued past its end: X_s = U_n(1 + tau_s k / k_prev). Its error is O(k^(q+1)) on a
@@ -221,13 +221,13 @@ def euler_stages(x, f0, k, tau, X):
             X[s * N + i] = x[i] + tau[s] * k * f0[i]
 
 
-@njit(cache=True)
+@helper()
 def undamped(failed, slabs):
     """Whether a cG loop's failed nonlinear solves show a stiff deviation cG(q) cannot damp."""
     return failed > UNDAMPED_FAILURES and failed >= UNDAMPED_SHARE * slabs
 
 
-@njit(cache=True)
+@helper()
 def leaves_domain(X, floor):
     """The first component with a stage value X_(s N + i) below its floor (-atol_i for a
     component declared nonnegative, -inf for the others), or -1."""
@@ -239,7 +239,7 @@ def leaves_domain(X, floor):
     return -1
 
 
-@njit(cache=True)
+@helper()
 def project(X, floor):
     """Set the stage values of the nonnegative components in [floor, 0) to 0; returns whether
     any changed."""
@@ -253,7 +253,7 @@ def project(X, floor):
     return changed
 
 
-@njit(cache=True)
+@helper()
 def drives_out(u, fu, floor, remaining):
     """The first nonnegative component at zero that f drives below its floor by the end,
     f_i(u) (T - t) < -atol_i, or -1. For a right-hand side that keeps the nonnegative
@@ -279,7 +279,7 @@ def newton_costs(structure, eigenvalues, N, nnz, stages):
     return stages + solves / f_seconds, 1.0 + (nnz * F_ENTRY + factors) / f_seconds
 
 
-@njit(cache=True)
+@helper()
 def fixed_point_cheaper(k_fp, k_newton, S, st):
     """Whether fixed-point iteration on steps k_fp is estimated SWITCH_BACK times cheaper per
     unit time than Newton's method on steps k_newton (False before Newton was measured)."""

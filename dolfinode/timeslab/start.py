@@ -10,10 +10,10 @@ finds failing are raised by the driver, which words them (:data:`F0_NOT_FINITE`,
 import math
 
 import numpy as np
-from numba import njit, types
+from numba import types
 
 from dolfinode.adaptivity import initial_step, refined_step
-from dolfinode.compile.jit import Loop
+from dolfinode.compile.jit import Loop, helper
 from dolfinode.compile.signatures import call_rhs
 from dolfinode.timeslab import smallest_step
 from dolfinode.timeslab.contract import OPTIONS_TYPE, STATE_TYPE
@@ -25,7 +25,7 @@ READY, F0_NOT_FINITE, INTERVAL_UNRESOLVED = range(3)
 FIXED_POINT_ITERATIONS = 6.0
 
 
-@njit(cache=True)
+@helper()
 def first_step(f, x, t, atol, rtol, span):
     """The first step of a start at (x, t), f = f(x, t): Hairer-Noersett-Wanner's guess
     (:func:`dolfinode.adaptivity.initial_step`), at least 4 x the smallest step resolvable
@@ -33,7 +33,7 @@ def first_step(f, x, t, atol, rtol, span):
     return min(max(initial_step(f, x, atol, rtol, span), 4 * smallest_step(t, span)), span)
 
 
-@njit(cache=True)
+@helper()
 def trial_step(rhs, p, t0, atol, rtol, x, f0, k0, order, span):
     """The first step refined by a trial explicit Euler step of length k0
     (:func:`dolfinode.adaptivity.refined_step`); k0 where f there is not finite."""

@@ -254,3 +254,42 @@ def test_a_lazy_routine_is_announced_once_for_all_its_specialisations(monkeypatc
     assert len(_first.signatures) == 2
     notices = [r.getMessage() for r in caplog.records if "twice specialised" in r.getMessage()]
     assert len(notices) == 1
+
+
+@jit.helper()
+def _dot(x, y):
+    """x . y."""
+    total = 0.0
+    for i in range(x.shape[0]):
+        total += x[i] * y[i]
+    return total
+
+
+@njit(cache=False)
+def _norm2(x):
+    return _dot(x, x)
+
+
+def test_a_helper_has_no_python_wrapper_and_runs_from_python_too():
+    """A helper compiled for a compiled caller carries no CPython wrapper (its entry point
+    from Python would be null); called from Python it runs a copy that has one."""
+    x = np.array([1.0, 2.0, 3.0])
+    assert _norm2(x) == 14.0
+    (signature,) = _dot.signatures
+    overload = _dot.overloads[signature]
+    wrapper = overload.fndesc.llvm_cpython_wrapper_name
+    assert overload.library.get_pointer_to_function(wrapper) == 0
+    assert _dot(x, 2.0 * x) == 28.0  # from Python: the copy
+    assert _dot._from_python.signatures == [signature]
+    assert len(_dot.signatures) == 1
+
+
+def test_a_helper_run_from_python_is_not_announced_again(monkeypatch, caplog):
+    """first_use knows a helper compiled for Python (its copy) as compiled."""
+    x = np.array([1.0, 2.0])
+    _dot(x, x)
+    monkeypatch.setattr(jit, "NOTICE_AFTER", 0.01)
+    with caplog.at_level(logging.WARNING, logger="dolfinode"):
+        with first_use(_dot, "the test helper", 20):
+            threading.Event().wait(0.2)
+    assert not [r for r in caplog.records if r.name == "dolfinode"]
