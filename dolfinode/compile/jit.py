@@ -24,8 +24,8 @@ import llvmlite.binding as ll
 import llvmlite.ir as llvm_ir
 from numba import njit, types
 from numba.core import cgutils
-from numba.core.registry import CPUDispatcher
 from numba.core.extending import _Intrinsic
+from numba.core.registry import CPUDispatcher
 
 logger = logging.getLogger("dolfinode")
 

@@ -289,7 +289,7 @@ def test_a_helper_run_from_python_is_not_announced_again(monkeypatch, caplog):
     x = np.array([1.0, 2.0])
     _dot(x, x)
     monkeypatch.setattr(jit, "NOTICE_AFTER", 0.01)
-    with caplog.at_level(logging.WARNING, logger="dolfinode"):
-        with first_use(_dot, "the test helper", 20):
-            threading.Event().wait(0.2)
+    with (caplog.at_level(logging.WARNING, logger="dolfinode"),
+          first_use(_dot, "the test helper", 20)):
+        threading.Event().wait(0.2)
     assert not [r for r in caplog.records if r.name == "dolfinode"]
