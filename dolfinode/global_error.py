@@ -37,6 +37,8 @@ from numba import njit
 from dolfinode.compile import lower
 from dolfinode.compile.signatures import address, call_rhs_rows, rhs_kernel
 from dolfinode.dual.problem import monomial_coefficients
+from dolfinode.linalg.banded import band_lu, band_solve
+from dolfinode.memory import available_memory
 from dolfinode.methods.quadrature import radau
 from dolfinode.ode import t as time_symbol
 
@@ -141,9 +143,9 @@ def _modal(sol, f, lam, V, c, a, chunk=4096):
     return (V @ e).real
 
 
-#: Stage systems of more rows are solved by LAPACK, smaller ones by :func:`_solve_in_place`
-#: (measured: HIRES cG(1), 24 rows, 6.8 x the solve by it, 7.7 x by LAPACK; POLLU cG(1),
-#: 60 rows, 13 x by it, 7.5 x by LAPACK).
+#: Dense stage systems of more rows are solved by LAPACK, smaller ones by
+#: :func:`_solve_in_place` (measured: HIRES cG(1), 24 rows, 6.8 x the solve by it, 7.7 x by
+#: LAPACK; POLLU cG(1), 60 rows, 13 x by it, 7.5 x by LAPACK).
 LAPACK_SIZE = 40
 
 
@@ -171,17 +173,39 @@ def _solve_in_place(A, b):
         b[j] /= A[j, j]
 
 
+def stage_band(compiled, s):
+    """(position, kl, ku) of the stage system (I - k a (x) J) of ``s`` stages with its
+    unknowns ordered component-major, stage (i, r) at row s position[r] + i (``position``:
+    the components' reverse Cuthill-McKee order when it narrows J's band): a J of
+    bandwidths (b_l, b_u) gives kl = s b_l + s - 1, ku = s b_u + s - 1."""
+    _, position, kl, ku = compiled.ordering
+    return position, s * kl + s - 1, s * ku + s - 1
+
+
+def banded(rows, kl, ku):
+    """Whether a stage system of ``rows`` rows and bandwidths (kl, ku) is solved banded: its
+    band LU (rows kl (kl + ku) flops) costs less than half the dense one (rows^3 / 3)."""
+    return 6 * kl * (kl + ku) < rows * rows
+
+
 @njit(cache=True)
-def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, u0, nodes, B, D, a):
+def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, u0, nodes, B, D, a,
+               position, kl, ku):
     """(e_M, nu): e_{n+1} = the last stage of (I - k a (x) J_j) E = 1 (x) (e_n + [U]_n)
     + k (a (x) I) R, one slab after the other (J_j, R_j at the Radau points ``nodes``; ``B``,
     ``D``: the slab polynomial and its derivative at 0 and at the nodes), and nu as in the
-    module docstring, from the last stage's J and f at the slab's end."""
+    module docstring, from the last stage's J and f at the slab's end. The stage (i, r) is
+    unknown s position[r] + i (:func:`stage_band`); kl >= 0: the system is solved by its
+    band LU with bandwidths (kl, ku), kl < 0: dense."""
     f, jac = rhs_kernel(rhs), rhs_kernel(jacobian)
     M, s, N, nnz = k.size, nodes.size, u0.size, indices.size
     U, R = np.empty((s + 1, N)), np.empty((s, N))
     fU, data = np.empty(N), np.empty((s, max(nnz, 1)))
-    A, b = np.empty((s * N, s * N)), np.empty(s * N)
+    band = kl >= 0
+    A = np.empty((0, 0)) if band else np.empty((s * N, s * N))
+    ab = np.zeros((s * N, 2 * kl + ku + 1) if band else (0, 0))  # (band_storage)
+    pivots = np.empty(s * N if band else 0, dtype=np.int64)
+    b = np.empty(s * N)
     x, e, shifted = np.empty(N), np.zeros(N), np.empty(N)
     nu = 0.0
     for n in range(M):
@@ -201,20 +225,38 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, u0, nodes,
                 R[i, col] -= fU[col]
         for col in range(N):  # x = e_n + [U]_n
             x[col] = e[col] + U[0, col] - (u0[col] if n == 0 else values[n - 1, -1, col])
-        A[:] = 0.0
-        for i in range(s):
-            for r in range(N):
-                A[i * N + r, i * N + r] = 1.0
-                b[i * N + r] = x[r]
+        if band:
+            ab[:] = 0.0
+        else:
+            A[:] = 0.0
+        for r in range(N):
+            for i in range(s):
+                row = s * position[r] + i
+                b[row] = x[r]
                 for j in range(s):
-                    b[i * N + r] += k[n] * a[i, j] * R[j, r]
-                    for m in range(indptr[r], indptr[r + 1]):
-                        A[i * N + r, j * N + indices[m]] -= k[n] * a[i, j] * data[j, m]
-        if b.size > LAPACK_SIZE:
+                    b[row] += k[n] * a[i, j] * R[j, r]
+                if band:
+                    ab[row, kl + ku] += 1.0
+                else:
+                    A[row, row] += 1.0
+                for m in range(indptr[r], indptr[r + 1]):
+                    for j in range(s):
+                        col = s * position[indices[m]] + j
+                        if band:
+                            ab[col, kl + ku + row - col] -= k[n] * a[i, j] * data[j, m]
+                        else:
+                            A[row, col] -= k[n] * a[i, j] * data[j, m]
+        if band:
+            if band_lu(ab, kl, ku, pivots) == 0:
+                band_solve(ab, kl, ku, pivots, b)
+            else:
+                b[:] = np.nan  # (a singular stage system: the estimate says so)
+        elif b.size > LAPACK_SIZE:
             b = np.linalg.solve(A, b)
         else:  # (LAPACK's call costs more than the elimination of a small system)
             _solve_in_place(A, b)
-        e[:] = b[(s - 1) * N:]
+        for r in range(N):
+            e[r] = b[s * position[r] + s - 1]
         # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, f(U) = U' - R there
         for col in range(N):
             shifted[col] = U[s, col] - e[col]
@@ -233,6 +275,11 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, u0, nodes,
     return e, nu
 
 
+#: The share of the available memory the values of a multi-adaptive solution's common slabs
+#: may take (every component at every common slab: a 200-mass chain's mcG(1), 10 GB and more).
+COMMON_MEMORY_FRACTION = 0.25
+
+
 def _common_slabs(sol):
     """A multi-adaptive solution as slabs: the intervals between consecutive element ends of
     all components, on each of which every component is one polynomial of degree q, with
@@ -244,14 +291,23 @@ def _common_slabs(sol):
     ends = ends[np.concatenate([[True], np.diff(ends) > 16 * np.spacing(np.abs(ends[1:]))])]
     t_start, k = ends[:-1], np.diff(ends)
     nodes = np.asarray(sol.method.nodes, dtype=float)
+    # (sol(times) holds them twice, transposed and in place)
+    size = 2 * 8 * len(k) * len(nodes) * len(sol.ode.u0)
+    if size > COMMON_MEMORY_FRACTION * available_memory():
+        raise ValueError(f"the global error estimate of this multi-adaptive solution needs its "
+                         f"{len(k)} common slabs' values, {size / 2**30:.3g} GB, more than "
+                         f"{COMMON_MEMORY_FRACTION:g} x the memory available: estimate a "
+                         "cG(q)/dG(q) solve at the same tolerance, or use dn.estimate_error "
+                         "with a goal")
     values = sol((t_start[:, None] + nodes[None, :] * k[:, None]).ravel())
     values = np.ascontiguousarray(values.T.reshape(len(k), len(nodes), -1))
     return SimpleNamespace(method=sol.method, ode=sol.ode, t_start=t_start, k=k, values=values)
 
 
-#: Systems with a non-constant Jacobian, or a constant one whose eigenvectors have a condition
-#: number above MODAL_CONDITION (a Jordan block: x' = v, v' = c), are estimated with dense
-#: stage matrices of (q + 2) N rows per slab: at most MAX_DENSE components.
+#: Systems whose stage matrices ((q + 2) N rows per slab) have no narrow band, a non-constant
+#: Jacobian or a constant one whose eigenvectors have a condition number above
+#: MODAL_CONDITION (a Jordan block: x' = v, v' = c) are estimated with dense stage
+#: matrices: at most MAX_DENSE components.
 MAX_DENSE = 200
 MODAL_CONDITION = 1e8
 
@@ -265,42 +321,42 @@ MODAL_CONDITION = 1e8
 NONLINEAR_LIMIT = 100.0
 
 
-def _sequential(sol, compiled, c, a):
-    """(e_M, nu) by :func:`_recursion` on the stored slabs."""
-    B, D = lagrange_matrices(sol.method.nodes, np.concatenate([[0.0], c]))
-    return _recursion(compiled.rhs.address, compiled.jacobian.address, compiled.p,
-                      compiled.indptr, compiled.indices, np.ascontiguousarray(sol.values),
-                      sol.k, sol.t_start, np.asarray(sol.ode.u0, dtype=float), c, B, D, a)
-
-
 def estimate(sol, compiled=None):
     """(e, nu): the signed estimate e ~ U(T) - u(T), shape (N,), of a cG(q)/dG(q) solution,
     and the nonlinearity nu of the error equation along the run (see the module docstring);
     ``compiled``: the kernels it was solved with (default: those of ``sol.ode``). A
-    multi-adaptive solution is taken on the common refinement of its elements.
+    multi-adaptive solution is taken on the common refinement of its elements. Stage systems
+    with a narrow band (:func:`banded`) are solved banded, others densely, or mode by mode
+    for a constant J with a well-conditioned eigenbasis.
 
     Raises
     ------
     ValueError
-        For more than MAX_DENSE components with a Jacobian that is not constant.
+        For more than MAX_DENSE components with dense stage systems and a Jacobian that is
+        not constant, or a multi-adaptive solution whose common slabs do not fit in memory.
     """
     if sol._component_ptr is not None:
         sol = _common_slabs(sol)
     compiled = lower(sol.ode) if compiled is None else compiled
-    constant = compiled._derived("constant jacobian",
-                                 lambda: _constant_jacobian(sol.ode, compiled))
-    f, J = _evaluators(compiled)
     c = radau_nodes(sol.method.q + 2)
     a = collocation_matrix(c)
-    if constant:
-        lam, V = np.linalg.eig(J(sol.t_start[:1], sol.values[:1, -1, :])[0])
-        if np.linalg.cond(V) < MODAL_CONDITION:
-            return _modal(sol, f, lam, V, c, a), 0.0
-    if compiled.N > MAX_DENSE:
-        raise ValueError(f"the global error estimate of a nonlinear system, or of a linear one "
-                         f"whose Jacobian has no well-conditioned eigenbasis, is dense: at most "
-                         f"{MAX_DENSE} components, got {compiled.N}")
-    return _sequential(sol, compiled, c, a)
+    position, kl, ku = stage_band(compiled, len(c))
+    if not banded(len(c) * compiled.N, kl, ku):
+        kl = ku = -1
+        if compiled._derived("constant jacobian", lambda: _constant_jacobian(sol.ode, compiled)):
+            f, J = _evaluators(compiled)
+            lam, V = np.linalg.eig(J(sol.t_start[:1], sol.values[:1, -1, :])[0])
+            if np.linalg.cond(V) < MODAL_CONDITION:
+                return _modal(sol, f, lam, V, c, a), 0.0
+        if compiled.N > MAX_DENSE:
+            raise ValueError(f"the global error estimate of a system whose Jacobian has no "
+                             f"narrow band is dense (unless linear with a well-conditioned "
+                             f"eigenbasis): at most {MAX_DENSE} components, got {compiled.N}")
+    B, D = lagrange_matrices(sol.method.nodes, np.concatenate([[0.0], c]))
+    return _recursion(compiled.rhs.address, compiled.jacobian.address, compiled.p,
+                      compiled.indptr, compiled.indices, np.ascontiguousarray(sol.values),
+                      sol.k, sol.t_start, np.asarray(sol.ode.u0, dtype=float), c, B, D, a,
+                      position, kl, ku)
 
 
 #: A solve with ``estimate_global_error=True`` warns when the estimate exceeds WARN_FACTOR

@@ -280,8 +280,9 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         the error could not be estimated). Measured within
         0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
         and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md); it
-        costs 0.4-8 x a small solve (a compiled pass over the slabs, one dense stage solve
-        of (q + 2) N rows each). "auto" estimates runs of at least ``LONG_RUN`` (100) steps
+        costs 0.4-8 x a small solve (a compiled pass over the slabs, one stage solve of
+        (q + 2) N rows each, banded where J's band is narrow: 6-15 x a non-stiff chain's
+        solve). "auto" estimates runs of at least ``LONG_RUN`` (100) steps
         of one component (slabs, or a multi-adaptive component's elements) whose stage
         system has at most ``AUTO_ROWS`` (64) rows, where the steps' errors add up on long
         undamped or drifting runs; other runs (and automatic modeling, events,

@@ -8,6 +8,7 @@ import sympy as sp
 import dolfinode as dn
 from dolfinode import global_error
 from dolfinode.bench import problems
+from dolfinode.compile import lower
 
 
 def _solve(problem, method, tol, **parameters):
@@ -192,3 +193,63 @@ def test_a_multi_adaptive_run_far_from_t_zero_is_estimated():
     estimates = [dn.solve(dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=t0 + 10.0, t0=t0), "mcG(2)",
                           tolerance=1e-8).stats["global error estimate"] for t0 in (0.0, 1e12)]
     assert estimates[1] == pytest.approx(estimates[0], rel=0.2)
+
+
+def _fpu_chain(n, T):
+    """n unit masses between walls joined by springs with the force d + d^3 / 2 of their
+    stretch d (Fermi-Pasta-Ulam-Tsingou beta): a nonlinear system with a banded Jacobian."""
+    x = sp.symbols(f"x0:{n}")
+    ends = [0, *x, 0]
+
+    def force(d):
+        return d + d ** 3 / 2
+
+    acc = {x[i]: force(ends[i + 2] - ends[i + 1]) - force(ends[i + 1] - ends[i])
+           for i in range(n)}
+    return dn.ODE.second_order(acc, x0=np.sin(np.pi * np.arange(1, n + 1) / (n + 1)),
+                               v0=np.zeros(n), T=T)
+
+
+def test_a_banded_stage_system_gives_the_dense_estimate():
+    """A nonlinear chain of 10 masses (cG(1): 60 stage rows, bandwidths 8): the band LU of the
+    component-major stage system gives the dense solve's estimate to rounding."""
+    ode = _fpu_chain(10, T=20.0)
+    sol = dn.solve(ode, method="cG(1)", tolerance=1e-4, estimate_global_error=False)
+    compiled = lower(ode)
+    c = global_error.radau_nodes(3)
+    position, kl, ku = global_error.stage_band(compiled, 3)
+    assert global_error.banded(3 * ode.N, kl, ku)
+    B, D = global_error.lagrange_matrices(sol.method.nodes, np.concatenate([[0.0], c]))
+    dense, nu_dense = global_error._recursion(
+        compiled.rhs.address, compiled.jacobian.address, compiled.p, compiled.indptr,
+        compiled.indices, np.ascontiguousarray(sol.values), sol.k, sol.t_start,
+        np.asarray(ode.u0, dtype=float), c, B, D, global_error.collocation_matrix(c),
+        position, -1, -1)
+    e, nu = global_error.estimate(sol, compiled)
+    assert np.max(np.abs(e)) > 0
+    np.testing.assert_allclose(e, dense, rtol=1e-9, atol=1e-12 * np.max(np.abs(dense)))
+    assert nu == pytest.approx(nu_dense, rel=1e-6, abs=1e-12)
+
+
+def test_a_banded_system_above_the_dense_bound_is_estimated():
+    """A nonlinear chain of 110 masses (220 components, above MAX_DENSE): its banded stage
+    systems make the estimate possible, and it is the error at T of dG(1) at 1e-3 (a few
+    long slabs) within 20 %."""
+    ode = _fpu_chain(110, T=20.0)
+    assert ode.N > global_error.MAX_DENSE
+    sol = dn.solve(ode, method="dG(1)", tolerance=1e-3, estimate_global_error=False)
+    reference = dn.solve(ode, method="cG(3)", tolerance=1e-9, estimate_global_error=False)
+    e, _ = global_error.estimate(sol)
+    error = sol(20.0) - reference(20.0)
+    assert np.max(np.abs(error)) > 1e-4
+    assert 0.8 < np.max(np.abs(e)) / np.max(np.abs(error)) < 1.25
+
+
+def test_common_slabs_beyond_the_memory_say_what_to_try(monkeypatch):
+    """A multi-adaptive solution whose common slabs' values would not fit in memory: a
+    ValueError that names their size and what to try, not an allocation that kills the run."""
+    problem = problems.mass_spring_chain(n=4, T=2.0)
+    sol = dn.solve(problem.ode, method="mcG(1)", tolerance=1e-4, estimate_global_error=False)
+    monkeypatch.setattr(global_error, "available_memory", lambda: 1000)
+    with pytest.raises(ValueError, match="common slabs.*cG\\(q\\)/dG\\(q\\)"):
+        global_error.estimate(sol)
