@@ -224,7 +224,7 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None,
     gauss = _positive_int(quadrature_points, "quadrature_points", q + r + 2)
     # (a kernel called from Python: one called only from compiled code keeps no signatures,
     # and the notice's timer thread then started on every estimate)
-    with first_use(_weighted_residuals, "the error estimate's kernels", 6):
+    with first_use(_weighted_residuals, "the error estimate's kernels", 4):
         dual, primal = solve_dual(sol, final, integral, r, linear_solver=linear_solver)
         parts = _error_representation(sol, primal, dual, gauss)
         coarse, _ = solve_dual(sol, final, integral, r - 1, primal, linear_solver)
