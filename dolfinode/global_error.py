@@ -143,34 +143,11 @@ def _modal(sol, f, lam, V, c, a, chunk=4096):
     return (V @ e).real
 
 
-#: Dense stage systems of more rows are solved by LAPACK, smaller ones by
-#: :func:`_solve_in_place` (measured: HIRES cG(1), 24 rows, 6.8 x the solve by it, 7.7 x by
-#: LAPACK; POLLU cG(1), 60 rows, 13 x by it, 7.5 x by LAPACK).
-LAPACK_SIZE = 40
-
-
-@njit(cache=True)
-def _solve_in_place(A, b):
-    """b = A^{-1} b by Gaussian elimination with partial pivoting (A overwritten)."""
-    N = b.size
-    for j in range(N):
-        p = j
-        for i in range(j + 1, N):
-            if abs(A[i, j]) > abs(A[p, j]):
-                p = i
-        if p != j:
-            for c in range(j, N):
-                A[j, c], A[p, c] = A[p, c], A[j, c]
-            b[j], b[p] = b[p], b[j]
-        for i in range(j + 1, N):
-            m = A[i, j] / A[j, j]
-            for c in range(j + 1, N):
-                A[i, c] -= m * A[j, c]
-            b[i] -= m * b[j]
-    for j in range(N - 1, -1, -1):
-        for c in range(j + 1, N):
-            b[j] -= A[j, c] * b[c]
-        b[j] /= A[j, j]
+#: Stage systems without a narrow band are solved by LAPACK above LAPACK_SIZE rows, and by
+#: the band LU over their full band below (measured, the estimate's time against a dense
+#: elimination: HIRES cG(1), 24 rows, 0.73 x; against LAPACK: POLLU cG(1), 60 rows, 0.63 x;
+#: VDPOL, ROBER, 8-15 rows, 1.1-1.2 x, 0.1 ms in all).
+LAPACK_SIZE = 64
 
 
 def stage_band(compiled, s):
@@ -196,7 +173,7 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, u0, nodes,
     ``D``: the slab polynomial and its derivative at 0 and at the nodes), and nu as in the
     module docstring, from the last stage's J and f at the slab's end. The stage (i, r) is
     unknown s position[r] + i (:func:`stage_band`); kl >= 0: the system is solved by its
-    band LU with bandwidths (kl, ku), kl < 0: dense."""
+    band LU with bandwidths (kl, ku), kl < 0: by LAPACK."""
     f, jac = rhs_kernel(rhs), rhs_kernel(jacobian)
     M, s, N, nnz = k.size, nodes.size, u0.size, indices.size
     U, R = np.empty((s + 1, N)), np.empty((s, N))
@@ -251,10 +228,8 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, u0, nodes,
                 band_solve(ab, kl, ku, pivots, b)
             else:
                 b[:] = np.nan  # (a singular stage system: the estimate says so)
-        elif b.size > LAPACK_SIZE:
+        else:
             b = np.linalg.solve(A, b)
-        else:  # (LAPACK's call costs more than the elimination of a small system)
-            _solve_in_place(A, b)
         for r in range(N):
             e[r] = b[s * position[r] + s - 1]
         # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, f(U) = U' - R there
@@ -341,8 +316,9 @@ def estimate(sol, compiled=None):
     c = radau_nodes(sol.method.q + 2)
     a = collocation_matrix(c)
     position, kl, ku = stage_band(compiled, len(c))
-    if not banded(len(c) * compiled.N, kl, ku):
-        kl = ku = -1
+    rows = len(c) * compiled.N
+    if not banded(rows, kl, ku):
+        kl = ku = rows - 1 if rows <= LAPACK_SIZE else -1
         if compiled._derived("constant jacobian", lambda: _constant_jacobian(sol.ode, compiled)):
             f, J = _evaluators(compiled)
             lam, V = np.linalg.eig(J(sol.t_start[:1], sol.values[:1, -1, :])[0])
