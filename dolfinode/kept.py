@@ -40,8 +40,9 @@ def solve_kept(ode, method, tolerance, parameters):
     :class:`~dolfinode.Solver` that ``ode`` keeps for these options (the method, the tolerance
     and the parameters, each with its type), made at their second call; None when the call
     is to take dn.solve's general path: options first seen, not hashable (dicts, lists of
-    arrays; a numpy array or a list of numbers is keyed by its values), without a prepared path (events, breakpoints, automatic modeling, a progress bar,
-    dense_output other than True, ...), or another thread using the solvers. The solver
+    arrays; a numpy array or a list of numbers is keyed by its values), without a prepared
+    path (events, breakpoints, automatic modeling, a progress bar, dense_output other than
+    True, ...), or another thread using the solvers. The solver
     reads the declaration's values at every call, so changes of them reach the solve; the
     Solution is bitwise dn.solve's."""
     if not isinstance(ode, ODE):

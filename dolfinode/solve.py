@@ -780,7 +780,7 @@ def _carried(compiled, m, structure, ready, carried):
 def _leave_carried(compiled, m, structure, carried):
     """Leave a finished solve's ``carried`` arrays (:func:`_carried`) for the next solve of
     ``compiled`` by ``m``, if they hold the decided Newton storage and are small."""
-    if carried is None or carried[4].size == 0 or (
+    if carried is None or not mono.holds_workspace(carried) or (
             sum(array.nbytes for array in carried) > _LEFT_BYTES):
         return
     left = compiled.workspaces.setdefault(m.name, [])
@@ -815,7 +815,7 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, stat
     def advance(*buffers):
         nonlocal carried
         ready = bool(options["newton_ready"][0])
-        if carried is None or (ready and carried[4].size == 0):  # (decided since: made)
+        if carried is None or (ready and not mono.holds_workspace(carried)):  # (decided since)
             carried = _carried(compiled, m, structure, ready, carried)
         return mono.advance.unchecked(*_mono_arguments(
             compiled, structure, tables, options, atol, floor, x, f0, state, counters,

@@ -175,6 +175,12 @@ def carry(N, method, structure, ready, last=None):
             np.zeros((n_real + n_complex, n), dtype=np.int64), np.zeros(n, dtype=np.int64))
 
 
+def holds_workspace(carried):
+    """Whether ``carried`` (a :func:`carry`) holds the Newton workspace, made once the
+    storage was decided (its pivots are then not empty)."""
+    return carried[4].size > 0
+
+
 @cache
 def _stage_systems(method):
     """The real and complex systems of a Newton step of ``method``: one per real eigenvalue
