@@ -63,6 +63,7 @@ from dolfinode.timeslab.multi.freezing import (
     wake_failed,
 )
 from dolfinode.timeslab.multi.slab import (
+    guess_stages,
     initial_guess,
     jacobian_rows,
     solve_synchronised,
@@ -451,9 +452,15 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         if largest > newton[4].shape[0]:  # (its real vector has a row per component)
             newton = group_workspace(max(n_real, 1), eigenvalues.shape[0] - n_real, S,
                                      largest, band_width)
+        # a fused slab tried synchronised is guessed in its stage vector (the elements only if
+        # that fails, for the sweeps)
+        guessed = fused and try_sync and not st.retry
         if st.retry:  # the rejected attempt
             guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues,
                        nodes, bary)
+        elif guessed:
+            guess_stages(N, ea, eb, x, last_a, last_b, last_values, nodes, bary, guess_key,
+                         guess_weights, guess_far, X)
         else:
             initial_guess(ne, comp, ea, eb, prev, x, last_a, last_b, last_values, nodes, bary,
                           guess_key, guess_weights, guess_far, values)
@@ -463,15 +470,18 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         f_attempt = counters[F_EVALUATIONS]
         solved = False  # as one mono-adaptive slab (every component on [t, b])
         if try_sync:
-            solved, st.f0_time = solve_synchronised(f, p, x, f0, st.f0_time, t, b, A, b0, stage_nodes,
-                                                 atol, rtol, dtol, o.span, fixed, max_iter,
-                                                 comp, ne, values, fend, X, F, G, w, fvec,
-                                                 counters)
+            solved, st.f0_time = solve_synchronised(f, p, x, f0, st.f0_time, t, b, A, b0,
+                                                    stage_nodes, atol, rtol, dtol, o.span,
+                                                    fixed, max_iter, guessed, comp, ne, values,
+                                                    fend, X, F, G, w, fvec, counters)
             if solved:
                 st.sync_fail *= SYNCHRONISE_PROBE
                 st.jacobian_age += 1
             else:
                 st.sync_fail = b - t
+                if guessed:
+                    initial_guess(ne, comp, ea, eb, prev, x, last_a, last_b, last_values, nodes,
+                                  bary, guess_key, guess_weights, guess_far, values)
                 jacobian_rows(ji, active, nactive, x, t, p, indptr, indices, jrow, jacobian,
                               jdiag, coupling, jacobian_time, counters)
                 st.jacobian_age = 0
