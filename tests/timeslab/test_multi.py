@@ -266,6 +266,50 @@ def test_propagation_leaves_no_tie_unresolved():
                     assert kdes[j] <= kdes[i]
 
 
+
+def test_ties_and_grading_over_the_acting_rows_only():
+    """On random patterns (some components frozen, lopsided couplings, steps on both sides
+    of 1 / |J_ij|), ``propagate`` and ``grade`` over the rows that ``tying_rows`` and
+    ``grading_rows`` pass on give bitwise the steps of both over every active row, as the
+    loop uses them on synchronised slabs; the acting rows are a strict subset in some
+    cases and the steps move in some."""
+    from dolfinode.timeslab.multi.steps import (
+        grade,
+        grading_rows,
+        propagate,
+        tie_reach,
+        tying_rows,
+    )
+
+    rng = np.random.default_rng(5)
+    n = 8
+    fewer = moved = 0
+    for _ in range(300):
+        dense = rng.random((n, n)) < 0.35
+        values = np.where(dense, 10.0 ** rng.uniform(-1, 3, (n, n)), 0.0)
+        values[dense & (rng.random((n, n)) < 0.1)] = 0.0  # (stored zeros)
+        indptr = np.concatenate([[0], np.cumsum(dense.sum(axis=1))])
+        indices = np.concatenate([np.flatnonzero(row) for row in dense]).astype(np.int64)
+        jacobian = values[dense] * rng.choice([-1.0, 1.0], dense.sum())
+        kdes = 10.0 ** rng.uniform(-4, 0, n)
+        frozen = np.where(rng.random(n) < 0.2, 0.0, np.nan)
+        rows = np.flatnonzero(np.isnan(frozen)).astype(np.int64)
+        reach, lopsided = np.empty(n), np.zeros(n, dtype=np.bool_)
+        tie_reach(rows, indptr, indices, jacobian, reach, lopsided)
+        every, subset = kdes.copy(), kdes.copy()
+        propagate(every, rows, frozen, indptr, indices, jacobian, np.zeros(n, dtype=np.bool_))
+        grade(every, rows, frozen, indptr, indices, jacobian)
+        acting = np.empty(n, dtype=np.int64)
+        ties = tying_rows(subset, rows, reach, lopsided, acting)
+        propagate(subset, acting[:ties], frozen, indptr, indices, jacobian,
+                  np.zeros(n, dtype=np.bool_))
+        grading = grading_rows(subset, rows, reach, acting)
+        grade(subset, acting[:grading], frozen, indptr, indices, jacobian)
+        np.testing.assert_array_equal(subset, every)
+        fewer += ties < rows.size and grading < rows.size
+        moved += not np.array_equal(every, kdes)
+    assert fewer > 30 and moved > 30
+
 def _front(n, T):
     """The reaction front u' = eps u_xx + gamma u^2 (1 - u) on n points of [0, (n - 1) / 200]
     (h = 0.005, mirror ghost points), its front at x = 0.3 moving right at ~2.2."""

@@ -63,12 +63,20 @@ from dolfinode.timeslab.multi.freezing import (
     wake_failed,
 )
 from dolfinode.timeslab.multi.slab import (
+    guess_stages,
     initial_guess,
     jacobian_rows,
     solve_synchronised,
     sweep_slab,
 )
-from dolfinode.timeslab.multi.steps import grade, propagate, slab_limit
+from dolfinode.timeslab.multi.steps import (
+    grade,
+    grading_rows,
+    propagate,
+    slab_limit,
+    tie_reach,
+    tying_rows,
+)
 from dolfinode.timeslab.multi.sweeps import guess_from
 from dolfinode.timeslab.partition import (
     build_slab,
@@ -225,18 +233,24 @@ def _move_to_end(active, nactive, cptr, celems, ea, eb, values, fend, x, fixed, 
                  rtol, umax, tau, jdiag, coupling, last_a, last_b, last_values):
     """Move every active component to the end of its last element of the accepted slab
     (x_i, and that element, which the next slab's guess continues), with its drift bound
-    over the time ``tau`` left (``freeze``; not with ``fixed`` steps, which never freeze)."""
+    over the time ``tau`` left (``freeze``; not with ``fixed`` steps, which never freeze).
+    Returns whether a component is quiet by that bound (without one ``freeze`` changes
+    nothing unless a frozen component was checked)."""
     nn = values.shape[1]
+    any_quiet = False
     for r in range(nactive):
         i = active[r]
         last = celems[cptr[i + 1] - 1]
         if not fixed:
+            level = QUIET * (atol[i] + rtol * umax[i])
             drift[i] = drift_bound(values[last, nn - 1] - x[i], fend[last], tau,
-                                   jdiag[i] + coupling[i], QUIET * (atol[i] + rtol * umax[i]))
+                                   jdiag[i] + coupling[i], level)
+            any_quiet = any_quiet or drift[i] <= level
         x[i] = values[last, nn - 1]
         last_a[i], last_b[i] = ea[last], eb[last]
         for m in range(nn):
             last_values[i, m] = values[last, m]
+    return any_quiet
 
 
 @helper(**NO_REFCOUNT)
@@ -337,6 +351,13 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     top_change = np.zeros(N)
     mark = np.zeros(N, dtype=np.int64)
     lowered = np.zeros(N, dtype=np.bool_)  # (``propagate``)
+    # each row's reach (``tie_reach``) for the Jacobian rows since their last evaluation:
+    # the synchronised slabs that share them pass only the rows that can act to the ties
+    # and grading (``acting``)
+    reach = np.empty(N)
+    lopsided = np.zeros(N, dtype=np.bool_)
+    reach_valid = False
+    acting = np.empty(N, dtype=np.int64)
     projected = np.zeros(N, dtype=np.bool_)
     # the synchronised slabs' workspace: stages, f at the end
     fvec = np.empty(N)
@@ -414,6 +435,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             jacobian_rows(ji, active, nactive, x, t, p, indptr, indices, jrow, jacobian, jdiag,
                           coupling, jacobian_time, counters)
             st.jacobian_age = 0
+            reach_valid = False
         if b - t < smallest_step(t, o.span) and b < T:
             return CONSTRAINT if st.outside >= 0 else UNDERFLOW
         if values.shape[0] < ne:
@@ -430,9 +452,15 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         if largest > newton[4].shape[0]:  # (its real vector has a row per component)
             newton = group_workspace(max(n_real, 1), eigenvalues.shape[0] - n_real, S,
                                      largest, band_width)
+        # a fused slab tried synchronised is guessed in its stage vector (the elements only if
+        # that fails, for the sweeps)
+        guessed = fused and try_sync and not st.retry
         if st.retry:  # the rejected attempt
             guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, ovalues,
                        nodes, bary)
+        elif guessed:
+            guess_stages(N, ea, eb, x, last_a, last_b, last_values, nodes, bary, guess_key,
+                         guess_weights, guess_far, X)
         else:
             initial_guess(ne, comp, ea, eb, prev, x, last_a, last_b, last_values, nodes, bary,
                           guess_key, guess_weights, guess_far, values)
@@ -442,18 +470,22 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         f_attempt = counters[F_EVALUATIONS]
         solved = False  # as one mono-adaptive slab (every component on [t, b])
         if try_sync:
-            solved, st.f0_time = solve_synchronised(f, p, x, f0, st.f0_time, t, b, A, b0, stage_nodes,
-                                                 atol, rtol, dtol, o.span, fixed, max_iter,
-                                                 comp, ne, values, fend, X, F, G, w, fvec,
-                                                 counters)
+            solved, st.f0_time = solve_synchronised(f, p, x, f0, st.f0_time, t, b, A, b0,
+                                                    stage_nodes, atol, rtol, dtol, o.span,
+                                                    fixed, max_iter, guessed, comp, ne, values,
+                                                    fend, X, F, G, w, fvec, counters)
             if solved:
                 st.sync_fail *= SYNCHRONISE_PROBE
                 st.jacobian_age += 1
             else:
                 st.sync_fail = b - t
+                if guessed:
+                    initial_guess(ne, comp, ea, eb, prev, x, last_a, last_b, last_values, nodes,
+                                  bary, guess_key, guess_weights, guess_far, values)
                 jacobian_rows(ji, active, nactive, x, t, p, indptr, indices, jrow, jacobian,
                               jdiag, coupling, jacobian_time, counters)
                 st.jacobian_age = 0
+                reach_valid = False
         st.synchronised = solved
         converged = solved
         last_it = -1
@@ -534,7 +566,15 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             if fixed:
                 return CONSTRAINT
             accept = False
-        if not fixed:
+        if not fixed and solved:  # (a Jacobian that serves up to JACOBIAN_AGE slabs)
+            if not reach_valid:
+                tie_reach(active[:nactive], indptr, indices, jacobian, reach, lopsided)
+                reach_valid = True
+            n = tying_rows(kdes, active[:nactive], reach, lopsided, acting)
+            propagate(kdes, acting[:n], frozen, indptr, indices, jacobian, lowered)
+            n = grading_rows(kdes, active[:nactive], reach, acting)
+            grade(kdes, acting[:n], frozen, indptr, indices, jacobian)
+        elif not fixed:
             propagate(kdes, active[:nactive], frozen, indptr, indices, jacobian, lowered)
             grade(kdes, active[:nactive], frozen, indptr, indices, jacobian)
         if not accept:
@@ -569,8 +609,9 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         counters[SYNCHRONISED] += solved
         st.hold = max(0, st.hold - 1)
         counters[SUBSLABS] += nsub
-        _move_to_end(active, nactive, cptr, celems, ea, eb, values, fend, x, fixed, drift, atol,
-                     rtol, umax, T - b, jdiag, coupling, last_a, last_b, last_values)
+        any_quiet = _move_to_end(active, nactive, cptr, celems, ea, eb, values, fend, x, fixed,
+                                 drift, atol, rtol, umax, T - b, jdiag, coupling, last_a,
+                                 last_b, last_values)
         if solved:  # f(x, b), unless a value was projected
             st.f0_time = b
             for i in range(N):
@@ -585,10 +626,11 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             counters[OUTSIDE] = leaving + 1
             st.t = b
             return CONSTRAINT
-        if not fixed and b < T and freeze(b, b - t, active[:nactive], checked[:nchecked],
-                                          indptr, indices, drift, atol, rtol, umax, x, frozen,
-                                          kdes, last_a, last_b, quiet, uw, counters, out_comp,
-                                          out_a, out_b, out_values):
+        # (nothing quiet, nothing checked: freeze would change nothing)
+        if not fixed and b < T and (any_quiet or nchecked > 0) and freeze(
+                b, b - t, active[:nactive], checked[:nchecked], indptr, indices, drift, atol,
+                rtol, umax, x, frozen, kdes, last_a, last_b, quiet, uw, counters, out_comp,
+                out_a, out_b, out_values):
             st.regroup = True
         t = b
         st.t = t

@@ -38,19 +38,32 @@ def jacobian_rows(ji, active, nactive, x, t, p, indptr, indices, jrow, jacobian,
 
 
 @helper(**NO_REFCOUNT)
-def _extrapolation_weights(a, b, ea, eb, nodes, bary, key, weights, far):
+def _extrapolation_weights(a, b, ea, eb, nodes, bary, weights, far):
     """weights[m, j] = l_j(tau_m), the Lagrange basis of an element on [a, b] at the nodes
     tau_m of [ea, eb] (continued past b), and far[m]: whether the node lies more than two
-    element lengths past b (tau > 3: too far to extrapolate). Recomputed only when
-    (a, b, ea, eb) differs from ``key``: on a synchronised slab every component's guess
-    shares them."""
-    if key[0] == a and key[1] == b and key[2] == ea and key[3] == eb:
-        return
-    key[0], key[1], key[2], key[3] = a, b, ea, eb
+    element lengths past b (tau > 3: too far to extrapolate)."""
     for m in range(nodes.shape[0]):
         tau = (ea + nodes[m] * (eb - ea) - a) / (b - a)
         far[m] = tau > 3.0
         lagrange_weights(tau, nodes, bary, weights[m])
+
+
+@helper(inline="always")
+def _continued(i, e, a, b, ea, eb, m, x, last_values, nodes, bary, key, weights, far):
+    """Node m of element e (on [ea_e, eb_e]) on component i's polynomial of [a, b]
+    continued (x_i where that lies too far ahead); the extrapolation weights are made again
+    only when (a, b, ea_e, eb_e) differs from ``key``: on a synchronised slab every
+    component's guess shares them (the check here, not in a call per element: it took
+    about half of such a guess)."""
+    if not (key[0] == a and key[1] == b and key[2] == ea[e] and key[3] == eb[e]):
+        key[0], key[1], key[2], key[3] = a, b, ea[e], eb[e]
+        _extrapolation_weights(a, b, ea[e], eb[e], nodes, bary, weights, far)
+    if far[m]:
+        return x[i]
+    value = 0.0
+    for j in range(nodes.shape[0]):
+        value += weights[m, j] * last_values[i, j]
+    return value
 
 
 @helper(**NO_REFCOUNT)
@@ -63,22 +76,38 @@ def initial_guess(ne, comp, ea, eb, prev, x, last_a, last_b, last_values, nodes,
     nn = nodes.shape[0]
     for e in range(ne):
         i = comp[e]
-        if prev[e] < 0 and last_b[i] > last_a[i]:
-            _extrapolation_weights(last_a[i], last_b[i], ea[e], eb[e], nodes, bary, key,
-                                   weights, far)
-            for m in range(nn):
-                value = 0.0
-                for j in range(nn):
-                    value += weights[m, j] * last_values[i, j]
-                values[e, m] = x[i] if far[m] else value
-        else:
-            for m in range(nn):
+        a, b = last_a[i], last_b[i]
+        for m in range(nn):
+            if prev[e] < 0 and b > a:
+                values[e, m] = _continued(i, e, a, b, ea, eb, m, x, last_values, nodes, bary,
+                                          key, weights, far)
+            else:
                 values[e, m] = x[i]
 
 
 @helper(**NO_REFCOUNT)
+def guess_stages(N, ea, eb, x, last_a, last_b, last_values, nodes, bary, key, weights, far,
+                 X):
+    """``initial_guess`` of a synchronised slab (element i: component i) written straight
+    into its stage vector, X[s N + i] at the stage nodes (the last S of the element's), as
+    :func:`.sweeps.synchronised` solves it: the same values without the elements' copy."""
+    nn = nodes.shape[0]
+    S = X.shape[0] // N
+    for i in range(N):
+        a, b = last_a[i], last_b[i]
+        for s in range(S):
+            m = nn - S + s
+            if b > a:
+                X[s * N + i] = _continued(i, i, a, b, ea, eb, m, x, last_values, nodes, bary,
+                                          key, weights, far)
+            else:
+                X[s * N + i] = x[i]
+
+
+@helper(**NO_REFCOUNT)
 def solve_synchronised(f, p, x, f0, f0_time, t, b, A, b0, stage_nodes, atol, rtol, dtol, span,
-                       fixed, max_iter, comp, ne, values, fend, X, F, G, w, fvec, counters):
+                       fixed, max_iter, guessed, comp, ne, values, fend, X, F, G, w, fvec,
+                       counters):
     """Solve the slab [t, b], every component on one element, as one mono-adaptive slab
     (:func:`.sweeps.synchronised`), with f0 = f(x, t) evaluated unless ``f0_time`` == t and
     the mono loop's stopping tolerance dtol min(1, (b - t)/span), not below the rounding
@@ -91,7 +120,8 @@ def solve_synchronised(f, p, x, f0, f0_time, t, b, A, b0, stage_nodes, atol, rto
     dtol_k = dtol if fixed else max(dtol * min(1.0, (b - t) / span),
                                     min(dtol, ROUNDING / rtol))
     iterations = synchronised(f, p, x, f0, t, b - t, A, b0, stage_nodes, atol, rtol, dtol_k,
-                              max_iter, comp, ne, values, fend, X, F, G, w, fvec, counters)
+                              max_iter, guessed, comp, ne, values, fend, X, F, G, w, fvec,
+                              counters)
     return iterations >= 0, f0_time
 
 

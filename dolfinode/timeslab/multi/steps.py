@@ -88,6 +88,64 @@ def grade(kdes, rows, frozen, indptr, indices, jacobian):
             return
 
 
+@helper(**NO_REFCOUNT)
+def tie_reach(rows, indptr, indices, jacobian, reach, lopsided):
+    """For the ``rows``: reach[i], the largest |J_ij| over j != i (NaN if one is), and
+    lopsided[i], whether a coupling of row i is mutual and lopsided,
+    |J_ij| >= ASYMMETRY^2 |J_ji| > 0. They depend on the Jacobian alone (made once for the
+    slabs that share one) and tell which rows ``propagate`` and ``grade`` can act on
+    (``tying_rows``, ``grading_rows``)."""
+    for i in rows:
+        largest = 0.0
+        lopsided[i] = False
+        for nz in range(indptr[i], indptr[i + 1]):
+            j = indices[nz]
+            jij = abs(jacobian[nz])
+            if j == i or jij == 0.0:
+                continue
+            if not jij <= largest:
+                largest = jij
+            for nz2 in range(indptr[j], indptr[j + 1]):
+                if indices[nz2] == i:
+                    jji = abs(jacobian[nz2])
+                    lopsided[i] = lopsided[i] or (0.0 < jji and jij >= ASYMMETRY**2 * jji)
+                    break
+        reach[i] = largest
+
+
+@helper(**NO_REFCOUNT)
+def tying_rows(kdes, rows, reach, lopsided, acting):
+    """The ``rows`` on which ``propagate`` can tie a step, in order, into acting[:n];
+    returns n. Row i ties only on a lopsided coupling or where |J_ij| k_i > 1, so not while
+    k_i reach_i <= 1 (``tie_reach``); steps only decrease there, so such a row stays idle,
+    and propagate over the others changes the same steps in the same order (floating-point
+    products are monotone)."""
+    n = 0
+    for i in rows:
+        if lopsided[i] or not kdes[i] * reach[i] <= 1.0:
+            acting[n] = i
+            n += 1
+    return n
+
+
+@helper(**NO_REFCOUNT)
+def grading_rows(kdes, rows, reach, acting):
+    """The ``rows`` (the active components) on which ``grade`` can lower a step, in order,
+    into acting[:n]; returns n. Grading lowers k_i only above max(GRADING k_j, 1 / |J_ij|)
+    for an active j, never below GRADING min_j k_j, so a row with k_i <= GRADING min_j k_j
+    or k_i <= 1 / reach_i (``tie_reach``) stays idle, and grade over the others changes the
+    same steps in the same order (floating-point products and quotients are monotone)."""
+    kmin = math.inf
+    for i in rows:
+        kmin = min(kmin, kdes[i])
+    n = 0
+    for i in rows:
+        if not (kdes[i] <= GRADING * kmin or kdes[i] <= 1.0 / reach[i]):
+            acting[n] = i
+            n += 1
+    return n
+
+
 @helper(inline="always")
 def power(x, order):
     """x^order, by products for the integer orders 1..4 (the local orders q + 1 of q <= 3):

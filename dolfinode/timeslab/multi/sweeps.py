@@ -323,12 +323,13 @@ def guess_from(x, comp, ea, eb, values, cptr, celems, ocptr, ocelems, oea, oeb, 
 
 
 @helper(**NO_REFCOUNT)
-def synchronised(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, comp, ne, values,
-                 fend, X, F, G, w, fvec, counters):
+def synchronised(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, guessed, comp, ne,
+                 values, fend, X, F, G, w, fvec, counters):
     """Solve a slab whose ne = N elements all lie on [t, t + k] as one mono-adaptive slab:
     the stages X_s = x + k (b0_s f(x, t) + sum_m A_sm f(X_m, t + tau_m k)) by the mono loop's
     fixed-point iteration (:func:`dolfinode.solvers.slab.fixed_point`) with the whole
-    system's f, from the elements' initial values; with every step equal the element
+    system's f, from the elements' initial values (from X itself when ``guessed``:
+    ``slab.guess_stages``); with every step equal the element
     equations xi = x_left + k M^{-1} m(xi) are these equations, so the solution is cG(q)'s
     or dG(q)'s, at the cost of the mono loop's f evaluations instead of one component
     kernel call, with its dependencies gathered, per component and node. ``f0`` = f(x, t),
@@ -338,7 +339,7 @@ def synchronised(f, p, x, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, comp
     N = x.shape[0]
     S = A.shape[0]
     first_stage = values.shape[1] - S
-    for e in range(ne):
+    for e in range(ne if not guessed else 0):
         i = comp[e]
         for s in range(S):
             X[s * N + i] = values[e, first_stage + s]
