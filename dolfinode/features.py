@@ -87,16 +87,15 @@ def narrow_features(ode):
     unchanged (a new parameter value in ``Solver.solve(params=...)`` searches anew)."""
     if hasattr(ode, "templates") or ode.autonomous:  # (templates: no sympy rhs to read)
         return NONE
-    terms = ode._derived("_t_terms", ode.rhs, lambda: _t_terms(ode))
-    used = sorted(set().union(*(h.free_symbols for h in terms)) - {time_symbol}, key=str)
+    terms, used = ode._derived("_t_terms", ode.rhs, lambda: _t_terms(ode))
     key = (ode.rhs, ode.t0, ode.T, tuple(ode.params[s] for s in used))
     return ode._derived("_features", key, lambda: _search(terms, ode.params, ode.t0, ode.T))
 
 
 def _t_terms(ode):
-    """The largest sub-expressions of the right-hand sides that depend on t and not on the
-    states, sums taken term by term, without non-smooth functions (their jumps are
-    breakpoints)."""
+    """(terms, parameters in them): the largest sub-expressions of the right-hand sides
+    that depend on t and not on the states, sums taken term by term, without non-smooth
+    functions (their jumps are breakpoints)."""
     from dolfinode.events import NON_SMOOTH
 
     states, seen, terms = set(ode.states), {}, set()
@@ -122,16 +121,17 @@ def _t_terms(ode):
         on_t, on_state = depends(expr)
         if on_t and not on_state:
             terms.update(h for h in sp.Add.make_args(expr) if h.has(time_symbol))
-    return sorted((h for h in terms if not h.has(*NON_SMOOTH, sp.Rel)), key=sp.default_sort_key)
+    terms = sorted((h for h in terms if not h.has(*NON_SMOOTH, sp.Rel)), key=sp.default_sort_key)
+    return terms, sorted(set().union(*(h.free_symbols for h in terms)) - {time_symbol}, key=str)
 
 
 def _search(terms, params, t0, T):
     """:func:`narrow_features` of the ``terms`` with the parameter values ``params``."""
     found, unbounded = [], []
     for h in terms:
-        h = h.xreplace({s: sp.Float(v) for s, v in params.items()})
         try:
-            found += _features(h, t0, T)
+            with np.errstate(all="ignore"):
+                found += _features(h, t0, T, dict(params.items()))
         except Unbounded:
             unbounded.append(h)
     start, end, step = np.array(sorted(found), dtype=float).reshape(-1, 3).T.copy()
@@ -144,21 +144,20 @@ def _search(terms, params, t0, T):
     return Features(start[keep], end[keep], step[keep], unbounded)
 
 
-def _features(h, t0, T):
-    """[(a, b, largest step)] of the features of one term h(t) (module docstring)."""
+def _features(h, t0, T, values):
+    """[(a, b, largest step)] of the features of one term h(t) with the parameter
+    ``values`` (module docstring)."""
     span = T - t0
-    left, right = np.linspace(t0, T, GRID + 1)[:-1], np.linspace(t0, T, GRID + 1)[1:]
-    right[-1] = T
-    values = enclose(h, np.array([t0, T]), np.array([t0, T]))[0]
-    low, high = float(np.min(values)), float(np.max(values))
-    done, evaluated = [], 0
+    grid = np.linspace(t0, T, GRID + 1)
+    left, right = grid[:-1], grid[1:]
+    low, high, done, evaluated = np.inf, -np.inf, [], 0
     while left.size:
         evaluated += left.size
         if evaluated > BUDGET:
             return []  # varies everywhere at this resolution
-        lo, hi = enclose(h, left, right)
+        lo, hi = _enclose(h, left, right, values)
         mid = 0.5 * (left + right)
-        at_mid = enclose(h, mid, mid)[0]
+        at_mid = _enclose(h, mid, mid, values)[0]
         finite = at_mid[np.isfinite(at_mid)]
         if finite.size:
             low, high = min(low, float(np.min(finite))), max(high, float(np.max(finite)))
@@ -207,12 +206,13 @@ class Unbounded(ValueError):
     """A function :func:`enclose` has no bounds for."""
 
 
-def enclose(expr, lo, hi):
+def enclose(expr, lo, hi, values=None):
     """Bounds (low, high) of expr(t) for t in [lo_i, hi_i] (arrays), by interval arithmetic
     on the sympy tree: sums and products of the bounds of the arguments, powers, and the
     monotone or periodic elementary functions (exp, log, sin, cos, tan, cosh and the
     monotone ones: sinh, tanh, asin, acos, atan, asinh, acosh, atanh, erf, erfc). The bounds hold for every t in the piece (up to rounding) and are tight as the
-    piece shrinks, except where the same subexpression enters twice (t - t).
+    piece shrinks, except where the same subexpression enters twice (t - t). ``values``:
+    the values of the other symbols (parameters).
 
     Raises
     ------
@@ -220,49 +220,54 @@ def enclose(expr, lo, hi):
         For a function it has no bounds for.
     """
     with np.errstate(all="ignore"):
-        return _enclose(expr, lo, hi)
+        return _enclose(expr, lo, hi, values or {})
 
 
-def _enclose(e, lo, hi):
+def _enclose(e, lo, hi, values):
     if e is time_symbol:
         return lo, hi
+    if e in values:
+        value = np.full(lo.shape, values[e])
+        return value, value
     if e.is_Number:
         value = np.full(lo.shape, float(e))
         return value, value
     if e.is_Add:
-        bounds = [_enclose(a, lo, hi) for a in e.args]
+        bounds = [_enclose(a, lo, hi, values) for a in e.args]
         return sum(b[0] for b in bounds), sum(b[1] for b in bounds)
     if e.is_Mul:
-        a, b = _enclose(e.args[0], lo, hi)
+        a, b = _enclose(e.args[0], lo, hi, values)
         for arg in e.args[1:]:
-            c, d = _enclose(arg, lo, hi)
-            products = np.nan_to_num(np.array([a * c, a * d, b * c, b * d]), nan=0.0)
-            a, b = products.min(axis=0), products.max(axis=0)
+            c, d = _enclose(arg, lo, hi, values)
+            # (fmin, fmax: a product 0 x inf, NaN, is left out)
+            ac, ad, bc, bd = a * c, a * d, b * c, b * d
+            a, b = (np.fmin(np.fmin(ac, ad), np.fmin(bc, bd)),
+                    np.fmax(np.fmax(ac, ad), np.fmax(bc, bd)))
         return a, b
     if e.is_Pow:
-        return _power(e, lo, hi)
+        return _power(e, lo, hi, values)
     if isinstance(e, sp.exp):
-        a, b = _enclose(e.args[0], lo, hi)
+        a, b = _enclose(e.args[0], lo, hi, values)
         return np.exp(a), np.exp(b)
     if isinstance(e, sp.log):
-        a, b = _enclose(e.args[0], lo, hi)
+        a, b = _enclose(e.args[0], lo, hi, values)
         return np.where(a > 0, np.log(a), -np.inf), np.log(b)
     if isinstance(e, (sp.sin, sp.cos)):
-        a, b = _enclose(e.args[0], lo, hi)
+        a, b = _enclose(e.args[0], lo, hi, values)
         shift = 0.5 * np.pi if isinstance(e, sp.cos) else 0.0
         return _sine(a + shift, b + shift)
     if type(e) in _INCREASING:
-        a, b = _enclose(e.args[0], lo, hi)
+        a, b = _enclose(e.args[0], lo, hi, values)
         return _INCREASING[type(e)](a), _INCREASING[type(e)](b)
     if type(e) in _DECREASING:
-        a, b = _enclose(e.args[0], lo, hi)
+        a, b = _enclose(e.args[0], lo, hi, values)
         return _DECREASING[type(e)](b), _DECREASING[type(e)](a)
     if isinstance(e, sp.tan):
-        a, b = _enclose(e.args[0], lo, hi)
+        a, b = _enclose(e.args[0], lo, hi, values)
         pole = np.ceil((a - 0.5 * np.pi) / np.pi) * np.pi + 0.5 * np.pi <= b
         return np.where(pole, -np.inf, np.tan(a)), np.where(pole, np.inf, np.tan(b))
     if isinstance(e, sp.cosh):
-        a, b = _enclose(e.args[0], lo, hi)
+        a, b = _enclose(e.args[0], lo, hi, values)
         small = np.where((a <= 0) & (b >= 0), 0.0, np.minimum(abs(a), abs(b)))
         return np.cosh(small), np.cosh(np.maximum(abs(a), abs(b)))
     raise Unbounded(f"no interval bounds for {type(e).__name__}")
@@ -274,12 +279,12 @@ _INCREASING = {sp.tanh: np.tanh, sp.atan: np.arctan, sp.sinh: np.sinh, sp.asinh:
 _DECREASING = {sp.erfc: special.erfc, sp.acos: np.arccos}
 
 
-def _power(e, lo, hi):
+def _power(e, lo, hi, values):
     """Bounds of base^exponent: integer exponents of any base, others of a positive base."""
     base, exponent = e.args
     if not exponent.is_Number:
-        return _enclose(sp.exp(exponent * sp.log(base)), lo, hi)
-    a, b = _enclose(base, lo, hi)
+        return _enclose(sp.exp(exponent * sp.log(base)), lo, hi, values)
+    a, b = _enclose(base, lo, hi, values)
     p = float(exponent)
     if exponent.is_Integer and p > 0:
         if int(p) % 2:
@@ -287,7 +292,7 @@ def _power(e, lo, hi):
         small = np.where((a <= 0) & (b >= 0), 0.0, np.minimum(abs(a), abs(b)))
         return small**p, np.maximum(abs(a), abs(b))**p
     if exponent.is_Integer:
-        c, d = _power(sp.Pow(base, -exponent, evaluate=False), lo, hi)
+        c, d = _power(sp.Pow(base, -exponent, evaluate=False), lo, hi, values)
         across = (c <= 0) & (d >= 0)
         return np.where(across, -np.inf, 1 / d), np.where(across, np.inf, 1 / c)
     a = np.where(a < 0, np.nan, a)  # (outside the domain: no bound)
