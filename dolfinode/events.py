@@ -336,6 +336,9 @@ class Plan:
     t_switches: Detector
 
     features: Features
+    #: Whether f has jumps or there are events or given breakpoints (else the plan only
+    #: splits a smooth f around its narrow features).
+    watched: bool = True
 
     @classmethod
     def make(cls, ode, switches, given_breakpoints, events):
@@ -353,7 +356,8 @@ class Plan:
             "_plan", key, lambda: cls._parts(ode, switches, given_breakpoints, events))
         if not (switches or events or times.size):
             return None
-        return cls(switches, times, events, on_state, detector, t_detector, features)
+        return cls(switches, times, events, on_state, detector, t_detector, features,
+                   bool(switches or events or given_breakpoints is not None))
 
     @staticmethod
     def _parts(ode, switches, given_breakpoints, events):

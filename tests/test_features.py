@@ -154,3 +154,15 @@ def test_enclosure_holds_the_values(expr):
         assert np.all(samples[finite] <= high[finite, None] + rounding)
         widths.append(np.median(high - low))
     assert widths[2] < widths[1] < widths[0]
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "dG(1)", "mcG(2)"])
+def test_global_error_estimate_across_features(method):
+    """The breakpoints of a feature split a smooth f: the estimate of the error at T holds
+    across them (u(T) against the closed form, in the tolerance's scale 1 + |u(T)|)."""
+    pulse, integral = _gauss(20.0, 6.0, 0.05)
+    ode = dn.ODE({u: pulse, v: -v}, u0=[0.0, 1.0], T=T)
+    sol = dn.solve(ode, method=method, tolerance=1e-5, estimate_global_error=True)
+    assert sol.stats["narrow features"] == 1
+    error = abs(sol.y[0, -1] - integral) / (1 + integral)
+    assert 0.5 <= sol.stats["global error estimate"] / error <= 2
