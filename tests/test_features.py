@@ -166,3 +166,15 @@ def test_global_error_estimate_across_features(method):
     assert sol.stats["narrow features"] == 1
     error = abs(sol.y[0, -1] - integral) / (1 + integral)
     assert 0.5 <= sol.stats["global error estimate"] / error <= 2
+
+
+def test_kept_solver_sees_a_narrowed_pulse():
+    """dn.solve keeps a prepared solver for repeated calls (dolfinode/kept.py): a pulse
+    narrowed by a new parameter value on the declaration is found at the next call."""
+    w = sp.Symbol("w")
+    ode = dn.ODE({u: sp.exp(-((t - 6) / w) ** 2), v: -v}, u0=[0.0, 1.0], T=T, params={w: 1.0})
+    for width in (1.0, 1.0, 1.0, 1e-4):
+        ode.params[w] = width
+        sol = dn.solve(ode, method="dG(1)", tolerance=1e-4)
+    assert sol.stats["narrow features"] == 1
+    assert abs(sol.y[0, -1] - 1e-4 * math.sqrt(math.pi)) <= 10 * 1e-4
