@@ -20,12 +20,13 @@ STEPS_ACROSS inside it.
 
 Guaranteed, up to the rounding of the bounds: every stretch of [t0, T] at least MIN_WIDTH
 (T - t0) long on which a smooth state-free term changes faster than FAST R / (T - t0) lies in
-a feature, unless the fast stretches of that term cover more than SPREAD of [t0, T] or are
-more than MAX_FEATURES (forcing that varies everywhere, as sin(omega t), which the step
-control sees at every step), or the term holds a function :func:`enclose` cannot bound (it is
-then listed in ``unbounded``). Terms with jumps (Piecewise, Heaviside, ...) are split at
+a feature, unless the fast stretches of that term cover more than SPREAD of [t0, T] (forcing
+that varies everywhere, as sin(omega t), which the step control sees at every step), or are
+more than MAX_FEATURES (a ToleranceWarning says so and names the term), or the term holds a
+function :func:`enclose` cannot bound (it is then listed in ``unbounded``). Terms with jumps (Piecewise, Heaviside, ...) are split at
 their breakpoints instead (:mod:`dolfinode.events`) and not searched for features.
 """
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -134,6 +135,14 @@ def _search(terms, params, t0, T):
                 found += _features(h, t0, T, dict(params.items()))
         except Unbounded:
             unbounded.append(h)
+        except Crowded as crowded:
+            from dolfinode.solve import _warn  # (solve imports this module)
+
+            count, width = crowded.args
+            _warn(f"the term {h} of f has {count} narrow features (pulses) on "
+                  f"[{t0:.6g}, {T:.6g}]: too many to split the solve at, so steps may jump "
+                  f"over them; give maximum_time_step below their width (the narrowest fast "
+                  f"stretch is {width:.3g} long)")
     start, end, step = np.array(sorted(found), dtype=float).reshape(-1, 3).T.copy()
     # overlapping features (of different terms) as one, with the smaller step
     keep = np.ones(start.size, dtype=bool)
@@ -153,8 +162,10 @@ def _features(h, t0, T, values):
     low, high, done, evaluated = np.inf, -np.inf, [], 0
     while left.size:
         evaluated += left.size
-        if evaluated > BUDGET:
-            return []  # varies everywhere at this resolution
+        if evaluated > BUDGET:  # fast over most of [t0, T], or many narrow pulses
+            if np.sum(right - left) > SPREAD * span:
+                return []
+            raise Crowded(f"more than {MAX_FEATURES}", float(np.min(right - left)))
         lo, hi = _enclose(h, left, right, values)
         mid = 0.5 * (left + right)
         at_mid = _enclose(h, mid, mid, values)[0]
@@ -177,26 +188,28 @@ def _features(h, t0, T, values):
         return []
     stretches = _stretches(left[fast], right[fast])
     widths = np.array([b - a for a, b in stretches])
-    if widths.sum() > SPREAD * span or len(stretches) > MAX_FEATURES:
+    if widths.sum() > SPREAD * span:
         return []
+    if len(stretches) > MAX_FEATURES:
+        raise Crowded(str(len(stretches)), float(np.min(widths)))
     return [(max(t0, a - w), min(T, b + w), w / STEPS_ACROSS)
             for (a, b), w in zip(stretches, widths)]
 
 
 def _stretches(left, right):
     """The pieces [left_i, right_i] (sorted) joined where they touch, then across gaps
-    shorter than the wider of the two neighbours: [(a, b)]."""
+    shorter than the wider of the two neighbouring runs of pieces: [(a, b)]."""
     joined = [[left[0], right[0]]]
     for a, b in zip(left[1:], right[1:]):
         if a <= joined[-1][1]:
             joined[-1][1] = b
         else:
             joined.append([a, b])
-    merged = [joined[0]]
-    for a, b in joined[1:]:
-        last = merged[-1]
-        if a - last[1] < max(last[1] - last[0], b - a):
-            last[1] = b
+    merged = [list(joined[0])]
+    for (c, d), (a, b) in itertools.pairwise(joined):
+        # (the neighbours' own widths: a merged stretch growing would join a whole train)
+        if a - d < max(d - c, b - a):
+            merged[-1][1] = b
         else:
             merged.append([a, b])
     return [tuple(s) for s in merged]
@@ -204,6 +217,11 @@ def _stretches(left, right):
 
 class Unbounded(ValueError):
     """A function :func:`enclose` has no bounds for."""
+
+
+class Crowded(ValueError):
+    """A term with more than MAX_FEATURES narrow features: (how many, the narrowest
+    width)."""
 
 
 def enclose(expr, lo, hi, values=None):

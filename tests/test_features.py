@@ -178,3 +178,15 @@ def test_kept_solver_sees_a_narrowed_pulse():
         sol = dn.solve(ode, method="dG(1)", tolerance=1e-4)
     assert sol.stats["narrow features"] == 1
     assert abs(sol.y[0, -1] - 1e-4 * math.sqrt(math.pi)) <= 10 * 1e-4
+
+
+def test_a_train_of_many_pulses_warns():
+    """A term with more narrow pulses than MAX_FEATURES (317 spikes of width ~0.01 on
+    [0, 1000]) is not split at each: a ToleranceWarning names it and what to give."""
+    spikes = sp.exp(-1e4 * sp.sin(t) ** 2)
+    ode = dn.ODE({u: -u + spikes}, u0=[1.0], T=1000.0)
+    with pytest.warns(dn.ToleranceWarning, match="317 narrow features.*maximum_time_step"):
+        features = narrow_features(ode)
+    assert len(features) == 0
+    # on [0, 100] the same term has 32 of them, each a feature
+    assert len(narrow_features(dn.ODE({u: -u + spikes}, u0=[1.0], T=100.0))) == 32
