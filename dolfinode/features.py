@@ -242,9 +242,9 @@ def enclose(expr, lo, hi, values=None):
 
 
 def _enclose(e, lo, hi, values):
-    if e is time_symbol:
-        return lo, hi
-    if e in values:
+    if e.is_Symbol:  # (t by value: a cleared sympy cache makes a second t object)
+        if e == time_symbol:
+            return lo, hi
         value = np.full(lo.shape, values[e])
         return value, value
     if e.is_Number:

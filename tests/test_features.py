@@ -190,3 +190,15 @@ def test_a_train_of_many_pulses_warns():
     assert len(features) == 0
     # on [0, 100] the same term has 32 of them, each a feature
     assert len(narrow_features(dn.ODE({u: -u + spikes}, u0=[1.0], T=100.0))) == 32
+
+
+def test_time_symbol_compared_by_value():
+    """sympy's symbol cache is bounded: after many expressions, Symbol("t", real=True) can be
+    a second object equal to dn.t. The search reads t by value."""
+    fresh = sp.Symbol.__xnew__(sp.Symbol, "t", real=True)
+    assert fresh == t and fresh is not t
+    pulse = sp.exp(-((fresh - 6) / 1e-4) ** 2)
+    ode = dn.ODE({u: -u + pulse}, u0=[1.0], T=T)
+    assert len(narrow_features(ode)) == 1
+    low, high = enclose(pulse, np.array([5.9]), np.array([6.1]))
+    assert low[0] <= 0.0 and high[0] == 1.0
