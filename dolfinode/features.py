@@ -245,6 +245,8 @@ def _enclose(e, lo, hi, values):
     if e.is_Symbol:  # (t by value: a cleared sympy cache makes a second t object)
         if e == time_symbol:
             return lo, hi
+        if e not in values:
+            raise Unbounded(f"no value for {e}")
         value = np.full(lo.shape, values[e])
         return value, value
     if e.is_Number:
