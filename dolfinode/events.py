@@ -27,6 +27,7 @@ import numpy as np
 import sympy as sp
 from scipy.optimize import brentq
 
+from dolfinode.features import Features, narrow_features
 from dolfinode.ode import ODE
 from dolfinode.ode import t as time_symbol
 from dolfinode.timeslab import smallest_step
@@ -334,10 +335,16 @@ class Plan:
     detector: Detector
     t_switches: Detector
 
+    features: Features
+    #: Whether f has jumps or there are events or given breakpoints (else the plan only
+    #: splits a smooth f around its narrow features).
+    watched: bool = True
+
     @classmethod
     def make(cls, ode, switches, given_breakpoints, events):
         """The plan of a solve, or None when there is nothing to watch (the plain loop)."""
-        if not (switches or events or given_breakpoints is not None):
+        features = narrow_features(ode)
+        if not (switches or events or given_breakpoints is not None or len(features)):
             return None
         events = events or []
         # made once per declaration, parameter values, interval and events (sympy's solveset
@@ -349,13 +356,15 @@ class Plan:
             "_plan", key, lambda: cls._parts(ode, switches, given_breakpoints, events))
         if not (switches or events or times.size):
             return None
-        return cls(switches, times, events, on_state, detector, t_detector)
+        return cls(switches, times, events, on_state, detector, t_detector, features,
+                   bool(switches or events or given_breakpoints is not None))
 
     @staticmethod
     def _parts(ode, switches, given_breakpoints, events):
         """The breakpoints, the switches on the state and the two detectors of a plan."""
-        times = breakpoints(ode, switches, [] if given_breakpoints is None
-                            else given_breakpoints)
+        times = breakpoints(ode, switches, [*([] if given_breakpoints is None
+                                              else given_breakpoints),
+                                            *narrow_features(ode).edges()])
         t_only = [s for s in switches if not (_numeric(s.g, ode).free_symbols - {time_symbol})]
         on_state = [s for s in switches if not any(s is o for o in t_only)]
         detector = Detector(ode, [e.g for e in events] + [s.g for s in on_state],
@@ -386,6 +395,7 @@ class Plan:
     def report(self, sol):
         """Set sol.t_events, sol.y_events (per event, as solve_ivp), status and message."""
         sol.stats["breakpoints"] = self.breakpoints.size
+        sol.stats["narrow features"] = len(self.features)
         sol.stats["state switches"] = self.switched
         if self.events:
             a, b, which = (np.concatenate(x) for x in zip((np.empty(0), np.empty(0),
@@ -478,8 +488,10 @@ def march(plan, loop, t0, T):
     sigma = loop.sigma()
     plan.detector.start(t0, loop.x)
     elements, recent = [], []
+    kmax = float(loop.options["kmax"][0])
     for end in [*plan.breakpoints, T]:
         plan.branches(sigma, loop.t(), end)
+        loop.options["kmax"] = min(kmax, plan.features.step_bound(loop.t(), end))
         loop.restart(sigma)
         while loop.t() < end:
             for status, chunk in loop.chunks(end):

@@ -432,7 +432,8 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
     (:meth:`dolfinode.events.Plan.unresolved_switch_step`), is solved again with a step
     bound from the crossings seen, at most _SWITCH_RETRIES times, else SolverError."""
     given = params["maximum_time_step"]
-    if params["estimate_global_error"] is True and plan is not None:
+    smooth = plan is None or not plan.watched  # (f smooth: the error estimate holds)
+    if params["estimate_global_error"] is True and not smooth:
         raise ValueError("estimate_global_error is for solves without events, breakpoints or "
                          "switches in f")
     for _ in range(_SWITCH_RETRIES + 1):
@@ -441,7 +442,7 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
         if step is None:
             if params["maximum_time_step"] != given:
                 sol.stats["switch step bound"] = params["maximum_time_step"]
-            if plan is None and params["estimate_global_error"] is not False:
+            if smooth and params["estimate_global_error"] is not False:
                 estimate_global_error(ode, compiled, m, params, sol,
                                       longest_run(sol, multi_adaptive))
             return sol

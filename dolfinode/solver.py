@@ -30,6 +30,7 @@ import numpy as np
 
 from dolfinode import timeslab as ts
 from dolfinode.ensemble import parameter_symbol
+from dolfinode.features import narrow_features
 from dolfinode.io import history
 from dolfinode.linalg.newton_matrix import sparse_candidate
 from dolfinode.methods import parse_method
@@ -177,7 +178,7 @@ class Solver:
         work = self._declaration(u0, params, T, t0)
         if self._params["automatic_modeling"]:  # a driver over many solves
             return solve(work._snapshot(), self.method, **self.parameters)
-        if self._buffers is not None:
+        if self._buffers is not None and not narrow_features(work):
             sol = self._solve_prepared(work)
             if sol is not None:
                 return sol
