@@ -25,8 +25,8 @@ Usage::
     python benchmarks/run_tolerance.py --global-error [--problems out-of-sample]
 
 Runs use the default ``estimate_global_error="auto"`` (the estimate of
-:mod:`dolfinode.global_error`, which warns above 10 x the tolerance, for runs of at least 100
-slabs of small systems); ``--global-error`` solves every run with ``estimate_global_error=True``.
+:mod:`dolfinode.global_error`, which warns above 10 x the tolerance, for runs of more than
+one slab of small systems); ``--global-error`` solves every run with ``estimate_global_error=True``.
 The summary counts the runs within the band that warned (false alarms) besides those above it
 without a warning.
 """

@@ -28,6 +28,7 @@ that is the nonlinearity nu = max_n |f(U_n - e_n) - f(U_n) + J_n e_n| / |J_n e_n
 slabs' ends (0 for linear systems); where nu > NONLINEAR_LIMIT the estimate is not trusted
 (a warning above 10 x then says that the error could not be estimated).
 """
+from functools import lru_cache
 from types import SimpleNamespace
 
 import numpy as np
@@ -67,6 +68,30 @@ def lagrange_matrices(nodes, x):
     return B, D
 
 
+@lru_cache(maxsize=32)
+def _collocation(s):
+    """(c, a): the nodes and Butcher matrix of the s-stage Radau IIA collocation (made once;
+    shared, never written)."""
+    c = radau_nodes(s)
+    return c, collocation_matrix(c)
+
+
+@lru_cache(maxsize=64)
+def _basis(nodes, x):
+    """:func:`lagrange_matrices` (B, D) of the basis on the tuple ``nodes`` at the tuple
+    ``x``, made once per method (shared, never written)."""
+    return lagrange_matrices(nodes, x)
+
+
+@lru_cache(maxsize=32)
+def _stage_modes(s):
+    """(mu, T, ones, forcing) of :func:`_modal`: a = T diag(mu) T^-1 for the s-stage
+    collocation matrix a, ones = T^-1 1 and forcing = T^-1 a."""
+    a = _collocation(s)[1]
+    mu, T = np.linalg.eig(a)
+    return mu, T, np.linalg.solve(T, np.ones(len(mu))), np.linalg.inv(T) @ a
+
+
 def _evaluators(compiled):
     """f(t, U) and J(t, U) (dense) for U of shape (P, N), through the compiled kernels."""
     N = compiled.N
@@ -102,15 +127,15 @@ def _constant_jacobian(ode, compiled):
 def _residual(sol, f, nodes_at, part):
     """R = U' - f(t, U) of the slabs ``part`` (a slice) at the relative points ``nodes_at``:
     (M, len, N); and their jumps U(t_n^+) - U(t_n^-): (M, N)."""
-    nodes = np.asarray(sol.method.nodes, dtype=float)
+    nodes = tuple(float(x) for x in sol.method.nodes)
     vals, k, t0 = sol.values[part], sol.k[part], sol.t_start[part]
     M, _, N = vals.shape
-    B, D = lagrange_matrices(nodes, nodes_at)
+    B, D = _basis(nodes, tuple(nodes_at))
     U = np.einsum("ij,mjn->min", B, vals)
     dU = np.einsum("ij,mjn->min", D, vals) / k[:, None, None]
     t = (t0[:, None] + nodes_at[None, :] * k[:, None]).ravel()
     R = dU - f(t, U.reshape(-1, N)).reshape(M, len(nodes_at), N)
-    start = lagrange_matrices(nodes, [0.0])[0][0] @ vals  # (M, N)
+    start = _basis(nodes, (0.0,))[0][0] @ vals  # (M, N)
     first = part.start or 0
     previous = (np.asarray(sol.ode.u0, dtype=float) if first == 0
                 else sol.values[first - 1, -1, :])
@@ -118,14 +143,12 @@ def _residual(sol, f, nodes_at, part):
     return R, start - before
 
 
-def _modal(sol, f, lam, V, c, a, chunk=4096):
+def _modal(sol, f, lam, V, c, chunk=4096):
     """The recursion in the eigenbasis (lam, V) of a constant J, where each slab's stage
     system is scalar per mode z = k lambda: with a = T diag(mu) T^{-1}, the last stage of
     (I - z a)^{-1} x is T[-1] diag(1 / (1 - z mu)) T^{-1} x, for ``chunk`` slabs at once."""
     Vi = np.linalg.inv(V)
-    mu, T = np.linalg.eig(a)
-    ones = np.linalg.solve(T, np.ones(len(mu)))
-    forcing = np.linalg.inv(T) @ a
+    mu, T, ones, forcing = _stage_modes(len(c))
     e = np.zeros(len(lam), dtype=complex)
     for lo in range(0, len(sol.k), chunk):
         part = slice(lo, min(lo + chunk, len(sol.k)))
@@ -313,8 +336,7 @@ def estimate(sol, compiled=None):
     if sol._component_ptr is not None:
         sol = _common_slabs(sol)
     compiled = lower(sol.ode) if compiled is None else compiled
-    c = radau_nodes(sol.method.q + 2)
-    a = collocation_matrix(c)
+    c, a = _collocation(sol.method.q + 2)
     position, kl, ku = stage_band(compiled, len(c))
     rows = len(c) * compiled.N
     if not banded(rows, kl, ku):
@@ -323,12 +345,12 @@ def estimate(sol, compiled=None):
             f, J = _evaluators(compiled)
             lam, V = np.linalg.eig(J(sol.t_start[:1], sol.values[:1, -1, :])[0])
             if np.linalg.cond(V) < MODAL_CONDITION:
-                return _modal(sol, f, lam, V, c, a), 0.0
+                return _modal(sol, f, lam, V, c), 0.0
         if compiled.N > MAX_DENSE:
             raise ValueError(f"the global error estimate of a system whose Jacobian has no "
                              f"narrow band is dense (unless linear with a well-conditioned "
                              f"eigenbasis): at most {MAX_DENSE} components, got {compiled.N}")
-    B, D = lagrange_matrices(sol.method.nodes, np.concatenate([[0.0], c]))
+    B, D = _basis(tuple(float(x) for x in sol.method.nodes), (0.0, *c))
     return _recursion(compiled.rhs.address, compiled.jacobian.address, compiled.p,
                       compiled.indptr, compiled.indices, np.ascontiguousarray(sol.values),
                       sol.k, sol.t_start, np.asarray(sol.ode.u0, dtype=float), c, B, D, a,

@@ -282,10 +282,11 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md); it
         costs 0.4-8 x a small solve (a compiled pass over the slabs, one stage solve of
         (q + 2) N rows each, banded where J's band is narrow: 6-15 x a non-stiff chain's
-        solve). "auto" estimates runs of at least ``LONG_RUN`` (100) steps
-        of one component (slabs, or a multi-adaptive component's elements) whose stage
-        system has at most ``AUTO_ROWS`` (64) rows, where the steps' errors add up on long
-        undamped or drifting runs; other runs (and automatic modeling, events,
+        solve). "auto" estimates runs of more than one step of one component (slabs, or a
+        multi-adaptive component's elements) whose stage system has at most ``AUTO_ROWS``
+        (64) rows: the steps' errors add up on undamped or drifting runs (Kepler's orbit at
+        eccentricity 0.9 over one period, 22 slabs of dG(3) at 1e-3: 35 x the tolerance);
+        other runs (and automatic modeling, events,
         breakpoints, switches, method="auto" where it solves in stretches) are not estimated
         and have no such key. True estimates every run (a ValueError where it cannot), False
         none.
@@ -876,12 +877,13 @@ def _warn_undamped(ode, compiled, m, params, options, state, multi_adaptive=Fals
 
 
 #: With ``estimate_global_error="auto"`` (the default) the error at T is estimated for runs
-#: of at least LONG_RUN steps of one component, where the steps' errors can add up past the
-#: tolerance (undamped and drifting solutions: Kepler's orbit, a pendulum, 12-16,500 x
-#: unwarned without it), of systems whose stage system has at most AUTO_ROWS rows
-#: ((q + 2) N; its dense solve per slab then costs about what the slab's own solve does);
-#: True: every run, False: none.
-LONG_RUN = 100
+#: of at least SHORTEST_RUN steps of one component (a run of one step is its step's local
+#: error, which the step control bounds), where the steps' errors can add up past the
+#: tolerance (undamped and drifting solutions: Kepler's orbit, a pendulum, 12-25,000 x
+#: unwarned without it, from 13 steps on), of systems whose stage system has at most
+#: AUTO_ROWS rows ((q + 2) N; its dense solve per slab then costs about what the slab's
+#: own solve does); True: every run, False: none.
+SHORTEST_RUN = 2
 AUTO_ROWS = 64
 
 
@@ -897,11 +899,12 @@ def estimate_global_error(ode, compiled, m, params, sol, steps):
     """Estimate the error at T of ``sol`` (a solve of ``ode`` by the method ``m`` with
     ``params``, without events or switches, whose busiest component took ``steps`` steps,
     :func:`longest_run`) when ``params["estimate_global_error"]`` asks for it (True, or "auto"
-    for a long run of a small system: LONG_RUN, AUTO_ROWS), with its warning
+    for a run of more than one step of a small system: SHORTEST_RUN, AUTO_ROWS), with its
+    warning
     (:func:`_warn_global_error`)."""
     choice = params["estimate_global_error"]
     if choice == "auto":
-        choice = (steps >= LONG_RUN and (m.q + 2) * ode.N <= AUTO_ROWS and sol.success
+        choice = (steps >= SHORTEST_RUN and (m.q + 2) * ode.N <= AUTO_ROWS and sol.success
                   and params["dense_output"] is True)
     if choice:
         _warn_global_error(ode, compiled, params, sol)

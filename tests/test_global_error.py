@@ -6,6 +6,7 @@ import pytest
 import sympy as sp
 
 import dolfinode as dn
+from scipy.integrate import solve_ivp
 from dolfinode import global_error
 from dolfinode.bench import problems
 from dolfinode.compile import lower
@@ -156,8 +157,8 @@ def test_by_default_long_runs_of_small_systems_are_estimated_and_warned():
     the tolerance (measured 53-680 x over cG(2), dG(2), mcG(2), mdG(2) at 1e-3 and 1e-6,
     unwarned when the estimate was opt-in); by default it is estimated and warned, the same
     through a Solver's prepared path and method="auto" (which solves a system this small in
-    one piece); a run of fewer than LONG_RUN slabs, a stage system of more than AUTO_ROWS rows
-    and events are not estimated and do not fail."""
+    one piece); a run of one slab, a stage system of more than AUTO_ROWS rows and events
+    are not estimated and do not fail."""
     ode = _pendulum(100.0)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", dn.ToleranceWarning)
@@ -165,18 +166,45 @@ def test_by_default_long_runs_of_small_systems_are_estimated_and_warned():
         prepared = dn.Solver(ode, method="dG(2)", tolerance=1e-3).solve()
         auto = dn.solve(ode, method="auto", tolerance=1e-3)
     assert "global error estimate" in auto.stats
-    assert sol.stats["time slabs"] >= dn.solve.__globals__["LONG_RUN"]
     assert sol.stats["global error estimate"] > 10 * 1e-3
     assert prepared.stats["global error estimate"] == sol.stats["global error estimate"]
     assert sum("estimated error at T" in str(w.message) for w in caught) == 3
-    short = dn.solve(_pendulum(1.0), method="dG(2)", tolerance=1e-3)
-    assert short.stats["time slabs"] < dn.solve.__globals__["LONG_RUN"]
+    short = dn.solve(_pendulum(1e-3), method="dG(2)", tolerance=1e-3)
+    assert short.stats["time slabs"] < dn.solve.__globals__["SHORTEST_RUN"]
     for sol in (short, dn.solve(ode, method="dG(2)", tolerance=1e-3, events=[ode.states[0]])):
         assert "global error estimate" not in sol.stats
     chain = problems.mass_spring_chain()  # 100 components: 400 stage rows for cG(2)
     assert (2 + 2) * chain.ode.N > dn.solve.__globals__["AUTO_ROWS"]
     assert "global error estimate" not in dn.solve(chain.ode, method="cG(2)",
                                                    tolerance=1e-3).stats
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(2)", "dG(3)"])
+def test_by_default_a_short_run_whose_error_grows_is_estimated_and_warned(method):
+    """Kepler's orbit at eccentricity 0.9 over one period at 1e-3 (22-46 slabs): the slabs
+    through the pericentre leave errors that grow along the orbit to 35-420 x the tolerance
+    at T (measured against DOP853 at 1e-13), unwarned when only runs of 100 slabs and more
+    were estimated; a short run is estimated by default too, within 1.5 x the error."""
+    q1, q2, p1, p2 = sp.symbols("q1 q2 p1 p2")
+    r3 = (q1**2 + q2**2) ** sp.Rational(3, 2)
+    e, T = 0.9, 2 * np.pi
+    u0 = [1 - e, 0.0, 0.0, np.sqrt((1 + e) / (1 - e))]
+    ode = dn.ODE({q1: p1, q2: p2, p1: -q1 / r3, p2: -q2 / r3}, u0=u0, T=T)
+
+    def f(t, y):
+        r = (y[0] ** 2 + y[1] ** 2) ** 1.5
+        return [y[2], y[3], -y[0] / r, -y[1] / r]
+
+    u = solve_ivp(f, (0.0, T), u0, method="DOP853", rtol=1e-13, atol=1e-14).y[:, -1]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", dn.ToleranceWarning)
+        sol = dn.solve(ode, method, tolerance=1e-3)
+    error = np.max(np.abs(sol(T) - u) / (1e-3 + 1e-3 * np.abs(u)))
+    estimate = sol.stats["global error estimate"] / 1e-3
+    assert sol.stats["time slabs"] < 100
+    assert error > 10
+    assert estimate == pytest.approx(error, rel=0.5)
+    assert any("estimated error at T" in str(w.message) for w in caught)
 
 
 def test_an_estimate_that_is_not_finite_warns_that_it_could_not_estimate():
