@@ -4,9 +4,9 @@ import warnings
 import numpy as np
 import pytest
 import sympy as sp
+from scipy.integrate import solve_ivp
 
 import dolfinode as dn
-from scipy.integrate import solve_ivp
 from dolfinode import global_error
 from dolfinode.bench import problems
 from dolfinode.compile import lower
