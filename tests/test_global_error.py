@@ -3,6 +3,7 @@ import warnings
 
 import numpy as np
 import pytest
+import scipy.linalg
 import sympy as sp
 from scipy.integrate import solve_ivp
 
@@ -204,6 +205,29 @@ def test_by_default_a_short_run_whose_error_grows_is_estimated_and_warned(method
     assert sol.stats["time slabs"] < 100
     assert error > 10
     assert estimate == pytest.approx(error, rel=0.5)
+    assert any("estimated error at T" in str(w.message) for w in caught)
+
+
+@pytest.mark.parametrize("method", ["dG(2)", "dG(3)", "mdG(2)"])
+def test_a_weakly_damped_oscillation_stepped_over_by_dg_is_estimated(method):
+    """An oscillation of frequency 1000 decaying at rate 0.05, coupled to one of frequency
+    1: dG(q) steps over the fast one (its steps follow the slow one) and, L-stable, damps
+    it away, 37 x the tolerance at T. The estimate with the collocation's own flow damped
+    it too (0.004-0.4 x, unwarned); the exact flow of each mode carries it: 1.5 x."""
+    A = np.array([[-0.05, 1000.0, 0.3, 0.0], [-1000.0, -0.05, 0.0, 0.0],
+                  [0.0, 0.3, -0.05, 1.0], [0.0, 0.0, -1.0, -0.05]])
+    ys = sp.symbols("y0:4")
+    u0, T = [1.0, 0.0, 1.0, 0.0], 10.0
+    ode = dn.ODE({ys[i]: sum(A[i, j] * ys[j] for j in range(4) if A[i, j]) for i in range(4)},
+                 u0, T=T)
+    exact = scipy.linalg.expm(A * T) @ u0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", dn.ToleranceWarning)
+        sol = dn.solve(ode, method, tolerance=1e-2)
+    error = np.max(np.abs(sol(T) - exact) / (1e-2 + 1e-2 * np.abs(exact)))
+    assert error > 10
+    assert sol.stats["global error estimate"] / 1e-2 == pytest.approx(error, rel=1.0)
+    assert sol.stats["global error estimate"] / 1e-2 > error / 2
     assert any("estimated error at T" in str(w.message) for w in caught)
 
 
