@@ -362,6 +362,20 @@ def estimate(sol, compiled=None):
                       position, kl, ku)
 
 
+def measured_warning(size, linearised, nu, rtol, state, factor):
+    """The ToleranceWarning's message for an error at T ``size`` (as :func:`scaled`)
+    measured against a solve at ``factor`` x the tolerance ``rtol`` where the linearised
+    estimate (``linearised``) did not hold (nonlinearity ``nu``); None within WARN_FACTOR x
+    the tolerance."""
+    if size <= WARN_FACTOR * rtol:
+        return None
+    return (f"the error at T is {size / rtol:.3g} x the tolerance (largest in {state}; "
+            f"sol.stats['global error estimate'] = {size:.3g}), measured against a solve at "
+            f"{factor:g} x the tolerance (the linearised estimate, {linearised / rtol:.3g} x, "
+            f"does not hold along this run: sol.stats['global error nonlinearity'] = "
+            f"{nu:.3g}). Try a tighter tolerance, or dn.estimate_error with a goal")
+
+
 #: A solve with ``estimate_global_error=True`` warns when the estimate exceeds WARN_FACTOR
 #: times the tolerance (the tolerance record's band is 0.1-10 x).
 WARN_FACTOR = 10.0
