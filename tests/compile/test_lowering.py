@@ -193,6 +193,18 @@ def test_coefficients_sympy_folds_beyond_double_range():
                                    [[0, 0], [0, -2 * grow]], rtol=1e-11)
 
 
+def test_a_literal_zero_float_is_a_double():
+    """sympy >= 1.13 has Float(0.0) != 0: a literal 0.0 (a Piecewise branch, Max(x, 0.0))
+    is a zero, not a constant that underflowed."""
+    x, a = sp.symbols("x a")
+    ode = dn.ODE({x: sp.Piecewise((1.0, t > a), (0.0, True)) + sp.Max(x, 0.0)}, u0=[-1.0],
+                 T=1.0, params={a: 0.5})
+    assert any(c.is_Float and c.is_zero for c in ode.rhs[0].atoms(sp.Float))
+    compiled = lower(ode)
+    np.testing.assert_array_equal(compiled.f([-1.0], 0.2), [0.0])
+    np.testing.assert_array_equal(compiled.f([0.25], 0.7), [1.25])
+
+
 def test_a_constant_beyond_double_range_is_an_error():
     x = sp.Symbol("x")
     with pytest.raises(ValueError, match="beyond the range of double precision"):
