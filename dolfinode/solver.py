@@ -67,6 +67,7 @@ from dolfinode.solve import (
     run_started,
     solve,
     solve_lowered,
+    warn_growth_below_tolerance,
 )
 from dolfinode.timeslab import contract, mono, prepared
 from dolfinode.timeslab.start import READY, start
@@ -311,6 +312,8 @@ class Solver:
             self._u0, self._solved = work.u0, None
             if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
                 _check_resolvable_tolerance(work, atol, params["tolerance"])
+        if self._solved is None and not params["fixed_time_step"]:  # (u0 or values new)
+            warn_growth_below_tolerance(work, compiled, atol)
         x[:] = work.u0
         if params["initial_time_step"] is not None:
             steps[:] = given
