@@ -12,6 +12,7 @@ from collections.abc import Mapping, Sequence
 
 import sympy as sp
 
+from dolfinode.family import auto_base
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE
 from dolfinode.parameters import check_parameters
@@ -128,7 +129,7 @@ def solve_ensemble(ode, variations, executor=None, reduce=None, progress=False,
     if executor is not None and not callable(getattr(executor, "submit", None)):
         raise TypeError("executor must be a concurrent.futures.Executor or a "
                         f"dask.distributed.Client (something with submit), got {executor!r}")
-    parse_method(method)
+    parse_method(auto_base(method) or method)
     check_parameters(parameters)
     runs = [vary(ode, variation) for variation in variations]
     if executor is None:

@@ -33,6 +33,7 @@ import numpy as np
 import sympy as sp
 from scipy import special
 
+from dolfinode.compile.codegen import absorb_coefficient
 from dolfinode.ode import t as time_symbol
 
 #: A term is fast on a piece J where it varies by more than FAST R |J| / (T - t0).
@@ -256,6 +257,9 @@ def _enclose(e, lo, hi, values):
         bounds = [_enclose(a, lo, hi, values) for a in e.args]
         return sum(b[0] for b in bounds), sum(b[1] for b in bounds)
     if e.is_Mul:
+        absorbed = absorb_coefficient(e, sp.Float)
+        if absorbed is not e:
+            return _enclose(absorbed, lo, hi, values)
         a, b = _enclose(e.args[0], lo, hi, values)
         for arg in e.args[1:]:
             c, d = _enclose(arg, lo, hi, values)

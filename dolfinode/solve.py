@@ -88,6 +88,34 @@ def _check_resolvable_tolerance(ode, atol, rtol):
             f"{MIN_TOLERANCE * scale[i]:.3g} for it")
 
 
+def warn_growth_below_tolerance(ode, compiled, atol):
+    """A ToleranceWarning for a component that starts below its absolute tolerance,
+    0 < |u0_i| < atol_i, and grows past it by T at its initial rate
+    r_i = df_i/du_i(u0, t0) > 0: |u0_i| exp(r_i (T - t0)) > atol_i.
+
+    The step control measures errors against atol_i + rtol |U_i|, so while |U_i| < atol_i
+    its relative error is free, and so is when it grows: u' = u (1 - u) from u0 = 1e-12 ended
+    at u(35) = 0 instead of 1 with every method at tolerance 1e-3 and 1e-6 (10 steps), as did
+    an infection seeded at 1e-8 (SIR, T = 120), the error estimate at T included (it
+    linearises about the wrong solution). An atol_i below |u0_i| resolves them.
+    """
+    u0 = ode.u0
+    small = np.flatnonzero((np.abs(u0) < atol) & (u0 != 0.0))
+    if not small.size:
+        return
+    rate = compiled.jacobian_matrix(u0, ode.t0).diagonal()[small]
+    exponent = np.minimum(rate * (ode.T - ode.t0), 700.0)  # (exp overflows past 709)
+    grows = np.abs(u0[small]) * np.exp(exponent) > atol[small]
+    if grows.any():
+        i = int(small[grows][np.argmax(exponent[grows])])
+        _warn(f"u0 of {ode.states[i].name} ({u0[i]:.3g}) is below its absolute tolerance "
+              f"({atol[i]:.3g}), where the step control does not see its relative error, and "
+              f"it grows at the rate df/d{ode.states[i].name} = {rate[small == i][0]:.3g} "
+              f"(x {np.exp(exponent[small == i][0]):.3g} by T): when it grows is not "
+              f"controlled, and the solution may be wrong at any tolerance. Give "
+              f"absolute_tolerance below |u0| (e.g. {abs(u0[i]) * 1e-3:.1g}) for it")
+
+
 def _keeps_nonnegative(ode):
     """Whether f keeps every component >= 0 from u0 >= 0 (the exact solution stays in the
     nonnegative orthant): f_i >= 0 where u_i = 0 and the other components are >= 0, for every
@@ -503,6 +531,8 @@ def _start(ode, compiled, plan, multi_adaptive, m, params):
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
     if rtol < MIN_TOLERANCE and not params["fixed_time_step"]:  # (else atol + rtol |u0| is)
         _check_resolvable_tolerance(ode, atol, rtol)
+    if not params["fixed_time_step"]:
+        warn_growth_below_tolerance(ode, compiled, atol)
     x = ode.u0.copy()
     if plan is not None:
         sigma = compiled.p[len(ode.params):]  # (a view: the branches at t0 set in place)

@@ -30,6 +30,7 @@ import numpy as np
 
 from dolfinode import timeslab as ts
 from dolfinode.ensemble import parameter_symbol
+from dolfinode.family import auto_base
 from dolfinode.features import narrow_features
 from dolfinode.io import history
 from dolfinode.linalg.newton_matrix import sparse_candidate
@@ -66,6 +67,7 @@ from dolfinode.solve import (
     run_started,
     solve,
     solve_lowered,
+    warn_growth_below_tolerance,
 )
 from dolfinode.timeslab import contract, mono, prepared
 from dolfinode.timeslab.start import READY, start
@@ -81,7 +83,8 @@ class Solver:
     ----------
     ode : ODE or TemplateODE
     method : str
-        As for :func:`dolfinode.solve` ("cG(q)", "dG(q)", "mcG(q)", "mdG(q)").
+        As for :func:`dolfinode.solve` ("cG(q)", "dG(q)", "mcG(q)", "mdG(q)", "auto"; "auto"
+        chooses anew on every call, through :func:`dolfinode.solve`).
     **parameters
         As for :func:`dolfinode.solve` (DOLFIN's names); checked here, once.
 
@@ -113,7 +116,9 @@ class Solver:
         if "goal" in parameters:
             raise ValueError("Solver solves without a goal: for goal-oriented adaptivity "
                              "call dn.solve(ode, goal=...)")
-        self._multi_adaptive, self._method = parse_method(method)
+        base = auto_base(method)
+        self._auto = base is not None  # (pilot solves each call: no prepared path)
+        self._multi_adaptive, self._method = parse_method(base or method)
         self._params = check_parameters(parameters)
         check_tolerance(self._params)
         self.ode = ode
@@ -136,7 +141,7 @@ class Solver:
         self._work.__dict__.pop("_kept_solvers", None)  # (its solutions would keep them alive)
         self._buffers = self._interval = None
         if (plan is None and params["dense_output"] is True and not params["progress"]
-                and not params["automatic_modeling"]
+                and not params["automatic_modeling"] and not self._auto
                 and params["estimate_global_error"] is not True):
             m = self._method
             if self._multi_adaptive:  # (the loop's first buffers, as in _run_multi)
@@ -176,7 +181,7 @@ class Solver:
             As :func:`dolfinode.solve`.
         """
         work = self._declaration(u0, params, T, t0)
-        if self._params["automatic_modeling"]:  # a driver over many solves
+        if self._params["automatic_modeling"] or self._auto:  # a driver over many solves
             return solve(work._snapshot(), self.method, **self.parameters)
         if self._buffers is not None and not narrow_features(work):
             sol = self._solve_prepared(work)
@@ -307,6 +312,8 @@ class Solver:
             self._u0, self._solved = work.u0, None
             if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
                 _check_resolvable_tolerance(work, atol, params["tolerance"])
+        if self._solved is None and not params["fixed_time_step"]:  # (u0 or values new)
+            warn_growth_below_tolerance(work, compiled, atol)
         x[:] = work.u0
         if params["initial_time_step"] is not None:
             steps[:] = given

@@ -181,6 +181,24 @@ def test_lorenz_stability_factors_grow_exponentially():
     assert all(s["S0"] > 0 for s in factors)
 
 
+@pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])
+def test_an_estimate_far_from_linear_warns(method):
+    """Lotka-Volterra from (0.05, 0.05) at 1e-3: the error in y(T) is 18-22 x the estimate
+    and 16-18 x its bound, and the error equation along U has nu = 37-39. At 1e-6 the
+    estimate is the error within 0.5 %, and nothing is said."""
+    x, y = sp.symbols("x y")
+    ode = dn.ODE({x: x * (2 - y), y: y * (x - 3)}, [0.05, 0.05], T=30.0)
+    with pytest.warns(dn.ToleranceWarning, match="far from linear"):
+        loose = dn.estimate_error(dn.solve(ode, method, tolerance=1e-3,
+                                           estimate_global_error=False), {y: 1.0})
+    assert loose.nonlinearity > 10.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        tight = dn.estimate_error(dn.solve(ode, method, tolerance=1e-6,
+                                           estimate_global_error=False), {y: 1.0})
+    assert tight.nonlinearity < 1.0
+
+
 GOAL_SWEEP = [("harmonic", "cG(2)", 1e-4), ("harmonic", "dG(1)", 1e-6),
               ("harmonic", "mcG(2)", 1e-5), ("non-normal", "cG(1)", 1e-4),
               ("non-normal", "mdG(1)", 1e-6), ("random 10", "mdG(2)", 1e-6),

@@ -35,6 +35,15 @@ def test_serial_ensemble_equals_separate_solves_and_exact_solution():
     np.testing.assert_allclose(values[0], [np.cos(w), -np.sin(w)], atol=1e-6)
 
 
+def test_an_auto_ensemble_equals_separate_solves():
+    """method="auto" in an ensemble, as in dn.solve (it was refused as unknown)."""
+    results = dn.solve_ensemble(oscillator(), VARIATIONS, method="auto", tolerance=1e-8,
+                                reduce=final_value)
+    for result, variation in zip(results, VARIATIONS):
+        single = dn.solve(dn.vary(oscillator(), variation), "auto", tolerance=1e-8)
+        np.testing.assert_array_equal(result, final_value(single))
+
+
 def test_solutions_come_back_in_order_with_their_variation():
     solutions = dn.solve_ensemble(oscillator(), VARIATIONS, method="cG(2)", tolerance=1e-8)
     assert [s.ode.T for s in solutions] == [1.0, 1.0, 2.0, 1.0]

@@ -32,6 +32,8 @@ PULSES = {
     "gauss 1e-3 at 0.37": (*_gauss(5.0, 0.37, 1e-3), None),
     "gauss 1e-5 at 9.9": (*_gauss(1e4, 9.9, 1e-5), None),
     "sech2 1e-4 at 3.3": (*_sech2(1e3, 3.3, 1e-4), None),
+    # sympy folds exp(-1e4 (t - 3)) into 6.8e13028 exp(-1e4 t), beyond double range
+    "step 1e-4 at 3": (1 / (1 + sp.exp(-1e4 * (t - 3))), T - 3.0, None),
     "window 1e-4 at 6": (sp.Piecewise((1e4, (t > 6) & (t < 6.0001)), (0, True)), 1.0, None),
     "a x gauss 1e-3 at 2": (a * _gauss(1.0, 2.0, 1e-3)[0], 3e3 * _gauss(1.0, 2.0, 1e-3)[1],
                             {a: 3e3}),

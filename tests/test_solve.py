@@ -1,4 +1,6 @@
 """The driver's error control on problems whose small components decide stability."""
+import warnings
+
 import numpy as np
 import pytest
 import sympy as sp
@@ -80,3 +82,23 @@ def test_an_absolute_tolerance_per_state_must_be_positive_and_finite(atol, messa
     a, b = sp.symbols("a b")
     with pytest.raises(ValueError, match=message):
         dn.solve(dn.ODE({a: -a, b: -b}, u0=[1.0, 1.0], T=1.0), "dG(1)", absolute_tolerance=atol)
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(2)"])
+def test_a_component_growing_from_below_the_absolute_tolerance_warns(method):
+    """u' = u (1 - u) from 1e-12: below atol its relative error is free, and every method
+    returned u(35) = 0 instead of 1 silently. It warns, and the atol it suggests resolves it."""
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: u * (1 - u)}, [1e-12], T=35.0)
+    exact = 1 / (1 + 1e12 * np.exp(-35.0))
+    with pytest.warns(dn.ToleranceWarning, match="below its absolute tolerance"):
+        dn.solve(ode, method, tolerance=1e-3)
+    with pytest.warns(dn.ToleranceWarning, match="below its absolute tolerance"):
+        dn.Solver(ode, method=method, tolerance=1e-3).solve()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        sol = dn.solve(ode, method, tolerance=1e-3, absolute_tolerance=1e-15)
+        assert abs(sol(35.0)[0] - exact) < 1e-2
+        # below atol but decaying, or at 0: nothing to resolve
+        dn.solve(dn.ODE({u: -u * (1 - u)}, [1e-12], T=35.0), method, tolerance=1e-3)
+        dn.solve(dn.ODE({u: u * (1 - u)}, [0.0], T=35.0), method, tolerance=1e-3)

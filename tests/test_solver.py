@@ -34,6 +34,19 @@ def test_solver_is_bitwise_dn_solve_of_the_varied_ode(oscillator, method):
     assert sol.stats["f evaluations"] == reference.stats["f evaluations"]
 
 
+@pytest.mark.parametrize("method", ["auto", "auto:dG(1)"])
+def test_an_auto_solver_solves_as_dn_solve_of_the_varied_ode(oscillator, method):
+    """method="auto" chooses mono or multi-adaptive on every call, as dn.solve does (it
+    raised "unknown method 'auto': use ... or 'auto'")."""
+    solver = dn.Solver(oscillator, method=method, tolerance=1e-6)
+    times = np.linspace(0.0, 1.5, 7)
+    for omega in (3.0, 1.0):
+        sol = solver.solve(u0=[0.5, 0.0], params={k: omega**2}, T=1.5)
+        reference = dn.solve(dn.vary(oscillator, {"u0": [0.5, 0.0], k: omega**2, "T": 1.5}),
+                             method=method, tolerance=1e-6)
+        np.testing.assert_array_equal(sol(times), reference(times))
+
+
 def test_solver_follows_the_parameters_of_each_call(oscillator):
     solver = dn.Solver(oscillator, method="dG(2)", tolerance=1e-8)
     for omega in (3.0, 1.0, 2.0):  # u = u0 cos(omega t) for k = omega^2

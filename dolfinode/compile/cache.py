@@ -23,7 +23,7 @@ import warnings
 from pathlib import Path
 
 #: Bump when the generated code changes meaning, so stale kernels are not reused.
-CODEGEN_VERSION = "4"
+CODEGEN_VERSION = "5"
 _FLAGS = ["-O2", "-fPIC", "-shared", "-fno-math-errno", "-std=c99"]
 #: The cache's own files (``dolfinode cache clear`` removes these and nothing else).
 _PATTERNS = ("dn_*.so", "dn_*.c", "dn_*.json", "dn_*.tmp")

@@ -6,6 +6,8 @@ split into chunks of ``CHUNK`` statements, one C function each (kept out of line
 the compiler works on small functions (linear total time); common subexpressions are
 eliminated per chunk.
 """
+import math
+
 import sympy as sp
 from sympy.printing.c import C99CodePrinter, get_math_macros
 
@@ -48,6 +50,11 @@ class _KernelPrinter(C99CodePrinter):
     """
 
     def _print_Float(self, expr):
+        if not is_double(expr):
+            raise ValueError(
+                f"the right-hand side contains the number {expr}, beyond the range of double "
+                "precision (1e-308..1e308), which sympy may have folded from a product of "
+                "constants; write the expression so that its constants stay in that range")
         return repr(float(expr))
 
     def _print_Integer(self, expr):
@@ -67,8 +74,48 @@ class _KernelPrinter(C99CodePrinter):
 _print = _KernelPrinter().doprint
 
 
+def is_double(number):
+    """Whether the sympy number ``number`` is a double other than inf, or a zero that is one."""
+    value = float(number)
+    # is_zero, not == 0: sympy >= 1.13 has Float(0.0) != 0, which read 0.0 as an underflow
+    return math.isfinite(value) and (value != 0.0 or bool(number.is_zero))
+
+
+def absorb_coefficient(product, constant):
+    """c exp(a) (or c exp(a)**r) as exp(a + log c), for a Mul whose coefficient c is beyond
+    double range; ``product`` itself when it has no such factor.
+
+    sympy writes exp(-1e4 (t - 3)) as 6.8e13028 exp(-1e4 t): in double precision inf * 0,
+    nan where the expression is 1. ``constant`` makes the sympy object for log c (a Float, or
+    a symbol named by its value where sympy would fold it out of the exponential again).
+    """
+    c, rest = product.as_coeff_Mul()
+    if not (c.is_Float and not is_double(c)):
+        return product
+    factors = list(sp.Mul.make_args(rest))
+    for k, factor in enumerate(factors):
+        base, r = (factor, sp.S.One) if isinstance(factor, sp.exp) else factor.as_base_exp()
+        if isinstance(base, sp.exp) and r.is_number:
+            shift = constant(float(sp.log(abs(c)) / r))
+            factors[k] = sp.exp(base.args[0] + shift, evaluate=False)**r
+            return sp.Mul(*([sp.S.NegativeOne] if c < 0 else []), *factors, evaluate=False)
+    return product
+
+
+def _named_constant(value):
+    return sp.Symbol(repr(value), real=True)
+
+
+def _within_double_range(expr):
+    """``expr`` with coefficients beyond double range absorbed into exponentials
+    (:func:`absorb_coefficient`); any left raise ValueError when printed."""
+    return expr.replace(lambda e: e.is_Mul and absorb_coefficient(e, _named_constant) is not e,
+                        lambda e: absorb_coefficient(e, _named_constant))
+
+
 def _statements(exprs, targets, assign="="):
     """C statements ``target = expr;`` (or ``+=`` ...) after common-subexpression elimination."""
+    exprs = [_within_double_range(e) for e in exprs]
     if len(exprs) == 1 and sp.count_ops(exprs[0]) < 16:
         return [f"    {targets[0]} {assign} {_print(exprs[0])};"]  # too small for CSE to pay
     replacements, reduced = sp.cse(list(exprs), symbols=sp.numbered_symbols("c"), optimizations=None)

@@ -20,7 +20,7 @@ import warnings
 
 import numpy as np
 
-from dolfinode.dual.estimate import estimate_error
+from dolfinode.dual.estimate import estimate_linearised
 
 #: Fraction of the tolerance the next iteration aims at.
 _THETA = 0.5
@@ -67,7 +67,7 @@ def solve_for_goal(solve, ode, method, goal, tolerance, parameters):
         # rtol far below every atol: the dual weights alone set each component's tolerance
         sol = solve(ode, method, tolerance=1e-3 * atol.min(), absolute_tolerance=atol,
                     **parameters)
-        est = estimate_error(sol, goal)
+        est = estimate_linearised(sol, goal)
         sol.error_estimate = est
         history.append({"value": est.value, "bound": est.bound,
                         "elements": int(sol.stats["elements"]),

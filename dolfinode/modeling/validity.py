@@ -77,11 +77,11 @@ class ModelingError:
 
 def modeling_error(model, goal=None):
     """:class:`ModelingError` of ``model`` (a solved :class:`ReducedModel`) in ``goal``."""
-    from dolfinode.dual import estimate_error
+    from dolfinode.dual.estimate import estimate_linearised
 
     worst = None
     for name, psi in _goals(model, goal).items():
-        estimate = estimate_error(model.reduced, psi)
+        estimate = estimate_linearised(model.reduced, psi)
         part = ModelingError(_weighted_defect(estimate.dual, model),
                              estimate.stability_factors["S0"], model.largest_defect,
                              estimate.value, float(_local_defect(model)), name)

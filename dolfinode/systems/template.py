@@ -64,6 +64,11 @@ class Template:
     values : array_like of float, shape (E, len(params)), optional
         Their values, one row per cell.
 
+    A template is fixed once declared: ``indices`` and ``values`` are read-only copies and
+    its attributes cannot be set (the TemplateODEs built on it checked the indices against N
+    and cache their pattern). For other values declare a new Template: the kernels are
+    cached by expression, so it does not recompile.
+
     Raises
     ------
     TypeError, ValueError
@@ -92,6 +97,17 @@ class Template:
         self.indices = self._indices(indices)
         self.values = self._values(values)
 
+    def __setattr__(self, name, value):
+        if name in self.__dict__:
+            raise AttributeError(f"Template.{name} is fixed once declared (a TemplateODE checked "
+                                 "and compiled it); declare a new Template instead")
+        super().__setattr__(name, value)
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)  # (pickle does not keep the arrays read-only)
+        for array in (self.indices, self.values):
+            array.flags.writeable = False
+
     def _indices(self, indices):
         try:
             array = np.asarray(indices)
@@ -102,7 +118,8 @@ class Template:
                              f"(one column per slot), got {np.shape(indices)}")
         if array.size and not np.issubdtype(array.dtype, np.integer):
             raise TypeError(f"indices must hold integers, got dtype {array.dtype}")
-        return np.ascontiguousarray(array, dtype=np.int64)
+        # a copy: the user's array written later would index outside [0, N) in the kernels
+        return _read_only(np.array(array, dtype=np.int64, order="C"))
 
     def _values(self, values):
         cells = len(self.indices)
@@ -110,7 +127,7 @@ class Template:
             if self.params:
                 raise ValueError(f"the template parameters {', '.join(s.name for s in self.params)} "
                                  "need values= (one row per cell)")
-            return np.zeros((cells, 0))
+            return _read_only(np.zeros((cells, 0)))
         _reject_complex(np.asarray(values), "values")
         try:
             array = np.array(values, dtype=float)
@@ -124,7 +141,7 @@ class Template:
         if not np.all(np.isfinite(array)):
             e, k = np.argwhere(~np.isfinite(array))[0]
             raise ValueError(f"values is not finite for {self.params[k].name} of cell {e}")
-        return np.ascontiguousarray(array)
+        return _read_only(np.ascontiguousarray(array))
 
     @property
     def cells(self):

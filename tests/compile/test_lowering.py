@@ -179,6 +179,38 @@ def test_large_integer_constants():
     assert compiled.f([2.0], 0.0)[0] == pytest.approx(2e20, rel=1e-15)
 
 
+def test_coefficients_sympy_folds_beyond_double_range():
+    """sympy writes exp(-1e4 (t - 3)) as 6.8e13028 exp(-1e4 t) and exp(1e4 (t - 3)) as
+    1.5e-13029 exp(1e4 t): printed as they are, inf (no C) and 0 (f = 0)."""
+    x, y = sp.symbols("x y")
+    ode = dn.ODE({x: 1 / (1 + sp.exp(-1e4 * (t - 3))), y: -2 * y * sp.exp(1e4 * (t - 3)) ** 3},
+                 u0=[0.0, 1.0], T=4.0)
+    compiled = lower(ode)
+    for time in (2.999, 3.0, 3.0001):
+        step, grow = float(1 / (1 + mp.exp(-1e4 * (time - 3)))), float(mp.exp(3e4 * (time - 3)))
+        np.testing.assert_allclose(compiled.f([0.0, 1.5], time), [step, -3 * grow], rtol=1e-11)
+        np.testing.assert_allclose(compiled.jacobian_matrix([0.0, 1.5], time).toarray(),
+                                   [[0, 0], [0, -2 * grow]], rtol=1e-11)
+
+
+def test_a_literal_zero_float_is_a_double():
+    """sympy >= 1.13 has Float(0.0) != 0: a literal 0.0 (a Piecewise branch, Max(x, 0.0))
+    is a zero, not a constant that underflowed."""
+    x, a = sp.symbols("x a")
+    ode = dn.ODE({x: sp.Piecewise((1.0, t > a), (0.0, True)) + sp.Max(x, 0.0)}, u0=[-1.0],
+                 T=1.0, params={a: 0.5})
+    assert any(c.is_Float and c.is_zero for c in ode.rhs[0].atoms(sp.Float))
+    compiled = lower(ode)
+    np.testing.assert_array_equal(compiled.f([-1.0], 0.2), [0.0])
+    np.testing.assert_array_equal(compiled.f([0.25], 0.7), [1.25])
+
+
+def test_a_constant_beyond_double_range_is_an_error():
+    x = sp.Symbol("x")
+    with pytest.raises(ValueError, match="beyond the range of double precision"):
+        lower(dn.ODE({x: sp.Float(1e200) ** 2 * x}, u0=[1.0], T=1.0))
+
+
 # --- (b) dependency graph and (d) the dispatch tree on a large system ---------------------------
 
 

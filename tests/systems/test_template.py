@@ -178,6 +178,24 @@ def test_bad_templates_are_rejected(changes, error, match):
         _spring(**changes)
 
 
+def test_a_template_is_fixed_once_declared():
+    """Writing the caller's index array after the declaration changed the system the
+    kernels solved (and past [0, N) wrote outside u); the arrays are read-only copies."""
+    x, c = sp.symbols("x c")
+    indices, values = np.arange(3)[:, None], np.array([[1.0], [2.0], [3.0]])
+    decay = dn.Template(slots=(x,), terms={x: -c * x}, indices=indices, params=(c,),
+                        values=values)
+    ode = dn.TemplateODE([decay], u0=np.ones(3), T=1.0)
+    indices[:, 0], values[:, 0] = [2, 1, 0], 5.0
+    np.testing.assert_allclose(dn.solve(ode, "cG(2)", tolerance=1e-8)(1.0),
+                               np.exp([-1.0, -2.0, -3.0]), rtol=1e-6)
+    for array in (decay.indices, decay.values, pickle.loads(pickle.dumps(decay)).indices):
+        with pytest.raises(ValueError, match="read-only"):
+            array[0, 0] = 1
+    with pytest.raises(AttributeError, match="declare a new Template"):
+        decay.values = values
+
+
 def test_bad_systems_are_rejected():
     spring = _spring()
     with pytest.raises(ValueError, match="component 3, outside"):
