@@ -554,7 +554,7 @@ def _integrate_to_crossing(plan, loop, chunk, sol, te, j):
     dg/dt of the polynomial at te, moves te to its root."""
     saved = loop.saved  # (truncate restarts from it; the chunks below overwrite it)
     previous, slope = None, _slope(plan.detector, sol, te, j)
-    for _ in range(_CROSSING_CORRECTIONS + 1):
+    for attempt in range(_CROSSING_CORRECTIONS + 1):
         loop.saved = saved
         kept, te = loop.truncate(chunk, te)
         parts = [kept]
@@ -568,8 +568,8 @@ def _integrate_to_crossing(plan, loop, chunk, sol, te, j):
         if not np.isfinite(slope) or slope == 0:
             break
         step = g / slope
-        if abs(step) <= loop.located(te):
-            break
+        if abs(step) <= loop.located(te) or attempt == _CROSSING_CORRECTIONS:
+            break  # (the loop stands at te: a last correction would not be integrated)
         previous = (te, g)
         te -= step
     return loop.DONE, parts, te

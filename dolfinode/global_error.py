@@ -26,7 +26,8 @@ computable; with the residual's d_n, cG(q)'s undamped stiff modes would be count
 It holds while the error stays small enough for the linearised equation: the measure of
 that is the nonlinearity nu = max_n |f(U_n - e_n) - f(U_n) + J_n e_n| / |J_n e_n| at the
 slabs' ends (0 for linear systems); where nu > NONLINEAR_LIMIT the estimate is not trusted
-(a warning above 10 x then says that the error could not be estimated).
+(above 10 x the tolerance :func:`dolfinode.solve` then measures the error against a tighter
+solve, and says that it could not be estimated where that fails).
 """
 from functools import lru_cache
 from types import SimpleNamespace
@@ -76,10 +77,14 @@ def _collocation(s):
     return c, collocation_matrix(c)
 
 
+def _basis(method, x):
+    """:func:`lagrange_matrices` (B, D) of ``method``'s basis at the points ``x``, made once
+    per method and points (shared, never written)."""
+    return _lagrange_matrices(tuple(float(c) for c in method.nodes), tuple(x))
+
+
 @lru_cache(maxsize=64)
-def _basis(nodes, x):
-    """:func:`lagrange_matrices` (B, D) of the basis on the tuple ``nodes`` at the tuple
-    ``x``, made once per method (shared, never written)."""
+def _lagrange_matrices(nodes, x):
     return lagrange_matrices(nodes, x)
 
 
@@ -127,15 +132,14 @@ def _constant_jacobian(ode, compiled):
 def _residual(sol, f, nodes_at, part):
     """R = U' - f(t, U) of the slabs ``part`` (a slice) at the relative points ``nodes_at``:
     (M, len, N); and their jumps U(t_n^+) - U(t_n^-): (M, N)."""
-    nodes = tuple(float(x) for x in sol.method.nodes)
     vals, k, t0 = sol.values[part], sol.k[part], sol.t_start[part]
     M, _, N = vals.shape
-    B, D = _basis(nodes, tuple(nodes_at))
+    B, D = _basis(sol.method, nodes_at)
     U = np.einsum("ij,mjn->min", B, vals)
     dU = np.einsum("ij,mjn->min", D, vals) / k[:, None, None]
     t = (t0[:, None] + nodes_at[None, :] * k[:, None]).ravel()
     R = dU - f(t, U.reshape(-1, N)).reshape(M, len(nodes_at), N)
-    start = _basis(nodes, (0.0,))[0][0] @ vals  # (M, N)
+    start = _basis(sol.method, (0.0,))[0][0] @ vals  # (M, N)
     first = part.start or 0
     previous = (np.asarray(sol.ode.u0, dtype=float) if first == 0
                 else sol.values[first - 1, -1, :])
@@ -355,7 +359,7 @@ def estimate(sol, compiled=None):
             raise ValueError(f"the global error estimate of a system whose Jacobian has no "
                              f"narrow band is dense (unless linear with a well-conditioned "
                              f"eigenbasis): at most {MAX_DENSE} components, got {compiled.N}")
-    B, D = _basis(tuple(float(x) for x in sol.method.nodes), (0.0, *c))
+    B, D = _basis(sol.method, (0.0, *c))
     return _recursion(compiled.rhs.address, compiled.jacobian.address, compiled.p,
                       compiled.indptr, compiled.indices, np.ascontiguousarray(sol.values),
                       sol.k, sol.t_start, np.asarray(sol.ode.u0, dtype=float), c, B, D, a,

@@ -109,8 +109,7 @@ def _named_constant(value):
 def _within_double_range(expr):
     """``expr`` with coefficients beyond double range absorbed into exponentials
     (:func:`absorb_coefficient`); any left raise ValueError when printed."""
-    return expr.replace(lambda e: e.is_Mul and absorb_coefficient(e, _named_constant) is not e,
-                        lambda e: absorb_coefficient(e, _named_constant))
+    return expr.replace(lambda e: e.is_Mul, lambda e: absorb_coefficient(e, _named_constant))
 
 
 def _statements(exprs, targets, assign="="):
