@@ -37,7 +37,7 @@ import sympy as sp
 from numba import njit
 
 from dolfinode.compile import lower
-from dolfinode.compile.signatures import address, call_rhs_rows, rhs_kernel
+from dolfinode.compile.signatures import address, call_rhs_rows, component_kernel, rhs_kernel
 from dolfinode.dual.problem import monomial_coefficients
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.memory import available_memory
@@ -378,6 +378,286 @@ def measured_warning(size, linearised, nu, rtol, state, factor):
             f"{factor:g} x the tolerance (the linearised estimate, {linearised / rtol:.3g} x, "
             f"does not hold along this run: sol.stats['global error nonlinearity'] = "
             f"{nu:.3g}). Try a tighter tolerance, or dn.estimate_error with a goal")
+
+
+#: The slab estimate (:func:`slab_estimate`) takes the moments of each component's residual
+#: over a slab up to the degree 2q + SLAB_MOMENTS, ...
+SLAB_MOMENTS = 4
+#: ... over sub-steps of the slab short enough that the Taylor series of exp(h J) settles
+#: (a term below SLAB_SETTLED x the sum) within SLAB_TERMS terms without growing past
+#: SLAB_CANCELLATION x the vector it is applied to: then h rho(J) is below about 2, and the
+#: moment series, cut at 2q + SLAB_MOMENTS, is accurate too.
+SLAB_TERMS = 18
+SLAB_SETTLED = 1e-10
+SLAB_CANCELLATION = 1e8
+#: A sub-step on which the series does not settle halves the sub-steps' length h, up to
+#: SLAB_SUBSTEPS sub-steps per element of the slab: beyond, the run is stiff on the slab
+#: (the common refinement of :func:`estimate`, L-stable, then costs less) and it gives up.
+SLAB_SUBSTEPS = 2
+
+
+def slab_estimate(sol, compiled=None):
+    """(e, nu) as :func:`estimate` for a multi-adaptive solution, at a cost of the order of
+    its elements (times the sub-steps below), not of its common refinement; None where a
+    slab would need more than SLAB_SUBSTEPS sub-steps per element (a stiff run).
+
+    A slab (t_n, t_{n+1}], between two times where every component's elements end, is cut
+    into equal sub-steps I = (a, a + K] no longer than a length h carried from slab to slab
+    (halved, and the slab redone, where the series below does not settle; doubled after a
+    slab where it settled in at most SLAB_TERMS // 2 terms), on each of which the error
+    equation e' = J e + R with J frozen at the sub-step's midpoint gives
+
+        e(a + K) = exp(K J) e(a) + int_I exp(J (a + K - s)) R(s) ds
+                 = exp(K J) w_0 + sum_{m >= 1} (K J)^m (mu_m - mu_0) / m!,
+
+    mu_m = int_I ((a + K - s) / K)^m R(s) ds and w_0 = e(a) + mu_0: the residual enters
+    through its moments, integrated on the parts in I of each component's own elements
+    (mdG(q)'s jumps at their starts as point masses), split at the element ends of the
+    components f_i reads, by Gauss quadrature exact for the degree of U_i' - f_i(U) times
+    the weight where f is linear. exp(K J) w_0 is summed by its Taylor series until a term
+    is below SLAB_SETTLED x the sum, the moment terms up to m = 2q + SLAB_MOMENTS (Horner);
+    both hold for K rho(J) below about 2, which the sub-steps keep. With one sub-step and
+    one element per slab it is the
+    series of the collocation of :func:`estimate`. nu as there, at the slabs' ends."""
+    compiled = lower(sol.ode) if compiled is None else compiled
+    method = sol.method
+    N = compiled.N
+    ptr = np.asarray(sol._component_ptr, dtype=np.int64)
+    ends, counts = np.unique(sol._t_end, return_counts=True)
+    sync = np.concatenate([[sol.ode.t0], ends[counts == N]])
+    nodes = np.asarray(method.nodes, dtype=float)
+    # monomial coefficients in tau = (t - a) / k of each element's polynomial
+    coef = np.ascontiguousarray(sol.values @ np.linalg.inv(
+        nodes[:, None] ** np.arange(len(nodes))[None, :]).T)
+    moments = 2 * method.q + SLAB_MOMENTS
+    x, w = np.polynomial.legendre.leggauss((method.q + moments + 2) // 2 + 1)
+    e, nu, settled = _slab_recursion(
+        compiled.rhs_component.address, compiled.rhs.address, compiled.jacobian.address,
+        compiled.p, compiled.indptr, compiled.indices, ptr, sol.t_start, sol._t_end, coef,
+        sync, np.asarray(sol.ode.u0, dtype=float), method.family == "cG", (x + 1) / 2, w / 2,
+        moments)
+    return (e, nu) if settled else None
+
+
+@njit(cache=True)
+def _value(coef, el, tau):
+    """U(tau) of the element ``el`` (monomial coefficients in tau)."""
+    v = 0.0
+    for r in range(coef.shape[1] - 1, -1, -1):
+        v = v * tau + coef[el, r]
+    return v
+
+
+@njit(cache=True)
+def _element_at(t_end, lo, hi, t):
+    """The first element in lo..hi - 1 (time-sorted) ending at or after t (hi - 1 if none)."""
+    hi -= 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if t_end[mid] < t:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True)
+def _state(ptr, first, last, t_start, t_end, coef, t, x):
+    """x_j = U_j(t) for every component j, from its elements first[j]..last[j] - 1."""
+    for j in range(x.size):
+        el = _element_at(t_end, first[j], last[j], t)
+        x[j] = _value(coef, el, (t - t_start[el]) / (t_end[el] - t_start[el]))
+
+
+@njit(cache=True)
+def _times_jacobian(indptr, indices, data, scale, v, out):
+    """out = scale J v (J's values ``data`` in CSR order)."""
+    for r in range(v.size):
+        acc = 0.0
+        for m in range(indptr[r], indptr[r + 1]):
+            acc += data[m] * v[indices[m]]
+        out[r] = scale * acc
+
+
+@njit(cache=True)
+def _slab_moments(fi, p, indptr, indices, ptr, first, last, t_start, t_end, coef, u0,
+                  continuous, gx, gw, sa, sb, mu, x, out, points):
+    """mu[m, i] = int_{sa}^{sb} ((sb - s) / h)^m R_i(s) ds over the sub-step (sa, sb] of a
+    slab (see :func:`slab_estimate`), each component on the parts inside it of its elements
+    first[i]..last[i] - 1; ``points``: room for the slab's element ends plus two."""
+    h = sb - sa
+    q1 = coef.shape[1]
+    mu[:] = 0.0
+    for i in range(x.size):
+        el = _element_at(t_end, first[i], last[i], sa)
+        while el < last[i] and t_start[el] < sb:
+            a, b = t_start[el], t_end[el]
+            k = b - a
+            if not continuous and a >= sa:  # the jump U_i(a+) - U_i(a-), a point mass at a
+                before = u0[i] if el == ptr[i] else _value(coef, el - 1, 1.0)
+                jump = coef[el, 0] - before
+                wt = (sb - a) / h
+                for m in range(mu.shape[0]):
+                    mu[m, i] += jump
+                    jump *= wt
+            # the ends of the elements of the components f_i reads, inside (lo, hi)
+            lo, hi = max(a, sa), min(b, sb)
+            npts = 1
+            points[0] = lo
+            for nz in range(indptr[i], indptr[i + 1]):
+                j = indices[nz]
+                if j == i:
+                    continue
+                ej = _element_at(t_end, first[j], last[j], lo)
+                while ej < last[j] and t_end[ej] < hi:
+                    if t_end[ej] > lo:
+                        c = npts  # insertion into the sorted points
+                        while points[c - 1] > t_end[ej]:
+                            points[c] = points[c - 1]
+                            c -= 1
+                        points[c] = t_end[ej]
+                        npts += 1
+                    ej += 1
+            points[npts] = hi
+            for piece in range(npts):
+                s0, s1 = points[piece], points[piece + 1]
+                if s1 <= s0:
+                    continue
+                for g in range(gx.size):
+                    t = s0 + gx[g] * (s1 - s0)
+                    for nz in range(indptr[i], indptr[i + 1]):
+                        j = indices[nz]
+                        ej = _element_at(t_end, first[j], last[j], t)
+                        x[j] = _value(coef, ej, (t - t_start[ej]) / (t_end[ej] - t_start[ej]))
+                    tau = (t - a) / k
+                    x[i] = _value(coef, el, tau)
+                    fi(i, address(x, 0), t, address(p, 0), address(out, 0))
+                    du = 0.0
+                    for r in range(q1 - 1, 0, -1):
+                        du = du * tau + r * coef[el, r]
+                    r_value = (du / k - out[0]) * gw[g] * (s1 - s0)
+                    wt = (sb - t) / h
+                    for m in range(mu.shape[0]):
+                        mu[m, i] += r_value
+                        r_value *= wt
+            el += 1
+
+
+@njit(cache=True)
+def _sub_step(fi, jac, p, indptr, indices, ptr, first, last, t_start, t_end, coef, u0,
+              continuous, gx, gw, sa, sb, mu, x, out, points, data, e, term, total, v, jv):
+    """e <- the error at sb from the error e at sa (see :func:`slab_estimate`); returns the
+    number of terms in which exp(h J)'s Taylor series settled, or -1 (e unchanged) where it
+    does not settle in SLAB_TERMS terms."""
+    N = e.size
+    h = sb - sa
+    _slab_moments(fi, p, indptr, indices, ptr, first, last, t_start, t_end, coef, u0,
+                  continuous, gx, gw, sa, sb, mu, x, out, points)
+    tm = sa + 0.5 * h
+    _state(ptr, first, last, t_start, t_end, coef, tm, x)
+    jac(address(x, 0), tm, address(p, 0), address(data, 0))
+    # exp(h J) w_0 by its Taylor series
+    size = 0.0
+    for r in range(N):
+        term[r] = e[r] + mu[0, r]
+        total[r] = term[r]
+        size = max(size, abs(term[r]))
+    settled = size == 0.0
+    terms = 0
+    for m in range(1, SLAB_TERMS + 1):
+        if settled:
+            break
+        terms = m
+        _times_jacobian(indptr, indices, data, h / m, term, jv)
+        big = biggest = 0.0
+        for r in range(N):
+            term[r] = jv[r]
+            total[r] += jv[r]
+            big = max(big, abs(jv[r]))
+            biggest = max(biggest, abs(total[r]))
+        if big > SLAB_CANCELLATION * size:
+            break
+        settled = big <= SLAB_SETTLED * biggest
+    if not settled:
+        return -1
+    # + sum_{m >= 1} (h J)^m (mu_m - mu_0) / m!, by Horner
+    for r in range(N):
+        v[r] = 0.0
+    for m in range(mu.shape[0] - 1, 0, -1):
+        for r in range(N):
+            v[r] += mu[m, r] - mu[0, r]
+        _times_jacobian(indptr, indices, data, h / m, v, jv)
+        for r in range(N):
+            v[r] = jv[r]
+    for r in range(N):
+        e[r] = total[r] + v[r]
+    return terms
+
+
+@njit(cache=True)
+def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start, t_end,
+                    coef, sync, u0, continuous, gx, gw, moments):
+    """(e at T, nu, settled) of :func:`slab_estimate`, slab after slab between the times
+    ``sync``, each in equal sub-steps no longer than a length h: halved (and the slab redone)
+    where exp(h J)'s series does not settle, doubled for the next slab where it settled in
+    at most SLAB_TERMS // 2 terms on every sub-step; settled False: a slab where it does
+    not settle in SLAB_SUBSTEPS sub-steps per element of the slab."""
+    fi, f, jac = component_kernel(fi_address), rhs_kernel(rhs), rhs_kernel(jacobian)
+    N, nnz = u0.size, indices.size
+    first, last = ptr[:-1].copy(), ptr[:-1].copy()
+    mu = np.empty((moments + 1, N))
+    e, x, out = np.zeros(N), np.empty(N), np.empty(1)
+    data = np.empty(max(nnz, 1))
+    term, total, v, jv = np.empty(N), np.empty(N), np.empty(N), np.empty(N)
+    fU, fS, start = np.empty(N), np.empty(N), np.empty(N)
+    points = np.empty(0)
+    nu = 0.0
+    h = np.inf
+    for n in range(sync.size - 1):
+        ta, tb = sync[n], sync[n + 1]
+        for j in range(N):
+            first[j] = last[j]
+            while last[j] < ptr[j + 1] and t_end[last[j]] <= tb:
+                last[j] += 1
+        if points.size < 2 + np.sum(last - first):
+            points = np.empty(4 + 2 * np.sum(last - first))
+        start[:] = e
+        while True:
+            parts = 1 if h >= tb - ta else int(np.ceil((tb - ta) / h))
+            if parts > SLAB_SUBSTEPS * np.sum(last - first):
+                return e, nu, False
+            width = (tb - ta) / parts
+            most = 0
+            for part in range(parts):
+                sa = ta + part * width
+                sb = tb if part == parts - 1 else sa + width
+                terms = _sub_step(fi, jac, p, indptr, indices, ptr, first, last, t_start,
+                                  t_end, coef, u0, continuous, gx, gw, sa, sb, mu, x, out,
+                                  points, data, e, term, total, v, jv)
+                if terms < 0:
+                    break
+                most = max(most, terms)
+            if terms >= 0:
+                break
+            h = 0.5 * width
+            e[:] = start
+        if most <= SLAB_TERMS // 2 and h < np.inf:
+            h = 2 * max(width, h)
+        # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end
+        _state(ptr, first, last, t_start, t_end, coef, tb, x)
+        jac(address(x, 0), tb, address(p, 0), address(data, 0))
+        f(address(x, 0), tb, address(p, 0), address(fU, 0))
+        for r in range(N):
+            term[r] = x[r] - e[r]
+        f(address(term, 0), tb, address(p, 0), address(fS, 0))
+        _times_jacobian(indptr, indices, data, 1.0, e, jv)
+        size = remainder = 0.0
+        for r in range(N):
+            size = max(size, abs(jv[r]))
+            remainder = max(remainder, abs(fS[r] - fU[r] + jv[r]))
+        if size > 0:
+            nu = max(nu, remainder / size)
+    return e, nu, True
 
 
 #: A solve with ``estimate_global_error=True`` warns when the estimate exceeds WARN_FACTOR

@@ -315,7 +315,10 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         multi-adaptive component's elements) whose stage system has at most ``AUTO_ROWS``
         (64) rows: the steps' errors add up on undamped or drifting runs (Kepler's orbit at
         eccentricity 0.9 over one period, 22 slabs of dG(3) at 1e-3: 35 x the tolerance);
-        other runs (and automatic modeling, events,
+        the larger multi-adaptive runs by the slab estimate
+        (:func:`dolfinode.global_error.slab_estimate`: the error equation on the slabs, each
+        component's residual integrated on its own elements, slabs cut into sub-steps where
+        K rho(J) is large); other runs (and automatic modeling, events,
         breakpoints, switches, method="auto" where it solves in stretches) are not estimated
         and have no such key. True estimates every run (a ValueError where it cannot), False
         none.
@@ -934,21 +937,39 @@ def estimate_global_error(ode, compiled, m, params, sol, steps):
     warning
     (:func:`_warn_global_error`)."""
     choice = params["estimate_global_error"]
+    slabs = False
     if choice == "auto":
-        choice = (steps >= SHORTEST_RUN and (m.q + 2) * ode.N <= AUTO_ROWS and sol.success
-                  and params["dense_output"] is True)
-    if choice:
-        _warn_global_error(ode, compiled, params, sol)
+        done = sol.success and params["dense_output"] is True
+        small = (m.q + 2) * ode.N <= AUTO_ROWS
+        choice = done and small and steps >= SHORTEST_RUN
+        # larger multi-adaptive runs: the slab estimate (no common refinement)
+        slabs = done and not small and sol.multi and steps >= SHORTEST_RUN
+    if choice or slabs:
+        _warn_global_error(ode, compiled, params, sol, slabs)
 
 
-def _warn_global_error(ode, compiled, params, sol):
+def _warn_global_error(ode, compiled, params, sol, slabs=False):
     """sol.stats["global error estimate"] (:mod:`dolfinode.global_error`, scaled as the
     tolerance means it) and "global error nonlinearity", and a ToleranceWarning when the
     estimate exceeds 10 x the tolerance where it holds (not with fixed steps, which have no
-    tolerance to compare with)."""
+    tolerance to compare with). ``slabs``: by :func:`~dolfinode.global_error.slab_estimate`,
+    and where the run is stiff on a slab (more than SLAB_SUBSTEPS sub-steps per element) by
+    the common-slab estimate; a warning that it could not be estimated where that exceeds
+    the memory."""
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
-    e, nu = global_error.estimate(sol, compiled)
+    found = global_error.slab_estimate(sol, compiled) if slabs else None
+    if found is None:
+        try:
+            found = global_error.estimate(sol, compiled)
+        except ValueError as error:
+            if not slabs:
+                raise
+            _warn("the error at T could not be estimated: this multi-adaptive run is stiff "
+                  f"on a slab (more than {global_error.SLAB_SUBSTEPS} sub-steps per element "
+                  f"for the slab estimate) and {error}")
+            return
+    e, nu = found
     size, i = global_error.scaled(e, sol(ode.T), atol, rtol)
     sol.stats["global error estimate"] = size
     sol.stats["global error nonlinearity"] = nu
