@@ -39,10 +39,12 @@ from numba import njit
 from dolfinode.compile import lower
 from dolfinode.compile.signatures import address, call_rhs_rows, component_kernel, rhs_kernel
 from dolfinode.dual.problem import monomial_coefficients
+from dolfinode.family import _parts as family_parts
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.memory import available_memory
 from dolfinode.methods.quadrature import radau
 from dolfinode.ode import t as time_symbol
+from dolfinode.solution import _merge_slabs
 
 
 def collocation_matrix(nodes):
@@ -422,21 +424,39 @@ def slab_estimate(sol, compiled=None):
     compiled = lower(sol.ode) if compiled is None else compiled
     method = sol.method
     N = compiled.N
-    ptr = np.asarray(sol._component_ptr, dtype=np.int64)
-    ends, counts = np.unique(sol._t_end, return_counts=True)
+    ptr, t_start, t_end, values = _elements(sol)
+    ends, counts = np.unique(t_end, return_counts=True)
     sync = np.concatenate([[sol.ode.t0], ends[counts == N]])
     nodes = np.asarray(method.nodes, dtype=float)
     # monomial coefficients in tau = (t - a) / k of each element's polynomial
-    coef = np.ascontiguousarray(sol.values @ np.linalg.inv(
+    coef = np.ascontiguousarray(values @ np.linalg.inv(
         nodes[:, None] ** np.arange(len(nodes))[None, :]).T)
     moments = 2 * method.q + SLAB_MOMENTS
-    x, w = np.polynomial.legendre.leggauss((method.q + moments + 2) // 2 + 1)
+    # n Gauss points are exact to the degree 2n - 1 >= q + moments
+    x, w = np.polynomial.legendre.leggauss((method.q + moments + 2) // 2)
     e, nu, settled = _slab_recursion(
         compiled.rhs_component.address, compiled.rhs.address, compiled.jacobian.address,
-        compiled.p, compiled.indptr, compiled.indices, ptr, sol.t_start, sol._t_end, coef,
+        compiled.p, compiled.indptr, compiled.indices, ptr, t_start, t_end, coef,
         sync, np.asarray(sol.ode.u0, dtype=float), method.family == "cG", (x + 1) / 2, w / 2,
         moments)
     return (e, nu) if settled else None
+
+
+def _elements(sol):
+    """(ptr, t_start, t_end, values) of every component's elements in time order, as
+    :meth:`~dolfinode.solution.Solution.elements`, for a mono- or multi-adaptive solution,
+    without joining a :class:`~dolfinode.solution.MixedSolution`'s parts (the solution keeps
+    its storage)."""
+    (ptr, t_start, t_end, values), (s_start, s_end, s_values) = family_parts(sol)
+    if len(s_start) == 0:
+        return np.asarray(ptr, dtype=np.int64), t_start, t_end, values
+    N, S = sol.ode.N, len(s_start)
+    merged = np.arange(N + 1, dtype=np.int64) * S + ptr
+    out_start, out_end = np.empty(merged[-1]), np.empty(merged[-1])
+    out_values = np.empty((merged[-1], s_values.shape[1]))
+    _merge_slabs(ptr, t_start, t_end, values, s_start, s_end, s_values, merged, out_start,
+                 out_end, out_values)
+    return merged, out_start, out_end, out_values
 
 
 @njit(cache=True)
