@@ -44,7 +44,6 @@ from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.memory import available_memory
 from dolfinode.methods.quadrature import radau
 from dolfinode.ode import t as time_symbol
-from dolfinode.solution import _merge_slabs
 
 
 def collocation_matrix(nodes):
@@ -399,9 +398,10 @@ SLAB_SUBSTEPS = 2
 
 
 def slab_estimate(sol, compiled=None):
-    """(e, nu) as :func:`estimate` for a multi-adaptive solution, at a cost of the order of
-    its elements (times the sub-steps below), not of its common refinement; None where a
-    slab would need more than SLAB_SUBSTEPS sub-steps per element (a stiff run).
+    """(e, nu) as :func:`estimate` for a multi-adaptive solution (or a mono-adaptive one, as
+    one whose every slab is shared), at a cost of the order of its elements (times the
+    sub-steps below), not of its common refinement; None where a slab would need more than
+    SLAB_SUBSTEPS sub-steps per element (a stiff run).
 
     A slab (t_n, t_{n+1}], between two times where every component's elements end, is cut
     into equal sub-steps I = (a, a + K] no longer than a length h carried from slab to slab
@@ -416,47 +416,34 @@ def slab_estimate(sol, compiled=None):
     through its moments, integrated on the parts in I of each component's own elements
     (mdG(q)'s jumps at their starts as point masses), split at the element ends of the
     components f_i reads, by Gauss quadrature exact for the degree of U_i' - f_i(U) times
-    the weight where f is linear. exp(K J) w_0 is summed by its Taylor series until a term
-    is below SLAB_SETTLED x the sum, the moment terms up to m = 2q + SLAB_MOMENTS (Horner);
-    both hold for K rho(J) below about 2, which the sub-steps keep. With one sub-step and
-    one element per slab it is the
-    series of the collocation of :func:`estimate`. nu as there, at the slabs' ends."""
+    the weight where f is linear (on a shared slab, every component on the one element,
+    by f at once). exp(K J) w_0 is summed by its Taylor series until a term is below
+    SLAB_SETTLED x the sum, the moment terms up to m = 2q + SLAB_MOMENTS (Horner); both hold
+    for K rho(J) below about 2, which the sub-steps keep. With one sub-step and one element
+    per slab it is the series of the collocation of :func:`estimate`. nu as there, at the
+    slabs' ends. A :class:`~dolfinode.solution.MixedSolution` keeps its parts."""
     compiled = lower(sol.ode) if compiled is None else compiled
     method = sol.method
     N = compiled.N
-    ptr, t_start, t_end, values = _elements(sol)
+    (ptr, t_start, t_end, values), (s_start, s_end, s_values) = family_parts(sol)
     ends, counts = np.unique(t_end, return_counts=True)
-    sync = np.concatenate([[sol.ode.t0], ends[counts == N]])
+    sync = np.unique(np.concatenate([[sol.ode.t0], ends[counts == N], s_start, s_end]))
     nodes = np.asarray(method.nodes, dtype=float)
     # monomial coefficients in tau = (t - a) / k of each element's polynomial
-    coef = np.ascontiguousarray(values @ np.linalg.inv(
-        nodes[:, None] ** np.arange(len(nodes))[None, :]).T)
+    to_monomial = np.ascontiguousarray(
+        np.linalg.inv(nodes[:, None] ** np.arange(len(nodes))[None, :]).T)
+    coef = np.ascontiguousarray(values @ to_monomial)
     moments = 2 * method.q + SLAB_MOMENTS
     # n Gauss points are exact to the degree 2n - 1 >= q + moments
     x, w = np.polynomial.legendre.leggauss((method.q + moments + 2) // 2)
     e, nu, settled = _slab_recursion(
         compiled.rhs_component.address, compiled.rhs.address, compiled.jacobian.address,
-        compiled.p, compiled.indptr, compiled.indices, ptr, t_start, t_end, coef,
-        sync, np.asarray(sol.ode.u0, dtype=float), method.family == "cG", (x + 1) / 2, w / 2,
+        compiled.p, compiled.indptr, compiled.indices, np.asarray(ptr, dtype=np.int64),
+        t_start, t_end, coef, np.asarray(s_start, dtype=float),
+        np.ascontiguousarray(s_values, dtype=float), to_monomial, sync,
+        np.asarray(sol.ode.u0, dtype=float), method.family == "cG", (x + 1) / 2, w / 2,
         moments)
     return (e, nu) if settled else None
-
-
-def _elements(sol):
-    """(ptr, t_start, t_end, values) of every component's elements in time order, as
-    :meth:`~dolfinode.solution.Solution.elements`, for a mono- or multi-adaptive solution,
-    without joining a :class:`~dolfinode.solution.MixedSolution`'s parts (the solution keeps
-    its storage)."""
-    (ptr, t_start, t_end, values), (s_start, s_end, s_values) = family_parts(sol)
-    if len(s_start) == 0:
-        return np.asarray(ptr, dtype=np.int64), t_start, t_end, values
-    N, S = sol.ode.N, len(s_start)
-    merged = np.arange(N + 1, dtype=np.int64) * S + ptr
-    out_start, out_end = np.empty(merged[-1]), np.empty(merged[-1])
-    out_values = np.empty((merged[-1], s_values.shape[1]))
-    _merge_slabs(ptr, t_start, t_end, values, s_start, s_end, s_values, merged, out_start,
-                 out_end, out_values)
-    return merged, out_start, out_end, out_values
 
 
 @njit(cache=True)
@@ -482,7 +469,7 @@ def _element_at(t_end, lo, hi, t):
 
 
 @njit(cache=True)
-def _state(ptr, first, last, t_start, t_end, coef, t, x):
+def _state(first, last, t_start, t_end, coef, t, x):
     """x_j = U_j(t) for every component j, from its elements first[j]..last[j] - 1."""
     for j in range(x.size):
         el = _element_at(t_end, first[j], last[j], t)
@@ -500,55 +487,49 @@ def _times_jacobian(indptr, indices, data, scale, v, out):
 
 
 @njit(cache=True)
-def _slab_moments(fi, p, indptr, indices, ptr, first, last, t_start, t_end, coef, u0,
-                  continuous, gx, gw, sa, sb, mu, x, out, points):
+def _slab_moments(fi, p, indptr, indices, first, last, t_start, t_end, coef, before,
+                  continuous, gx, gw, sa, sb, mu, x, out, cursor):
     """mu[m, i] = int_{sa}^{sb} ((sb - s) / h)^m R_i(s) ds over the sub-step (sa, sb] of a
     slab (see :func:`slab_estimate`), each component on the parts inside it of its elements
-    first[i]..last[i] - 1; ``points``: room for the slab's element ends plus two."""
+    first[i]..last[i] - 1 (U_i(t_n-) = before[i]), each part split where an element of a
+    component f_i reads ends (``cursor``: room for J's nonzeros)."""
     h = sb - sa
     q1 = coef.shape[1]
     mu[:] = 0.0
     for i in range(x.size):
         el = _element_at(t_end, first[i], last[i], sa)
+        if t_end[el] <= sa:
+            el += 1
+        for nz in range(indptr[i], indptr[i + 1]):
+            j = indices[nz]
+            cursor[nz] = _element_at(t_end, first[j], last[j], sa)
         while el < last[i] and t_start[el] < sb:
             a, b = t_start[el], t_end[el]
             k = b - a
             if not continuous and a >= sa:  # the jump U_i(a+) - U_i(a-), a point mass at a
-                before = u0[i] if el == ptr[i] else _value(coef, el - 1, 1.0)
-                jump = coef[el, 0] - before
+                jump = coef[el, 0] - (before[i] if el == first[i] else _value(coef, el - 1, 1.0))
                 wt = (sb - a) / h
                 for m in range(mu.shape[0]):
                     mu[m, i] += jump
                     jump *= wt
-            # the ends of the elements of the components f_i reads, inside (lo, hi)
             lo, hi = max(a, sa), min(b, sb)
-            npts = 1
-            points[0] = lo
-            for nz in range(indptr[i], indptr[i + 1]):
-                j = indices[nz]
-                if j == i:
-                    continue
-                ej = _element_at(t_end, first[j], last[j], lo)
-                while ej < last[j] and t_end[ej] < hi:
-                    if t_end[ej] > lo:
-                        c = npts  # insertion into the sorted points
-                        while points[c - 1] > t_end[ej]:
-                            points[c] = points[c - 1]
-                            c -= 1
-                        points[c] = t_end[ej]
-                        npts += 1
-                    ej += 1
-            points[npts] = hi
-            for piece in range(npts):
-                s0, s1 = points[piece], points[piece + 1]
-                if s1 <= s0:
-                    continue
+            s0 = lo
+            while s0 < hi:
+                # the neighbours' elements on (s0, s1]: the first of each ending after s0
+                s1 = hi
+                for nz in range(indptr[i], indptr[i + 1]):
+                    j = indices[nz]
+                    c = cursor[nz]
+                    while c < last[j] - 1 and t_end[c] <= s0:
+                        c += 1
+                    cursor[nz] = c
+                    if j != i and t_end[c] < s1:
+                        s1 = t_end[c]
                 for g in range(gx.size):
                     t = s0 + gx[g] * (s1 - s0)
                     for nz in range(indptr[i], indptr[i + 1]):
-                        j = indices[nz]
-                        ej = _element_at(t_end, first[j], last[j], t)
-                        x[j] = _value(coef, ej, (t - t_start[ej]) / (t_end[ej] - t_start[ej]))
+                        c = cursor[nz]
+                        x[indices[nz]] = _value(coef, c, (t - t_start[c]) / (t_end[c] - t_start[c]))
                     tau = (t - a) / k
                     x[i] = _value(coef, el, tau)
                     fi(i, address(x, 0), t, address(p, 0), address(out, 0))
@@ -560,23 +541,54 @@ def _slab_moments(fi, p, indptr, indices, ptr, first, last, t_start, t_end, coef
                     for m in range(mu.shape[0]):
                         mu[m, i] += r_value
                         r_value *= wt
+                s0 = s1
             el += 1
 
 
 @njit(cache=True)
-def _sub_step(fi, jac, p, indptr, indices, ptr, first, last, t_start, t_end, coef, u0,
-              continuous, gx, gw, sa, sb, mu, x, out, points, data, e, term, total, v, jv):
-    """e <- the error at sb from the error e at sa (see :func:`slab_estimate`); returns the
-    number of terms in which exp(h J)'s Taylor series settled, or -1 (e unchanged) where it
-    does not settle in SLAB_TERMS terms."""
+def _shared_state(sc, tau, x):
+    """x_i = U_i at tau on a shared slab (monomial coefficients sc[i] in tau)."""
+    for i in range(x.size):
+        v = 0.0
+        for r in range(sc.shape[1] - 1, -1, -1):
+            v = v * tau + sc[i, r]
+        x[i] = v
+
+
+@njit(cache=True)
+def _shared_moments(f, p, sc, before, continuous, gx, gw, ta, tb, sa, sb, mu, x, fx):
+    """mu as :func:`_slab_moments` on a shared slab (ta, tb]: every component on one element,
+    monomial coefficients sc[i] in tau = (t - ta) / (tb - ta), its residual by f at once."""
+    K, h = tb - ta, sb - sa
+    q1 = sc.shape[1]
+    mu[:] = 0.0
+    if not continuous and sa == ta:  # the jumps at ta, weight 1
+        for i in range(x.size):
+            for m in range(mu.shape[0]):
+                mu[m, i] += sc[i, 0] - before[i]
+    for g in range(gx.size):
+        t = sa + gx[g] * h
+        tau = (t - ta) / K
+        _shared_state(sc, tau, x)
+        f(address(x, 0), t, address(p, 0), address(fx, 0))
+        wt = (sb - t) / h
+        for i in range(x.size):
+            du = 0.0
+            for r in range(q1 - 1, 0, -1):
+                du = du * tau + r * sc[i, r]
+            r_value = (du / K - fx[i]) * gw[g] * h
+            for m in range(mu.shape[0]):
+                mu[m, i] += r_value
+                r_value *= wt
+
+
+@njit(cache=True)
+def _propagate(indptr, indices, data, h, mu, e, term, total, v, jv):
+    """e <- exp(h J) (e + mu_0) + sum_{m >= 1} (h J)^m (mu_m - mu_0) / m! (see
+    :func:`slab_estimate`; J's values ``data``); returns the number of terms in which the
+    Taylor series of exp(h J) settled, or -1 (e unchanged) where it does not settle in
+    SLAB_TERMS terms."""
     N = e.size
-    h = sb - sa
-    _slab_moments(fi, p, indptr, indices, ptr, first, last, t_start, t_end, coef, u0,
-                  continuous, gx, gw, sa, sb, mu, x, out, points)
-    tm = sa + 0.5 * h
-    _state(ptr, first, last, t_start, t_end, coef, tm, x)
-    jac(address(x, 0), tm, address(p, 0), address(data, 0))
-    # exp(h J) w_0 by its Taylor series
     size = 0.0
     for r in range(N):
         term[r] = e[r] + mu[0, r]
@@ -600,8 +612,7 @@ def _sub_step(fi, jac, p, indptr, indices, ptr, first, last, t_start, t_end, coe
         settled = big <= SLAB_SETTLED * biggest
     if not settled:
         return -1
-    # + sum_{m >= 1} (h J)^m (mu_m - mu_0) / m!, by Horner
-    for r in range(N):
+    for r in range(N):  # the moment terms by Horner
         v[r] = 0.0
     for m in range(mu.shape[0] - 1, 0, -1):
         for r in range(N):
@@ -616,12 +627,15 @@ def _sub_step(fi, jac, p, indptr, indices, ptr, first, last, t_start, t_end, coe
 
 @njit(cache=True)
 def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start, t_end,
-                    coef, sync, u0, continuous, gx, gw, moments):
+                    coef, s_start, s_values, to_monomial, sync, u0, continuous, gx, gw,
+                    moments):
     """(e at T, nu, settled) of :func:`slab_estimate`, slab after slab between the times
-    ``sync``, each in equal sub-steps no longer than a length h: halved (and the slab redone)
-    where exp(h J)'s series does not settle, doubled for the next slab where it settled in
-    at most SLAB_TERMS // 2 terms on every sub-step; settled False: a slab where it does
-    not settle in SLAB_SUBSTEPS sub-steps per element of the slab."""
+    ``sync`` (a slab starting at s_start[n] is the shared slab n, nodal values s_values[n],
+    the others are each component's elements ptr[i]:ptr[i + 1]), each in equal sub-steps no
+    longer than a length h: halved (and the slab redone) where exp(h J)'s series does not
+    settle, doubled for the next slab where it settled in at most SLAB_TERMS // 2 terms on
+    every sub-step; settled False: a slab where it does not settle in SLAB_SUBSTEPS
+    sub-steps per element of the slab."""
     fi, f, jac = component_kernel(fi_address), rhs_kernel(rhs), rhs_kernel(jacobian)
     N, nnz = u0.size, indices.size
     first, last = ptr[:-1].copy(), ptr[:-1].copy()
@@ -629,31 +643,51 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
     e, x, out = np.zeros(N), np.empty(N), np.empty(1)
     data = np.empty(max(nnz, 1))
     term, total, v, jv = np.empty(N), np.empty(N), np.empty(N), np.empty(N)
-    fU, fS, start = np.empty(N), np.empty(N), np.empty(N)
-    points = np.empty(0)
+    fU, fS, start, before = np.empty(N), np.empty(N), np.empty(N), u0.copy()
+    sc = np.empty((N, to_monomial.shape[1]))
+    cursor = np.empty(max(nnz, 1), dtype=np.int64)
     nu = 0.0
     h = np.inf
+    shared_next = 0
     for n in range(sync.size - 1):
         ta, tb = sync[n], sync[n + 1]
-        for j in range(N):
-            first[j] = last[j]
-            while last[j] < ptr[j + 1] and t_end[last[j]] <= tb:
-                last[j] += 1
-        if points.size < 2 + np.sum(last - first):
-            points = np.empty(4 + 2 * np.sum(last - first))
+        shared = shared_next < s_start.size and s_start[shared_next] == ta
+        if shared:
+            for i in range(N):
+                for r in range(sc.shape[1]):
+                    acc = 0.0
+                    for node in range(s_values.shape[1]):
+                        acc += s_values[shared_next, node, i] * to_monomial[node, r]
+                    sc[i, r] = acc
+            shared_next += 1
+            elements = N
+        else:
+            for j in range(N):
+                first[j] = last[j]
+                while last[j] < ptr[j + 1] and t_end[last[j]] <= tb:
+                    last[j] += 1
+            elements = np.sum(last - first)
         start[:] = e
         while True:
             parts = 1 if h >= tb - ta else int(np.ceil((tb - ta) / h))
-            if parts > SLAB_SUBSTEPS * np.sum(last - first):
+            if parts > SLAB_SUBSTEPS * elements:
                 return e, nu, False
             width = (tb - ta) / parts
             most = 0
             for part in range(parts):
                 sa = ta + part * width
                 sb = tb if part == parts - 1 else sa + width
-                terms = _sub_step(fi, jac, p, indptr, indices, ptr, first, last, t_start,
-                                  t_end, coef, u0, continuous, gx, gw, sa, sb, mu, x, out,
-                                  points, data, e, term, total, v, jv)
+                tm = sa + 0.5 * (sb - sa)
+                if shared:
+                    _shared_moments(f, p, sc, before, continuous, gx, gw, ta, tb, sa, sb, mu,
+                                    x, fU)
+                    _shared_state(sc, (tm - ta) / (tb - ta), x)
+                else:
+                    _slab_moments(fi, p, indptr, indices, first, last, t_start, t_end, coef,
+                                  before, continuous, gx, gw, sa, sb, mu, x, out, cursor)
+                    _state(first, last, t_start, t_end, coef, tm, x)
+                jac(address(x, 0), tm, address(p, 0), address(data, 0))
+                terms = _propagate(indptr, indices, data, sb - sa, mu, e, term, total, v, jv)
                 if terms < 0:
                     break
                 most = max(most, terms)
@@ -663,8 +697,12 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
             e[:] = start
         if most <= SLAB_TERMS // 2 and h < np.inf:
             h = 2 * max(width, h)
-        # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end
-        _state(ptr, first, last, t_start, t_end, coef, tb, x)
+        # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, U(tb) the next slab's before
+        if shared:
+            _shared_state(sc, 1.0, x)
+        else:
+            _state(first, last, t_start, t_end, coef, tb, x)
+        before[:] = x
         jac(address(x, 0), tb, address(p, 0), address(data, 0))
         f(address(x, 0), tb, address(p, 0), address(fU, 0))
         for r in range(N):
