@@ -404,9 +404,9 @@ def slab_estimate(sol, compiled=None):
     SLAB_SUBSTEPS sub-steps per element (a stiff run).
 
     A slab (t_n, t_{n+1}], between two times where every component's elements end, is cut
-    into equal sub-steps I = (a, a + K] no longer than a length h carried from slab to slab
-    (halved, and the slab redone, where the series below does not settle; doubled after a
-    slab where it settled in at most SLAB_TERMS // 2 terms), on each of which the error
+    into sub-steps I = (a, a + K] no longer than a length h carried from sub-step to sub-step
+    (halved, and the sub-step redone, where the series below does not settle; doubled after
+    one where it settled in at most SLAB_TERMS // 2 terms), on each of which the error
     equation e' = J e + R with J frozen at the sub-step's midpoint gives
 
         e(a + K) = exp(K J) e(a) + int_I exp(J (a + K - s)) R(s) ds
@@ -631,11 +631,11 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
                     moments):
     """(e at T, nu, settled) of :func:`slab_estimate`, slab after slab between the times
     ``sync`` (a slab starting at s_start[n] is the shared slab n, nodal values s_values[n],
-    the others are each component's elements ptr[i]:ptr[i + 1]), each in equal sub-steps no
-    longer than a length h: halved (and the slab redone) where exp(h J)'s series does not
-    settle, doubled for the next slab where it settled in at most SLAB_TERMS // 2 terms on
-    every sub-step; settled False: a slab where it does not settle in SLAB_SUBSTEPS
-    sub-steps per element of the slab."""
+    the others are each component's elements ptr[i]:ptr[i + 1]), each in sub-steps no longer
+    than a length h: halved (and the sub-step redone) where exp(h J)'s series does not
+    settle, doubled after a sub-step where it settled in at most SLAB_TERMS // 2 terms;
+    settled False: a slab that would need more than SLAB_SUBSTEPS sub-steps per element of
+    the slab."""
     fi, f, jac = component_kernel(fi_address), rhs_kernel(rhs), rhs_kernel(jacobian)
     N, nnz = u0.size, indices.size
     first, last = ptr[:-1].copy(), ptr[:-1].copy()
@@ -643,7 +643,7 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
     e, x, out = np.zeros(N), np.empty(N), np.empty(1)
     data = np.empty(max(nnz, 1))
     term, total, v, jv = np.empty(N), np.empty(N), np.empty(N), np.empty(N)
-    fU, fS, start, before = np.empty(N), np.empty(N), np.empty(N), u0.copy()
+    fU, fS, before = np.empty(N), np.empty(N), u0.copy()
     sc = np.empty((N, to_monomial.shape[1]))
     cursor = np.empty(max(nnz, 1), dtype=np.int64)
     nu = 0.0
@@ -667,36 +667,31 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
                 while last[j] < ptr[j + 1] and t_end[last[j]] <= tb:
                     last[j] += 1
             elements = np.sum(last - first)
-        start[:] = e
-        while True:
-            parts = 1 if h >= tb - ta else int(np.ceil((tb - ta) / h))
-            if parts > SLAB_SUBSTEPS * elements:
+        sa, done = ta, 0
+        while sa < tb:
+            # the rest of the slab in equal sub-steps no longer than h: take the first
+            parts = 1 if h >= tb - sa else int(np.ceil((tb - sa) / h))
+            if done + parts > SLAB_SUBSTEPS * elements:
                 return e, nu, False
-            width = (tb - ta) / parts
-            most = 0
-            for part in range(parts):
-                sa = ta + part * width
-                sb = tb if part == parts - 1 else sa + width
-                tm = sa + 0.5 * (sb - sa)
-                if shared:
-                    _shared_moments(f, p, sc, before, continuous, gx, gw, ta, tb, sa, sb, mu,
-                                    x, fU)
-                    _shared_state(sc, (tm - ta) / (tb - ta), x)
-                else:
-                    _slab_moments(fi, p, indptr, indices, first, last, t_start, t_end, coef,
-                                  before, continuous, gx, gw, sa, sb, mu, x, out, cursor)
-                    _state(first, last, t_start, t_end, coef, tm, x)
-                jac(address(x, 0), tm, address(p, 0), address(data, 0))
-                terms = _propagate(indptr, indices, data, sb - sa, mu, e, term, total, v, jv)
-                if terms < 0:
-                    break
-                most = max(most, terms)
-            if terms >= 0:
-                break
-            h = 0.5 * width
-            e[:] = start
-        if most <= SLAB_TERMS // 2 and h < np.inf:
-            h = 2 * max(width, h)
+            sb = tb if parts == 1 else sa + (tb - sa) / parts
+            tm = sa + 0.5 * (sb - sa)
+            if shared:
+                _shared_moments(f, p, sc, before, continuous, gx, gw, ta, tb, sa, sb, mu, x,
+                                fU)
+                _shared_state(sc, (tm - ta) / (tb - ta), x)
+            else:
+                _slab_moments(fi, p, indptr, indices, first, last, t_start, t_end, coef,
+                              before, continuous, gx, gw, sa, sb, mu, x, out, cursor)
+                _state(first, last, t_start, t_end, coef, tm, x)
+            jac(address(x, 0), tm, address(p, 0), address(data, 0))
+            terms = _propagate(indptr, indices, data, sb - sa, mu, e, term, total, v, jv)
+            if terms < 0:  # redo this sub-step halved
+                h = 0.5 * (sb - sa)
+                continue
+            if terms <= SLAB_TERMS // 2 and h < np.inf:
+                h = max(h, 2 * (sb - sa))
+            sa = sb
+            done += 1
         # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, U(tb) the next slab's before
         if shared:
             _shared_state(sc, 1.0, x)
