@@ -382,8 +382,11 @@ def measured_warning(size, linearised, nu, rtol, state, factor):
 
 
 #: The slab estimate (:func:`slab_estimate`) takes the moments of each component's residual
-#: over a slab up to the degree 2q + SLAB_MOMENTS, ...
+#: over a sub-step up to the degree M <= 2q + SLAB_MOMENTS, the fewest whose first term left
+#: out of the moment series, relative to the first, (h rho)^M / (M + 1)!, is below
+#: SLAB_MOMENT_CUT (h rho as the sub-step, or the one before it, saw it), ...
 SLAB_MOMENTS = 4
+SLAB_MOMENT_CUT = 1e-3
 #: ... over sub-steps of the slab short enough that the Taylor series of exp(h J) settles
 #: (a term below SLAB_SETTLED x the sum) within SLAB_TERMS terms without growing past
 #: SLAB_CANCELLATION x the vector it is applied to: then h rho(J) is below about 2, and the
@@ -418,8 +421,9 @@ def slab_estimate(sol, compiled=None):
     components f_i reads, by Gauss quadrature exact for the degree of U_i' - f_i(U) times
     the weight where f is linear (on a shared slab, every component on the one element,
     by f at once). exp(K J) w_0 is summed by its Taylor series until a term is below
-    SLAB_SETTLED x the sum, the moment terms up to m = 2q + SLAB_MOMENTS (Horner); both hold
-    for K rho(J) below about 2, which the sub-steps keep. With one sub-step and one element
+    SLAB_SETTLED x the sum, the moment terms up to m = M <= 2q + SLAB_MOMENTS (Horner; M
+    by K rho(J), SLAB_MOMENT_CUT); both hold for K rho(J) below about 2, which the
+    sub-steps keep. With one sub-step and one element
     per slab it is the series of the collocation of :func:`estimate`. nu as there, at the
     slabs' ends. A :class:`~dolfinode.solution.MixedSolution` keeps its parts."""
     compiled = lower(sol.ode) if compiled is None else compiled
@@ -434,15 +438,18 @@ def slab_estimate(sol, compiled=None):
         np.linalg.inv(nodes[:, None] ** np.arange(len(nodes))[None, :]).T)
     coef = np.ascontiguousarray(values @ to_monomial)
     moments = 2 * method.q + SLAB_MOMENTS
-    # n Gauss points are exact to the degree 2n - 1 >= q + moments
-    x, w = np.polynomial.legendre.leggauss((method.q + moments + 2) // 2)
+    # for M moments, n = (q + M + 2) // 2 Gauss points: exact to the degree 2n - 1 >= q + M
+    points = (method.q + np.arange(moments + 1) + 2) // 2
+    gx, gw = np.zeros((moments + 1, points[-1])), np.zeros((moments + 1, points[-1]))
+    for M, n in enumerate(points):
+        x, w = np.polynomial.legendre.leggauss(n)
+        gx[M, :n], gw[M, :n] = (x + 1) / 2, w / 2
     e, nu, settled = _slab_recursion(
         compiled.rhs_component.address, compiled.rhs.address, compiled.jacobian.address,
         compiled.p, compiled.indptr, compiled.indices, np.asarray(ptr, dtype=np.int64),
         t_start, t_end, coef, np.asarray(s_start, dtype=float),
         np.ascontiguousarray(s_values, dtype=float), to_monomial, sync,
-        np.asarray(sol.ode.u0, dtype=float), method.family == "cG", (x + 1) / 2, w / 2,
-        moments)
+        np.asarray(sol.ode.u0, dtype=float), method.family == "cG", gx, gw, points)
     return (e, nu) if settled else None
 
 
@@ -583,12 +590,13 @@ def _shared_moments(f, p, sc, before, continuous, gx, gw, ta, tb, sa, sb, mu, x,
 
 
 @njit(cache=True)
-def _propagate(indptr, indices, data, h, mu, e, term, total, v, jv):
-    """e <- exp(h J) (e + mu_0) + sum_{m >= 1} (h J)^m (mu_m - mu_0) / m! (see
-    :func:`slab_estimate`; J's values ``data``); returns the number of terms in which the
-    Taylor series of exp(h J) settled, or -1 (e unchanged) where it does not settle in
-    SLAB_TERMS terms."""
+def _propagate(indptr, indices, data, h, mu, e, nxt, term, total, v, jv):
+    """nxt = exp(h J) (e + mu_0) + sum_{m >= 1} (h J)^m (mu_m - mu_0) / m! (see
+    :func:`slab_estimate`; J's values ``data``); returns (the number of terms in which the
+    Taylor series of exp(h J) settled, or -1 where it does not settle in SLAB_TERMS terms;
+    h rho(J) as the series saw it, (m! |t_m| / |t_0|)^(1 / m) at its last term t_m)."""
     N = e.size
+    seen = 0.0
     size = 0.0
     for r in range(N):
         term[r] = e[r] + mu[0, r]
@@ -596,6 +604,7 @@ def _propagate(indptr, indices, data, h, mu, e, term, total, v, jv):
         size = max(size, abs(term[r]))
     settled = size == 0.0
     terms = 0
+    factorial = 1.0
     for m in range(1, SLAB_TERMS + 1):
         if settled:
             break
@@ -607,11 +616,13 @@ def _propagate(indptr, indices, data, h, mu, e, term, total, v, jv):
             total[r] += jv[r]
             big = max(big, abs(jv[r]))
             biggest = max(biggest, abs(total[r]))
+        factorial *= m
+        seen = (factorial * big / size) ** (1.0 / m)
         if big > SLAB_CANCELLATION * size:
             break
         settled = big <= SLAB_SETTLED * biggest
     if not settled:
-        return -1
+        return -1, seen
     for r in range(N):  # the moment terms by Horner
         v[r] = 0.0
     for m in range(mu.shape[0] - 1, 0, -1):
@@ -621,14 +632,24 @@ def _propagate(indptr, indices, data, h, mu, e, term, total, v, jv):
         for r in range(N):
             v[r] = jv[r]
     for r in range(N):
-        e[r] = total[r] + v[r]
-    return terms
+        nxt[r] = total[r] + v[r]
+    return terms, seen
+
+
+@njit(cache=True)
+def _moments_for(x, top):
+    """The fewest moments M (1..top) for h rho(J) = x: (x^M / (M + 1)! <= SLAB_MOMENT_CUT)."""
+    M, left_out = 1, x / 2
+    while left_out > SLAB_MOMENT_CUT and M < top:
+        M += 1
+        left_out *= x / (M + 1)
+    return M
 
 
 @njit(cache=True)
 def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start, t_end,
                     coef, s_start, s_values, to_monomial, sync, u0, continuous, gx, gw,
-                    moments):
+                    points):
     """(e at T, nu, settled) of :func:`slab_estimate`, slab after slab between the times
     ``sync`` (a slab starting at s_start[n] is the shared slab n, nodal values s_values[n],
     the others are each component's elements ptr[i]:ptr[i + 1]), each in sub-steps no longer
@@ -639,15 +660,16 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
     fi, f, jac = component_kernel(fi_address), rhs_kernel(rhs), rhs_kernel(jacobian)
     N, nnz = u0.size, indices.size
     first, last = ptr[:-1].copy(), ptr[:-1].copy()
-    mu = np.empty((moments + 1, N))
-    e, x, out = np.zeros(N), np.empty(N), np.empty(1)
+    top = points.size - 1
+    mu = np.empty((top + 1, N))
+    e, nxt, x, out = np.zeros(N), np.empty(N), np.empty(N), np.empty(1)
     data = np.empty(max(nnz, 1))
     term, total, v, jv = np.empty(N), np.empty(N), np.empty(N), np.empty(N)
     fU, fS, before = np.empty(N), np.empty(N), u0.copy()
     sc = np.empty((N, to_monomial.shape[1]))
     cursor = np.empty(max(nnz, 1), dtype=np.int64)
     nu = 0.0
-    h = np.inf
+    h = rho = np.inf  # rho: rho(J) as the last sub-step saw it
     shared_next = 0
     for n in range(sync.size - 1):
         ta, tb = sync[n], sync[n + 1]
@@ -675,19 +697,27 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
                 return e, nu, False
             sb = tb if parts == 1 else sa + (tb - sa) / parts
             tm = sa + 0.5 * (sb - sa)
+            M = _moments_for(1.5 * rho * (sb - sa), top)  # a margin: few sub-steps redone
+            n = points[M]
             if shared:
-                _shared_moments(f, p, sc, before, continuous, gx, gw, ta, tb, sa, sb, mu, x,
-                                fU)
+                _shared_moments(f, p, sc, before, continuous, gx[M, :n], gw[M, :n], ta, tb,
+                                sa, sb, mu[:M + 1], x, fU)
                 _shared_state(sc, (tm - ta) / (tb - ta), x)
             else:
                 _slab_moments(fi, p, indptr, indices, first, last, t_start, t_end, coef,
-                              before, continuous, gx, gw, sa, sb, mu, x, out, cursor)
+                              before, continuous, gx[M, :n], gw[M, :n], sa, sb, mu[:M + 1], x,
+                              out, cursor)
                 _state(first, last, t_start, t_end, coef, tm, x)
             jac(address(x, 0), tm, address(p, 0), address(data, 0))
-            terms = _propagate(indptr, indices, data, sb - sa, mu, e, term, total, v, jv)
+            terms, seen = _propagate(indptr, indices, data, sb - sa, mu[:M + 1], e, nxt, term,
+                                     total, v, jv)
             if terms < 0:  # redo this sub-step halved
-                h = 0.5 * (sb - sa)
+                h, rho = 0.5 * (sb - sa), np.inf
                 continue
+            rho = seen / (sb - sa)
+            if _moments_for(seen, top) > M:  # redo it with the moments its h rho(J) needs
+                continue
+            e[:] = nxt
             if terms <= SLAB_TERMS // 2 and h < np.inf:
                 h = max(h, 2 * (sb - sa))
             sa = sb
