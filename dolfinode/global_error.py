@@ -395,16 +395,18 @@ SLAB_TERMS = 18
 SLAB_SETTLED = 1e-10
 SLAB_CANCELLATION = 1e8
 #: A sub-step on which the series does not settle halves the sub-steps' length h, up to
-#: SLAB_SUBSTEPS sub-steps per element of the slab: beyond, the run is stiff on the slab
-#: (the common refinement of :func:`estimate`, L-stable, then costs less) and it gives up.
+#: SLAB_SUBSTEPS sub-steps per element of the slab (a mono-adaptive step: one): beyond, the
+#: run is stiff on the slab (the common refinement of :func:`estimate`, L-stable, then costs
+#: less) and it gives up.
 SLAB_SUBSTEPS = 2
 
 
 def slab_estimate(sol, compiled=None):
     """(e, nu) as :func:`estimate` for a multi-adaptive solution (or a mono-adaptive one, as
     one whose every slab is shared), at a cost of the order of its elements (times the
-    sub-steps below), not of its common refinement; None where a slab would need more than
-    SLAB_SUBSTEPS sub-steps per element (a stiff run).
+    sub-steps below), not of its common refinement, without stage systems; None where a
+    slab would need more than SLAB_SUBSTEPS sub-steps per element (a stiff run; a step of a
+    mono-adaptive run counts as one element).
 
     A slab (t_n, t_{n+1}], between two times where every component's elements end, is cut
     into sub-steps I = (a, a + K] no longer than a length h carried from sub-step to sub-step
@@ -449,7 +451,8 @@ def slab_estimate(sol, compiled=None):
         compiled.p, compiled.indptr, compiled.indices, np.asarray(ptr, dtype=np.int64),
         t_start, t_end, coef, np.asarray(s_start, dtype=float),
         np.ascontiguousarray(s_values, dtype=float), to_monomial, sync,
-        np.asarray(sol.ode.u0, dtype=float), method.family == "cG", gx, gw, points)
+        np.asarray(sol.ode.u0, dtype=float), method.family == "cG", gx, gw, points,
+        N if sol.multi else 1)
     return (e, nu) if settled else None
 
 
@@ -649,10 +652,11 @@ def _moments_for(x, top):
 @njit(cache=True)
 def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start, t_end,
                     coef, s_start, s_values, to_monomial, sync, u0, continuous, gx, gw,
-                    points):
+                    points, shared_elements):
     """(e at T, nu, settled) of :func:`slab_estimate`, slab after slab between the times
     ``sync`` (a slab starting at s_start[n] is the shared slab n, nodal values s_values[n],
-    the others are each component's elements ptr[i]:ptr[i + 1]), each in sub-steps no longer
+    the others are each component's elements ptr[i]:ptr[i + 1]; a shared slab counts as
+    ``shared_elements`` elements), each in sub-steps no longer
     than a length h: halved (and the sub-step redone) where exp(h J)'s series does not
     settle, doubled after a sub-step where it settled in at most SLAB_TERMS // 2 terms;
     settled False: a slab that would need more than SLAB_SUBSTEPS sub-steps per element of
@@ -682,7 +686,7 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
                         acc += s_values[shared_next, node, i] * to_monomial[node, r]
                     sc[i, r] = acc
             shared_next += 1
-            elements = N
+            elements = shared_elements
         else:
             for j in range(N):
                 first[j] = last[j]

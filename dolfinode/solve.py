@@ -942,8 +942,8 @@ def estimate_global_error(ode, compiled, m, params, sol, steps):
         done = sol.success and params["dense_output"] is True
         small = (m.q + 2) * ode.N <= AUTO_ROWS
         choice = done and small and steps >= SHORTEST_RUN
-        # larger multi-adaptive runs: the slab estimate (no common refinement)
-        slabs = done and not small and sol.multi and steps >= SHORTEST_RUN
+        # larger runs: the slab estimate (no stage systems, no common refinement)
+        slabs = done and not small and steps >= SHORTEST_RUN
     if choice or slabs:
         _warn_global_error(ode, compiled, params, sol, slabs)
 
@@ -952,23 +952,18 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False):
     """sol.stats["global error estimate"] (:mod:`dolfinode.global_error`, scaled as the
     tolerance means it) and "global error nonlinearity", and a ToleranceWarning when the
     estimate exceeds 10 x the tolerance where it holds (not with fixed steps, which have no
-    tolerance to compare with). ``slabs``: by :func:`~dolfinode.global_error.slab_estimate`,
-    and where the run is stiff on a slab (more than SLAB_SUBSTEPS sub-steps per element) by
-    the common-slab estimate; a warning that it could not be estimated where that exceeds
-    the memory."""
+    tolerance to compare with). ``slabs``: by :func:`~dolfinode.global_error.slab_estimate`;
+    where the run is stiff on a slab it gives up, and sol.stats["global error note"] says
+    that the error at T was not estimated and how to ask for it."""
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
-    found = global_error.slab_estimate(sol, compiled) if slabs else None
-    if found is None:
-        try:
-            found = global_error.estimate(sol, compiled)
-        except ValueError as error:
-            if not slabs:
-                raise
-            _warn("the error at T could not be estimated: this multi-adaptive run is stiff "
-                  f"on a slab (more than {global_error.SLAB_SUBSTEPS} sub-steps per element "
-                  f"for the slab estimate) and {error}")
+    if slabs:
+        found = global_error.slab_estimate(sol, compiled)
+        if found is None:
+            sol.stats["global error note"] = SLAB_NOTE
             return
+    else:
+        found = global_error.estimate(sol, compiled)
     e, nu = found
     size, i = global_error.scaled(e, sol(ode.T), atol, rtol)
     sol.stats["global error estimate"] = size
@@ -985,6 +980,14 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False):
                                                 REFERENCE_FACTOR)
     if why:
         _warn(why)
+
+
+#: sol.stats["global error note"] of a larger run "auto" did not estimate: stiff on its slabs
+#: the slab estimate would cost many times the solve, and the error of a damped stiff run
+#: does not add up as an undamped one's does.
+SLAB_NOTE = ("not estimated: the run is stiff on its slabs (the slab estimate would need more "
+             f"than {global_error.SLAB_SUBSTEPS} sub-steps per element); "
+             "estimate_global_error=True estimates it on the common slabs")
 
 
 #: Where the linearised estimate exceeds 10 x the tolerance but does not hold (its
