@@ -315,13 +315,15 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         multi-adaptive component's elements) whose stage system has at most ``AUTO_ROWS``
         (64) rows: the steps' errors add up on undamped or drifting runs (Kepler's orbit at
         eccentricity 0.9 over one period, 22 slabs of dG(3) at 1e-3: 35 x the tolerance);
-        the larger multi-adaptive runs by the slab estimate
-        (:func:`dolfinode.global_error.slab_estimate`: the error equation on the slabs, each
-        component's residual integrated on its own elements, slabs cut into sub-steps where
-        K rho(J) is large); other runs (and automatic modeling, events,
-        breakpoints, switches, method="auto" where it solves in stretches) are not estimated
-        and have no such key. True estimates every run (a ValueError where it cannot), False
-        none.
+        larger runs (mono- and multi-adaptive) by the slab estimate
+        (:func:`dolfinode.global_error.slab_estimate`: the error equation on the slabs by
+        Taylor series, no stage systems; 0.3-2.3 x the solve of runs of 0.05 s and more, a
+        50-mass chain at 1e-4, 1e-6 within 0.97-1.03 x the error), except where a run is
+        stiff on its slabs: then
+        ``sol.stats["global error note"]`` says that it was not estimated; other runs (and
+        automatic modeling, events, breakpoints, switches, method="auto" where it solves in
+        stretches) are not estimated and have no such key. True estimates every run on the
+        stage systems (a ValueError where it cannot), False none.
 
     Returns
     -------
