@@ -395,9 +395,9 @@ SLAB_TERMS = 18
 SLAB_SETTLED = 1e-10
 SLAB_CANCELLATION = 1e8
 #: A sub-step on which the series does not settle halves the sub-steps' length h, up to
-#: SLAB_SUBSTEPS sub-steps per element of the slab (a mono-adaptive step: one): beyond, the
-#: run is stiff on the slab (the common refinement of :func:`estimate`, L-stable, then costs
-#: less) and it gives up.
+#: SLAB_SUBSTEPS sub-steps per element of the slab (a mono-adaptive step: q + 1, the work of
+#: its q + 1 values per component): beyond, the run is stiff on the slab (the common
+#: refinement of :func:`estimate`, L-stable, then costs less) and it gives up.
 SLAB_SUBSTEPS = 2
 
 
@@ -406,7 +406,7 @@ def slab_estimate(sol, compiled=None):
     one whose every slab is shared), at a cost of the order of its elements (times the
     sub-steps below), not of its common refinement, without stage systems; None where a
     slab would need more than SLAB_SUBSTEPS sub-steps per element (a stiff run; a step of a
-    mono-adaptive run counts as one element).
+    mono-adaptive run counts as q + 1 elements).
 
     A slab (t_n, t_{n+1}], between two times where every component's elements end, is cut
     into sub-steps I = (a, a + K] no longer than a length h carried from sub-step to sub-step
@@ -452,7 +452,7 @@ def slab_estimate(sol, compiled=None):
         t_start, t_end, coef, np.asarray(s_start, dtype=float),
         np.ascontiguousarray(s_values, dtype=float), to_monomial, sync,
         np.asarray(sol.ode.u0, dtype=float), method.family == "cG", gx, gw, points,
-        N if sol.multi else 1)
+        N if sol.multi else method.q + 1)
     return (e, nu) if settled else None
 
 
