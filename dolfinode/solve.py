@@ -317,7 +317,7 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         eccentricity 0.9 over one period, 22 slabs of dG(3) at 1e-3: 35 x the tolerance);
         larger runs (mono- and multi-adaptive) by the slab estimate
         (:func:`dolfinode.global_error.slab_estimate`: the error equation on the slabs by
-        Taylor series, no stage systems; 0.3-2.3 x the solve of runs of 0.05 s and more, a
+        Taylor series, no stage systems; 0.3-2.4 x the solve of runs of 0.05 s and more, a
         50-mass chain at 1e-4, 1e-6 within 0.97-1.03 x the error), except where a run is
         stiff on its slabs: then
         ``sol.stats["global error note"]`` says that it was not estimated; other runs (and
