@@ -406,7 +406,8 @@ def slab_estimate(sol, compiled=None):
     one whose every slab is shared), at a cost of the order of its elements (times the
     sub-steps below), not of its common refinement, without stage systems; None where a
     slab would need more than SLAB_SUBSTEPS sub-steps per element (a stiff run; a step of a
-    mono-adaptive run counts as q + 1 elements).
+    mono-adaptive run counts as q + 1 elements); a ValueError where its copy of the elements
+    would take more than COMMON_MEMORY_FRACTION x the available memory.
 
     A slab (t_n, t_{n+1}], between two times where every component's elements end, is cut
     into sub-steps I = (a, a + K] no longer than a length h carried from sub-step to sub-step
@@ -432,6 +433,12 @@ def slab_estimate(sol, compiled=None):
     method = sol.method
     N = compiled.N
     (ptr, t_start, t_end, values), (s_start, s_end, s_values) = family_parts(sol)
+    # the elements' monomial coefficients, and the sort of their ends
+    size = 8 * len(t_end) * (method.q + 4)
+    if size > COMMON_MEMORY_FRACTION * available_memory():
+        raise ValueError(f"the slab estimate's copy of the {len(t_end)} elements takes "
+                         f"{size / 2**30:.3g} GB, more than {COMMON_MEMORY_FRACTION:g} x the "
+                         "memory available")
     ends, counts = np.unique(t_end, return_counts=True)
     sync = np.unique(np.concatenate([[sol.ode.t0], ends[counts == N], s_start, s_end]))
     nodes = np.asarray(method.nodes, dtype=float)

@@ -955,12 +955,16 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False):
     tolerance means it) and "global error nonlinearity", and a ToleranceWarning when the
     estimate exceeds 10 x the tolerance where it holds (not with fixed steps, which have no
     tolerance to compare with). ``slabs``: by :func:`~dolfinode.global_error.slab_estimate`;
-    where the run is stiff on a slab it gives up, and sol.stats["global error note"] says
-    that the error at T was not estimated and how to ask for it."""
+    where the run is stiff on a slab (or its elements' copy exceeds the memory) it gives up,
+    and sol.stats["global error note"] says that the error at T was not estimated."""
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
     if slabs:
-        found = global_error.slab_estimate(sol, compiled)
+        try:
+            found = global_error.slab_estimate(sol, compiled)
+        except ValueError as error:
+            sol.stats["global error note"] = f"not estimated: {error}"
+            return
         if found is None:
             sol.stats["global error note"] = SLAB_NOTE
             return

@@ -385,3 +385,15 @@ def test_a_large_run_stiff_on_its_slabs_is_noted_not_estimated():
     assert "estimate_global_error=True" in sol.stats["global error note"]
     asked = dn.solve(p.ode, estimate_global_error=True, **kwargs)
     assert "global error estimate" in asked.stats
+
+
+def test_a_slab_estimate_beyond_the_memory_is_noted_not_run(monkeypatch):
+    """Where the slab estimate's copy of the elements would exceed its share of the memory,
+    the default solve does not run it and its stats say why, without a warning."""
+    p = problems.mass_spring_chain()  # mdG(1) at 1e-2: 34 k elements outside shared slabs
+    monkeypatch.setattr(global_error, "available_memory", lambda: 1000)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        sol = dn.solve(p.ode, method="mdG(1)", tolerance=1e-2)
+    assert "global error estimate" not in sol.stats
+    assert "memory" in sol.stats["global error note"]
