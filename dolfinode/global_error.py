@@ -37,8 +37,9 @@ import sympy as sp
 from numba import njit
 
 from dolfinode.compile import lower
-from dolfinode.compile.signatures import address, call_rhs_rows, rhs_kernel
+from dolfinode.compile.signatures import address, call_rhs_rows, component_kernel, rhs_kernel
 from dolfinode.dual.problem import monomial_coefficients
+from dolfinode.family import _parts as family_parts
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.memory import available_memory
 from dolfinode.methods.quadrature import radau
@@ -378,6 +379,379 @@ def measured_warning(size, linearised, nu, rtol, state, factor):
             f"{factor:g} x the tolerance (the linearised estimate, {linearised / rtol:.3g} x, "
             f"does not hold along this run: sol.stats['global error nonlinearity'] = "
             f"{nu:.3g}). Try a tighter tolerance, or dn.estimate_error with a goal")
+
+
+#: The slab estimate (:func:`slab_estimate`) takes the moments of each component's residual
+#: over a sub-step up to the degree M <= 2q + SLAB_MOMENTS, the fewest whose first term left
+#: out of the moment series, relative to the first, (h rho)^M / (M + 1)!, is below
+#: SLAB_MOMENT_CUT (h rho as the sub-step, or the one before it, saw it), ...
+SLAB_MOMENTS = 4
+SLAB_MOMENT_CUT = 1e-3
+#: ... over sub-steps of the slab short enough that the Taylor series of exp(h J) settles
+#: (a term below SLAB_SETTLED x the sum) within SLAB_TERMS terms without growing past
+#: SLAB_CANCELLATION x the vector it is applied to: then h rho(J) is below about 2, and the
+#: moment series, cut at 2q + SLAB_MOMENTS, is accurate too.
+SLAB_TERMS = 18
+SLAB_SETTLED = 1e-10
+SLAB_CANCELLATION = 1e8
+#: A sub-step on which the series does not settle halves the sub-steps' length h, up to
+#: SLAB_SUBSTEPS sub-steps per element of the slab (a mono-adaptive step: q + 1, the work of
+#: its q + 1 values per component): beyond, the run is stiff on the slab (the common
+#: refinement of :func:`estimate`, L-stable, then costs less) and it gives up.
+SLAB_SUBSTEPS = 2
+
+
+def slab_estimate(sol, compiled=None):
+    """(e, nu) as :func:`estimate` for a multi-adaptive solution (or a mono-adaptive one, as
+    one whose every slab is shared), at a cost of the order of its elements (times the
+    sub-steps below), not of its common refinement, without stage systems; None where a
+    slab would need more than SLAB_SUBSTEPS sub-steps per element (a stiff run; a step of a
+    mono-adaptive run counts as q + 1 elements); a ValueError where its copy of the elements
+    would take more than COMMON_MEMORY_FRACTION x the available memory.
+
+    A slab (t_n, t_{n+1}], between two times where every component's elements end, is cut
+    into sub-steps I = (a, a + K] no longer than a length h carried from sub-step to sub-step
+    (halved, and the sub-step redone, where the series below does not settle; doubled after
+    one where it settled in at most SLAB_TERMS // 2 terms), on each of which the error
+    equation e' = J e + R with J frozen at the sub-step's midpoint gives
+
+        e(a + K) = exp(K J) e(a) + int_I exp(J (a + K - s)) R(s) ds
+                 = exp(K J) w_0 + sum_{m >= 1} (K J)^m (mu_m - mu_0) / m!,
+
+    mu_m = int_I ((a + K - s) / K)^m R(s) ds and w_0 = e(a) + mu_0: the residual enters
+    through its moments, integrated on the parts in I of each component's own elements
+    (mdG(q)'s jumps at their starts as point masses), split at the element ends of the
+    components f_i reads, by Gauss quadrature exact for the degree of U_i' - f_i(U) times
+    the weight where f is linear (on a shared slab, every component on the one element,
+    by f at once). exp(K J) w_0 is summed by its Taylor series until a term is below
+    SLAB_SETTLED x the sum, the moment terms up to m = M <= 2q + SLAB_MOMENTS (Horner; M
+    by K rho(J), SLAB_MOMENT_CUT); both hold for K rho(J) below about 2, which the
+    sub-steps keep. With one sub-step and one element
+    per slab it is the series of the collocation of :func:`estimate`. nu as there, at the
+    slabs' ends. A :class:`~dolfinode.solution.MixedSolution` keeps its parts."""
+    compiled = lower(sol.ode) if compiled is None else compiled
+    method = sol.method
+    N = compiled.N
+    (ptr, t_start, t_end, values), (s_start, s_end, s_values) = family_parts(sol)
+    # the elements' monomial coefficients, and the sort of their ends
+    size = 8 * len(t_end) * (method.q + 4)
+    if size > COMMON_MEMORY_FRACTION * available_memory():
+        raise ValueError(f"the slab estimate's copy of the {len(t_end)} elements takes "
+                         f"{size / 2**30:.3g} GB, more than {COMMON_MEMORY_FRACTION:g} x the "
+                         "memory available")
+    ends, counts = np.unique(t_end, return_counts=True)
+    sync = np.unique(np.concatenate([[sol.ode.t0], ends[counts == N], s_start, s_end]))
+    nodes = np.asarray(method.nodes, dtype=float)
+    # monomial coefficients in tau = (t - a) / k of each element's polynomial
+    to_monomial = np.ascontiguousarray(
+        np.linalg.inv(nodes[:, None] ** np.arange(len(nodes))[None, :]).T)
+    coef = np.ascontiguousarray(values @ to_monomial)
+    moments = 2 * method.q + SLAB_MOMENTS
+    # for M moments, n = (q + M + 2) // 2 Gauss points: exact to the degree 2n - 1 >= q + M
+    points = (method.q + np.arange(moments + 1) + 2) // 2
+    gx, gw = np.zeros((moments + 1, points[-1])), np.zeros((moments + 1, points[-1]))
+    for M, n in enumerate(points):
+        x, w = np.polynomial.legendre.leggauss(n)
+        gx[M, :n], gw[M, :n] = (x + 1) / 2, w / 2
+    e, nu, settled = _slab_recursion(
+        compiled.rhs_component.address, compiled.rhs.address, compiled.jacobian.address,
+        compiled.p, compiled.indptr, compiled.indices, np.asarray(ptr, dtype=np.int64),
+        t_start, t_end, coef, np.asarray(s_start, dtype=float),
+        np.ascontiguousarray(s_values, dtype=float), to_monomial, sync,
+        np.asarray(sol.ode.u0, dtype=float), method.family == "cG", gx, gw, points,
+        N if sol.multi else method.q + 1)
+    return (e, nu) if settled else None
+
+
+@njit(cache=True)
+def _value(coef, el, tau):
+    """U(tau) of the element ``el`` (monomial coefficients in tau)."""
+    v = 0.0
+    for r in range(coef.shape[1] - 1, -1, -1):
+        v = v * tau + coef[el, r]
+    return v
+
+
+@njit(cache=True)
+def _element_at(t_end, lo, hi, t):
+    """The first element in lo..hi - 1 (time-sorted) ending at or after t (hi - 1 if none)."""
+    hi -= 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if t_end[mid] < t:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True)
+def _state(first, last, t_start, t_end, coef, t, x):
+    """x_j = U_j(t) for every component j, from its elements first[j]..last[j] - 1."""
+    for j in range(x.size):
+        el = _element_at(t_end, first[j], last[j], t)
+        x[j] = _value(coef, el, (t - t_start[el]) / (t_end[el] - t_start[el]))
+
+
+@njit(cache=True)
+def _times_jacobian(indptr, indices, data, scale, v, out):
+    """out = scale J v (J's values ``data`` in CSR order)."""
+    for r in range(v.size):
+        acc = 0.0
+        for m in range(indptr[r], indptr[r + 1]):
+            acc += data[m] * v[indices[m]]
+        out[r] = scale * acc
+
+
+@njit(cache=True)
+def _slab_moments(fi, p, indptr, indices, first, last, t_start, t_end, coef, before,
+                  continuous, gx, gw, sa, sb, mu, x, out, cursor):
+    """mu[m, i] = int_{sa}^{sb} ((sb - s) / h)^m R_i(s) ds over the sub-step (sa, sb] of a
+    slab (see :func:`slab_estimate`), each component on the parts inside it of its elements
+    first[i]..last[i] - 1 (U_i(t_n-) = before[i]), each part split where an element of a
+    component f_i reads ends (``cursor``: room for J's nonzeros)."""
+    h = sb - sa
+    q1 = coef.shape[1]
+    mu[:] = 0.0
+    for i in range(x.size):
+        el = _element_at(t_end, first[i], last[i], sa)
+        if t_end[el] <= sa:
+            el += 1
+        for nz in range(indptr[i], indptr[i + 1]):
+            j = indices[nz]
+            cursor[nz] = _element_at(t_end, first[j], last[j], sa)
+        while el < last[i] and t_start[el] < sb:
+            a, b = t_start[el], t_end[el]
+            k = b - a
+            if not continuous and a >= sa:  # the jump U_i(a+) - U_i(a-), a point mass at a
+                jump = coef[el, 0] - (before[i] if el == first[i] else _value(coef, el - 1, 1.0))
+                wt = (sb - a) / h
+                for m in range(mu.shape[0]):
+                    mu[m, i] += jump
+                    jump *= wt
+            lo, hi = max(a, sa), min(b, sb)
+            s0 = lo
+            while s0 < hi:
+                # the neighbours' elements on (s0, s1]: the first of each ending after s0
+                s1 = hi
+                for nz in range(indptr[i], indptr[i + 1]):
+                    j = indices[nz]
+                    c = cursor[nz]
+                    while c < last[j] - 1 and t_end[c] <= s0:
+                        c += 1
+                    cursor[nz] = c
+                    if j != i and t_end[c] < s1:
+                        s1 = t_end[c]
+                for g in range(gx.size):
+                    t = s0 + gx[g] * (s1 - s0)
+                    for nz in range(indptr[i], indptr[i + 1]):
+                        c = cursor[nz]
+                        x[indices[nz]] = _value(coef, c, (t - t_start[c]) / (t_end[c] - t_start[c]))
+                    tau = (t - a) / k
+                    x[i] = _value(coef, el, tau)
+                    fi(i, address(x, 0), t, address(p, 0), address(out, 0))
+                    du = 0.0
+                    for r in range(q1 - 1, 0, -1):
+                        du = du * tau + r * coef[el, r]
+                    r_value = (du / k - out[0]) * gw[g] * (s1 - s0)
+                    wt = (sb - t) / h
+                    for m in range(mu.shape[0]):
+                        mu[m, i] += r_value
+                        r_value *= wt
+                s0 = s1
+            el += 1
+
+
+@njit(cache=True)
+def _shared_state(sc, tau, x):
+    """x_i = U_i at tau on a shared slab (monomial coefficients sc[i] in tau)."""
+    for i in range(x.size):
+        v = 0.0
+        for r in range(sc.shape[1] - 1, -1, -1):
+            v = v * tau + sc[i, r]
+        x[i] = v
+
+
+@njit(cache=True)
+def _shared_moments(f, p, sc, before, continuous, gx, gw, ta, tb, sa, sb, mu, x, fx):
+    """mu as :func:`_slab_moments` on a shared slab (ta, tb]: every component on one element,
+    monomial coefficients sc[i] in tau = (t - ta) / (tb - ta), its residual by f at once."""
+    K, h = tb - ta, sb - sa
+    q1 = sc.shape[1]
+    mu[:] = 0.0
+    if not continuous and sa == ta:  # the jumps at ta, weight 1
+        for i in range(x.size):
+            for m in range(mu.shape[0]):
+                mu[m, i] += sc[i, 0] - before[i]
+    for g in range(gx.size):
+        t = sa + gx[g] * h
+        tau = (t - ta) / K
+        _shared_state(sc, tau, x)
+        f(address(x, 0), t, address(p, 0), address(fx, 0))
+        wt = (sb - t) / h
+        for i in range(x.size):
+            du = 0.0
+            for r in range(q1 - 1, 0, -1):
+                du = du * tau + r * sc[i, r]
+            r_value = (du / K - fx[i]) * gw[g] * h
+            for m in range(mu.shape[0]):
+                mu[m, i] += r_value
+                r_value *= wt
+
+
+@njit(cache=True)
+def _propagate(indptr, indices, data, h, mu, e, nxt, term, total, v, jv):
+    """nxt = exp(h J) (e + mu_0) + sum_{m >= 1} (h J)^m (mu_m - mu_0) / m! (see
+    :func:`slab_estimate`; J's values ``data``); returns (the number of terms in which the
+    Taylor series of exp(h J) settled, or -1 where it does not settle in SLAB_TERMS terms;
+    h rho(J) as the series saw it, (m! |t_m| / |t_0|)^(1 / m) at its last term t_m)."""
+    N = e.size
+    seen = 0.0
+    size = 0.0
+    for r in range(N):
+        term[r] = e[r] + mu[0, r]
+        total[r] = term[r]
+        size = max(size, abs(term[r]))
+    settled = size == 0.0
+    terms = 0
+    factorial = 1.0
+    for m in range(1, SLAB_TERMS + 1):
+        if settled:
+            break
+        terms = m
+        _times_jacobian(indptr, indices, data, h / m, term, jv)
+        big = biggest = 0.0
+        for r in range(N):
+            term[r] = jv[r]
+            total[r] += jv[r]
+            big = max(big, abs(jv[r]))
+            biggest = max(biggest, abs(total[r]))
+        factorial *= m
+        seen = (factorial * big / size) ** (1.0 / m)
+        if big > SLAB_CANCELLATION * size:
+            break
+        settled = big <= SLAB_SETTLED * biggest
+    if not settled:
+        return -1, seen
+    for r in range(N):  # the moment terms by Horner
+        v[r] = 0.0
+    for m in range(mu.shape[0] - 1, 0, -1):
+        for r in range(N):
+            v[r] += mu[m, r] - mu[0, r]
+        _times_jacobian(indptr, indices, data, h / m, v, jv)
+        for r in range(N):
+            v[r] = jv[r]
+    for r in range(N):
+        nxt[r] = total[r] + v[r]
+    return terms, seen
+
+
+@njit(cache=True)
+def _moments_for(x, top):
+    """The fewest moments M (1..top) for h rho(J) = x: (x^M / (M + 1)! <= SLAB_MOMENT_CUT)."""
+    M, left_out = 1, x / 2
+    while left_out > SLAB_MOMENT_CUT and M < top:
+        M += 1
+        left_out *= x / (M + 1)
+    return M
+
+
+@njit(cache=True)
+def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start, t_end,
+                    coef, s_start, s_values, to_monomial, sync, u0, continuous, gx, gw,
+                    points, shared_elements):
+    """(e at T, nu, settled) of :func:`slab_estimate`, slab after slab between the times
+    ``sync`` (a slab starting at s_start[n] is the shared slab n, nodal values s_values[n],
+    the others are each component's elements ptr[i]:ptr[i + 1]; a shared slab counts as
+    ``shared_elements`` elements), each in sub-steps no longer
+    than a length h: halved (and the sub-step redone) where exp(h J)'s series does not
+    settle, doubled after a sub-step where it settled in at most SLAB_TERMS // 2 terms;
+    settled False: a slab that would need more than SLAB_SUBSTEPS sub-steps per element of
+    the slab."""
+    fi, f, jac = component_kernel(fi_address), rhs_kernel(rhs), rhs_kernel(jacobian)
+    N, nnz = u0.size, indices.size
+    first, last = ptr[:-1].copy(), ptr[:-1].copy()
+    top = points.size - 1
+    mu = np.empty((top + 1, N))
+    e, nxt, x, out = np.zeros(N), np.empty(N), np.empty(N), np.empty(1)
+    data = np.empty(max(nnz, 1))
+    term, total, v, jv = np.empty(N), np.empty(N), np.empty(N), np.empty(N)
+    fU, fS, before = np.empty(N), np.empty(N), u0.copy()
+    sc = np.empty((N, to_monomial.shape[1]))
+    cursor = np.empty(max(nnz, 1), dtype=np.int64)
+    nu = 0.0
+    h = rho = np.inf  # rho: rho(J) as the last sub-step saw it
+    shared_next = 0
+    for n in range(sync.size - 1):
+        ta, tb = sync[n], sync[n + 1]
+        shared = shared_next < s_start.size and s_start[shared_next] == ta
+        if shared:
+            for i in range(N):
+                for r in range(sc.shape[1]):
+                    acc = 0.0
+                    for node in range(s_values.shape[1]):
+                        acc += s_values[shared_next, node, i] * to_monomial[node, r]
+                    sc[i, r] = acc
+            shared_next += 1
+            elements = shared_elements
+        else:
+            for j in range(N):
+                first[j] = last[j]
+                while last[j] < ptr[j + 1] and t_end[last[j]] <= tb:
+                    last[j] += 1
+            elements = np.sum(last - first)
+        sa, done = ta, 0
+        while sa < tb:
+            # the rest of the slab in equal sub-steps no longer than h: take the first
+            parts = 1 if h >= tb - sa else int(np.ceil((tb - sa) / h))
+            if done + parts > SLAB_SUBSTEPS * elements:
+                return e, nu, False
+            sb = tb if parts == 1 else sa + (tb - sa) / parts
+            tm = sa + 0.5 * (sb - sa)
+            M = _moments_for(1.5 * rho * (sb - sa), top)  # a margin: few sub-steps redone
+            n = points[M]
+            if shared:
+                _shared_moments(f, p, sc, before, continuous, gx[M, :n], gw[M, :n], ta, tb,
+                                sa, sb, mu[:M + 1], x, fU)
+                _shared_state(sc, (tm - ta) / (tb - ta), x)
+            else:
+                _slab_moments(fi, p, indptr, indices, first, last, t_start, t_end, coef,
+                              before, continuous, gx[M, :n], gw[M, :n], sa, sb, mu[:M + 1], x,
+                              out, cursor)
+                _state(first, last, t_start, t_end, coef, tm, x)
+            jac(address(x, 0), tm, address(p, 0), address(data, 0))
+            terms, seen = _propagate(indptr, indices, data, sb - sa, mu[:M + 1], e, nxt, term,
+                                     total, v, jv)
+            if terms < 0:  # redo this sub-step halved
+                h, rho = 0.5 * (sb - sa), np.inf
+                continue
+            rho = seen / (sb - sa)
+            if _moments_for(seen, top) > M:  # redo it with the moments its h rho(J) needs
+                continue
+            e[:] = nxt
+            if terms <= SLAB_TERMS // 2 and h < np.inf:
+                h = max(h, 2 * (sb - sa))
+            sa = sb
+            done += 1
+        # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, U(tb) the next slab's before
+        if shared:
+            _shared_state(sc, 1.0, x)
+        else:
+            _state(first, last, t_start, t_end, coef, tb, x)
+        before[:] = x
+        jac(address(x, 0), tb, address(p, 0), address(data, 0))
+        f(address(x, 0), tb, address(p, 0), address(fU, 0))
+        for r in range(N):
+            term[r] = x[r] - e[r]
+        f(address(term, 0), tb, address(p, 0), address(fS, 0))
+        _times_jacobian(indptr, indices, data, 1.0, e, jv)
+        size = remainder = 0.0
+        for r in range(N):
+            size = max(size, abs(jv[r]))
+            remainder = max(remainder, abs(fS[r] - fU[r] + jv[r]))
+        if size > 0:
+            nu = max(nu, remainder / size)
+    return e, nu, True
 
 
 #: A solve with ``estimate_global_error=True`` warns when the estimate exceeds WARN_FACTOR
