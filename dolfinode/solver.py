@@ -68,6 +68,7 @@ from dolfinode.solve import (
     solve,
     solve_lowered,
     warn_growth_below_tolerance,
+    warn_lost_components,
 )
 from dolfinode.timeslab import contract, mono, prepared
 from dolfinode.timeslab.start import READY, start
@@ -308,7 +309,7 @@ class Solver:
             floor_key = (self._signs, _has_negative(work.u0))  # all the floor depends on
             if floor_key != self._floor_key:
                 floor[:] = _floor(work, atol)
-                self._floor_key = floor_key
+                self._floor_key, self._bounded = floor_key, bool(np.isfinite(floor).any())
             self._u0, self._solved = work.u0, None
             if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
                 _check_resolvable_tolerance(work, atol, params["tolerance"])
@@ -339,6 +340,7 @@ class Solver:
                               started, kept)
             estimate_global_error(work, compiled, m, params, sol,
                                   longest_run(sol, multi_adaptive))
+            warn_lost_components(work, compiled, params, sol)
             return sol
         if self._solved is None:  # the values of this call, kept while they are unchanged
             self._solved = work._snapshot()
@@ -363,4 +365,6 @@ class Solver:
         sol.parameters = params
         estimate_global_error(work, compiled, m, params, sol, longest_run(sol, True)
                               if multi_adaptive else counts[ts.SLABS])
+        if self._bounded:  # (values projected to 0: :func:`warn_lost_components`)
+            warn_lost_components(work, compiled, params, sol)
         return sol

@@ -102,3 +102,43 @@ def test_a_component_growing_from_below_the_absolute_tolerance_warns(method):
         # below atol but decaying, or at 0: nothing to resolve
         dn.solve(dn.ODE({u: -u * (1 - u)}, [1e-12], T=35.0), method, tolerance=1e-3)
         dn.solve(dn.ODE({u: u * (1 - u)}, [0.0], T=35.0), method, tolerance=1e-3)
+
+
+#: Lotka-Volterra from (3, 40): y dips to 8e-8 at t ~ 8.5 and comes back; y(12), x(12) from
+#: scipy's DOP853 at rtol 1e-13.
+LV_FINAL = np.array([0.00127707, 0.00209809])
+
+
+def test_a_component_projected_to_zero_for_good_warns():
+    """At tolerance 1e-3 the step control projects y's dip below -atol to 0, where
+    y' = y (x - 3) keeps it, and x grows to 4e4 instead of 1e-3: 4e7 x the tolerance, with
+    an estimate at T of 8 x (it linearises about the wrong solution). The loss is reported
+    (dn.solve and Solver), its suggested atol resolves it, and a run that keeps y does not
+    warn."""
+    x, y = sp.symbols("x y")
+    ode = dn.ODE({x: x * (2 - y), y: y * (x - 3)}, [3.0, 40.0], T=12.0)
+    with pytest.warns(dn.ToleranceWarning, match="y was set to 0 at t = 8.5"):
+        lost = dn.solve(ode, "cG(2)", tolerance=1e-3)
+    assert lost(12.0)[0] > 1e3  # (the failure this guards)
+    with pytest.warns(dn.ToleranceWarning, match="y was set to 0"):
+        dn.Solver(ode, method="cG(2)", tolerance=1e-3).solve()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        kept = dn.solve(ode, "cG(2)", tolerance=1e-3, absolute_tolerance=1e-9)
+        assert np.abs(kept(12.0) - LV_FINAL).max() < 1e-4
+        dn.solve(ode, "dG(1)", tolerance=1e-3)  # y kept (0.9 x the tolerance)
+
+
+def test_a_consumed_component_projected_to_zero_does_not_warn():
+    """a + b -> c with b in excess: a decays below its atol and dG(1) projects it to 0,
+    where it stays, as the exact a (e^-200 by T) would in double precision: nothing is lost
+    (df_a/da = -20 b < 0), nothing reported."""
+    a, b = sp.symbols("a b")
+    ode = dn.ODE({a: -20 * a * b, b: -20 * a * b}, [1.0, 2.0], T=10.0)
+    for method in ("cG(2)", "dG(1)", "mcG(2)"):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            sol = dn.solve(ode, method, tolerance=1e-2)
+        assert abs(sol(10.0)[1] - 1.0) < 1e-2
+        assert sol(10.0)[0] == 0.0 or method != "dG(1)"  # (dG(1) projects a to 0)
+        assert not [w for w in caught if "was set to 0" in str(w.message)]
