@@ -374,7 +374,8 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         (:func:`dolfinode.global_error.slab_estimate`: the error equation on the slabs by
         Taylor series, no stage systems; 0.3-2.4 x the solve of runs of 0.05 s and more, a
         50-mass chain at 1e-4, 1e-6 within 0.97-1.03 x the error), except where a run is
-        stiff on its slabs: then
+        stiff on its slabs (a linear system of at most 200 components is then estimated mode
+        by mode, :func:`dolfinode.global_error.modal_estimate`; others):
         ``sol.stats["global error note"]`` says that it was not estimated; other runs (and
         automatic modeling, events, breakpoints, switches, method="auto" where it solves in
         stretches) are not estimated and have no such key. True estimates every run on the
@@ -1021,6 +1022,8 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False):
         except ValueError as error:
             sol.stats["global error note"] = f"not estimated: {error}"
             return
+        if found is None and not sol.multi and ode.N <= global_error.MAX_DENSE:
+            found = global_error.modal_estimate(sol, compiled)  # (linear: exact flows)
         if found is None:
             sol.stats["global error note"] = SLAB_NOTE
             return
@@ -1046,7 +1049,8 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False):
 
 #: sol.stats["global error note"] of a larger run "auto" did not estimate: stiff on its slabs
 #: the slab estimate would cost many times the solve, and the error of a damped stiff run
-#: does not add up as an undamped one's does.
+#: does not add up as an undamped one's does (a linear run of at most MAX_DENSE components
+#: is estimated mode by mode instead: global_error.modal_estimate).
 SLAB_NOTE = ("not estimated: the run is stiff on its slabs (the slab estimate would need more "
              f"than {global_error.SLAB_SUBSTEPS} sub-steps per element); "
              "estimate_global_error=True estimates it on the common slabs")
