@@ -100,9 +100,13 @@ def warn_growth_below_tolerance(ode, compiled, atol):
     linearises about the wrong solution). An atol_i below |u0_i| resolves them.
     """
     u0 = ode.u0
-    small = np.flatnonzero((np.abs(u0) < atol) & (u0 != 0.0))
-    if not small.size:
+    if u0.size <= 64:  # (in Python: a numpy pass costs a small solve 2 us a call)
+        small = [i for i, (u, a) in enumerate(zip(u0.tolist(), atol.tolist())) if 0 < abs(u) < a]
+    else:
+        small = np.flatnonzero((np.abs(u0) < atol) & (u0 != 0.0)).tolist()
+    if not small:
         return
+    small = np.array(small)
     rate = compiled.jacobian_matrix(u0, ode.t0).diagonal()[small]
     exponent = np.minimum(rate * (ode.T - ode.t0), 700.0)  # (exp overflows past 709)
     grows = np.abs(u0[small]) * np.exp(exponent) > atol[small]
