@@ -75,11 +75,19 @@ def test_the_callers_sample_times_array_reused_after_a_solve_leaves_its_t_alone(
     ({"dense_output": 1}, TypeError, "dense_output must be True"),
     ({"dense_output": False, "automatic_modeling": True}, ValueError,
      "automatic_modeling .* needs dense_output=True"),
+    # (a TypeError from inside the estimate before)
+    ({"dense_output": False, "estimate_global_error": True}, ValueError,
+     "estimate_global_error=True .* needs the steps"),
+    ({"dense_output": "never.h5", "estimate_global_error": True}, ValueError,
+     "estimate_global_error=True .* needs the steps"),
 ])
 def test_history_parameters_are_checked(parameters, error, words):
     u = sp.Symbol("u")
+    ode = dn.ODE({u: -u}, u0=[1.0], T=2.0)
     with pytest.raises(error, match=words):
-        dn.solve(dn.ODE({u: -u}, u0=[1.0], T=2.0), "cG(1)", **parameters)
+        dn.solve(ode, "cG(1)", **parameters)
+    with pytest.raises(error, match=words):
+        dn.Solver(ode, "mcG(1)", **parameters).solve()
 
 
 def test_a_goal_refuses_a_solve_without_history():
