@@ -149,6 +149,16 @@ def switched(ode):
     ``compiled.p[len(ode.params) + j]`` holds sigma_j.
     """
     if hasattr(ode, "templates"):
+        jumps = ode._derived("_jumps", ode.templates, lambda: _template_jumps(ode))
+        if jumps:
+            from dolfinode.solve import _warn  # (solve imports this module)
+
+            _warn(f"the template term {jumps[0]} jumps ({', '.join(map(str, jumps[1]))}): "
+                  "templates do not locate jumps in t or switches on the state, and the "
+                  "step control and the error estimate step over them (dG(1) on x' = "
+                  "Heaviside(x - 0.5) + 1 was 0.11 off at tolerance 1e-6, estimated 3e-18). "
+                  "Declare the system with dn.ODE, which locates them, give a jump in t as "
+                  "breakpoints=[...], or smooth the switch (tanh(g / eps))")
         return ode, []
     # made once per declaration (a sympy traversal of every right-hand side)
     rhs, switches = ode._derived("_smooth", ode.rhs, lambda: _smooth(ode))
@@ -158,6 +168,18 @@ def switched(ode):
     params.update({s.symbol: s.value(0.0) for s in switches})
     smooth = ODE(dict(zip(ode.states, rhs)), ode.u0, ode.T, params, ode.t0, ode.nonnegative)
     return smooth, switches
+
+
+def _template_jumps(ode):
+    """(term, its non-smooth atoms) of the first template term of ``ode`` that jumps (as
+    :func:`_smooth` counts them: a kink of the state is left to the step control), or None."""
+    for template in ode.templates:
+        for _, term in template.terms:
+            atoms = [a for a in term.atoms(*NON_SMOOTH)
+                     if not (isinstance(a, _KINKS) and a.free_symbols & set(template.slots))]
+            if atoms:
+                return term, sorted(atoms, key=str)
+    return None
 
 
 def _smooth(ode):
