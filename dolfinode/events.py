@@ -373,7 +373,8 @@ class Plan:
         events = events or []
         # made once per declaration, parameter values, interval and events (sympy's solveset
         # and lambdify would otherwise dominate a small solve)
-        key = (ode.rhs, tuple(ode.params.values()), ode.t0, ode.T,
+        key = (getattr(ode, "templates", None) or ode.rhs, tuple(ode.params.values()),
+               ode.t0, ode.T,
                () if given_breakpoints is None else tuple(given_breakpoints),
                tuple((e.g, e.terminal, e.direction) for e in events))
         times, on_state, detector, t_detector = ode._derived(
