@@ -311,3 +311,27 @@ def test_switch_crossed_inside_an_element_is_found_and_solved_again(method):
     assert len(roots) == 19 == sol.stats["state switches"]
     assert abs(sol(3.0)[1] - exact) < 1e-9
     assert sol.stats["switch step bound"] < 0.157  # below the half period of g
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(2)"])
+def test_crossings_inside_elements_warn_with_a_step_that_finds_them(method):
+    """u' = -u takes long steps, and an event sin(50 t) crosses zero 159 times on [0, 10]:
+    events are located between element ends, so 5-9 were found at tolerance 1e-3, silently.
+    The check of the sampled solution warns with a maximum_time_step under which all are
+    found; a function that touches zero is quiet where the solution does not cross it
+    (dG(1)'s crosses u = 1 by 1.3e-5 inside an element at 1e-6, and is warned)."""
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: -u}, u0=[1.0], T=10.0)
+    event = dn.Event(sp.sin(50 * dn.t), direction=1)
+    with pytest.warns(dn.ToleranceWarning, match="crosses zero and back inside") as caught:
+        sol = dn.solve(ode, method, tolerance=1e-3, events=[event])
+    assert len(sol.t_events[0]) < 40
+    bound = float(str(caught[0].message).split("maximum_time_step=")[1].split(" ")[0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        sol = dn.solve(ode, method, tolerance=1e-3, events=[event], maximum_time_step=bound)
+        np.testing.assert_allclose(sol.t_events[0], np.arange(1, 80) * 2 * np.pi / 50,
+                                   atol=1e-6)
+        oscillator = dn.ODE({u: sp.Symbol("v"), sp.Symbol("v"): -u}, u0=[0.0, 1.0], T=10.0)
+        touched = dn.solve(oscillator, "cG(2)", tolerance=1e-6, events=[u - 1])
+    assert len(touched.t_events[0]) == 0
