@@ -335,3 +335,27 @@ def test_crossings_inside_elements_warn_with_a_step_that_finds_them(method):
         oscillator = dn.ODE({u: sp.Symbol("v"), sp.Symbol("v"): -u}, u0=[0.0, 1.0], T=10.0)
         touched = dn.solve(oscillator, "cG(2)", tolerance=1e-6, events=[u - 1])
     assert len(touched.t_events[0]) == 0
+
+
+def test_periodic_breakpoints_are_counted_before_they_are_listed():
+    """sin(w t) = 0 has the roots n pi / w: sympy listed the 31,830 of w = 1e4 on [0, 10] one
+    by one (40 s), and w = 3e5 (954,930 of them) ran for many minutes. Linear families of
+    roots are now listed by numpy, and more than MAX_BREAKPOINTS raise at once."""
+    from dolfinode.events import _roots_in
+
+    t = dn.t
+    roots = _roots_in(sp.sin(10 * t) * sp.cos(3 * t), 0.0, 10.0)
+    # (pi/2, 3 pi/2 and 5 pi/2 are roots of both factors, and listed once)
+    expected = np.unique(np.round([*(np.arange(1, 32) * np.pi / 10),
+                                   *((np.arange(0, 10) + 0.5) * np.pi / 3)], 12))
+    assert len(expected) == 38
+    np.testing.assert_allclose(roots, expected, rtol=1e-12)
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: sp.Heaviside(sp.sin(1e4 * t))}, u0=[0.0], T=10.0)
+    sol = dn.solve(ode, "cG(1)", tolerance=1e-3)
+    assert sol.stats["breakpoints"] == 31830
+    # 15,915 positive halves and the start of the next
+    assert sol(10.0)[0] == pytest.approx(15915 * np.pi / 1e4 + 10.0 - 31830 * np.pi / 1e4,
+                                         rel=1e-12)
+    with pytest.raises(ValueError, match=r"changes sign about 9.55e\+05 times"):
+        dn.solve(dn.ODE({u: sp.Heaviside(sp.sin(3e5 * t))}, u0=[0.0], T=10.0), "cG(1)")
