@@ -193,9 +193,10 @@ def slaving_possible(ode):
 
 
 def amplitude_rate(J, inactive):
-    """2 max |Re lambda| over the oscillating eigenvalues (|Im lambda| > |Re lambda|) of the
-    block of J = df/du on the ``inactive`` components: the rate at which the squared
-    amplitudes of the fast oscillation, and with them g-bar, decay (damping) or grow.
+    """2 Re lambda of largest modulus over the oscillating eigenvalues (|Im lambda| >
+    |Re lambda|) of the block of J = df/du on the ``inactive`` components: the rate at which
+    the squared amplitudes of the fast oscillation, and with them g-bar, decay (damping,
+    negative) or grow.
 
     The reduced model does not follow it: every control point restarts the full model with
     the fluctuation recorded at the last build, so its windows see the amplitude of the first
@@ -211,7 +212,10 @@ def amplitude_rate(J, inactive):
     real = np.abs(eigenvalues.real)
     oscillating = (np.abs(eigenvalues.imag) > real) \
         & (real > DAMPING_ROUNDING * np.finfo(float).eps * np.abs(eigenvalues))
-    return 2.0 * float(real[oscillating].max()) if oscillating.any() else 0.0
+    if not oscillating.any():
+        return 0.0
+    chosen = eigenvalues.real[oscillating]
+    return 2.0 * float(chosen[np.argmax(np.abs(chosen))])
 
 
 def relaxing_components(J, inactive):
@@ -370,8 +374,9 @@ class ReducedModel:
         the constant model)
     slaved : tuple of the inactive states that relax to their slow manifold and follow it
         (:mod:`dolfinode.modeling.manifold`) instead of being frozen; made on first use
-    amplitude_rate : the rate at which the fast oscillation's squared amplitudes decay or
-        grow by themselves (:func:`amplitude_rate`), which the model does not follow
+    amplitude_rate : the rate at which the fast oscillation's squared amplitudes grow
+        (decay: negative) by themselves (:func:`amplitude_rate`), which the model does not
+        follow
     """
 
     ode: ODE

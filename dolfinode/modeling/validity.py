@@ -18,7 +18,7 @@ at most the paper's bound S0 max ||g~ - g-bar||. Where the fast oscillation is d
 excited by itself (its squared amplitudes change at the rate r of
 :func:`~dolfinode.modeling.reduced.amplitude_rate`), the checks, restarted with the recorded
 fluctuation, cannot see g-bar follow it, and |d_i(t)| is taken to grow by
-|g-bar_i| (exp(r (t - t_c)) - 1). A goal at T misses what a dissipative system
+|g-bar_i| |exp(r (t - t_c)) - 1| (at most |g-bar_i| for a decay). A goal at T misses what a dissipative system
 forgets: a model wrong until the first check (then rebuilt) leaves an error on that span
 only; ``local`` = max over the spans between checks of max |d| times the span's length is
 that error before the dynamics propagate it, and is checked against the tolerance too. The
@@ -173,7 +173,7 @@ def _weighted_defect(phi, model):
         mid, half = (nodes[1:] + nodes[:-1]) / 2, (nodes[1:] - nodes[:-1]) / 2
         s = (mid[:, None] + half[:, None] * x).ravel()
         weights = np.abs(phi(s))
-        drift = np.expm1(model.amplitude_rate * (s - times[0])) * (g_bar @ weights)
+        drift = np.abs(np.expm1(model.amplitude_rate * (s - times[0]))) * (g_bar @ weights)
         total += float((half[:, None] * w).ravel() @ (d @ weights + drift))
     return total
 
@@ -223,9 +223,9 @@ def check_validity(model, tolerance, model_tolerance, strict, stacklevel=5):
                     f"{failed[1].time:.4g}) found relative defects "
                     f"{failed[0].relative_defect:.3g}, {failed[1].relative_defect:.3g} above "
                     f"model_tolerance = {model_tolerance:g} although the model was rebuilt")
-    if model.amplitude_rate > 0:
+    if model.amplitude_rate:
         message += (f"; the fast oscillation is damped or excited by itself (its squared "
-                    f"amplitude changes at the rate {model.amplitude_rate:.3g}), which the "
+                    f"amplitude grows at the rate {model.amplitude_rate:.3g}), which the "
                     "reduced model does not follow")
     message += (". Try a longer average_length, more control_points, "
                 "subgrid_model='affine', or solve without automatic_modeling")
