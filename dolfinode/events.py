@@ -149,6 +149,16 @@ def switched(ode):
     ``compiled.p[len(ode.params) + j]`` holds sigma_j.
     """
     if hasattr(ode, "templates"):
+        jumps = ode._derived("_jumps", ode.templates, lambda: _template_jumps(ode))
+        if jumps:
+            from dolfinode.solve import _warn  # (solve imports this module)
+
+            _warn(f"the template term {jumps[0]} jumps ({', '.join(map(str, jumps[1]))}): "
+                  "templates do not locate jumps in t or switches on the state, and the "
+                  "step control and the error estimate step over them (dG(1) on x' = "
+                  "Heaviside(x - 0.5) + 1 was 0.11 off at tolerance 1e-6, estimated 3e-18). "
+                  "Declare the system with dn.ODE, which locates them, give a jump in t as "
+                  "breakpoints=[...], or smooth the switch (tanh(g / eps))")
         return ode, []
     # made once per declaration (a sympy traversal of every right-hand side)
     rhs, switches = ode._derived("_smooth", ode.rhs, lambda: _smooth(ode))
@@ -158,6 +168,18 @@ def switched(ode):
     params.update({s.symbol: s.value(0.0) for s in switches})
     smooth = ODE(dict(zip(ode.states, rhs)), ode.u0, ode.T, params, ode.t0, ode.nonnegative)
     return smooth, switches
+
+
+def _template_jumps(ode):
+    """(term, its non-smooth atoms) of the first template term of ``ode`` that jumps (as
+    :func:`_smooth` counts them: a kink of the state is left to the step control), or None."""
+    for template in ode.templates:
+        for _, term in template.terms:
+            atoms = [a for a in term.atoms(*NON_SMOOTH)
+                     if not (isinstance(a, _KINKS) and a.free_symbols & set(template.slots))]
+            if atoms:
+                return term, sorted(atoms, key=str)
+    return None
 
 
 def _smooth(ode):
@@ -194,7 +216,12 @@ def _numeric(expr, ode):
 def _roots_in(g, t0, T):
     """The real roots of g(t) in (t0, T), sorted: sympy's, or where sympy cannot solve for
     them, the sign changes of g on ROOT_GRID equispaced times, each refined by Brent's
-    method to rounding (roots closer together than (T - t0) / ROOT_GRID can be missed)."""
+    method to rounding (roots closer together than (T - t0) / ROOT_GRID can be missed).
+
+    Raises ValueError for more than MAX_BREAKPOINTS roots."""
+    periodic = _periodic_roots(g, t0, T)
+    if periodic is not None:
+        return periodic
     try:
         roots = sp.solveset(g, time_symbol, sp.Interval.open(t0, T))
     except (NotImplementedError, ValueError, TypeError):
@@ -209,6 +236,41 @@ def _roots_in(g, t0, T):
     changes = np.flatnonzero(sign[:-1] * sign[1:] < 0)
     return sorted([*grid[sign == 0], *(brentq(function, grid[i], grid[i + 1], xtol=1e-300)
                                        for i in changes)])
+
+
+def _periodic_roots(g, t0, T):
+    """The roots in (t0, T), sorted, where sympy's general solution is finite or a union of
+    families t = a n + b over the integers n (a zero of sin or cos of a linear function of
+    t), else None. sympy enumerates such families on an interval one root at a time (40 s for the
+    31,830 roots of sin(1e4 t) on [0, 10]); here they are counted first."""
+    try:
+        general = sp.solveset(g, time_symbol, sp.S.Reals)
+    except (NotImplementedError, ValueError, TypeError):
+        return None
+    if isinstance(general, sp.FiniteSet):
+        return sorted(r for r in (float(r) for r in general if r.is_real) if t0 < r < T)
+    families = general.args if isinstance(general, sp.Union) else (general,)
+    lines = []
+    for family in families:
+        if not isinstance(family, sp.ImageSet) or family.base_set != sp.S.Integers:
+            return None
+        n = family.lamda.variables[0]
+        a, b = sp.diff(family.lamda.expr, n), family.lamda.expr.subs(n, 0)
+        if not (a.is_number and b.is_number and a.is_real and b.is_real and a != 0):
+            return None
+        lines.append((abs(float(a)), float(b)))
+    count = sum((T - t0) / a for a, _ in lines)
+    if count > MAX_BREAKPOINTS:
+        raise ValueError(f"{g} changes sign about {count:.3g} times on [t0, T], more than "
+                         f"{MAX_BREAKPOINTS} breakpoints: smooth it (by its average, for a "
+                         "fast switching), or split the solve")
+    roots = [b + a * np.arange(math.ceil((t0 - b) / a), math.floor((T - b) / a) + 1)
+             for a, b in lines]
+    roots = np.sort(np.concatenate(roots))
+    roots = roots[(roots > t0) & (roots < T)]
+    # a root of two families (sin(10 t) cos(3 t) at pi/2) once, though they round apart
+    apart = np.diff(roots) > 64 * np.finfo(float).eps * np.maximum(abs(t0), abs(T))
+    return roots[np.append(True, apart)].tolist() if roots.size else []
 
 
 def breakpoints(ode, switches, given):
@@ -351,7 +413,8 @@ class Plan:
         events = events or []
         # made once per declaration, parameter values, interval and events (sympy's solveset
         # and lambdify would otherwise dominate a small solve)
-        key = (ode.rhs, tuple(ode.params.values()), ode.t0, ode.T,
+        key = (getattr(ode, "templates", None) or ode.rhs, tuple(ode.params.values()),
+               ode.t0, ode.T,
                () if given_breakpoints is None else tuple(given_breakpoints),
                tuple((e.g, e.terminal, e.direction) for e in events))
         times, on_state, detector, t_detector = ode._derived(
@@ -420,26 +483,17 @@ class Plan:
 
     def unresolved_switch_step(self, sol):
         """A posteriori check of the switches on the state: the number of sign changes of
-        each switching function g on the final solution, sampled at SWITCH_SAMPLES points in
-        every element of the components g reads, against the crossings located. A crossing
-        inside an element that was not located (an element longer than the time g takes to
-        come back) leaves f on the wrong branch there. Returns None when none was missed,
-        else a step bound for a new solve: a quarter of the shortest time between sign
-        changes seen."""
+        each switching function g on the final solution (:meth:`_samples`) against the
+        crossings located. A crossing inside an element that was not located (an element
+        longer than the time g takes to come back) leaves f on the wrong branch there.
+        Returns None when none was missed, else a step bound for a new solve: a quarter of
+        the shortest time between sign changes seen."""
         if not self.state_switches or not sol.dense:
             return None
-        starts = [sol.time_steps(i if sol.multi else None)
-                  for i in (self.detector.components if sol.multi else [None])]
-        ends = np.unique(np.concatenate([[sol.ode.t0]] + [t + k for t, k in starts]))
-        fractions = np.linspace(0.0, 1.0, SWITCH_SAMPLES + 1)[:-1]
-        times = np.append((ends[:-1, None] + np.diff(ends)[:, None] * fractions).ravel(),
-                          ends[-1])
-        rows = len(self.events) + np.arange(len(self.state_switches))
-        G = self.detector.values(times, sol._evaluate(times))[rows]
+        times, G = self._samples(sol, len(self.events) + np.arange(len(self.state_switches)))
         changes, shortest = 0, np.inf
         for g in G:
-            nonzero = np.flatnonzero(g)
-            change = nonzero[1:][np.sign(g[nonzero[1:]]) != np.sign(g[nonzero[:-1]])]
+            change = _changes(g)
             changes += change.size
             if change.size > 1:
                 shortest = min(shortest, np.min(np.diff(times[change])))
@@ -447,6 +501,51 @@ class Plan:
             return None
         span = sol.ode.T - sol.ode.t0
         return min(shortest, span / max(changes, 1)) / 4
+
+    def check_events(self, sol, tolerance):
+        """Warn (ToleranceWarning) where an event's function, sampled on the final solution
+        (:meth:`_samples`), has the same sign at both ends of an element and the other
+        sign inside it: events are located between element ends, and two crossings inside
+        one element are not seen (u' = -u with the event sin(50 t): 5 of 159 located at
+        tolerance 1e-3). Samples within ``tolerance`` max |g| of zero do not count. The
+        warning gives the largest excursion missed (a g that touches zero crosses it by the
+        error inside an element: sin t - 1 by 3e-5 with dG(1) at 1e-6) and the
+        maximum_time_step that would show the crossings: a quarter of the shortest time
+        between the sign changes seen."""
+        if not self.events or not sol.dense:
+            return
+        times, G = self._samples(sol, np.arange(len(self.events)))
+        for event, g in zip(self.events, G):
+            floor = tolerance * np.max(np.abs(g))
+            ends = np.sign(g[::SWITCH_SAMPLES])  # t0, the element ends, T
+            inside = g[:-1].reshape(-1, SWITCH_SAMPLES)[:, 1:]
+            other = (inside * ends[:-1, None] < -floor) & (ends[:-1] * ends[1:] > 0)[:, None]
+            missed = np.count_nonzero(other.any(axis=1))
+            if not missed:
+                continue
+            gaps = np.diff(times[_changes(g, floor=floor)])
+            bound = (gaps.min() if gaps.size else (sol.ode.T - sol.ode.t0) / missed) / 4
+            from dolfinode.solve import _warn  # (solve imports this module)
+
+            _warn(f"the event {event.g} crosses zero and back inside {missed} elements (its "
+                  f"values at {SWITCH_SAMPLES} points in each, by up to "
+                  f"{np.max(np.abs(inside[other])):.3g} where g ranges over "
+                  f"{np.ptp(g):.3g}), where the crossings were not located: events are "
+                  "located where g changes sign between element ends; give "
+                  f"maximum_time_step={bound:.3g} (a quarter of the shortest time between the "
+                  "sign changes seen)")
+
+    def _samples(self, sol, rows):
+        """(times, G): the detector's functions ``rows`` on the final solution at
+        SWITCH_SAMPLES points in every element of the components they read (of every
+        component for functions of t alone), and at the end."""
+        read = self.detector.components or range(sol.ode.N)
+        starts = [sol.time_steps(i if sol.multi else None) for i in (read if sol.multi else [None])]
+        ends = np.unique(np.concatenate([[sol.ode.t0]] + [t + k for t, k in starts]))
+        fractions = np.linspace(0.0, 1.0, SWITCH_SAMPLES + 1)[:-1]
+        times = np.append((ends[:-1, None] + np.diff(ends)[:, None] * fractions).ravel(),
+                          ends[-1])
+        return times, self.detector.values(times, sol._evaluate(times))[rows]
 
     @property
     def truncates(self):
@@ -472,8 +571,18 @@ class Plan:
             sigma[self.switches.index(s)] = s.value(g)
 
 
-#: Samples per element at which :meth:`Plan.unresolved_switch_step` checks the switches.
+#: Samples per element at which :meth:`Plan.unresolved_switch_step` checks the switches
+#: (and :meth:`Plan.check_events` the events).
 SWITCH_SAMPLES = 8
+
+
+def _changes(g, direction=0, floor=0.0):
+    """Indices of the samples of g just after its sign changes (values within ``floor`` of
+    zero skipped): for ``direction`` 1 (-1) only those where g becomes positive (negative)."""
+    nonzero = np.flatnonzero(np.abs(g) > floor)
+    after, before = np.sign(g[nonzero[1:]]), np.sign(g[nonzero[:-1]])
+    keep = (after != before) & ((after == direction) if direction else True)
+    return nonzero[1:][keep]
 #: solve_ivp's status of a solve ended by a terminal event.
 TERMINATED = 1
 

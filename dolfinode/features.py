@@ -87,20 +87,29 @@ def narrow_features(ode):
     """The :class:`Features` of ``ode`` on [t0, T], kept on the declaration while its
     right-hand sides, interval and the values of the parameters in its state-free terms are
     unchanged (a new parameter value in ``Solver.solve(params=...)`` searches anew)."""
-    if hasattr(ode, "templates") or ode.autonomous:  # (templates: no sympy rhs to read)
+    if ode.autonomous:
         return NONE
-    terms, used = ode._derived("_t_terms", ode.rhs, lambda: _t_terms(ode))
-    key = (ode.rhs, ode.t0, ode.T, tuple(ode.params[s] for s in used))
+    templates = getattr(ode, "templates", None)
+    if templates is None:
+        declared = ode.rhs
+        terms, used = ode._derived("_t_terms", declared,
+                                   lambda: _t_terms(ode.rhs, set(ode.states)))
+    else:  # the terms of each template, whose cells' parameters vary as its slots do
+        declared = templates
+        terms, used = ode._derived("_t_terms", declared, lambda: _t_terms(
+            [term for template in templates for _, term in template.terms],
+            set().union(*(set(p.slots) | set(p.params) for p in templates))))
+    key = (declared, ode.t0, ode.T, tuple(ode.params[s] for s in used))
     return ode._derived("_features", key, lambda: _search(terms, ode.params, ode.t0, ode.T))
 
 
-def _t_terms(ode):
+def _t_terms(expressions, states):
     """(terms, parameters in them): the largest sub-expressions of the right-hand sides
-    that depend on t and not on the states, sums taken term by term, without non-smooth
-    functions (their jumps are breakpoints)."""
+    ``expressions`` that depend on t and not on the ``states``, sums taken term by term,
+    without non-smooth functions (their jumps are breakpoints)."""
     from dolfinode.events import NON_SMOOTH
 
-    states, seen, terms = set(ode.states), {}, set()
+    seen, terms = {}, set()
 
     def depends(expr):
         """(on t, on a state) of expr, the largest state-free terms in t under it collected
@@ -119,7 +128,7 @@ def _t_terms(ode):
                     terms.update(h for h in sp.Add.make_args(arg) if h.has(time_symbol))
         return on_t, on_state
 
-    for expr in ode.rhs:
+    for expr in expressions:
         on_t, on_state = depends(expr)
         if on_t and not on_state:
             terms.update(h for h in sp.Add.make_args(expr) if h.has(time_symbol))

@@ -535,6 +535,8 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
         sol = _solve_once(ode, compiled, plan, multi_adaptive, m, params)
         step = None if plan is None else plan.unresolved_switch_step(sol)
         if step is None:
+            if plan is not None:
+                plan.check_events(sol, params["tolerance"])
             if params["maximum_time_step"] != given:
                 sol.stats["switch step bound"] = params["maximum_time_step"]
             if smooth and params["estimate_global_error"] is not False:

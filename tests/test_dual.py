@@ -166,6 +166,22 @@ def test_bad_goals_are_explained():
         dn.Goal()
 
 
+def test_goals_numpy_cannot_evaluate_are_refused():
+    """A DiracDelta in an integral goal lambdified to a NameError (numpy has none), and
+    would be zero where it evaluated: the estimate of a point value would be 0."""
+    ode, _ = problems.harmonic(T=5.0)
+    u = ode.states[0]
+    sol = dn.solve(ode, method="cG(1)", tolerance=1e-3)
+    with pytest.raises(ValueError, match="DiracDelta.*solve with T = t1"):
+        dn.estimate_error(sol, ("integral", sp.DiracDelta(dn.t - 2.0) * u))
+    with pytest.raises(ValueError, match="undefined function h"):
+        dn.estimate_error(sol, sp.Function("h")(u))
+    with pytest.raises(ValueError, match="undefined function h"):
+        dn.solve(ode, "cG(1)", tolerance=1e-3, goal=dn.Goal(integral=sp.Function("h")(dn.t) * u))
+    with pytest.raises(ValueError, match="NumPy cannot evaluate.*LambertW"):
+        dn.estimate_error(sol, sp.LambertW(u))
+
+
 def test_lorenz_stability_factors_grow_exponentially():
     """log S1(T) grows linearly in T (measured rate ~0.7 on [5, 30], near the largest Lyapunov
     exponent 0.91; Kehlet and Logg, Quantifying the computability of the Lorenz system)."""

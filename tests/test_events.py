@@ -311,3 +311,51 @@ def test_switch_crossed_inside_an_element_is_found_and_solved_again(method):
     assert len(roots) == 19 == sol.stats["state switches"]
     assert abs(sol(3.0)[1] - exact) < 1e-9
     assert sol.stats["switch step bound"] < 0.157  # below the half period of g
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(2)"])
+def test_crossings_inside_elements_warn_with_a_step_that_finds_them(method):
+    """u' = -u takes long steps, and an event sin(50 t) crosses zero 159 times on [0, 10]:
+    events are located between element ends, so 5-9 were found at tolerance 1e-3, silently.
+    The check of the sampled solution warns with a maximum_time_step under which all are
+    found; a function that touches zero is quiet where the solution does not cross it
+    (dG(1)'s crosses u = 1 by 1.3e-5 inside an element at 1e-6, and is warned)."""
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: -u}, u0=[1.0], T=10.0)
+    event = dn.Event(sp.sin(50 * dn.t), direction=1)
+    with pytest.warns(dn.ToleranceWarning, match="crosses zero and back inside") as caught:
+        sol = dn.solve(ode, method, tolerance=1e-3, events=[event])
+    assert len(sol.t_events[0]) < 40
+    bound = float(str(caught[0].message).split("maximum_time_step=")[1].split(" ")[0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        sol = dn.solve(ode, method, tolerance=1e-3, events=[event], maximum_time_step=bound)
+        np.testing.assert_allclose(sol.t_events[0], np.arange(1, 80) * 2 * np.pi / 50,
+                                   atol=1e-6)
+        oscillator = dn.ODE({u: sp.Symbol("v"), sp.Symbol("v"): -u}, u0=[0.0, 1.0], T=10.0)
+        touched = dn.solve(oscillator, "cG(2)", tolerance=1e-6, events=[u - 1])
+    assert len(touched.t_events[0]) == 0
+
+
+def test_periodic_breakpoints_are_counted_before_they_are_listed():
+    """sin(w t) = 0 has the roots n pi / w: sympy listed the 31,830 of w = 1e4 on [0, 10] one
+    by one (40 s), and w = 3e5 (954,930 of them) ran for many minutes. Linear families of
+    roots are now listed by numpy, and more than MAX_BREAKPOINTS raise at once."""
+    from dolfinode.events import _roots_in
+
+    t = dn.t
+    roots = _roots_in(sp.sin(10 * t) * sp.cos(3 * t), 0.0, 10.0)
+    # (pi/2, 3 pi/2 and 5 pi/2 are roots of both factors, and listed once)
+    expected = np.unique(np.round([*(np.arange(1, 32) * np.pi / 10),
+                                   *((np.arange(0, 10) + 0.5) * np.pi / 3)], 12))
+    assert len(expected) == 38
+    np.testing.assert_allclose(roots, expected, rtol=1e-12)
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: sp.Heaviside(sp.sin(1e4 * t))}, u0=[0.0], T=10.0)
+    sol = dn.solve(ode, "cG(1)", tolerance=1e-3)
+    assert sol.stats["breakpoints"] == 31830
+    # 15,915 positive halves and the start of the next
+    assert sol(10.0)[0] == pytest.approx(15915 * np.pi / 1e4 + 10.0 - 31830 * np.pi / 1e4,
+                                         rel=1e-12)
+    with pytest.raises(ValueError, match=r"changes sign about 9.55e\+05 times"):
+        dn.solve(dn.ODE({u: sp.Heaviside(sp.sin(3e5 * t))}, u0=[0.0], T=10.0), "cG(1)")

@@ -204,3 +204,23 @@ def test_time_symbol_compared_by_value():
     assert len(narrow_features(ode)) == 1
     low, high = enclose(pulse, np.array([5.9]), np.array([6.1]))
     assert low[0] <= 0.0 and high[0] == 1.0
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])
+def test_a_pulse_in_a_template_term_is_found(method):
+    """A template term 20 exp(-((t - 6)/0.05)^2) was not searched: u(10) came out 4.6e-216
+    (cG(2)) and 1.7e-90 (mcG(2)) instead of 1.77 at tolerance 1e-4, without a warning.
+    Sub-expressions free of the slots and of the cells' parameters are searched: a pulse
+    times a cell parameter is found, one centred at a cell parameter is not."""
+    x, y, c = sp.symbols("x y c")
+    pulse = 20 * sp.exp(-((dn.t - 6) / 0.05) ** 2)
+    template = dn.Template(slots=(x, y), terms={x: pulse, y: -y}, indices=np.array([[0, 1]]))
+    ode = dn.TemplateODE([template], u0=[0.0, 1.0], T=10.0)
+    assert len(narrow_features(ode)) == 1
+    sol = dn.solve(ode, method, tolerance=1e-4)
+    assert sol(10.0)[0] == pytest.approx(math.sqrt(math.pi), rel=1e-3)
+    centred = 20 * sp.exp(-((dn.t - c) / 0.05) ** 2)
+    for term, found in [(c * pulse, 1), (centred, 0)]:
+        per_cell = dn.Template(slots=(x,), terms={x: term}, indices=np.array([[0]]),
+                               params=(c,), values=np.array([[6.0]]))
+        assert len(narrow_features(dn.TemplateODE([per_cell], u0=[0.0], T=10.0))) == found

@@ -12,6 +12,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 import sympy as sp
+from sympy.core.function import AppliedUndef
 
 from dolfinode.ode import t as time_symbol
 
@@ -85,10 +86,25 @@ class _Functional:
             extra = " and dn.t" if allow_time else ""
             raise ValueError(f"the {what} goal uses {', '.join(stray)}, which are not states of "
                              f"the ODE; use the states {', '.join(map(str, ode.states))}{extra}")
+        if expr.has(sp.DiracDelta):
+            # lambdify has no DiracDelta: the dual's source would be zero, the estimate too
+            raise ValueError(f"the {what} goal {expr} holds a DiracDelta, which the integral "
+                             "goal cannot take; for the output u(t1) at a time t1 inside "
+                             "[t0, T], estimate the error of a solve with T = t1 (the steps "
+                             "after t1 do not change it)")
+        undefined = sorted(str(f.func) for f in expr.atoms(AppliedUndef))
+        if undefined:
+            raise ValueError(f"the {what} goal {expr} uses the undefined function "
+                             f"{', '.join(undefined)}; write the goal with sympy's functions")
         grad = [sp.diff(expr, s) for s in ode.states]
         if all(g == 0 for g in grad):
             raise ValueError(f"the {what} goal {expr} does not depend on the states")
         function = sp.lambdify((list(ode.states), time_symbol), grad, modules="numpy")
+        try:
+            function(list(ode.u0), ode.t0)
+        except NameError as error:
+            raise ValueError(f"the {what} goal {expr} uses a function NumPy cannot evaluate "
+                             f"({error}); write it with elementary functions") from None
 
         def gradient(U, times):
             columns = function(list(U), times)

@@ -43,6 +43,8 @@ from dolfinode.timeslab import STORED, STORED_BLOCKS
 #: A dense history is checked against the available memory once it holds this many bytes
 #: (reading /proc for every chunk of a small solve would cost more than it guards).
 CHECK_FROM = 2**26
+#: A buffer of more bytes whose chunk fills less than half of it is copied (:func:`filled`).
+SHORT_CHUNK = 2**16
 
 
 def filled(buffers, counters):
@@ -52,8 +54,17 @@ def filled(buffers, counters):
     n = counters[STORED]
     if len(buffers) == 7:
         blocks = counters[STORED_BLOCKS]
-        return [b[:n] for b in buffers[:4]] + [b[:blocks] for b in buffers[4:]]
-    return [b[:n] for b in buffers]
+        return [_cut(b, n) for b in buffers[:4]] + [_cut(b, blocks) for b in buffers[4:]]
+    return [_cut(b, n) for b in buffers]
+
+
+def _cut(buffer, n):
+    """The first n rows of ``buffer``: a copy where they fill less than half of a large
+    buffer, so that many short chunks (the pieces between breakpoints or events) do not each
+    keep a whole buffer alive."""
+    if 2 * n < len(buffer) and buffer.nbytes > SHORT_CHUNK:
+        return buffer[:n].copy()
+    return buffer[:n]
 
 
 def as_elements(chunk, N):

@@ -14,7 +14,11 @@ model built at the last control point, not yet checked, is taken to have the las
 
     modeling part  ~  int_{t_c}^T sum_i |phi_i(t)| |d_i(t)| dt,
 
-at most the paper's bound S0 max ||g~ - g-bar||. A goal at T misses what a dissipative system
+at most the paper's bound S0 max ||g~ - g-bar||. Where the fast oscillation is damped or
+excited by itself (its squared amplitudes change at the rate r of
+:func:`~dolfinode.modeling.reduced.amplitude_rate`), the checks, restarted with the recorded
+fluctuation, cannot see g-bar follow it, and |d_i(t)| is taken to grow by
+|g-bar_i| |exp(r (t - t_c)) - 1| (at most |g-bar_i| for a decay). A goal at T misses what a dissipative system
 forgets: a model wrong until the first check (then rebuilt) leaves an error on that span
 only; ``local`` = max over the spans between checks of max |d| times the span's length is
 that error before the dynamics propagate it, and is checked against the tolerance too. The
@@ -158,6 +162,7 @@ def _weighted_defect(phi, model):
     largest = {}
     for model_index, check in zip(built, checks):
         largest[model_index] = np.maximum(largest.get(model_index, 0.0), np.abs(check.defects))
+    g_bar = np.max([np.abs(c.g_bar) for c in checks], axis=0)
     x, w = np.polynomial.legendre.leggauss(GAUSS_POINTS)
     total = 0.0
     for a, b, model_index in zip(times[:-1], times[1:], built):
@@ -167,7 +172,9 @@ def _weighted_defect(phi, model):
         nodes = np.concatenate([[a], phi.grid[(phi.grid > a) & (phi.grid < b)], [b]])
         mid, half = (nodes[1:] + nodes[:-1]) / 2, (nodes[1:] - nodes[:-1]) / 2
         s = (mid[:, None] + half[:, None] * x).ravel()
-        total += float((half[:, None] * w).ravel() @ (d @ np.abs(phi(s))))
+        weights = np.abs(phi(s))
+        drift = np.abs(np.expm1(model.amplitude_rate * (s - times[0]))) * (g_bar @ weights)
+        total += float((half[:, None] * w).ravel() @ (d @ weights + drift))
     return total
 
 
@@ -216,6 +223,10 @@ def check_validity(model, tolerance, model_tolerance, strict, stacklevel=5):
                     f"{failed[1].time:.4g}) found relative defects "
                     f"{failed[0].relative_defect:.3g}, {failed[1].relative_defect:.3g} above "
                     f"model_tolerance = {model_tolerance:g} although the model was rebuilt")
+    if model.amplitude_rate:
+        message += (f"; the fast oscillation is damped or excited by itself (its squared "
+                    f"amplitude grows at the rate {model.amplitude_rate:.3g}), which the "
+                    "reduced model does not follow")
     message += (". Try a longer average_length, more control_points, "
                 "subgrid_model='affine', or solve without automatic_modeling")
     if strict:

@@ -75,11 +75,19 @@ def test_the_callers_sample_times_array_reused_after_a_solve_leaves_its_t_alone(
     ({"dense_output": 1}, TypeError, "dense_output must be True"),
     ({"dense_output": False, "automatic_modeling": True}, ValueError,
      "automatic_modeling .* needs dense_output=True"),
+    # (a TypeError from inside the estimate before)
+    ({"dense_output": False, "estimate_global_error": True}, ValueError,
+     "estimate_global_error=True .* needs the steps"),
+    ({"dense_output": "never.h5", "estimate_global_error": True}, ValueError,
+     "estimate_global_error=True .* needs the steps"),
 ])
 def test_history_parameters_are_checked(parameters, error, words):
     u = sp.Symbol("u")
+    ode = dn.ODE({u: -u}, u0=[1.0], T=2.0)
     with pytest.raises(error, match=words):
-        dn.solve(dn.ODE({u: -u}, u0=[1.0], T=2.0), "cG(1)", **parameters)
+        dn.solve(ode, "cG(1)", **parameters)
+    with pytest.raises(error, match=words):
+        dn.Solver(ode, "mcG(1)", **parameters).solve()
 
 
 def test_a_goal_refuses_a_solve_without_history():
@@ -297,3 +305,38 @@ def test_a_mixed_history_out_of_time_order_is_sorted():
     sol = sink.solution(ode, method, sink.finish(True), {}, None)
     assert not isinstance(sol, MixedSolution)
     np.testing.assert_allclose(sol([0.5, 1.0, 1.5]), [[0.5, 1.0, 1.5], [1.0, 2.0, 3.0]])
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])
+def test_the_history_of_many_short_pieces_is_what_they_store(method, monkeypatch):
+    """Between the 31 breakpoints of H(sin(10 t)) each loop call stores a few slabs; a chunk
+    that kept its call's whole buffer (mcG(2): 2^21 doubles) held 1.6 GB of address space."""
+    from dolfinode.io import history
+
+    counted = []
+    add = history.InMemory.add
+
+    def counting(self, chunk, t):
+        add(self, chunk, t)
+        counted.append(self.bytes)
+
+    monkeypatch.setattr(history.InMemory, "add", counting)
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: sp.Heaviside(sp.sin(10 * dn.t))}, u0=[0.0], T=10.0)
+    sol = dn.solve(ode, method, tolerance=1e-3)
+    assert sol.stats["breakpoints"] == 31 and len(counted) == 32
+    assert counted[-1] < 200 * sol.stats["elements"] * 8  # bytes: a few doubles per element
+    assert sol(10.0)[0] == pytest.approx(1.6 * np.pi, rel=1e-12)  # sin(10 t) > 0 on 16 halves
+
+
+def test_a_short_chunk_of_a_large_buffer_is_copied():
+    from dolfinode.io import history
+    from dolfinode.timeslab import STORED
+
+    counters = np.zeros(max(STORED, history.STORED_BLOCKS) + 1, np.int64)
+    large, small = np.zeros((2**14, 3)), np.zeros((8, 3))
+    for stored, buffer, copied in [(3, large, True), (2**13 + 1, large, False),
+                                   (3, small, False)]:
+        counters[STORED] = stored
+        (chunk,) = history.filled([buffer], counters)
+        assert len(chunk) == stored and (chunk.base is None) == copied

@@ -2,6 +2,7 @@
 the sparse Jacobian (pattern and values) and solutions with mono- and multi-adaptive methods;
 kernels independent of N; declaration errors; pickling."""
 import pickle
+import warnings
 
 import numpy as np
 import pytest
@@ -248,3 +249,25 @@ def test_nonnegative_states_of_a_template_system():
     with pytest.raises(ValueError, match="u0 of u_5 is -0.1, but u_5 is declared nonnegative"):
         dn.TemplateODE(template.templates, u0=u0, T=1.0, params=template.params,
                        nonnegative=True)
+
+
+@pytest.mark.parametrize("term, exact", [
+    (sp.Heaviside(sp.Symbol("x") - 0.5) + 1, 1.5),  # a switch on the state
+    (sp.Piecewise((0, dn.t < 0.5), (1, True)), 0.5),  # a jump in t
+])
+def test_a_template_term_that_jumps_warns(term, exact):
+    """Templates do not locate jumps: dG(1) on x' = Heaviside(x - 0.5) + 1 ended at 1.6094
+    instead of 1.5 at tolerance 1e-6 (its estimate at T 3e-18), silently; the ODE declaring
+    the same term is exact. A kink of the state is left to the step control, as for ODEs."""
+    x = sp.Symbol("x")
+    template = dn.Template(slots=(x,), terms={x: term}, indices=np.array([[0]]))
+    ode = dn.TemplateODE([template], u0=[0.0], T=1.0)
+    with pytest.warns(dn.ToleranceWarning, match="templates do not locate jumps.*dn.ODE"):
+        dn.solve(ode, "dG(1)", tolerance=1e-6)
+    declared = dn.solve(dn.ODE({x: term}, u0=[0.0], T=1.0), "dG(1)", tolerance=1e-6)
+    assert declared(1.0)[0] == pytest.approx(exact, abs=1e-6)
+    kink = dn.TemplateODE([dn.Template(slots=(x,), terms={x: sp.Abs(x - 0.5)},
+                                       indices=np.array([[0]]))], u0=[0.0], T=1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        dn.solve(kink, "cG(2)", tolerance=1e-6)
