@@ -121,7 +121,7 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
 
 
 #: A component's jump [U] at an element's start is taken as resolved, and the collocation
-#: polynomial used, when |[U]| <= THETA |U(t_n^-) - U(t_{n-1}^-)| (see _evaluate_dg).
+#: polynomial used, when |[U]| <= THETA max_j |xi_j - U(t_{n-1}^-)| (see _evaluate_dg).
 DENSE_THETA = 0.25
 
 
@@ -139,8 +139,11 @@ def _evaluate_dg(t_start, t_end, values, u0, t0, nodes, bary, nodes0, bary0, lef
     Radau polynomial, R(0) = 1, R(tau_j) = 0). Where the element resolves component i the
     jump is O(k^(q+1)) and P's interior error O(k^(q+2)) instead of U's O(k^(q+1)); where a
     stiff transient is stepped over the jump is O(1) and P would swing by |[U] R| inside,
-    so P is used only where |[U]_i| <= theta |U_i(t_n^-) - U_i(t_{n-1}^-)|, else U. Both
-    equal xi_q at tau = 1: the nodes are unchanged.
+    so P is used only where |[U]_i| <= theta max_j |xi_ij - U_i(t_{n-1}^-)|, else U (per
+    element and component). Both equal xi_q at tau = 1: the nodes are unchanged. Where the
+    partition restarts (t_{n-1} not the previous element's end) U is used. dG(1) near an
+    extremum of a component: the jump and the change over the element are both O(k^2),
+    the test fails and U is used there.
     """
     q1 = nodes.shape[0]
     weights = np.empty(q1)

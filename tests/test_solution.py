@@ -266,3 +266,23 @@ def test_dense_dg_no_overshoot_on_stepped_over_decay(q):
     # no swing beyond the Galerkin polynomial's (a few 1e-2 here; the collocation
     # polynomial through u(0) = -1 would reach about 0.4)
     assert y.min() >= -1.0 and np.abs(y).max() <= np.abs(galerkin[0]).max() < 0.05
+
+
+def test_dense_dg_every_evaluation_path_agrees():
+    # sol.y (sample_times and equispaced), sol(array), sol(scalar) give the same dense values,
+    # u0 at t0 and the last node at T, and differ from the Galerkin polynomial inside
+    ode = _harmonic(5.0)
+    times = np.concatenate([[0.0], np.sort(np.random.default_rng(3).uniform(0, 5, 50)), [5.0]])
+    sol = dn.solve(ode, method="dG(2)", tolerance=1e-6, sample_times=times)
+    scalar = np.column_stack([sol(t) for t in times])
+    np.testing.assert_array_equal(sol.y, sol(times))
+    np.testing.assert_array_equal(sol(times), scalar)
+    np.testing.assert_array_equal(sol(0.0), ode.u0)
+    np.testing.assert_array_equal(sol(5.0), sol.values[-1, -1])
+    equispaced = dn.solve(ode, method="dG(2)", tolerance=1e-6, number_of_samples=40)
+    np.testing.assert_array_equal(equispaced.y, sol(equispaced.t))
+    galerkin = np.empty((times.size, 2)).T
+    _evaluate_shared(sol.t_start, sol.t_start + sol.k, sol.values, sol.method.nodes,
+                     sol.method.barycentric_weights, times, galerkin)
+    exact = np.array([np.cos(times), -np.sin(times)])
+    assert np.abs(sol.y - exact).max() < 0.2 * np.abs(galerkin - exact)[:, 1:-1].max()
