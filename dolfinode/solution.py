@@ -154,7 +154,8 @@ def _evaluate_dg(t_start, t_end, values, u0, t0, nodes, bary, nodes0, bary0, lef
         tau = min(max((times[m] - t_start[n]) / (t_end[n] - t_start[n]), 0.0), 1.0)
         lagrange_weights(tau, nodes, bary, weights)
         lagrange_weights(tau, nodes0, bary0, weights0)
-        first = n == 0 or t_end[n - 1] != t_start[n]
+        # (an element cut to end at a piece's T may end a rounding away from the next start)
+        first = n == 0 or abs(t_end[n - 1] - t_start[n]) > 4e-16 * abs(t_start[n])
         for i in range(out.shape[0]):
             u = 0.0
             p = 0.0
@@ -255,6 +256,21 @@ def _collocation_nodes(family, q):
     w = np.array([1.0 / np.prod([x[j] - x[m] for m in range(len(x)) if m != j])
                   for j in range(len(x))])
     return x, w
+
+
+def evaluate_mono(method, t_start, t_end, values, u0, t0, times, out):
+    """out = U at ``times`` from elements of a shared partition (values (M, q + 1, N)):
+    dG(q), q >= 1, by :func:`_evaluate_dg` (u0, the value before an element starting at
+    t0), other methods by their element polynomials. Every reader of a mono-adaptive
+    solution's elements (in memory, stored, streamed in chunks) evaluates through here."""
+    if method.family == "dG" and method.q > 0:
+        nodes0, bary0 = _collocation_nodes(method.family, method.q)
+        _evaluate_dg(t_start, t_end, values, np.asarray(u0, dtype=float), float(t0),
+                     method.nodes, method.barycentric_weights, nodes0, bary0,
+                     method.left_value, times, DENSE_THETA, out)
+    else:
+        _evaluate_shared(t_start, t_end, values, method.nodes, method.barycentric_weights,
+                         times, out)
 
 
 class Solution:
@@ -429,15 +445,10 @@ class Solution:
         if self.multi:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
                                  nodes, bary, times, out)
-        elif self.method.family == "dG" and self.method.q > 0:
-            declared = self._declaration
-            nodes0, bary0 = _collocation_nodes(self.method.family, self.method.q)
-            _evaluate_dg(self.t_start, self.t_start + self.k, self.values,
-                         np.asarray(declared.u0, dtype=float), float(declared.t0), nodes, bary,
-                         nodes0, bary0, self.method.left_value, times, DENSE_THETA, out)
         else:
-            _evaluate_shared(self.t_start, self.t_start + self.k, self.values, nodes, bary,
-                             times, out)
+            declared = self._declaration
+            evaluate_mono(self.method, self.t_start, self.t_start + self.k, self.values,
+                          declared.u0, declared.t0, times, out)
         return out
 
     def time_steps(self, component=None):
