@@ -126,8 +126,8 @@ DENSE_THETA = 0.25
 
 
 @njit(cache=True)
-def _evaluate_dg(t_start, t_end, values, u0, t0, nodes, bary, nodes0, bary0, left, times,
-                 theta, out):
+def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, bary0, left,
+                 times, theta, out):
     """out[i, m] = the dense value of a mono-adaptive dG(q) solution at times[m].
 
     On element n, with stage values xi_j at the right Radau nodes tau_j and the previous
@@ -139,7 +139,9 @@ def _evaluate_dg(t_start, t_end, values, u0, t0, nodes, bary, nodes0, bary0, lef
     Radau polynomial, R(0) = 1, R(tau_j) = 0). Where the element resolves component i the
     jump is O(k^(q+1)) and P's interior error O(k^(q+2)) instead of U's O(k^(q+1)); where a
     stiff transient is stepped over the jump is O(1) and P would swing by |[U] R| inside,
-    so P is used only where |[U]_i| <= theta max_j |xi_ij - U_i(t_{n-1}^-)|, else U (per
+    An element starting at starts[p] (t0; a model switch) reads befores[p] as its value
+    before (u0; the new model's initial value), not the previous element's end. P is used
+    only where |[U]_i| <= theta max_j |xi_ij - U_i(t_{n-1}^-)|, else U (per
     element and component). Both equal xi_q at tau = 1: the nodes are unchanged. Where the
     partition restarts (t_{n-1} not the previous element's end) U is used. dG(1) near an
     extremum of a component: the jump and the change over the element are both O(k^2),
@@ -156,6 +158,10 @@ def _evaluate_dg(t_start, t_end, values, u0, t0, nodes, bary, nodes0, bary0, lef
         lagrange_weights(tau, nodes0, bary0, weights0)
         # (an element cut to end at a piece's T may end a rounding away from the next start)
         first = n == 0 or abs(t_end[n - 1] - t_start[n]) > 4e-16 * abs(t_start[n])
+        start = -1
+        for p in range(starts.shape[0]):
+            if t_start[n] == starts[p]:
+                start = p
         for i in range(out.shape[0]):
             u = 0.0
             p = 0.0
@@ -164,12 +170,11 @@ def _evaluate_dg(t_start, t_end, values, u0, t0, nodes, bary, nodes0, bary0, lef
                 u += weights[j] * values[n, j, i]
                 p += weights0[j + 1] * values[n, j, i]
                 plus += left[j] * values[n, j, i]
-            if first:
-                if n == 0 and t_start[0] == t0:
-                    before = u0[i]
-                else:
-                    out[i, m] = u
-                    continue
+            if start >= 0:
+                before = befores[start, i]
+            elif first:
+                out[i, m] = u
+                continue
             else:
                 before = values[n - 1, q1 - 1, i]
             change = 0.0
@@ -258,14 +263,15 @@ def _collocation_nodes(family, q):
     return x, w
 
 
-def evaluate_mono(method, t_start, t_end, values, u0, t0, times, out):
+def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out):
     """out = U at ``times`` from elements of a shared partition (values (M, q + 1, N)):
-    dG(q), q >= 1, by :func:`_evaluate_dg` (u0, the value before an element starting at
-    t0), other methods by their element polynomials. Every reader of a mono-adaptive
+    dG(q), q >= 1, by :func:`_evaluate_dg` (befores[p], the value before an element
+    starting at starts[p]: u0 at t0), other methods by their element polynomials. Every reader of a mono-adaptive
     solution's elements (in memory, stored, streamed in chunks) evaluates through here."""
     if method.family == "dG" and method.q > 0:
         nodes0, bary0 = _collocation_nodes(method.family, method.q)
-        _evaluate_dg(t_start, t_end, values, np.asarray(u0, dtype=float), float(t0),
+        _evaluate_dg(t_start, t_end, values, np.asarray(starts, dtype=float),
+                     np.asarray(befores, dtype=float).reshape(len(starts), values.shape[2]),
                      method.nodes, method.barycentric_weights, nodes0, bary0,
                      method.left_value, times, DENSE_THETA, out)
     else:
@@ -447,8 +453,9 @@ class Solution:
                                  nodes, bary, times, out)
         else:
             declared = self._declaration
+            starts, befores = self.__dict__.get("_restarts", ([declared.t0], [declared.u0]))
             evaluate_mono(self.method, self.t_start, self.t_start + self.k, self.values,
-                          declared.u0, declared.t0, times, out)
+                          starts, befores, times, out)
         return out
 
     def time_steps(self, component=None):

@@ -342,8 +342,8 @@ class Samples:
         # the chunk's first element reads the previous end value where it continues it, as
         # the Solution of the whole history does (solution._evaluate_dg)
         joined = abs(self.end - t_start[0]) <= 4e-16 * abs(t_start[0])
-        evaluate_mono(self.method, t_start, t_end, values, self.before,
-                      t_start[0] if joined else np.nan, self.times[first:last],
+        evaluate_mono(self.method, t_start, t_end, values, [t_start[0]] if joined else [],
+                      [self.before] if joined else [], self.times[first:last],
                       self.y[:, first:last])
         self.end, self.before = t_end[-1], values[-1, -1].copy()
 
