@@ -1,12 +1,12 @@
 """The Galerkin solution: exact piecewise polynomials, dense evaluation and samples."""
 import math
-from functools import cached_property
+from functools import cache, cached_property
 
 import numpy as np
 from numba import njit
 
 from dolfinode.compile.jit import helper
-from dolfinode.methods.method import element_value, lagrange_weights
+from dolfinode.methods.method import element_value, lagrange_weights, make_method
 
 
 @helper()
@@ -120,6 +120,72 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
         _evaluate_component(i, ptr, t_start, t_end, values, nodes, bary, times, slab, out)
 
 
+#: A component's jump [U] at an element's start is taken as resolved, and the collocation
+#: polynomial used, when |[U]| <= THETA max_j |xi_j - U(t_{n-1}^-)| (see _evaluate_dg).
+DENSE_THETA = 0.25
+
+
+@njit(cache=True)
+def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, bary0, left,
+                 times, theta, out):
+    """out[i, m] = the dense value of a mono-adaptive dG(q) solution at times[m].
+
+    On element n, with stage values xi_j at the right Radau nodes tau_j and the previous
+    end value U(t_{n-1}^-) (u0 on the first element), the collocation polynomial
+
+        P(tau) = U(tau) + [U] R(tau),  [U] = U(t_{n-1}^+) - U(t_{n-1}^-),
+
+    of degree q + 1 interpolates U(t_{n-1}^-) at tau = 0 and xi_j at tau_j (R the right
+    Radau polynomial, R(0) = 1, R(tau_j) = 0). Where the element resolves component i the
+    jump is O(k^(q+1)) and P's interior error O(k^(q+2)) instead of U's O(k^(q+1)); where a
+    stiff transient is stepped over the jump is O(1) and P would swing by |[U] R| inside,
+    An element starting at starts[p] (t0; a model switch) reads befores[p] as its value
+    before (u0; the new model's initial value), not the previous element's end. P is used
+    only where |[U]_i| <= theta max_j |xi_ij - U_i(t_{n-1}^-)|, else U (per
+    element and component). Both equal xi_q at tau = 1: the nodes are unchanged. Where the
+    partition restarts (t_{n-1} not the previous element's end) U is used. dG(1) near an
+    extremum of a component: the jump and the change over the element are both O(k^2),
+    the test fails and U is used there.
+    """
+    q1 = nodes.shape[0]
+    weights = np.empty(q1)
+    weights0 = np.empty(q1 + 1)
+    n = 0
+    for m in range(times.shape[0]):
+        n = _locate(t_end, times[m], n)
+        tau = min(max((times[m] - t_start[n]) / (t_end[n] - t_start[n]), 0.0), 1.0)
+        lagrange_weights(tau, nodes, bary, weights)
+        lagrange_weights(tau, nodes0, bary0, weights0)
+        # (an element cut to end at a piece's T may end a rounding away from the next start)
+        first = n == 0 or abs(t_end[n - 1] - t_start[n]) > 4e-16 * abs(t_start[n])
+        start = -1
+        for p in range(starts.shape[0]):
+            if t_start[n] == starts[p]:
+                start = p
+        for i in range(out.shape[0]):
+            u = 0.0
+            p = 0.0
+            plus = 0.0
+            for j in range(q1):
+                u += weights[j] * values[n, j, i]
+                p += weights0[j + 1] * values[n, j, i]
+                plus += left[j] * values[n, j, i]
+            if start >= 0:
+                before = befores[start, i]
+            elif first:
+                out[i, m] = u
+                continue
+            else:
+                before = values[n - 1, q1 - 1, i]
+            change = 0.0
+            for j in range(q1):
+                change = max(change, abs(values[n, j, i] - before))
+            if abs(plus - before) <= theta * change:
+                out[i, m] = p + weights0[0] * before
+            else:
+                out[i, m] = u
+
+
 @njit(cache=True)
 def _first_outside(times, t0, T):
     """The index of the first time outside [t0, T] (or NaN), -1 if none."""
@@ -185,6 +251,32 @@ def join_elements(chunks):
             out[start:start + len(part)] = part
         start += len(chunk[0])
     return joined
+
+
+@cache
+def _collocation_nodes(family, q):
+    """The nodes 0, tau_0, ..., tau_q of dG(q)'s collocation polynomial and their
+    barycentric weights w_j = 1 / prod_{m != j} (x_j - x_m)."""
+    x = np.concatenate([[0.0], make_method(family, q).nodes])
+    w = np.array([1.0 / np.prod([x[j] - x[m] for m in range(len(x)) if m != j])
+                  for j in range(len(x))])
+    return x, w
+
+
+def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out):
+    """out = U at ``times`` from elements of a shared partition (values (M, q + 1, N)):
+    dG(q), q >= 1, by :func:`_evaluate_dg` (befores[p], the value before an element
+    starting at starts[p]: u0 at t0), other methods by their element polynomials. Every reader of a mono-adaptive
+    solution's elements (in memory, stored, streamed in chunks) evaluates through here."""
+    if method.family == "dG" and method.q > 0:
+        nodes0, bary0 = _collocation_nodes(method.family, method.q)
+        _evaluate_dg(t_start, t_end, values, np.asarray(starts, dtype=float),
+                     np.asarray(befores, dtype=float).reshape(len(starts), values.shape[2]),
+                     method.nodes, method.barycentric_weights, nodes0, bary0,
+                     method.left_value, times, DENSE_THETA, out)
+    else:
+        _evaluate_shared(t_start, t_end, values, method.nodes, method.barycentric_weights,
+                         times, out)
 
 
 class Solution:
@@ -360,8 +452,10 @@ class Solution:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
                                  nodes, bary, times, out)
         else:
-            _evaluate_shared(self.t_start, self.t_start + self.k, self.values, nodes, bary,
-                             times, out)
+            declared = self._declaration
+            starts, befores = self.__dict__.get("_restarts", ([declared.t0], [declared.u0]))
+            evaluate_mono(self.method, self.t_start, self.t_start + self.k, self.values,
+                          starts, befores, times, out)
         return out
 
     def time_steps(self, component=None):

@@ -10,6 +10,8 @@ from dolfinode.adaptivity import (
     DELIVERED,
     DELIVERED_MULTI,
     MAX_STEP_TOLERANCE,
+    RAMP_GROWTH,
+    RAMP_THETA,
     STIFF_RATIO,
     STIFF_TARGET,
     UNDAMPED_DEVIATION,
@@ -252,9 +254,9 @@ def test_accepted_step_follows_a_shrinking_step_without_rejections():
     assert rejections(lambda k, eps, k_prev, eps_prev:
                       next_step(k, eps, eps_prev, order, safety, True)) >= 15
     assert rejections(lambda k, eps, k_prev, eps_prev:
-                      accepted_step(k, eps, k_prev, eps_prev, order, safety)) == 0
+                      accepted_step(k, eps, k_prev, eps_prev, order, safety, 1.0)) == 0
     for k_prev in (0.0, 0.5):  # none before, or a shorter one
-        assert accepted_step(1.0, 0.3, k_prev, 0.01, order, safety) == next_step(
+        assert accepted_step(1.0, 0.3, k_prev, 0.01, order, safety, 1.0) == next_step(
             1.0, 0.3, 0.01, order, safety, True)
 
 
@@ -382,3 +384,41 @@ def test_prepared_solver_warns_as_solve_does():
         warnings.simplefilter("error", dn.ToleranceWarning)
         dn.Solver(problem.ode, method="cG(2)", tolerance=1e-9,
                   absolute_tolerance=problem.atol_ratio * 1e-9).solve()  # 1.6 x, no warning
+
+
+def test_accepted_step_follows_a_growing_ramp():
+    """On eps_n = C_n k_n^P with C_n shrinking geometrically (steps that must grow by g a
+    slab, k ~ t: ROBER), the PI step settles where safety eps^(-0.3/P) = g; accepted_step,
+    where Newton contracts fast and g >= RAMP_GROWTH, settles at the estimate of a constant
+    step, safety^(P/0.3), with the same growth; on a slower ramp, or where Newton contracts
+    slowly, it is the PI step."""
+    order, safety = 4.0, 0.9
+
+    def settled(growth, theta):
+        k_prev, k, eps_prev = 0.0, 1e-6, 0.5
+        for n in range(300):
+            eps = growth ** (-order * n) * 1e20 * k**order
+            k_prev, k, eps_prev = k, accepted_step(k, eps, k_prev, eps_prev, order, safety,
+                                                   theta), eps
+        return eps, k / k_prev
+
+    for growth, theta in ((1.5, 2 * RAMP_THETA), (1.2, RAMP_THETA)):
+        eps, ratio = settled(growth, theta)
+        assert eps == pytest.approx((safety / growth) ** (order / 0.3), rel=1e-6)
+        assert ratio == pytest.approx(growth, rel=1e-9)
+    assert RAMP_GROWTH > 1.2
+    eps, ratio = settled(1.5, RAMP_THETA)
+    assert eps == pytest.approx(safety ** (order / 0.3), rel=1e-6)
+    assert ratio == pytest.approx(1.5, rel=1e-9)
+
+
+def test_rober_steps_follow_its_ramp():
+    """ROBER with dG(3) at 1e-5: its steps grow with t over 20 decades, Newton contracting
+    at about 0.01; following the ramp it takes fewer than 110 slabs (125 with the PI step
+    alone) for at least the digits the PI step gave (6.85)."""
+    problem = problems.rober()
+    sol = dn.solve(problem.ode, method="dG(3)", tolerance=1e-5,
+                   absolute_tolerance=problem.atol_ratio * 1e-5)
+    assert sol.stats["time slabs"] < 110
+    assert sol.stats["rejected steps"] == 0
+    assert problems.mescd(sol(problem.T), problem.final, problem.atol_ratio) > 6.85

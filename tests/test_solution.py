@@ -4,6 +4,7 @@ import pytest
 import sympy as sp
 
 import dolfinode as dn
+from dolfinode.solution import _evaluate_shared
 
 
 @pytest.mark.parametrize("method", ["cG(3)", "dG(3)", "dG(0)", "cG(1)"])
@@ -133,7 +134,7 @@ def _searched(sol, times):
     return out
 
 
-@pytest.mark.parametrize("method", ["dG(2)", "mcG(1)"])
+@pytest.mark.parametrize("method", ["dG(2)", "cG(2)", "mcG(1)"])
 def test_evaluation_at_many_times_locates_as_a_search_per_time(method):
     """sol(times) locates the elements by a walk over sorted times (galloping over sparse
     ones, bisecting back for an earlier time): the same values bitwise as a search per time,
@@ -145,7 +146,11 @@ def test_evaluation_at_many_times_locates_as_a_search_per_time(method):
     ends = np.concatenate([sol.t_start, sol.t_start + sol.k])
     many = np.sort(np.concatenate([[0.0, 3.0], ends, rng.uniform(0, 3, 300)]))
     for times in (many, rng.permutation(many), np.array([0.0, 1e-9, 2.9, 3.0]), many[::-1]):
-        np.testing.assert_array_equal(sol(times), _searched(sol, times))
+        if sol.method.family == "dG" and not sol.multi:  # (the collocation dense output)
+            expected = np.column_stack([sol(t) for t in times])
+        else:
+            expected = _searched(sol, times)
+        np.testing.assert_array_equal(sol(times), expected)
     assert sol.k.size > 20
 
 
@@ -210,3 +215,74 @@ def test_ode_and_stats_given_by_makers_are_made_once_on_first_read():
     np.testing.assert_array_equal(declared.y, eager(np.linspace(0.0, 1.0, 11)))
     assert calls == [] and declared.ode is eager.ode and calls == [eager.ode]
     pickle.loads(pickle.dumps(eager))  # (an eager solution pickles as before)
+
+
+# --- dense output of mono-adaptive dG(q): the collocation polynomial inside the elements ---
+
+def _harmonic(T):
+    from dolfinode.bench.problems import linear
+    return linear(np.array([[0.0, 1.0], [-1.0, 0.0]]), np.array([1.0, 0.0]), T)[0]
+
+
+@pytest.mark.parametrize("q", [2, 3])
+def test_dense_dg_interior_order(q):
+    # fixed steps k: the interior error of sol(t) falls as k^(q+2) (the Galerkin polynomial's
+    # as k^(q+1)); measured slopes on the harmonic oscillator
+    ode = _harmonic(4.0)
+    t = np.linspace(0.0, 4.0, 997)[1:]
+    exact = np.array([np.cos(t), -np.sin(t)])
+    errors = []
+    for k in (0.2, 0.1):
+        sol = dn.solve(ode, method=f"dG({q})", initial_time_step=k, fixed_time_step=True)
+        errors.append(np.abs(sol(t) - exact).max())
+    slope = np.log2(errors[0] / errors[1])
+    assert slope > q + 1.6, f"interior slope {slope:.2f}"
+
+
+def test_dense_dg_nodes_bitwise_and_continuous():
+    # at the element ends sol(t) is the end node value, bit for bit; the collocation
+    # polynomial starts at the previous end value (continuous from the left)
+    sol = dn.solve(_harmonic(5.0), method="dG(2)", tolerance=1e-6)
+    ends = sol.t_start + sol.k
+    assert np.array_equal(sol(ends), sol.values[:, -1, :].T)
+    eps = 1e-9 * sol.k[1:]
+    right = sol(sol.t_start[1:] + eps)
+    assert np.abs(right - sol.values[:-1, -1, :].T).max() < 1e-6
+
+
+@pytest.mark.parametrize("q", [1, 2, 3])
+def test_dense_dg_no_overshoot_on_stepped_over_decay(q):
+    # u' = -1e4 u, u(0) = -1, stepped over by steps >> 1e-4: the dense values stay in
+    # [-1, 0] up to the Galerkin values' own swing (the
+    # collocation polynomial, |[U] R(tau)| ~ 0.4 |[U]| inside, is not used there)
+    from dolfinode.bench.problems import linear
+    ode = linear(np.array([[-1e4, 0.0], [0.0, -1.0]]), np.array([-1.0, -1.0]), 1.0)[0]
+    sol = dn.solve(ode, method=f"dG({q})", initial_time_step=0.05, fixed_time_step=True)
+    t = np.linspace(0.0, 1.0, 2001)[1:]
+    y = sol(t)[0]
+    galerkin = np.empty((t.size, 2)).T
+    _evaluate_shared(sol.t_start, sol.t_start + sol.k, sol.values, sol.method.nodes,
+                     sol.method.barycentric_weights, t, galerkin)
+    # no swing beyond the Galerkin polynomial's (a few 1e-2 here; the collocation
+    # polynomial through u(0) = -1 would reach about 0.4)
+    assert y.min() >= -1.0 and np.abs(y).max() <= np.abs(galerkin[0]).max() < 0.05
+
+
+def test_dense_dg_every_evaluation_path_agrees():
+    # sol.y (sample_times and equispaced), sol(array), sol(scalar) give the same dense values,
+    # u0 at t0 and the last node at T, and differ from the Galerkin polynomial inside
+    ode = _harmonic(5.0)
+    times = np.concatenate([[0.0], np.sort(np.random.default_rng(3).uniform(0, 5, 50)), [5.0]])
+    sol = dn.solve(ode, method="dG(2)", tolerance=1e-6, sample_times=times)
+    scalar = np.column_stack([sol(t) for t in times])
+    np.testing.assert_array_equal(sol.y, sol(times))
+    np.testing.assert_array_equal(sol(times), scalar)
+    np.testing.assert_array_equal(sol(0.0), ode.u0)
+    np.testing.assert_array_equal(sol(5.0), sol.values[-1, -1])
+    equispaced = dn.solve(ode, method="dG(2)", tolerance=1e-6, number_of_samples=40)
+    np.testing.assert_array_equal(equispaced.y, sol(equispaced.t))
+    galerkin = np.empty((times.size, 2)).T
+    _evaluate_shared(sol.t_start, sol.t_start + sol.k, sol.values, sol.method.nodes,
+                     sol.method.barycentric_weights, times, galerkin)
+    exact = np.array([np.cos(times), -np.sin(times)])
+    assert np.abs(sol.y - exact).max() < 0.2 * np.abs(galerkin - exact)[:, 1:-1].max()

@@ -33,9 +33,9 @@ from dolfinode.methods.method import element_value
 from dolfinode.solution import (
     MixedSolution,
     Solution,
-    _evaluate_shared,
     _set_initial,
     equispaced,
+    evaluate_mono,
     join_elements,
 )
 from dolfinode.timeslab import STORED, STORED_BLOCKS
@@ -125,6 +125,8 @@ class InMemory:
         self.per_component = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
         # (multi-adaptive) the elements outside blocks, per component
         self.elements_left = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
+        # (mono-adaptive) the last chunk's end and end value, read by dG(q)'s dense value
+        self.end, self.before = ode.t0, ode.u0
 
     def add(self, chunk, t):
         """Keep ``chunk`` (views of the loop's buffers, which it keeps alive); raise
@@ -309,19 +311,6 @@ def _sample_blocks(s_start, s_end, s_values, nodes, bary, times, out):
                 out[i, m] = element_value(by_component, i, tau, nodes, bary)
 
 
-@njit(cache=True)
-def _sample_shared(t_start, k, values, nodes, bary, times, out):
-    """out[:, m] = U(times[m]) for the times in (t_start[0], t_start[-1] + k[-1]] of a chunk
-    of a shared partition (as :func:`~dolfinode.solution._evaluate_shared`, which the
-    Solution of the whole history evaluates)."""
-    if t_start.shape[0] == 0:
-        return
-    t_end = t_start + k
-    first = np.searchsorted(times, t_start[0], side="right")
-    last = np.searchsorted(times, t_end[-1], side="right")
-    _evaluate_shared(t_start, t_end, values, nodes, bary, times[first:last], out[:, first:last])
-
-
 class Samples:
     """``dense_output=False``: each chunk evaluated at the sample times it covers, then
     dropped (memory: the samples and one chunk, whatever the number of steps)."""
@@ -334,6 +323,8 @@ class Samples:
         self.per_component = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
         # (multi-adaptive) the elements outside blocks, per component
         self.elements_left = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
+        # (mono-adaptive) the last chunk's end and end value, read by dG(q)'s dense value
+        self.end, self.before = ode.t0, ode.u0
 
     def add(self, chunk, t):
         nodes, bary = self.method.nodes, self.method.barycentric_weights
@@ -342,7 +333,19 @@ class Samples:
             _sample_elements(*chunk[:4], nodes, bary, self.times, self.y)
             _sample_blocks(*chunk[4:], nodes, bary, self.times, self.y)
             return
-        _sample_shared(*chunk, nodes, bary, self.times, self.y)
+        t_start, k, values = chunk
+        if t_start.shape[0] == 0:
+            return
+        t_end = t_start + k
+        first = np.searchsorted(self.times, t_start[0], side="right")
+        last = np.searchsorted(self.times, t_end[-1], side="right")
+        # the chunk's first element reads the previous end value where it continues it, as
+        # the Solution of the whole history does (solution._evaluate_dg)
+        joined = abs(self.end - t_start[0]) <= 4e-16 * abs(t_start[0])
+        evaluate_mono(self.method, t_start, t_end, values, [t_start[0]] if joined else [],
+                      [self.before] if joined else [], self.times[first:last],
+                      self.y[:, first:last])
+        self.end, self.before = t_end[-1], values[-1, -1].copy()
 
     def finish(self, completed):
         return None

@@ -19,7 +19,7 @@ import numpy as np
 from dolfinode.io.atomic import new_file
 from dolfinode.io.history import as_elements
 from dolfinode.methods import parse_method
-from dolfinode.solution import Solution, _evaluate_components, _evaluate_shared
+from dolfinode.solution import Solution, _evaluate_components, evaluate_mono
 
 #: The format's name and version, checked when a file is opened.
 FORMAT, VERSION = "dolfinode solution history", 1
@@ -210,8 +210,10 @@ class StoredSolution(Solution):
         if not self.multi:
             t_end = self.t_start + self.k
             needed = np.unique(np.minimum(np.searchsorted(t_end, times), len(t_end) - 1))
-            _evaluate_shared(self.t_start[needed], t_end[needed], self._stored[needed], nodes,
-                             bary, times, out)
+            # (with the elements before them: dG(q)'s dense value reads the previous end)
+            needed = np.union1d(needed, needed[needed > 0] - 1)
+            evaluate_mono(self.method, self.t_start[needed], t_end[needed],
+                          self._stored[needed], [self.ode.t0], [self.ode.u0], times, out)
             return out
         ptr = self._component_ptr
         needed = np.unique(np.concatenate([

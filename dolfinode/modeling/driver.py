@@ -296,6 +296,9 @@ def solve_with_modeling(ode, method, params, solve):
                 piece._t_end = piece._t_end + ode.t0
         kept.append(model.reduced)
         sol = _concatenate(ode, kept, params["number_of_samples"])
+        # the reduced model starts from its own state: dG(q)'s dense value reads it there
+        # (solution._evaluate_dg), as the solution that solves the start again does
+        sol._restarts = ([ode.t0, model.reduced.ode.t0], [ode.u0, model.reduced.ode.u0])
     else:
         sol = ModelingSolution(ode, model, start, params["number_of_samples"])
     sol = _checked(sol, model, runs, params, start_time)

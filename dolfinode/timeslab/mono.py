@@ -545,7 +545,8 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             if fixed:
                 k_new = k
             elif is_dg:
-                k_new = accepted_step(k, eps, st.k_accepted, st.eps_prev, order, safety)
+                k_new = accepted_step(k, eps, st.k_accepted, st.eps_prev, order, safety,
+                                      st.theta if use_newton else 1.0)
             else:
                 k_new = next_step(k, eps, st.eps_prev, order, safety, True)
             st.k_accepted = k

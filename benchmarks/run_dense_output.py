@@ -1,0 +1,169 @@
+"""Dense output: the error inside elements and the cost of evaluating ``sol(t)``.
+
+Inside an element a mono-adaptive dG(q) solution (q >= 1) is evaluated by the collocation
+polynomial where the jump is small (``dolfinode.solution._evaluate_dg``), else, and for every
+other method, by the Galerkin polynomial U. Both are evaluated here on the same solutions (the
+nodes are the same bit for bit), so "Galerkin" is what ``sol(t)`` gave before.
+
+* error: the mixed error max_i |U_i(t) - u_i(t)| / (atol + rtol |u_i(t)|), atol = rtol = the
+  tolerance, over the samples, on the harmonic oscillator (T = 20, 2001 samples) and on the
+  random stiff linear systems of tests/stability/test_random_linear.py (T = 1, 101 samples,
+  12 systems: seed s, 2 + s % 3 states, stiffness 8 s / 11), with the error at the element
+  ends (the nodes) for reference;
+* cost: wall time per sample of 1e5 sorted samples and per call of ``sol(t)`` at a scalar t
+  (harmonic, dG(2) and cG(2) at 1e-6), minimum over interleaved repeats, compile excluded.
+
+Writes doc/benchmarks/dense_output.md (overwritten).
+
+Usage::
+
+    python benchmarks/run_dense_output.py [--output doc/benchmarks] [--repeats 15]
+"""
+import argparse
+import os
+import platform
+import time
+from datetime import date
+from pathlib import Path
+
+import numpy as np
+import scipy.linalg as sl
+
+import dolfinode as dn
+from dolfinode.bench.problems import harmonic, linear
+from dolfinode.solution import Solution, _evaluate_shared
+
+ROOT = Path(__file__).resolve().parents[1]
+METHODS = ("dG(1)", "dG(2)", "dG(3)", "cG(1)", "cG(2)", "cG(3)")
+TOLERANCES = (1e-4, 1e-6, 1e-8)
+
+
+def galerkin(sol, times):
+    """The Galerkin polynomial U at ``times`` (the element values, no collocation)."""
+    out = np.empty((times.size, sol.ode.N)).T
+    _evaluate_shared(sol.t_start, sol.t_start + sol.k, sol.values, sol.method.nodes,
+                     sol.method.barycentric_weights, times, out)
+    return out
+
+
+def mixed(U, u, tol):
+    return float((np.abs(U - u) / (tol + tol * np.abs(u))).max())
+
+
+def errors(sol, exact, t, tol):
+    """(Galerkin, dense) error over the samples t (t0 excluded) and the error at the nodes."""
+    u = exact(t)
+    ends = sol.t_start + sol.k
+    return (mixed(galerkin(sol, t), u, tol), mixed(sol(t), u, tol),
+            mixed(sol.values[:, -1, :].T, exact(ends), tol))
+
+
+def random_system(seed, n, stiffness):
+    # the systems of tests/stability/test_random_linear.py
+    rng = np.random.default_rng(seed)
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    V = Q @ (np.eye(n) + 0.3 * np.triu(rng.standard_normal((n, n)), 1))
+    rates = 10.0 ** np.sort(rng.uniform(0.0, stiffness, n))
+    rates[0] = 1.0
+    A = V @ np.diag(-rates) @ np.linalg.inv(V)
+    return A, rng.standard_normal(n)
+
+
+def harmonic_rows():
+    ode, exact = harmonic(20.0)
+    t = np.linspace(0.0, 20.0, 2001)[1:]
+    rows = []
+    for method in METHODS:
+        for tol in TOLERANCES:
+            sol = dn.solve(ode, method=method, tolerance=tol)
+            rows.append((method, tol, sol.k.size, *errors(sol, exact, t, tol)))
+    return rows
+
+
+def random_rows(tol=1e-6):
+    rows = []
+    for method in METHODS:
+        worst = np.zeros(3)
+        for seed in range(12):
+            A, u0 = random_system(seed, 2 + seed % 3, 8.0 * seed / 11)
+            ode, _ = linear(A, u0, 1.0)
+            sol = dn.solve(ode, method=method, tolerance=tol)
+
+            def exact(s, A=A, u0=u0):
+                return np.column_stack([sl.expm(A * x) @ u0 for x in np.atleast_1d(s)])
+            t = np.linspace(0.0, 1.0, 101)[1:]
+            worst = np.maximum(worst, errors(sol, exact, t, tol))
+        rows.append((method, tol, *worst))
+    return rows
+
+
+def old_evaluate(self, times):
+    out = np.empty((times.size, self._declaration.N)).T
+    _evaluate_shared(self.t_start, self.t_start + self.k, self.values, self.method.nodes,
+                     self.method.barycentric_weights, times, out)
+    return out
+
+
+def costs(repeats):
+    """Per sample (1e5 samples) and per scalar call, before (Galerkin) and after, in us."""
+    ode, _ = harmonic(20.0)
+    times = np.sort(np.random.default_rng(0).uniform(0.0, 20.0, 100_000))
+    new_evaluate = Solution._evaluate
+    result = {}
+    for method in ("dG(2)", "cG(2)"):
+        sol = dn.solve(ode, method=method, tolerance=1e-6)
+        best = {}
+        for _ in range(repeats):
+            for name, evaluate in (("before", old_evaluate), ("after", new_evaluate)):
+                Solution._evaluate = evaluate
+                sol(times[:10])  # (warm)
+                start = time.perf_counter()
+                sol(times)
+                per_sample = (time.perf_counter() - start) / times.size
+                start = time.perf_counter()
+                for s in times[:2000:10]:
+                    sol(s)
+                per_call = (time.perf_counter() - start) / 200
+                old = best.get(name, (np.inf, np.inf))
+                best[name] = (min(old[0], per_sample), min(old[1], per_call))
+        Solution._evaluate = new_evaluate
+        result[method] = best
+    return result
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--output", default=str(ROOT / "doc" / "benchmarks"))
+    parser.add_argument("--repeats", type=int, default=15)
+    args = parser.parse_args()
+    lines = ["# Dense output: error inside elements, cost of sol(t)", "",
+             (f"{date.today()}, {platform.processor() or platform.machine()}, "
+             f"{os.cpu_count()} cores (shared), `python benchmarks/run_dense_output.py`. "
+             "Error: max over the samples of the mixed error / tolerance (atol = rtol); "
+             "Galerkin: the element polynomial U (every method's sol(t) before the "
+             "collocation dense output of dG(q), and cG(q)'s now); dense: sol(t) now."), "",
+             "## Harmonic oscillator, T = 20, 2001 samples", "",
+             "| method | tol | elements | Galerkin inside | dense inside | nodes |",
+             "|---|---|---|---|---|---|"]
+    for method, tol, n, g, d, nodes in harmonic_rows():
+        lines.append(f"| {method} | {tol:g} | {n} | {g:.3g} | {d:.3g} | {nodes:.3g} |")
+    lines += ["", ("## Random stiff linear systems (12, stiffness up to 1e8), T = 1, "
+              "101 samples, tolerance 1e-6, worst system"), "",
+              "| method | Galerkin inside | dense inside | nodes |", "|---|---|---|---|"]
+    for method, _tol, g, d, nodes in random_rows():
+        lines.append(f"| {method} | {g:.3g} | {d:.3g} | {nodes:.3g} |")
+    lines += ["", (f"## Cost (harmonic, tolerance 1e-6; minimum of {args.repeats} interleaved "
+              "repeats, wall clock)"), "",
+              ("| method | per sample, 1e5 sorted samples: before / after (ratio) | "
+              "sol(t), scalar t: before / after (ratio) |"), "|---|---|---|"]
+    for method, best in costs(args.repeats).items():
+        (b_s, b_c), (a_s, a_c) = best["before"], best["after"]
+        lines.append(f"| {method} | {b_s * 1e9:.1f} / {a_s * 1e9:.1f} ns ({a_s / b_s:.2f}) | "
+                     f"{b_c * 1e6:.2f} / {a_c * 1e6:.2f} us ({a_c / b_c:.2f}) |")
+    text = "\n".join(lines) + "\n"
+    Path(args.output, "dense_output.md").write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
