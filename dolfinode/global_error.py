@@ -104,6 +104,22 @@ def _stability(s):
 
 
 @lru_cache(maxsize=32)
+def _flow_radius(s):
+    """The largest r (in steps of 0.05, below P's poles) with |exp(z) - P(z)| <= FLOW_GAP / 10
+    on |z| = r, hence on |z| <= r (the maximum principle): 0.4, 1.1, 1.85, 2.65 for s = 2..5."""
+    num, den = _stability(s)
+    edge = np.min(np.abs(np.roots(den[::-1])))
+    circle = np.exp(2j * np.pi * np.arange(720) / 720)
+    radius = 0.0
+    for r in np.arange(1, int(edge / 0.05)) * 0.05:
+        z = r * circle
+        if np.max(np.abs(np.exp(z) - np.polyval(num[::-1], z) / np.polyval(den[::-1], z))) > FLOW_GAP / 10:
+            break
+        radius = r
+    return radius
+
+
+@lru_cache(maxsize=32)
 def _stage_modes(s):
     """(mu, T, forcing) of :func:`_modal`: a = T diag(mu) T^-1 for the s-stage collocation
     matrix a, and forcing = T^-1 a."""
@@ -262,22 +278,18 @@ def banded(rows, kl, ku):
 #: A mode z = k lambda of a slab's mean Jacobian whose exact flow exp(z) and collocated one
 #: P(z) (:func:`_stability`) differ by more than FLOW_GAP is carried exactly by the compiled
 #: pass: a weakly damped oscillation stepped over (|z| >> 1, Re z small), where P(z) ~ 1 / z
-#: and exp(z) keeps the amplitude. Below |z| = 1/2, |exp(z) - P(z)| < 2e-3 for s >= 2 (its
-#: leading term s! (s - 1)! z^(2s) / ((2s)! (2s - 1)!)): no eigenproblem is solved while
-#: k ||J||_1 stays below that. Damped modes, |exp(z)| <= FLOW_GAP, stay with the collocation:
+#: and exp(z) keeps the amplitude. No eigenproblem is solved while k ||J||_1 stays below
+#: :func:`_flow_radius` (where |exp(z) - P(z)| <= FLOW_GAP / 10), no eigenvectors where no
+#: mode qualifies. Damped modes, |exp(z)| <= FLOW_GAP, stay with the collocation:
 #: its stage Jacobians follow J's variation, which the exact flow of the mean does not, and
 #: that broke the cancellation of dG(q)'s jump against its residual (HIRES dG(q) at 1e-4:
 #: estimated 0.23 x the error, 1.0 x with the collocation's flow).
 FLOW_GAP = 1e-2
-FLOW_RADIUS = 0.5
 
 
 @njit(cache=True)
-def _flow_gap(Z, x, num, den):
-    """(exp(Z) - P(Z)) x restricted to the modes z of Z where |exp(z) - P(z)| and |exp(z)|
-    exceed FLOW_GAP, in Z's eigenbasis (zero where there is none, or where that basis is
-    near-defective: condition above MODAL_CONDITION)."""
-    lam, V = np.linalg.eig(Z.astype(np.complex128))
+def _gaps(lam, num, den):
+    """exp(z) - P(z) at z = ``lam`` where it and |exp(z)| exceed FLOW_GAP, 0 elsewhere."""
     g = np.zeros(lam.size, dtype=np.complex128)
     for i in range(lam.size):
         z, top, bottom = lam[i], 0j, 0j
@@ -288,16 +300,27 @@ def _flow_gap(Z, x, num, den):
         gap = np.exp(z) - top / bottom
         if abs(gap) > FLOW_GAP and np.exp(z.real) > FLOW_GAP:
             g[i] = gap
+    return g
+
+
+@njit(cache=True)
+def _flow_gap(Z, x, num, den):
+    """(exp(Z) - P(Z)) x restricted to the modes z of Z where |exp(z) - P(z)| and |exp(z)|
+    exceed FLOW_GAP (:func:`_gaps`), in Z's eigenbasis (zero where there is none, or where
+    that basis is near-defective: condition above MODAL_CONDITION)."""
     out = np.zeros(x.size)
-    if np.all(g == 0) or np.linalg.cond(V) > MODAL_CONDITION:
+    if np.all(_gaps(np.linalg.eigvals(Z.astype(np.complex128)), num, den) == 0):
+        return out  # (the eigenvectors only where a mode is carried)
+    lam, V = np.linalg.eig(Z.astype(np.complex128))
+    if np.linalg.cond(V) > MODAL_CONDITION:
         return out
-    y = g * np.linalg.solve(V, x.astype(np.complex128))
+    y = _gaps(lam, num, den) * np.linalg.solve(V, x.astype(np.complex128))
     return (V @ y).real
 
 
 @njit(cache=True)
 def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, u0, nodes, B, D, a,
-               position, kl, ku, num, den, slabs, shifts):
+               position, kl, ku, num, den, radius, slabs, shifts):
     """(e_M, nu): e_{n+1} = the last stage of (I - k a (x) J_j) E = 1 (x) (e_n + [U]_n)
     + k (a (x) I) R, one slab after the other (J_j, R_j at the Radau points ``nodes``; ``B``,
     ``D``: the slab polynomial and its derivative at 0 and at the nodes), and nu as in the
@@ -305,7 +328,7 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, u0, nodes,
     unknown s position[r] + i (:func:`stage_band`); kl >= 0: the system is solved by its
     band LU with bandwidths (kl, ku), kl < 0: by LAPACK. On the modes of the slab's mean
     Jacobian Z = k sum_j a_sj J_j where the collocation's flow P(z) (coefficients ``num``,
-    ``den``) departs from exp(z) (:data:`FLOW_GAP`), e_n + [U]_n is carried by exp(z), as in
+    ``den``; none while k ||J||_1 <= ``radius``) departs from exp(z) (:data:`FLOW_GAP`), e_n + [U]_n is carried by exp(z), as in
     :func:`_modal`: e_{n+1} += (exp(Z) - P(Z)) (e_n + [U]_n) on those modes. ``shifts[i]``
     is added to R at every stage of the slab ``slabs[i]`` (increasing;
     :func:`_feature_shifts`)."""
@@ -380,7 +403,7 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, u0, nodes,
             for m in range(indptr[r], indptr[r + 1]):
                 for j in range(s):
                     Z[r, indices[m]] += k[n] * a[s - 1, j] * data[j, m]
-        if exact and np.max(np.sum(np.abs(Z), axis=0)) > FLOW_RADIUS:
+        if exact and np.max(np.sum(np.abs(Z), axis=0)) > radius:
             e += _flow_gap(Z, x, num, den)
         # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, f(U) = U' - R there
         for col in range(N):
@@ -481,7 +504,7 @@ def estimate(sol, compiled=None):
     return _recursion(compiled.rhs.address, compiled.jacobian.address, compiled.p,
                       compiled.indptr, compiled.indices, np.ascontiguousarray(sol.values),
                       sol.k, sol.t_start, np.asarray(sol.ode.u0, dtype=float), c, B, D, a,
-                      position, kl, ku, *_stability(len(c)),
+                      position, kl, ku, *_stability(len(c)), _flow_radius(len(c)),
                       *_feature_shifts(sol, _evaluators(compiled)[0], c, a))
 
 
