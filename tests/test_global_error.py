@@ -227,6 +227,50 @@ def test_a_weakly_damped_oscillation_stepped_over_by_dg_is_estimated(method):
     assert any("estimated error at T" in str(w.message) for w in caught)
 
 
+@pytest.mark.parametrize("method", ["dG(2)", "dG(3)"])
+def test_a_nonlinear_system_stepping_over_a_weakly_damped_oscillation_is_estimated(method):
+    """A pendulum coupled to a spring of frequency 300 decaying at rate 0.025: dG(q) at 1e-2
+    steps over the spring and damps it away, 34 x the tolerance at T. The compiled pass (J
+    varies) with the collocation's flow estimated 0.001-0.19 x, unwarned; carrying the
+    stepped-over modes of the slabs' mean Jacobian by their exact flow: 1.4-1.6 x."""
+    th, w, x, v = sp.symbols("th w x v")
+    u0, T = [1.0, 0.0, 0.01, 0.0], 10.0
+    ode = dn.ODE({th: w, w: -sp.sin(th) + 0.1 * x, x: v,
+                  v: -9e4 * x - 0.05 * v + 0.1 * sp.sin(th)}, u0, T=T)
+    exact = solve_ivp(lambda t, y: [y[1], -np.sin(y[0]) + 0.1 * y[2], y[3],
+                                    -9e4 * y[2] - 0.05 * y[3] + 0.1 * np.sin(y[0])],
+                      (0, T), u0, method="DOP853", rtol=1e-12, atol=1e-14).y[:, -1]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", dn.ToleranceWarning)
+        sol = dn.solve(ode, method, tolerance=1e-2)
+    error = np.max(np.abs(sol(T) - exact) / (1e-2 + 1e-2 * np.abs(exact)))
+    assert error > 10
+    assert sol.stats["global error nonlinearity"] <= global_error.NONLINEAR_LIMIT
+    assert sol.stats["global error estimate"] / 1e-2 == pytest.approx(error, rel=1.0)
+    assert any("estimated error at T" in str(w.message) for w in caught)
+
+
+@pytest.mark.parametrize(("k", "method"), [(1e5, "dG(1)"), (1e6, "cG(2)"), (1e6, "dG(3)")])
+def test_the_residual_is_integrated_across_a_steep_feature_of_f(k, method):
+    """u' = atan(k (t - 3)) at 1e-7: the slabs across the feature and in its tails hold R far
+    from a polynomial, which the collocation's Radau points integrated 0.4-27 x off (k = 1e6
+    dG(3): error 2.7 x the tolerance, estimated 74 x, a false alarm). Integrated by the
+    composite rule, the estimate is the error to 30 %, and warns exactly above 10 x."""
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: sp.atan(k * (dn.t - 3))}, [0.0], T=10.0)
+
+    def integral(x):  # of atan(k (s - 3)) from 3 to x
+        return (x - 3) * np.arctan(k * (x - 3)) - np.log1p((k * (x - 3)) ** 2) / (2 * k)
+
+    exact = integral(10.0) - integral(0.0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", dn.ToleranceWarning)
+        sol = dn.solve(ode, method, tolerance=1e-7)
+    error = abs(sol(10.0)[0] - exact) / (1 + abs(exact)) / 1e-7
+    assert sol.stats["global error estimate"] / 1e-7 == pytest.approx(error, rel=0.3)
+    assert bool(caught) == (error > global_error.WARN_FACTOR)
+
+
 @pytest.mark.parametrize("method", ["cG(1)", "dG(2)"])
 def test_where_the_linearised_estimate_fails_the_error_is_measured(method):
     """VDPOL at 1e-3 across its folds: the linearised estimate is 300-2,000 x the tolerance
@@ -298,7 +342,9 @@ def test_a_banded_stage_system_gives_the_dense_estimate():
         compiled.rhs.address, compiled.jacobian.address, compiled.p, compiled.indptr,
         compiled.indices, np.ascontiguousarray(sol.values), sol.k, sol.t_start,
         np.asarray(ode.u0, dtype=float), c, B, D, global_error.collocation_matrix(c),
-        position, -1, -1)
+        position, -1, -1, *global_error._stability(3), global_error._flow_radius(3),
+        np.empty(0, dtype=np.int64),
+        np.empty((0, ode.N)))
     e, nu = global_error.estimate(sol, compiled)
     assert np.max(np.abs(e)) > 0
     np.testing.assert_allclose(e, dense, rtol=1e-9, atol=1e-12 * np.max(np.abs(dense)))
