@@ -310,8 +310,8 @@ def _flow_gap(Z, x, num, den):
     exceed FLOW_GAP (:func:`_gaps`), in Z's eigenbasis (zero where there is none, or where
     that basis is near-defective: condition above MODAL_CONDITION)."""
     out = np.zeros(x.size)
-    if not np.all(np.isfinite(Z)):
-        return out  # (J not finite: the stage solve's e is not either, and says so)
+    if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(x))):
+        return out  # (J or e not finite: the stage solve's e is not either, and says so)
     if np.all(_gaps(np.linalg.eigvals(Z.astype(np.complex128)), num, den) == 0):
         return out  # (the eigenvectors only where a mode is carried)
     lam, V = np.linalg.eig(Z.astype(np.complex128))
