@@ -136,11 +136,16 @@ def lost_components(ode, compiled, sol):
     component projected there never comes back, although the exact one, positive, grows
     again at the rate g_i = df_i/du_i (Lotka-Volterra from (3, 40) at tolerance 1e-3: y
     dips to 8e-8, is set to 0, and x grows to 4e4 instead of 1e-3, unwarned). A component
-    that decays, g_i < 0 (a species consumed), is lost harmlessly: G_i < 0."""
-    U = sol(ode.T)
-    candidates = np.flatnonzero((U == 0.0) & (ode.u0 != 0.0))
-    if not candidates.size or not sol.dense:
+    that decays, g_i < 0 (a species consumed), is lost harmlessly: G_i < 0. Only systems
+    whose values the step control bounds below (``ode.nonnegative``, or quasi-positive)
+    are projected; the end values are read first (a repeated small solve pays ~1 us)."""
+    if not sol.dense:
         return []
+    U = sol(ode.T) if sol.multi else sol.values[-1, -1]  # (U(T), without an evaluation)
+    zero = U == 0.0
+    if not zero.any() or not (ode._constrained or _keeps_nonnegative(ode)):
+        return []
+    candidates = np.flatnonzero(zero & (ode.u0 != 0.0))
     ptr, _, t_end, values = sol.elements()
     lost = []
     for i in candidates.tolist():
@@ -158,9 +163,8 @@ def lost_components(ode, compiled, sol):
 
 
 def warn_lost_components(ode, compiled, params, sol):
-    """A ToleranceWarning naming the first of :func:`lost_components` (for systems whose
-    values the step control bounds below: ``ode.nonnegative`` or quasi-positive)."""
-    if not (ode._constrained or _keeps_nonnegative(ode)) or not sol.success:
+    """A ToleranceWarning naming the first of :func:`lost_components`."""
+    if not sol.success:
         return
     lost = lost_components(ode, compiled, sol)
     if lost:
