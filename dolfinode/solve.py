@@ -143,9 +143,11 @@ def lost_components(ode, compiled, sol):
         return []
     U = sol(ode.T) if sol.multi else sol.values[-1, -1]  # (U(T), without an evaluation)
     zero = U == 0.0
-    if not zero.any() or not (ode._constrained or _keeps_nonnegative(ode)):
+    if not zero.any():
         return []
     candidates = np.flatnonzero(zero & (ode.u0 != 0.0))
+    if not candidates.size or not (ode._constrained or _keeps_nonnegative(ode)):
+        return []
     ptr, _, t_end, values = sol.elements()
     lost = []
     for i in candidates.tolist():
