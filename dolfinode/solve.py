@@ -141,7 +141,8 @@ def lost_components(ode, compiled, sol):
     are projected; the end values are read first (a repeated small solve pays ~1 us)."""
     if not sol.dense:
         return []
-    U = sol(ode.T) if sol.multi else sol.values[-1, -1]  # (U(T), without an evaluation)
+    # U at the end (T, or a terminal event's time), without an evaluation where it can
+    U = sol(sol.ode.T) if sol.multi else sol.values[-1, -1]
     zero = U == 0.0
     if not zero.any():
         return []
@@ -149,13 +150,13 @@ def lost_components(ode, compiled, sol):
     if not candidates.size or not (ode._constrained or _keeps_nonnegative(ode)):
         return []
     ptr, _, t_end, values = sol.elements()
-    lost = []
+    end, lost = sol.ode.T, []
     for i in candidates.tolist():
         nonzero = np.flatnonzero((values[ptr[i]:ptr[i + 1]] != 0.0).any(axis=1))
         t_i = float(t_end[ptr[i] + nonzero[-1]]) if nonzero.size else ode.t0
-        if t_i >= ode.T:
+        if t_i >= end:
             continue
-        times = np.linspace(t_i, ode.T, LOST_SAMPLES)
+        times = np.linspace(t_i, end, LOST_SAMPLES)
         states = sol(times).T
         rates = np.array([compiled.jacobian_matrix(u, t)[i, i] for u, t in zip(states, times)])
         growth = float(np.sum((rates[1:] + rates[:-1]) * np.diff(times))) / 2
