@@ -61,6 +61,12 @@ class _KernelPrinter(C99CodePrinter):
         # beyond 2^53 a C integer literal may overflow; the double is what the kernel computes
         return super()._print_Integer(expr) if abs(expr.p) < 2**53 else repr(float(expr))
 
+    def _print_BooleanTrue(self, expr):
+        return "1"  # (C has no true without stdbool.h; derivatives of Min/Max nest them)
+
+    def _print_BooleanFalse(self, expr):
+        return "0"
+
     def _print_Pow(self, expr):
         base, exponent = expr.args
         if exponent.is_Integer and 1 < abs(int(exponent)) <= 4:

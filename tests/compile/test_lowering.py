@@ -172,6 +172,15 @@ def test_piecewise_constant_functions_lower_with_zero_derivative(expr, derivativ
     np.testing.assert_allclose(J, [[1 + 2.0 * derivative(0.3), float(expr(0.3))], [-1, 0]])
 
 
+@pytest.mark.parametrize("x0, slope", [(0.1, 4.0), (0.3, 0.0), (-0.3, 0.0)])
+def test_nested_min_max_lower_with_their_derivative(x0, slope):
+    # sympy's derivative of Max(-1, Min(1, 4 x)) holds the literal false, which C lacks
+    x, v = sp.symbols("x v")
+    ode = dn.ODE({x: v, v: -sp.Max(-1, sp.Min(1, 4 * x))}, u0=[1.0, 0.0], T=1.0)
+    J = lower(ode).jacobian_matrix(np.array([x0, 0.0]), 0.0).toarray()
+    np.testing.assert_array_equal(J, [[0.0, 1.0], [-slope, 0.0]])
+
+
 def test_large_integer_constants():
     x = sp.Symbol("x")
     ode = dn.ODE({x: 10**20 * x + sp.Rational(1, 10**20)}, u0=[1.0], T=1.0)
