@@ -30,6 +30,7 @@ import warnings
 import numpy as np
 
 from dolfinode.compile import lower
+from dolfinode.errors import SolverError
 from dolfinode.methods import parse_method
 from dolfinode.modeling.averaging import WindowAverager
 from dolfinode.modeling.declaration import WindowModel
@@ -169,13 +170,16 @@ def solve_with_modeling(ode, method, params, solve):
         elements = 0
         # (a window that gives no output is not cut at its centre: one inner solve fewer)
         stops = (0.0, 2 * tau) if record_first is None else (0.0, tau, 2 * tau)
-        for piece in _pieces(run, window_model, u, stops, center - tau,
-                             dict(window_options, method=window_method), pace):
-            averager.record(piece)
-            elements += piece.stats["elements"]
-            if record_first is not None and piece.ode.T <= tau:
-                record_first(piece)
-            del piece
+        try:
+            for piece in _pieces(run, window_model, u, stops, center - tau,
+                                 dict(window_options, method=window_method), pace):
+                averager.record(piece)
+                elements += piece.stats["elements"]
+                if record_first is not None and piece.ode.T <= tau:
+                    record_first(piece)
+                del piece
+        except SolverError as error:
+            raise _window_failure(error, center, tau, ode.t0) from error
         averages = averager.averages()
         averages.center = center  # from the window's local time
         for half in averages.halves:
@@ -435,6 +439,24 @@ def _pieces(solve, window_model, u, stops, shift, step, pace):
             pace["length"] = (b - a) * WINDOW_PIECE_BYTES / piece.values.nbytes
             u, step["initial_time_step"], a = piece(b), _last_step(piece), b
             del piece
+
+
+def _window_failure(error, center, tau, t0):
+    """The SolverError of a resolved window [center - tau, center + tau], whose pieces run
+    in the window's local time from 0: its time made global, and the window named (a
+    parametric resonance, y'' = -10^6 (1 + x p / 50) y with p rotating at twice y's
+    frequency, blew up in a check window at local time 0.0082, which the message gave as
+    t = 0.0082 instead of 2.731)."""
+    start = center - tau
+    when = None if error.t is None else start + error.t
+    which = ("the first window" if start == t0 else
+             f"the window of the control point at t = {center:.6g}, restarted from the "
+             "reduced state and the recorded fluctuation (try fewer control_points, a shorter "
+             "average_length, or solve without automatic_modeling)")
+    return SolverError(f"automatic modeling: resolving the full model on [{start:.6g}, "
+                       f"{center + tau:.6g}], {which}, failed"
+                       + ("" if when is None else f" at t = {when:.6g}")
+                       + f" (times below count from {start:.6g}): {error}", t=when)
 
 
 def _end_jacobian(compiled, model, averages, tau):

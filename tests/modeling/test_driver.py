@@ -232,3 +232,20 @@ def test_start_solved_again_where_evaluated(monkeypatch, case):
                            lambda: large.time_steps(0)):
         with pytest.raises(AttributeError, match="START_BYTES"):
             element_access()
+
+
+def test_a_window_that_fails_names_its_global_time():
+    """A parametric resonance (y'' = -10^6 (1 + x p / 50) y, p rotating at twice y's
+    frequency; the full solution grows like e^(10 t)) fails in a control point's window: the
+    SolverError gives the global time, inside that window, and names the window (the inner
+    solve counts time from the window's start)."""
+    p, q, y, v, x = sp.symbols("p q y v x")
+    ode = dn.ODE({p: -2000 * q, q: 2000 * p, y: 1000 * v,
+                  v: -1000 * (1 + sp.Rational(1, 50) * x * p) * y, x: -x / 5 + y**2 / 10},
+                 u0=[1.0, 0.0, 1.0, 0.0, 1.0], T=5.0)
+    with pytest.raises(dn.SolverError, match="window of the control point at t = ") as caught:
+        dn.solve(ode, "cG(2)", tolerance=1e-3, automatic_modeling=True)
+    message = str(caught.value)
+    start, end = (float(x) for x in message.split("full model on [")[1].split("]")[0].split(", "))
+    assert start < caught.value.t < end and end - start < 1.0
+    assert f"failed at t = {caught.value.t:.6g}" in message

@@ -12,7 +12,7 @@ import sympy as sp
 import dolfinode as dn
 from dolfinode.bench import multiscale
 from dolfinode.bench.problems import seed_model
-from dolfinode.modeling.validity import OSCILLATION
+from dolfinode.modeling.validity import OSCILLATION, unfollowed_rate
 
 SETTINGS = {"method": "cG(2)", "tolerance": 1e-4, "automatic_modeling": True}
 CLASSES = ("adiabatic", "michaelis_menten", "proportional")
@@ -140,6 +140,7 @@ def test_seed_model_is_not_warned_and_its_estimate_bounds_the_error(kappa):
         warnings.simplefilter("error", dn.ModelingWarning)
         sol = dn.solve(ode, **SETTINGS)
     assert sol.model.estimate.total < SETTINGS["tolerance"]
+    assert not unfollowed_rate(sol.model).any()  # the fast amplitude is constant
     error = abs(sol(100.0)[0] - (1 - np.cos(100.0)) / 4)
     estimate = sol.model.modeling_error({ode.states[0]: 1.0})
     assert 0.5 * error <= estimate.total < 10 * SETTINGS["tolerance"]
@@ -239,3 +240,29 @@ def test_a_damped_fast_oscillation_is_warned_with_an_estimate_above_the_error():
     assert sol.model.estimate.total >= error
     plain = dn.solve(undamped, **settings)
     assert plain.model.amplitude_rate == 0.0
+
+
+def test_a_resonantly_driven_fast_oscillation_is_warned_with_an_estimate_above_tolerance():
+    """A fast rotation (p, q) drives a second one (y, v) at its own frequency, with the slow
+    x as amplitude: y's amplitude grows linearly in t, and with it g-bar = y^2 / 10 of x.
+    The fast block of J has imaginary eigenvalues (amplitude_rate is 0), and the checks,
+    restarted from the recorded fluctuation, see the first amplitude (defects 9e-4,
+    estimate 3.8e-3, no warning, error 0.64 at tolerance 1e-2). The drift of g-bar measured
+    inside the resolved windows now grows the defects in the estimate."""
+    p, q, y, v, x = sp.symbols("p q y v x")
+    ode = dn.ODE({p: -1000 * q, q: 1000 * p, y: 1000 * v, v: -1000 * y + x * p,
+                  x: -x / 5 + y**2 / 10}, u0=[1.0, 0.0, 1.0, 0.0, 1.0], T=10.0)
+    settings = {**SETTINGS, "tolerance": 1e-2}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sol = dn.solve(ode, **settings)
+    assert sol.model.inactive == (p, q, y, v) and sol.model.amplitude_rate == 0.0
+    tau = sol.model.average_length
+    reference = multiscale.averaged_reference(ode, [ode.T - tau], tau, rtol=1e-9)
+    error = abs(sol(ode.T - tau)[4] - reference[4, 0])
+    assert error > 10 * settings["tolerance"]  # the class this test is about
+    fired = _model_warnings(caught)
+    assert fired and "beyond what the slow state explains" in str(fired[0].message)
+    assert sol.model.estimate.total > settings["tolerance"]
+    rate = unfollowed_rate(sol.model)
+    assert rate[4] > 0 and not rate[:4].any()
