@@ -121,6 +121,24 @@ def _flow_radius(s):
 
 
 @lru_cache(maxsize=32)
+def _flow_box(s):
+    """The largest h (in steps of 0.05; 0 if none) with |exp(z) - P(z)| <= FLOW_GAP / 2 on
+    the boundary of the box log(FLOW_GAP) <= Re z <= 0, |Im z| <= h, hence inside it (P's
+    poles lie in Re z > 0): 0, 0, 2.95, 4.55 for s = 2..5. With the damped half-plane Re z <
+    log(FLOW_GAP) it covers the moderately damped modes that :func:`_flow_radius` does not."""
+    num, den = _stability(s)
+    x = np.linspace(np.log(FLOW_GAP), 0.0, 2000)
+    h = 0.0
+    for top in np.arange(1, 200) * 0.05:
+        y = np.linspace(-top, top, 800)
+        z = np.concatenate([x + 1j * top, x - 1j * top, x[0] + 1j * y, 1j * y])
+        if np.max(np.abs(np.exp(z) - np.polyval(num[::-1], z) / np.polyval(den[::-1], z))) > FLOW_GAP / 2:
+            break
+        h = top
+    return h
+
+
+@lru_cache(maxsize=32)
 def _stage_modes(s):
     """(mu, T, forcing) of :func:`_modal`: a = T diag(mu) T^-1 for the s-stage collocation
     matrix a, and forcing = T^-1 a."""
@@ -309,26 +327,78 @@ def _gaps(lam, num, den):
     return g
 
 
+#: The eigenbasis V of a slab's Z (:func:`_flow_gap`) is kept for the next slabs while its
+#: condition ||V||_1 ||V^-1||_1 is below BASIS_CONDITION (:func:`_flows_agree`).
+BASIS_CONDITION = 1e6
+
+
 @njit(cache=True)
-def _flow_gap(Z, x, num, den):
-    """(exp(Z) - P(Z)) x restricted to the modes z of Z where |exp(z) - P(z)| and |exp(z)|
+def _flow_gap(Z, x, num, den, basis):
+    """((exp(Z) - P(Z)) x restricted to the modes z of Z where |exp(z) - P(z)| and |exp(z)|
     exceed FLOW_GAP (:func:`_gaps`), in Z's eigenbasis (zero where there is none, or where
-    that basis is near-defective: condition above MODAL_CONDITION)."""
+    that basis is near-defective: condition above MODAL_CONDITION); whether that basis V
+    and V^-1 were kept in basis[0], basis[1] for :func:`_flows_agree` (BASIS_CONDITION))."""
     out = np.zeros(x.size)
     if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(x))):
-        return out  # (J or e not finite: the stage solve's e is not either, and says so)
-    if np.all(_gaps(np.linalg.eigvals(Z.astype(np.complex128)), num, den) == 0):
-        return out  # (the eigenvectors only where a mode is carried)
+        return out, False  # (J or e not finite: the stage solve's e is not either, and says so)
     lam, V = np.linalg.eig(Z.astype(np.complex128))
-    if np.linalg.cond(V) > MODAL_CONDITION:
-        return out
-    y = _gaps(lam, num, den) * np.linalg.solve(V, x.astype(np.complex128))
-    return (V @ y).real
+    try:
+        inverse = np.linalg.inv(V)
+    except Exception:  # noqa: BLE001 - (numba: V singular, LinAlgError) a defective Z
+        inverse = np.full(V.shape, np.inf + 0j)
+    kept = (np.sum(np.abs(V), axis=0).max() * np.sum(np.abs(inverse), axis=0).max()
+            < BASIS_CONDITION)
+    if kept:
+        basis[0], basis[1] = V, inverse
+    gaps = _gaps(lam, num, den)
+    if np.all(gaps == 0) or np.linalg.cond(V) > MODAL_CONDITION:
+        return out, kept
+    y = gaps * np.linalg.solve(V, x.astype(np.complex128))
+    return (V @ y).real, kept
+
+
+@njit(cache=True)
+def _flows_agree(Z, V, inverse, radius, box):
+    """Whether no mode of Z is one that :func:`_gaps` carries, without its eigenvalues: the
+    Gershgorin discs (rows, or columns) of W = V^-1 Z V, similar to Z and near diagonal
+    where V is the eigenbasis of an earlier slab's Z and J changed little since, or of
+    S^-1 W S, S = diag(|W_ii|^(-1/2)) (a stiff mode's row then weighs little on the slow
+    ones'), each lie where exp(z) <= FLOW_GAP (Re z <= log FLOW_GAP) or |exp(z) - P(z)| <=
+    FLOW_GAP / 10 (|z| <= ``radius``, :func:`_flow_radius`), or within Re z <= 0, |Im z|
+    <= ``box`` (:func:`_flow_box`); each entry of W widened by its rounding (N eps
+    ||V^-1||_1 ||Z||_1 ||V||_1)."""
+    N = Z.shape[0]
+    W = inverse @ (Z.astype(np.complex128) @ V)
+    rounding = (N * 2.2e-16 * np.sum(np.abs(inverse), axis=0).max()
+                * np.sum(np.abs(Z), axis=0).max() * np.sum(np.abs(V), axis=0).max())
+    damped = np.log(FLOW_GAP)
+    scale = np.empty(N)
+    for i in range(N):
+        scale[i] = 1.0 / np.sqrt(max(1.0, abs(W[i, i])))
+    agree = np.ones(4, dtype=np.bool_)  # rows, columns; of W, of S^-1 W S
+    for i in range(N):
+        discs = np.full(4, rounding)
+        for j in range(N):
+            if j != i:
+                discs[0] += abs(W[i, j]) + rounding
+                discs[1] += abs(W[j, i]) + rounding
+                discs[2] += (abs(W[i, j]) + rounding) * scale[j] / scale[i]
+                discs[3] += (abs(W[j, i]) + rounding) * scale[i] / scale[j]
+        for d in range(4):
+            agree[d] = agree[d] and _in_flow_region(W[i, i], discs[d], damped, radius, box)
+    return np.any(agree)
+
+
+@njit(cache=True)
+def _in_flow_region(z, rho, damped, radius, box):
+    """Whether the disc |w - z| <= rho lies where no mode is carried (:func:`_flows_agree`)."""
+    return (z.real + rho < damped or abs(z) + rho <= radius
+            or (z.real + rho <= 0 and abs(z.imag) + rho <= box))
 
 
 @njit(cache=True)
 def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before, nodes, B,
-               D, a, position, kl, ku, num, den, radius, slabs, shifts):
+               D, a, position, kl, ku, num, den, radius, box, slabs, shifts):
     """(e_M, nu): e_{n+1} = the last stage of (I - k a (x) J_j) E = 1 (x) (e_n + [U]_n)
     + k (a (x) I) R, one slab after the other from e_0 = ``e0`` (U(t_0^-) = ``before``, the
     previous slab's end value or u0), (J_j, R_j at the Radau points ``nodes``; ``B``,
@@ -337,8 +407,10 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
     unknown s position[r] + i (:func:`stage_band`); kl >= 0: the system is solved by its
     band LU with bandwidths (kl, ku), kl < 0: by LAPACK. On the modes of the slab's mean
     Jacobian Z = k sum_j a_sj J_j where the collocation's flow P(z) (coefficients ``num``,
-    ``den``; none while k ||J||_1 <= ``radius``) departs from exp(z) (:data:`FLOW_GAP`), e_n + [U]_n is carried by exp(z), as in
-    :func:`_modal`: e_{n+1} += (exp(Z) - P(Z)) (e_n + [U]_n) on those modes. ``shifts[i]``
+    ``den``; none while k ||J||_1 <= ``radius``, nor while the eigenbasis of an earlier
+    slab's Z shows none, :func:`_flows_agree`) departs from exp(z) (:data:`FLOW_GAP`),
+    e_n + [U]_n is carried by exp(z), as in :func:`_modal`: e_{n+1} += (exp(Z) - P(Z))
+    (e_n + [U]_n) on those modes. ``shifts[i]``
     is added to R at every stage of the slab ``slabs[i]`` (increasing;
     :func:`_feature_shifts`)."""
     f, jac = rhs_kernel(rhs), rhs_kernel(jacobian)
@@ -353,6 +425,8 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
     x, e, shifted = np.empty(N), e0.copy(), np.empty(N)
     exact = N <= MAX_DENSE  # (Z is dense: large banded systems keep the collocation's flow)
     Z = np.empty((N, N) if exact else (0, 0))
+    # an earlier slab's eigenbasis of Z and its inverse, where kept (:func:`_flows_agree`)
+    basis, kept = np.empty((2, N, N) if exact else (2, 0, 0), dtype=np.complex128), False
     next_shift = 0
     nu = 0.0
     for n in range(M):
@@ -412,8 +486,10 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
             for m in range(indptr[r], indptr[r + 1]):
                 for j in range(s):
                     Z[r, indices[m]] += k[n] * a[s - 1, j] * data[j, m]
-        if exact and np.max(np.sum(np.abs(Z), axis=0)) > radius:
-            e += _flow_gap(Z, x, num, den)
+        if (exact and np.max(np.sum(np.abs(Z), axis=0)) > radius
+                and not (kept and _flows_agree(Z, basis[0], basis[1], radius, box))):
+            gap, kept = _flow_gap(Z, x, num, den, basis)
+            e += gap
         # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, f(U) = U' - R there
         for col in range(N):
             shifted[col] = U[s, col] - e[col]
@@ -530,7 +606,8 @@ class Running:
         self.ode, self.compiled, self.method, self.c, self.a = ode, compiled, method, c, a
         self.f = _evaluators(compiled)[0]
         B, D = _basis(method, (0.0, *c))
-        self.stages = (c, B, D, a, position, kl, ku, *_stability(len(c)), _flow_radius(len(c)))
+        self.stages = (c, B, D, a, position, kl, ku, *_stability(len(c)), _flow_radius(len(c)),
+                       _flow_box(len(c)))
         self.e, self.nu = np.zeros(compiled.N), 0.0
         self.before = np.array(ode.u0, dtype=float)  # U(t_n^-) of the next slab
 

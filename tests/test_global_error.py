@@ -343,7 +343,7 @@ def test_a_banded_stage_system_gives_the_dense_estimate():
         compiled.indices, np.ascontiguousarray(sol.values), sol.k, sol.t_start,
         np.zeros(ode.N), np.asarray(ode.u0, dtype=float), c, B, D, global_error.collocation_matrix(c),
         position, -1, -1, *global_error._stability(3), global_error._flow_radius(3),
-        np.empty(0, dtype=np.int64),
+        global_error._flow_box(3), np.empty(0, dtype=np.int64),
         np.empty((0, ode.N)))
     e, nu = global_error.estimate(sol, compiled)
     assert np.max(np.abs(e)) > 0
