@@ -127,10 +127,10 @@ def _flow_box(s):
     poles lie in Re z > 0): 0, 0, 2.95, 4.55 for s = 2..5. With the damped half-plane Re z <
     log(FLOW_GAP) it covers the moderately damped modes that :func:`_flow_radius` does not."""
     num, den = _stability(s)
-    x = np.linspace(np.log(FLOW_GAP), 0.0, 2000)
+    x = np.linspace(np.log(FLOW_GAP), 0.0, 500)
     h = 0.0
     for top in np.arange(1, 200) * 0.05:
-        y = np.linspace(-top, top, 800)
+        y = np.linspace(-top, top, 200)
         z = np.concatenate([x + 1j * top, x - 1j * top, x[0] + 1j * y, 1j * y])
         if np.max(np.abs(np.exp(z) - np.polyval(num[::-1], z) / np.polyval(den[::-1], z))) > FLOW_GAP / 2:
             break
