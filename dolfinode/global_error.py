@@ -121,6 +121,24 @@ def _flow_radius(s):
 
 
 @lru_cache(maxsize=32)
+def _flow_box(s):
+    """The largest h (in steps of 0.05; 0 if none) with |exp(z) - P(z)| <= FLOW_GAP / 2 on
+    the boundary of the box log(FLOW_GAP) <= Re z <= 0, |Im z| <= h, hence inside it (P's
+    poles lie in Re z > 0): 0, 0, 2.95, 4.55 for s = 2..5. With the damped half-plane Re z <
+    log(FLOW_GAP) it covers the moderately damped modes that :func:`_flow_radius` does not."""
+    num, den = _stability(s)
+    x = np.linspace(np.log(FLOW_GAP), 0.0, 500)
+    h = 0.0
+    for top in np.arange(1, 200) * 0.05:
+        y = np.linspace(-top, top, 200)
+        z = np.concatenate([x + 1j * top, x - 1j * top, x[0] + 1j * y, 1j * y])
+        if np.max(np.abs(np.exp(z) - np.polyval(num[::-1], z) / np.polyval(den[::-1], z))) > FLOW_GAP / 2:
+            break
+        h = top
+    return h
+
+
+@lru_cache(maxsize=32)
 def _stage_modes(s):
     """(mu, T, forcing) of :func:`_modal`: a = T diag(mu) T^-1 for the s-stage collocation
     matrix a, and forcing = T^-1 a."""
@@ -161,9 +179,10 @@ def _constant_jacobian(ode, compiled):
                    for i, j in zip(rows, compiled.indices))
 
 
-def _residual(sol, f, nodes_at, part):
+def _residual(sol, f, nodes_at, part, before=None):
     """R = U' - f(t, U) of the slabs ``part`` (a slice) at the relative points ``nodes_at``:
-    (M, len, N); and their jumps U(t_n^+) - U(t_n^-): (M, N)."""
+    (M, len, N); and their jumps U(t_n^+) - U(t_n^-): (M, N), U(t_0^-) = ``before`` (default
+    u0) before ``sol``'s first slab."""
     vals, k, t0 = sol.values[part], sol.k[part], sol.t_start[part]
     M, _, N = vals.shape
     B, D = _basis(sol.method, nodes_at)
@@ -173,8 +192,10 @@ def _residual(sol, f, nodes_at, part):
     R = dU - f(t, U.reshape(-1, N)).reshape(M, len(nodes_at), N)
     start = _basis(sol.method, (0.0,))[0][0] @ vals  # (M, N)
     first = part.start or 0
-    previous = (np.asarray(sol.ode.u0, dtype=float) if first == 0
-                else sol.values[first - 1, -1, :])
+    if first:
+        previous = sol.values[first - 1, -1, :]
+    else:
+        previous = np.asarray(sol.ode.u0 if before is None else before, dtype=float)
     before = np.concatenate([previous[None, :], vals[:-1, -1, :]])
     return R, start - before
 
@@ -224,10 +245,12 @@ def _feature_shifts(sol, f, c, a, chunk=256):
     return np.arange(len(sol.k), dtype=np.int64), shifts
 
 
-def _modal(sol, f, lam, V, c, slabs, shifts, chunk=4096):
+def _modal(sol, f, lam, V, c, slabs, shifts, chunk=4096, e=None, before=None):
     """The recursion in the eigenbasis (lam, V) of a constant J, where each slab's stage
     system is scalar per mode z = k lambda: with a = T diag(mu) T^{-1}, the last stage of
-    (I - z a)^{-1} x is T[-1] diag(1 / (1 - z mu)) T^{-1} x, for ``chunk`` slabs at once.
+    (I - z a)^{-1} x is T[-1] diag(1 / (1 - z mu)) T^{-1} x, for ``chunk`` slabs at once;
+    from the error ``e`` (default 0) and the value ``before`` (default u0) at the start of
+    ``sol``'s first slab.
 
     The error at the slab's start (e_n + [U]_n) is carried by the exact flow exp(z), not by
     the collocation's: where a step spans many periods of a weakly damped oscillation
@@ -236,10 +259,10 @@ def _modal(sol, f, lam, V, c, slabs, shifts, chunk=4096):
     decay rate 0.05 stepped over by dG(2) at 1e-3: 251 x the tolerance, estimated 2 x)."""
     Vi = np.linalg.inv(V)
     mu, T, forcing = _stage_modes(len(c))
-    e = np.zeros(len(lam), dtype=complex)
+    e = np.zeros(len(lam), dtype=complex) if e is None else Vi @ e
     for lo in range(0, len(sol.k), chunk):
         part = slice(lo, min(lo + chunk, len(sol.k)))
-        R, jump = _residual(sol, f, c, part)
+        R, jump = _residual(sol, f, c, part, before)
         inside = (slabs >= part.start) & (slabs < part.stop)
         R[slabs[inside] - part.start] += shifts[inside][:, None, :]
         k = sol.k[part]
@@ -304,39 +327,94 @@ def _gaps(lam, num, den):
     return g
 
 
+#: The eigenbasis V of a slab's Z (:func:`_flow_gap`) is kept for the next slabs while its
+#: condition ||V||_1 ||V^-1||_1 is below BASIS_CONDITION (:func:`_flows_agree`).
+BASIS_CONDITION = 1e6
+
+
 @njit(cache=True)
-def _flow_gap(Z, x, num, den):
-    """(exp(Z) - P(Z)) x restricted to the modes z of Z where |exp(z) - P(z)| and |exp(z)|
+def _flow_gap(Z, x, num, den, basis):
+    """((exp(Z) - P(Z)) x restricted to the modes z of Z where |exp(z) - P(z)| and |exp(z)|
     exceed FLOW_GAP (:func:`_gaps`), in Z's eigenbasis (zero where there is none, or where
-    that basis is near-defective: condition above MODAL_CONDITION)."""
+    that basis is near-defective: condition above MODAL_CONDITION); whether that basis V
+    and V^-1 were kept in basis[0], basis[1] for :func:`_flows_agree` (BASIS_CONDITION))."""
     out = np.zeros(x.size)
     if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(x))):
-        return out  # (J or e not finite: the stage solve's e is not either, and says so)
-    if np.all(_gaps(np.linalg.eigvals(Z.astype(np.complex128)), num, den) == 0):
-        return out  # (the eigenvectors only where a mode is carried)
+        return out, False  # (J or e not finite: the stage solve's e is not either, and says so)
     lam, V = np.linalg.eig(Z.astype(np.complex128))
-    if np.linalg.cond(V) > MODAL_CONDITION:
-        return out
-    y = _gaps(lam, num, den) * np.linalg.solve(V, x.astype(np.complex128))
-    return (V @ y).real
+    try:
+        inverse = np.linalg.inv(V)
+    except Exception:  # noqa: BLE001 - (numba: V singular, LinAlgError) a defective Z
+        inverse = np.full(V.shape, np.inf + 0j)
+    kept = (np.sum(np.abs(V), axis=0).max() * np.sum(np.abs(inverse), axis=0).max()
+            < BASIS_CONDITION)
+    if kept:
+        basis[0], basis[1] = V, inverse
+    gaps = _gaps(lam, num, den)
+    if np.all(gaps == 0) or np.linalg.cond(V) > MODAL_CONDITION:
+        return out, kept
+    y = gaps * np.linalg.solve(V, x.astype(np.complex128))
+    return (V @ y).real, kept
 
 
 @njit(cache=True)
-def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, u0, nodes, B, D, a,
-               position, kl, ku, num, den, radius, slabs, shifts):
+def _flows_agree(Z, V, inverse, radius, box):
+    """Whether no mode of Z is one that :func:`_gaps` carries, without its eigenvalues: the
+    Gershgorin discs (rows, or columns) of W = V^-1 Z V, similar to Z and near diagonal
+    where V is the eigenbasis of an earlier slab's Z and J changed little since, or of
+    S^-1 W S, S = diag(|W_ii|^(-1/2)) (a stiff mode's row then weighs little on the slow
+    ones'), each lie where exp(z) <= FLOW_GAP (Re z <= log FLOW_GAP) or |exp(z) - P(z)| <=
+    FLOW_GAP / 10 (|z| <= ``radius``, :func:`_flow_radius`), or within Re z <= 0, |Im z|
+    <= ``box`` (:func:`_flow_box`); each entry of W widened by its rounding (N eps
+    ||V^-1||_1 ||Z||_1 ||V||_1)."""
+    N = Z.shape[0]
+    W = inverse @ (Z.astype(np.complex128) @ V)
+    rounding = (N * 2.2e-16 * np.sum(np.abs(inverse), axis=0).max()
+                * np.sum(np.abs(Z), axis=0).max() * np.sum(np.abs(V), axis=0).max())
+    damped = np.log(FLOW_GAP)
+    scale = np.empty(N)
+    for i in range(N):
+        scale[i] = 1.0 / np.sqrt(max(1.0, abs(W[i, i])))
+    agree = np.ones(4, dtype=np.bool_)  # rows, columns; of W, of S^-1 W S
+    for i in range(N):
+        discs = np.full(4, rounding)
+        for j in range(N):
+            if j != i:
+                discs[0] += abs(W[i, j]) + rounding
+                discs[1] += abs(W[j, i]) + rounding
+                discs[2] += (abs(W[i, j]) + rounding) * scale[j] / scale[i]
+                discs[3] += (abs(W[j, i]) + rounding) * scale[i] / scale[j]
+        for d in range(4):
+            agree[d] = agree[d] and _in_flow_region(W[i, i], discs[d], damped, radius, box)
+    return np.any(agree)
+
+
+@njit(cache=True)
+def _in_flow_region(z, rho, damped, radius, box):
+    """Whether the disc |w - z| <= rho lies where no mode is carried (:func:`_flows_agree`)."""
+    return (z.real + rho < damped or abs(z) + rho <= radius
+            or (z.real + rho <= 0 and abs(z.imag) + rho <= box))
+
+
+@njit(cache=True)
+def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before, nodes, B,
+               D, a, position, kl, ku, num, den, radius, box, slabs, shifts):
     """(e_M, nu): e_{n+1} = the last stage of (I - k a (x) J_j) E = 1 (x) (e_n + [U]_n)
-    + k (a (x) I) R, one slab after the other (J_j, R_j at the Radau points ``nodes``; ``B``,
+    + k (a (x) I) R, one slab after the other from e_0 = ``e0`` (U(t_0^-) = ``before``, the
+    previous slab's end value or u0), (J_j, R_j at the Radau points ``nodes``; ``B``,
     ``D``: the slab polynomial and its derivative at 0 and at the nodes), and nu as in the
     module docstring, from the last stage's J and f at the slab's end. The stage (i, r) is
     unknown s position[r] + i (:func:`stage_band`); kl >= 0: the system is solved by its
     band LU with bandwidths (kl, ku), kl < 0: by LAPACK. On the modes of the slab's mean
     Jacobian Z = k sum_j a_sj J_j where the collocation's flow P(z) (coefficients ``num``,
-    ``den``; none while k ||J||_1 <= ``radius``) departs from exp(z) (:data:`FLOW_GAP`), e_n + [U]_n is carried by exp(z), as in
-    :func:`_modal`: e_{n+1} += (exp(Z) - P(Z)) (e_n + [U]_n) on those modes. ``shifts[i]``
+    ``den``; none while k ||J||_1 <= ``radius``, nor while the eigenbasis of an earlier
+    slab's Z shows none, :func:`_flows_agree`) departs from exp(z) (:data:`FLOW_GAP`),
+    e_n + [U]_n is carried by exp(z), as in :func:`_modal`: e_{n+1} += (exp(Z) - P(Z))
+    (e_n + [U]_n) on those modes. ``shifts[i]``
     is added to R at every stage of the slab ``slabs[i]`` (increasing;
     :func:`_feature_shifts`)."""
     f, jac = rhs_kernel(rhs), rhs_kernel(jacobian)
-    M, s, N, nnz = k.size, nodes.size, u0.size, indices.size
+    M, s, N, nnz = k.size, nodes.size, e0.size, indices.size
     U, R = np.empty((s + 1, N)), np.empty((s, N))
     fU, data = np.empty(N), np.empty((s, max(nnz, 1)))
     band = kl >= 0
@@ -344,9 +422,11 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, u0, nodes,
     ab = np.zeros((s * N, 2 * kl + ku + 1) if band else (0, 0))  # (band_storage)
     pivots = np.empty(s * N if band else 0, dtype=np.int64)
     b = np.empty(s * N)
-    x, e, shifted = np.empty(N), np.zeros(N), np.empty(N)
+    x, e, shifted = np.empty(N), e0.copy(), np.empty(N)
     exact = N <= MAX_DENSE  # (Z is dense: large banded systems keep the collocation's flow)
     Z = np.empty((N, N) if exact else (0, 0))
+    # an earlier slab's eigenbasis of Z and its inverse, where kept (:func:`_flows_agree`)
+    basis, kept = np.empty((2, N, N) if exact else (2, 0, 0), dtype=np.complex128), False
     next_shift = 0
     nu = 0.0
     for n in range(M):
@@ -370,7 +450,7 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, u0, nodes,
                     R[i, col] += shifts[next_shift, col]
             next_shift += 1
         for col in range(N):  # x = e_n + [U]_n
-            x[col] = e[col] + U[0, col] - (u0[col] if n == 0 else values[n - 1, -1, col])
+            x[col] = e[col] + U[0, col] - (before[col] if n == 0 else values[n - 1, -1, col])
         if band:
             ab[:] = 0.0
         else:
@@ -406,8 +486,10 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, u0, nodes,
             for m in range(indptr[r], indptr[r + 1]):
                 for j in range(s):
                     Z[r, indices[m]] += k[n] * a[s - 1, j] * data[j, m]
-        if exact and np.max(np.sum(np.abs(Z), axis=0)) > radius:
-            e += _flow_gap(Z, x, num, den)
+        if (exact and np.max(np.sum(np.abs(Z), axis=0)) > radius
+                and not (kept and _flows_agree(Z, basis[0], basis[1], radius, box))):
+            gap, kept = _flow_gap(Z, x, num, den, basis)
+            e += gap
         # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, f(U) = U' - R there
         for col in range(N):
             shifted[col] = U[s, col] - e[col]
@@ -478,7 +560,8 @@ def estimate(sol, compiled=None):
     ``compiled``: the kernels it was solved with (default: those of ``sol.ode``). A
     multi-adaptive solution is taken on the common refinement of its elements. Stage systems
     with a narrow band (:func:`banded`) are solved banded, others densely, or mode by mode
-    for a constant J with a well-conditioned eigenbasis.
+    for a constant J with a well-conditioned eigenbasis (:class:`Running`, over the whole
+    history at once).
 
     Raises
     ------
@@ -488,25 +571,75 @@ def estimate(sol, compiled=None):
     """
     if sol._component_ptr is not None:
         sol = _common_slabs(sol)
-    compiled = lower(sol.ode) if compiled is None else compiled
-    c, a = _collocation(sol.method.q + 2)
-    position, kl, ku = stage_band(compiled, len(c))
-    rows = len(c) * compiled.N
-    if not banded(rows, kl, ku):
-        kl = ku = rows - 1 if rows <= LAPACK_SIZE else -1
-        found = modal_estimate(sol, compiled)
-        if found is not None:
-            return found
-        if compiled.N > MAX_DENSE:
-            raise ValueError(f"the global error estimate of a system whose Jacobian has no "
-                             f"narrow band is dense (unless linear with a well-conditioned "
-                             f"eigenbasis): at most {MAX_DENSE} components, got {compiled.N}")
-    B, D = _basis(sol.method, (0.0, *c))
-    return _recursion(compiled.rhs.address, compiled.jacobian.address, compiled.p,
-                      compiled.indptr, compiled.indices, np.ascontiguousarray(sol.values),
-                      sol.k, sol.t_start, np.asarray(sol.ode.u0, dtype=float), c, B, D, a,
-                      position, kl, ku, *_stability(len(c)), _flow_radius(len(c)),
-                      *_feature_shifts(sol, _evaluators(compiled)[0], c, a))
+    run = Running(sol.ode, lower(sol.ode) if compiled is None else compiled, sol.method)
+    run.add(sol.t_start, sol.k, sol.values)
+    return run.e, run.nu
+
+
+class Running:
+    """The recursion of :func:`estimate` for a mono-adaptive run of ``ode`` by ``method``
+    (with the kernels ``compiled``), carried chunk by chunk as the run's slabs arrive
+    (:meth:`add`), so that a solve without history (``dense_output=False`` or a file) is
+    estimated as one with it: it keeps e_n, U(t_n^-) and nu, not the slabs, and each chunk
+    continues the arithmetic of the one pass over the whole history.
+
+    Raises
+    ------
+    ValueError
+        For more than MAX_DENSE components with dense stage systems and a Jacobian that is
+        not constant.
+    """
+
+    def __init__(self, ode, compiled, method):
+        c, a = _collocation(method.q + 2)
+        position, kl, ku = stage_band(compiled, len(c))
+        rows = len(c) * compiled.N
+        self.modes = None  # (lam, V): a constant J estimated mode by mode (:func:`_modal`)
+        if not banded(rows, kl, ku):
+            kl = ku = rows - 1 if rows <= LAPACK_SIZE else -1
+            self.modes = _constant_modes(ode, compiled)
+            if self.modes is None and compiled.N > MAX_DENSE:
+                raise ValueError(f"the global error estimate of a system whose Jacobian has no "
+                                 f"narrow band is dense (unless linear with a well-conditioned "
+                                 f"eigenbasis): at most {MAX_DENSE} components, got "
+                                 f"{compiled.N}")
+        self.ode, self.compiled, self.method, self.c, self.a = ode, compiled, method, c, a
+        self.f = _evaluators(compiled)[0]
+        B, D = _basis(method, (0.0, *c))
+        self.stages = (c, B, D, a, position, kl, ku, *_stability(len(c)), _flow_radius(len(c)),
+                       _flow_box(len(c)))
+        self.e, self.nu = np.zeros(compiled.N), 0.0
+        self.before = np.array(ode.u0, dtype=float)  # U(t_n^-) of the next slab
+
+    def add(self, t_start, k, values):
+        """Carry e over the next slabs of the run, (t_start (n,), k (n,), values (n, q + 1,
+        N)), as a mono-adaptive loop's chunk holds them."""
+        if not len(k):
+            return
+        part = SimpleNamespace(method=self.method, ode=self.ode, t_start=t_start, k=k,
+                               values=values)
+        shifts = _feature_shifts(part, self.f, self.c, self.a)
+        if self.modes is not None:
+            self.e = _modal(part, self.f, *self.modes, self.c, *shifts, e=self.e,
+                            before=self.before)
+        else:
+            compiled = self.compiled
+            self.e, nu = _recursion(compiled.rhs.address, compiled.jacobian.address,
+                                    compiled.p, compiled.indptr, compiled.indices,
+                                    np.ascontiguousarray(values), k, t_start, self.e,
+                                    self.before, *self.stages, *shifts)
+            self.nu = max(self.nu, nu)
+        self.before = values[-1, -1].copy()
+
+
+def _constant_modes(ode, compiled):
+    """(lam, V): the eigenvalues and eigenvectors of ``ode``'s J where it is constant with an
+    eigenbasis of condition number below MODAL_CONDITION; None otherwise."""
+    if not compiled._derived("constant jacobian", lambda: _constant_jacobian(ode, compiled)):
+        return None
+    u0 = np.asarray(ode.u0, dtype=float)
+    lam, V = np.linalg.eig(_evaluators(compiled)[1](np.array([float(ode.t0)]), u0[None, :])[0])
+    return None if np.linalg.cond(V) >= MODAL_CONDITION else (lam, V)
 
 
 def modal_estimate(sol, compiled):
@@ -515,14 +648,12 @@ def modal_estimate(sol, compiled):
     MODAL_CONDITION; None for any other. Each mode is carried by its exact flow
     exp(k lambda), also where a step spans many periods of a weakly damped oscillation (a
     stiff spring stepped over), where the slab estimate's series gives up."""
-    if not compiled._derived("constant jacobian", lambda: _constant_jacobian(sol.ode, compiled)):
+    modes = _constant_modes(sol.ode, compiled)
+    if modes is None:
         return None
-    f, J = _evaluators(compiled)
-    lam, V = np.linalg.eig(J(sol.t_start[:1], sol.values[:1, -1, :])[0])
-    if np.linalg.cond(V) >= MODAL_CONDITION:
-        return None
+    f = _evaluators(compiled)[0]
     c, a = _collocation(sol.method.q + 2)
-    return _modal(sol, f, lam, V, c, *_feature_shifts(sol, f, c, a)), 0.0
+    return _modal(sol, f, *modes, c, *_feature_shifts(sol, f, c, a)), 0.0
 
 
 def measured_warning(size, linearised, nu, rtol, state, factor):

@@ -268,7 +268,4 @@ def check_parameters(given):
     if params["automatic_modeling"] and params["dense_output"] is not True:
         raise ValueError("automatic_modeling joins the histories of its windows and checks the "
                          "reduced model on them: it needs dense_output=True")
-    if params["estimate_global_error"] is True and params["dense_output"] is not True:
-        raise ValueError("estimate_global_error=True propagates every step's error to T, which "
-                         "needs the steps: drop dense_output (or set it True)")
     return params

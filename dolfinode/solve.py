@@ -392,8 +392,12 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         does not apply, the error at T of a run of more than one step is measured against
         a dG(3) solve at 1/100 of the tolerance with the same events and jumps (1.4-2.5 x
         the solve), and warned as above. Automatic modeling and method="auto" where it
-        solves in stretches are not estimated and have no such key. True estimates every
-        run (a ValueError where it cannot), False none.
+        solves in stretches are not estimated and have no such key. Without the history
+        (``dense_output`` False or a file) cG(q)/dG(q) runs are estimated chunk by chunk of
+        stored slabs as they are stored (the estimate of the whole history); runs whose
+        estimate needs the elements (mcG(q), mdG(q), the slab estimate's) are not, and
+        ``sol.stats["global error note"]`` says so (True raises for mcG(q), mdG(q)). True
+        estimates every run (a ValueError where it cannot), False none.
 
     Returns
     -------
@@ -578,7 +582,8 @@ def run_started(ode, compiled, plan, multi_adaptive, m, params, started, start, 
     ``start``) to its Solution; ``kept``: a :class:`dolfinode.Solver`'s prepared call that
     did not finish (:func:`_run_mono`), which the run continues."""
     atol, floor, x, f0, steps, options, state, counters = started
-    sink = history.sink(ode, m, multi_adaptive, params)
+    sink = _estimating(ode, compiled, plan, multi_adaptive, m, params,
+                       history.sink(ode, m, multi_adaptive, params))
     run = _run_multi if multi_adaptive else _run_mono
     status, counters, state, elements, stats = run(ode, compiled, m, params, options, atol,
                                                    floor, x, f0, steps, state, counters, plan,
@@ -1003,32 +1008,50 @@ def longest_run(sol, multi_adaptive):
     return sol.stats["time slabs"]
 
 
+def _estimating(ode, compiled, plan, multi_adaptive, m, params, sink):
+    """``sink`` (:mod:`dolfinode.io.history`), which for a mono-adaptive run without history
+    (``dense_output`` False or a file) whose error at T :func:`estimate_global_error` may
+    estimate also carries the estimate chunk by chunk (:class:`history.Estimating`)."""
+    choice = params["estimate_global_error"]
+    if (params["dense_output"] is True or multi_adaptive or choice is False
+            or (plan is not None and plan.watched)
+            or (choice == "auto" and (m.q + 2) * ode.N > AUTO_ROWS)):
+        return sink
+    return history.Estimating(sink, global_error.Running(ode, compiled, m))
+
+
 def estimate_global_error(ode, compiled, m, params, sol, steps):
     """Estimate the error at T of ``sol`` (a solve of ``ode`` by the method ``m`` with
     ``params``, without events or switches, whose busiest component took ``steps`` steps,
     :func:`longest_run`) when ``params["estimate_global_error"]`` asks for it (True, or "auto"
     for a run of more than one step of a small system: SHORTEST_RUN, AUTO_ROWS), with its
-    warning
-    (:func:`_warn_global_error`)."""
+    warning (:func:`_warn_global_error`); a run without history, from the estimate its sink
+    carried (:func:`_estimating`), and where there is none sol.stats["global error note"]
+    says so."""
     choice = params["estimate_global_error"]
+    running = getattr(sol, "_running_estimate", None)
     slabs = False
     if choice == "auto":
-        done = sol.success and params["dense_output"] is True
+        long = sol.success and steps >= SHORTEST_RUN
+        kept = params["dense_output"] is True
         small = (m.q + 2) * ode.N <= AUTO_ROWS
-        choice = done and small and steps >= SHORTEST_RUN
+        choice = long and small and (kept or running is not None)
         # larger runs: the slab estimate (no stage systems, no common refinement)
-        slabs = done and not small and steps >= SHORTEST_RUN
+        slabs = long and kept and not small
+        if long and not (choice or slabs):
+            sol.stats["global error note"] = NO_HISTORY_NOTE
     if choice or slabs:
-        _warn_global_error(ode, compiled, params, sol, slabs)
+        _warn_global_error(ode, compiled, params, sol, slabs, running)
 
 
-def _warn_global_error(ode, compiled, params, sol, slabs=False):
+def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
     """sol.stats["global error estimate"] (:mod:`dolfinode.global_error`, scaled as the
     tolerance means it) and "global error nonlinearity", and a ToleranceWarning when the
     estimate exceeds 10 x the tolerance where it holds (not with fixed steps, which have no
     tolerance to compare with). ``slabs``: by :func:`~dolfinode.global_error.slab_estimate`;
     where the run is stiff on a slab (or its elements' copy exceeds the memory) it gives up,
-    and sol.stats["global error note"] says that the error at T was not estimated."""
+    and sol.stats["global error note"] says that the error at T was not estimated.
+    ``running``: the estimate carried chunk by chunk (:class:`global_error.Running`)."""
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
     if slabs:
@@ -1042,6 +1065,8 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False):
         if found is None:
             sol.stats["global error note"] = SLAB_NOTE
             return
+    elif running is not None:
+        found = running.e, running.nu
     else:
         found = global_error.estimate(sol, compiled)
     e, nu = found
@@ -1069,6 +1094,14 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False):
 SLAB_NOTE = ("not estimated: the run is stiff on its slabs (the slab estimate would need more "
              f"than {global_error.SLAB_SUBSTEPS} sub-steps per element); "
              "estimate_global_error=True estimates it on the common slabs")
+
+
+#: sol.stats["global error note"] of a run without history "auto" did not estimate: a
+#: multi-adaptive run or a larger system, whose estimates need the elements.
+NO_HISTORY_NOTE = ("not estimated: without the history (dense_output=False or a file) the error "
+                   f"at T is estimated by default for cG(q)/dG(q) runs with (q + 2) N <= "
+                   f"{AUTO_ROWS}; estimate_global_error=True estimates any cG(q)/dG(q) run, "
+                   "dense_output=True any run")
 
 
 #: Where the linearised estimate exceeds 10 x the tolerance but does not hold (its

@@ -91,6 +91,12 @@ def sink(ode, method, multi_adaptive, params):
         For sample times outside [t0, T].
     """
     times = params["sample_times"]
+    if (params["estimate_global_error"] is True and multi_adaptive
+            and params["dense_output"] is not True):
+        raise ValueError("estimate_global_error=True with mcG(q)/mdG(q) propagates every "
+                         "element's error to T on the common slabs of all components, which "
+                         "needs the steps: drop dense_output (or set it True), or solve by "
+                         "cG(q)/dG(q), whose error is estimated chunk by chunk without them")
     if times is not None and (times[0] < ode.t0 or times[-1] > ode.T):
         raise ValueError(f"sample_times must lie in [t0, T] = [{ode.t0}, {ode.T}], got "
                          f"[{times[0]}, {times[-1]}]")
@@ -105,6 +111,28 @@ def sink(ode, method, multi_adaptive, params):
 
     return ToFile(params["dense_output"], ode, method, multi_adaptive,
                   params["number_of_samples"] if times is None else times)
+
+
+class Estimating:
+    """A ``sink`` without history (:class:`Samples`, ToFile) of a mono-adaptive run that
+    hands each chunk to ``running`` as well (:class:`dolfinode.global_error.Running`), so
+    that the error at T is estimated as from the whole history; the Solution keeps it as
+    ``_running_estimate``."""
+
+    def __init__(self, sink, running):
+        self.sink, self.running = sink, running
+
+    def add(self, chunk, t):
+        self.running.add(*chunk)
+        self.sink.add(chunk, t)
+
+    def finish(self, completed):
+        return self.sink.finish(completed)
+
+    def solution(self, ode, method, elements, stats, final):
+        sol = self.sink.solution(ode, method, elements, stats, final)
+        sol._running_estimate = self.running
+        return sol
 
 
 class InMemory:

@@ -75,11 +75,6 @@ def test_the_callers_sample_times_array_reused_after_a_solve_leaves_its_t_alone(
     ({"dense_output": 1}, TypeError, "dense_output must be True"),
     ({"dense_output": False, "automatic_modeling": True}, ValueError,
      "automatic_modeling .* needs dense_output=True"),
-    # (a TypeError from inside the estimate before)
-    ({"dense_output": False, "estimate_global_error": True}, ValueError,
-     "estimate_global_error=True .* needs the steps"),
-    ({"dense_output": "never.h5", "estimate_global_error": True}, ValueError,
-     "estimate_global_error=True .* needs the steps"),
 ])
 def test_history_parameters_are_checked(parameters, error, words):
     u = sp.Symbol("u")
