@@ -150,40 +150,52 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
     q1 = nodes.shape[0]
     weights = np.empty(q1)
     weights0 = np.empty(q1 + 1)
+    # the test per element and component, made when the times enter an element: whether P
+    # is used (collocated[i]) and U(t_{n-1}^-) (before[i]); the bases only where one reads them
+    collocated = np.zeros(out.shape[0], dtype=np.bool_)
+    before = np.zeros(out.shape[0])
+    some_p = some_u = False
+    current = -1
     n = 0
     for m in range(times.shape[0]):
         n = _locate(t_end, times[m], n)
+        if n != current:
+            current = n
+            # (an element cut to end at a piece's T may end a rounding away from the next
+            # start)
+            first = n == 0 or abs(t_end[n - 1] - t_start[n]) > 4e-16 * abs(t_start[n])
+            start = -1
+            for p in range(starts.shape[0]):
+                if t_start[n] == starts[p]:
+                    start = p
+            some_p = some_u = False
+            for i in range(out.shape[0]):
+                collocated[i] = False
+                if start >= 0 or not first:
+                    before[i] = befores[start, i] if start >= 0 else values[n - 1, q1 - 1, i]
+                    plus = 0.0
+                    change = 0.0
+                    for j in range(q1):
+                        plus += left[j] * values[n, j, i]
+                        change = max(change, abs(values[n, j, i] - before[i]))
+                    collocated[i] = abs(plus - before[i]) <= theta * change
+                some_p |= collocated[i]
+                some_u |= not collocated[i]
         tau = min(max((times[m] - t_start[n]) / (t_end[n] - t_start[n]), 0.0), 1.0)
-        lagrange_weights(tau, nodes, bary, weights)
-        lagrange_weights(tau, nodes0, bary0, weights0)
-        # (an element cut to end at a piece's T may end a rounding away from the next start)
-        first = n == 0 or abs(t_end[n - 1] - t_start[n]) > 4e-16 * abs(t_start[n])
-        start = -1
-        for p in range(starts.shape[0]):
-            if t_start[n] == starts[p]:
-                start = p
+        if some_u:
+            lagrange_weights(tau, nodes, bary, weights)
+        if some_p:
+            lagrange_weights(tau, nodes0, bary0, weights0)
         for i in range(out.shape[0]):
-            u = 0.0
-            p = 0.0
-            plus = 0.0
-            for j in range(q1):
-                u += weights[j] * values[n, j, i]
-                p += weights0[j + 1] * values[n, j, i]
-                plus += left[j] * values[n, j, i]
-            if start >= 0:
-                before = befores[start, i]
-            elif first:
-                out[i, m] = u
-                continue
+            value = 0.0
+            if collocated[i]:
+                for j in range(q1):
+                    value += weights0[j + 1] * values[n, j, i]
+                out[i, m] = value + weights0[0] * before[i]
             else:
-                before = values[n - 1, q1 - 1, i]
-            change = 0.0
-            for j in range(q1):
-                change = max(change, abs(values[n, j, i] - before))
-            if abs(plus - before) <= theta * change:
-                out[i, m] = p + weights0[0] * before
-            else:
-                out[i, m] = u
+                for j in range(q1):
+                    value += weights[j] * values[n, j, i]
+                out[i, m] = value
 
 
 @njit(cache=True)
@@ -446,14 +458,14 @@ class Solution:
 
     def _evaluate(self, times):
         """U at ``times`` in [t0, T], shape (N, len(times)), from the elements."""
-        out = np.empty((times.size, self._declaration.N)).T  # components contiguous at each time
-        nodes, bary = self.method.nodes, self.method.barycentric_weights
+        declared = self._declaration
+        out = np.empty((times.size, declared.N)).T  # components contiguous at each time
         if self.multi:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
-                                 nodes, bary, times, out)
-        else:
-            declared = self._declaration
-            starts, befores = self.__dict__.get("_restarts", ([declared.t0], [declared.u0]))
+                                 self.method.nodes, self.method.barycentric_weights, times, out)
+        else:  # (arrays, not lists: converting [u0] cost a 100-point evaluation 1 us)
+            starts, befores = self.__dict__.get("_restarts") or (np.array([declared.t0]),
+                                                                 declared.u0[np.newaxis])
             evaluate_mono(self.method, self.t_start, self.t_start + self.k, self.values,
                           starts, befores, times, out)
         return out

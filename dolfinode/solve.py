@@ -143,9 +143,9 @@ def lost_components(ode, compiled, sol):
         return []
     # U at the end (T, or a terminal event's time), without an evaluation where it can
     U = sol(sol.ode.T) if sol.multi else sol.values[-1, -1]
-    zero = U == 0.0
-    if not zero.any():
+    if not _has_zero(U):
         return []
+    zero = U == 0.0
     candidates = np.flatnonzero(zero & (ode.u0 != 0.0))
     if not candidates.size or not (ode._constrained or _keeps_nonnegative(ode)):
         return []
@@ -204,6 +204,12 @@ def _has_negative(u0):
     """Whether u0 has an entry < 0 (in Python for a short vector, where a numpy reduction's
     call overhead exceeds the work)."""
     return min(u0.tolist()) < 0 if u0.size <= 64 else bool(u0.min() < 0)
+
+
+def _has_zero(values):
+    """Whether ``values`` has an entry == 0 (in Python for a short vector, as
+    :func:`_has_negative`: 0.3 us against numpy's 1.3 us on HIRES)."""
+    return 0.0 in values.tolist() if values.size <= 64 else bool((values == 0.0).any())
 
 
 def _filled(n, value):

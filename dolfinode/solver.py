@@ -46,6 +46,7 @@ from dolfinode.solve import (
     _completed_stats,
     _floor,
     _has_negative,
+    _has_zero,
     _initial_steps,
     _mono_arguments,
     _mono_capacity,
@@ -365,6 +366,7 @@ class Solver:
         sol.parameters = params
         estimate_global_error(work, compiled, m, params, sol, longest_run(sol, True)
                               if multi_adaptive else counts[ts.SLABS])
-        if self._bounded:  # (values projected to 0: :func:`warn_lost_components`)
+        # values projected to 0 (:func:`warn_lost_components`); mono: none where none ends at 0
+        if self._bounded and (multi_adaptive or _has_zero(sol.values[-1, -1])):
             warn_lost_components(work, compiled, params, sol)
         return sol
