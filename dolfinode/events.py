@@ -461,6 +461,7 @@ class Plan:
         """Set sol.t_events, sol.y_events (per event, as solve_ivp), status and message."""
         sol.stats["breakpoints"] = self.breakpoints.size
         sol.stats["narrow features"] = len(self.features)
+        sol.stats["singular points"] = len(self.features.singular)
         sol.stats["state switches"] = self.switched
         if self.events:
             a, b, which = (np.concatenate(x) for x in zip((np.empty(0), np.empty(0),
