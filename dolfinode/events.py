@@ -461,6 +461,7 @@ class Plan:
         """Set sol.t_events, sol.y_events (per event, as solve_ivp), status and message."""
         sol.stats["breakpoints"] = self.breakpoints.size
         sol.stats["narrow features"] = len(self.features)
+        sol.stats["singular points"] = len(self.features.singular)
         sol.stats["state switches"] = self.switched
         if self.events:
             a, b, which = (np.concatenate(x) for x in zip((np.empty(0), np.empty(0),
@@ -598,7 +599,7 @@ def march(plan, loop, t0, T):
     n_events = len(plan.events)
     sigma = loop.sigma()
     plan.detector.start(t0, loop.x)
-    elements, recent = [], []
+    elements, recent, sol = [], [], None
     kmax = float(loop.options["kmax"][0])
     for end in [*plan.breakpoints, T]:
         plan.branches(sigma, loop.t(), end)
@@ -642,7 +643,41 @@ def march(plan, loop, t0, T):
                 _check_sliding(recent, te, switch, t0, T)
                 loop.restart(sigma)
                 break
+    at_end = _events_at_end(plan, sol, T, loop)
+    if at_end is not None:
+        return TERMINATED, elements, T
     return loop.DONE, elements, T
+
+
+def _events_at_end(plan, sol, T, loop):
+    """Record the events whose function reaches zero at T, as solve_ivp does (a zero at
+    t0 is not an event, one at T is): g_j(U(T), T) = 0, or within the location accuracy
+    of zero, |g_j| <= |dg_j/dt| loop.located(T), moving towards it from the last nonzero
+    sign (in the event's direction). The rounding of U(T) decides the sign of such a g, so
+    without the tolerance u' = 1 with the event u - 2 at T = 2 would depend on the last
+    ulp. Returns the terminal event's index (then ``plan.terminal`` is set), else None."""
+    n_events = len(plan.events)
+    if not n_events:
+        return None
+    g = plan.detector.values(np.array([T]), loop.x[:, None])[:n_events, 0]
+    last = plan.detector.last[:n_events]
+    approach = -last  # the sign of dg/dt of a g that reaches zero from ``last``
+    ends = np.flatnonzero((last != 0) & (np.sign(g) != approach)
+                          & (plan.detector.directions[:n_events] * approach >= 0))
+    hit = []
+    for j in ends:
+        slope = np.nan if sol is None else _slope(plan.detector, sol, T, j)
+        if g[j] == 0 or (np.sign(slope) == approach[j]
+                         and abs(g[j]) <= abs(slope) * loop.located(T)):
+            hit.append(j)
+    terminal = [j for j in hit if plan.stops[j]]
+    located = [j for j in hit if not plan.stops[j]]
+    plan.located.append((np.full(len(located), float(T)), np.array(located, dtype=int),
+                         np.tile(loop.x, (len(located), 1))))
+    if not terminal:
+        return None
+    plan.terminal = (float(T), terminal[0], loop.x.copy())
+    return terminal[0]
 
 
 #: Most corrections of a crossing's time by the end value of g after the element was

@@ -24,8 +24,19 @@ a feature, unless the fast stretches of that term cover more than SPREAD of [t0,
 that varies everywhere, as sin(omega t), which the step control sees at every step), or are
 more than MAX_FEATURES (a ToleranceWarning says so and names the term), or the term holds a
 function :func:`enclose` cannot bound (it is then listed in ``unbounded``). Terms with jumps (Piecewise, Heaviside, ...) are split at
-their breakpoints instead (:mod:`dolfinode.events`) and not searched for features.
+their breakpoints instead (:mod:`dolfinode.events`) and searched for singular points only.
+
+*Singular points*: where a derivative of order at most SINGULAR_ORDER of a state-free term
+is unbounded (|t - s|^(1/2), ((t - s)^2)^(1/3), the kink of |t - s|^(3/2)), a step ending
+at s is far from a polynomial there and the step control, which estimates the error from
+the polynomial, accepts it: u' = sqrt(1 - t) on [0, 1], dG(2) at 1e-8, was 261 x the
+tolerance at T. Around each such point s the steps are graded: rings [s + r/2, s + r] on
+both sides, r halving from span / RINGS_FROM down to MIN_WIDTH (T - t0), each a feature
+with largest step GRADING r / 2, so that no step is longer than GRADING times its distance
+to s, as the steps growing from t0 are near a singular t0 (sqrt(t) from 0 is within the
+tolerance). Jumps of the derivatives (DiracDelta) are breakpoints, not singular points.
 """
+import functools
 import itertools
 from dataclasses import dataclass
 
@@ -52,6 +63,12 @@ SPREAD = 0.25
 MAX_FEATURES = 64
 #: Largest step inside a feature: its fast width / STEPS_ACROSS.
 STEPS_ACROSS = 8
+#: Derivatives of a term searched for singular points (|t - s|^p with p < SINGULAR_ORDER).
+SINGULAR_ORDER = 3
+#: Near a singular point s the steps are at most GRADING |t - s| ...
+GRADING = 0.25
+#: ... from (T - t0) / RINGS_FROM of s inwards.
+RINGS_FROM = 16
 
 
 @dataclass
@@ -64,6 +81,8 @@ class Features:
     end: np.ndarray
     step: np.ndarray
     unbounded: list
+    #: The singular points (module docstring), whose rings are among the features.
+    singular: tuple = ()
 
     def __len__(self):
         return self.start.size
@@ -105,10 +124,7 @@ def narrow_features(ode):
 
 def _t_terms(expressions, states):
     """(terms, parameters in them): the largest sub-expressions of the right-hand sides
-    ``expressions`` that depend on t and not on the ``states``, sums taken term by term,
-    without non-smooth functions (their jumps are breakpoints)."""
-    from dolfinode.events import NON_SMOOTH
-
+    ``expressions`` that depend on t and not on the ``states``, sums taken term by term."""
     seen, terms = {}, set()
 
     def depends(expr):
@@ -132,14 +148,20 @@ def _t_terms(expressions, states):
         on_t, on_state = depends(expr)
         if on_t and not on_state:
             terms.update(h for h in sp.Add.make_args(expr) if h.has(time_symbol))
-    terms = sorted((h for h in terms if not h.has(*NON_SMOOTH, sp.Rel)), key=sp.default_sort_key)
+    terms = sorted(terms, key=sp.default_sort_key)
     return terms, sorted(set().union(*(h.free_symbols for h in terms)) - {time_symbol}, key=str)
 
 
 def _search(terms, params, t0, T):
     """:func:`narrow_features` of the ``terms`` with the parameter values ``params``."""
-    found, unbounded = [], []
+    from dolfinode.events import NON_SMOOTH
+
+    found, unbounded, singular = [], [], []
     for h in terms:
+        with np.errstate(all="ignore"):
+            singular += _singular_points(h, t0, T, dict(params.items()))
+        if h.has(*NON_SMOOTH, sp.Rel):
+            continue  # (its jumps are breakpoints)
         try:
             with np.errstate(all="ignore"):
                 found += _features(h, t0, T, dict(params.items()))
@@ -153,14 +175,97 @@ def _search(terms, params, t0, T):
                   f"[{t0:.6g}, {T:.6g}]: too many to split the solve at, so steps may jump "
                   f"over them; give maximum_time_step below their width (the narrowest fast "
                   f"stretch is {width:.3g} long)")
+    singular = _joined(singular, MIN_WIDTH * (T - t0))
+    found += [ring for s in singular for ring in _rings(s, t0, T)]
     start, end, step = np.array(sorted(found), dtype=float).reshape(-1, 3).T.copy()
-    # overlapping features (of different terms) as one, with the smaller step
+    # overlapping features (of different terms) as one, with the smaller step (rings touch)
     keep = np.ones(start.size, dtype=bool)
     for j in range(1, start.size):
         i = np.flatnonzero(keep[:j])[-1]
-        if start[j] <= end[i]:
+        if start[j] < end[i]:
             end[i], step[i], keep[j] = max(end[i], end[j]), min(step[i], step[j]), False
-    return Features(start[keep], end[keep], step[keep], unbounded)
+    return Features(start[keep], end[keep], step[keep], unbounded, tuple(singular))
+
+
+def _singular_points(h, t0, T, values):
+    """The points of [t0, T] where a derivative of h of order 1..SINGULAR_ORDER is unbounded:
+    the pieces on which :func:`enclose` bounds it by +-inf (or cannot), halved down to
+    MIN_WIDTH (T - t0), their midpoints. Terms :func:`enclose` cannot bound, or whose
+    derivative is unbounded on more than BUDGET pieces (a bound that is not tight), give
+    none."""
+    if not _may_be_singular(h):
+        return []
+    span = T - t0
+    grid = np.linspace(t0, T, GRID + 1)
+    points = []
+    for d in _derivatives(h):
+        left, right, evaluated = grid[:-1], grid[1:], 0
+        while left.size:
+            evaluated += left.size
+            if evaluated > BUDGET:
+                return []
+            try:
+                lo, hi = _enclose(d, left, right, values)
+            except Unbounded:
+                return []
+            unbounded = ~(np.isfinite(lo) & np.isfinite(hi))
+            small = right - left <= MIN_WIDTH * span
+            points += list(0.5 * (left + right)[unbounded & small])
+            split = unbounded & ~small
+            mid = 0.5 * (left + right)
+            left, right = (np.concatenate([left[split], mid[split]]),
+                           np.concatenate([mid[split], right[split]]))
+    near = MIN_WIDTH * span  # (a point at t0 or T is found that close to it)
+    return [t0 if p - t0 <= near else T if T - p <= near else p for p in points]
+
+
+#: Functions whose derivatives are bounded on bounded real intervals.
+_ANALYTIC = (sp.sin, sp.cos, sp.exp, sp.sinh, sp.cosh, sp.tanh, sp.atan, sp.asinh, sp.erf,
+             sp.erfc, sp.Heaviside)
+
+
+def _may_be_singular(h):
+    """Whether h holds a power other than a nonnegative integer one or a function not in
+    _ANALYTIC (sums of sines are not searched: sympy's diff of them is the cost)."""
+    return (any(not (p.exp.is_Integer and p.exp >= 0) for p in h.atoms(sp.Pow))
+            or any(not isinstance(f, _ANALYTIC) for f in h.atoms(sp.Function)))
+
+
+@functools.lru_cache(maxsize=1024)
+def _derivatives(h):
+    """The derivatives of h in t of orders 1..SINGULAR_ORDER, without their DiracDelta
+    terms; kept per term (sympy's diff dominates the search, and a new parameter value
+    searches again)."""
+    derivatives, d = [], h
+    for _ in range(SINGULAR_ORDER):
+        d = sp.diff(d, time_symbol).replace(lambda e: isinstance(e, sp.DiracDelta),
+                                            lambda e: sp.S.Zero)
+        derivatives.append(d)
+    return tuple(derivatives)
+
+
+def _joined(points, gap):
+    """The points, sorted, those within ``gap`` of the previous one as their mean."""
+    groups = []
+    for p in sorted(points):
+        if groups and p - groups[-1][-1] <= gap:
+            groups[-1].append(p)
+        else:
+            groups.append([p])
+    return [float(np.mean(g)) for g in groups]
+
+
+def _rings(s, t0, T):
+    """[(a, b, largest step)]: the rings of the singular point s inside [t0, T] (module
+    docstring), and the innermost pieces [s - r, s + r] at r = MIN_WIDTH (T - t0)."""
+    span = T - t0
+    inner = MIN_WIDTH * span
+    radii = span / RINGS_FROM * 0.5 ** np.arange(int(np.log2(span / RINGS_FROM / inner)) + 1)
+    rings = [(s + side * r, s + side * r / 2, GRADING * r / 2)
+             for r in radii for side in (-1, 1)] + [(s - radii[-1] / 2, s + radii[-1] / 2,
+                                                     GRADING * radii[-1] / 2)]
+    return [(max(t0, min(a, b)), min(T, max(a, b)), k) for a, b, k in rings
+            if max(a, b) > t0 and min(a, b) < T]
 
 
 def _features(h, t0, T, values):
@@ -237,8 +342,8 @@ class Crowded(ValueError):
 def enclose(expr, lo, hi, values=None):
     """Bounds (low, high) of expr(t) for t in [lo_i, hi_i] (arrays), by interval arithmetic
     on the sympy tree: sums and products of the bounds of the arguments, powers, and the
-    monotone or periodic elementary functions (exp, log, sin, cos, tan, cosh and the
-    monotone ones: sinh, tanh, asin, acos, atan, asinh, acosh, atanh, erf, erfc). The bounds hold for every t in the piece (up to rounding) and are tight as the
+    monotone or periodic elementary functions (exp, log, sin, cos, tan, cosh, Abs and the
+    monotone ones: sinh, tanh, asin, acos, atan, asinh, acosh, atanh, erf, erfc, sign). The bounds hold for every t in the piece (up to rounding) and are tight as the
     piece shrinks, except where the same subexpression enters twice (t - t). ``values``:
     the values of the other symbols (parameters).
 
@@ -299,16 +404,17 @@ def _enclose(e, lo, hi, values):
         a, b = _enclose(e.args[0], lo, hi, values)
         pole = np.ceil((a - 0.5 * np.pi) / np.pi) * np.pi + 0.5 * np.pi <= b
         return np.where(pole, -np.inf, np.tan(a)), np.where(pole, np.inf, np.tan(b))
-    if isinstance(e, sp.cosh):
+    if isinstance(e, (sp.cosh, sp.Abs)):
         a, b = _enclose(e.args[0], lo, hi, values)
         small = np.where((a <= 0) & (b >= 0), 0.0, np.minimum(abs(a), abs(b)))
-        return np.cosh(small), np.cosh(np.maximum(abs(a), abs(b)))
+        even = np.cosh if isinstance(e, sp.cosh) else np.abs
+        return even(small), even(np.maximum(abs(a), abs(b)))
     raise Unbounded(f"no interval bounds for {type(e).__name__}")
 
 
 _INCREASING = {sp.tanh: np.tanh, sp.atan: np.arctan, sp.sinh: np.sinh, sp.asinh: np.arcsinh,
                sp.asin: np.arcsin, sp.atanh: np.arctanh, sp.acosh: np.arccosh,
-               sp.erf: special.erf}
+               sp.erf: special.erf, sp.sign: np.sign}
 _DECREASING = {sp.erfc: special.erfc, sp.acos: np.arccos}
 
 

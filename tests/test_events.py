@@ -232,6 +232,22 @@ def test_event_on_an_element_end_is_reported(method):
     np.testing.assert_allclose(sol.t_events[1], [0.25, 0.75], atol=1e-9)
 
 
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(2)"])
+def test_event_reaching_zero_at_T_is_reported(method):
+    # solve_ivp's semantics: a zero at t0 is not an event, one reached at T is; u - 2 reaches
+    # zero at T within the rounding of U(T), whose last ulp must not decide
+    ode = dn.ODE({u: 1.0}, u0=[0.0], T=2.0)
+    events = [u - 2, dn.t - 2, dn.Event(dn.t - 2, direction=-1), dn.Event(2 - dn.t, direction=-1),
+              dn.t, dn.t - 3]
+    sol = dn.solve(ode, method=method, tolerance=1e-8, events=events)
+    assert [e.tolist() for e in sol.t_events] == [[2.0], [2.0], [], [2.0], [], []]
+    np.testing.assert_allclose(sol.y_events[0], [[2.0]], rtol=1e-12)
+    assert sol.status == 0
+    ended = dn.solve(ode, method=method, tolerance=1e-8,
+                     events=[dn.Event(dn.t - 2, terminal=True)])
+    assert ended.status == 1 and ended.t_events[0].tolist() == [2.0]
+
+
 def test_no_events_gives_none(oscillator):
     sol = dn.solve(oscillator, method="cG(1)")
     assert sol.t_events is None and sol.y_events is None and sol.status == 0

@@ -6,6 +6,7 @@ import pytest
 import sympy as sp
 
 import dolfinode as dn
+from dolfinode import features
 from dolfinode.features import enclose, narrow_features
 
 u, v = sp.symbols("u v")
@@ -224,3 +225,52 @@ def test_a_pulse_in_a_template_term_is_found(method):
         per_cell = dn.Template(slots=(x,), terms={x: term}, indices=np.array([[0]]),
                                params=(c,), values=np.array([[6.0]]))
         assert len(narrow_features(dn.TemplateODE([per_cell], u0=[0.0], T=10.0))) == found
+
+
+#: name -> (state-free term, T, its singular points, exact integral over [0, T])
+SINGULAR = {
+    "sqrt|t - 1|": (sp.sqrt(sp.Abs(t - 1)), 2.0, (1.0,), 4 / 3),
+    "|t - 1|^(1/4)": (sp.Abs(t - 1) ** sp.Rational(1, 4), 2.0, (1.0,), 1.6),
+    "|t - 1|^(3/2)": (sp.Abs(t - 1) ** sp.Rational(3, 2), 2.0, (1.0,), 0.8),
+    "((t - 0.7)^2)^(1/3)": (((t - 0.7) ** 2) ** sp.Rational(1, 3), 1.0, (0.7,),
+                            0.6 * (0.7 ** (5 / 3) + 0.3 ** (5 / 3))),
+    "sqrt(1 - t) at T": (sp.sqrt(1 - t), 1.0, (1.0,), 2 / 3),
+}
+
+
+@pytest.mark.parametrize("case", list(SINGULAR))
+def test_singular_points_are_found(case):
+    h, end, points, _ = SINGULAR[case]
+    features = narrow_features(dn.ODE({u: -u + h}, u0=[1.0], T=end))
+    np.testing.assert_allclose(features.singular, points, atol=1e-8)
+
+
+@pytest.mark.parametrize("h", [sp.sin(t), sp.Abs(t - 1), sp.sqrt(t**2 - 2 * t + 1.0001),
+                               sp.exp(-((t - 1) / 1e-3) ** 2), sp.Heaviside(t - 1)])
+def test_smooth_pieces_have_no_singular_points(h):
+    assert narrow_features(dn.ODE({u: -u + h}, u0=[1.0], T=2.0)).singular == ()
+
+
+@pytest.mark.parametrize("case", list(SINGULAR))
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "dG(2)"])
+@pytest.mark.parametrize("tol", [1e-6, 1e-8])
+def test_derivative_singularity_within_tolerance(case, method, tol):
+    """A step that ends at a point where f(t)'s derivatives blow up is far from a polynomial
+    and the step control, which sees only polynomials, accepted it: 15-280 x the tolerance
+    at T, and no warning where |t - 1| made the solve piecewise (no estimate at T)."""
+    h, end, points, exact = SINGULAR[case]
+    sol = dn.solve(dn.ODE({u: h}, u0=[0.0], T=end), method=method, tolerance=tol)
+    assert abs(sol.y[0, -1] - exact) <= 10 * tol * max(1.0, abs(exact))
+    assert sol.stats["singular points"] == 1
+    # no step near the point longer than twice GRADING times its distance to it
+    s, starts, k = points[0], *sol.time_steps()
+    near = np.maximum(abs(starts - s), abs(starts + k - s))
+    inside = near < end / features.RINGS_FROM
+    assert np.all(k[inside] <= 2 * features.GRADING * near[inside] + 1e-7 * end)
+
+
+def test_singular_factor_of_the_state_within_tolerance():
+    """u' = -|t - 1|^(1/4) u: the factor free of u is searched, u = exp(-1.6) at T = 2."""
+    sol = dn.solve(dn.ODE({u: -(sp.Abs(t - 1) ** sp.Rational(1, 4)) * u}, u0=[1.0], T=2.0),
+                   method="dG(2)", tolerance=1e-8)
+    assert abs(sol.y[0, -1] - math.exp(-1.6)) <= 1e-7
