@@ -539,6 +539,27 @@ def measured_warning(size, linearised, nu, rtol, state, factor):
             f"{nu:.3g}). Try a tighter tolerance, or dn.estimate_error with a goal")
 
 
+def stiff_warning(size, rtol, state, factor):
+    """The ToleranceWarning's message for a run stiff on its slabs (where
+    :func:`slab_estimate` gives up) whose error at T ``size`` (as :func:`scaled`) was
+    measured against a solve at ``factor`` x the tolerance ``rtol``: None within WARN_FACTOR x
+    the tolerance; ``size`` None: that solve failed, the error could not be estimated."""
+    why = ("the run is stiff on its slabs (steps long against the period or decay time of "
+           "some of its modes), where the slab estimate cannot follow the error")
+    if size is None:
+        return (f"the error at T could not be estimated: {why}, and the solve at {factor:g} x "
+                "the tolerance to measure it against failed. Compare with a solve at a "
+                "tighter tolerance or with a maximum_time_step, or use dn.estimate_error "
+                "with a goal")
+    if size <= WARN_FACTOR * rtol:
+        return None
+    return (f"the error at T is {size / rtol:.3g} x the tolerance (largest in {state}; "
+            f"sol.stats['global error estimate'] = {size:.3g}), measured against a solve at "
+            f"{factor:g} x the tolerance: {why}; a step spanning many periods of a weakly "
+            "damped oscillation leaves its error undamped. Try a tighter tolerance, a "
+            "maximum_time_step below that period, or dn.estimate_error with a goal")
+
+
 #: The slab estimate (:func:`slab_estimate`) takes the moments of each component's residual
 #: over a sub-step up to the degree M <= 2q + SLAB_MOMENTS, the fewest whose first term left
 #: out of the moment series, relative to the first, (h rho)^M / (M + 1)!, is below
