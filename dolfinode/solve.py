@@ -1047,7 +1047,11 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False):
     else:
         found = global_error.estimate(sol, compiled)
     e, nu = found
-    size, i = global_error.scaled(e, sol(ode.T), atol, rtol)
+    # scaled by u(T) ~ U(T) - e, as the tolerance means: where the run damped |U| below |u|
+    # (a stiff spring stepped over) U's own scale overstates the error (mdG(3) on the
+    # 50-mass chain at 1e-2: 10.3 x against 9.33 x, the estimate within 1e-4 of the error)
+    U = sol(ode.T)
+    size, i = global_error.scaled(e, U - np.where(np.isfinite(e), e, 0.0), atol, rtol)
     sol.stats["global error estimate"] = size
     sol.stats["global error nonlinearity"] = nu
     if params["fixed_time_step"]:
@@ -1104,8 +1108,8 @@ REFERENCE_FACTOR, REFERENCE_METHOD, REFERENCE_STEPS = 1e-2, "dG(3)", 20
 
 
 def _reference_error(ode, params, sol, atol):
-    """(size, i): U(T) - V(T) scaled as the tolerance means it (:func:`global_error.scaled`),
-    V(T) of a solve by REFERENCE_METHOD at REFERENCE_FACTOR x the tolerance; None where that
+    """(size, i): U(T) - V(T) scaled as the tolerance means it (:func:`global_error.scaled`,
+    by V(T), the closer to u(T)), V(T) of a solve by REFERENCE_METHOD at REFERENCE_FACTOR x the tolerance; None where that
     solve fails or loses a component (:func:`lost_components`)."""
     rtol, U = params["tolerance"], sol(ode.T)
     tighter = {**params, "tolerance": rtol * REFERENCE_FACTOR,
@@ -1120,7 +1124,8 @@ def _reference_error(ode, params, sol, atol):
         return None
     if lost_components(ode, lower(ode), reference):  # (it lost what the run kept)
         return None
-    return global_error.scaled(U - reference(ode.T), U, atol, rtol)
+    V = reference(ode.T)
+    return global_error.scaled(U - V, V, atol, rtol)
 
 
 def _warn(why):
