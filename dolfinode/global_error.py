@@ -670,6 +670,36 @@ def measured_warning(size, linearised, nu, rtol, state, factor):
             f"{nu:.3g}). Try a tighter tolerance, or dn.estimate_error with a goal")
 
 
+#: Why a run's error at T is measured against a reference solve (:func:`reference_warning`),
+#: and what to try where it is large.
+STIFF_SLABS = ("the run is stiff on its slabs (steps long against the period or decay time of "
+               "some of its modes), where the slab estimate cannot follow the error",
+               "a step spanning many periods of a weakly damped oscillation leaves its error "
+               "undamped. Try a tighter tolerance, a maximum_time_step below that period, or "
+               "dn.estimate_error with a goal")
+NOT_SMOOTH = ("f jumps, switches or an event ends the run, where the linearised estimate, "
+              "made for one smooth f, does not apply",
+              "Try a tighter tolerance or a higher order")
+
+
+def reference_warning(size, rtol, state, factor, reason):
+    """The ToleranceWarning's message for a run whose error at T ``size`` (as :func:`scaled`)
+    was measured against a solve at ``factor`` x the tolerance ``rtol`` for ``reason``
+    (STIFF_SLABS or NOT_SMOOTH: why, what to try): None within WARN_FACTOR x the tolerance;
+    ``size`` None: that solve failed, the error could not be estimated."""
+    why, advice = reason
+    if size is None:
+        return (f"the error at T could not be estimated: {why}, and the solve at {factor:g} x "
+                "the tolerance to measure it against failed. Compare with a solve at a "
+                "tighter tolerance or with a maximum_time_step, or use dn.estimate_error "
+                "with a goal")
+    if size <= WARN_FACTOR * rtol:
+        return None
+    return (f"the error at T is {size / rtol:.3g} x the tolerance (largest in {state}; "
+            f"sol.stats['global error estimate'] = {size:.3g}), measured against a solve at "
+            f"{factor:g} x the tolerance: {why}; {advice}")
+
+
 #: The slab estimate (:func:`slab_estimate`) takes the moments of each component's residual
 #: over a sub-step up to the degree M <= 2q + SLAB_MOMENTS, the fewest whose first term left
 #: out of the moment series, relative to the first, (h rho)^M / (M + 1)!, is below
@@ -684,9 +714,11 @@ SLAB_TERMS = 18
 SLAB_SETTLED = 1e-10
 SLAB_CANCELLATION = 1e8
 #: A sub-step on which the series does not settle halves the sub-steps' length h, up to
-#: SLAB_SUBSTEPS sub-steps per element of the slab (a mono-adaptive step: q + 1, the work of
-#: its q + 1 values per component): beyond, the run is stiff on the slab (the common
-#: refinement of :func:`estimate`, L-stable, then costs less) and it gives up.
+#: SLAB_SUBSTEPS sub-steps per element of the slab (a shared slab, a mono-adaptive step or a
+#: multi-adaptive slab solved as one: q + 1, the work of its q + 1 values per component; as
+#: N elements a multi-adaptive one let the Brusselator's (N = 2000) mcG(2) at 1e-4 grind 4,000
+#: sub-steps a slab, 65 x its solve, before giving up): beyond, the run is stiff on the slab
+#: (the common refinement of :func:`estimate`, L-stable, then costs less) and it gives up.
 SLAB_SUBSTEPS = 2
 
 
@@ -694,8 +726,8 @@ def slab_estimate(sol, compiled=None):
     """(e, nu) as :func:`estimate` for a multi-adaptive solution (or a mono-adaptive one, as
     one whose every slab is shared), at a cost of the order of its elements (times the
     sub-steps below), not of its common refinement, without stage systems; None where a
-    slab would need more than SLAB_SUBSTEPS sub-steps per element (a stiff run; a step of a
-    mono-adaptive run counts as q + 1 elements); a ValueError where its copy of the elements
+    slab would need more than SLAB_SUBSTEPS sub-steps per element (a stiff run; a shared
+    slab counts as q + 1 elements); a ValueError where its copy of the elements
     would take more than COMMON_MEMORY_FRACTION x the available memory.
 
     A slab (t_n, t_{n+1}], between two times where every component's elements end, is cut
@@ -747,8 +779,7 @@ def slab_estimate(sol, compiled=None):
         compiled.p, compiled.indptr, compiled.indices, np.asarray(ptr, dtype=np.int64),
         t_start, t_end, coef, np.asarray(s_start, dtype=float),
         np.ascontiguousarray(s_values, dtype=float), to_monomial, sync,
-        np.asarray(sol.ode.u0, dtype=float), method.family == "cG", gx, gw, points,
-        N if sol.multi else method.q + 1)
+        np.asarray(sol.ode.u0, dtype=float), method.family == "cG", gx, gw, points)
     return (e, nu) if settled else None
 
 
@@ -948,11 +979,11 @@ def _moments_for(x, top):
 @njit(cache=True)
 def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start, t_end,
                     coef, s_start, s_values, to_monomial, sync, u0, continuous, gx, gw,
-                    points, shared_elements):
+                    points):
     """(e at T, nu, settled) of :func:`slab_estimate`, slab after slab between the times
     ``sync`` (a slab starting at s_start[n] is the shared slab n, nodal values s_values[n],
     the others are each component's elements ptr[i]:ptr[i + 1]; a shared slab counts as
-    ``shared_elements`` elements), each in sub-steps no longer
+    q + 1 elements, its values per component), each in sub-steps no longer
     than a length h: halved (and the sub-step redone) where exp(h J)'s series does not
     settle, doubled after a sub-step where it settled in at most SLAB_TERMS // 2 terms;
     settled False: a slab that would need more than SLAB_SUBSTEPS sub-steps per element of
@@ -982,7 +1013,7 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
                         acc += s_values[shared_next, node, i] * to_monomial[node, r]
                     sc[i, r] = acc
             shared_next += 1
-            elements = shared_elements
+            elements = sc.shape[1]
         else:
             for j in range(N):
                 first[j] = last[j]

@@ -413,23 +413,32 @@ def brusselator(n=1000, T=10.0, alpha=1.0 / 50.0):
                                f"(N = {2 * n}), alpha = {alpha:g}, T = {T:g}")
 
 
-def mass_spring_chain(n=50, stiffness=1e4, stiff_springs=2, T=10.0):
+def mass_spring_chain(n=50, stiffness=1e4, stiff_springs=2, T=10.0, cubic=0.0):
     """Chain of n unit masses between two walls, unit springs, ``stiff_springs`` evenly spaced
     springs ``stiffness`` times stiffer; x_i(0) = sin(pi i / (n + 1)), v(0) = 0. Linear: the
-    exact solution is the matrix exponential."""
+    exact solution is the matrix exponential. ``cubic`` > 0: each spring's force at
+    elongation d is k (d + cubic d^3) (a Fermi-Pasta-Ulam chain; no reference)."""
     import scipy.linalg as sl
 
     stiff = [int((m + 0.5) * (n + 1) / stiff_springs) for m in range(stiff_springs)]
     x = sp.symbols(f"x0:{n}")
     ks, kS = sp.symbols("k_soft k_stiff")
     ksym = [kS if j in stiff else ks for j in range(n + 1)]
+    def force(d):
+        return d + cubic * d**3 if cubic else d
+
     acc = {}
     for i in range(n):
         left = x[i - 1] - x[i] if i > 0 else -x[i]
         right = x[i + 1] - x[i] if i < n - 1 else -x[i]
-        acc[x[i]] = ksym[i] * left + ksym[i + 1] * right
+        acc[x[i]] = ksym[i] * force(left) + ksym[i + 1] * force(right)
     x0 = np.sin(np.pi * np.arange(1, n + 1) / (n + 1))
     ode = ODE.second_order(acc, x0=x0, v0=np.zeros(n), T=T, params={ks: 1.0, kS: stiffness})
+    if cubic:
+        return Problem("fpu-chain", ode, stiff=False, final=None, multiscale=True,
+                       reference="none: the runner computes one",
+                       description=f"cubic-spring chain, {n} masses, {stiff_springs} springs "
+                                   f"{stiffness:g}x stiffer, cubic {cubic:g}, T = {T:g}")
     kvec = np.where(np.isin(np.arange(n + 1), stiff), stiffness, 1.0)
     K = (np.diag(-(kvec[:-1] + kvec[1:])) + np.diag(kvec[1:-1], 1) + np.diag(kvec[1:-1], -1))
     A = np.block([[np.zeros((n, n)), np.eye(n)], [K, np.zeros((n, n))]])
