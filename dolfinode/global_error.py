@@ -672,13 +672,13 @@ def measured_warning(size, linearised, nu, rtol, state, factor):
 
 #: Why a run's error at T is measured against a reference solve (:func:`reference_warning`),
 #: and what to try where it is large.
-STIFF_SLABS = ("the run is stiff on its slabs (steps long against the period or decay time of "
-               "some of its modes), where the slab estimate cannot follow the error",
-               "a step spanning many periods of a weakly damped oscillation leaves its error "
-               "undamped. Try a tighter tolerance, a maximum_time_step below that period, or "
-               "dn.estimate_error with a goal")
-NOT_SMOOTH = ("f jumps, switches or an event ends the run, where the linearised estimate, "
-              "made for one smooth f, does not apply",
+STIFF_SLABS = (("the run is stiff on its slabs (steps long against the period or decay time "
+                "of some of its modes), where the slab estimate cannot follow the error"),
+               ("a step spanning many periods of a weakly damped oscillation leaves its error "
+                "undamped. Try a tighter tolerance, a maximum_time_step below that period, or "
+                "dn.estimate_error with a goal"))
+NOT_SMOOTH = (("f jumps, switches or an event ends the run, where the linearised estimate, "
+               "made for one smooth f, does not apply"),
               "Try a tighter tolerance or a higher order")
 
 
