@@ -1148,7 +1148,9 @@ NO_HISTORY_NOTE = ("not estimated: without the history (dense_output=False or a 
 
 
 #: Where the linearised estimate exceeds 10 x the tolerance but does not hold (its
-#: nonlinearity above global_error.NONLINEAR_LIMIT, as across VDPOL's folds), the error at T
+#: nonlinearity above global_error.NONLINEAR_LIMIT, as across VDPOL's folds), where it does
+#: not apply (f jumps or switches, events: :func:`measure_piecewise_error`) and where the slab
+#: estimate gives up (:func:`_stiff_on_slabs`), the error at T
 #: is measured against a solve at REFERENCE_FACTOR x the tolerance (and atol) by
 #: REFERENCE_METHOD (high order and L-stable: a few times the run's cost whatever its
 #: method), of at most REFERENCE_STEPS x the run's slabs (at least 100).
