@@ -762,18 +762,8 @@ def slab_estimate(sol, compiled=None):
                          "memory available")
     ends, counts = np.unique(t_end, return_counts=True)
     sync = np.unique(np.concatenate([[sol.ode.t0], ends[counts == N], s_start, s_end]))
-    nodes = np.asarray(method.nodes, dtype=float)
-    # monomial coefficients in tau = (t - a) / k of each element's polynomial
-    to_monomial = np.ascontiguousarray(
-        np.linalg.inv(nodes[:, None] ** np.arange(len(nodes))[None, :]).T)
+    to_monomial, gx, gw, points = _slab_rules(tuple(float(c) for c in method.nodes))
     coef = np.ascontiguousarray(values @ to_monomial)
-    moments = 2 * method.q + SLAB_MOMENTS
-    # for M moments, n = (q + M + 2) // 2 Gauss points: exact to the degree 2n - 1 >= q + M
-    points = (method.q + np.arange(moments + 1) + 2) // 2
-    gx, gw = np.zeros((moments + 1, points[-1])), np.zeros((moments + 1, points[-1]))
-    for M, n in enumerate(points):
-        x, w = np.polynomial.legendre.leggauss(n)
-        gx[M, :n], gw[M, :n] = (x + 1) / 2, w / 2
     e, nu, settled = _slab_recursion(
         compiled.rhs_component.address, compiled.rhs.address, compiled.jacobian.address,
         compiled.p, compiled.indptr, compiled.indices, np.asarray(ptr, dtype=np.int64),
@@ -781,6 +771,25 @@ def slab_estimate(sol, compiled=None):
         np.ascontiguousarray(s_values, dtype=float), to_monomial, sync,
         np.asarray(sol.ode.u0, dtype=float), method.family == "cG", gx, gw, points)
     return (e, nu) if settled else None
+
+
+@lru_cache(maxsize=32)
+def _slab_rules(nodes):
+    """(to_monomial, gx, gw, points) of :func:`slab_estimate` for a method's ``nodes`` (made
+    once; shared, never written): the matrix from the values at the nodes to the monomial
+    coefficients in tau = (t - a) / k, and for the moments M = 0..2q + SLAB_MOMENTS the
+    n_M = (q + M + 2) // 2 point Gauss rules on [0, 1] (rows of gx, gw), exact to the degree
+    2 n_M - 1 >= q + M."""
+    nodes = np.asarray(nodes)
+    q = len(nodes) - 1
+    to_monomial = np.ascontiguousarray(
+        np.linalg.inv(nodes[:, None] ** np.arange(len(nodes))[None, :]).T)
+    points = (q + np.arange(2 * q + SLAB_MOMENTS + 1) + 2) // 2
+    gx, gw = np.zeros((points.size, points[-1])), np.zeros((points.size, points[-1]))
+    for M, n in enumerate(points):
+        x, w = np.polynomial.legendre.leggauss(n)
+        gx[M, :n], gw[M, :n] = (x + 1) / 2, w / 2
+    return to_monomial, gx, gw, points
 
 
 @njit(cache=True)
