@@ -43,7 +43,7 @@ from dolfinode.dual.problem import monomial_coefficients
 from dolfinode.family import _parts as family_parts
 from dolfinode.features import narrow_features
 from dolfinode.linalg.banded import band_lu, band_solve
-from dolfinode.memory import available_memory
+from dolfinode.memory import SMALL_BYTES, available_memory
 from dolfinode.methods.quadrature import radau
 from dolfinode.ode import t as time_symbol
 
@@ -728,7 +728,8 @@ def slab_estimate(sol, compiled=None):
     sub-steps below), not of its common refinement, without stage systems; None where a
     slab would need more than SLAB_SUBSTEPS sub-steps per element (a stiff run; a shared
     slab counts as q + 1 elements); a ValueError where its copy of the elements
-    would take more than COMMON_MEMORY_FRACTION x the available memory.
+    would take more than COMMON_MEMORY_FRACTION x the available memory (asked only for a
+    copy larger than memory.SMALL_BYTES).
 
     A slab (t_n, t_{n+1}], between two times where every component's elements end, is cut
     into sub-steps I = (a, a + K] no longer than a length h carried from sub-step to sub-step
@@ -756,7 +757,7 @@ def slab_estimate(sol, compiled=None):
     (ptr, t_start, t_end, values), (s_start, s_end, s_values) = family_parts(sol)
     # the elements' monomial coefficients, and the sort of their ends
     size = 8 * len(t_end) * (method.q + 4)
-    if size > COMMON_MEMORY_FRACTION * available_memory():
+    if size > SMALL_BYTES and size > COMMON_MEMORY_FRACTION * available_memory():
         raise ValueError(f"the slab estimate's copy of the {len(t_end)} elements takes "
                          f"{size / 2**30:.3g} GB, more than {COMMON_MEMORY_FRACTION:g} x the "
                          "memory available")

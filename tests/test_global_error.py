@@ -491,6 +491,7 @@ def test_a_slab_estimate_beyond_the_memory_is_noted_not_run(monkeypatch):
     the default solve does not run it and its stats say why, without a warning."""
     p = problems.mass_spring_chain()  # mdG(1) at 1e-2: 34 k elements outside shared slabs
     monkeypatch.setattr(global_error, "available_memory", lambda: 1000)
+    monkeypatch.setattr(global_error, "SMALL_BYTES", 0)  # (a copy this small is not asked)
     with warnings.catch_warnings():
         warnings.simplefilter("error", dn.ToleranceWarning)
         sol = dn.solve(p.ode, method="mdG(1)", tolerance=1e-2)
