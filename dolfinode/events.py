@@ -320,11 +320,15 @@ class Detector:
         self.last = np.zeros(len(exprs))
         self.from_zero = np.arange(len(exprs)) >= len(exprs) - switches
 
-    def values(self, times, U):
-        """g_j at the times, U the solution there (N, M): shape (n_g, M)."""
+    def values(self, times, U, rows=None):
+        """g_j at the times, U the solution there (N, M): shape (n_g, M), or (len(rows), M)
+        for the functions ``rows`` alone."""
         args = [U[i] for i in self.components]
-        return np.array([g(times, *args) * np.ones_like(times)
-                         for g in self._g]).reshape(len(self._g), times.size)
+        functions = self._g if rows is None else [self._g[j] for j in rows]
+        out = np.empty((len(functions), times.size))
+        for g, row in zip(functions, out):
+            row[:] = g(times, *args)  # (broadcast: a constant g gives a number)
+        return out
 
     def start(self, t, u):
         self.last = np.sign(self.values(np.array([t]), u[:, None])[:, 0])
@@ -546,7 +550,7 @@ class Plan:
         fractions = np.linspace(0.0, 1.0, SWITCH_SAMPLES + 1)[:-1]
         times = np.append((ends[:-1, None] + np.diff(ends)[:, None] * fractions).ravel(),
                           ends[-1])
-        return times, self.detector.values(times, sol._evaluate(times))[rows]
+        return times, self.detector.values(times, sol._evaluate(times), rows)
 
     @property
     def truncates(self):

@@ -43,7 +43,7 @@ from dolfinode.dual.problem import monomial_coefficients
 from dolfinode.family import _parts as family_parts
 from dolfinode.features import narrow_features
 from dolfinode.linalg.banded import band_lu, band_solve
-from dolfinode.memory import available_memory
+from dolfinode.memory import SMALL_BYTES, available_memory
 from dolfinode.methods.quadrature import radau
 from dolfinode.ode import t as time_symbol
 
@@ -728,7 +728,8 @@ def slab_estimate(sol, compiled=None):
     sub-steps below), not of its common refinement, without stage systems; None where a
     slab would need more than SLAB_SUBSTEPS sub-steps per element (a stiff run; a shared
     slab counts as q + 1 elements); a ValueError where its copy of the elements
-    would take more than COMMON_MEMORY_FRACTION x the available memory.
+    would take more than COMMON_MEMORY_FRACTION x the available memory (asked only for a
+    copy larger than memory.SMALL_BYTES).
 
     A slab (t_n, t_{n+1}], between two times where every component's elements end, is cut
     into sub-steps I = (a, a + K] no longer than a length h carried from sub-step to sub-step
@@ -756,24 +757,14 @@ def slab_estimate(sol, compiled=None):
     (ptr, t_start, t_end, values), (s_start, s_end, s_values) = family_parts(sol)
     # the elements' monomial coefficients, and the sort of their ends
     size = 8 * len(t_end) * (method.q + 4)
-    if size > COMMON_MEMORY_FRACTION * available_memory():
+    if size > SMALL_BYTES and size > COMMON_MEMORY_FRACTION * available_memory():
         raise ValueError(f"the slab estimate's copy of the {len(t_end)} elements takes "
                          f"{size / 2**30:.3g} GB, more than {COMMON_MEMORY_FRACTION:g} x the "
                          "memory available")
     ends, counts = np.unique(t_end, return_counts=True)
     sync = np.unique(np.concatenate([[sol.ode.t0], ends[counts == N], s_start, s_end]))
-    nodes = np.asarray(method.nodes, dtype=float)
-    # monomial coefficients in tau = (t - a) / k of each element's polynomial
-    to_monomial = np.ascontiguousarray(
-        np.linalg.inv(nodes[:, None] ** np.arange(len(nodes))[None, :]).T)
+    to_monomial, gx, gw, points = _slab_rules(tuple(float(c) for c in method.nodes))
     coef = np.ascontiguousarray(values @ to_monomial)
-    moments = 2 * method.q + SLAB_MOMENTS
-    # for M moments, n = (q + M + 2) // 2 Gauss points: exact to the degree 2n - 1 >= q + M
-    points = (method.q + np.arange(moments + 1) + 2) // 2
-    gx, gw = np.zeros((moments + 1, points[-1])), np.zeros((moments + 1, points[-1]))
-    for M, n in enumerate(points):
-        x, w = np.polynomial.legendre.leggauss(n)
-        gx[M, :n], gw[M, :n] = (x + 1) / 2, w / 2
     e, nu, settled = _slab_recursion(
         compiled.rhs_component.address, compiled.rhs.address, compiled.jacobian.address,
         compiled.p, compiled.indptr, compiled.indices, np.asarray(ptr, dtype=np.int64),
@@ -781,6 +772,25 @@ def slab_estimate(sol, compiled=None):
         np.ascontiguousarray(s_values, dtype=float), to_monomial, sync,
         np.asarray(sol.ode.u0, dtype=float), method.family == "cG", gx, gw, points)
     return (e, nu) if settled else None
+
+
+@lru_cache(maxsize=32)
+def _slab_rules(nodes):
+    """(to_monomial, gx, gw, points) of :func:`slab_estimate` for a method's ``nodes`` (made
+    once; shared, never written): the matrix from the values at the nodes to the monomial
+    coefficients in tau = (t - a) / k, and for the moments M = 0..2q + SLAB_MOMENTS the
+    n_M = (q + M + 2) // 2 point Gauss rules on [0, 1] (rows of gx, gw), exact to the degree
+    2 n_M - 1 >= q + M."""
+    nodes = np.asarray(nodes)
+    q = len(nodes) - 1
+    to_monomial = np.ascontiguousarray(
+        np.linalg.inv(nodes[:, None] ** np.arange(len(nodes))[None, :]).T)
+    points = (q + np.arange(2 * q + SLAB_MOMENTS + 1) + 2) // 2
+    gx, gw = np.zeros((points.size, points[-1])), np.zeros((points.size, points[-1]))
+    for M, n in enumerate(points):
+        x, w = np.polynomial.legendre.leggauss(n)
+        gx[M, :n], gw[M, :n] = (x + 1) / 2, w / 2
+    return to_monomial, gx, gw, points
 
 
 @njit(cache=True)

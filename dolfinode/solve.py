@@ -25,7 +25,7 @@ from dolfinode.family import auto_base, solve_auto
 from dolfinode.io import history
 from dolfinode.kept import solve_kept
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
-from dolfinode.memory import available_memory
+from dolfinode.memory import SMALL_BYTES, available_memory
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, _vector_by_state
 from dolfinode.parameters import DEFAULTS, NONLINEAR_SOLVERS, check_parameters
@@ -49,11 +49,10 @@ _CHUNK_LIMIT = None
 #: singularity"). With absolute_tolerance given, a smaller one means absolute error control.
 MIN_TOLERANCE = 100 * np.finfo(float).eps
 #: Fraction of the available memory the Newton matrices of a mono-adaptive slab may take;
-#: a matrix of at most _NEWTON_SMALL bytes is taken to fit without asking the system.
+#: a matrix of at most memory.SMALL_BYTES is taken to fit without asking the system.
 _NEWTON_MEMORY_FRACTION = 0.5
 #: Largest system whose quasi-positivity is checked (see _keeps_nonnegative).
 _QUASI_POSITIVE_N = 200
-_NEWTON_SMALL = 2**26
 
 
 def _absolute_tolerance(ode, value, rtol):
@@ -839,7 +838,7 @@ def _newton_options(compiled, m, options):
     the loop's options for it; (structure, bytes, whether they fit in memory)."""
     structure, newton_bytes, costs, seconds = _newton_plan(compiled, m)
     reuse = seconds >= mono.REUSE_TIME
-    fits = (newton_bytes <= _NEWTON_SMALL
+    fits = (newton_bytes <= SMALL_BYTES
             or newton_bytes <= _NEWTON_MEMORY_FRACTION * available_memory())
     options["newton_ready"] = fits
     options["reuse"] = reuse

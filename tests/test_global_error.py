@@ -419,6 +419,22 @@ def test_a_large_mono_adaptive_chain_is_estimated_on_its_slabs(method):
     assert np.allclose(slabs, common, rtol=0.05, atol=0.05 * np.max(np.abs(common)))
 
 
+def test_the_slab_estimate_leaves_its_shared_rules_as_made():
+    """The slab estimate's Gauss rules and monomial matrix are made once per method and
+    shared between calls (global_error._slab_rules): two estimates of one solution are the
+    same bits, and the rules after them equal a fresh copy."""
+    p = problems.mass_spring_chain(8)
+    sol = dn.solve(p.ode, method="mcG(2)", tolerance=1e-4, estimate_global_error=False)
+    nodes = tuple(float(c) for c in sol.method.nodes)
+    first = global_error.slab_estimate(sol)
+    second = global_error.slab_estimate(sol)
+    assert first is not None
+    assert np.array_equal(first[0], second[0]) and first[1] == second[1]
+    shared = global_error._slab_rules(nodes)
+    fresh = global_error._slab_rules.__wrapped__(nodes)
+    assert all(np.array_equal(a, b) for a, b in zip(shared, fresh))
+
+
 def test_a_linear_run_stiff_on_its_slabs_is_estimated_mode_by_mode():
     """dG(2) at 1e-2 on the 25-mass chain steps over the stiff springs (77 x the tolerance
     at T): the slab estimate gives up, and as the system is linear the default estimates
@@ -475,6 +491,7 @@ def test_a_slab_estimate_beyond_the_memory_is_noted_not_run(monkeypatch):
     the default solve does not run it and its stats say why, without a warning."""
     p = problems.mass_spring_chain()  # mdG(1) at 1e-2: 34 k elements outside shared slabs
     monkeypatch.setattr(global_error, "available_memory", lambda: 1000)
+    monkeypatch.setattr(global_error, "SMALL_BYTES", 0)  # (a copy this small is not asked)
     with warnings.catch_warnings():
         warnings.simplefilter("error", dn.ToleranceWarning)
         sol = dn.solve(p.ode, method="mdG(1)", tolerance=1e-2)

@@ -211,7 +211,7 @@ def test_newton_matrix_is_allocated_only_when_needed(monkeypatch):
     """With no memory for the Newton matrix, fixed point still solves; a stiff solve stops."""
     driver = importlib.import_module("dolfinode.solve")  # the module, not dn.solve
     monkeypatch.setattr(driver, "_NEWTON_MEMORY_FRACTION", 0.0)
-    monkeypatch.setattr(driver, "_NEWTON_SMALL", 0)
+    monkeypatch.setattr(driver, "SMALL_BYTES", 0)
     harmonic, _ = problems.harmonic(T=1.0)
     sol = dn.solve(harmonic, method="dG(1)", tolerance=1e-6)
     assert not sol.stats["newton"] and sol.stats["time slabs"] > 1
