@@ -1,7 +1,8 @@
 """Discontinuities and events: breakpoints of f(t), switches on the state, and events g(u, t).
 
 A right-hand side with a non-smooth function (Piecewise, Heaviside, sign, floor, ceiling;
-Abs, Min, Max of t alone) is rewritten as a smooth one whose branch is a parameter sigma_j
+Abs, Min, Max, except a kink of the state whose continuation could leave f's domain, see
+:func:`_unsafe_kinks`) is rewritten as a smooth one whose branch is a parameter sigma_j
 (:func:`switched`): Heaviside(g) -> sigma_j, Abs(g) -> sigma_j g, a condition g < 0 ->
 sigma_j > 1/2, and so on. On each piece of [t0, T] where no switching function g_j changes
 sign, the solver integrates this smooth f with sigma fixed: no element straddles a jump and
@@ -28,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import sympy as sp
 from scipy.optimize import brentq
+from sympy.functions.elementary.piecewise import ExprCondPair
 
 from dolfinode.features import Features, narrow_features
 from dolfinode.ode import ODE
@@ -95,6 +97,9 @@ class Switch:
     negative: float = 0.0
     at_zero: float = 1.0
     floor: bool = False
+    #: A kink of the state (Abs, Min, Max): f is continuous across g = 0, so its crossings
+    #: are counted apart from the jumps' and cannot be a sliding mode.
+    kink: bool = False
 
     def value(self, g):
         if self.floor:
@@ -187,23 +192,52 @@ def _smooth(ode):
     if not any(e.has(*NON_SMOOTH) for e in ode.rhs):
         return ode.rhs, []
     switches, done, states = [], {}, set(ode.states)
+    unsafe = _unsafe_kinks([_binary(expr) for expr in ode.rhs], states)
     for expr in ode.rhs:
         # innermost first: a switch inside another's argument is smooth when that one is
         for atom in sorted(_binary(expr).atoms(*NON_SMOOTH, sp.Rel), key=sp.count_ops):
             symbol = sp.Symbol(f"{_SWITCH}{len(switches)}", real=True)
-            kink = isinstance(atom, _KINKS) and atom.free_symbols & states
-            made = None if atom in done or kink else _replacement(atom, symbol)
+            kink = bool(isinstance(atom, _KINKS) and atom.free_symbols & states)
+            made = None if atom in done or atom in unsafe else _replacement(atom, symbol)
             if made is not None:
                 # g in the original functions (evaluated as such); f smooth in sigma
+                made[0].kink = kink
                 switches.append(made[0])
                 done[atom] = _replacement(atom.xreplace(done), symbol)[1]
     return [_binary(expr).xreplace(done) for expr in ode.rhs], switches
 
 
-#: Continuous functions with a kink: of t they give breakpoints; of the state they are left
-#: to the step control (a kink costs a few short steps), as the smooth continuation sigma g
-#: past the kink may leave f's domain (sqrt(|u - a|) would be sqrt of a negative number).
+def _unsafe_kinks(exprs, states):
+    """The kinks of the state (Abs, Min, Max of a state) in ``exprs`` whose continuation
+    sigma g past the kink may leave f's domain: those reached from a root through any
+    function but Add, Mul, a power by a nonnegative integer, an entire function
+    (``_ENTIRE``), another non-smooth function or a condition (sqrt(|u - a|) would be the
+    square root of a negative number, 1/|u| could divide by zero). They are left to the
+    step control; every other kink is located as a switch."""
+    unsafe = set()
+
+    def walk(e, safe):
+        if isinstance(e, _KINKS) and not safe and e.free_symbols & states:
+            unsafe.add(e)
+        for i, arg in enumerate(e.args):
+            keeps = (isinstance(e, (sp.Add, sp.Mul, *_ENTIRE, *NON_SMOOTH, sp.Rel,
+                                    ExprCondPair))
+                     or (isinstance(e, sp.Pow) and i == 0 and e.exp.is_Integer
+                         and e.exp >= 0))
+            walk(arg, safe and keeps)
+
+    for expr in exprs:
+        walk(expr, True)
+    return unsafe
+
+
+#: Continuous functions with a kink: of t they give breakpoints; of the state they are
+#: located as switches (:class:`Switch` ``kink``), unless the smooth continuation sigma g
+#: past the kink may leave f's domain (:func:`_unsafe_kinks`): those are left to the step
+#: control, where the order drops to about 1 at the kink.
 _KINKS = (sp.Abs, sp.Min, sp.Max)
+#: Functions analytic on the whole real line: a kink inside one is located.
+_ENTIRE = (sp.sin, sp.cos, sp.exp, sp.sinh, sp.cosh, sp.tanh, sp.atan, sp.erf, sp.erfc)
 NON_SMOOTH = (sp.Piecewise, sp.Heaviside, sp.sign, sp.Abs, sp.Min, sp.Max, sp.floor,
                sp.ceiling)
 
@@ -442,7 +476,8 @@ class Plan:
         return times, on_state, detector, Detector(ode, [s.g for s in t_only], [0] * len(t_only))
 
     terminated = False
-    switched = 0  # crossings of switches on the state
+    switched = 0  # crossings of switches on the state where f jumps
+    kinked = 0  # crossings of kinks of the state (f continuous)
     end = None  # the time the solution reaches (from march)
     terminal = None  # (t, j, state) of the terminal event
 
@@ -451,6 +486,13 @@ class Plan:
         self.located = []  # (times, j, states) of those located before a stop
         self.stops = np.array([e.terminal for e in self.events]
                               + [True] * len(self.state_switches), dtype=bool)
+        # (i, sign) of the state switches on g_i = sign g_j, which cross with switch j
+        # (Abs(x) and Max(x, 0), on x and -x): located once, all switched at once
+        on = {}
+        for i, switch in enumerate(self.state_switches):
+            on.setdefault(switch.g, []).append(i)
+        self.partners = [[(i, 1.0) for i in on[s.g]] + [(i, -1.0) for i in on.get(-s.g, [])]
+                         for s in self.state_switches]
 
     def solved_ode(self, ode):
         """The ODE on the interval solved: [t0, t_event] after a terminal event."""
@@ -467,6 +509,7 @@ class Plan:
         sol.stats["narrow features"] = len(self.features)
         sol.stats["singular points"] = len(self.features.singular)
         sol.stats["state switches"] = self.switched
+        sol.stats["state kinks"] = self.kinked
         if self.events:
             a, b, which = (np.concatenate(x) for x in zip((np.empty(0), np.empty(0),
                                                           np.empty(0, int)), *self.pending))
@@ -495,14 +538,16 @@ class Plan:
         the shortest time between sign changes seen."""
         if not self.state_switches or not sol.dense:
             return None
-        times, G = self._samples(sol, len(self.events) + np.arange(len(self.state_switches)))
+        # (partners cross together and are counted once)
+        distinct = [k for k, same in enumerate(self.partners) if min(same)[0] == k]
+        times, G = self._samples(sol, len(self.events) + np.array(distinct, dtype=int))
         changes, shortest = 0, np.inf
         for g in G:
             change = _changes(g)
             changes += change.size
             if change.size > 1:
                 shortest = min(shortest, np.min(np.diff(times[change])))
-        if changes <= self.switched:
+        if changes <= self.switched + self.kinked:
             return None
         span = sol.ode.T - sol.ode.t0
         return min(shortest, span / max(changes, 1)) / 4
@@ -642,9 +687,16 @@ def march(plan, loop, t0, T):
                     plan.terminal = (te, j, loop.x.copy())
                     return TERMINATED, elements, te
                 switch = plan.state_switches[j - n_events]
-                plan.switched += 1
-                sigma[plan.switches.index(switch)] = switch.value(after)
-                _check_sliding(recent, te, switch, t0, T)
+                same = plan.partners[j - n_events]
+                for i, sign in same:
+                    s = plan.state_switches[i]
+                    sigma[plan.switches.index(s)] = s.value(sign * after)
+                    plan.detector.last[n_events + i] = sign * after
+                if all(plan.state_switches[i].kink for i, _ in same):
+                    plan.kinked += 1
+                else:
+                    plan.switched += 1
+                    _check_sliding(recent, te, switch, t0, T)
                 loop.restart(sigma)
                 break
     at_end = _events_at_end(plan, sol, T, loop)
@@ -749,8 +801,11 @@ def _first_stop(plan, sol, a, b, which, after):
 
 
 def _check_sliding(recent, te, switch, t0, T):
-    """Raise SolverError when the last SLIDING_SWITCHES switches came within
-    SLIDING_SPAN (T - t0) of each other: a sliding mode, which switching cannot follow."""
+    """Raise SolverError when the last SLIDING_SWITCHES switches where f jumps came within
+    SLIDING_SPAN (T - t0) of each other: a sliding mode, which switching cannot follow.
+    Kinks are not checked: across one f is continuous, so neither side pushes the solution
+    back, and with f Lipschitz its crossings accumulate only along an invariant g = 0, where
+    both branches agree."""
     from dolfinode.errors import SolverError
 
     recent.append(te)
