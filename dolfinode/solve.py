@@ -40,6 +40,10 @@ _SWITCH_RETRIES = 3
 #: Slabs (elements: multi-adaptive) per loop call of a solve with events or switches: what a
 #: terminal event or a switch in the chunk makes the loop redo.
 _EVENT_CHUNK = 1024
+#: Slabs of the first loop call after a (re)start with events or switches, doubled per call
+#: up to _EVENT_CHUNK: where switches come every few slabs (a kink crossed each period) a
+#: full chunk per restart redid up to 26 x the slabs kept.
+_RESTART_CHUNK = 16
 #: When set, the most slabs (mono-adaptive) or elements (multi-adaptive) a loop call
 #: stores: tests cut a run into many calls with it, which must not change the run.
 _CHUNK_LIMIT = None
@@ -755,10 +759,12 @@ def _completed_stats(stats, counts, multi_adaptive, m, params, compile_time, sec
 
 
 def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newton_ready=None,
-            first=None):
+            first=None, smallest=None):
     """Call a compiled time-slab loop until it reaches T, yielding (status, stored elements)
     after each call; ``first``: (status, buffers) of a first call made already (the kept
-    buffers of :class:`dolfinode.Solver`), of ``capacity``.
+    buffers of :class:`dolfinode.Solver`), of ``capacity``; ``smallest``: the first call's
+    capacity, doubled after each full chunk up to ``capacity`` (a switch or terminal event
+    redoes the rest of its chunk, so chunks after a restart start short).
 
     The loop returns FULL when its output buffers are full (so results arrive in chunks, and
     progress can be shown); a FULL with nothing stored means one slab needs larger buffers.
@@ -767,9 +773,10 @@ def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newto
     STEP_LIMIT: the mono-adaptive buffers hold no more slabs than are left, the
     multi-adaptive loop (whose buffers count elements) is checked after each chunk.
     """
+    size = capacity if smallest is None else min(smallest, capacity)
     while True:
         if first is None:
-            buffers = make_buffers(capacity)
+            buffers = make_buffers(size)
             status = advance(*buffers)
         else:
             (status, buffers), first = first, None
@@ -784,6 +791,7 @@ def _chunks(advance, make_buffers, capacity, counters, params, state, bar, newto
         elif status == ts.FULL:
             if counters[ts.STORED] == 0 and counters[ts.STORED_BLOCKS] == 0:
                 capacity *= 2
+            size = min(2 * size, capacity)
             if counters[ts.SLABS] >= params["maximum_steps"]:
                 status = STEP_LIMIT
         yield status, chunk
@@ -948,13 +956,13 @@ def _run_mono(ode, compiled, m, params, options, atol, floor, x, f0, steps, stat
         call, arguments, first = kept
         advance = functools.partial(call, *arguments)
 
-    capacity = _mono_capacity(ode, m)
+    capacity, smallest = _mono_capacity(ode, m), None
     if plan is not None and plan.truncates:  # a terminal event or a switch redoes the rest
-        capacity = min(capacity, _EVENT_CHUNK)
+        capacity, smallest = min(capacity, _EVENT_CHUNK), _RESTART_CHUNK
     with _progress(ode, params) as bar:
         def chunks():
             return _chunks(advance, buffers, capacity, counters, params, state, bar,
-                           newton_ready, first)
+                           newton_ready, first, smallest)
 
         pieces = plan and ev.MonoPieces(
             ode, m, chunks, options, state, x, compiled.p, len(ode.params),
