@@ -36,12 +36,90 @@ def _locate(ends, t, n):
 
 
 @helper()
-def _evaluate_component(i, ptr, t_start, t_end, values, nodes, bary, times, done, out):
+def _resolved(values, e, before, left, theta):
+    """Whether the jump [U] = U(t_{n-1}^+) - U(t_{n-1}^-) at the start of element e (nodal
+    values ``values[e, j]``, U(t_{n-1}^+) = sum_j left[j] values[e, j], U(t_{n-1}^-) =
+    ``before``) is resolved: |[U]| <= theta max_j |values[e, j] - before|."""
+    plus = 0.0
+    change = 0.0
+    for j in range(values.shape[1]):
+        plus += left[j] * values[e, j]
+        change = max(change, abs(values[e, j] - before))
+    return abs(plus - before) <= theta * change
+
+
+@helper()
+def _dense_value(values, e, tau, nodes, bary, before, dense):
+    """The dense value at tau of element e (nodal values ``values[e, j]``) of one component:
+    where dense = (nodes0, bary0, left, theta) is dG(q)'s rule (theta >= 0), ``before`` is
+    the component's value before the element (NaN: unknown) and the jump is resolved
+    (:func:`_resolved`), the collocation polynomial P of :func:`_evaluate_dg` through
+    (0, before) and (tau_j, values[e, j]), else the element polynomial (element_value).
+    Both by the barycentric formula; P(1) = values[e, q]: element ends are unchanged."""
+    nodes0, bary0, left, theta = dense
+    if not (theta >= 0.0 and not np.isnan(before) and _resolved(values, e, before, left, theta)):
+        return element_value(values, e, tau, nodes, bary)
+    if tau == 0.0:
+        return before
+    w = bary0[0] / tau
+    num = w * before
+    den = w
+    for j in range(values.shape[1]):
+        d = tau - nodes0[j + 1]
+        if d == 0.0:
+            return values[e, j]
+        w = bary0[j + 1] / d
+        num += w * values[e, j]
+        den += w
+    return num / den
+
+
+@helper()
+def _before_element(i, e, ptr, t_start, t_end, values, s_end, s_values, t0, u0):
+    """U_i just before component i's element e (ptr[i] <= e < ptr[i+1]): the end value of
+    what ends at its start (its previous element, a shared slab (s_end, s_values (S, q + 1,
+    N)); u0[i] at t0), NaN if nothing does."""
+    start = t_start[e]
+    if e > ptr[i] and t_end[e - 1] == start:
+        return values[e - 1, values.shape[1] - 1]
+    if start == t0:
+        return u0[i]
+    if s_end.shape[0] > 0:
+        n = _locate(s_end, start, 0)
+        if s_end[n] == start:
+            return s_values[n, s_values.shape[1] - 1, i]
+    return np.nan
+
+
+@helper()
+def _before_slab(i, n, ptr, t_end, values, s_start, s_end, s_values, t0, u0):
+    """U_i just before shared slab n: as :func:`_before_element`, the end value of the
+    previous slab or of component i's element ending at its start (u0[i] at t0)."""
+    start = s_start[n]
+    if n > 0 and s_end[n - 1] == start:
+        return s_values[n - 1, s_values.shape[1] - 1, i]
+    if start == t0:
+        return u0[i]
+    ends = t_end[ptr[i]:ptr[i + 1]]
+    if ends.shape[0] > 0:
+        k = _locate(ends, start, 0)
+        if ends[k] == start:
+            return values[ptr[i] + k, values.shape[1] - 1]
+    return np.nan
+
+
+@helper()
+def _evaluate_component(i, ptr, t_start, t_end, values, s_end, s_values, nodes, bary, dense,
+                        t0, u0, times, done, out):
     """out[i, m] = U_i(times[m]) from component i's elements ptr[i]:ptr[i+1] (time-sorted;
-    values (E, q + 1)), each from the first element ending at or after the time; times with
-    done[m] >= 0 are skipped (``done`` empty: none)."""
+    values (E, q + 1)), each from the first element ending at or after the time by
+    :func:`_dense_value` (the value before an element from :func:`_before_element`, shared
+    slabs (s_end, s_values) included); times with done[m] >= 0 are skipped (``done``
+    empty: none)."""
     ends = t_end[ptr[i]:ptr[i + 1]]
     n = 0
+    current = -1
+    before = np.nan
     for m in range(times.shape[0]):
         if done.shape[0] > 0 and done[m] >= 0:
             continue
@@ -50,17 +128,25 @@ def _evaluate_component(i, ptr, t_start, t_end, values, nodes, bary, times, done
             continue
         n = _locate(ends, times[m], n)
         e = ptr[i] + n
+        if e != current:
+            current = e
+            before = _before_element(i, e, ptr, t_start, t_end, values, s_end, s_values, t0,
+                                     u0)
         tau = min(max((times[m] - t_start[e]) / (t_end[e] - t_start[e]), 0.0), 1.0)
-        out[i, m] = element_value(values, e, tau, nodes, bary)
+        out[i, m] = _dense_value(values, e, tau, nodes, bary, before, dense)
 
 
 @njit(cache=True)
-def _evaluate_components(ptr, t_start, t_end, values, nodes, bary, times, out):
+def _evaluate_components(ptr, t_start, t_end, values, nodes, bary, dense, t0, u0, times, out):
     """out[i, m] = U_i(times[m]) from component i's elements ptr[i]:ptr[i+1] (time-sorted;
-    values (E, q + 1)), each from the first element ending at or after the time."""
+    values (E, q + 1)), each from the first element ending at or after the time
+    (:func:`_evaluate_component`)."""
     none = np.empty(0, dtype=np.int64)
+    s_end = np.empty(0)
+    s_values = np.empty((0, values.shape[1], ptr.shape[0] - 1))
     for i in range(ptr.shape[0] - 1):
-        _evaluate_component(i, ptr, t_start, t_end, values, nodes, bary, times, none, out)
+        _evaluate_component(i, ptr, t_start, t_end, values, s_end, s_values, nodes, bary,
+                            dense, t0, u0, times, none, out)
 
 
 @njit(cache=True)
@@ -82,16 +168,17 @@ def _evaluate_shared(t_start, t_end, values, nodes, bary, times, out):
 
 
 @njit(cache=True)
-def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, bary, t0,
-                    times, out):
+def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, bary, dense,
+                    t0, u0, times, out):
     """out[i, m] = U_i(times[m]) from a mixed history: shared slabs (s_start, s_end,
     s_values (S, q + 1, N), time-sorted) where a time lies in one, (s_start, s_end] (or t0
     at a first slab starting there), else component i's own elements (as
-    :func:`_evaluate_components`). A slab's value is element_value's arithmetic, its
-    barycentric weights formed once for all components: the same bits as the slab's
-    elements give (a history on disk and the samples of dense_output=False read those)."""
-    weights = np.empty(nodes.shape[0])
+    :func:`_evaluate_components`). A slab's value is each component's :func:`_dense_value`
+    (the value before from :func:`_before_slab`): the same bits as the slab's elements give
+    (a history on disk and the samples of dense_output=False read those)."""
     slab = np.full(times.shape[0], -1, dtype=np.int64)
+    befores = np.empty(out.shape[0])
+    current = -1
     n = 0
     for m in range(times.shape[0]):
         t = times[m]
@@ -99,25 +186,18 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
         if not (t <= s_end[n] and (s_start[n] < t or (t == s_start[n] and t == t0))):
             continue
         slab[m] = n
+        by_component = s_values[n].T
+        if n != current:
+            current = n
+            for i in range(out.shape[0]):
+                befores[i] = _before_slab(i, n, ptr, t_end, values, s_start, s_end, s_values,
+                                          t0, u0)
         tau = min(max((t - s_start[n]) / (s_end[n] - s_start[n]), 0.0), 1.0)
-        node, den = -1, 0.0
-        for j in range(nodes.shape[0]):
-            d = tau - nodes[j]
-            if d == 0.0:
-                node = j
-                break
-            weights[j] = bary[j] / d
-            den += weights[j]
         for i in range(out.shape[0]):
-            if node >= 0:
-                out[i, m] = s_values[n, node, i]
-                continue
-            num = 0.0
-            for j in range(nodes.shape[0]):
-                num += weights[j] * s_values[n, j, i]
-            out[i, m] = num / den
+            out[i, m] = _dense_value(by_component, i, tau, nodes, bary, befores[i], dense)
     for i in range(ptr.shape[0] - 1):
-        _evaluate_component(i, ptr, t_start, t_end, values, nodes, bary, times, slab, out)
+        _evaluate_component(i, ptr, t_start, t_end, values, s_end, s_values, nodes, bary,
+                            dense, t0, u0, times, slab, out)
 
 
 #: A component's jump [U] at an element's start is taken as resolved, and the collocation
@@ -169,16 +249,12 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
                 if t_start[n] == starts[p]:
                     start = p
             some_p = some_u = False
+            by_component = values[n].T
             for i in range(out.shape[0]):
                 collocated[i] = False
                 if start >= 0 or not first:
                     before[i] = befores[start, i] if start >= 0 else values[n - 1, q1 - 1, i]
-                    plus = 0.0
-                    change = 0.0
-                    for j in range(q1):
-                        plus += left[j] * values[n, j, i]
-                        change = max(change, abs(values[n, j, i] - before[i]))
-                    collocated[i] = abs(plus - before[i]) <= theta * change
+                    collocated[i] = _resolved(by_component, i, before[i], left, theta)
                 some_p |= collocated[i]
                 some_u |= not collocated[i]
         tau = min(max((times[m] - t_start[n]) / (t_end[n] - t_start[n]), 0.0), 1.0)
@@ -273,6 +349,15 @@ def _collocation_nodes(family, q):
     w = np.array([1.0 / np.prod([x[j] - x[m] for m in range(len(x)) if m != j])
                   for j in range(len(x))])
     return x, w
+
+
+def dense_rule(method, dense=True):
+    """(nodes0, bary0, left, theta) of :func:`_dense_value`: dG(q)'s collocation rule for
+    dG(q), q >= 1, theta < 0 (the element polynomials) for other methods or dense False."""
+    if dense and method.family == "dG" and method.q > 0:
+        nodes0, bary0 = _collocation_nodes(method.family, method.q)
+        return nodes0, bary0, method.left_value, float(DENSE_THETA)
+    return method.nodes, method.barycentric_weights, method.nodes, -1.0
 
 
 def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out):
@@ -462,7 +547,8 @@ class Solution:
         out = np.empty((times.size, declared.N)).T  # components contiguous at each time
         if self.multi:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
-                                 self.method.nodes, self.method.barycentric_weights, times, out)
+                                 self.method.nodes, self.method.barycentric_weights,
+                                 dense_rule(self.method), declared.t0, declared.u0, times, out)
         else:  # (arrays, not lists: converting [u0] cost a 100-point evaluation 1 us)
             starts, befores = self.__dict__.get("_restarts") or (np.array([declared.t0]),
                                                                  declared.u0[np.newaxis])
@@ -599,8 +685,9 @@ class MixedSolution(Solution):
         if parts is None:  # joined (and maybe shifted by its reader)
             return super()._evaluate(times)
         out = np.empty((times.size, self.ode.N)).T
+        declared = self._declaration
         _evaluate_mixed(*parts, self.method.nodes, self.method.barycentric_weights,
-                        self.ode.t0, times, out)
+                        dense_rule(self.method), declared.t0, declared.u0, times, out)
         return out
 
     def __repr__(self):
