@@ -35,43 +35,46 @@ def _locate(ends, t, n):
     return lo
 
 
-@helper()
-def _resolved(values, e, before, left, theta):
-    """Whether the jump [U] = U(t_{n-1}^+) - U(t_{n-1}^-) at the start of element e (nodal
-    values ``values[e, j]``, U(t_{n-1}^+) = sum_j left[j] values[e, j], U(t_{n-1}^-) =
-    ``before``) is resolved: |[U]| <= theta max_j |values[e, j] - before|."""
+@njit(cache=True, inline="always")
+def _jump(values, e, before, left, theta):
+    """before - U(t_{n-1}^+) = -[U], the jump at the start of element e (nodal values
+    ``values[e, j]``, U(t_{n-1}^+) = sum_j left[j] values[e, j], U(t_{n-1}^-) = ``before``)
+    where it is resolved, |[U]| <= theta max_j |values[e, j] - before|, else NaN."""
     plus = 0.0
     change = 0.0
     for j in range(values.shape[1]):
         plus += left[j] * values[e, j]
         change = max(change, abs(values[e, j] - before))
-    return abs(plus - before) <= theta * change
+    return before - plus if abs(plus - before) <= theta * change else np.nan
 
 
-@helper()
-def _dense_value(values, e, tau, nodes, bary, before, dense):
-    """The dense value at tau of element e (nodal values ``values[e, j]``) of one component:
-    where dense = (nodes0, bary0, left, theta) is dG(q)'s rule (theta >= 0), ``before`` is
-    the component's value before the element (NaN: unknown) and the jump is resolved
-    (:func:`_resolved`), the collocation polynomial P of :func:`_evaluate_dg` through
-    (0, before) and (tau_j, values[e, j]), else the element polynomial (element_value).
-    Both by the barycentric formula; P(1) = values[e, q]: element ends are unchanged."""
-    nodes0, bary0, left, theta = dense
-    if not (theta >= 0.0 and not np.isnan(before) and _resolved(values, e, before, left, theta)):
-        return element_value(values, e, tau, nodes, bary)
-    if tau == 0.0:
-        return before
-    w = bary0[0] / tau
-    num = w * before
-    den = w
-    for j in range(values.shape[1]):
-        d = tau - nodes0[j + 1]
-        if d == 0.0:
-            return values[e, j]
-        w = bary0[j + 1] / d
-        num += w * values[e, j]
-        den += w
-    return num / den
+@njit(cache=True, inline="always")
+def _correction(values, e, before, dense):
+    """The coefficient c of :func:`_dense_value` for element e of one component: -[U]
+    (:func:`_jump`) where dense = (left, theta) is dG(q)'s rule (theta >= 0), ``before``
+    (the component's value before the element) is known (not NaN) and the jump resolved,
+    else 0 (the element polynomial)."""
+    left, theta = dense
+    c = _jump(values, e, before, left, theta) if theta >= 0.0 else np.nan
+    return 0.0 if np.isnan(c) else c
+
+
+@njit(cache=True, inline="always")  # (as element_value: a call per value, inlined)
+def _dense_value(values, e, tau, nodes, bary, c):
+    """The dense value at tau of element e (nodal values ``values[e, j]`` at the right Radau
+    nodes tau_j) of one component: the collocation polynomial of :func:`_evaluate_dg`,
+
+        P(tau) = U(tau) + c R(tau),  R(tau) = prod_j (tau_j - tau) / tau_j,
+
+    with c = -[U] (:func:`_correction`; R(0) = 1, so P(0) is the value before the element,
+    and R(tau_j) = 0), or U where c = 0. R(1) = 0 exactly: element ends are unchanged."""
+    value = element_value(values, e, tau, nodes, bary)
+    if c != 0.0:  # (the correction apart: in the same loop, U's evaluation cost 8 x)
+        r = c
+        for j in range(nodes.shape[0]):
+            r *= (nodes[j] - tau) / nodes[j]
+        value += r
+    return value
 
 
 @helper()
@@ -119,7 +122,7 @@ def _evaluate_component(i, ptr, t_start, t_end, values, s_end, s_values, nodes, 
     ends = t_end[ptr[i]:ptr[i + 1]]
     n = 0
     current = -1
-    before = np.nan
+    c = 0.0
     for m in range(times.shape[0]):
         if done.shape[0] > 0 and done[m] >= 0:
             continue
@@ -130,10 +133,10 @@ def _evaluate_component(i, ptr, t_start, t_end, values, s_end, s_values, nodes, 
         e = ptr[i] + n
         if e != current:
             current = e
-            before = _before_element(i, e, ptr, t_start, t_end, values, s_end, s_values, t0,
-                                     u0)
+            c = _correction(values, e, _before_element(i, e, ptr, t_start, t_end, values,
+                                                       s_end, s_values, t0, u0), dense)
         tau = min(max((times[m] - t_start[e]) / (t_end[e] - t_start[e]), 0.0), 1.0)
-        out[i, m] = _dense_value(values, e, tau, nodes, bary, before, dense)
+        out[i, m] = _dense_value(values, e, tau, nodes, bary, c)
 
 
 @njit(cache=True)
@@ -174,10 +177,10 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
     s_values (S, q + 1, N), time-sorted) where a time lies in one, (s_start, s_end] (or t0
     at a first slab starting there), else component i's own elements (as
     :func:`_evaluate_components`). A slab's value is each component's :func:`_dense_value`
-    (the value before from :func:`_before_slab`): the same bits as the slab's elements give
+    (the value before it from :func:`_before_slab`): the same bits as the slab's elements give
     (a history on disk and the samples of dense_output=False read those)."""
     slab = np.full(times.shape[0], -1, dtype=np.int64)
-    befores = np.empty(out.shape[0])
+    corrections = np.empty(out.shape[0])
     current = -1
     n = 0
     for m in range(times.shape[0]):
@@ -190,11 +193,11 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
         if n != current:
             current = n
             for i in range(out.shape[0]):
-                befores[i] = _before_slab(i, n, ptr, t_end, values, s_start, s_end, s_values,
-                                          t0, u0)
+                corrections[i] = _correction(by_component, i, _before_slab(
+                    i, n, ptr, t_end, values, s_start, s_end, s_values, t0, u0), dense)
         tau = min(max((t - s_start[n]) / (s_end[n] - s_start[n]), 0.0), 1.0)
         for i in range(out.shape[0]):
-            out[i, m] = _dense_value(by_component, i, tau, nodes, bary, befores[i], dense)
+            out[i, m] = _dense_value(by_component, i, tau, nodes, bary, corrections[i])
     for i in range(ptr.shape[0] - 1):
         _evaluate_component(i, ptr, t_start, t_end, values, s_end, s_values, nodes, bary,
                             dense, t0, u0, times, slab, out)
@@ -254,7 +257,7 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
                 collocated[i] = False
                 if start >= 0 or not first:
                     before[i] = befores[start, i] if start >= 0 else values[n - 1, q1 - 1, i]
-                    collocated[i] = _resolved(by_component, i, before[i], left, theta)
+                    collocated[i] = not np.isnan(_jump(by_component, i, before[i], left, theta))
                 some_p |= collocated[i]
                 some_u |= not collocated[i]
         tau = min(max((times[m] - t_start[n]) / (t_end[n] - t_start[n]), 0.0), 1.0)
@@ -352,12 +355,11 @@ def _collocation_nodes(family, q):
 
 
 def dense_rule(method, dense=True):
-    """(nodes0, bary0, left, theta) of :func:`_dense_value`: dG(q)'s collocation rule for
-    dG(q), q >= 1, theta < 0 (the element polynomials) for other methods or dense False."""
+    """(left, theta) of :func:`_correction`: dG(q)'s rule for dG(q), q >= 1, theta < 0 (the
+    element polynomials) for other methods or dense False."""
     if dense and method.family == "dG" and method.q > 0:
-        nodes0, bary0 = _collocation_nodes(method.family, method.q)
-        return nodes0, bary0, method.left_value, float(DENSE_THETA)
-    return method.nodes, method.barycentric_weights, method.nodes, -1.0
+        return method.left_value, float(DENSE_THETA)
+    return method.nodes, -1.0
 
 
 def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out):

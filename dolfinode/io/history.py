@@ -32,6 +32,7 @@ from dolfinode.memory import address_space_room, available_memory
 from dolfinode.solution import (
     MixedSolution,
     Solution,
+    _correction,
     _dense_value,
     _set_initial,
     dense_rule,
@@ -336,21 +337,23 @@ def _sample_chunk(comp, t_start, t_end, values, s_start, s_end, s_values, order,
             last = np.searchsorted(times, s_end[n], side="right")
             by_component = s_values[n].reshape((q1, N)).T
             for i in range(N):
-                before = last_value[i] if last_end[i] == s_start[n] else np.nan
+                c = _correction(by_component, i, last_value[i] if last_end[i] == s_start[n]
+                                else np.nan, dense)
                 for m in range(first, last):
                     tau = (times[m] - s_start[n]) / (s_end[n] - s_start[n])
-                    out[i, m] = _dense_value(by_component, i, tau, nodes, bary, before, dense)
+                    out[i, m] = _dense_value(by_component, i, tau, nodes, bary, c)
                 last_end[i], last_value[i] = s_end[n], by_component[i, q1 - 1]
             n += 1
             continue
         e = order[p]
         i = comp[e]
-        before = last_value[i] if last_end[i] == t_start[e] else np.nan
+        c = _correction(values, e, last_value[i] if last_end[i] == t_start[e] else np.nan,
+                        dense)
         first = np.searchsorted(times, t_start[e], side="right")
         last = np.searchsorted(times, t_end[e], side="right")
         for m in range(first, last):
             tau = (times[m] - t_start[e]) / (t_end[e] - t_start[e])
-            out[i, m] = _dense_value(values, e, tau, nodes, bary, before, dense)
+            out[i, m] = _dense_value(values, e, tau, nodes, bary, c)
         last_end[i], last_value[i] = t_end[e], values[e, q1 - 1]
         p += 1
 
