@@ -216,7 +216,7 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
     On element n, with stage values xi_j at the right Radau nodes tau_j and the previous
     end value U(t_{n-1}^-) (u0 on the first element), the collocation polynomial
 
-        P(tau) = U(tau) + [U] R(tau),  [U] = U(t_{n-1}^+) - U(t_{n-1}^-),
+        P(tau) = U(tau) - [U] R(tau),  [U] = U(t_{n-1}^+) - U(t_{n-1}^-),
 
     of degree q + 1 interpolates U(t_{n-1}^-) at tau = 0 and xi_j at tau_j (R the right
     Radau polynomial, R(0) = 1, R(tau_j) = 0). Where the element resolves component i the
