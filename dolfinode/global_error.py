@@ -46,6 +46,7 @@ from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.memory import SMALL_BYTES, available_memory
 from dolfinode.methods.quadrature import radau
 from dolfinode.ode import t as time_symbol
+from dolfinode.solution import _evaluate_components, _set_initial, dense_rule
 
 
 def collocation_matrix(nodes):
@@ -532,7 +533,13 @@ def _common_slabs(sol):
                          f"{COMMON_MEMORY_FRACTION:g} x the memory available: estimate a "
                          "cG(q)/dG(q) solve at the same tolerance, or use dn.estimate_error "
                          "with a goal")
-    values = sol((t_start[:, None] + nodes[None, :] * k[:, None]).ravel())
+    # (the Galerkin polynomials, not the dense value sol(t) reads: the residual is U's)
+    times = (t_start[:, None] + nodes[None, :] * k[:, None]).ravel()
+    values = np.empty((times.size, sol.ode.N)).T
+    _evaluate_components(sol._component_ptr, sol.t_start, sol._t_end, sol.values, nodes,
+                         sol.method.barycentric_weights, dense_rule(sol.method, dense=False),
+                         sol.ode.t0, sol.ode.u0, times, values)
+    _set_initial(times, sol.ode.t0, sol.ode.u0, values)
     values = np.ascontiguousarray(values.T.reshape(len(k), len(nodes), -1))
     return SimpleNamespace(method=sol.method, ode=sol.ode, t_start=t_start, k=k, values=values)
 

@@ -35,13 +35,94 @@ def _locate(ends, t, n):
     return lo
 
 
+@njit(cache=True, inline="always")
+def _jump(values, e, before, left, theta):
+    """before - U(t_{n-1}^+) = -[U], the jump at the start of element e (nodal values
+    ``values[e, j]``, U(t_{n-1}^+) = sum_j left[j] values[e, j], U(t_{n-1}^-) = ``before``)
+    where it is resolved, |[U]| <= theta max_j |values[e, j] - before|, else NaN."""
+    plus = 0.0
+    change = 0.0
+    for j in range(values.shape[1]):
+        plus += left[j] * values[e, j]
+        change = max(change, abs(values[e, j] - before))
+    return before - plus if abs(plus - before) <= theta * change else np.nan
+
+
+@njit(cache=True, inline="always")
+def _correction(values, e, before, dense):
+    """The coefficient c of :func:`_dense_value` for element e of one component: -[U]
+    (:func:`_jump`) where dense = (left, theta) is dG(q)'s rule (theta >= 0), ``before``
+    (the component's value before the element) is known (not NaN) and the jump resolved,
+    else 0 (the element polynomial)."""
+    left, theta = dense
+    c = _jump(values, e, before, left, theta) if theta >= 0.0 else np.nan
+    return 0.0 if np.isnan(c) else c
+
+
+@njit(cache=True, inline="always")  # (as element_value: a call per value, inlined)
+def _dense_value(values, e, tau, nodes, bary, c):
+    """The dense value at tau of element e (nodal values ``values[e, j]`` at the right Radau
+    nodes tau_j) of one component: the collocation polynomial of :func:`_evaluate_dg`,
+
+        P(tau) = U(tau) + c R(tau),  R(tau) = prod_j (tau_j - tau) / tau_j,
+
+    with c = -[U] (:func:`_correction`; R(0) = 1, so P(0) is the value before the element,
+    and R(tau_j) = 0), or U where c = 0. R(1) = 0 exactly: element ends are unchanged."""
+    value = element_value(values, e, tau, nodes, bary)
+    if c != 0.0:  # (the correction apart: in the same loop, U's evaluation cost 8 x)
+        r = c
+        for j in range(nodes.shape[0]):
+            r *= (nodes[j] - tau) / nodes[j]
+        value += r
+    return value
+
+
 @helper()
-def _evaluate_component(i, ptr, t_start, t_end, values, nodes, bary, times, done, out):
+def _before_element(i, e, ptr, t_start, t_end, values, s_end, s_values, t0, u0):
+    """U_i just before component i's element e (ptr[i] <= e < ptr[i+1]): the end value of
+    what ends at its start (its previous element, a shared slab (s_end, s_values (S, q + 1,
+    N)); u0[i] at t0), NaN if nothing does."""
+    start = t_start[e]
+    if e > ptr[i] and t_end[e - 1] == start:
+        return values[e - 1, values.shape[1] - 1]
+    if start == t0:
+        return u0[i]
+    if s_end.shape[0] > 0:
+        n = _locate(s_end, start, 0)
+        if s_end[n] == start:
+            return s_values[n, s_values.shape[1] - 1, i]
+    return np.nan
+
+
+@helper()
+def _before_slab(i, n, ptr, t_end, values, s_start, s_end, s_values, t0, u0):
+    """U_i just before shared slab n: as :func:`_before_element`, the end value of the
+    previous slab or of component i's element ending at its start (u0[i] at t0)."""
+    start = s_start[n]
+    if n > 0 and s_end[n - 1] == start:
+        return s_values[n - 1, s_values.shape[1] - 1, i]
+    if start == t0:
+        return u0[i]
+    ends = t_end[ptr[i]:ptr[i + 1]]
+    if ends.shape[0] > 0:
+        k = _locate(ends, start, 0)
+        if ends[k] == start:
+            return values[ptr[i] + k, values.shape[1] - 1]
+    return np.nan
+
+
+@helper()
+def _evaluate_component(i, ptr, t_start, t_end, values, s_end, s_values, nodes, bary, dense,
+                        t0, u0, times, done, out):
     """out[i, m] = U_i(times[m]) from component i's elements ptr[i]:ptr[i+1] (time-sorted;
-    values (E, q + 1)), each from the first element ending at or after the time; times with
-    done[m] >= 0 are skipped (``done`` empty: none)."""
+    values (E, q + 1)), each from the first element ending at or after the time by
+    :func:`_dense_value` (the value before an element from :func:`_before_element`, shared
+    slabs (s_end, s_values) included); times with done[m] >= 0 are skipped (``done``
+    empty: none)."""
     ends = t_end[ptr[i]:ptr[i + 1]]
     n = 0
+    current = -1
+    c = 0.0
     for m in range(times.shape[0]):
         if done.shape[0] > 0 and done[m] >= 0:
             continue
@@ -50,17 +131,25 @@ def _evaluate_component(i, ptr, t_start, t_end, values, nodes, bary, times, done
             continue
         n = _locate(ends, times[m], n)
         e = ptr[i] + n
+        if e != current:
+            current = e
+            c = _correction(values, e, _before_element(i, e, ptr, t_start, t_end, values,
+                                                       s_end, s_values, t0, u0), dense)
         tau = min(max((times[m] - t_start[e]) / (t_end[e] - t_start[e]), 0.0), 1.0)
-        out[i, m] = element_value(values, e, tau, nodes, bary)
+        out[i, m] = _dense_value(values, e, tau, nodes, bary, c)
 
 
 @njit(cache=True)
-def _evaluate_components(ptr, t_start, t_end, values, nodes, bary, times, out):
+def _evaluate_components(ptr, t_start, t_end, values, nodes, bary, dense, t0, u0, times, out):
     """out[i, m] = U_i(times[m]) from component i's elements ptr[i]:ptr[i+1] (time-sorted;
-    values (E, q + 1)), each from the first element ending at or after the time."""
+    values (E, q + 1)), each from the first element ending at or after the time
+    (:func:`_evaluate_component`)."""
     none = np.empty(0, dtype=np.int64)
+    s_end = np.empty(0)
+    s_values = np.empty((0, values.shape[1], ptr.shape[0] - 1))
     for i in range(ptr.shape[0] - 1):
-        _evaluate_component(i, ptr, t_start, t_end, values, nodes, bary, times, none, out)
+        _evaluate_component(i, ptr, t_start, t_end, values, s_end, s_values, nodes, bary,
+                            dense, t0, u0, times, none, out)
 
 
 @njit(cache=True)
@@ -82,16 +171,17 @@ def _evaluate_shared(t_start, t_end, values, nodes, bary, times, out):
 
 
 @njit(cache=True)
-def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, bary, t0,
-                    times, out):
+def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, bary, dense,
+                    t0, u0, times, out):
     """out[i, m] = U_i(times[m]) from a mixed history: shared slabs (s_start, s_end,
     s_values (S, q + 1, N), time-sorted) where a time lies in one, (s_start, s_end] (or t0
     at a first slab starting there), else component i's own elements (as
-    :func:`_evaluate_components`). A slab's value is element_value's arithmetic, its
-    barycentric weights formed once for all components: the same bits as the slab's
-    elements give (a history on disk and the samples of dense_output=False read those)."""
-    weights = np.empty(nodes.shape[0])
+    :func:`_evaluate_components`). A slab's value is each component's :func:`_dense_value`
+    (the value before it from :func:`_before_slab`): the same bits as the slab's elements give
+    (a history on disk and the samples of dense_output=False read those)."""
     slab = np.full(times.shape[0], -1, dtype=np.int64)
+    corrections = np.empty(out.shape[0])
+    current = -1
     n = 0
     for m in range(times.shape[0]):
         t = times[m]
@@ -99,25 +189,18 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
         if not (t <= s_end[n] and (s_start[n] < t or (t == s_start[n] and t == t0))):
             continue
         slab[m] = n
+        by_component = s_values[n].T
+        if n != current:
+            current = n
+            for i in range(out.shape[0]):
+                corrections[i] = _correction(by_component, i, _before_slab(
+                    i, n, ptr, t_end, values, s_start, s_end, s_values, t0, u0), dense)
         tau = min(max((t - s_start[n]) / (s_end[n] - s_start[n]), 0.0), 1.0)
-        node, den = -1, 0.0
-        for j in range(nodes.shape[0]):
-            d = tau - nodes[j]
-            if d == 0.0:
-                node = j
-                break
-            weights[j] = bary[j] / d
-            den += weights[j]
         for i in range(out.shape[0]):
-            if node >= 0:
-                out[i, m] = s_values[n, node, i]
-                continue
-            num = 0.0
-            for j in range(nodes.shape[0]):
-                num += weights[j] * s_values[n, j, i]
-            out[i, m] = num / den
+            out[i, m] = _dense_value(by_component, i, tau, nodes, bary, corrections[i])
     for i in range(ptr.shape[0] - 1):
-        _evaluate_component(i, ptr, t_start, t_end, values, nodes, bary, times, slab, out)
+        _evaluate_component(i, ptr, t_start, t_end, values, s_end, s_values, nodes, bary,
+                            dense, t0, u0, times, slab, out)
 
 
 #: A component's jump [U] at an element's start is taken as resolved, and the collocation
@@ -133,7 +216,7 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
     On element n, with stage values xi_j at the right Radau nodes tau_j and the previous
     end value U(t_{n-1}^-) (u0 on the first element), the collocation polynomial
 
-        P(tau) = U(tau) + [U] R(tau),  [U] = U(t_{n-1}^+) - U(t_{n-1}^-),
+        P(tau) = U(tau) - [U] R(tau),  [U] = U(t_{n-1}^+) - U(t_{n-1}^-),
 
     of degree q + 1 interpolates U(t_{n-1}^-) at tau = 0 and xi_j at tau_j (R the right
     Radau polynomial, R(0) = 1, R(tau_j) = 0). Where the element resolves component i the
@@ -169,16 +252,12 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
                 if t_start[n] == starts[p]:
                     start = p
             some_p = some_u = False
+            by_component = values[n].T
             for i in range(out.shape[0]):
                 collocated[i] = False
                 if start >= 0 or not first:
                     before[i] = befores[start, i] if start >= 0 else values[n - 1, q1 - 1, i]
-                    plus = 0.0
-                    change = 0.0
-                    for j in range(q1):
-                        plus += left[j] * values[n, j, i]
-                        change = max(change, abs(values[n, j, i] - before[i]))
-                    collocated[i] = abs(plus - before[i]) <= theta * change
+                    collocated[i] = not np.isnan(_jump(by_component, i, before[i], left, theta))
                 some_p |= collocated[i]
                 some_u |= not collocated[i]
         tau = min(max((times[m] - t_start[n]) / (t_end[n] - t_start[n]), 0.0), 1.0)
@@ -273,6 +352,14 @@ def _collocation_nodes(family, q):
     w = np.array([1.0 / np.prod([x[j] - x[m] for m in range(len(x)) if m != j])
                   for j in range(len(x))])
     return x, w
+
+
+def dense_rule(method, dense=True):
+    """(left, theta) of :func:`_correction`: dG(q)'s rule for dG(q), q >= 1, theta < 0 (the
+    element polynomials) for other methods or dense False."""
+    if dense and method.family == "dG" and method.q > 0:
+        return method.left_value, float(DENSE_THETA)
+    return method.nodes, -1.0
 
 
 def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out):
@@ -462,7 +549,8 @@ class Solution:
         out = np.empty((times.size, declared.N)).T  # components contiguous at each time
         if self.multi:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
-                                 self.method.nodes, self.method.barycentric_weights, times, out)
+                                 self.method.nodes, self.method.barycentric_weights,
+                                 dense_rule(self.method), declared.t0, declared.u0, times, out)
         else:  # (arrays, not lists: converting [u0] cost a 100-point evaluation 1 us)
             starts, befores = self.__dict__.get("_restarts") or (np.array([declared.t0]),
                                                                  declared.u0[np.newaxis])
@@ -599,8 +687,9 @@ class MixedSolution(Solution):
         if parts is None:  # joined (and maybe shifted by its reader)
             return super()._evaluate(times)
         out = np.empty((times.size, self.ode.N)).T
+        declared = self._declaration
         _evaluate_mixed(*parts, self.method.nodes, self.method.barycentric_weights,
-                        self.ode.t0, times, out)
+                        dense_rule(self.method), declared.t0, declared.u0, times, out)
         return out
 
     def __repr__(self):

@@ -286,3 +286,65 @@ def test_dense_dg_every_evaluation_path_agrees():
                      sol.method.barycentric_weights, times, galerkin)
     exact = np.array([np.cos(times), -np.sin(times)])
     assert np.abs(sol.y - exact).max() < 0.2 * np.abs(galerkin - exact)[:, 1:-1].max()
+
+
+# --- dense output of multi-adaptive mdG(q): the collocation polynomial per component ---
+
+@pytest.fixture(scope="module")
+def fast_slow():
+    """A strongly coupled fast-slow pair (eigenvalues -1, -1999) and a slow rotation driving
+    it, with its reference at 121 times (scipy Radau, rtol 1e-12)."""
+    from scipy.integrate import solve_ivp
+    a, b, c, d = sp.symbols("a b c d")
+    ode = dn.ODE({a: -1000 * a + 999 * b + sp.sin(c), b: 999 * a - 1000 * b, c: d, d: -c},
+                 u0=[1.0, 0.0, 0.0, 1.0], T=10.0)
+    times = np.linspace(0.0, 10.0, 121) + 10.0 / 240  # (between the samples: inside elements)
+    times = times[times < 10.0]
+    reference = solve_ivp(lambda t, u: [-1000 * u[0] + 999 * u[1] + np.sin(u[2]),
+                                        999 * u[0] - 1000 * u[1], u[3], -u[2]],
+                          (0.0, 10.0), ode.u0, method="Radau", rtol=1e-12, atol=1e-14,
+                          t_eval=times)
+    return ode, times, reference.y
+
+
+@pytest.mark.parametrize("q", [1, 2, 3])
+def test_dense_mdg_interior_error_as_mono_dg(fast_slow, q):
+    # inside elements mdG(q)'s plain element polynomials were 4.0-20 x mono dG(q)'s dense
+    # values here (tolerance 1e-6); each component's collocation polynomial 0.7-1.2 x
+    ode, times, exact = fast_slow
+    scale = 1e-6 * (1 + np.abs(exact).max(axis=1))[:, None]
+    errors = [np.max(np.abs(dn.solve(ode, f"{multi}dG({q})", tolerance=1e-6)(times) - exact)
+                     / scale) for multi in ("m", "")]
+    assert errors[0] < 2 * errors[1], f"mdG({q}) {errors[0]:.3g}, dG({q}) {errors[1]:.3g}"
+
+
+@pytest.mark.parametrize("method", ["mdG(1)", "mdG(2)"])
+def test_dense_mdg_every_reader_agrees_and_keeps_the_ends(fast_slow, method, tmp_path,
+                                                          monkeypatch):
+    # element ends are each component's end node values bitwise; the mixed history, its
+    # joined elements, the samples of dense_output=False (the history in many chunks) and
+    # a stored history give the same dense values bitwise, and differ from the Galerkin
+    # polynomials inside
+    import sys
+
+    from dolfinode.solution import _evaluate_components, dense_rule
+
+    ode, times, _ = fast_slow
+    sol = dn.solve(ode, method, tolerance=1e-5, sample_times=times)
+    expected = sol(times)
+    monkeypatch.setattr(sys.modules["dolfinode.solve"], "_CHUNK_LIMIT", 64)
+    sampled = dn.solve(ode, method, tolerance=1e-5, sample_times=times, dense_output=False)
+    stored = dn.solve(ode, method, tolerance=1e-5, dense_output=str(tmp_path / "run.h5"))
+    np.testing.assert_array_equal(sampled.y, expected)
+    np.testing.assert_array_equal(stored(times), expected)
+    np.testing.assert_array_equal(dn.load_solution(tmp_path / "run.h5")(times), expected)
+    ptr, t_start, t_end, values = sol.elements()  # (joins a mixed history)
+    np.testing.assert_array_equal(sol(times), expected)
+    for i in range(ode.N):
+        ends = t_end[ptr[i]:ptr[i + 1]]
+        np.testing.assert_array_equal(sol(ends)[i], values[ptr[i]:ptr[i + 1], -1])
+    galerkin = np.empty((times.size, ode.N)).T
+    _evaluate_components(ptr, t_start, t_end, values, sol.method.nodes,
+                         sol.method.barycentric_weights, dense_rule(sol.method, dense=False),
+                         ode.t0, ode.u0, times, galerkin)
+    assert np.mean(galerkin != expected) > 0.5

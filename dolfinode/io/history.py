@@ -29,11 +29,13 @@ from numba import njit
 
 from dolfinode.errors import SolverError
 from dolfinode.memory import address_space_room, available_memory
-from dolfinode.methods.method import element_value
 from dolfinode.solution import (
     MixedSolution,
     Solution,
+    _correction,
+    _dense_value,
     _set_initial,
+    dense_rule,
     equispaced,
     evaluate_mono,
     join_elements,
@@ -153,6 +155,9 @@ class InMemory:
         self.per_component = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
         # (multi-adaptive) the elements outside blocks, per component
         self.elements_left = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
+        # (multi-adaptive) each component's last end and end value, read by mdG(q)'s dense value
+        self.last_end = np.full(ode.N, float(ode.t0))
+        self.last_value = np.array(ode.u0, dtype=float)
         # (mono-adaptive) the last chunk's end and end value, read by dG(q)'s dense value
         self.end, self.before = ode.t0, ode.u0
 
@@ -314,29 +319,43 @@ def _scatter_by_component(comp, t_start, t_end, values, cursor, out_start, out_e
 
 
 @njit(cache=True)
-def _sample_elements(comp, t_start, t_end, values, nodes, bary, times, out):
-    """out[comp[e], m] = U(times[m]) for the times in (t_start[e], t_end[e]] of each element."""
-    for e in range(comp.shape[0]):
+def _sample_chunk(comp, t_start, t_end, values, s_start, s_end, s_values, order, nodes, bary,
+                  dense, times, last_end, last_value, out):
+    """out[i, m] = U_i(times[m]) for the times in (start, end] of each element (component
+    comp[e]) and block (values (q + 1) N row-major) of a multi-adaptive chunk, by
+    solution._dense_value. The chunk is walked in start time order (``order``: the elements
+    by start time) so that the value before each is the end value of component i's previous
+    one when it ends there: last_end[i], last_value[i] (t0, u0 before the first chunk),
+    carried from chunk to chunk. The same bits as a Solution of the whole history."""
+    N = out.shape[0]
+    q1 = nodes.shape[0]
+    p = 0
+    n = 0
+    while p < order.shape[0] or n < s_start.shape[0]:
+        if n < s_start.shape[0] and (p == order.shape[0] or s_start[n] <= t_start[order[p]]):
+            first = np.searchsorted(times, s_start[n], side="right")
+            last = np.searchsorted(times, s_end[n], side="right")
+            by_component = s_values[n].reshape((q1, N)).T
+            for i in range(N):
+                c = _correction(by_component, i, last_value[i] if last_end[i] == s_start[n]
+                                else np.nan, dense)
+                for m in range(first, last):
+                    tau = (times[m] - s_start[n]) / (s_end[n] - s_start[n])
+                    out[i, m] = _dense_value(by_component, i, tau, nodes, bary, c)
+                last_end[i], last_value[i] = s_end[n], by_component[i, q1 - 1]
+            n += 1
+            continue
+        e = order[p]
+        i = comp[e]
+        c = _correction(values, e, last_value[i] if last_end[i] == t_start[e] else np.nan,
+                        dense)
         first = np.searchsorted(times, t_start[e], side="right")
         last = np.searchsorted(times, t_end[e], side="right")
         for m in range(first, last):
             tau = (times[m] - t_start[e]) / (t_end[e] - t_start[e])
-            out[comp[e], m] = element_value(values, e, tau, nodes, bary)
-
-
-@njit(cache=True)
-def _sample_blocks(s_start, s_end, s_values, nodes, bary, times, out):
-    """out[:, m] = U(times[m]) for the times in (s_start[n], s_end[n]] of each block (values
-    (q + 1, N) row-major), each component by element_value's arithmetic."""
-    N = out.shape[0]
-    for n in range(s_start.shape[0]):
-        first = np.searchsorted(times, s_start[n], side="right")
-        last = np.searchsorted(times, s_end[n], side="right")
-        by_component = s_values[n].reshape((s_values.shape[1] // N, N)).T
-        for m in range(first, last):
-            tau = (times[m] - s_start[n]) / (s_end[n] - s_start[n])
-            for i in range(N):
-                out[i, m] = element_value(by_component, i, tau, nodes, bary)
+            out[i, m] = _dense_value(values, e, tau, nodes, bary, c)
+        last_end[i], last_value[i] = t_end[e], values[e, q1 - 1]
+        p += 1
 
 
 class Samples:
@@ -351,6 +370,9 @@ class Samples:
         self.per_component = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
         # (multi-adaptive) the elements outside blocks, per component
         self.elements_left = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
+        # (multi-adaptive) each component's last end and end value, read by mdG(q)'s dense value
+        self.last_end = np.full(ode.N, float(ode.t0))
+        self.last_value = np.array(ode.u0, dtype=float)
         # (mono-adaptive) the last chunk's end and end value, read by dG(q)'s dense value
         self.end, self.before = ode.t0, ode.u0
 
@@ -358,8 +380,9 @@ class Samples:
         nodes, bary = self.method.nodes, self.method.barycentric_weights
         if self.multi_adaptive:
             _count_elements(chunk[0], len(chunk[4]), self.per_component, self.elements_left)
-            _sample_elements(*chunk[:4], nodes, bary, self.times, self.y)
-            _sample_blocks(*chunk[4:], nodes, bary, self.times, self.y)
+            order = np.argsort(chunk[1], kind="stable")
+            _sample_chunk(*chunk, order, nodes, bary, dense_rule(self.method), self.times,
+                          self.last_end, self.last_value, self.y)
             return
         t_start, k, values = chunk
         if t_start.shape[0] == 0:

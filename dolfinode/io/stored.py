@@ -19,7 +19,7 @@ import numpy as np
 from dolfinode.io.atomic import new_file
 from dolfinode.io.history import as_elements
 from dolfinode.methods import parse_method
-from dolfinode.solution import Solution, _evaluate_components, evaluate_mono
+from dolfinode.solution import Solution, _evaluate_components, dense_rule, evaluate_mono
 
 #: The format's name and version, checked when a file is opened.
 FORMAT, VERSION = "dolfinode solution history", 1
@@ -219,13 +219,16 @@ class StoredSolution(Solution):
         needed = np.unique(np.concatenate([
             ptr[i] + np.minimum(np.searchsorted(self._t_end[ptr[i]:ptr[i + 1]], times),
                                 ptr[i + 1] - ptr[i] - 1) for i in range(self.ode.N)]))
+        # (with each component's element before them: mdG(q)'s dense value reads its end)
+        needed = np.union1d(needed, needed[~np.isin(needed, ptr)] - 1)
         rows = self._rows[needed]
         order = np.argsort(rows)  # h5py reads rows in increasing order
         values = np.empty((needed.size, *self._stored.shape[1:]))
         values[order] = self._stored[rows[order]]
         counts = np.searchsorted(needed, ptr)
         _evaluate_components(counts, self.t_start[needed], self._t_end[needed], values, nodes,
-                             bary, times, out)
+                             bary, dense_rule(self.method), self.ode.t0, self.ode.u0, times,
+                             out)
         return out
 
     def close(self):
