@@ -109,16 +109,20 @@ def _stability(s):
 def _flow_radius(s):
     """The largest r (in steps of 0.05, below P's poles) with |exp(z) - P(z)| <= FLOW_GAP / 10
     on |z| = r, hence on |z| <= r (the maximum principle): 0.4, 1.1, 1.85, 2.65 for s = 2..5."""
-    num, den = _stability(s)
-    edge = np.min(np.abs(np.roots(den[::-1])))
+    edge = np.min(np.abs(np.roots(_stability(s)[1][::-1])))
     circle = np.exp(2j * np.pi * np.arange(720) / 720)
     radius = 0.0
     for r in np.arange(1, int(edge / 0.05)) * 0.05:
-        z = r * circle
-        if np.max(np.abs(np.exp(z) - np.polyval(num[::-1], z) / np.polyval(den[::-1], z))) > FLOW_GAP / 10:
+        if _largest_gap(s, r * circle) > FLOW_GAP / 10:
             break
         radius = r
     return radius
+
+
+def _largest_gap(s, z):
+    """max |exp(z) - P(z)| over the points ``z``, P the s-stage Radau IIA stability function."""
+    num, den = _stability(s)
+    return np.max(np.abs(np.exp(z) - np.polyval(num[::-1], z) / np.polyval(den[::-1], z)))
 
 
 @lru_cache(maxsize=32)
@@ -127,13 +131,12 @@ def _flow_box(s):
     the boundary of the box log(FLOW_GAP) <= Re z <= 0, |Im z| <= h, hence inside it (P's
     poles lie in Re z > 0): 0, 0, 2.95, 4.55 for s = 2..5. With the damped half-plane Re z <
     log(FLOW_GAP) it covers the moderately damped modes that :func:`_flow_radius` does not."""
-    num, den = _stability(s)
     x = np.linspace(np.log(FLOW_GAP), 0.0, 500)
     h = 0.0
     for top in np.arange(1, 200) * 0.05:
         y = np.linspace(-top, top, 200)
         z = np.concatenate([x + 1j * top, x - 1j * top, x[0] + 1j * y, 1j * y])
-        if np.max(np.abs(np.exp(z) - np.polyval(num[::-1], z) / np.polyval(den[::-1], z))) > FLOW_GAP / 2:
+        if _largest_gap(s, z) > FLOW_GAP / 2:
             break
         h = top
     return h
