@@ -1,7 +1,7 @@
 """Discontinuities and events: breakpoints of f(t), switches on the state, and events g(u, t).
 
 A right-hand side with a non-smooth function (Piecewise, Heaviside, sign, floor, ceiling;
-Abs, Min, Max, except a kink of the state whose continuation could leave f's domain, see
+Abs, Min, Max, except a kink whose continuation could leave f's domain, see
 :func:`_unsafe_kinks`) is rewritten as a smooth one whose branch is a parameter sigma_j
 (:func:`switched`): Heaviside(g) -> sigma_j, Abs(g) -> sigma_j g, a condition g < 0 ->
 sigma_j > 1/2, and so on. On each piece of [t0, T] where no switching function g_j changes
@@ -198,26 +198,30 @@ def _smooth(ode):
         for atom in sorted(_binary(expr).atoms(*NON_SMOOTH, sp.Rel), key=sp.count_ops):
             symbol = sp.Symbol(f"{_SWITCH}{len(switches)}", real=True)
             kink = bool(isinstance(atom, _KINKS) and atom.free_symbols & states)
-            made = None if atom in done or atom in unsafe else _replacement(atom, symbol)
+            skip = atom in done or (kink and atom in unsafe)
+            made = None if skip else _replacement(atom, symbol)
             if made is not None:
                 # g in the original functions (evaluated as such); f smooth in sigma
                 made[0].kink = kink
                 switches.append(made[0])
-                done[atom] = _replacement(atom.xreplace(done), symbol)[1]
+                # an unsafe kink of t stays in f (continuous: its roots end the pieces)
+                done[atom] = (atom.xreplace(done) if atom in unsafe
+                              else _replacement(atom.xreplace(done), symbol)[1])
     return [_binary(expr).xreplace(done) for expr in ode.rhs], switches
 
 
 def _unsafe_kinks(exprs, states):
-    """The kinks of the state (Abs, Min, Max of a state) in ``exprs`` whose continuation
-    sigma g past the kink may leave f's domain: those reached from a root through any
-    function but Add, Mul, a power by a nonnegative integer, an entire function
-    (``_ENTIRE``), another non-smooth function or a condition (sqrt(|u - a|) would be the
-    square root of a negative number, 1/|u| could divide by zero). They are left to the
-    step control; every other kink is located as a switch."""
+    """The kinks (Abs, Min, Max) in ``exprs`` whose continuation sigma g past the kink may
+    leave f's domain: those reached from a root through any function but Add, Mul, a power
+    by a nonnegative integer, an entire function (``_ENTIRE``), another non-smooth function
+    or a condition (sqrt(|u - a|) would be the square root of a negative number, 1/|u| could
+    divide by zero). A kink of the state among them is left to the step control; one of t
+    alone stays in f as it is, and its roots still end the pieces (a continuation would be
+    evaluated at a root rounded to the other side: sqrt(-sin(2 t)) at t = fl(pi/2))."""
     unsafe = set()
 
     def walk(e, safe):
-        if isinstance(e, _KINKS) and not safe and e.free_symbols & states:
+        if isinstance(e, _KINKS) and not safe:
             unsafe.add(e)
         for i, arg in enumerate(e.args):
             keeps = (isinstance(e, (sp.Add, sp.Mul, *_ENTIRE, *NON_SMOOTH, sp.Rel,
@@ -234,7 +238,7 @@ def _unsafe_kinks(exprs, states):
 #: Continuous functions with a kink: of t they give breakpoints; of the state they are
 #: located as switches (:class:`Switch` ``kink``), unless the smooth continuation sigma g
 #: past the kink may leave f's domain (:func:`_unsafe_kinks`): those are left to the step
-#: control, where the order drops to about 1 at the kink.
+#: control, where the order drops to about 1 at the kink (those of t stay in f).
 _KINKS = (sp.Abs, sp.Min, sp.Max)
 #: Functions analytic on the whole real line: a kink inside one is located.
 _ENTIRE = (sp.sin, sp.cos, sp.exp, sp.sinh, sp.cosh, sp.tanh, sp.atan, sp.erf, sp.erfc)

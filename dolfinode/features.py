@@ -342,8 +342,9 @@ class Crowded(ValueError):
 def enclose(expr, lo, hi, values=None):
     """Bounds (low, high) of expr(t) for t in [lo_i, hi_i] (arrays), by interval arithmetic
     on the sympy tree: sums and products of the bounds of the arguments, powers, and the
-    monotone or periodic elementary functions (exp, log, sin, cos, tan, cosh, Abs and the
-    monotone ones: sinh, tanh, asin, acos, atan, asinh, acosh, atanh, erf, erfc, sign). The bounds hold for every t in the piece (up to rounding) and are tight as the
+    monotone or periodic elementary functions (exp, log, sin, cos, tan, cosh, Abs, Min, Max,
+    Heaviside and the monotone ones: sinh, tanh, asin, acos, atan, asinh, acosh, atanh, erf,
+    erfc, sign). The bounds hold for every t in the piece (up to rounding) and are tight as the
     piece shrinks, except where the same subexpression enters twice (t - t). ``values``:
     the values of the other symbols (parameters).
 
@@ -364,7 +365,7 @@ def _enclose(e, lo, hi, values):
             raise Unbounded(f"no value for {e}")
         value = np.full(lo.shape, values[e])
         return value, value
-    if e.is_Number:
+    if e.is_Number or isinstance(e, sp.NumberSymbol):  # (pi, E)
         value = np.full(lo.shape, float(e))
         return value, value
     if e.is_Add:
@@ -377,10 +378,12 @@ def _enclose(e, lo, hi, values):
         a, b = _enclose(e.args[0], lo, hi, values)
         for arg in e.args[1:]:
             c, d = _enclose(arg, lo, hi, values)
-            # (fmin, fmax: a product 0 x inf, NaN, is left out)
+            # (fmin, fmax: a product 0 x inf, NaN, is left out; a factor that is 0 on the
+            # whole piece, Heaviside(sin t) where sin t < 0, makes the product 0 there)
+            zero = ((a == 0) & (b == 0)) | ((c == 0) & (d == 0))
             ac, ad, bc, bd = a * c, a * d, b * c, b * d
-            a, b = (np.fmin(np.fmin(ac, ad), np.fmin(bc, bd)),
-                    np.fmax(np.fmax(ac, ad), np.fmax(bc, bd)))
+            a, b = (np.where(zero, 0.0, np.fmin(np.fmin(ac, ad), np.fmin(bc, bd))),
+                    np.where(zero, 0.0, np.fmax(np.fmax(ac, ad), np.fmax(bc, bd))))
         return a, b
     if e.is_Pow:
         return _power(e, lo, hi, values)
@@ -409,6 +412,14 @@ def _enclose(e, lo, hi, values):
         small = np.where((a <= 0) & (b >= 0), 0.0, np.minimum(abs(a), abs(b)))
         even = np.cosh if isinstance(e, sp.cosh) else np.abs
         return even(small), even(np.maximum(abs(a), abs(b)))
+    if isinstance(e, sp.Heaviside):  # (any value in [0, 1] at 0)
+        a, b = _enclose(e.args[0], lo, hi, values)
+        return np.where(a > 0, 1.0, 0.0), np.where(b < 0, 0.0, 1.0)
+    if isinstance(e, (sp.Min, sp.Max)):
+        bounds = [_enclose(a, lo, hi, values) for a in e.args]
+        pick = np.minimum if isinstance(e, sp.Min) else np.maximum
+        return (functools.reduce(pick, [b[0] for b in bounds]),
+                functools.reduce(pick, [b[1] for b in bounds]))
     raise Unbounded(f"no interval bounds for {type(e).__name__}")
 
 

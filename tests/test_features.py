@@ -1,6 +1,7 @@
 """Narrow features of f(t) found before the solve (dolfinode/features.py)."""
 import math
 
+import mpmath
 import numpy as np
 import pytest
 import sympy as sp
@@ -136,7 +137,8 @@ def test_term_without_bounds_is_listed():
 BOUNDED = [sp.exp(-((t - 3) / 0.1) ** 2), sp.sin(7 * t) * sp.cos(t) + t**2,
            1 / sp.cosh(3 * t - 2) ** 2, sp.log(1 + t) / (2 + sp.sin(t)), sp.sqrt(t + 1) * t**-2,
            sp.tanh(t - 4) * sp.erf(t - 5) + sp.erfc(t) + sp.atan(t) + sp.asinh(t),
-           sp.tan(t), sp.exp(t) ** sp.Rational(3, 2) - 2**t]
+           sp.tan(t), sp.exp(t) ** sp.Rational(3, 2) - 2**t,
+           sp.Max(sp.sin(t), t / 3 - 1) + sp.Min(t, sp.cos(2 * t)) * sp.Heaviside(t - 4)]
 
 
 @pytest.mark.parametrize("expr", BOUNDED, ids=str)
@@ -235,6 +237,16 @@ SINGULAR = {
     "((t - 0.7)^2)^(1/3)": (((t - 0.7) ** 2) ** sp.Rational(1, 3), 1.0, (0.7,),
                             0.6 * (0.7 ** (5 / 3) + 0.3 ** (5 / 3))),
     "sqrt(1 - t) at T": (sp.sqrt(1 - t), 1.0, (1.0,), 2 / 3),
+    # a constant sympy keeps as pi
+    "sqrt|t - pi/2|": (sp.sqrt(sp.Abs(t - sp.pi / 2)), 2.0, (math.pi / 2,),
+                       2 / 3 * ((math.pi / 2) ** 1.5 + (2 - math.pi / 2) ** 1.5)),
+    # the breakpoint fl(pi/2) is below the root: cos's continuation -cos is < 0 there
+    "sqrt|cos t|": (sp.sqrt(sp.Abs(sp.cos(t))), 2.0, (math.pi / 2,),
+                    float(mpmath.quad(lambda s: mpmath.sqrt(abs(mpmath.cos(s))),
+                                      [0, mpmath.pi / 2, 2]))),
+    "sqrt(max(cos t, 0))": (sp.sqrt(sp.Max(sp.cos(t), 0)), 2.0, (math.pi / 2,),
+                            float(mpmath.quad(lambda s: mpmath.sqrt(mpmath.cos(s)),
+                                              [0, mpmath.pi / 2]))),
 }
 
 
