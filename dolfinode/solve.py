@@ -401,8 +401,9 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         breakpoints or switches in f, where the linearised estimate, made for one smooth f,
         does not apply, the error at T of a run of more than one step is measured against
         a dG(3) solve at 1/100 of the tolerance with the same events and jumps (1.4-2.5 x
-        the solve), and warned as above. Automatic modeling and method="auto" where it
-        solves in stretches are not estimated and have no such key. Without the history
+        the solve), and warned as above. method="auto" where it solves in stretches is
+        estimated on the joined solution as a run of its base method. Automatic modeling is
+        not estimated and has no such key. Without the history
         (``dense_output`` False or a file) cG(q)/dG(q) runs are estimated chunk by chunk of
         stored slabs as they are stored (the estimate of the whole history); runs whose
         estimate needs the elements (mcG(q), mdG(q), the slab estimate's) are not, and
@@ -488,12 +489,16 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         raise TypeError(f"solve expects a dolfinode.ODE, got {type(ode).__name__}")
     params = check_parameters(parameters)
     base = auto_base(method)
-    if params["estimate_global_error"] is True and (base is not None
-                                                    or params["automatic_modeling"]):
-        raise ValueError("estimate_global_error is for cG(q), dG(q), mcG(q) and mdG(q), not "
-                         "for method='auto' or automatic_modeling")
+    if params["estimate_global_error"] is True and params["automatic_modeling"]:
+        raise ValueError("estimate_global_error is for cG(q), dG(q), mcG(q), mdG(q) and "
+                         "method='auto', not for automatic_modeling")
     if base is not None:
-        return solve_auto(solve, ode, base, goal, parameters, params)
+        sol = solve_auto(solve, ode, base, goal, parameters, params)
+        if "decided once" not in sol.stats["family choice"]:  # (stretches: not estimated)
+            compiled, plan = lowered(ode, params)
+            check_error_at_T(ode, compiled, plan, sol.multi, parse_method(base)[1], params,
+                             sol)
+        return sol
     if goal is not None:
         from dolfinode.dual.adaptivity import solve_for_goal
 
@@ -553,7 +558,6 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
     (:meth:`dolfinode.events.Plan.unresolved_switch_step`), is solved again with a step
     bound from the crossings seen, at most _SWITCH_RETRIES times, else SolverError."""
     given = params["maximum_time_step"]
-    smooth = plan is None or not plan.watched  # (f smooth: the error estimate holds)
     for _ in range(_SWITCH_RETRIES + 1):
         sol = _solve_once(ode, compiled, plan, multi_adaptive, m, params)
         step = None if plan is None else plan.unresolved_switch_step(sol)
@@ -562,9 +566,7 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
                 plan.check_events(sol, params["tolerance"])
             if params["maximum_time_step"] != given:
                 sol.stats["switch step bound"] = params["maximum_time_step"]
-            if params["estimate_global_error"] is not False:
-                check = estimate_global_error if smooth else measure_piecewise_error
-                check(ode, compiled, m, params, sol, longest_run(sol, multi_adaptive))
+            check_error_at_T(ode, compiled, plan, multi_adaptive, m, params, sol)
             warn_lost_components(ode, compiled, params, sol)
             return sol
         bound = params["maximum_time_step"]
@@ -1012,6 +1014,17 @@ def _warn_undamped(ode, compiled, m, params, options, state, multi_adaptive=Fals
 #: own solve does); True: every run, False: none.
 SHORTEST_RUN = 2
 AUTO_ROWS = 64
+
+
+def check_error_at_T(ode, compiled, plan, multi_adaptive, m, params, sol):
+    """The check of the error at T of ``sol`` (by the method ``m``) that
+    ``params["estimate_global_error"]`` asks for: the linearised estimate where f is smooth
+    (:func:`estimate_global_error`), else measured (:func:`measure_piecewise_error`)."""
+    if params["estimate_global_error"] is False:
+        return
+    smooth = plan is None or not plan.watched
+    check = estimate_global_error if smooth else measure_piecewise_error
+    check(ode, compiled, m, params, sol, longest_run(sol, multi_adaptive))
 
 
 def longest_run(sol, multi_adaptive):

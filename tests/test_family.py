@@ -12,8 +12,9 @@ import pytest
 import sympy as sp
 
 import dolfinode as dn
-from dolfinode import family
+from dolfinode import family, global_error
 from dolfinode.bench.multirate import oscillator_bank
+from dolfinode.bench.problems import mass_spring_chain as chain_problem
 from dolfinode.family import auto_base
 from dolfinode.problems import mass_spring_chain
 from dolfinode.solution import MixedSolution
@@ -213,6 +214,20 @@ def test_decided_once_for_output_parameters(cost_model):
     np.testing.assert_array_equal(sol.t, [5.0, 20.0])
     direct = dn.solve(ode, choice["method"], sample_times=[5.0, 20.0], dense_output=False)
     np.testing.assert_array_equal(sol.y, direct.y)
+
+
+def test_error_at_T_of_stretches_is_estimated(cost_model):
+    """A run in stretches is estimated on the joined solution, as its base method's run
+    is: a 30-mass chain with 2 springs 1e6 stiffer at 1e-6 was 371 x the tolerance off,
+    and silent, where cG(2) alone warned."""
+    problem = chain_problem(n=30, stiffness=1e6, stiff_springs=2, T=0.1)
+    with pytest.warns(dn.ToleranceWarning, match="error at T"):
+        sol = dn.solve(problem.ode, "auto", tolerance=1e-6)
+    assert "decided once" not in sol.stats["family choice"]
+    U = sol(0.1)
+    error, _ = global_error.scaled(U - problem.final, U, 1e-6, 1e-6)
+    assert error > 10e-6
+    assert sol.stats["global error estimate"] == pytest.approx(error, rel=0.5)
 
 
 def test_failing_stretch_is_not_silent():

@@ -139,8 +139,10 @@ def test_a_large_error_out_of_the_linear_range_still_warns():
 def test_the_estimate_is_asked_for():
     x = sp.Symbol("x")
     ode = dn.ODE({x: -x}, u0=[1.0], T=1.0)
-    with pytest.raises(ValueError, match="not for method='auto'"):
-        dn.solve(ode, method="auto", estimate_global_error=True)
+    with pytest.raises(ValueError, match="not for automatic_modeling"):
+        dn.solve(ode, method="cG(2)", estimate_global_error=True, automatic_modeling=True)
+    assert "global error estimate" in dn.solve(ode, method="auto",
+                                               estimate_global_error=True).stats
     measured = dn.solve(ode, method="cG(1)", estimate_global_error=True, breakpoints=[0.5])
     assert measured.stats["global error reference"] == pytest.approx(1e-2 * 1e-6)
     assert "global error estimate" not in dn.solve(ode, method="cG(1)",
