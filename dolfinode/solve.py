@@ -4,6 +4,7 @@ import os
 import sys
 import time
 import warnings
+from itertools import pairwise
 
 import numpy as np
 import sympy as sp
@@ -121,6 +122,41 @@ def warn_growth_below_tolerance(ode, compiled, atol):
               f"(x {np.exp(exponent[small == i][0]):.3g} by T): when it grows is not "
               f"controlled, and the solution may be wrong at any tolerance. Give "
               f"absolute_tolerance below |u0| (e.g. {abs(u0[i]) * 1e-3:.1g}) for it")
+
+
+def warn_below_tolerance_throughout(ode, atol, sol):
+    """A ToleranceWarning for a solution whose every component stays below its absolute
+    tolerance, max_t |U_i(t)| < atol_i for all i, and is not identically 0.
+
+    The step control measures errors against atol_i + rtol |U_i|: where |U_i| < atol_i
+    throughout, any relative error passes. u'' = -u from u(0) = 1e-12 ended 85-180 x its
+    size off at T with cG(2), dG(1), mcG(2) (tolerance 1e-3 and 1e-6, atol by default equal
+    to it), and u' = -u + 1e-9 sin 5t from 1e-9 with the wrong sign, all as a success. Read
+    only when every |u0_i| < atol_i (a component above atol at t0 has its error measured);
+    the history's nodal values, or the samples without it, give max_t |U_i|.
+    """
+    u0 = ode.u0
+    if u0.size <= 64:  # (in Python: a numpy pass costs a small solve 2 us a call)
+        if any(abs(u) >= a for u, a in zip(u0.tolist(), atol.tolist())):
+            return
+    elif (np.abs(u0) >= atol).any():
+        return
+    if sol.dense:
+        ptr, _, _, values = sol.elements()
+        peaks = np.abs(values).max(axis=1)
+        peak = np.array([peaks[a:b].max(initial=0.0) for a, b in pairwise(ptr)])
+    else:
+        peak = np.abs(sol.y).max(axis=1)
+    peak = np.maximum(peak, np.abs(sol(sol.ode.T)))
+    if (peak < atol).all() and peak.any():
+        i = int(np.argmax(peak / atol))
+        # the computed peak may itself be the error: the size of u0, where there is one
+        size = np.abs(u0).max() or peak.max()
+        _warn(f"every component stays below its absolute tolerance (largest: max |"
+              f"{ode.states[i].name}| = {peak[i]:.3g} against absolute_tolerance {atol[i]:.3g}): "
+              f"the step control accepts any relative error there, and the solution may be "
+              f"wrong in all its digits. Give an absolute_tolerance below the solution's size "
+              f"(e.g. {size * 1e-6:.1g}), or scale the states to order 1")
 
 
 #: A component the step control projected to 0 is reported lost when a perturbation of it
@@ -566,6 +602,9 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
                 check = estimate_global_error if smooth else measure_piecewise_error
                 check(ode, compiled, m, params, sol, longest_run(sol, multi_adaptive))
             warn_lost_components(ode, compiled, params, sol)
+            if not params["fixed_time_step"]:
+                warn_below_tolerance_throughout(ode, _absolute_tolerance(
+                    ode, params["absolute_tolerance"], params["tolerance"]), sol)
             return sol
         bound = params["maximum_time_step"]
         params = {**params, "maximum_time_step": step if bound is None else min(bound, step)}

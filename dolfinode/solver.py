@@ -68,6 +68,7 @@ from dolfinode.solve import (
     run_started,
     solve,
     solve_lowered,
+    warn_below_tolerance_throughout,
     warn_growth_below_tolerance,
     warn_lost_components,
 )
@@ -342,6 +343,8 @@ class Solver:
             estimate_global_error(work, compiled, m, params, sol,
                                   longest_run(sol, multi_adaptive))
             warn_lost_components(work, compiled, params, sol)
+            if not params["fixed_time_step"]:
+                warn_below_tolerance_throughout(work, atol, sol)
             return sol
         if self._solved is None:  # the values of this call, kept while they are unchanged
             self._solved = work._snapshot()
@@ -369,4 +372,6 @@ class Solver:
         # values projected to 0 (:func:`warn_lost_components`); mono: none where none ends at 0
         if self._bounded and (multi_adaptive or _has_zero(sol.values[-1, -1])):
             warn_lost_components(work, compiled, params, sol)
+        if not params["fixed_time_step"]:
+            warn_below_tolerance_throughout(work, atol, sol)
         return sol
