@@ -23,6 +23,7 @@ from dolfinode.compile import lower
 from dolfinode.errors import SolverError, ToleranceWarning
 from dolfinode.failures import STEP_LIMIT, failure_message, undamped_message, undefined
 from dolfinode.family import auto_base, solve_auto
+from dolfinode.features import narrow_features
 from dolfinode.io import history
 from dolfinode.kept import solve_kept
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
@@ -334,7 +335,10 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     initial_time_step : float, dict or sequence, optional
         The first step (per state for mcG/mdG); default: chosen from f(u0, t0).
     maximum_time_step : float, optional
-        Upper bound on every step; default T - t0.
+        Upper bound on every step; default T - t0, or 1 / omega where a term of f oscillates
+        in t over the whole interval (sin(omega t), unless its range times T - t0 is below
+        the absolute tolerance), whose period a longer step aliases
+        (:mod:`dolfinode.features`, ``sol.stats["oscillation step bound"]``).
     fixed_time_step : bool, default False
         True: uniform steps equal to ``initial_time_step``, no error control.
     nonlinear_solver : {"default", "fixed-point", "newton"}, default "default"
@@ -350,7 +354,7 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         Time slabs before the solve stops with :class:`~dolfinode.SolverError`.
     number_of_samples : int, default 101
         Equispaced output samples ``sol.t``, ``sol.y`` (``sol(t)`` is exact at any t, and
-        ``sol.time_steps()`` gives the element ends).
+        ``sol.time_steps()`` the elements' starts and lengths).
     sample_times : array_like, optional
         Explicit increasing sample times in [t0, T] for ``sol.t``, ``sol.y`` (solve_ivp's
         ``t_eval``); default: ``number_of_samples`` equispaced ones.
@@ -589,6 +593,7 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
     (:meth:`dolfinode.events.Plan.unresolved_switch_step`), is solved again with a step
     bound from the crossings seen, at most _SWITCH_RETRIES times, else SolverError."""
     given = params["maximum_time_step"]
+    atol = _absolute_tolerance(ode, params["absolute_tolerance"], params["tolerance"])
     smooth = plan is None or not plan.watched  # (f smooth: the error estimate holds)
     for _ in range(_SWITCH_RETRIES + 1):
         sol = _solve_once(ode, compiled, plan, multi_adaptive, m, params)
@@ -598,16 +603,20 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
                 plan.check_events(sol, params["tolerance"])
             if params["maximum_time_step"] != given:
                 sol.stats["switch step bound"] = params["maximum_time_step"]
+            elif given is None and not ode.autonomous:
+                cap = _largest_step(ode, params["fixed_time_step"], atol)
+                if cap < ode.T - ode.t0:
+                    sol.stats["oscillation step bound"] = cap
             if params["estimate_global_error"] is not False:
                 check = estimate_global_error if smooth else measure_piecewise_error
                 check(ode, compiled, m, params, sol, longest_run(sol, multi_adaptive))
             warn_lost_components(ode, compiled, params, sol)
             if not params["fixed_time_step"]:
-                warn_below_tolerance_throughout(ode, _absolute_tolerance(
-                    ode, params["absolute_tolerance"], params["tolerance"]), sol)
+                warn_below_tolerance_throughout(ode, atol, sol)
             return sol
-        bound = params["maximum_time_step"]
-        params = {**params, "maximum_time_step": step if bound is None else min(bound, step)}
+        # (without a maximum_time_step, the bound of an oscillating f(t) stays: the smaller)
+        bound = params["maximum_time_step"] or _largest_step(ode, params["fixed_time_step"], atol)
+        params = {**params, "maximum_time_step": min(bound, step)}
         plan = ev.Plan.make(ode, plan.switches, params["breakpoints"], params["events"])
     raise SolverError(
         f"a switch on the state (Piecewise/Heaviside/sign of a state in f) changes sign "
@@ -684,6 +693,7 @@ def _options(ode, m, params, multi_adaptive, atol):
     solution size."""
     rtol = params["tolerance"]
     fixed = bool(params["fixed_time_step"])
+    kmax = params["maximum_time_step"] or _largest_step(ode, fixed, atol)
     loosening = 0.0
     delivered = 0.0 if fixed else 1.0  # the error at T in units of rtol
     if fixed:
@@ -698,9 +708,18 @@ def _options(ode, m, params, multi_adaptive, atol):
     return atol, contract.options(
         solver=NONLINEAR_SOLVERS.index(params["nonlinear_solver"]), fixed=fixed,
         max_iter=params["maximum_iterations"], is_dg=m.family == "dG", rtol=rtol, T=ode.T,
-        kmax=params["maximum_time_step"] or ode.T - ode.t0, safety=params["safety_factor"],
+        kmax=kmax, safety=params["safety_factor"],
         dtol=dtol, order=m.local_order, span=ode.T - ode.t0, gamma=filter_constant(m),
         loosening=loosening, delivered=delivered)
+
+
+def _largest_step(ode, fixed, atol):
+    """The largest step without a maximum_time_step: T - t0, or less where f oscillates
+    in t faster than a step would see (:meth:`dolfinode.features.Features.step_cap`)."""
+    span = ode.T - ode.t0
+    if fixed or ode.autonomous:
+        return span
+    return min(span, narrow_features(ode).step_cap(atol, span))
 
 
 def _floor(ode, atol):

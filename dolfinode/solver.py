@@ -186,7 +186,9 @@ class Solver:
         work = self._declaration(u0, params, T, t0)
         if self._params["automatic_modeling"] or self._auto:  # a driver over many solves
             return solve(work._snapshot(), self.method, **self.parameters)
-        if self._buffers is not None and not narrow_features(work):
+        features = narrow_features(work)
+        # (an oscillating term's step cap moves with the parameters: set in the general path)
+        if self._buffers is not None and not (features or features.oscillations):
             sol = self._solve_prepared(work)
             if sol is not None:
                 return sol
