@@ -68,6 +68,7 @@ from dolfinode.solve import (
     run_started,
     solve,
     solve_lowered,
+    starts_below_tolerance,
     warn_below_tolerance_throughout,
     warn_growth_below_tolerance,
     warn_lost_components,
@@ -319,6 +320,7 @@ class Solver:
                 _check_resolvable_tolerance(work, atol, params["tolerance"])
         if self._solved is None and not params["fixed_time_step"]:  # (u0 or values new)
             warn_growth_below_tolerance(work, compiled, atol)
+            self._below = starts_below_tolerance(work.u0, atol)
         x[:] = work.u0
         if params["initial_time_step"] is not None:
             steps[:] = given
@@ -345,7 +347,7 @@ class Solver:
             estimate_global_error(work, compiled, m, params, sol,
                                   longest_run(sol, multi_adaptive))
             warn_lost_components(work, compiled, params, sol)
-            if not params["fixed_time_step"]:
+            if not params["fixed_time_step"] and self._below:
                 warn_below_tolerance_throughout(work, atol, sol)
             return sol
         if self._solved is None:  # the values of this call, kept while they are unchanged
@@ -374,6 +376,6 @@ class Solver:
         # values projected to 0 (:func:`warn_lost_components`); mono: none where none ends at 0
         if self._bounded and (multi_adaptive or _has_zero(sol.values[-1, -1])):
             warn_lost_components(work, compiled, params, sol)
-        if not params["fixed_time_step"]:
+        if not params["fixed_time_step"] and self._below:  # (read when u0 was new)
             warn_below_tolerance_throughout(work, atol, sol)
         return sol
