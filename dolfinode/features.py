@@ -20,10 +20,19 @@ STEPS_ACROSS inside it.
 
 Guaranteed, up to the rounding of the bounds: every stretch of [t0, T] at least MIN_WIDTH
 (T - t0) long on which a smooth state-free term changes faster than FAST R / (T - t0) lies in
-a feature, unless the fast stretches of that term cover more than SPREAD of [t0, T] (forcing
-that varies everywhere, as sin(omega t), which the step control sees at every step), or are
+a feature, unless the fast stretches of that term cover more than SPREAD of [t0, T], or are
 more than MAX_FEATURES (a ToleranceWarning says so and names the term), or the term holds a
-function :func:`enclose` cannot bound (it is then listed in ``unbounded``). Terms with jumps (Piecewise, Heaviside, ...) are split at
+function :func:`enclose` cannot bound (it is then listed in ``unbounded``).
+
+*Oscillations*: a term fast over more than SPREAD of [t0, T] (forcing that varies everywhere,
+as sin(omega t)) is no feature, but the step control does not see it either once a step
+spans its period: it evaluates f at a few points of each step, and a step of half a period
+of sin(omega t) has its end points on the zeros. u' = -u + sin(1e4 t) on [0, 2] took steps
+of 2-70 periods and ended 19-78,000 x the tolerance off (cG(1..2), dG(1..2), mcG(2); one
+run unwarned); with steps of a quarter period at most, 0.0002-1.7 x. Such a term h bounds
+every step by ``OSCILLATION_STEP`` R / max |h'| (R its range over [t0, T], |h'| bounded by
+the pieces' variations: 1 / omega for sin(omega t), period / 6.3), unless its effect
+R (T - t0) is below every absolute tolerance (:meth:`Features.step_cap`). Terms with jumps (Piecewise, Heaviside, ...) are split at
 their breakpoints instead (:mod:`dolfinode.events`) and searched for singular points only.
 
 *Singular points*: where a derivative of order at most SINGULAR_ORDER of a state-free term
@@ -63,6 +72,9 @@ SPREAD = 0.25
 MAX_FEATURES = 64
 #: Largest step inside a feature: its fast width / STEPS_ACROSS.
 STEPS_ACROSS = 8
+#: Largest step under a term fast everywhere: OSCILLATION_STEP x the time it takes to cross
+#: its range at its fastest (1 / omega for sin(omega t): a sixth of the period).
+OSCILLATION_STEP = 0.5
 #: Derivatives of a term searched for singular points (|t - s|^p with p < SINGULAR_ORDER).
 SINGULAR_ORDER = 3
 #: Near a singular point s the steps are at most GRADING |t - s| ...
@@ -83,6 +95,8 @@ class Features:
     unbounded: list
     #: The singular points (module docstring), whose rings are among the features.
     singular: tuple = ()
+    #: (largest step, range R) per term fast everywhere (module docstring, Oscillations).
+    oscillations: tuple = ()
 
     def __len__(self):
         return self.start.size
@@ -90,6 +104,13 @@ class Features:
     def edges(self):
         """The breakpoints of the features (their ends inside the interval)."""
         return np.concatenate([self.start, self.end])
+
+    def step_cap(self, atol, span):
+        """The largest step of the whole interval the oscillating terms allow: inf
+        without any, or where each one's effect R span is below every absolute tolerance
+        ``atol`` (a forcing of amplitude 1e-12 need not be resolved at atol 1e-6)."""
+        return min((step for step, R in self.oscillations if R * span > np.min(atol)),
+                   default=np.inf)
 
     def step_bound(self, begin, end):
         """The largest step on the piece (begin, end): inf outside every feature."""
@@ -156,7 +177,7 @@ def _search(terms, params, t0, T):
     """:func:`narrow_features` of the ``terms`` with the parameter values ``params``."""
     from dolfinode.events import NON_SMOOTH
 
-    found, unbounded, singular = [], [], []
+    found, unbounded, singular, oscillations = [], [], [], []
     for h in terms:
         with np.errstate(all="ignore"):
             singular += _singular_points(h, t0, T, dict(params.items()))
@@ -165,6 +186,8 @@ def _search(terms, params, t0, T):
         try:
             with np.errstate(all="ignore"):
                 found += _features(h, t0, T, dict(params.items()))
+        except Oscillating as oscillating:
+            oscillations.append(oscillating.args)
         except Unbounded:
             unbounded.append(h)
         except Crowded as crowded:
@@ -184,7 +207,8 @@ def _search(terms, params, t0, T):
         i = np.flatnonzero(keep[:j])[-1]
         if start[j] < end[i]:
             end[i], step[i], keep[j] = max(end[i], end[j]), min(step[i], step[j]), False
-    return Features(start[keep], end[keep], step[keep], unbounded, tuple(singular))
+    return Features(start[keep], end[keep], step[keep], unbounded, tuple(singular),
+                    tuple(oscillations))
 
 
 def _singular_points(h, t0, T, values):
@@ -279,6 +303,7 @@ def _features(h, t0, T, values):
         evaluated += left.size
         if evaluated > BUDGET:  # fast over most of [t0, T], or many narrow pulses
             if np.sum(right - left) > SPREAD * span:
+                _oscillating(h, t0, T, values, high - low)
                 return []
             raise Crowded(f"more than {MAX_FEATURES}", float(np.min(right - left)))
         lo, hi = _enclose(h, left, right, values)
@@ -304,11 +329,27 @@ def _features(h, t0, T, values):
     stretches = _stretches(left[fast], right[fast])
     widths = np.array([b - a for a, b in stretches])
     if widths.sum() > SPREAD * span:
+        _oscillating(h, t0, T, values, high - low)
         return []
     if len(stretches) > MAX_FEATURES:
         raise Crowded(str(len(stretches)), float(np.min(widths)))
     return [(max(t0, a - w), min(T, b + w), w / STEPS_ACROSS)
             for (a, b), w in zip(stretches, widths)]
+
+
+def _oscillating(h, t0, T, values, R):
+    """Raise Oscillating(largest step, R) for a term h fast everywhere whose range over
+    [t0, T] is R: the step OSCILLATION_STEP R / max |h'|, |h'| bounded by :func:`enclose`
+    on GRID pieces (the search's own pieces stop at BUDGET, short of resolving a fast sine).
+    Nothing where h' has no bound."""
+    grid = np.linspace(t0, T, GRID + 1)
+    try:
+        lo, hi = _enclose(sp.diff(h, time_symbol), grid[:-1], grid[1:], values)
+    except Unbounded:
+        return
+    rate = float(np.max(np.maximum(np.abs(lo), np.abs(hi))))
+    if np.isfinite(rate) and rate > 0.0 and np.isfinite(R) and R > 0.0:
+        raise Oscillating(OSCILLATION_STEP * R / rate, R)
 
 
 def _stretches(left, right):
@@ -332,6 +373,10 @@ def _stretches(left, right):
 
 class Unbounded(ValueError):
     """A function :func:`enclose` has no bounds for."""
+
+
+class Oscillating(ValueError):
+    """A term fast everywhere (not a feature): (largest step, its range R)."""
 
 
 class Crowded(ValueError):

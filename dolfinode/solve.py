@@ -4,6 +4,7 @@ import os
 import sys
 import time
 import warnings
+from itertools import pairwise
 
 import numpy as np
 import sympy as sp
@@ -22,6 +23,7 @@ from dolfinode.compile import lower
 from dolfinode.errors import SolverError, ToleranceWarning
 from dolfinode.failures import STEP_LIMIT, failure_message, undamped_message, undefined
 from dolfinode.family import auto_base, solve_auto
+from dolfinode.features import narrow_features
 from dolfinode.io import history
 from dolfinode.kept import solve_kept
 from dolfinode.linalg.newton_matrix import newton_structure, sparse_candidate
@@ -121,6 +123,46 @@ def warn_growth_below_tolerance(ode, compiled, atol):
               f"(x {np.exp(exponent[small == i][0]):.3g} by T): when it grows is not "
               f"controlled, and the solution may be wrong at any tolerance. Give "
               f"absolute_tolerance below |u0| (e.g. {abs(u0[i]) * 1e-3:.1g}) for it")
+
+
+def starts_below_tolerance(u0, atol):
+    """Whether every |u0_i| < atol_i (:func:`warn_below_tolerance_throughout` reads the
+    solution only then; a Solver asks when u0 is new)."""
+    if u0.size == 1:  # (a repeated small solve: 0.3 us, where numpy's pass costs 2)
+        return abs(float(u0[0])) < float(atol[0])
+    return bool((np.abs(u0) < atol).all())
+
+
+def warn_below_tolerance_throughout(ode, atol, sol):
+    """A ToleranceWarning for a solution whose every component stays below its absolute
+    tolerance, max_t |U_i(t)| < atol_i for all i, and is not identically 0.
+
+    The step control measures errors against atol_i + rtol |U_i|: where |U_i| < atol_i
+    throughout, any relative error passes. u'' = -u from u(0) = 1e-12 ended 85-180 x its
+    size off at T with cG(2), dG(1), mcG(2) (tolerance 1e-3 and 1e-6, atol by default equal
+    to it), and u' = -u + 1e-9 sin 5t from 1e-9 with the wrong sign, all as a success. Read
+    only when every |u0_i| < atol_i (a component above atol at t0 has its error measured);
+    the history's nodal values, or the samples without it, give max_t |U_i|. Called where
+    atol is the default one (an atol the user gave says what size is noise)."""
+    u0 = ode.u0
+    if not starts_below_tolerance(u0, atol):
+        return
+    if sol.dense:
+        ptr, _, _, values = sol.elements()
+        peaks = np.abs(values).max(axis=1)
+        peak = np.array([peaks[a:b].max(initial=0.0) for a, b in pairwise(ptr)])
+    else:
+        peak = np.abs(sol.y).max(axis=1)
+    peak = np.maximum(peak, np.abs(sol(sol.ode.T)))
+    if (peak < atol).all() and peak.any():
+        i = int(np.argmax(peak / atol))
+        # the computed peak may itself be the error: the size of u0, where there is one
+        size = np.abs(u0).max() or peak.max()
+        _warn(f"every component stays below its absolute tolerance (largest: max |"
+              f"{ode.states[i].name}| = {peak[i]:.3g} against absolute_tolerance {atol[i]:.3g}): "
+              f"the step control accepts any relative error there, and the solution may be "
+              f"wrong in all its digits. Give an absolute_tolerance below the solution's size "
+              f"(e.g. {size * 1e-6:.1g}), or scale the states to order 1")
 
 
 #: A component the step control projected to 0 is reported lost when a perturbation of it
@@ -298,7 +340,10 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     initial_time_step : float, dict or sequence, optional
         The first step (per state for mcG/mdG); default: chosen from f(u0, t0).
     maximum_time_step : float, optional
-        Upper bound on every step; default T - t0.
+        Upper bound on every step; default T - t0, or 1 / omega where a term of f oscillates
+        in t over the whole interval (sin(omega t), unless its range times T - t0 is below
+        the absolute tolerance), whose period a longer step aliases
+        (:mod:`dolfinode.features`, ``sol.stats["oscillation step bound"]``).
     fixed_time_step : bool, default False
         True: uniform steps equal to ``initial_time_step``, no error control.
     nonlinear_solver : {"default", "fixed-point", "newton"}, default "default"
@@ -314,7 +359,7 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         Time slabs before the solve stops with :class:`~dolfinode.SolverError`.
     number_of_samples : int, default 101
         Equispaced output samples ``sol.t``, ``sol.y`` (``sol(t)`` is exact at any t, and
-        ``sol.time_steps()`` gives the element ends).
+        ``sol.time_steps()`` the elements' starts and lengths).
     sample_times : array_like, optional
         Explicit increasing sample times in [t0, T] for ``sol.t``, ``sol.y`` (solve_ivp's
         ``t_eval``); default: ``number_of_samples`` equispaced ones.
@@ -558,6 +603,7 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
     (:meth:`dolfinode.events.Plan.unresolved_switch_step`), is solved again with a step
     bound from the crossings seen, at most _SWITCH_RETRIES times, else SolverError."""
     given = params["maximum_time_step"]
+    atol = _absolute_tolerance(ode, params["absolute_tolerance"], params["tolerance"])
     for _ in range(_SWITCH_RETRIES + 1):
         sol = _solve_once(ode, compiled, plan, multi_adaptive, m, params)
         step = None if plan is None else plan.unresolved_switch_step(sol)
@@ -566,11 +612,18 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
                 plan.check_events(sol, params["tolerance"])
             if params["maximum_time_step"] != given:
                 sol.stats["switch step bound"] = params["maximum_time_step"]
+            elif given is None and not ode.autonomous:
+                cap = _largest_step(ode, params["fixed_time_step"], atol)
+                if cap < ode.T - ode.t0:
+                    sol.stats["oscillation step bound"] = cap
             check_error_at_T(ode, compiled, plan, multi_adaptive, m, params, sol)
             warn_lost_components(ode, compiled, params, sol)
+            if not params["fixed_time_step"] and params["absolute_tolerance"] is None:
+                warn_below_tolerance_throughout(ode, atol, sol)
             return sol
-        bound = params["maximum_time_step"]
-        params = {**params, "maximum_time_step": step if bound is None else min(bound, step)}
+        # (without a maximum_time_step, the bound of an oscillating f(t) stays: the smaller)
+        bound = params["maximum_time_step"] or _largest_step(ode, params["fixed_time_step"], atol)
+        params = {**params, "maximum_time_step": min(bound, step)}
         plan = ev.Plan.make(ode, plan.switches, params["breakpoints"], params["events"])
     raise SolverError(
         f"a switch on the state (Piecewise/Heaviside/sign of a state in f) changes sign "
@@ -647,6 +700,7 @@ def _options(ode, m, params, multi_adaptive, atol):
     solution size."""
     rtol = params["tolerance"]
     fixed = bool(params["fixed_time_step"])
+    kmax = params["maximum_time_step"] or _largest_step(ode, fixed, atol)
     loosening = 0.0
     delivered = 0.0 if fixed else 1.0  # the error at T in units of rtol
     if fixed:
@@ -661,9 +715,18 @@ def _options(ode, m, params, multi_adaptive, atol):
     return atol, contract.options(
         solver=NONLINEAR_SOLVERS.index(params["nonlinear_solver"]), fixed=fixed,
         max_iter=params["maximum_iterations"], is_dg=m.family == "dG", rtol=rtol, T=ode.T,
-        kmax=params["maximum_time_step"] or ode.T - ode.t0, safety=params["safety_factor"],
+        kmax=kmax, safety=params["safety_factor"],
         dtol=dtol, order=m.local_order, span=ode.T - ode.t0, gamma=filter_constant(m),
         loosening=loosening, delivered=delivered)
+
+
+def _largest_step(ode, fixed, atol):
+    """The largest step without a maximum_time_step: T - t0, or less where f oscillates
+    in t faster than a step would see (:meth:`dolfinode.features.Features.step_cap`)."""
+    span = ode.T - ode.t0
+    if fixed or ode.autonomous:
+        return span
+    return min(span, narrow_features(ode).step_cap(atol, span))
 
 
 def _floor(ode, atol):

@@ -68,6 +68,8 @@ from dolfinode.solve import (
     run_started,
     solve,
     solve_lowered,
+    starts_below_tolerance,
+    warn_below_tolerance_throughout,
     warn_growth_below_tolerance,
     warn_lost_components,
 )
@@ -185,7 +187,9 @@ class Solver:
         work = self._declaration(u0, params, T, t0)
         if self._params["automatic_modeling"] or self._auto:  # a driver over many solves
             return solve(work._snapshot(), self.method, **self.parameters)
-        if self._buffers is not None and not narrow_features(work):
+        features = narrow_features(work)
+        # (an oscillating term's step cap moves with the parameters: set in the general path)
+        if self._buffers is not None and not (features or features.oscillations):
             sol = self._solve_prepared(work)
             if sol is not None:
                 return sol
@@ -316,6 +320,8 @@ class Solver:
                 _check_resolvable_tolerance(work, atol, params["tolerance"])
         if self._solved is None and not params["fixed_time_step"]:  # (u0 or values new)
             warn_growth_below_tolerance(work, compiled, atol)
+            self._below = (params["absolute_tolerance"] is None
+                           and starts_below_tolerance(work.u0, atol))
         x[:] = work.u0
         if params["initial_time_step"] is not None:
             steps[:] = given
@@ -342,6 +348,8 @@ class Solver:
             estimate_global_error(work, compiled, m, params, sol,
                                   longest_run(sol, multi_adaptive))
             warn_lost_components(work, compiled, params, sol)
+            if not params["fixed_time_step"] and self._below:
+                warn_below_tolerance_throughout(work, atol, sol)
             return sol
         if self._solved is None:  # the values of this call, kept while they are unchanged
             self._solved = work._snapshot()
@@ -369,4 +377,6 @@ class Solver:
         # values projected to 0 (:func:`warn_lost_components`); mono: none where none ends at 0
         if self._bounded and (multi_adaptive or _has_zero(sol.values[-1, -1])):
             warn_lost_components(work, compiled, params, sol)
+        if not params["fixed_time_step"] and self._below:  # (read when u0 was new)
+            warn_below_tolerance_throughout(work, atol, sol)
         return sol

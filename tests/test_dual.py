@@ -133,6 +133,21 @@ def test_nonlinear_goal_is_linearised(method):
     assert 0.5 <= est.value / error <= 2.0
 
 
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(2)"])
+def test_goals_of_absolute_values_are_differentiated_as_real(method):
+    """|u| as a goal: sympy differentiates |u| of a symbol not known real into re/im
+    Derivatives, which NumPy could not print (every such goal raised); as the kernels' J,
+    the states are real and |u|' = sign(u)."""
+    ode, exact = problems.harmonic(T=10.0)
+    u, v = ode.states
+    sol = dn.solve(ode, method=method, tolerance=1e-6)
+    error = abs(sol(ode.T)[0]) - abs(exact(ode.T)[0])
+    assert 0.5 <= dn.estimate_error(sol, sp.Abs(u)).value / error <= 2.0
+    assert 0.5 <= dn.estimate_error(sol, sp.Max(v, 0) + sp.Abs(u)).value / error <= 2.0
+    est = dn.estimate_error(sol, ("integral", sp.Abs(u)))
+    assert np.isfinite(est.value) and est.value != 0.0
+
+
 def test_bad_goals_are_explained():
     ode, _ = problems.harmonic(T=1.0)
     sol = dn.solve(ode, method="cG(1)", tolerance=1e-3)

@@ -81,13 +81,50 @@ def test_feature_contains_the_peak(width, centre):
                                      t**3 - 2 * t, sp.exp(-t / 3), sp.Piecewise((1, t < 5),
                                                                              (0, True))])
 def test_smooth_forcing_has_no_features(forcing):
-    """Periodic and slow forcing is seen by the step control: no breakpoints are added (a
-    jump in t keeps its own breakpoint)."""
+    """Periodic and slow forcing has no features: no breakpoints are added (a jump in t
+    keeps its own breakpoint; a sine fast over [t0, T] bounds the steps, next test)."""
     ode = dn.ODE({u: -u + forcing}, u0=[1.0], T=T)
     assert len(narrow_features(ode)) == 0
     sol = dn.solve(ode, method="cG(1)", tolerance=1e-3, estimate_global_error=False)
     assert sol.stats.get("narrow features", 0) == 0
     assert sol.stats.get("breakpoints", 0) == (1 if forcing.has(sp.Piecewise) else 0)
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "cG(2)", "dG(2)", "mcG(2)"])
+def test_a_fast_sine_bounds_the_steps(method):
+    """u' = -u + sin(1e4 t) on [0, 2]: steps of several periods evaluate the sine at a few
+    points each (aliased), and the runs ended 19-98 x the tolerance off (cG(1) unwarned at
+    19 x). The steps are bounded by 1 / omega, the sixth of a period, and the error lands
+    within the tolerance; a forcing whose effect is below atol, or a maximum_time_step
+    given, is not bounded."""
+    W = 1e4
+    ode = dn.ODE({u: -u + sp.sin(W * t)}, u0=[1.0], T=2.0)
+    assert narrow_features(ode).step_cap(np.array([1e-3]), 2.0) == pytest.approx(1 / W)
+    exact = (1 + W / (1 + W**2)) * math.exp(-2.0) + (math.sin(2 * W) - W * math.cos(2 * W)) / (
+        1 + W**2)
+    sol = dn.solve(ode, method, tolerance=1e-3, estimate_global_error=False)
+    assert abs(sol(2.0)[0] - exact) <= 1e-3 * (1 + abs(exact))
+    assert sol.stats["oscillation step bound"] == pytest.approx(1 / W)
+    weak = dn.ODE({u: -u + 1e-12 * sp.sin(W * t)}, u0=[1.0], T=2.0)
+    slabs = sol.stats["time slabs"]
+    assert slabs >= 2.0 * W
+    assert dn.solve(weak, method, tolerance=1e-3).stats["time slabs"] < slabs / 10
+    given = dn.solve(ode, method, tolerance=1e-3, maximum_time_step=2.0,
+                     estimate_global_error=False)
+    assert given.stats["time slabs"] < slabs / 10
+    assert "oscillation step bound" not in given.stats
+
+
+def test_a_solver_bounds_the_steps_by_each_calls_frequency():
+    """The bound follows the frequency parameter of each Solver call, as a fresh solve."""
+    w = sp.Symbol("w")
+    ode = dn.ODE({u: -u + sp.sin(w * t)}, u0=[1.0], T=2.0, params={w: 1.0})
+    solver = dn.Solver(ode, "cG(2)", tolerance=1e-3)
+    for omega in (1.0, 1e4, 1.0, 3e3):
+        sol = solver.solve(params={w: omega})
+        fresh = dn.solve(dn.vary(ode, {w: omega}), "cG(2)", tolerance=1e-3)
+        np.testing.assert_array_equal(sol.t_start, fresh.t_start)
+        assert (sol.stats["time slabs"] > 1000) == (omega > 1e3)
 
 
 def test_two_pulses_and_forcing():

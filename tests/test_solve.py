@@ -99,9 +99,36 @@ def test_a_component_growing_from_below_the_absolute_tolerance_warns(method):
         warnings.simplefilter("error", dn.ToleranceWarning)
         sol = dn.solve(ode, method, tolerance=1e-3, absolute_tolerance=1e-15)
         assert abs(sol(35.0)[0] - exact) < 1e-2
-        # below atol but decaying, or at 0: nothing to resolve
-        dn.solve(dn.ODE({u: -u * (1 - u)}, [1e-12], T=35.0), method, tolerance=1e-3)
+        # at 0 and staying there: nothing to resolve
         dn.solve(dn.ODE({u: u * (1 - u)}, [0.0], T=35.0), method, tolerance=1e-3)
+    # below atol and decaying: not growing, but wrong in all digits (next test)
+    with pytest.warns(dn.ToleranceWarning, match="every component stays below"):
+        dn.solve(dn.ODE({u: -u * (1 - u)}, [1e-12], T=35.0), method, tolerance=1e-3)
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(2)"])
+def test_a_solution_below_the_absolute_tolerance_throughout_warns(method):
+    """u'' = -u from u(0) = 1e-12 with atol = tolerance (the default): any relative error
+    passes the step control, and U(T) ended 85-180 x its size off, silently. It warns (also
+    through a Solver), naming an atol that resolves it; a solution that starts above atol,
+    stays exactly 0 or has an atol the user gave does not."""
+    u, v = sp.symbols("u v")
+    ode = dn.ODE({u: v, v: -u}, u0=[1e-12, 0.0], T=10.0)
+    exact = 1e-12 * np.array([np.cos(10.0), -np.sin(10.0)])
+    message = r"every component stays below.*e\.g\. 1e-18"
+    with pytest.warns(dn.ToleranceWarning, match=message):
+        dn.solve(ode, method, tolerance=1e-3)
+    with pytest.warns(dn.ToleranceWarning, match=message):
+        dn.Solver(ode, method, tolerance=1e-3).solve()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        sol = dn.solve(ode, method, tolerance=1e-3, absolute_tolerance=1e-18)
+        assert np.max(np.abs(sol(10.0) - exact)) < 1e-13
+        # an atol the user gave says what size is noise
+        dn.solve(ode, method, tolerance=1e-3, absolute_tolerance=1e-3)
+        dn.Solver(ode, method, tolerance=1e-3, absolute_tolerance=1e-3).solve()
+        dn.solve(dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=10.0), method, tolerance=1e-3)
+        dn.solve(dn.ODE({u: v, v: -u}, u0=[0.0, 0.0], T=10.0), method, tolerance=1e-3)
 
 
 #: Lotka-Volterra from (3, 40): y dips to 8e-8 at t ~ 8.5 and comes back; y(12), x(12) from

@@ -14,6 +14,7 @@ import numpy as np
 import sympy as sp
 from sympy.core.function import AppliedUndef
 
+from dolfinode.compile.lowering import _derivative
 from dolfinode.ode import t as time_symbol
 
 
@@ -96,10 +97,14 @@ class _Functional:
         if undefined:
             raise ValueError(f"the {what} goal {expr} uses the undefined function "
                              f"{', '.join(undefined)}; write the goal with sympy's functions")
-        grad = [sp.diff(expr, s) for s in ode.states]
+        # real states, as the kernels' Jacobian takes them: |u|' is then sign(u), not a
+        # Derivative(re(u), u) that NumPy cannot print
+        real = [sp.Dummy(s.name, real=True) for s in ode.states]
+        expr_real = expr.xreplace(dict(zip(ode.states, real)))
+        grad = [_derivative(expr_real, s) for s in real]
         if all(g == 0 for g in grad):
             raise ValueError(f"the {what} goal {expr} does not depend on the states")
-        function = sp.lambdify((list(ode.states), time_symbol), grad, modules="numpy")
+        function = sp.lambdify((real, time_symbol), grad, modules="numpy")
         try:
             function(list(ode.u0), ode.t0)
         except NameError as error:
