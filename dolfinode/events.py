@@ -601,7 +601,10 @@ class Plan:
             return every
         # the check's sample times at the element ends (:meth:`_samples`, fraction 0)
         ends = np.unique(np.concatenate([[sol.ode.t0], sol.t_start + sol.k]))
-        if ends.size != sol.k.size + 1:
+        # (each element starts where the one before ends, to rounding: the samples inside
+        # element n are then its polynomial's)
+        if ends.size != sol.k.size + 1 or np.any(
+                np.abs(sol.t_start - ends[:-1]) > 4 * np.spacing(np.abs(ends[1:]))):
             return every
         method = sol.method
         dense_dg = method.family == "dG" and method.q > 0  # (P = U - [U] R, solution.py)
@@ -746,7 +749,7 @@ def _may_hide_crossings(values, ends, u0, start, inside, radau, spread, c, d, to
     if not (np.sign(g_end[0] - margin[0]) == np.sign(g_end[0] + margin[0])
             == np.sign(g_first - margin[0]) == np.sign(g_first + margin[0])):
         return True
-    floor = tolerance * max(floor, abs(g_end[0]) - margin[0])
+    floor = tolerance * max(floor, min(abs(g_end[0]), abs(g_first)) - margin[0])
     for n in range(M):
         sign = np.sign(g_end[n])
         if abs(g_end[n + 1]) <= margin[n] or (n and abs(g_end[n]) <= margin[n - 1]):
