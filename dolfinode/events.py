@@ -25,15 +25,18 @@ located after the solve, on the final solution, all at once.
 import copy
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 import sympy as sp
+from numba import njit
 from scipy.optimize import brentq
 from sympy.functions.elementary.piecewise import ExprCondPair
 
 from dolfinode.features import Features, narrow_features
 from dolfinode.ode import ODE
 from dolfinode.ode import t as time_symbol
+from dolfinode.solution import Solution
 from dolfinode.timeslab import smallest_step
 
 #: Consecutive switches less than SLIDING_SPAN x (T - t0) apart after which a state switch is
@@ -354,6 +357,7 @@ class Detector:
                              "switch: events are functions of the states and dn.t")
         self.components = [ode.index(s) for s in used]
         self._g = [sp.lambdify([time_symbol, *used], e, "numpy") for e in exprs]
+        self.affine = [_affine(e, ode) for e in exprs]
         self.directions = np.array(directions)
         self.last = np.zeros(len(exprs))
         self.from_zero = np.arange(len(exprs)) >= len(exprs) - switches
@@ -565,16 +569,16 @@ class Plan:
         warning gives the largest excursion missed (a g that touches zero crosses it by the
         error inside an element: sin t - 1 by 3e-5 with dG(1) at 1e-6) and the
         maximum_time_step that would show the crossings: a quarter of the shortest time
-        between the sign changes seen."""
+        between the sign changes seen. The events :meth:`_may_hide` clears are not sampled."""
         if not self.events or not sol.dense:
             return
-        times, G = self._samples(sol, np.arange(len(self.events)))
-        for event, g in zip(self.events, G):
+        rows = self._may_hide(sol, tolerance)
+        if not rows.size:
+            return
+        times, G = self._samples(sol, rows)
+        for event, g in zip([self.events[j] for j in rows], G):
             floor = tolerance * np.max(np.abs(g))
-            ends = np.sign(g[::SWITCH_SAMPLES])  # t0, the element ends, T
-            inside = g[:-1].reshape(-1, SWITCH_SAMPLES)[:, 1:]
-            other = (inside * ends[:-1, None] < -floor) & (ends[:-1] * ends[1:] > 0)[:, None]
-            missed = np.count_nonzero(other.any(axis=1))
+            missed, largest = _hidden_crossings(g, floor, SWITCH_SAMPLES)
             if not missed:
                 continue
             gaps = np.diff(times[_changes(g, floor=floor)])
@@ -583,11 +587,37 @@ class Plan:
 
             _warn(f"the event {event.g} crosses zero and back inside {missed} elements (its "
                   f"values at {SWITCH_SAMPLES} points in each, by up to "
-                  f"{np.max(np.abs(inside[other])):.3g} where g ranges over "
+                  f"{largest:.3g} where g ranges over "
                   f"{np.ptp(g):.3g}), where the crossings were not located: events are "
                   "located where g changes sign between element ends; give "
                   f"maximum_time_step={bound:.3g} (a quarter of the shortest time between the "
                   "sign changes seen)")
+
+    def _may_hide(self, sol, tolerance):
+        """The events whose samples in :meth:`check_events` may show them crossing zero and
+        back inside an element: all but those a bound on the samples clears
+        (:func:`_may_hide_crossings`: for a g affine in the states and free of t on a
+        mono-adaptive solution in memory, from the element values alone)."""
+        every = np.arange(len(self.events))
+        affine = [j for j in every if self.detector.affine[j] is not None]
+        if (not affine or sol.multi or type(sol) is not Solution
+                or "_restarts" in sol.__dict__):
+            return every
+        # the check's sample times at the element ends (:meth:`_samples`, fraction 0)
+        ends = np.unique(np.concatenate([[sol.ode.t0], sol.t_start + sol.k]))
+        # (each element starts where the one before ends, to rounding: the samples inside
+        # element n are then its polynomial's)
+        if ends.size != sol.k.size + 1 or np.any(
+                np.abs(sol.t_start - ends[:-1]) > 4 * np.spacing(np.abs(ends[1:]))):
+            return every
+        method = sol.method
+        dense_dg = method.family == "dG" and method.q > 0  # (P = U - [U] R, solution.py)
+        inside, radau, spread = _inside(tuple(method.nodes), dense_dg)
+        u0 = np.asarray(sol.ode.u0, dtype=float)
+        cleared = {j for j in affine if not _may_hide_crossings(
+            sol.values, ends, u0, method.left_value, inside, radau, spread,
+            *self.detector.affine[j], tolerance)}
+        return np.array([j for j in every if j not in cleared], dtype=int)
 
     def _samples(self, sol, rows):
         """(times, G): the detector's functions ``rows`` on the final solution at
@@ -628,6 +658,119 @@ class Plan:
 #: Samples per element at which :meth:`Plan.unresolved_switch_step` checks the switches
 #: (and :meth:`Plan.check_events` the events).
 SWITCH_SAMPLES = 8
+
+
+@njit(cache=True)
+def _hidden_crossings(g, floor, samples):
+    """(missed, largest): the elements whose samples of g (``samples`` per element, from its
+    start; g's last value at T) have the same sign at both ends and a value of the other sign
+    beyond ``floor`` inside, and the largest |g| of those values (one pass: the arrays of
+    a vectorised test took half of an events check)."""
+    missed, largest = 0, 0.0
+    for n in range((g.size - 1) // samples):
+        sign = np.sign(g[n * samples])
+        if not sign * np.sign(g[(n + 1) * samples]) > 0:
+            continue
+        other = False
+        for r in range(n * samples + 1, (n + 1) * samples):
+            if g[r] * sign < -floor:
+                other = True
+                largest = max(largest, abs(g[r]))
+        missed += other
+    return missed, largest
+
+
+def _affine(expr, ode):
+    """(c, d) with expr = c . u + d, c of shape (N,), for an ``expr`` (parameter values
+    substituted) affine in the states and free of t; None for others."""
+    if time_symbol in expr.free_symbols:
+        return None
+    c = np.zeros(ode.N)
+    for i, state in enumerate(ode.states):
+        slope = sp.diff(expr, state)
+        if slope.free_symbols:
+            return None
+        c[i] = float(slope)
+    d = expr.xreplace(dict.fromkeys(ode.states, sp.Integer(0)))
+    return (c, float(d)) if not d.free_symbols else None
+
+
+@lru_cache(maxsize=32)
+def _inside(nodes, dense_dg):
+    """(inside, radau, spread) of :func:`_may_hide_crossings` for a method's ``nodes``:
+    inside[r, j] = l_j at the sample fractions r / SWITCH_SAMPLES inside an element (l_j
+    the Lagrange basis on the nodes), R there (the right Radau polynomial on the nodes,
+    R(0) = 1, R(node) = 0; zeros unless ``dense_dg``: dG(q)'s dense value P = U - [U] R),
+    and 10 x the largest sum_j |l_j(tau)| + |l_j'(tau)| + |R'(tau)| on a grid of [0, 1]
+    (the rounding and the sample times' offsets that the margin covers)."""
+    nodes = np.asarray(nodes, dtype=float)
+    fractions = np.arange(1, SWITCH_SAMPLES) / SWITCH_SAMPLES
+    tau = np.linspace(0.0, 1.0, 2001)
+    basis = [np.poly1d(np.poly(np.delete(nodes, j)) / np.prod(x - np.delete(nodes, j)))
+             for j, x in enumerate(nodes)]
+    radau = np.poly1d(np.poly(nodes) / np.prod(-nodes)) if dense_dg else np.poly1d([0.0])
+    size = sum(np.abs(b(tau)) + np.abs(b.deriv()(tau)) for b in basis) + np.abs(radau.deriv()(tau))
+    inside = np.ascontiguousarray(np.array([b(fractions) for b in basis]).T)
+    return inside, radau(fractions), 10.0 * float(np.max(size))
+
+
+@njit(cache=True)
+def _may_hide_crossings(values, ends, u0, start, inside, radau, spread, c, d, tolerance):
+    """Whether the check of :meth:`Plan.check_events` may find a sample of g = c . U + d
+    inside an element (the Lagrange basis there: ``inside``) of the other sign than g at
+    both its ends beyond its floor (``tolerance`` x max |g| over the samples), from the
+    elements' values (mono-adaptive, (M, q + 1, N); ``start``: the basis at an element's
+    start): g at the ends from the last node's values (the end sample U(t_n^-) = xi_q, of
+    dG(q)'s dense value too; at t0 u0 or U(t0^+)), inside from the element polynomial, with
+    a margin for dG(q)'s dense value there (P = U - [U] R, [U] the jump at the element's
+    start, ``radau`` = R at the samples) and for the rounding of the sample times and sums
+    (``spread`` x (1e-13 + 8 eps (|t_n| + |t_n+1|) / k_n) x the size of g's terms). An end
+    value within its margin of zero may be of either sign: True."""
+    M, q1 = values.shape[0], values.shape[1]
+    g_end, margin, jump = np.empty(M + 1), np.empty(M), np.empty(M)
+    floor = 0.0
+    for n in range(M):
+        size, jump[n], g_end[n + 1] = abs(d), 0.0, d
+        for i in range(c.size):
+            if c[i] != 0.0:
+                after = 0.0
+                for j in range(q1):
+                    size += abs(c[i] * values[n, j, i])
+                    after += start[j] * values[n, j, i]
+                jump[n] += abs(c[i] * (after - (values[n - 1, q1 - 1, i] if n else u0[i])))
+                g_end[n + 1] += c[i] * values[n, q1 - 1, i]
+        margin[n] = spread * (1e-13 + 8 * 2.2e-16 * (abs(ends[n]) + abs(ends[n + 1]))
+                              / (ends[n + 1] - ends[n])) * (size + jump[n])
+        floor = max(floor, abs(g_end[n + 1]) - margin[n])
+    # t0's sample: u0, or U(t0^+) where dG(q)'s dense value takes the element polynomial
+    g_end[0] = g_first = d
+    for i in range(c.size):
+        after = 0.0
+        for j in range(q1):
+            after += start[j] * values[0, j, i]
+        g_end[0] += c[i] * u0[i]
+        g_first += c[i] * after
+    if not (np.sign(g_end[0] - margin[0]) == np.sign(g_end[0] + margin[0])
+            == np.sign(g_first - margin[0]) == np.sign(g_first + margin[0])):
+        return True
+    floor = tolerance * max(floor, min(abs(g_end[0]), abs(g_first)) - margin[0])
+    for n in range(M):
+        sign = np.sign(g_end[n])
+        if abs(g_end[n + 1]) <= margin[n] or (n and abs(g_end[n]) <= margin[n - 1]):
+            return True  # (the sample's sign is not known)
+        if not sign * np.sign(g_end[n + 1]) > 0:
+            continue
+        for r in range(inside.shape[0]):
+            g = d
+            for i in range(c.size):
+                if c[i] != 0.0:
+                    u = 0.0
+                    for j in range(q1):
+                        u += inside[r, j] * values[n, j, i]
+                    g += c[i] * u
+            if sign * g - jump[n] * abs(radau[r]) - margin[n] < -floor:
+                return True
+    return False
 
 
 def _changes(g, direction=0, floor=0.0):

@@ -218,7 +218,7 @@ def _composite(pieces):
     return x, np.tile(w / 2, pieces) / pieces
 
 
-def _feature_shifts(sol, f, c, a, chunk=256):
+def _feature_shifts(sol, compiled, c, a, chunk=256):
     """(slabs, shifts): for a run whose f has narrow features in its state-free terms
     (:func:`dolfinode.features.narrow_features`; none for others), its slabs and per slab
     the constant added to R at the stages so that the collocation's quadrature
@@ -231,6 +231,7 @@ def _feature_shifts(sol, f, c, a, chunk=256):
     features = narrow_features(sol.ode)
     if not len(features):
         return np.empty(0, dtype=np.int64), np.empty((0, len(sol.ode.u0)))
+    f = _evaluators(compiled)[0]
     coarse = a[-1]
     x, w = _composite(TAIL_PIECES)
     shifts = np.empty((len(sol.k), len(sol.ode.u0)))
@@ -249,7 +250,7 @@ def _feature_shifts(sol, f, c, a, chunk=256):
     return np.arange(len(sol.k), dtype=np.int64), shifts
 
 
-def _modal(sol, f, lam, V, c, slabs, shifts, chunk=4096, e=None, before=None):
+def _modal(sol, compiled, lam, V, c, slabs, shifts, chunk=4096, e=None, before=None):
     """The recursion in the eigenbasis (lam, V) of a constant J, where each slab's stage
     system is scalar per mode z = k lambda: with a = T diag(mu) T^{-1}, the last stage of
     (I - z a)^{-1} x is T[-1] diag(1 / (1 - z mu)) T^{-1} x, for ``chunk`` slabs at once;
@@ -261,6 +262,7 @@ def _modal(sol, f, lam, V, c, slabs, shifts, chunk=4096, e=None, before=None):
     (|z| >> 1, Re z small) the collocation, L-stable, damps it as dG(q) itself does, and
     the estimate would miss the amplitude dG(q) removed (a mode of frequency 1000 and
     decay rate 0.05 stepped over by dG(2) at 1e-3: 251 x the tolerance, estimated 2 x)."""
+    f = _evaluators(compiled)[0]
     Vi = np.linalg.inv(V)
     mu, T, forcing = _stage_modes(len(c))
     e = np.zeros(len(lam), dtype=complex) if e is None else Vi @ e
@@ -350,8 +352,7 @@ def _flow_gap(Z, x, num, den, basis):
         inverse = np.linalg.inv(V)
     except Exception:  # noqa: BLE001 - (numba: V singular, LinAlgError) a defective Z
         inverse = np.full(V.shape, np.inf + 0j)
-    kept = (np.sum(np.abs(V), axis=0).max() * np.sum(np.abs(inverse), axis=0).max()
-            < BASIS_CONDITION)
+    kept = _norm1(V) * _norm1(inverse) < BASIS_CONDITION
     if kept:
         basis[0], basis[1] = V, inverse
     gaps = _gaps(lam, num, den)
@@ -362,7 +363,31 @@ def _flow_gap(Z, x, num, den, basis):
 
 
 @njit(cache=True)
-def _flows_agree(Z, V, inverse, radius, box):
+def _norm1(A):
+    """||A||_1, the largest column sum of |A|."""
+    largest = 0.0
+    for j in range(A.shape[1]):
+        column = 0.0
+        for i in range(A.shape[0]):
+            column += abs(A[i, j])
+        largest = max(largest, column)
+    return largest
+
+
+@njit(cache=True)
+def _product(A, B, out):
+    """out = A B (square matrices), returned."""
+    for i in range(A.shape[0]):
+        for j in range(B.shape[1]):
+            acc = 0j
+            for m in range(A.shape[1]):
+                acc += A[i, m] * B[m, j]
+            out[i, j] = acc
+    return out
+
+
+@njit(cache=True)
+def _flows_agree(Z, V, inverse, radius, box, work):
     """Whether no mode of Z is one that :func:`_gaps` carries, without its eigenvalues: the
     Gershgorin discs (rows, or columns) of W = V^-1 Z V, similar to Z and near diagonal
     where V is the eigenbasis of an earlier slab's Z and J changed little since, or of
@@ -370,27 +395,32 @@ def _flows_agree(Z, V, inverse, radius, box):
     ones'), each lie where exp(z) <= FLOW_GAP (Re z <= log FLOW_GAP) or |exp(z) - P(z)| <=
     FLOW_GAP / 10 (|z| <= ``radius``, :func:`_flow_radius`), or within Re z <= 0, |Im z|
     <= ``box`` (:func:`_flow_box`); each entry of W widened by its rounding (N eps
-    ||V^-1||_1 ||Z||_1 ||V||_1)."""
+    ||V^-1||_1 ||Z||_1 ||V||_1). ``work``: room for Z V and W, (2, N, N) complex (a slab's
+    test allocated nothing: it ran on most slabs of ROBER and VDPOL)."""
     N = Z.shape[0]
-    W = inverse @ (Z.astype(np.complex128) @ V)
-    rounding = (N * 2.2e-16 * np.sum(np.abs(inverse), axis=0).max()
-                * np.sum(np.abs(Z), axis=0).max() * np.sum(np.abs(V), axis=0).max())
+    W = _product(inverse, _product(Z, V, work[0]), work[1])
+    rounding = N * 2.2e-16 * _norm1(inverse) * _norm1(Z) * _norm1(V)
     damped = np.log(FLOW_GAP)
-    scale = np.empty(N)
+    rows = columns = scaled_rows = scaled_columns = True  # of W, of S^-1 W S
     for i in range(N):
-        scale[i] = 1.0 / np.sqrt(max(1.0, abs(W[i, i])))
-    agree = np.ones(4, dtype=np.bool_)  # rows, columns; of W, of S^-1 W S
-    for i in range(N):
-        discs = np.full(4, rounding)
+        row = column = scaled_row = scaled_column = rounding
+        scale_i = 1.0 / np.sqrt(max(1.0, abs(W[i, i])))
         for j in range(N):
             if j != i:
-                discs[0] += abs(W[i, j]) + rounding
-                discs[1] += abs(W[j, i]) + rounding
-                discs[2] += (abs(W[i, j]) + rounding) * scale[j] / scale[i]
-                discs[3] += (abs(W[j, i]) + rounding) * scale[i] / scale[j]
-        for d in range(4):
-            agree[d] = agree[d] and _in_flow_region(W[i, i], discs[d], damped, radius, box)
-    return np.any(agree)
+                scale_j = 1.0 / np.sqrt(max(1.0, abs(W[j, j])))
+                row += abs(W[i, j]) + rounding
+                column += abs(W[j, i]) + rounding
+                scaled_row += (abs(W[i, j]) + rounding) * scale_j / scale_i
+                scaled_column += (abs(W[j, i]) + rounding) * scale_i / scale_j
+        z = W[i, i]
+        rows = rows and _in_flow_region(z, row, damped, radius, box)
+        columns = columns and _in_flow_region(z, column, damped, radius, box)
+        scaled_rows = scaled_rows and _in_flow_region(z, scaled_row, damped, radius, box)
+        scaled_columns = scaled_columns and _in_flow_region(z, scaled_column, damped, radius,
+                                                            box)
+        if not (rows or columns or scaled_rows or scaled_columns):
+            return False
+    return True
 
 
 @njit(cache=True)
@@ -431,6 +461,7 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
     Z = np.empty((N, N) if exact else (0, 0))
     # an earlier slab's eigenbasis of Z and its inverse, where kept (:func:`_flows_agree`)
     basis, kept = np.empty((2, N, N) if exact else (2, 0, 0), dtype=np.complex128), False
+    work = np.empty_like(basis)  # (:func:`_flows_agree`)
     next_shift = 0
     nu = 0.0
     for n in range(M):
@@ -490,8 +521,8 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
             for m in range(indptr[r], indptr[r + 1]):
                 for j in range(s):
                     Z[r, indices[m]] += k[n] * a[s - 1, j] * data[j, m]
-        if (exact and np.max(np.sum(np.abs(Z), axis=0)) > radius
-                and not (kept and _flows_agree(Z, basis[0], basis[1], radius, box))):
+        if (exact and _norm1(Z) > radius
+                and not (kept and _flows_agree(Z, basis[0], basis[1], radius, box, work))):
             gap, kept = _flow_gap(Z, x, num, den, basis)
             e += gap
         # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, f(U) = U' - R there
@@ -614,10 +645,8 @@ class Running:
                                  f"eigenbasis): at most {MAX_DENSE} components, got "
                                  f"{compiled.N}")
         self.ode, self.compiled, self.method, self.c, self.a = ode, compiled, method, c, a
-        self.f = _evaluators(compiled)[0]
-        B, D = _basis(method, (0.0, *c))
-        self.stages = (c, B, D, a, position, kl, ku, *_stability(len(c)), _flow_radius(len(c)),
-                       _flow_box(len(c)))
+        B, D, flows = _stage_tables(tuple(float(node) for node in method.nodes))
+        self.stages = (c, B, D, a, position, kl, ku, *flows)
         self.e, self.nu = np.zeros(compiled.N), 0.0
         self.before = np.array(ode.u0, dtype=float)  # U(t_n^-) of the next slab
 
@@ -628,9 +657,9 @@ class Running:
             return
         part = SimpleNamespace(method=self.method, ode=self.ode, t_start=t_start, k=k,
                                values=values)
-        shifts = _feature_shifts(part, self.f, self.c, self.a)
+        shifts = _feature_shifts(part, self.compiled, self.c, self.a)
         if self.modes is not None:
-            self.e = _modal(part, self.f, *self.modes, self.c, *shifts, e=self.e,
+            self.e = _modal(part, self.compiled, *self.modes, self.c, *shifts, e=self.e,
                             before=self.before)
         else:
             compiled = self.compiled
@@ -640,6 +669,16 @@ class Running:
                                     self.before, *self.stages, *shifts)
             self.nu = max(self.nu, nu)
         self.before = values[-1, -1].copy()
+
+
+@lru_cache(maxsize=32)
+def _stage_tables(nodes):
+    """(B, D, (num, den, radius, box)) of :func:`_recursion` for a method's ``nodes``, made
+    once (shared, never written): its basis and derivative at 0 and at the Radau points of
+    len(nodes) + 1 stages, and that collocation's stability function, flow radius and box."""
+    s = len(nodes) + 1
+    B, D = _lagrange_matrices(nodes, (0.0, *(float(x) for x in _collocation(s)[0])))
+    return B, D, (*_stability(s), _flow_radius(s), _flow_box(s))
 
 
 def _constant_modes(ode, compiled):
@@ -661,9 +700,8 @@ def modal_estimate(sol, compiled):
     modes = _constant_modes(sol.ode, compiled)
     if modes is None:
         return None
-    f = _evaluators(compiled)[0]
     c, a = _collocation(sol.method.q + 2)
-    return _modal(sol, f, *modes, c, *_feature_shifts(sol, f, c, a)), 0.0
+    return _modal(sol, compiled, *modes, c, *_feature_shifts(sol, compiled, c, a)), 0.0
 
 
 def measured_warning(size, linearised, nu, rtol, state, factor):

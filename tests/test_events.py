@@ -481,3 +481,38 @@ def test_periodic_breakpoints_are_counted_before_they_are_listed():
                                          rel=1e-12)
     with pytest.raises(ValueError, match=r"changes sign about 9.55e\+05 times"):
         dn.solve(dn.ODE({u: sp.Heaviside(sp.sin(3e5 * t))}, u0=[0.0], T=10.0), "cG(1)")
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "cG(2)", "dG(0)", "dG(1)", "dG(2)"])
+def test_check_of_affine_events_warns_as_the_full_sampling(monkeypatch, method):
+    """The check of events affine in the states clears from the element values the events
+    whose samples cannot cross zero and back inside an element (events.Plan._may_hide): it
+    warns exactly as sampling every event does, on levels near the oscillator's peaks that
+    some elements cross twice (cG(2), dG(1), dG(2) at 1e-3) and some touch."""
+    ode = dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=20.0)
+    levels = (0.5, 0.9, 0.95, 0.99, 0.999, 0.9999, 1 - 1e-6, 1.0)
+    events = [u - level for level in levels] + [v + u - 1.4]
+
+    def warned(tolerance):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            dn.solve(ode, method, tolerance=tolerance, events=events)
+        return [str(w.message) for w in caught if "crosses zero and back" in str(w.message)]
+
+    cleared = []
+    screen = dn.events.Plan._may_hide
+
+    def counted(plan, sol, tolerance):
+        rows = screen(plan, sol, tolerance)
+        cleared.append(len(plan.events) - rows.size)
+        return rows
+
+    for tolerance in (1e-2, 1e-3):
+        monkeypatch.setattr(dn.events.Plan, "_may_hide", counted)
+        screened = warned(tolerance)
+        monkeypatch.setattr(dn.events.Plan, "_may_hide",
+                            lambda plan, sol, tolerance: np.arange(len(plan.events)))
+        assert screened == warned(tolerance)
+        if tolerance == 1e-3 and method in ("cG(2)", "dG(1)", "dG(2)"):
+            assert screened
+    assert sum(cleared) > 0

@@ -650,7 +650,8 @@ def test_an_earlier_basis_skips_the_eigenvalues_only_where_no_mode_is_carried(s)
              + 10.0 ** rng.uniform(-6, -3) * np.abs(before).max() * rng.normal(size=(N, N)))
         basis = np.linalg.eig(before)[1].astype(complex)
         carried = np.any(global_error._gaps(np.linalg.eigvals(Z).astype(complex), num, den))
-        agree = global_error._flows_agree(Z, basis, np.linalg.inv(basis), radius, box)
+        agree = global_error._flows_agree(Z, basis, np.linalg.inv(basis), radius, box,
+                                          np.empty((2, N, N), dtype=complex))
         assert not (agree and carried)
         without += not carried
         skipped += agree
