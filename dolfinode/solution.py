@@ -468,8 +468,21 @@ def _reads_f(method):
 
 def dense_rhs(method, ode):
     """The lowered ``ode`` that :func:`evaluate_mono` reads for a cG(q), q >= 2, dense value
-    (its elements must solve it), None for other methods."""
-    return lower(ode) if _reads_f(method) else None
+    (its elements must solve it), None for other methods and where f jumps (a Piecewise,
+    Heaviside, sign, floor of t or of the state: each element solves the branch of its
+    piece, which f at its end node, on the jump, need not give: Heaviside(t - 1) made P
+    460-1000 x the tolerance where U is 0.7-2.3 x)."""
+    return lower(ode) if _reads_f(method) and not _jumps(ode) else None
+
+
+def _jumps(ode):
+    """Whether f of ``ode`` has a non-smooth function other than a kink of the state
+    (:func:`dolfinode.events.switched`; for a template system, a term that jumps)."""
+    from dolfinode import events  # (it imports this module)
+
+    if hasattr(ode, "templates"):
+        return bool(ode._derived("_jumps", ode.templates, lambda: events._template_jumps(ode)))
+    return any(not s.kink for s in events.switched(ode)[1])
 
 
 def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out, compiled=None):
@@ -688,7 +701,7 @@ class Solution:
         model (a restart)."""
         if self.multi or "_restarts" in self.__dict__ or not _reads_f(self.method):
             return None  # (the ode not read: a solution may make it on first read)
-        return lower(self.ode)
+        return dense_rhs(self.method, self.ode)
 
     def _galerkin(self, times):
         """U at ``times`` in [t0, T] by the polynomials the solve solved, not cG(q)'s dense

@@ -306,6 +306,17 @@ def test_dense_cg_nodes_bitwise_and_every_path_agrees():
     assert not np.array_equal(sol(times), sol._galerkin(times))
 
 
+def test_dense_cg_where_f_jumps_is_the_element_polynomial():
+    # each element solves the branch of its piece; f at an end node on the jump (t = 1)
+    # gives the other: the collocation polynomial was 640 x the tolerance there, U 2.4 x
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: sp.Piecewise((1, dn.t < 1), (3, True))}, u0=[0.0], T=2.0)
+    sol = dn.solve(ode, method="cG(2)", tolerance=1e-6)
+    t = np.linspace(0.0, 2.0, 401)
+    assert sol.stats["breakpoints"] == 1
+    np.testing.assert_array_equal(sol(t), sol._galerkin(t))
+
+
 # --- dense output of multi-adaptive mdG(q): the collocation polynomial per component ---
 
 @pytest.fixture(scope="module")
