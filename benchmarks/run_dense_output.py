@@ -1,9 +1,11 @@
 """Dense output: the error inside elements and the cost of evaluating ``sol(t)``.
 
-Inside an element a mono-adaptive dG(q) solution (q >= 1) is evaluated by the collocation
-polynomial where the jump is small (``dolfinode.solution._evaluate_dg``), else, and for every
-other method, by the Galerkin polynomial U. Both are evaluated here on the same solutions (the
-nodes are the same bit for bit), so "Galerkin" is what ``sol(t)`` gave before.
+Inside an element a mono-adaptive dG(q) solution (q >= 1) is evaluated by the Radau
+collocation polynomial where the jump is small (``dolfinode.solution._evaluate_dg``), a cG(q)
+solution (q >= 2) by the Lobatto IIIA collocation polynomial where its defect is small
+(``_evaluate_cg``), else, and for cG(1), by the Galerkin polynomial U. Both are evaluated here
+on the same solutions (the nodes are the same bit for bit), so "Galerkin" is what ``sol(t)``
+gave before.
 
 * error: the mixed error max_i |U_i(t) - u_i(t)| / (atol + rtol |u_i(t)|), atol = rtol = the
   tolerance, over the samples, on the harmonic oscillator (T = 20, 2001 samples) and on the
@@ -11,7 +13,8 @@ nodes are the same bit for bit), so "Galerkin" is what ``sol(t)`` gave before.
   12 systems: seed s, 2 + s % 3 states, stiffness 8 s / 11), with the error at the element
   ends (the nodes) for reference;
 * cost: wall time per sample of 1e5 sorted samples and per call of ``sol(t)`` at a scalar t
-  (harmonic, dG(2) and cG(2) at 1e-6), minimum over interleaved repeats, compile excluded.
+  (harmonic, dG(2), cG(2) and cG(3) at 1e-6), minimum over interleaved repeats, compile
+  excluded.
 
 Writes doc/benchmarks/dense_output.md (overwritten).
 
@@ -110,7 +113,7 @@ def costs(repeats):
     times = np.sort(np.random.default_rng(0).uniform(0.0, 20.0, 100_000))
     new_evaluate = Solution._evaluate
     result = {}
-    for method in ("dG(2)", "cG(2)"):
+    for method in ("dG(2)", "cG(2)", "cG(3)"):
         sol = dn.solve(ode, method=method, tolerance=1e-6)
         best = {}
         for _ in range(repeats):
@@ -141,7 +144,8 @@ def main():
              f"{os.cpu_count()} cores (shared), `python benchmarks/run_dense_output.py`. "
              "Error: max over the samples of the mixed error / tolerance (atol = rtol); "
              "Galerkin: the element polynomial U (every method's sol(t) before the "
-             "collocation dense output of dG(q), and cG(q)'s now); dense: sol(t) now."), "",
+             "collocation dense outputs of dG(q) and cG(q), and cG(1)'s now); dense: sol(t) "
+             "now."), "",
              "## Harmonic oscillator, T = 20, 2001 samples", "",
              "| method | tol | elements | Galerkin inside | dense inside | nodes |",
              "|---|---|---|---|---|---|"]

@@ -429,7 +429,7 @@ class Detector:
 
     def _at(self, sol, t, rows):
         """g_rows[r] at t_r on the solution."""
-        return self.values(t, sol._evaluate(t))[rows, np.arange(t.size)]
+        return self.values(t, sol._galerkin(t))[rows, np.arange(t.size)]
 
 
 @dataclass
@@ -629,7 +629,7 @@ class Plan:
         fractions = np.linspace(0.0, 1.0, SWITCH_SAMPLES + 1)[:-1]
         times = np.append((ends[:-1, None] + np.diff(ends)[:, None] * fractions).ravel(),
                           ends[-1])
-        return times, self.detector.values(times, sol._evaluate(times), rows)
+        return times, self.detector.values(times, sol._galerkin(times), rows)
 
     @property
     def truncates(self):
@@ -930,7 +930,7 @@ def _slope(detector, sol, te, j):
         return np.nan
     h = 1e-4 * min(sol.k[holds].min(), te - sol.t_start[holds].max())
     times = np.array([te - h, te])
-    g = detector.values(times, sol._evaluate(times))[j]
+    g = detector.values(times, sol._galerkin(times))[j]
     return (g[1] - g[0]) / h
 
 

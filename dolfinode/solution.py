@@ -6,6 +6,8 @@ import numpy as np
 from numba import njit
 
 from dolfinode.compile.jit import helper
+from dolfinode.compile.lowering import lower
+from dolfinode.compile.signatures import address, rhs_kernel
 from dolfinode.methods.method import element_value, lagrange_weights, make_method
 
 
@@ -171,6 +173,85 @@ def _evaluate_shared(t_start, t_end, values, nodes, bary, times, out):
 
 
 @njit(cache=True)
+def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, p, check, theta, times, out):
+    """out[i, m] = the dense value of a mono-adaptive cG(q) solution at times[m].
+
+    On element n, with nodal values U_j at the Lobatto nodes tau_j (tau_0 = 0, tau_q = 1)
+    and f_j = f(U_j, t_{n-1} + tau_j k), the collocation polynomial P of degree q + 1 with
+    P(0) = U(0) and P'(tau_j) = k f_j (Lobatto IIIA's) is
+
+        P(tau) = U(tau) + c Q(tau),  Q(tau) = prod_j (tau - tau_j),
+        c = k / (q + 1) sum_j w_j f_j
+
+    (w_j the barycentric weights: sum_j w_j f_j is the leading coefficient of the
+    interpolant of the f_j; the cG(q) equations make P' - U' orthogonal to the polynomials
+    of degree q - 1, so it is c Q'). P's interior error is O(k^(q+2)) where the element
+    resolves the component, U's O(k^(q+1)). Where k |lambda| >> 1 the nodal errors enter
+    k f_j multiplied by it and P swings. P is used per element and component only where
+    its defect d = P' - k f(P, t) at tau* = tau_1 / 2 (off the nodes), integrated from
+    tau = 0 where it vanishes, about P's error at tau*, is at most theta times the
+    correction there, about U's error: |d(tau*)| tau* / 2 <= theta |c Q(tau*)|, else U (a
+    stiff component: d(tau*) ~ k lambda c Q(tau*)). ``check`` = (tau*, l_j(tau*),
+    l_j'(tau*), Q(tau*), Q'(tau*)), l_j U's Lagrange basis. Q is 0 at the nodes: the
+    element ends are unchanged bit for bit. f (the kernel at address ``rhs``, parameters
+    p) is evaluated at the q + 1 nodes and at tau* once per element, when a time first
+    falls inside it.
+    """
+    q1, N = nodes.shape[0], out.shape[0]
+    star, basis, slopes, q_star, dq_star = check
+    weights = np.empty(q1)
+    U = np.empty((q1 + 1, N))  # (contiguous rows for the kernel; the last P(tau*))
+    F = np.empty((q1 + 1, N))
+    c = np.zeros(N)
+    f = rhs_kernel(rhs)
+    current = -1
+    ready = False
+    n = 0
+    for m in range(times.shape[0]):
+        n = _locate(t_end, times[m], n)
+        if n != current:
+            current = n
+            ready = False
+        k = t_end[n] - t_start[n]
+        tau = min(max((times[m] - t_start[n]) / k, 0.0), 1.0)
+        lagrange_weights(tau, nodes, bary, weights)
+        for i in range(N):
+            out[i, m] = 0.0
+        for j in range(q1):
+            for i in range(N):
+                out[i, m] += weights[j] * values[n, j, i]
+        if not 0.0 < tau < 1.0:
+            continue
+        if not ready:
+            ready = True
+            for j in range(q1):
+                for i in range(N):
+                    U[j, i] = values[n, j, i]
+                f(address(U, j * N), t_start[n] + nodes[j] * k, address(p, 0), address(F, j * N))
+            for i in range(N):
+                lead = 0.0
+                U[q1, i] = 0.0
+                for j in range(q1):
+                    lead += bary[j] * F[j, i]
+                    U[q1, i] += basis[j] * values[n, j, i]
+                c[i] = k * lead / q1
+                U[q1, i] += c[i] * q_star
+            f(address(U, q1 * N), t_start[n] + star * k, address(p, 0), address(F, q1 * N))
+            for i in range(N):
+                defect = c[i] * dq_star - k * F[q1, i]
+                for j in range(q1):
+                    defect += slopes[j] * values[n, j, i]
+                if not abs(defect) * (0.5 * star) <= theta * abs(c[i] * q_star):  # (NaN: U)
+                    c[i] = 0.0
+        r = 1.0
+        for j in range(q1):
+            r *= tau - nodes[j]
+        for i in range(N):
+            if c[i] != 0.0:
+                out[i, m] += c[i] * r
+
+
+@njit(cache=True)
 def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, bary, dense,
                     t0, u0, times, out):
     """out[i, m] = U_i(times[m]) from a mixed history: shared slabs (s_start, s_end,
@@ -206,6 +287,9 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
 #: A component's jump [U] at an element's start is taken as resolved, and the collocation
 #: polynomial used, when |[U]| <= THETA max_j |xi_j - U(t_{n-1}^-)| (see _evaluate_dg).
 DENSE_THETA = 0.25
+#: cG(q)'s collocation polynomial P is used for a component where its defect, integrated
+#: from the element start, is at most THETA times its correction of U (see _evaluate_cg).
+DEFECT_THETA = 1.0
 
 
 @njit(cache=True)
@@ -362,12 +446,57 @@ def dense_rule(method, dense=True):
     return method.nodes, -1.0
 
 
-def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out):
+@cache
+def _defect_check(family, q):
+    """``check`` of :func:`_evaluate_cg`: (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*))
+    at tau* = tau_1 / 2 (l_j the Lagrange basis on the nodes, Q = prod_j (tau - tau_j))."""
+    nodes = make_method(family, q).nodes
+    star = nodes[1] / 2
+    basis, slopes = np.empty(len(nodes)), np.empty(len(nodes))
+    for j in range(len(nodes)):
+        others = np.delete(nodes, j)
+        l_j = np.polynomial.Polynomial.fromroots(others) / np.prod(nodes[j] - others)
+        basis[j], slopes[j] = l_j(star), l_j.deriv()(star)
+    Q = np.polynomial.Polynomial.fromroots(nodes)
+    return float(star), basis, slopes, float(Q(star)), float(Q.deriv()(star))
+
+
+def _reads_f(method):
+    """Whether ``method``'s dense value reads f: cG(q), q >= 2 (:func:`_evaluate_cg`)."""
+    return method.family == "cG" and method.q > 1
+
+
+def dense_rhs(method, ode):
+    """The lowered ``ode`` that :func:`evaluate_mono` reads for a cG(q), q >= 2, dense value
+    (its elements must solve it), None for other methods and where f jumps (a Piecewise,
+    Heaviside, sign, floor of t or of the state: each element solves the branch of its
+    piece, which f at its end node, on the jump, need not give: Heaviside(t - 1) made P
+    460-1000 x the tolerance where U is 0.7-2.3 x)."""
+    return lower(ode) if _reads_f(method) and not _jumps(ode) else None
+
+
+def _jumps(ode):
+    """Whether f of ``ode`` has a non-smooth function other than a kink of the state
+    (:func:`dolfinode.events.switched`; for a template system, a term that jumps)."""
+    from dolfinode import events  # (it imports this module)
+
+    if hasattr(ode, "templates"):
+        return bool(ode._derived("_jumps", ode.templates, lambda: events._template_jumps(ode)))
+    return any(not s.kink for s in events.switched(ode)[1])
+
+
+def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out, compiled=None):
     """out = U at ``times`` from elements of a shared partition (values (M, q + 1, N)):
     dG(q), q >= 1, by :func:`_evaluate_dg` (befores[p], the value before an element
-    starting at starts[p]: u0 at t0), other methods by their element polynomials. Every reader of a mono-adaptive
-    solution's elements (in memory, stored, streamed in chunks) evaluates through here."""
-    if method.family == "dG" and method.q > 0:
+    starting at starts[p]: u0 at t0), cG(q), q >= 2, with ``compiled`` (the lowered ODE the
+    elements solve) by :func:`_evaluate_cg`, other methods by their element polynomials.
+    Every reader of a mono-adaptive solution's elements (in memory, stored, streamed in
+    chunks) evaluates through here."""
+    if _reads_f(method) and compiled is not None:
+        _evaluate_cg(t_start, t_end, values, method.nodes, method.barycentric_weights,
+                     compiled.rhs.address, compiled.p,
+                     _defect_check(method.family, method.q), DEFECT_THETA, times, out)
+    elif method.family == "dG" and method.q > 0:
         nodes0, bary0 = _collocation_nodes(method.family, method.q)
         _evaluate_dg(t_start, t_end, values, np.asarray(starts, dtype=float),
                      np.asarray(befores, dtype=float).reshape(len(starts), values.shape[2]),
@@ -432,6 +561,7 @@ class Solution:
             self.ode, self.stats  # noqa: B018 (made now)
         state = self.__dict__.copy()
         state.pop("_makers", None)
+        state.pop("_rhs", None)  # (the kernels: lowered again where read)
         return state
 
     @property
@@ -551,11 +681,36 @@ class Solution:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
                                  self.method.nodes, self.method.barycentric_weights,
                                  dense_rule(self.method), declared.t0, declared.u0, times, out)
-        else:  # (arrays, not lists: converting [u0] cost a 100-point evaluation 1 us)
-            starts, befores = self.__dict__.get("_restarts") or (np.array([declared.t0]),
-                                                                 declared.u0[np.newaxis])
-            evaluate_mono(self.method, self.t_start, self.t_start + self.k, self.values,
-                          starts, befores, times, out)
+        else:
+            self._evaluate_mono(times, self._rhs, out)
+        return out
+
+    def _evaluate_mono(self, times, rhs, out):
+        """out = U at ``times`` from the shared partition, cG(q)'s dense value reading the
+        lowered ODE ``rhs`` (:func:`evaluate_mono`)."""
+        declared = self._declaration  # (arrays, not lists: converting [u0] cost 1 us)
+        starts, befores = self.__dict__.get("_restarts") or (np.array([declared.t0]),
+                                                             declared.u0[np.newaxis])
+        evaluate_mono(self.method, self.t_start, self.t_start + self.k, self.values, starts,
+                      befores, times, out, rhs)
+
+    @cached_property
+    def _rhs(self):
+        """The lowered ODE whose f cG(q)'s dense value reads (:func:`_evaluate_cg`), None for
+        other methods, multi-adaptive solutions and where the elements solve more than one
+        model (a restart)."""
+        if self.multi or "_restarts" in self.__dict__ or not _reads_f(self.method):
+            return None  # (the ode not read: a solution may make it on first read)
+        return dense_rhs(self.method, self.ode)
+
+    def _galerkin(self, times):
+        """U at ``times`` in [t0, T] by the polynomials the solve solved, not cG(q)'s dense
+        value: where the crossings of events are located (a state switch or kink restarts
+        the solve there, on U; the estimates read U's residual)."""
+        if self._rhs is None:
+            return self._evaluate(times)
+        out = np.empty((times.size, self._declaration.N)).T
+        self._evaluate_mono(times, None, out)
         return out
 
     def time_steps(self, component=None):

@@ -96,7 +96,8 @@ def test_initial_time_gives_initial_value(method):
 
 def test_evaluation_is_the_element_polynomial():
     """U(t) on the shared partition is the Lagrange polynomial of the element containing t
-    (the left one at element ends): against the method's basis, at many times."""
+    (the left one at element ends): against the method's basis, at many times (sol(t) is
+    cG(q)'s dense value, the same at the element ends)."""
     u, v = sp.symbols("u v")
     sol = dn.solve(dn.ODE({u: v, v: -u}, u0=[0, 1], T=3.0), method="cG(2)", tolerance=1e-8)
     times = np.linspace(0, 3, 1001)[1:]
@@ -104,7 +105,7 @@ def test_evaluation_is_the_element_polynomial():
     n = np.searchsorted(t_end, times)
     basis = sol.method.basis((times - sol.t_start[n]) / sol.k[n])
     expected = np.einsum("mj,mjn->nm", basis, sol.values[n])
-    np.testing.assert_allclose(sol(times), expected, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(sol._galerkin(times), expected, rtol=0, atol=1e-14)
     np.testing.assert_array_equal(sol(t_end[:5]), sol.values[:5, -1].T)
 
 
@@ -146,7 +147,7 @@ def test_evaluation_at_many_times_locates_as_a_search_per_time(method):
     ends = np.concatenate([sol.t_start, sol.t_start + sol.k])
     many = np.sort(np.concatenate([[0.0, 3.0], ends, rng.uniform(0, 3, 300)]))
     for times in (many, rng.permutation(many), np.array([0.0, 1e-9, 2.9, 3.0]), many[::-1]):
-        if sol.method.family == "dG" and not sol.multi:  # (the collocation dense output)
+        if sol.method.q > 0 and not sol.multi:  # (the collocation dense output)
             expected = np.column_stack([sol(t) for t in times])
         else:
             expected = _searched(sol, times)
@@ -217,23 +218,25 @@ def test_ode_and_stats_given_by_makers_are_made_once_on_first_read():
     pickle.loads(pickle.dumps(eager))  # (an eager solution pickles as before)
 
 
-# --- dense output of mono-adaptive dG(q): the collocation polynomial inside the elements ---
+# --- dense output of mono-adaptive dG(q) and cG(q): collocation polynomials inside ---
 
 def _harmonic(T):
     from dolfinode.bench.problems import linear
     return linear(np.array([[0.0, 1.0], [-1.0, 0.0]]), np.array([1.0, 0.0]), T)[0]
 
 
+@pytest.mark.parametrize("family", ["dG", "cG"])
 @pytest.mark.parametrize("q", [2, 3])
-def test_dense_dg_interior_order(q):
+def test_dense_interior_order(family, q):
     # fixed steps k: the interior error of sol(t) falls as k^(q+2) (the Galerkin polynomial's
-    # as k^(q+1)); measured slopes on the harmonic oscillator
+    # as k^(q+1)); measured slopes on the harmonic oscillator (dG(q): Radau collocation,
+    # cG(q): Lobatto IIIA collocation)
     ode = _harmonic(4.0)
     t = np.linspace(0.0, 4.0, 997)[1:]
     exact = np.array([np.cos(t), -np.sin(t)])
     errors = []
     for k in (0.2, 0.1):
-        sol = dn.solve(ode, method=f"dG({q})", initial_time_step=k, fixed_time_step=True)
+        sol = dn.solve(ode, method=f"{family}({q})", initial_time_step=k, fixed_time_step=True)
         errors.append(np.abs(sol(t) - exact).max())
     slope = np.log2(errors[0] / errors[1])
     assert slope > q + 1.6, f"interior slope {slope:.2f}"
@@ -286,6 +289,32 @@ def test_dense_dg_every_evaluation_path_agrees():
                      sol.method.barycentric_weights, times, galerkin)
     exact = np.array([np.cos(times), -np.sin(times)])
     assert np.abs(sol.y - exact).max() < 0.2 * np.abs(galerkin - exact)[:, 1:-1].max()
+
+
+def test_dense_cg_nodes_bitwise_and_every_path_agrees():
+    # at the element ends sol(t) is the end node value, bit for bit; sol.y, sol(array), sol(scalar) and dense_output=False agree (a stored history:
+    # tests/io/test_stored.py)
+    ode = _harmonic(5.0)
+    times = np.concatenate([[0.0], np.sort(np.random.default_rng(3).uniform(0, 5, 50)), [5.0]])
+    sol = dn.solve(ode, method="cG(3)", tolerance=1e-6, sample_times=times)
+    np.testing.assert_array_equal(sol(sol.t_start + sol.k), sol.values[:, -1, :].T)
+    np.testing.assert_array_equal(sol.y, sol(times))
+    np.testing.assert_array_equal(sol(times), np.column_stack([sol(t) for t in times]))
+    sampled = dn.solve(ode, method="cG(3)", tolerance=1e-6, sample_times=times,
+                       dense_output=False)
+    np.testing.assert_array_equal(sampled.y, sol.y)
+    assert not np.array_equal(sol(times), sol._galerkin(times))
+
+
+def test_dense_cg_where_f_jumps_is_the_element_polynomial():
+    # each element solves the branch of its piece; f at an end node on the jump (t = 1)
+    # gives the other: the collocation polynomial was 640 x the tolerance there, U 2.4 x
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: sp.Piecewise((1, dn.t < 1), (3, True))}, u0=[0.0], T=2.0)
+    sol = dn.solve(ode, method="cG(2)", tolerance=1e-6)
+    t = np.linspace(0.0, 2.0, 401)
+    assert sol.stats["breakpoints"] == 1
+    np.testing.assert_array_equal(sol(t), sol._galerkin(t))
 
 
 # --- dense output of multi-adaptive mdG(q): the collocation polynomial per component ---

@@ -35,6 +35,7 @@ from dolfinode.solution import (
     _correction,
     _dense_value,
     _set_initial,
+    dense_rhs,
     dense_rule,
     equispaced,
     evaluate_mono,
@@ -375,6 +376,7 @@ class Samples:
         self.last_value = np.array(ode.u0, dtype=float)
         # (mono-adaptive) the last chunk's end and end value, read by dG(q)'s dense value
         self.end, self.before = ode.t0, ode.u0
+        self.rhs = None if multi_adaptive else dense_rhs(method, ode)  # (cG(q)'s dense value)
 
     def add(self, chunk, t):
         nodes, bary = self.method.nodes, self.method.barycentric_weights
@@ -395,7 +397,7 @@ class Samples:
         joined = abs(self.end - t_start[0]) <= 4e-16 * abs(t_start[0])
         evaluate_mono(self.method, t_start, t_end, values, [t_start[0]] if joined else [],
                       [self.before] if joined else [], self.times[first:last],
-                      self.y[:, first:last])
+                      self.y[:, first:last], self.rhs)
         self.end, self.before = t_end[-1], values[-1, -1].copy()
 
     def finish(self, completed):

@@ -213,7 +213,8 @@ class StoredSolution(Solution):
             # (with the elements before them: dG(q)'s dense value reads the previous end)
             needed = np.union1d(needed, needed[needed > 0] - 1)
             evaluate_mono(self.method, self.t_start[needed], t_end[needed],
-                          self._stored[needed], [self.ode.t0], [self.ode.u0], times, out)
+                          self._stored[needed], [self.ode.t0], [self.ode.u0], times, out,
+                          self._rhs)
             return out
         ptr = self._component_ptr
         needed = np.unique(np.concatenate([

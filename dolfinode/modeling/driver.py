@@ -410,9 +410,10 @@ class _SampledWindow:
         self.values = np.empty((N, times.size))
 
     def record(self, piece):
-        """Read a piece of the window (a Solution on a sub-interval) at its times."""
+        """Read a piece of the window (a Solution on a sub-interval) at its times (U, as
+        :func:`_concatenate`'s solution of the pieces kept reads them)."""
         inside = (self.times >= piece.ode.t0) & (self.times <= piece.ode.T)
-        self.values[:, inside] = piece(self.times[inside])
+        self.values[:, inside] = piece._galerkin(self.times[inside])
 
     def __call__(self, times):
         return self.values[:, np.searchsorted(self.times, times)]
@@ -488,7 +489,9 @@ def _concatenate(ode, pieces, number_of_samples):
         return Solution.multi_adaptive(ode, method, *arrays, {}, number_of_samples)
     chunks = [[p.t_start, p.k, p.values] for p in pieces]
     pieces.clear()
-    return Solution(ode, method, *join_elements(chunks), {}, number_of_samples)
+    sol = Solution(ode, method, *join_elements(chunks), {}, number_of_samples)
+    sol._rhs = None  # (the pieces may solve other models than ode: cG(q)'s dense value is U)
+    return sol
 
 
 def _total_stats(runs, model, wall):

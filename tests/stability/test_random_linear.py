@@ -54,6 +54,22 @@ def test_mono_adaptive_matches_expm(method, seed, n, stiffness):
     check(method, seed, n, stiffness, T=1.0, bound=100.0)
 
 
+@pytest.mark.parametrize("method", ["cG(2)", "cG(3)"])
+@pytest.mark.parametrize("seed", [10, 11])
+def test_dense_cg_not_worse_than_the_galerkin_polynomial_where_stiff(method, seed):
+    # stiffness 7.3 and 8 (k |lambda| up to about 1e5): the collocation polynomial's slope
+    # carries k lambda times the nodal error there; without the defect test sol(t) was
+    # 1.6-100 x U's worst error inside the elements, with it not above it
+    A, u0 = random_system(seed, 2 + seed % 3, 8.0 * seed / 11)
+    ode, _ = linear(A, u0, 1.0)
+    sol = dn.solve(ode, method=method, tolerance=TOL)
+    t = np.linspace(0.0, 1.0, 101)[1:]
+    exact = np.column_stack([sl.expm(A * s) @ u0 for s in t])
+    dense, galerkin = (np.abs(y - exact) / (TOL + TOL * np.abs(exact))
+                       for y in (sol(t), sol._galerkin(t)))
+    assert dense.max() <= galerkin.max(), f"{dense.max():.3g} > {galerkin.max():.3g}"
+
+
 @pytest.mark.parametrize("method", ["mcG(1)", "mcG(2)", "mdG(1)", "mdG(2)"])
 @settings(max_examples=3, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**32 - 1), stiffness=st.floats(0.0, 8.0))
