@@ -381,7 +381,11 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         and warn when it exceeds 10 x the tolerance (where the error equation leaves its
         linear range, ``sol.stats["global error nonlinearity"]`` > 100, the error is
         measured instead against a dG(3) solve at 1/100 of the tolerance,
-        ``sol.stats["global error reference"]``, and the warning says so). Measured within
+        ``sol.stats["global error reference"]``, and the warning says so; the same where
+        the estimate is within 10 x but its second-order part, the remainder f(U - e) -
+        f(U) + J e the linearisation leaves out summed along the run,
+        ``sol.stats["global error second order"]``, could lift it above: a nonlinear
+        oscillator's phase error over many periods). Measured within
         0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
         and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md); it
         costs 0.4-8 x a small solve (a compiled pass over the slabs, one stage solve of
@@ -1062,9 +1066,11 @@ def estimate_global_error(ode, compiled, m, params, sol, steps):
 
 def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
     """sol.stats["global error estimate"] (:mod:`dolfinode.global_error`, scaled as the
-    tolerance means it) and "global error nonlinearity", and a ToleranceWarning when the
-    estimate exceeds 10 x the tolerance where it holds (not with fixed steps, which have no
-    tolerance to compare with). ``slabs``: by :func:`~dolfinode.global_error.slab_estimate`;
+    tolerance means it), "global error nonlinearity" and "global error second order", and
+    a ToleranceWarning when the estimate exceeds 10 x the tolerance where it holds (not
+    with fixed steps, which have no tolerance to compare with); where it is within 10 x but
+    not with its second-order part added, the error is measured (:func:`_measure`,
+    global_error.SECOND_ORDER). ``slabs``: by :func:`~dolfinode.global_error.slab_estimate`;
     where the run is stiff on a slab it gives up (:func:`_stiff_on_slabs`), and where its
     elements' copy exceeds the memory sol.stats["global error note"] says that the error at T
     was not estimated. ``running``: the estimate carried chunk by chunk
@@ -1097,9 +1103,11 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
     sol.stats["global error second order"] = delta
     if params["fixed_time_step"]:
         return
-    if size <= global_error.WARN_FACTOR * rtol < size + delta:
+    if (size <= global_error.WARN_FACTOR * rtol < size + delta
+            and nu <= global_error.NONLINEAR_LIMIT):
         # the remainder the linearisation leaves out could lift the error above the
-        # warning's threshold (a nonlinear oscillator's phase error at a node of its swing)
+        # warning's threshold (a nonlinear oscillator's phase error at a node of its swing);
+        # above NONLINEAR_LIMIT the estimate is not trusted either way (VDPOL's folds)
         _measure(ode, params, sol, atol, global_error.SECOND_ORDER)
         return
     why = global_error.warning(size, nu, rtol, ode.states[i])
