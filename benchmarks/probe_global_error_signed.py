@@ -36,7 +36,7 @@ def probe(problem, method, tol):
         sol = dn.solve(problem.ode, method=method, tolerance=tol,
                        absolute_tolerance=problem.atol_ratio * tol, maximum_steps=2_000_000)
         t1 = time.perf_counter()
-    e, nu = global_error.estimate(sol)
+    e, nu, _ = global_error.estimate(sol)
     t2 = time.perf_counter()
     scale = problem.atol_ratio + np.abs(problem.final)
     err = np.max(np.abs(sol.values[-1, -1] - problem.final) / scale)

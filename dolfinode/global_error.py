@@ -27,7 +27,17 @@ It holds while the error stays small enough for the linearised equation: the mea
 that is the nonlinearity nu = max_n |f(U_n - e_n) - f(U_n) + J_n e_n| / |J_n e_n| at the
 slabs' ends (0 for linear systems); where nu > NONLINEAR_LIMIT the estimate is not trusted
 (above 10 x the tolerance :func:`dolfinode.solve` then measures the error against a tighter
-solve, and says that it could not be estimated where that fails).
+solve, and says that it could not be estimated where that fails). A small nu does not make
+the estimate at T right: the remainder r_n = f(U_n - e_n) - f(U_n) + J_n e_n the linearised
+equation leaves out is a forcing like R, and where the run does not damp it (an oscillation
+whose frequency depends on its amplitude, over many periods) it adds up as R does. Its sum
+with neutral weights, scaled as the tolerance means it,
+
+    delta = max_i sum_n k_n |r_{n,i}| / (w_i + |U_{n,i} - e_{n,i}|),   w = atol / rtol,
+
+the second-order part, bounds how far it moves the estimate on such a run (on a damped one it
+over-counts); :func:`dolfinode.solve` measures the error where delta leaves the estimate on
+either side of 10 x the tolerance.
 """
 from functools import lru_cache
 from math import factorial
@@ -431,13 +441,15 @@ def _in_flow_region(z, rho, damped, radius, box):
 
 
 @njit(cache=True)
-def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before, nodes, B,
-               D, a, position, kl, ku, num, den, radius, box, slabs, shifts):
+def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before, weight,
+               second, nodes, B, D, a, position, kl, ku, num, den, radius, box, slabs, shifts):
     """(e_M, nu): e_{n+1} = the last stage of (I - k a (x) J_j) E = 1 (x) (e_n + [U]_n)
     + k (a (x) I) R, one slab after the other from e_0 = ``e0`` (U(t_0^-) = ``before``, the
     previous slab's end value or u0), (J_j, R_j at the Radau points ``nodes``; ``B``,
     ``D``: the slab polynomial and its derivative at 0 and at the nodes), and nu as in the
-    module docstring, from the last stage's J and f at the slab's end. The stage (i, r) is
+    module docstring, from the last stage's J and f at the slab's end; each slab's
+    k_n |r_n| / (w + |U_n - e_n|) of delta is added to ``second`` (``weight``: w = atol /
+    rtol per component). The stage (i, r) is
     unknown s position[r] + i (:func:`stage_band`); kl >= 0: the system is solved by its
     band LU with bandwidths (kl, ku), kl < 0: by LAPACK. On the modes of the slab's mean
     Jacobian Z = k sum_j a_sj J_j where the collocation's flow P(z) (coefficients ``num``,
@@ -537,7 +549,9 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
             for j in range(values.shape[1]):
                 derivative += D[s, j] * values[n, j, r] / k[n]
             size = max(size, abs(linear))
-            remainder = max(remainder, abs(fU[r] - (derivative - R[s - 1, r]) + linear))
+            rest = abs(fU[r] - (derivative - R[s - 1, r]) + linear)
+            remainder = max(remainder, rest)
+            second[r] += k[n] * rest / (weight[r] + abs(shifted[r]))
         if size > 0:
             nu = max(nu, remainder / size)
     return e, nu
@@ -595,9 +609,10 @@ MODAL_CONDITION = 1e8
 NONLINEAR_LIMIT = 100.0
 
 
-def estimate(sol, compiled=None):
-    """(e, nu): the signed estimate e ~ U(T) - u(T), shape (N,), of a cG(q)/dG(q) solution,
-    and the nonlinearity nu of the error equation along the run (see the module docstring);
+def estimate(sol, compiled=None, weight=None):
+    """(e, nu, delta): the signed estimate e ~ U(T) - u(T), shape (N,), of a cG(q)/dG(q)
+    solution, the nonlinearity nu of the error equation along the run and its second-order
+    part delta (see the module docstring; ``weight``: atol / rtol per component, default 1);
     ``compiled``: the kernels it was solved with (default: those of ``sol.ode``). A
     multi-adaptive solution is taken on the common refinement of its elements. Stage systems
     with a narrow band (:func:`banded`) are solved banded, others densely, or mode by mode
@@ -612,16 +627,18 @@ def estimate(sol, compiled=None):
     """
     if sol._component_ptr is not None:
         sol = _common_slabs(sol)
-    run = Running(sol.ode, lower(sol.ode) if compiled is None else compiled, sol.method)
+    run = Running(sol.ode, lower(sol.ode) if compiled is None else compiled, sol.method,
+                  weight)
     run.add(sol.t_start, sol.k, sol.values)
-    return run.e, run.nu
+    return run.e, run.nu, run.delta
 
 
 class Running:
     """The recursion of :func:`estimate` for a mono-adaptive run of ``ode`` by ``method``
     (with the kernels ``compiled``), carried chunk by chunk as the run's slabs arrive
     (:meth:`add`), so that a solve without history (``dense_output=False`` or a file) is
-    estimated as one with it: it keeps e_n, U(t_n^-) and nu, not the slabs, and each chunk
+    estimated as one with it: it keeps e_n, U(t_n^-), nu and delta's sums per component
+    (``weight``: atol / rtol per component, default 1), not the slabs, and each chunk
     continues the arithmetic of the one pass over the whole history.
 
     Raises
@@ -631,7 +648,7 @@ class Running:
         not constant.
     """
 
-    def __init__(self, ode, compiled, method):
+    def __init__(self, ode, compiled, method, weight=None):
         c, a = _collocation(method.q + 2)
         position, kl, ku = stage_band(compiled, len(c))
         rows = len(c) * compiled.N
@@ -647,8 +664,14 @@ class Running:
         self.ode, self.compiled, self.method, self.c, self.a = ode, compiled, method, c, a
         B, D, flows = _stage_tables(tuple(float(node) for node in method.nodes))
         self.stages = (c, B, D, a, position, kl, ku, *flows)
-        self.e, self.nu = np.zeros(compiled.N), 0.0
+        self.e, self.nu, self.second = np.zeros(compiled.N), 0.0, np.zeros(compiled.N)
+        self.weight = np.ones(compiled.N) if weight is None else np.asarray(weight, dtype=float)
         self.before = np.array(ode.u0, dtype=float)  # U(t_n^-) of the next slab
+
+    @property
+    def delta(self):
+        """The second-order part of the estimate so far (see the module docstring)."""
+        return float(np.max(self.second, initial=0.0))
 
     def add(self, t_start, k, values):
         """Carry e over the next slabs of the run, (t_start (n,), k (n,), values (n, q + 1,
@@ -666,7 +689,8 @@ class Running:
             self.e, nu = _recursion(compiled.rhs.address, compiled.jacobian.address,
                                     compiled.p, compiled.indptr, compiled.indices,
                                     np.ascontiguousarray(values), k, t_start, self.e,
-                                    self.before, *self.stages, *shifts)
+                                    self.before, self.weight, self.second, *self.stages,
+                                    *shifts)
             self.nu = max(self.nu, nu)
         self.before = values[-1, -1].copy()
 
@@ -692,7 +716,8 @@ def _constant_modes(ode, compiled):
 
 
 def modal_estimate(sol, compiled):
-    """(e, 0.0) as :func:`estimate`, mode by mode (:func:`_modal`), for a solution on shared
+    """(e, 0.0, 0.0) as :func:`estimate` (linear: no remainder), mode by mode
+    (:func:`_modal`), for a solution on shared
     slabs of a linear system with a constant J whose eigenbasis has a condition number below
     MODAL_CONDITION; None for any other. Each mode is carried by its exact flow
     exp(k lambda), also where a step spans many periods of a weakly damped oscillation (a
@@ -701,7 +726,8 @@ def modal_estimate(sol, compiled):
     if modes is None:
         return None
     c, a = _collocation(sol.method.q + 2)
-    return _modal(sol, compiled, *modes, c, *_feature_shifts(sol, compiled, c, a)), 0.0
+    return (_modal(sol, compiled, *modes, c, *_feature_shifts(sol, compiled, c, a)), 0.0,
+            0.0)
 
 
 def measured_warning(size, linearised, nu, rtol, state, factor):
@@ -725,6 +751,10 @@ STIFF_SLABS = (("the run is stiff on its slabs (steps long against the period or
                ("a step spanning many periods of a weakly damped oscillation leaves its error "
                 "undamped. Try a tighter tolerance, a maximum_time_step below that period, or "
                 "dn.estimate_error with a goal"))
+SECOND_ORDER = (("the error grew along the run to where f's nonlinearity moves the linearised "
+                 "estimate across 10 x the tolerance (sol.stats['global error second order']: "
+                 "a phase error of a nonlinear oscillation over many periods)"),
+                "Try a tighter tolerance, a higher order, or dn.estimate_error with a goal")
 NOT_SMOOTH = (("f jumps, switches or an event ends the run, where the linearised estimate, "
                "made for one smooth f, does not apply"),
               "Try a tighter tolerance or a higher order")
@@ -733,7 +763,7 @@ NOT_SMOOTH = (("f jumps, switches or an event ends the run, where the linearised
 def reference_warning(size, rtol, state, factor, reason):
     """The ToleranceWarning's message for a run whose error at T ``size`` (as :func:`scaled`)
     was measured against a solve at ``factor`` x the tolerance ``rtol`` for ``reason``
-    (STIFF_SLABS or NOT_SMOOTH: why, what to try): None within WARN_FACTOR x the tolerance;
+    (STIFF_SLABS, SECOND_ORDER or NOT_SMOOTH: why, what to try): None within WARN_FACTOR x the tolerance;
     ``size`` None: that solve failed, the error could not be estimated."""
     why, advice = reason
     if size is None:
@@ -770,8 +800,8 @@ SLAB_CANCELLATION = 1e8
 SLAB_SUBSTEPS = 2
 
 
-def slab_estimate(sol, compiled=None):
-    """(e, nu) as :func:`estimate` for a multi-adaptive solution (or a mono-adaptive one, as
+def slab_estimate(sol, compiled=None, weight=None):
+    """(e, nu, delta) as :func:`estimate` for a multi-adaptive solution (or a mono-adaptive one, as
     one whose every slab is shared), at a cost of the order of its elements (times the
     sub-steps below), not of its common refinement, without stage systems; None where a
     slab would need more than SLAB_SUBSTEPS sub-steps per element (a stiff run; a shared
@@ -797,8 +827,8 @@ def slab_estimate(sol, compiled=None):
     SLAB_SETTLED x the sum, the moment terms up to m = M <= 2q + SLAB_MOMENTS (Horner; M
     by K rho(J), SLAB_MOMENT_CUT); both hold for K rho(J) below about 2, which the
     sub-steps keep. With one sub-step and one element
-    per slab it is the series of the collocation of :func:`estimate`. nu as there, at the
-    slabs' ends. A :class:`~dolfinode.solution.MixedSolution` keeps its parts."""
+    per slab it is the series of the collocation of :func:`estimate`. nu and delta as there
+    (``weight``: atol / rtol per component, default 1), at the slabs' ends. A :class:`~dolfinode.solution.MixedSolution` keeps its parts."""
     compiled = lower(sol.ode) if compiled is None else compiled
     method = sol.method
     N = compiled.N
@@ -813,13 +843,16 @@ def slab_estimate(sol, compiled=None):
     sync = np.unique(np.concatenate([[sol.ode.t0], ends[counts == N], s_start, s_end]))
     to_monomial, gx, gw, points = _slab_rules(tuple(float(c) for c in method.nodes))
     coef = np.ascontiguousarray(values @ to_monomial)
+    weight = np.ones(N) if weight is None else np.asarray(weight, dtype=float)
+    second = np.zeros(N)
     e, nu, settled = _slab_recursion(
         compiled.rhs_component.address, compiled.rhs.address, compiled.jacobian.address,
         compiled.p, compiled.indptr, compiled.indices, np.asarray(ptr, dtype=np.int64),
         t_start, t_end, coef, np.asarray(s_start, dtype=float),
         np.ascontiguousarray(s_values, dtype=float), to_monomial, sync,
-        np.asarray(sol.ode.u0, dtype=float), method.family == "cG", gx, gw, points)
-    return (e, nu) if settled else None
+        np.asarray(sol.ode.u0, dtype=float), weight, second, method.family == "cG", gx, gw,
+        points)
+    return (e, nu, float(np.max(second))) if settled else None
 
 
 @lru_cache(maxsize=32)
@@ -1036,9 +1069,9 @@ def _moments_for(x, top):
 
 @njit(cache=True)
 def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start, t_end,
-                    coef, s_start, s_values, to_monomial, sync, u0, continuous, gx, gw,
-                    points):
-    """(e at T, nu, settled) of :func:`slab_estimate`, slab after slab between the times
+                    coef, s_start, s_values, to_monomial, sync, u0, weight, second,
+                    continuous, gx, gw, points):
+    """(e at T, nu, settled) of :func:`slab_estimate` (delta's sums added to ``second``), slab after slab between the times
     ``sync`` (a slab starting at s_start[n] is the shared slab n, nodal values s_values[n],
     the others are each component's elements ptr[i]:ptr[i + 1]; a shared slab counts as
     q + 1 elements, its values per component), each in sub-steps no longer
@@ -1125,8 +1158,10 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
         _times_jacobian(indptr, indices, data, 1.0, e, jv)
         size = remainder = 0.0
         for r in range(N):
+            rest = abs(fS[r] - fU[r] + jv[r])
             size = max(size, abs(jv[r]))
-            remainder = max(remainder, abs(fS[r] - fU[r] + jv[r]))
+            remainder = max(remainder, rest)
+            second[r] += (tb - ta) * rest / (weight[r] + abs(term[r]))
         if size > 0:
             nu = max(nu, remainder / size)
     return e, nu, True
