@@ -351,6 +351,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     top_change = np.zeros(N)
     mark = np.zeros(N, dtype=np.int64)
     lowered = np.zeros(N, dtype=np.bool_)  # (``propagate``)
+    stack = np.empty(N, dtype=np.int64)
     # each row's reach (``tie_reach``) for the Jacobian rows since their last evaluation:
     # the synchronised slabs that share them pass only the rows that can act to the ties
     # and grading (``acting``)
@@ -571,11 +572,11 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                 tie_reach(active[:nactive], indptr, indices, jacobian, reach, lopsided)
                 reach_valid = True
             n = tying_rows(kdes, active[:nactive], reach, lopsided, acting)
-            propagate(kdes, acting[:n], frozen, indptr, indices, jacobian, lowered)
+            propagate(kdes, acting[:n], frozen, indptr, indices, jacobian, lowered, stack)
             n = grading_rows(kdes, active[:nactive], reach, acting)
             grade(kdes, acting[:n], frozen, indptr, indices, jacobian)
         elif not fixed:
-            propagate(kdes, active[:nactive], frozen, indptr, indices, jacobian, lowered)
+            propagate(kdes, active[:nactive], frozen, indptr, indices, jacobian, lowered, stack)
             grade(kdes, active[:nactive], frozen, indptr, indices, jacobian)
         if not accept:
             counters[REJECTED] += 1
