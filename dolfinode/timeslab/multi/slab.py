@@ -177,7 +177,7 @@ def sweep_slab(max_iter, retry, windows, nwin, ne, nroot, top_start, limit, dtol
             return True, last_it
         if nwin > 0 and resolved and math.isfinite(d) and windows_settled(
                 nroot, comp, values, saved, indptr, indices, jacobian, atol, rtol, x, K, dtol,
-                top_change, mark, frozen, fi, p, b, cptr, celems, fend, uw, out, counters):
+                top_change, mark, frozen, fi, p, b, cptr, celems, uw, out, counters):
             return True, last_it
         if not math.isfinite(d):
             break
