@@ -46,6 +46,10 @@ _EVENT_CHUNK = 1024
 #: up to _EVENT_CHUNK: where switches come every few slabs (a kink crossed each period) a
 #: full chunk per restart redid up to 26 x the slabs kept.
 _RESTART_CHUNK = 16
+#: Elements per component of the multi-adaptive loop's first call after a (re)start: a
+#: multi-adaptive chunk costs about 0.2 ms of Python per call (its view as a Solution, the
+#: roots), so starting at _RESTART_CHUNK took up to 1.35 x the CPU on two-component kinks.
+_MULTI_RESTART_CHUNK = 4 * _RESTART_CHUNK
 #: When set, the most slabs (mono-adaptive) or elements (multi-adaptive) a loop call
 #: stores: tests cut a run into many calls with it, which must not change the run.
 _CHUNK_LIMIT = None
@@ -1403,9 +1407,10 @@ def _run_multi(ode, compiled, m, params, options, atol, floor, x, f0, steps, sta
     loop's desired steps)."""
     from dolfinode.timeslab import multi
 
-    capacity = _multi_capacity(ode, m)
+    capacity, smallest = _multi_capacity(ode, m), None
     if plan is not None and plan.truncates:
         capacity = min(capacity, max(4 * ode.N, _EVENT_CHUNK))
+        smallest = _MULTI_RESTART_CHUNK * ode.N
     if kept is None:
         tables, kdes, frozen = _multi_workspace(ode, compiled, m, params, options, steps)
         call, arguments, first = multi.advance.unchecked, _multi_arguments(
@@ -1417,7 +1422,7 @@ def _run_multi(ode, compiled, m, params, options, atol, floor, x, f0, steps, sta
     with _progress(ode, params) as bar:
         def chunks():
             return _chunks(advance, buffers, capacity, counters, params, state, bar,
-                           first=first)
+                           first=first, smallest=smallest)
 
         pieces = plan and ev.MultiPieces(
             ode, m, chunks, options, state, x, compiled.p, len(ode.params),

@@ -1,6 +1,7 @@
 """Breakpoints of f(t), switches on the state and events (dolfinode/events.py)."""
 import itertools
 import math
+import sys
 import warnings
 
 import numpy as np
@@ -411,6 +412,27 @@ def test_multi_adaptive_events_with_frozen_and_slow_components(method):
     est = dn.estimate_error(sol, goal={u: 1.0})
     error = sol(sol.ode.T)[0] - math.cos(sol.ode.T)
     assert abs(est.value - error) <= 0.5 * abs(error) + 1e-12
+
+
+@pytest.mark.parametrize("method", ["mcG(2)", "mdG(2)"])
+def test_multi_adaptive_restarts_redo_short_chunks(method, monkeypatch):
+    """A kink crossed twice per period: the multi-adaptive loop restarts from the start of
+    the chunk holding the crossing, so its calls after each restart start short and double
+    (a full 1024-element chunk per restart computed 7 x the slabs kept at 1e-7)."""
+    driver = sys.modules["dolfinode.solve"]
+    sizes = []
+    buffers = driver._multi_buffers
+
+    def recording(ode, m, capacity):
+        sizes.append(capacity)
+        return buffers(ode, m, capacity)
+
+    monkeypatch.setattr(driver, "_multi_buffers", recording)
+    ode = dn.ODE({x: v, v: -x - 3 * sp.Max(x - 0.3, 0)}, u0=[1.0, 0.0], T=20.0)
+    sol = dn.solve(ode, method, tolerance=1e-7)
+    assert sol.stats["state kinks"] >= 6
+    assert sol.stats["time slabs"] < 4 * max(sol.stats["elements per component"])
+    assert min(sizes) == driver._MULTI_RESTART_CHUNK * ode.N
 
 
 @pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(1)"])

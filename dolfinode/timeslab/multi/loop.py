@@ -499,11 +499,11 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                                                           celems, ea, eb)
             converged, last_it = sweep_slab(
                 max_iter, st.retry, windows, nwin, ne, nroot, top_start, sweep_limit, dtol, T - t,
-                fi, p, x, indptr, indices, position, jacobian, comp, prev, cptr, celems, ea, eb,
+                b, fi, p, x, indptr, indices, position, jacobian, comp, prev, cptr, celems, ea, eb,
                 values, saved, nodes, bary, qweights, Minv, A, stages, sptr, spts, dptr, dcur,
                 jdiag, coupling, stiff, atol, rtol, states, out, cur, mom, fend, D, delta,
                 local, group_order, elist, newton, factored, factored_k, changed, computed,
-                clock, top_change, mark, frozen, counters)
+                clock, top_change, mark, frozen, uw, counters)
         if converged and mode == DEFAULT and last_it >= 7:
             counters[STIFF] = 1  # Gauss-Seidel converges too slowly: Newton from here on
         # (a synchronised slab shorter than the limit says nothing about the windows' cost)

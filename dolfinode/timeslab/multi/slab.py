@@ -128,12 +128,12 @@ def solve_synchronised(f, p, x, f0, f0_time, t, b, A, b0, stage_nodes, atol, rto
 @linked(returns=types.Tuple((types.boolean, types.int64)),
         what="the multi-adaptive sweeps", seconds=8)
 @helper(**NO_REFCOUNT)
-def sweep_slab(max_iter, retry, windows, nwin, ne, nroot, top_start, limit, dtol, K, fi, p,
-               x, indptr, indices, position, jacobian, comp, prev, cptr, celems, ea, eb,
+def sweep_slab(max_iter, retry, windows, nwin, ne, nroot, top_start, limit, dtol, K, b, fi,
+               p, x, indptr, indices, position, jacobian, comp, prev, cptr, celems, ea, eb,
                values, saved, nodes, bary, qweights, Minv, A, stages, sptr, spts, dptr, dcur,
                jdiag, coupling, stiff, atol, rtol, states, out, cur, mom, fend, D, delta,
                local, group_order, elist, newton, factored, factored_k, changed, computed,
-               clock, top_change, mark, frozen, counters):
+               clock, top_change, mark, frozen, uw, counters):
     """Global iterations over the slab, at most ``max_iter``: every window iterated to
     convergence in turn (the fast components advance window by window as in single-rate
     time stepping), then the top-level elements (``converge``). One sweep would leave the
@@ -141,7 +141,8 @@ def sweep_slab(max_iter, retry, windows, nwin, ne, nroot, top_start, limit, dtol
     every window. Converged when the largest increment d <= dtol (1 - rho), rho = d / d_prev
     the contraction (the distance to the fixed point is about d / (1 - rho)), when it
     stalls at rounding level, or when the top level's change leaves the windows settled
-    (``windows_settled``, on the time left ``K``); stops on a non-finite increment or
+    (``windows_settled``, on the time left ``K``, with the slab end ``b`` and the work vector
+    ``uw``); stops on a non-finite increment or
     three growing ones. Returns (converged, index of the last iteration)."""
     nn = nodes.shape[0]
     d_prev = math.inf
@@ -176,7 +177,7 @@ def sweep_slab(max_iter, retry, windows, nwin, ne, nroot, top_start, limit, dtol
             return True, last_it
         if nwin > 0 and resolved and math.isfinite(d) and windows_settled(
                 nroot, comp, values, saved, indptr, indices, jacobian, atol, rtol, x, K, dtol,
-                top_change, mark, frozen):
+                top_change, mark, frozen, fi, p, b, cptr, celems, uw, out, counters):
             return True, last_it
         if not math.isfinite(d):
             break
