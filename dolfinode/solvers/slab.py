@@ -148,9 +148,9 @@ def _store4(sums, out, i):
 @njit(cache=True, inline="always")
 def _stage_sum(c, f0, F, A, s, out):
     """out = c f0 + sum_m A_sm F_m (one stage of the quadrature, c = b0_s; or with c = 0 one
-    stage of a transformation F -> (A (x) I) F), in blocks of 8 and then 4
+    stage of a transformation F -> (A (x) I) F), in blocks of 8, 4, 3 or 2, and 1
     components whose sums stay in registers over m (stored once; the compiler packs them
-    into vector registers), the rest one by one; unsigned indices, see
+    into vector registers); unsigned indices, see
     dolfinode.linalg.banded. Blocked, the sums cost a fraction of axpys over all components
     per m, in the same order of summation (the same results)."""
     N = f0.shape[0]
@@ -171,12 +171,36 @@ def _stage_sum(c, f0, F, A, s, out):
             low = _add4(low, A[s, m], F, m * N + i)
         _store4(low, out, i)
         i += 4
-    while i < N:
+    if i + 3 == N:
+        # the last components side by side: one alone is a chain of dependent additions
+        # over m (N = 2, 3: every component of the stage sums of a Newton iteration)
+        a0 = c * f0[_u(i)]
+        a1 = c * f0[_u(i + 1)]
+        a2 = c * f0[_u(i + 2)]
+        for m in range(S):
+            a = A[s, m]
+            a0 += a * F[_u(m * N + i)]
+            a1 += a * F[_u(m * N + i + 1)]
+            a2 += a * F[_u(m * N + i + 2)]
+        out[_u(i)] = a0
+        out[_u(i + 1)] = a1
+        out[_u(i + 2)] = a2
+        return
+    if i + 2 <= N:
+        a0 = c * f0[_u(i)]
+        a1 = c * f0[_u(i + 1)]
+        for m in range(S):
+            a = A[s, m]
+            a0 += a * F[_u(m * N + i)]
+            a1 += a * F[_u(m * N + i + 1)]
+        out[_u(i)] = a0
+        out[_u(i + 1)] = a1
+        i += 2
+    if i < N:
         acc = c * f0[_u(i)]
         for m in range(S):
             acc += A[s, m] * F[_u(m * N + i)]
         out[_u(i)] = acc
-        i += 1
 
 
 @njit(cache=True, inline="always")

@@ -240,3 +240,26 @@ def test_the_tolerance_relative_stop_leaves_a_linear_answer_unchanged(solver, mo
     np.testing.assert_allclose(relative.values, floor.values, rtol=1e-12, atol=1e-15)
     exact = sl.expm(M * ode.T) @ np.asarray(ode.u0)
     assert np.abs(relative(ode.T) - exact).max() < 1e-4
+
+
+@pytest.mark.parametrize("N", range(1, 12))
+def test_stage_sums_are_summed_in_order_for_every_block_size(N):
+    """_stage_sum keeps components in register blocks of 8, 4, 2 and 1: each sum is still
+    c f0_i + A_s0 F_0i + A_s1 F_1i + ..., in that order, so that it equals the plain loop bit
+    for bit whatever N mod 8 is."""
+    rng = np.random.default_rng(N)
+    for S in (1, 2, 4, 5):
+        A = rng.standard_normal((S, S))
+        f0 = rng.standard_normal(N)
+        F = rng.standard_normal(S * N) * 10.0 ** rng.integers(-8, 8, S * N)
+        for s in range(S):
+            c = float(rng.standard_normal())
+            out = np.empty(N)
+            slab._stage_sum(c, f0, F, A, s, out)
+            expected = []
+            for i in range(N):
+                acc = c * f0[i]
+                for m in range(S):
+                    acc += A[s, m] * F[m * N + i]
+                expected.append(acc)
+            assert out.tolist() == expected
