@@ -344,7 +344,7 @@ def _oscillating(h, t0, T, values, R):
     Nothing where h' has no bound."""
     grid = np.linspace(t0, T, GRID + 1)
     try:
-        lo, hi = _enclose(sp.diff(h, time_symbol), grid[:-1], grid[1:], values)
+        lo, hi = _enclose(_derivatives(h)[0], grid[:-1], grid[1:], values)
     except Unbounded:
         return
     rate = float(np.max(np.maximum(np.abs(lo), np.abs(hi))))
