@@ -49,11 +49,11 @@ from numba import njit
 
 from dolfinode.compile import lower
 from dolfinode.compile.signatures import address, call_rhs_rows, component_kernel, rhs_kernel
-from dolfinode.dual.problem import monomial_coefficients
 from dolfinode.family import _parts as family_parts
 from dolfinode.features import narrow_features
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.memory import SMALL_BYTES, available_memory
+from dolfinode.methods.method import lagrange_matrices, monomial_coefficients
 from dolfinode.methods.quadrature import radau
 from dolfinode.ode import t as time_symbol
 from dolfinode.solution import _evaluate_components, _set_initial, dense_rule
@@ -71,16 +71,6 @@ def collocation_matrix(nodes):
 def radau_nodes(s):
     """The s right Radau points on [0, 1] (the last is 1), as floats."""
     return np.array(radau(s)[0], dtype=float)
-
-
-def lagrange_matrices(nodes, x):
-    """(B, D): B[i, j] = l_j(x_i), D[i, j] = l_j'(x_i) for the Lagrange basis on ``nodes``."""
-    C = monomial_coefficients(np.asarray(nodes, dtype=float)).T
-    p = np.arange(len(nodes))
-    X = np.asarray(x, dtype=float)[:, None]
-    B = (X ** p) @ C
-    D = (p * X ** np.maximum(p - 1, 0)) @ C
-    return B, D
 
 
 @lru_cache(maxsize=32)

@@ -8,7 +8,12 @@ from numba import njit
 from dolfinode.compile.jit import helper
 from dolfinode.compile.lowering import lower
 from dolfinode.compile.signatures import address, rhs_kernel
-from dolfinode.methods.method import element_value, lagrange_weights, make_method
+from dolfinode.methods.method import (
+    element_value,
+    lagrange_matrices,
+    lagrange_weights,
+    make_method,
+)
 
 
 @helper()
@@ -452,13 +457,9 @@ def _defect_check(family, q):
     at tau* = tau_1 / 2 (l_j the Lagrange basis on the nodes, Q = prod_j (tau - tau_j))."""
     nodes = make_method(family, q).nodes
     star = nodes[1] / 2
-    basis, slopes = np.empty(len(nodes)), np.empty(len(nodes))
-    for j in range(len(nodes)):
-        others = np.delete(nodes, j)
-        l_j = np.polynomial.Polynomial.fromroots(others) / np.prod(nodes[j] - others)
-        basis[j], slopes[j] = l_j(star), l_j.deriv()(star)
+    basis, slopes = lagrange_matrices(nodes, (star,))
     Q = np.polynomial.Polynomial.fromroots(nodes)
-    return float(star), basis, slopes, float(Q(star)), float(Q.deriv()(star))
+    return float(star), basis[0], slopes[0], float(Q(star)), float(Q.deriv()(star))
 
 
 def _reads_f(method):

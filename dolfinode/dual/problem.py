@@ -26,6 +26,7 @@ from dolfinode.compile.signatures import rhs_kernel
 from dolfinode.errors import SolverError
 from dolfinode.linalg import band_lu, band_solve, wide_band
 from dolfinode.methods import make_method
+from dolfinode.methods.method import monomial_coefficients
 
 
 @helper()
@@ -230,11 +231,6 @@ def _backward_cg_sparse(jac_address, p, indptr, indices, position, grid, ptr, t_
         _store(phi, l, y, stages, position, r)
         y = phi[l, 0].copy()
     return -1
-
-
-def monomial_coefficients(nodes):
-    """C with c = values @ C: monomial coefficients in tau of the interpolant at the nodes."""
-    return np.linalg.inv(np.vander(nodes, increasing=True)).T
 
 
 class PrimalPolynomials:

@@ -149,6 +149,21 @@ def lagrange_weights(tau, nodes, bary, weights):
         weights[j] /= den
 
 
+def monomial_coefficients(nodes):
+    """C with c = values @ C: monomial coefficients in tau of the interpolant at the nodes."""
+    return np.linalg.inv(np.vander(nodes, increasing=True)).T
+
+
+def lagrange_matrices(nodes, x):
+    """(B, D): B[i, j] = l_j(x_i), D[i, j] = l_j'(x_i) for the Lagrange basis on ``nodes``."""
+    C = monomial_coefficients(np.asarray(nodes, dtype=float)).T
+    p = np.arange(len(nodes))
+    X = np.asarray(x, dtype=float)[:, None]
+    B = (X ** p) @ C
+    D = (p * X ** np.maximum(p - 1, 0)) @ C
+    return B, D
+
+
 def _lagrange_coefficients(nodes):
     """Monomial coefficients C[j, i] of the Lagrange basis l_j(tau) = sum_i C[j, i] tau^i."""
     n = len(nodes)
