@@ -500,7 +500,8 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     superconverge; stiff components, whose nodes do not, are held to a few times the
     tolerance (:func:`dolfinode.adaptivity.stiff_factor`). Measured on HIRES, VDPOL and the
     harmonic oscillator over 1e-2..1e-10 (doc/design/tolerance.md): 125 of 144 runs within
-    0.1-10 x the tolerance, none above (at most 8.7 x), down to 0.0015 x (dG(3) on VDPOL).
+    0.1-10 x the tolerance, none above (at most 8.7 x), down to 0.0015 x (dG(3) on VDPOL);
+    with q = 4, 5: 65 of 108 within, none above, down to 1e-4 x (VDPOL, which damps).
     It is a calibration of the local error, not a bound: a long non-dissipative run adds
     its errors up (an oscillator bank: 29 x), which ``estimate_error`` measures for a goal
     and ``estimate_global_error`` estimates at T (by default on long runs of small systems),
@@ -522,8 +523,9 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     mcG(q) and mdG(q) have their own C (they deliver 1.3-3.5 x cG(q)'s error at one step
     tolerance; 126 of 144 runs within 0.1-10 x, doc/design/tolerance.md), and
     ``method="auto"`` calibrates each variant alike, so that its choice compares runs of
-    equal accuracy. dG(0), q > 3 and automatic modeling's inner solves use the step
-    tolerance as given. For a bound on an output, pass ``goal`` (dual-based estimate).
+    equal accuracy. dG(0), q > 5 (mcG(q), mdG(q): q > 3) and automatic modeling's inner
+    solves use the step tolerance as given. For a bound on an output, pass ``goal``
+    (dual-based estimate).
 
     The defaults are ``dolfinode.default_parameters`` (DOLFIN's names).
 
