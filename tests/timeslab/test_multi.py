@@ -213,6 +213,17 @@ def test_stiff_decay(method):
     assert k.max() > 0.1  # far beyond the explicit stability limit 2/1000
 
 
+def _weights(rows, indptr, indices, jacobian):
+    """(reach, lopsided, strength, reaction) of ``tie_reach`` for the ``rows``."""
+    from dolfinode.timeslab.multi.steps import tie_reach
+
+    n = indptr.size - 1
+    weights = (np.empty(n), np.zeros(n, dtype=np.bool_), np.empty(max(1, indices.size)),
+               np.empty(max(1, indices.size)))
+    tie_reach(np.asarray(rows, dtype=np.int64), indptr, indices, jacobian, *weights)
+    return weights
+
+
 def test_steps_are_graded_along_strong_couplings():
     """k_i <= max(2 k_j, 1 / |df_i/du_j|) after grading: on a diffusion chain (|J| = 400)
     the steps grow by at most 2 per neighbour away from a small one, weak couplings (1e-3)
@@ -223,13 +234,13 @@ def test_steps_are_graded_along_strong_couplings():
     indptr = np.arange(0, 2 * n + 1, 2)  # row i reads i - 1 and i + 1 (i = 0: 1, i = n-1: n-2)
     indices = np.array([j for i in range(n) for j in ((1, 1) if i == 0 else (n - 2, n - 2)
                                                       if i == n - 1 else (i - 1, i + 1))])
-    jacobian = np.full(2 * n, 400.0)
-    kdes = np.array([1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])
-    grade(kdes, np.arange(n), np.full(n, np.nan), indptr, indices, jacobian)
-    np.testing.assert_allclose(kdes, [1e-5, 0.0025, 0.005, 0.01, 0.02, 0.04])
-    kdes = np.array([1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])
-    grade(kdes, np.arange(n), np.full(n, np.nan), indptr, indices, np.full(2 * n, 1e-3))
-    np.testing.assert_allclose(kdes, [1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])
+    rows = np.arange(n)
+    for jacobian, expected in ((np.full(2 * n, 400.0), [1e-5, 0.0025, 0.005, 0.01, 0.02, 0.04]),
+                               (np.full(2 * n, 1e-3), [1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])):
+        kdes = np.array([1e-5, 1.0, 1.0, 1.0, 1.0, 1.0])
+        reaction = _weights(rows, indptr, indices, jacobian)[3]
+        grade(kdes, rows, np.full(n, np.nan), indptr, indices, reaction)
+        np.testing.assert_allclose(kdes, expected)
 
 
 def test_ties_are_passed_on_along_chains_of_strong_couplings():
@@ -242,9 +253,25 @@ def test_ties_are_passed_on_along_chains_of_strong_couplings():
     indptr = np.array([0, 1, 2, 2])
     indices = np.array([1, 2])
     kdes = np.array([1e-3, 2e-3, 4e-3])
-    propagate(kdes, np.array([1, 0]), np.full(3, np.nan), indptr, indices, np.full(2, 1e4),
+    rows = np.array([1, 0])
+    strength = _weights(rows, indptr, indices, np.full(2, 1e4))[2]
+    propagate(kdes, rows, np.full(3, np.nan), indptr, indices, strength,
               np.zeros(3, dtype=np.bool_), np.empty(3, dtype=np.int64))
     np.testing.assert_allclose(kdes, [1e-3, 1e-3, 1e-3])
+
+
+def _random_pattern(rng, n, density, exponents):
+    """(indptr, indices, jacobian, kdes, frozen) of a random n x n pattern: |J_ij| =
+    10^U(exponents), some stored zeros, both signs; steps 10^U(-4, 0), a fifth frozen."""
+    dense = rng.random((n, n)) < density
+    values = np.where(dense, 10.0 ** rng.uniform(*exponents, (n, n)), 0.0)
+    values[dense & (rng.random((n, n)) < 0.1)] = 0.0  # (stored zeros)
+    indptr = np.concatenate([[0], np.cumsum(dense.sum(axis=1))])
+    indices = np.concatenate([np.flatnonzero(row) for row in dense]).astype(np.int64)
+    jacobian = values[dense] * rng.choice([-1.0, 1.0], dense.sum())
+    kdes = 10.0 ** rng.uniform(-4, 0, n)
+    frozen = np.where(rng.random(n) < 0.2, 0.0, np.nan)
+    return indptr, indices, jacobian, kdes, frozen
 
 
 def test_propagation_leaves_no_tie_unresolved():
@@ -257,69 +284,98 @@ def test_propagation_leaves_no_tie_unresolved():
     rng = np.random.default_rng(3)
     n = 6
     for _ in range(200):
-        dense = rng.random((n, n)) < 0.4
-        values = np.where(dense, 10.0 ** rng.uniform(-1, 4, (n, n)), 0.0)
-        indptr = np.concatenate([[0], np.cumsum(dense.sum(axis=1))])
-        indices = np.concatenate([np.flatnonzero(row) for row in dense]).astype(np.int64)
-        jacobian = values[dense]
-        kdes = 10.0 ** rng.uniform(-4, -1, n)
-        frozen = np.where(rng.random(n) < 0.2, 0.0, np.nan)
+        indptr, indices, jacobian, kdes, frozen = _random_pattern(rng, n, 0.4, (-1, 4))
         rows = rng.permutation(np.flatnonzero(np.isnan(frozen))).astype(np.int64)
+        strength = _weights(rows, indptr, indices, jacobian)[2]
         lowered = np.zeros(n, dtype=np.bool_)
-        propagate(kdes, rows, frozen, indptr, indices, jacobian, lowered,
+        propagate(kdes, rows, frozen, indptr, indices, strength, lowered,
                   np.empty(n, dtype=np.int64))
         assert not lowered.any()
+        J = np.zeros((n, n))
+        for i in range(n):
+            J[i, indices[indptr[i]:indptr[i + 1]]] = np.abs(jacobian[indptr[i]:indptr[i + 1]])
         for i in rows:
-            for j in np.flatnonzero(dense[i]):
-                lopsided = values[j, i] > 0 and values[i, j] >= ASYMMETRY**2 * values[j, i]
-                if j != i and np.isnan(frozen[j]) and (values[i, j] * kdes[i] > 1 or lopsided):
+            for j in indices[indptr[i]:indptr[i + 1]]:
+                lopsided = J[j, i] > 0 and J[i, j] >= ASYMMETRY**2 * J[j, i]
+                if j != i and np.isnan(frozen[j]) and (J[i, j] * kdes[i] > 1 or lopsided):
                     assert kdes[j] <= kdes[i]
 
 
+def _direct_ties_and_grading(kdes, rows, frozen, indptr, indices, jacobian):
+    """The ties and grading read straight from the Jacobian (``propagate`` and ``grade``
+    before their weights were kept per coupling), in Python, over the ``rows``: the ties on
+    the same work list (the rows in order, a lowered row visited next, at most
+    PROPAGATION_SWEEPS visits per row), then the alternating grading sweeps."""
+    from dolfinode.timeslab.multi.steps import (
+        ASYMMETRY,
+        GRADING,
+        GRADING_SWEEPS,
+        PROPAGATION_SWEEPS,
+    )
+
+    def couplings(i):
+        for nz in range(indptr[i], indptr[i + 1]):
+            j = indices[nz]
+            if j != i and jacobian[nz] != 0.0 and np.isnan(frozen[j]):
+                yield j, abs(jacobian[nz])
+
+    def mutual(i, j):
+        row = list(indices[indptr[j]:indptr[j + 1]])
+        return abs(jacobian[indptr[j] + row.index(i)]) if i in row else 0.0
+
+    stack = list(rows[::-1])
+    visits = 0
+    while stack and visits < PROPAGATION_SWEEPS * len(rows):
+        i = stack.pop()
+        visits += 1
+        for j, jij in couplings(i):
+            jji = mutual(i, j)
+            tie = jij * kdes[i] > 1.0 or (0.0 < jji and jij >= ASYMMETRY**2 * jji)
+            if tie and kdes[j] > kdes[i]:
+                kdes[j] = kdes[i]
+                if j not in stack:
+                    stack.append(j)
+    for sweep in range(GRADING_SWEEPS):
+        moved = False
+        for i in (rows if sweep % 2 == 0 else rows[::-1]):
+            for j, jij in couplings(i):
+                if kdes[i] > GRADING * kdes[j]:
+                    cap = max(GRADING * kdes[j], 1.0 / jij)
+                    if kdes[i] > cap:
+                        kdes[i] = cap
+                        moved = True
+        if not moved:
+            return
+
 
 def test_ties_and_grading_over_the_acting_rows_only():
-    """On random patterns (some components frozen, lopsided couplings, steps on both sides
-    of 1 / |J_ij|), ``propagate`` and ``grade`` over the rows that ``tying_rows`` and
-    ``grading_rows`` pass on give bitwise the steps of both over every active row, as the
-    loop uses them on synchronised slabs; the acting rows are a strict subset in some
-    cases and the steps move in some."""
-    from dolfinode.timeslab.multi.steps import (
-        grade,
-        grading_rows,
-        propagate,
-        tie_reach,
-        tying_rows,
-    )
+    """On random patterns (some components frozen, lopsided couplings, stored zeros, steps on
+    both sides of 1 / |J_ij|), ``propagate`` and ``grade`` with the couplings' weights of
+    ``tie_reach``, over the rows that ``tying_rows`` and ``grading_rows`` pass on, give
+    bitwise the steps of the rules read straight from the Jacobian over every active row;
+    the acting rows are a strict subset in some cases and the steps move in some."""
+    from dolfinode.timeslab.multi.steps import grade, grading_rows, propagate, tying_rows
 
     rng = np.random.default_rng(5)
     n = 8
     fewer = moved = 0
     for _ in range(300):
-        dense = rng.random((n, n)) < 0.35
-        values = np.where(dense, 10.0 ** rng.uniform(-1, 3, (n, n)), 0.0)
-        values[dense & (rng.random((n, n)) < 0.1)] = 0.0  # (stored zeros)
-        indptr = np.concatenate([[0], np.cumsum(dense.sum(axis=1))])
-        indices = np.concatenate([np.flatnonzero(row) for row in dense]).astype(np.int64)
-        jacobian = values[dense] * rng.choice([-1.0, 1.0], dense.sum())
-        kdes = 10.0 ** rng.uniform(-4, 0, n)
-        frozen = np.where(rng.random(n) < 0.2, 0.0, np.nan)
+        indptr, indices, jacobian, kdes, frozen = _random_pattern(rng, n, 0.35, (-1, 3))
         rows = np.flatnonzero(np.isnan(frozen)).astype(np.int64)
-        reach, lopsided = np.empty(n), np.zeros(n, dtype=np.bool_)
-        tie_reach(rows, indptr, indices, jacobian, reach, lopsided)
         every, subset = kdes.copy(), kdes.copy()
-        propagate(every, rows, frozen, indptr, indices, jacobian, np.zeros(n, dtype=np.bool_),
-                  np.empty(n, dtype=np.int64))
-        grade(every, rows, frozen, indptr, indices, jacobian)
+        _direct_ties_and_grading(every, rows, frozen, indptr, indices, jacobian)
+        reach, lopsided, strength, reaction = _weights(rows, indptr, indices, jacobian)
         acting = np.empty(n, dtype=np.int64)
         ties = tying_rows(subset, rows, reach, lopsided, acting)
-        propagate(subset, acting[:ties], frozen, indptr, indices, jacobian,
+        propagate(subset, acting[:ties], frozen, indptr, indices, strength,
                   np.zeros(n, dtype=np.bool_), np.empty(n, dtype=np.int64))
         grading = grading_rows(subset, rows, reach, acting)
-        grade(subset, acting[:grading], frozen, indptr, indices, jacobian)
+        grade(subset, acting[:grading], frozen, indptr, indices, reaction)
         np.testing.assert_array_equal(subset, every)
         fewer += ties < rows.size and grading < rows.size
         moved += not np.array_equal(every, kdes)
     assert fewer > 30 and moved > 30
+
 
 def _front(n, T):
     """The reaction front u' = eps u_xx + gamma u^2 (1 - u) on n points of [0, (n - 1) / 200]

@@ -352,11 +352,13 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     mark = np.zeros(N, dtype=np.int64)
     lowered = np.zeros(N, dtype=np.bool_)  # (``propagate``)
     stack = np.empty(N, dtype=np.int64)
-    # each row's reach (``tie_reach``) for the Jacobian rows since their last evaluation:
-    # the synchronised slabs that share them pass only the rows that can act to the ties
-    # and grading (``acting``)
+    # each row's reach and each coupling's weights (``tie_reach``) for the Jacobian rows
+    # since their last evaluation: the slabs that share them pass only the rows that can
+    # act to the ties and grading (``acting``)
     reach = np.empty(N)
     lopsided = np.zeros(N, dtype=np.bool_)
+    strength = np.empty(max(1, indices.shape[0]))
+    reaction = np.empty(max(1, indices.shape[0]))
     reach_valid = False
     acting = np.empty(N, dtype=np.int64)
     projected = np.zeros(N, dtype=np.bool_)
@@ -567,17 +569,15 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             if fixed:
                 return CONSTRAINT
             accept = False
-        if not fixed and solved:  # (a Jacobian that serves up to JACOBIAN_AGE slabs)
-            if not reach_valid:
-                tie_reach(active[:nactive], indptr, indices, jacobian, reach, lopsided)
+        if not fixed:
+            if not reach_valid:  # (a Jacobian that serves up to JACOBIAN_AGE slabs)
+                tie_reach(active[:nactive], indptr, indices, jacobian, reach, lopsided,
+                          strength, reaction)
                 reach_valid = True
             n = tying_rows(kdes, active[:nactive], reach, lopsided, acting)
-            propagate(kdes, acting[:n], frozen, indptr, indices, jacobian, lowered, stack)
+            propagate(kdes, acting[:n], frozen, indptr, indices, strength, lowered, stack)
             n = grading_rows(kdes, active[:nactive], reach, acting)
-            grade(kdes, acting[:n], frozen, indptr, indices, jacobian)
-        elif not fixed:
-            propagate(kdes, active[:nactive], frozen, indptr, indices, jacobian, lowered, stack)
-            grade(kdes, active[:nactive], frozen, indptr, indices, jacobian)
+            grade(kdes, acting[:n], frozen, indptr, indices, reaction)
         if not accept:
             counters[REJECTED] += 1
             # the steps chosen at the slab's start no longer fit its end (a front arrives):

@@ -18,7 +18,7 @@ SLAB_CLIMB = 1.5
 
 @linked
 @helper(**NO_REFCOUNT)
-def propagate(kdes, rows, frozen, indptr, indices, jacobian, lowered, stack):
+def propagate(kdes, rows, frozen, indptr, indices, strength, lowered, stack):
     """Small steps travel along strong dependencies: k_j <= k_i when f_i reacts to u_j within
     one step of i (|J_ij| k_i > 1; DOLFIN's "poor man's dual weighting", restricted to the
     couplings that matter), or when the coupling is mutual and lopsided,
@@ -26,16 +26,17 @@ def propagate(kdes, rows, frozen, indptr, indices, jacobian, lowered, stack):
     u_i over i's time scale (the scaling that makes the pair symmetric; omega for x' = v,
     v' = -omega^2 x), so u_j must be as resolved as u_i although its own indicator allows
     longer steps (mcG(1) on the stiff chain at tolerance 1e-7: positions 40x longer than
-    their velocities, 2 10^4 x tolerance). Only the components ``rows`` and the active ones
-    they read take part (frozen components have no step). A step lowered by a tie is passed
-    on along the next one (on POLLU, y4 -> y3 -> the species with J_ii = -4.4e11) to a fixed
-    point, by a work list: the ``rows`` in order, and a row whose step fell is visited again
-    next (``stack``, N integers; ``lowered``, N flags, False on entry and on return, marks
-    the rows on it), at most PROPAGATION_SWEEPS visits per row. Steps only decrease and a tie
-    depends on k_i alone, so a row whose step did not fall since its last visit would change
-    nothing. (Passes over the rows in order move a tie one coupling per pass where the
-    coupled rows come in the other order: 6-8 passes per slab on the uniform mass-spring
-    chain, x_1..x_n, v_1..v_n.)"""
+    their velocities, 2 10^4 x tolerance). Both tests are one, strength_ij k_i > 1, with the
+    couplings' ``strength`` of :func:`tie_reach` (|J_ij|, infinite where lopsided). Only the
+    components ``rows`` and the active ones they read take part (frozen components have no
+    step). A step lowered by a tie is passed on along the next one (on POLLU, y4 -> y3 -> the
+    species with J_ii = -4.4e11) to a fixed point, by a work list: the ``rows`` in order, and
+    a row whose step fell is visited again next (``stack``, N integers; ``lowered``, N flags,
+    False on entry and on return, marks the rows on it), at most PROPAGATION_SWEEPS visits
+    per row. Steps only decrease and a tie depends on k_i alone, so a row whose step did not
+    fall since its last visit would change nothing. (Passes over the rows in order move a tie
+    one coupling per pass where the coupled rows come in the other order: 6-8 passes per
+    slab on the uniform mass-spring chain, x_1..x_n, v_1..v_n.)"""
     n = 0
     for r in range(rows.shape[0] - 1, -1, -1):
         stack[n] = rows[r]
@@ -49,17 +50,7 @@ def propagate(kdes, rows, frozen, indptr, indices, jacobian, lowered, stack):
         visits += 1
         for nz in range(indptr[i], indptr[i + 1]):
             j = indices[nz]
-            jij = abs(jacobian[nz])
-            if j == i or jij == 0.0 or kdes[j] <= kdes[i] or not math.isnan(frozen[j]):
-                continue
-            tie = jij * kdes[i] > 1.0
-            if not tie:
-                for nz2 in range(indptr[j], indptr[j + 1]):
-                    if indices[nz2] == i:
-                        jji = abs(jacobian[nz2])
-                        tie = 0.0 < jji and jij >= ASYMMETRY**2 * jji
-                        break
-            if tie:
+            if strength[nz] * kdes[i] > 1.0 and kdes[j] > kdes[i] and math.isnan(frozen[j]):
                 kdes[j] = kdes[i]
                 if not lowered[j]:
                     lowered[j] = True
@@ -71,13 +62,14 @@ def propagate(kdes, rows, frozen, indptr, indices, jacobian, lowered, stack):
 
 @linked
 @helper(**NO_REFCOUNT)
-def grade(kdes, rows, frozen, indptr, indices, jacobian):
+def grade(kdes, rows, frozen, indptr, indices, reaction):
     """Grade the steps along strong couplings, k_i <= max(GRADING k_j, 1 / |df_i/du_j|):
     a component that reacts to u_j within its own step may not step far beyond j, so that
     activity moving along the couplings (a front) meets steps that shrink towards it instead
-    of one long step that the next slab rejects. Alternating sweeps over the components
-    ``rows``, to a fixed point or GRADING_SWEEPS of them; frozen components constrain
-    nothing."""
+    of one long step that the next slab rejects. ``reaction`` holds 1 / |J_ij| per coupling
+    (:func:`tie_reach`; infinite for j = i and J_ij = 0, which constrain nothing).
+    Alternating sweeps over the components ``rows``, to a fixed point or GRADING_SWEEPS of
+    them; frozen components constrain nothing."""
     n = rows.shape[0]
     for sweep in range(GRADING_SWEEPS):
         moved = False
@@ -85,11 +77,9 @@ def grade(kdes, rows, frozen, indptr, indices, jacobian):
             i = rows[r] if sweep % 2 == 0 else rows[n - 1 - r]
             for nz in range(indptr[i], indptr[i + 1]):
                 j = indices[nz]
-                if j == i or jacobian[nz] == 0.0 or not math.isnan(frozen[j]):
-                    continue
-                # (k_i > max(a, b) iff k_i > a and k_i > b: the division only when needed)
-                if kdes[i] > GRADING * kdes[j]:
-                    cap = max(GRADING * kdes[j], 1.0 / abs(jacobian[nz]))
+                # (k_i > max(a, b) iff k_i > a and k_i > b)
+                if kdes[i] > GRADING * kdes[j] and math.isnan(frozen[j]):
+                    cap = max(GRADING * kdes[j], reaction[nz])
                     if kdes[i] > cap:
                         kdes[i] = cap
                         moved = True
@@ -98,26 +88,35 @@ def grade(kdes, rows, frozen, indptr, indices, jacobian):
 
 
 @helper(**NO_REFCOUNT)
-def tie_reach(rows, indptr, indices, jacobian, reach, lopsided):
+def tie_reach(rows, indptr, indices, jacobian, reach, lopsided, strength, reaction):
     """For the ``rows``: reach[i], the largest |J_ij| over j != i (NaN if one is), and
     lopsided[i], whether a coupling of row i is mutual and lopsided,
-    |J_ij| >= ASYMMETRY^2 |J_ji| > 0. They depend on the Jacobian alone (made once for the
-    slabs that share one) and tell which rows ``propagate`` and ``grade`` can act on
-    (``tying_rows``, ``grading_rows``)."""
+    |J_ij| >= ASYMMETRY^2 |J_ji| > 0; per coupling (CSR position nz of J_ij) the
+    ``strength`` that ``propagate`` ties by, |J_ij| (0 for j = i, infinite where lopsided),
+    and the ``reaction`` time that ``grade`` caps by, 1 / |J_ij| (infinite for j = i and
+    J_ij = 0). They depend on the Jacobian alone (made once for the slabs that share one)
+    and tell which rows ``propagate`` and ``grade`` can act on (``tying_rows``,
+    ``grading_rows``)."""
     for i in rows:
         largest = 0.0
         lopsided[i] = False
         for nz in range(indptr[i], indptr[i + 1]):
             j = indices[nz]
             jij = abs(jacobian[nz])
+            strength[nz] = 0.0
+            reaction[nz] = math.inf
             if j == i or jij == 0.0:
                 continue
+            strength[nz] = jij
+            reaction[nz] = 1.0 / jij
             if not jij <= largest:
                 largest = jij
             for nz2 in range(indptr[j], indptr[j + 1]):
                 if indices[nz2] == i:
                     jji = abs(jacobian[nz2])
-                    lopsided[i] = lopsided[i] or (0.0 < jji and jij >= ASYMMETRY**2 * jji)
+                    if 0.0 < jji and jij >= ASYMMETRY**2 * jji:
+                        lopsided[i] = True
+                        strength[nz] = math.inf
                     break
         reach[i] = largest
 
