@@ -574,7 +574,7 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
             gap, kept = _flow_gap(Z, starts, num, den, basis)
             e += gap[:, 0]
             g += gap[:, 1]
-        # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, f(U) = U' - R there
+        # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, its last stage point
         for col in range(N):
             shifted[col] = U[s, col] - e[col]
         f(address(shifted, 0), t_start[n] + k[n], address(p, 0), address(fU, 0))
@@ -677,7 +677,7 @@ class Running:
     """The recursion of :func:`estimate` for a mono-adaptive run of ``ode`` by ``method``
     (with the kernels ``compiled``), carried chunk by chunk as the run's slabs arrive
     (:meth:`add`), so that a solve without history (``dense_output=False`` or a file) is
-    estimated as one with it: it keeps e_n, U(t_n^-), nu and delta's sums per component
+    estimated as one with it: it keeps e_n, U(t_n^-), nu and the second-order part g
     (``weight``: atol / rtol per component, default 1), not the slabs, and each chunk
     continues the arithmetic of the one pass over the whole history.
 
