@@ -28,15 +28,20 @@ that is the nonlinearity nu = max_n |f(U_n - e_n) - f(U_n) + J_n e_n| / |J_n e_n
 slabs' ends (0 for linear systems); where nu > NONLINEAR_LIMIT the estimate is not trusted
 (above 10 x the tolerance :func:`dolfinode.solve` then measures the error against a tighter
 solve, and says that it could not be estimated where that fails). A small nu does not make
-the estimate at T right: the remainder r_n = f(U_n - e_n) - f(U_n) + J_n e_n the linearised
-equation leaves out is a forcing like R, and where the run does not damp it (an oscillation
-whose frequency depends on its amplitude, over many periods) it adds up as R does. Its sum
-with neutral weights, scaled as the tolerance means it,
+the estimate at T right: the remainder r = f(U - e) - f(U) + J e the linearised equation
+leaves out is a forcing like R (the error obeys e' = J e + R - r), and where the run does not
+damp it (an oscillation whose frequency depends on its amplitude, over many periods) it adds
+up as R does. The second-order part g, the solution of g' = J g - r(e), g(t_0) = 0, is
+propagated signed with e, by the same stage systems (:func:`_recursion`: r at the stage
+points, one more back-substitution per slab), so that what the run damps does not add up
+and what it carries does; scaled as the tolerance means it,
 
-    delta = max_i sum_n k_n |r_{n,i}| / (w_i + |U_{n,i} - e_{n,i}|),   w = atol / rtol,
+    delta = max_i |g_i(T)| / (w_i + |U_i(T) - e_i|),   w = atol / rtol,
 
-the second-order part, bounds how far it moves the estimate on such a run (on a damped one it
-over-counts); :func:`dolfinode.solve` measures the error where delta leaves the estimate on
+it says how far the remainder moves the estimate at T. :func:`slab_estimate` has no values
+of e inside its slabs to propagate r by and bounds it by the neutral sum, delta = max_i
+sum_n k_n |r_{n,i}| / (w_i + |U_{n,i} - e_{n,i}|) at the slabs' ends (on a damped run it
+over-counts). :func:`dolfinode.solve` measures the error where delta leaves the estimate on
 either side of 10 x the tolerance.
 """
 from functools import lru_cache
@@ -342,9 +347,10 @@ BASIS_CONDITION = 1e6
 def _flow_gap(Z, x, num, den, basis):
     """((exp(Z) - P(Z)) x restricted to the modes z of Z where |exp(z) - P(z)| and |exp(z)|
     exceed FLOW_GAP (:func:`_gaps`), in Z's eigenbasis (zero where there is none, or where
-    that basis is near-defective: condition above MODAL_CONDITION); whether that basis V
-    and V^-1 were kept in basis[0], basis[1] for :func:`_flows_agree` (BASIS_CONDITION))."""
-    out = np.zeros(x.size)
+    that basis is near-defective: condition above MODAL_CONDITION), for the columns of ``x``
+    (N, m); whether that basis V and V^-1 were kept in basis[0], basis[1] for
+    :func:`_flows_agree` (BASIS_CONDITION))."""
+    out = np.zeros(x.shape)
     if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(x))):
         return out, False  # (J or e not finite: the stage solve's e is not either, and says so)
     lam, V = np.linalg.eig(Z.astype(np.complex128))
@@ -358,7 +364,7 @@ def _flow_gap(Z, x, num, den, basis):
     gaps = _gaps(lam, num, den)
     if np.all(gaps == 0) or np.linalg.cond(V) > MODAL_CONDITION:
         return out, kept
-    y = gaps * np.linalg.solve(V, x.astype(np.complex128))
+    y = gaps.reshape((gaps.size, 1)) * np.linalg.solve(V, x.astype(np.complex128))
     return (V @ y).real, kept
 
 
@@ -431,34 +437,37 @@ def _in_flow_region(z, rho, damped, radius, box):
 
 
 @njit(cache=True)
-def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before, weight,
-               second, nodes, B, D, a, position, kl, ku, num, den, radius, box, slabs, shifts):
+def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before, g,
+               nodes, B, D, a, position, kl, ku, num, den, radius, box, slabs, shifts):
     """(e_M, nu): e_{n+1} = the last stage of (I - k a (x) J_j) E = 1 (x) (e_n + [U]_n)
     + k (a (x) I) R, one slab after the other from e_0 = ``e0`` (U(t_0^-) = ``before``, the
     previous slab's end value or u0), (J_j, R_j at the Radau points ``nodes``; ``B``,
     ``D``: the slab polynomial and its derivative at 0 and at the nodes), and nu as in the
-    module docstring, from the last stage's J and f at the slab's end; each slab's
-    k_n |r_n| / (w + |U_n - e_n|) of delta is added to ``second`` (``weight``: w = atol /
-    rtol per component). The stage (i, r) is
+    module docstring, from the last stage's J and f at the slab's end. The second-order
+    part ``g`` (in place, from its value at t_0) is carried by the same stage system, with
+    the remainder r_j = f(U_j - E_j) - f(U_j) + J_j E_j at the stages as its forcing:
+    g_{n+1} = the last stage of (I - k a (x) J_j) G = 1 (x) g_n - k (a (x) I) r (one more
+    back-substitution). The stage (i, r) is
     unknown s position[r] + i (:func:`stage_band`); kl >= 0: the system is solved by its
     band LU with bandwidths (kl, ku), kl < 0: by LAPACK. On the modes of the slab's mean
     Jacobian Z = k sum_j a_sj J_j where the collocation's flow P(z) (coefficients ``num``,
     ``den``; none while k ||J||_1 <= ``radius``, nor while the eigenbasis of an earlier
     slab's Z shows none, :func:`_flows_agree`) departs from exp(z) (:data:`FLOW_GAP`),
-    e_n + [U]_n is carried by exp(z), as in :func:`_modal`: e_{n+1} += (exp(Z) - P(Z))
-    (e_n + [U]_n) on those modes. ``shifts[i]``
+    e_n + [U]_n and g_n are carried by exp(z), as in :func:`_modal`: e_{n+1} += (exp(Z) -
+    P(Z)) (e_n + [U]_n) on those modes, and g_{n+1} likewise. ``shifts[i]``
     is added to R at every stage of the slab ``slabs[i]`` (increasing;
     :func:`_feature_shifts`)."""
     f, jac = rhs_kernel(rhs), rhs_kernel(jacobian)
     M, s, N, nnz = k.size, nodes.size, e0.size, indices.size
-    U, R = np.empty((s + 1, N)), np.empty((s, N))
+    U, R, F = np.empty((s + 1, N)), np.empty((s, N)), np.empty((s, N))
     fU, data = np.empty(N), np.empty((s, max(nnz, 1)))
     band = kl >= 0
     A = np.empty((0, 0)) if band else np.empty((s * N, s * N))
     ab = np.zeros((s * N, 2 * kl + ku + 1) if band else (0, 0))  # (band_storage)
     pivots = np.empty(s * N if band else 0, dtype=np.int64)
-    b = np.empty(s * N)
+    b, c = np.empty(s * N), np.empty(s * N)
     x, e, shifted = np.empty(N), e0.copy(), np.empty(N)
+    starts = np.empty((N, 2))  # e_n + [U]_n and g_n, for the exact flow's part
     exact = N <= MAX_DENSE  # (Z is dense: large banded systems keep the collocation's flow)
     Z = np.empty((N, N) if exact else (0, 0))
     # an earlier slab's eigenbasis of Z and its inverse, where kept (:func:`_flows_agree`)
@@ -477,10 +486,10 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
                         R[i - 1, col] += D[i, j] * values[n, j, col] / k[n]
         for i in range(s):
             t = t_start[n] + nodes[i] * k[n]
-            f(address(U, (i + 1) * N), t, address(p, 0), address(fU, 0))
+            f(address(U, (i + 1) * N), t, address(p, 0), address(F, i * N))
             jac(address(U, (i + 1) * N), t, address(p, 0), address(data, i * data.shape[1]))
             for col in range(N):
-                R[i, col] -= fU[col]
+                R[i, col] -= F[i, col]
         if next_shift < slabs.size and slabs[next_shift] == n:
             for i in range(s):
                 for col in range(N):
@@ -509,15 +518,42 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
                             ab[col, kl + ku + row - col] -= k[n] * a[i, j] * data[j, m]
                         else:
                             A[row, col] -= k[n] * a[i, j] * data[j, m]
+        factored = True
         if band:
-            if band_lu(ab, kl, ku, pivots) == 0:
+            factored = band_lu(ab, kl, ku, pivots) == 0
+            if factored:
                 band_solve(ab, kl, ku, pivots, b)
             else:
                 b[:] = np.nan  # (a singular stage system: the estimate says so)
         else:
             b = np.linalg.solve(A, b)
+        # the remainder at the stages, R holding it in turn: r_j = f(U_j - E_j) - f(U_j) + J_j E_j
+        for i in range(s):
+            for col in range(N):
+                shifted[col] = U[i + 1, col] - b[s * position[col] + i]
+            t = t_start[n] + nodes[i] * k[n]
+            f(address(shifted, 0), t, address(p, 0), address(fU, 0))
+            for col in range(N):
+                linear = 0.0
+                for m in range(indptr[col], indptr[col + 1]):
+                    linear += data[i, m] * b[s * position[indices[m]] + i]
+                R[i, col] = fU[col] - F[i, col] + linear
+        for r in range(N):
+            for i in range(s):
+                row = s * position[r] + i
+                c[row] = g[r]
+                for j in range(s):
+                    c[row] -= k[n] * a[i, j] * R[j, r]
+        if not factored:
+            c[:] = np.nan
+        elif band:
+            band_solve(ab, kl, ku, pivots, c)
+        else:
+            c = np.linalg.solve(A, c)
         for r in range(N):
             e[r] = b[s * position[r] + s - 1]
+            starts[r, 0], starts[r, 1] = x[r], g[r]
+            g[r] = c[s * position[r] + s - 1]
         Z[:] = 0.0
         for r in range(N if exact else 0):
             for m in range(indptr[r], indptr[r + 1]):
@@ -525,23 +561,20 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
                     Z[r, indices[m]] += k[n] * a[s - 1, j] * data[j, m]
         if (exact and _norm1(Z) > radius
                 and not (kept and _flows_agree(Z, basis[0], basis[1], radius, box, work))):
-            gap, kept = _flow_gap(Z, x, num, den, basis)
-            e += gap
-        # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, f(U) = U' - R there
+            gap, kept = _flow_gap(Z, starts, num, den, basis)
+            e += gap[:, 0]
+            g += gap[:, 1]
+        # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, its last stage point
         for col in range(N):
             shifted[col] = U[s, col] - e[col]
         f(address(shifted, 0), t_start[n] + k[n], address(p, 0), address(fU, 0))
         size = remainder = 0.0
         for r in range(N):
-            linear = derivative = 0.0
+            linear = 0.0
             for m in range(indptr[r], indptr[r + 1]):
                 linear += data[s - 1, m] * e[indices[m]]
-            for j in range(values.shape[1]):
-                derivative += D[s, j] * values[n, j, r] / k[n]
             size = max(size, abs(linear))
-            rest = abs(fU[r] - (derivative - R[s - 1, r]) + linear)
-            remainder = max(remainder, rest)
-            second[r] += k[n] * rest / (weight[r] + abs(shifted[r]))
+            remainder = max(remainder, abs(fU[r] - F[s - 1, r] + linear))
         if size > 0:
             nu = max(nu, remainder / size)
     return e, nu
@@ -599,6 +632,13 @@ MODAL_CONDITION = 1e8
 NONLINEAR_LIMIT = 100.0
 
 
+def second_order(g, U, e, weight):
+    """delta = max_i |g_i| / (w_i + |U_i - e_i|): the second-order part ``g`` of the error at
+    T (see the module docstring) scaled as the tolerance means it, by the exact solution's
+    estimate U(T) - e (``weight``: w = atol / rtol per component)."""
+    return float(np.max(np.abs(g) / (weight + np.abs(U - e)), initial=0.0))
+
+
 def estimate(sol, compiled=None, weight=None):
     """(e, nu, delta): the signed estimate e ~ U(T) - u(T), shape (N,), of a cG(q)/dG(q)
     solution, the nonlinearity nu of the error equation along the run and its second-order
@@ -627,7 +667,7 @@ class Running:
     """The recursion of :func:`estimate` for a mono-adaptive run of ``ode`` by ``method``
     (with the kernels ``compiled``), carried chunk by chunk as the run's slabs arrive
     (:meth:`add`), so that a solve without history (``dense_output=False`` or a file) is
-    estimated as one with it: it keeps e_n, U(t_n^-), nu and delta's sums per component
+    estimated as one with it: it keeps e_n, U(t_n^-), nu and the second-order part g
     (``weight``: atol / rtol per component, default 1), not the slabs, and each chunk
     continues the arithmetic of the one pass over the whole history.
 
@@ -654,14 +694,14 @@ class Running:
         self.ode, self.compiled, self.method, self.c, self.a = ode, compiled, method, c, a
         B, D, flows = _stage_tables(tuple(float(node) for node in method.nodes))
         self.stages = (c, B, D, a, position, kl, ku, *flows)
-        self.e, self.nu, self.second = np.zeros(compiled.N), 0.0, np.zeros(compiled.N)
+        self.e, self.nu, self.g = np.zeros(compiled.N), 0.0, np.zeros(compiled.N)
         self.weight = np.ones(compiled.N) if weight is None else np.asarray(weight, dtype=float)
         self.before = np.array(ode.u0, dtype=float)  # U(t_n^-) of the next slab
 
     @property
     def delta(self):
         """The second-order part of the estimate so far (see the module docstring)."""
-        return float(np.max(self.second, initial=0.0))
+        return second_order(self.g, self.before, self.e, self.weight)
 
     def add(self, t_start, k, values):
         """Carry e over the next slabs of the run, (t_start (n,), k (n,), values (n, q + 1,
@@ -679,7 +719,7 @@ class Running:
             self.e, nu = _recursion(compiled.rhs.address, compiled.jacobian.address,
                                     compiled.p, compiled.indptr, compiled.indices,
                                     np.ascontiguousarray(values), k, t_start, self.e,
-                                    self.before, self.weight, self.second, *self.stages,
+                                    self.before, self.g, *self.stages,
                                     *shifts)
             self.nu = max(self.nu, nu)
         self.before = values[-1, -1].copy()
@@ -817,8 +857,9 @@ def slab_estimate(sol, compiled=None, weight=None):
     SLAB_SETTLED x the sum, the moment terms up to m = M <= 2q + SLAB_MOMENTS (Horner; M
     by K rho(J), SLAB_MOMENT_CUT); both hold for K rho(J) below about 2, which the
     sub-steps keep. With one sub-step and one element
-    per slab it is the series of the collocation of :func:`estimate`. nu and delta as there
-    (``weight``: atol / rtol per component, default 1), at the slabs' ends. A :class:`~dolfinode.solution.MixedSolution` keeps its parts."""
+    per slab it is the series of the collocation of :func:`estimate`. nu as there and delta
+    by the neutral sum of the module docstring (``weight``: atol / rtol per component,
+    default 1), at the slabs' ends. A :class:`~dolfinode.solution.MixedSolution` keeps its parts."""
     compiled = lower(sol.ode) if compiled is None else compiled
     method = sol.method
     N = compiled.N

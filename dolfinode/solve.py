@@ -432,8 +432,8 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         measured instead against a dG(3) solve at 1/100 of the tolerance,
         ``sol.stats["global error reference"]``, and the warning says so; the same where
         the estimate is within 10 x but its second-order part, the remainder f(U - e) -
-        f(U) + J e the linearisation leaves out summed along the run,
-        ``sol.stats["global error second order"]``, could lift it above: a nonlinear
+        f(U) + J e the linearisation leaves out propagated along the run as the estimate
+        is, ``sol.stats["global error second order"]``, could lift it above: a nonlinear
         oscillator's phase error over many periods). Measured within
         0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
         and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md); it
