@@ -314,9 +314,12 @@ def _periodic_roots(g, t0, T):
     return roots[np.append(True, apart)].tolist() if roots.size else []
 
 
-def breakpoints(ode, switches, given):
-    """Sorted breakpoints in (t0, T): roots of the switching functions of t alone and the
-    user's ``given`` (times outside (t0, T) are dropped)."""
+def breakpoints(ode, switches, given, edges=()):
+    """Sorted breakpoints in (t0, T): roots of the switching functions of t alone, the
+    user's ``given`` and the ``edges`` of narrow features of f(t) (times outside (t0, T)
+    are dropped). The pieces between the jumps (roots and ``given``) are checked by
+    :func:`_check_pieces`; the features' edges, which grade steps down to a singular point,
+    are not jumps."""
     t0, T = ode.t0, ode.T
     times = [float(b) for b in given]
     for s in switches:
@@ -337,7 +340,8 @@ def breakpoints(ode, switches, given):
     times = np.unique(np.array(times, dtype=float))
     times = times[(times > t0) & (times < T)]
     _check_pieces(np.concatenate([[t0], times, [T]]), T - t0)
-    return times
+    times = np.union1d(times, np.asarray(edges, dtype=float))
+    return times[(times > t0) & (times < T)]
 
 
 def _check_pieces(ends, span):
@@ -494,9 +498,8 @@ class Plan:
     @staticmethod
     def _parts(ode, switches, given_breakpoints, events):
         """The breakpoints, the switches on the state and the two detectors of a plan."""
-        times = breakpoints(ode, switches, [*([] if given_breakpoints is None
-                                              else given_breakpoints),
-                                            *narrow_features(ode).edges()])
+        times = breakpoints(ode, switches, [] if given_breakpoints is None
+                            else given_breakpoints, narrow_features(ode).edges())
         t_only = [s for s in switches if not (_numeric(s.g, ode).free_symbols - {time_symbol})]
         on_state = [s for s in switches if not any(s is o for o in t_only)]
         detector = Detector(ode, [e.g for e in events] + [s.g for s in on_state],
