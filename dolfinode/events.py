@@ -348,16 +348,18 @@ def _check_pieces(ends, span):
     """Raise ValueError for a piece [a, b] between jumps of f(t) that the loops cannot
     integrate: one with no double inside (f's branches there are read at its middle), or
     one that ends at a jump and is shorter than the smallest step double precision
-    resolves at a (the step after it, started from its length, stopped the solve with a
-    step below that; with a longer first step, a pulse one ulp wide was lost)."""
+    resolves at a: the step after it, started from its length, stopped the solve with a
+    step below that (a jump at 1e-300 from t0 = 0), or the piece was lost (a pulse 16 ulp
+    wide at t = 1)."""
     a, b = ends[:-1], ends[1:]
     middle = 0.5 * (a + b)
     short = (b - a < smallest_step.py_func(a, span)) & (b < ends[-1])
     bad = np.flatnonzero((middle <= a) | (middle >= b) | short)
     if bad.size:
         n = bad[0]
-        raise ValueError(f"the piece [{a[n]!r}, {b[n]!r}] of f(t) between its jumps (or t0) "
-                         "is shorter than the smallest step double precision resolves there "
+        raise ValueError(f"the piece [{float(a[n])!r}, {float(b[n])!r}] of f(t) between its "
+                         "jumps (or t0) is shorter than the smallest step double precision "
+                         "resolves there "
                          f"({smallest_step(a[n], span):.2g}): f cannot be integrated on it. Move "
                          "the jumps apart (a pulse wider than that), merge them, or put a jump "
                          "this close to t0 at t0")
