@@ -314,9 +314,12 @@ def _periodic_roots(g, t0, T):
     return roots[np.append(True, apart)].tolist() if roots.size else []
 
 
-def breakpoints(ode, switches, given):
-    """Sorted breakpoints in (t0, T): roots of the switching functions of t alone and the
-    user's ``given`` (times outside (t0, T) are dropped)."""
+def breakpoints(ode, switches, given, edges=()):
+    """Sorted breakpoints in (t0, T): roots of the switching functions of t alone, the
+    user's ``given`` and the ``edges`` of narrow features of f(t) (times outside (t0, T)
+    are dropped). The pieces between the jumps (roots and ``given``) are checked by
+    :func:`_check_pieces`; the features' edges, which grade steps down to a singular point,
+    are not jumps."""
     t0, T = ode.t0, ode.T
     times = [float(b) for b in given]
     for s in switches:
@@ -335,7 +338,31 @@ def breakpoints(ode, switches, given):
         for n in range(low, high + 1):
             times += _roots_in(g - n, t0, T)
     times = np.unique(np.array(times, dtype=float))
+    times = times[(times > t0) & (times < T)]
+    _check_pieces(np.concatenate([[t0], times, [T]]), T - t0)
+    times = np.union1d(times, np.asarray(edges, dtype=float))
     return times[(times > t0) & (times < T)]
+
+
+def _check_pieces(ends, span):
+    """Raise ValueError for a piece [a, b] between jumps of f(t) that the loops cannot
+    integrate: one with no double inside (f's branches there are read at its middle), or
+    one that ends at a jump and is shorter than the smallest step double precision
+    resolves at a: the step after it, started from its length, stopped the solve with a
+    step below that (a jump at 1e-300 from t0 = 0), or the piece was lost (a pulse 16 ulp
+    wide at t = 1)."""
+    a, b = ends[:-1], ends[1:]
+    middle = 0.5 * (a + b)
+    short = (b - a < smallest_step.py_func(a, span)) & (b < ends[-1])
+    bad = np.flatnonzero((middle <= a) | (middle >= b) | short)
+    if bad.size:
+        n = bad[0]
+        raise ValueError(f"the piece [{float(a[n])!r}, {float(b[n])!r}] of f(t) between its "
+                         "jumps (or t0) is shorter than the smallest step double precision "
+                         "resolves there "
+                         f"({smallest_step(a[n], span):.2g}): f cannot be integrated on it. Move "
+                         "the jumps apart (a pulse wider than that), merge them, or put a jump "
+                         "this close to t0 at t0")
 
 
 class Detector:
@@ -473,9 +500,8 @@ class Plan:
     @staticmethod
     def _parts(ode, switches, given_breakpoints, events):
         """The breakpoints, the switches on the state and the two detectors of a plan."""
-        times = breakpoints(ode, switches, [*([] if given_breakpoints is None
-                                              else given_breakpoints),
-                                            *narrow_features(ode).edges()])
+        times = breakpoints(ode, switches, [] if given_breakpoints is None
+                            else given_breakpoints, narrow_features(ode).edges())
         t_only = [s for s in switches if not (_numeric(s.g, ode).free_symbols - {time_symbol})]
         on_state = [s for s in switches if not any(s is o for o in t_only)]
         detector = Detector(ode, [e.g for e in events] + [s.g for s in on_state],
@@ -542,23 +568,27 @@ class Plan:
         each switching function g on the final solution (:meth:`_samples`) against the
         crossings located. A crossing inside an element that was not located (an element
         longer than the time g takes to come back) leaves f on the wrong branch there.
-        Returns None when none was missed, else a step bound for a new solve: a quarter of
-        the shortest time between sign changes seen."""
+        Returns None when none was missed, else (step, where, g): a step bound for a new
+        solve, a quarter of the shortest time between sign changes seen, and the time and
+        switching function of that shortest gap (None, None if no g changed sign twice)."""
         if not self.state_switches or not sol.dense:
             return None
         # (partners cross together and are counted once)
         distinct = [k for k, same in enumerate(self.partners) if min(same)[0] == k]
         times, G = self._samples(sol, len(self.events) + np.array(distinct, dtype=int))
-        changes, shortest = 0, np.inf
-        for g in G:
+        changes, shortest, where, switch = 0, np.inf, None, None
+        for k, g in zip(distinct, G):
             change = _changes(g)
             changes += change.size
             if change.size > 1:
-                shortest = min(shortest, np.min(np.diff(times[change])))
+                gaps = np.diff(times[change])
+                if gaps.min() < shortest:
+                    shortest, where = gaps.min(), float(times[change[np.argmin(gaps)]])
+                    switch = self.state_switches[k].g
         if changes <= self.switched + self.kinked:
             return None
         span = sol.ode.T - sol.ode.t0
-        return min(shortest, span / max(changes, 1)) / 4
+        return min(shortest, span / max(changes, 1)) / 4, where, switch
 
     def check_events(self, sol, tolerance):
         """Warn (ToleranceWarning) where an event's function, sampled on the final solution

@@ -88,11 +88,12 @@ def undamped_message(method, t, failed, slabs, tolerance):
             f"it, or a tolerance well below {tolerance:g}")
 
 
-def failure_message(status, state, fixed, x, outside, kmax, newton, ode, slabs):
+def failure_message(status, state, fixed, x, outside, kmax, newton, ode, slabs, dg=False):
     """The SolverError message for a loop that stopped with ``status`` (state: t and the
     last step) with the solution x after ``slabs`` time slabs; ``newton``: whether Newton's
-    method was used."""
+    method was used, ``dg``: whether the method is a dG(q) one (then not advised)."""
     t, k = state
+    grew, growth = _growth(ode, x)
     size = f"max |u| = {np.max(np.abs(x)):.3g} there"
     domain = _DOMAIN_DECLARED if ode.nonnegative.any() else _DOMAIN
     solver = "Newton's method" if newton else "the nonlinear solver"
@@ -117,10 +118,17 @@ def failure_message(status, state, fixed, x, outside, kmax, newton, ode, slabs):
             return (f"{solver} did not converge at t = {t:.6g} with the fixed time step "
                     f"{k:.3g}; use a smaller initial_time_step"
                     + ("" if newton else " or nonlinear_solver='newton'"))
+        if grew:
+            return (f"{solver} did not converge at t = {t:.6g}, even after reducing the time "
+                    f"step to {k:.3g}, while max |u| grew {growth} ({size}): the solution may "
+                    "blow up near this time (a finite-time singularity, or growth past what "
+                    f"double precision holds); {domain}")
+        tries = [*([] if newton else ["nonlinear_solver='newton'"]),
+                 *([] if dg else ["a dG(q) method"])]
         return (f"{solver} did not converge at t = {t:.6g}, even after reducing the time step "
-                f"to {k:.3g}; try " + ("" if newton else "nonlinear_solver='newton', ")
-                + f"a dG(q) method, or check the right-hand side for a singularity near this "
-                f"time ({size}); {domain}")
+                f"to {k:.3g}; " + (f"try {', '.join(tries)}, or " if tries else "")
+                + f"check the right-hand side for a singularity near this time ({size}); "
+                f"{domain}")
     if status == ts.CONSTRAINT:
         name = outside.name
         how = "" if fixed else (", or it falls below -absolute_tolerance on every step down to "
@@ -134,15 +142,17 @@ def failure_message(status, state, fixed, x, outside, kmax, newton, ode, slabs):
         return (f"the solution is not finite or blows up near t = {t:.6g} (time step reduced to "
                 f"{k:.3g}; {size}): the exact solution may have a finite-time singularity there, "
                 f"or f is not defined past it; {domain}")
-    grew, growth = _growth(ode, x)
     if grew:
         return (f"the time step fell to {k:.3g} at t = {t:.6g}, below what double precision "
                 f"resolves, while max |u| grew {growth} ({size}): the solution may blow up "
                 "near this time, or the tolerance is too tight for double precision")
+    advice = ("for a stiff problem use a dG(q) method (L-stable) with nonlinear_solver="
+              "'newton'; else " if not (dg and newton) else
+              "the solution changes faster than double precision resolves a step there (a "
+              "rate above about 1 / that step); ")
     return (f"the time step fell to {k:.3g} at t = {t:.6g}, below what double precision "
             f"resolves, but max |u| did not grow ({size}): not a blow-up. The error control or "
-            f"{solver} kept cutting the step: for a stiff problem use a dG(q) method (L-stable) "
-            "with nonlinear_solver='newton'; else loosen tolerance or absolute_tolerance"
+            f"{solver} kept cutting the step: {advice}loosen tolerance or absolute_tolerance"
             + _far_origin(ode))
 
 

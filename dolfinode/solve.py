@@ -586,6 +586,26 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     return solve_lowered(ode, compiled, plan, multi_adaptive, m, params)
 
 
+def _check_switch_retry(ode, params, step, where, g):
+    """Raise SolverError when the new solve of :func:`solve_lowered` with the step bound
+    params["maximum_time_step"] would need more than maximum_steps slabs over [t0, T]: a
+    switch that changes sign and back faster than any feasible step (a threshold of 1e-12
+    on a velocity that passes through zero) would otherwise cost a full solve at that
+    bound before maximum_steps stops it with a message about fast time scales."""
+    slabs = (ode.T - ode.t0) / params["maximum_time_step"]
+    if slabs <= params["maximum_steps"]:
+        return
+    near = "" if where is None else f" ({g} = 0 twice in a short time near t = {where:.9g})"
+    raise SolverError(
+        f"a switch on the state (Piecewise/Heaviside/sign of a state in f) changes sign "
+        f"inside elements that were not split there{near}: locating its crossings would need "
+        f"maximum_time_step = {params['maximum_time_step']:.3g}, {slabs:.3g} steps over "
+        f"[t0, T], more than maximum_steps = {params['maximum_steps']}, and f was evaluated on "
+        "the wrong branch between them. Smooth the switch (e.g. tanh(g / eps)), or make its "
+        "two crossings farther apart (a threshold on a state well above its error)",
+        t=float(ode.t0 if where is None else where))
+
+
 def lowered(ode, params):
     """The kernels of ``ode`` with its jumps in t and switches on the state made branch
     parameters (:func:`dolfinode.events.switched`), and the plan of the pieces, events and
@@ -616,8 +636,8 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], params["tolerance"])
     for _ in range(_SWITCH_RETRIES + 1):
         sol = _solve_once(ode, compiled, plan, multi_adaptive, m, params)
-        step = None if plan is None else plan.unresolved_switch_step(sol)
-        if step is None:
+        missed = None if plan is None else plan.unresolved_switch_step(sol)
+        if missed is None:
             if plan is not None:
                 plan.check_events(sol, params["tolerance"])
             if params["maximum_time_step"] != given:
@@ -633,7 +653,8 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
             return sol
         # (without a maximum_time_step, the bound of an oscillating f(t) stays: the smaller)
         bound = params["maximum_time_step"] or _largest_step(ode, params["fixed_time_step"], atol)
-        params = {**params, "maximum_time_step": min(bound, step)}
+        params = {**params, "maximum_time_step": min(bound, missed[0])}
+        _check_switch_retry(ode, params, *missed)
         plan = ev.Plan.make(ode, plan.switches, params["breakpoints"], params["events"])
     raise SolverError(
         f"a switch on the state (Piecewise/Heaviside/sign of a state in f) changes sign "
@@ -798,7 +819,7 @@ def _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, st
                                    counters[ts.SLABS], params["tolerance"])
         raise SolverError(why or failure_message(
             status, state, fixed, x, outside, params["maximum_time_step"], newton, ode,
-            counters[ts.SLABS]), t=float(state[0]))
+            counters[ts.SLABS], dg=m.family == "dG"), t=float(state[0]))
     _completed_stats(stats, counters.tolist(), multi_adaptive, m, params, compiled.compile_time,
                      time.perf_counter() - start)
     # the declaration as solved: later changes to ode do not reach sol

@@ -457,6 +457,39 @@ def test_switch_crossed_inside_an_element_is_found_and_solved_again(method):
     assert sol.stats["switch step bound"] < 0.157  # below the half period of g
 
 
+@pytest.mark.parametrize("g", [5 * sp.Heaviside(dn.t - 1e-300),
+                               (sp.Heaviside(dn.t - 1) - sp.Heaviside(dn.t - 1 - 2.0**-48))
+                               * 2.0**48])
+def test_a_piece_shorter_than_a_resolvable_step_raises(g):
+    """A jump of f(t) at 1e-300 (within rounding of t0 = 0): the step after that piece
+    started at five times its length, below what double precision resolves, and the solve
+    stopped with "the time step fell to 5e-300 ... use a dG(q) method". A pulse of area 1
+    between 1 and 1 + 16 ulp was lost, silently (u(2) off by 0.37; 2-8 ulp stopped as the
+    jump did). The piece is named before the solve; the same pulse 2^-30 wide is
+    integrated."""
+    with pytest.raises(ValueError, match="shorter than the smallest step double precision"):
+        dn.solve(dn.ODE({u: -u + g}, u0=[0.5], T=2.0), "dG(1)", tolerance=1e-6)
+    wide = (sp.Heaviside(dn.t - 1) - sp.Heaviside(dn.t - 1 - 2.0**-30)) * 2.0**30
+    sol = dn.solve(dn.ODE({u: -u + wide}, u0=[0.5], T=2.0), "dG(1)", tolerance=1e-6)
+    exact = (0.5 * math.exp(-1.0) + 1.0) * math.exp(-1.0)
+    assert abs(sol(2.0)[0] - exact) < 1e-5 * (1 + exact)
+
+
+def test_switch_that_no_feasible_step_resolves_raises_at_once():
+    """Friction switched by a threshold of 1e-12 on |v|: v passes through zero at t = pi,
+    and g = |v| - 1e-12 changes sign twice within about 1e-12 inside an element. A new
+    solve with a quarter of that as step bound needs ~1e13 steps over [0, 8]: it ran until
+    maximum_steps and said that the steps stayed near 1e-12, a fast time scale. The error
+    now comes before that solve and names the switch and where it changed sign."""
+    x, v = sp.symbols("x v")
+    acc = sp.Piecewise((-x - 0.3 * sp.sign(v), sp.Abs(v) > 1e-12), (-x - 0.3 * sp.sign(x), True))
+    ode = dn.ODE({x: v, v: acc}, u0=[2.0, 0.0], T=8.0)
+    with pytest.raises(dn.SolverError, match=r"Abs\(v\) - 1.0e-12 = 0 twice") as caught:
+        dn.solve(ode, "cG(2)", tolerance=1e-4)
+    assert "more than maximum_steps" in str(caught.value)
+    assert min(abs(caught.value.t - math.pi), abs(caught.value.t - 2 * math.pi)) < 1e-3
+
+
 @pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(2)"])
 def test_crossings_inside_elements_warn_with_a_step_that_finds_them(method):
     """u' = -u takes long steps, and an event sin(50 t) crosses zero 159 times on [0, 10]:

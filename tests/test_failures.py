@@ -80,6 +80,26 @@ def test_a_fixed_step_nonconvergence_suggests_newton_unless_it_was_used(solver, 
     assert ("nonlinear_solver='newton'" in str(info.value)) == suggested
 
 
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)"])
+def test_growth_to_overflow_is_called_a_blowup_without_advising_the_method_used(method):
+    """u' = 1000 u overflows near t = 0.71: Newton stopped converging there and the message
+    said to try a dG(q) method (to dG(1) too) or to look for a singularity, though max |u|
+    had grown 1e305-fold."""
+    with pytest.raises(dn.SolverError, match="may blow up") as info:
+        dn.solve(dn.ODE({u: 1000 * u}, u0=[1.0], T=1.0), method=method, tolerance=1e-6)
+    assert "dG(q)" not in str(info.value)
+    assert abs(info.value.t - 0.709) < 0.01
+
+
+def test_a_decay_faster_than_double_precision_resolves_is_not_sent_to_dg():
+    """u' = -1e20 u on [0, 1] needs steps below the 1e-20 that double precision resolves at
+    t = 0: dG(1) with Newton was told to use a dG(q) method with Newton."""
+    ode = dn.ODE({u: -1e20 * u}, u0=[1.0], T=1.0)
+    with pytest.raises(dn.SolverError, match="faster than double precision") as info:
+        dn.solve(ode, method="dG(1)", tolerance=1e-6, nonlinear_solver="newton")
+    assert "use a dG(q)" not in str(info.value)
+
+
 def test_an_interval_too_short_for_double_precision_at_its_times_raises():
     # (t0 = 1e15, T = 1e15 + 1 raised SolverError "tolerance too tight" from the loop)
     ode = dn.ODE({u: -u}, u0=[1.0], t0=1e15, T=1e15 + 1)
