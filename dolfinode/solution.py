@@ -561,7 +561,8 @@ class Solution:
             self.ode, self.stats  # noqa: B018 (made now)
         state = self.__dict__.copy()
         state.pop("_makers", None)
-        state.pop("_rhs", None)  # (the kernels: lowered again where read)
+        if state.get("_rhs") is not None:  # (the kernels: lowered again where read; a None
+            del state["_rhs"]                # set by the solve, elements of several models, kept)
         return state
 
     @property

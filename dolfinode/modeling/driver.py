@@ -23,6 +23,7 @@ The pipeline (Jansson, Johnson & Logg 2005, sections 3-7, made automatic and che
 Windows are resolved with cG(max(q, 4)) (mcG for multi-adaptive methods), see
 :func:`~dolfinode.modeling.flow.resolving_method`.
 """
+import functools
 import math
 import time
 import warnings
@@ -80,6 +81,9 @@ def solve_with_modeling(ode, method, params, solve):
     resolved start [t0, t_c] would exceed START_BYTES.
     """
     start_time = time.perf_counter()
+    # the declaration as solved: the model, the Solution and a start solved again when
+    # evaluated read it, which later changes of the user's values (u0, params) must not reach
+    ode = ode._snapshot()
     inner = {k: v for k, v in params.items() if k not in MODELING_PARAMETERS}
     inner["number_of_samples"] = 2
     # the a posteriori check bounds the discretisation error by the tolerance: keep the step
@@ -195,9 +199,9 @@ def solve_with_modeling(ode, method, params, solve):
         record_start = kept.append
     else:
         # solved again as in the solve: the first half of the first window, or its own
-        start = _Start(lambda: _pieces(solve_piece, window_model, ode.u0, (0.0, tau), ode.t0,
-                                       dict(window_options, method=method),
-                                       {"length": first_length}),
+        # (module-level pieces: a ModelingSolution pickles)
+        start = _Start(functools.partial(_start_pieces, solve, inner, window_model, ode, tau,
+                                         dict(window_options, method=method), first_length),
                        tau, ode.t0, ode.N, np.linspace(ode.t0, ode.T, params["number_of_samples"]))
         record_start = start.record
     _, averages = resolve(ode.u0, ode.t0 + tau,
@@ -417,6 +421,19 @@ class _SampledWindow:
 
     def __call__(self, times):
         return self.values[:, np.searchsorted(self.times, times)]
+
+
+def _start_pieces(solve, inner, window_model, ode, tau, step, first_length):
+    """The pieces of the resolved start [t0, t_c] of ``ode`` solved again, as in the solve
+    (:func:`_pieces` from u0 on [0, tau] of the first window, ``solve`` the plain driver with
+    the inner parameters ``inner``)."""
+    return _pieces(functools.partial(_solve_inner, solve, inner), window_model, ode.u0,
+                   (0.0, tau), ode.t0, step, {"length": first_length})
+
+
+def _solve_inner(solve, inner, declaration, method, **extra):
+    """``solve`` (declaration, method) with the parameters ``inner`` and ``extra``."""
+    return solve(declaration, method, **dict(inner, **extra))
 
 
 def _pieces(solve, window_model, u, stops, shift, step, pace):

@@ -249,3 +249,29 @@ def test_a_window_that_fails_names_its_global_time():
     start, end = (float(x) for x in message.split("full model on [")[1].split("]")[0].split(", "))
     assert start < caught.value.t < end and end - start < 1.0
     assert f"failed at t = {caught.value.t:.6g}" in message
+
+
+@pytest.mark.parametrize("start_stored", [True, False])
+def test_result_independent_of_later_changes_and_pickles(monkeypatch, start_stored):
+    """The result of a modeling solve is that of the declaration as solved: changing the
+    ODE's u0 and parameters afterwards changes neither sol(t) (also where a start that is not
+    stored is solved again) nor the modeling error; the Solution pickles (the model's kernels
+    are lowered again where read) and gives the same values, including the reduced part,
+    whose elements solve models rebuilt along the way (no dense value from one f)."""
+    import pickle
+
+    from dolfinode.modeling import driver
+
+    if not start_stored:
+        monkeypatch.setattr(driver, "START_BYTES", 4096)
+    ode = simple_model(1e8, T=2.0)
+    sol = dn.solve(ode, **dict(SETTINGS, average_length=1e-2, control_points=3))
+    assert isinstance(sol, driver.ModelingSolution) is not start_stored
+    t = np.array([1e-3, 4e-3, 8e-3, 0.5, 1.9])
+    before, bound = sol(t), sol.model.modeling_error().bound
+    copy = pickle.loads(pickle.dumps(sol))
+    ode.u0 = [0.5, 2.0, 0.0, 0.0]
+    ode.params["kappa"] = 4e8
+    for result in (sol, copy):
+        np.testing.assert_array_equal(result(t), before)
+        assert result.model.modeling_error().bound == bound
