@@ -714,6 +714,11 @@ class Solution:
         self._evaluate_mono(times, None, out)
         return out
 
+    def _end_values(self):
+        """U at the end of the last element of a shared partition: its last nodal values,
+        read without an evaluation (and from a file without reading the history)."""
+        return self.values[-1, -1]
+
     def time_steps(self, component=None):
         """Element start times and lengths (t_n, k_n): of the shared partition, or of one
         component (index or state symbol) of a multi-adaptive solution."""
