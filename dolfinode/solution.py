@@ -562,7 +562,8 @@ class Solution:
             self.ode, self.stats  # noqa: B018 (made now)
         state = self.__dict__.copy()
         state.pop("_makers", None)
-        state.pop("_rhs", None)  # (the kernels: lowered again where read)
+        if state.get("_rhs") is not None:  # (the kernels: lowered again where read; a None
+            del state["_rhs"]                # set by the solve, elements of several models, kept)
         return state
 
     @property
@@ -713,6 +714,11 @@ class Solution:
         out = np.empty((times.size, self._declaration.N)).T
         self._evaluate_mono(times, None, out)
         return out
+
+    def _end_values(self):
+        """U at the end of the last element of a shared partition: its last nodal values,
+        read without an evaluation (and from a file without reading the history)."""
+        return self.values[-1, -1]
 
     def time_steps(self, component=None):
         """Element start times and lengths (t_n, k_n): of the shared partition, or of one

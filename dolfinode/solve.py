@@ -191,7 +191,7 @@ def lost_components(ode, compiled, sol):
     if not sol.dense:
         return []
     # U at the end (T, or a terminal event's time), without an evaluation where it can
-    U = sol(sol.ode.T) if sol.multi else sol.values[-1, -1]
+    U = sol(sol.ode.T) if sol.multi else sol._end_values()
     if not _has_zero(U):
         return []
     zero = U == 0.0

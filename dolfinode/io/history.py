@@ -85,6 +85,13 @@ def as_elements(chunk, N):
                             .reshape(S * N, nn)])]
 
 
+def check_sample_times(ode, times):
+    """Raise ValueError for ``sample_times`` (None or increasing times) outside [t0, T]."""
+    if times is not None and (times[0] < ode.t0 or times[-1] > ode.T):
+        raise ValueError(f"sample_times must lie in [t0, T] = [{ode.t0}, {ode.T}], got "
+                         f"[{times[0]}, {times[-1]}]")
+
+
 def sink(ode, method, multi_adaptive, params):
     """The history sink that ``params["dense_output"]`` asks for, with the sample times.
 
@@ -100,9 +107,7 @@ def sink(ode, method, multi_adaptive, params):
                          "element's error to T on the common slabs of all components, which "
                          "needs the steps: drop dense_output (or set it True), or solve by "
                          "cG(q)/dG(q), whose error is estimated chunk by chunk without them")
-    if times is not None and (times[0] < ode.t0 or times[-1] > ode.T):
-        raise ValueError(f"sample_times must lie in [t0, T] = [{ode.t0}, {ode.T}], got "
-                         f"[{times[0]}, {times[-1]}]")
+    check_sample_times(ode, times)
     if params["dense_output"] is False:
         if times is None:
             times = equispaced(ode.t0, ode.T, params["number_of_samples"])

@@ -125,10 +125,10 @@ def _drop(writing, h5=None):
 def load_solution(path, number_of_samples=101):
     """Open a solution history written by ``solve(..., dense_output=path)``.
 
-    The element times are read at the first evaluation, the nodal values when an
-    evaluation needs them:
-    ``sol(t)``, ``sol.y`` read the elements around their times only; ``sol.values``,
-    ``elements()`` and error estimates read them all.
+    ``sol(t)``, ``sol.y`` read the elements around their times only (of a shared partition,
+    their times too, by blocks; a multi-adaptive history reads its element times at the
+    first evaluation); ``sol.t_start``, ``sol.values``, ``elements()`` and error estimates
+    read them all.
 
     Parameters
     ----------
@@ -208,11 +208,12 @@ class StoredSolution(Solution):
         out = np.empty((times.size, self.ode.N)).T
         nodes, bary = self.method.nodes, self.method.barycentric_weights
         if not self.multi:
-            t_end = self.t_start + self.k
-            needed = np.unique(np.minimum(np.searchsorted(t_end, times), len(t_end) - 1))
+            needed = self._elements_at(times)
             # (with the elements before them: dG(q)'s dense value reads the previous end)
             needed = np.union1d(needed, needed[needed > 0] - 1)
-            evaluate_mono(self.method, self.t_start[needed], t_end[needed],
+            h5 = self._h5
+            t_start = h5["t_start"][needed]
+            evaluate_mono(self.method, t_start, t_start + h5["k"][needed],
                           self._stored[needed], [self.ode.t0], [self.ode.u0], times, out,
                           self._rhs)
             return out
@@ -231,6 +232,33 @@ class StoredSolution(Solution):
                              bary, dense_rule(self.method), self.ode.t0, self.ode.u0, times,
                              out)
         return out
+
+    def _end_values(self):
+        return self._stored[-1, -1]
+
+    def _elements_at(self, times):
+        """The rows of the elements of a shared partition that ``times`` fall in (the first
+        whose end t_start + k is >= t, as a history in memory finds them), increasing.
+
+        The element times are read in blocks of a dataset chunk (131072 elements) around
+        the times, found from the first time of every block: a file holds histories too
+        long for memory, whose times alone (16 bytes per element) may not fit either."""
+        if "_times" in self.__dict__:  # (read whole already)
+            t_end = self.t_start + self.k
+            return np.unique(np.minimum(np.searchsorted(t_end, times), len(t_end) - 1))
+        t_start, k = self._h5["t_start"], self._h5["k"]
+        n, block = len(t_start), t_start.chunks[0]
+        if "_firsts" not in self.__dict__:
+            self._firsts = t_start[::block]
+        # the block of the last element starting before t; its element ending at or after
+        # t may be the next block's first (t_start + k rounds below the next start)
+        of_time = np.maximum(np.searchsorted(self._firsts, times) - 1, 0)
+        rows = []
+        for j in np.unique(of_time):
+            a, b = j * block, min((j + 1) * block + 1, n)
+            ends = t_start[a:b] + k[a:b]
+            rows.append(a + np.minimum(np.searchsorted(ends, times[of_time == j]), b - a - 1))
+        return np.unique(np.concatenate(rows))
 
     def close(self):
         """Close the file (a later evaluation that needs it raises)."""

@@ -23,6 +23,7 @@ The pipeline (Jansson, Johnson & Logg 2005, sections 3-7, made automatic and che
 Windows are resolved with cG(max(q, 4)) (mcG for multi-adaptive methods), see
 :func:`~dolfinode.modeling.flow.resolving_method`.
 """
+import functools
 import math
 import time
 import warnings
@@ -31,6 +32,7 @@ import numpy as np
 
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError
+from dolfinode.io.history import check_sample_times
 from dolfinode.methods import parse_method
 from dolfinode.modeling.averaging import WindowAverager
 from dolfinode.modeling.declaration import WindowModel
@@ -50,7 +52,7 @@ from dolfinode.modeling.reduced import (
     inactive_components,
 )
 from dolfinode.modeling.validity import check_oscillation, check_validity
-from dolfinode.solution import Solution, join_elements
+from dolfinode.solution import Solution, equispaced, join_elements
 
 #: Solver parameters that configure the modeling, not the inner solves.
 MODELING_PARAMETERS = ("automatic_modeling", "average_length", "average_samples",
@@ -80,8 +82,14 @@ def solve_with_modeling(ode, method, params, solve):
     resolved start [t0, t_c] would exceed START_BYTES.
     """
     start_time = time.perf_counter()
+    # the declaration as solved: the model, the Solution and a start solved again when
+    # evaluated read it, which later changes of the user's values (u0, params) must not reach
+    ode = ode._snapshot()
     inner = {k: v for k, v in params.items() if k not in MODELING_PARAMETERS}
-    inner["number_of_samples"] = 2
+    # the output's samples are the user's; the inner solves (windows, pieces in their local
+    # time, reduced segments) keep two
+    inner.update(number_of_samples=2, sample_times=None)
+    samples = _samples(ode, params)
     # the a posteriori check bounds the discretisation error by the tolerance: keep the step
     # estimate below it rather than aim the error at it
     inner["calibrate_tolerance"] = False
@@ -102,7 +110,7 @@ def solve_with_modeling(ode, method, params, solve):
         """The flow-averaged model instead (:mod:`dolfinode.modeling.flow`), checked."""
         sol = solve_flow(ode, method, params["tolerance"],
                          params["average_samples"],
-                         params["number_of_samples"], run, reason)
+                         samples, run, reason)
         return _checked(sol, sol.model, runs, params, start_time, stacklevel=6)
 
     if params["subgrid_model"] == "flow":
@@ -195,10 +203,11 @@ def solve_with_modeling(ode, method, params, solve):
         record_start = kept.append
     else:
         # solved again as in the solve: the first half of the first window, or its own
-        start = _Start(lambda: _pieces(solve_piece, window_model, ode.u0, (0.0, tau), ode.t0,
-                                       dict(window_options, method=method),
-                                       {"length": first_length}),
-                       tau, ode.t0, ode.N, np.linspace(ode.t0, ode.T, params["number_of_samples"]))
+        # (module-level pieces: a ModelingSolution pickles)
+        start = _Start(functools.partial(_start_pieces, solve, inner, window_model, ode, tau,
+                                         dict(window_options, method=method), first_length),
+                       tau, ode.t0, ode.N, samples if isinstance(samples, np.ndarray)
+                       else equispaced(ode.t0, ode.T, samples))
         record_start = start.record
     _, averages = resolve(ode.u0, ode.t0 + tau,
                           record_first=record_start if window_method == method else None)
@@ -299,15 +308,23 @@ def solve_with_modeling(ode, method, params, solve):
             if piece.multi:
                 piece._t_end = piece._t_end + ode.t0
         kept.append(model.reduced)
-        sol = _concatenate(ode, kept, params["number_of_samples"])
+        sol = _concatenate(ode, kept, samples)
         # the reduced model starts from its own state: dG(q)'s dense value reads it there
         # (solution._evaluate_dg), as the solution that solves the start again does
         sol._restarts = ([ode.t0, model.reduced.ode.t0], [ode.u0, model.reduced.ode.u0])
     else:
-        sol = ModelingSolution(ode, model, start, params["number_of_samples"])
+        sol = ModelingSolution(ode, model, start, samples)
     sol = _checked(sol, model, runs, params, start_time)
     sol.stats["resolved fraction"] = resolved
     return sol
+
+
+def _samples(ode, params):
+    """The output samples: ``sample_times`` (checked in [t0, T]), else the number of
+    equispaced ones."""
+    times = params["sample_times"]
+    check_sample_times(ode, times)
+    return params["number_of_samples"] if times is None else times
 
 
 def _checked(sol, model, runs, params, start_time, stacklevel=5):
@@ -419,6 +436,19 @@ class _SampledWindow:
         return self.values[:, np.searchsorted(self.times, times)]
 
 
+def _start_pieces(solve, inner, window_model, ode, tau, step, first_length):
+    """The pieces of the resolved start [t0, t_c] of ``ode`` solved again, as in the solve
+    (:func:`_pieces` from u0 on [0, tau] of the first window, ``solve`` the plain driver with
+    the inner parameters ``inner``)."""
+    return _pieces(functools.partial(_solve_inner, solve, inner), window_model, ode.u0,
+                   (0.0, tau), ode.t0, step, {"length": first_length})
+
+
+def _solve_inner(solve, inner, declaration, method, **extra):
+    """``solve`` (declaration, method) with the parameters ``inner`` and ``extra``."""
+    return solve(declaration, method, **dict(inner, **extra))
+
+
 def _pieces(solve, window_model, u, stops, shift, step, pace):
     """The full model solved on consecutive pieces of a window from stops[0], ending at
     every stop (in the local time of the window starting at ``shift``), each restarted from
@@ -486,12 +516,25 @@ def _concatenate(ode, pieces, number_of_samples):
         arrays = [np.concatenate(comp)] + [np.concatenate([getattr(p, name) for p in pieces])
                                            for name in ("t_start", "_t_end", "values")]
         pieces.clear()
-        return Solution.multi_adaptive(ode, method, *arrays, {}, number_of_samples)
+        return Solution.multi_adaptive(ode, method, *_resolved(arrays, arrays[2]), {},
+                                       number_of_samples)
     chunks = [[p.t_start, p.k, p.values] for p in pieces]
     pieces.clear()
-    sol = Solution(ode, method, *join_elements(chunks), {}, number_of_samples)
+    arrays = join_elements(chunks)
+    sol = Solution(ode, method, *_resolved(arrays, arrays[0] + arrays[1]), {},
+                   number_of_samples)
     sol._rhs = None  # (the pieces may solve other models than ode: cG(q)'s dense value is U)
     return sol
+
+
+def _resolved(arrays, t_end):
+    """The element ``arrays`` (t_start second for multi-adaptive ones, first for mono) without
+    the elements that end where they start (``t_end``): steps of a window solved in its
+    local time from 0 (the first, 5e-11 on the seed model) that moved to t0 = 1e6 are below
+    the spacing of doubles there, and an element of length 0 has no polynomial."""
+    t_start = arrays[1] if len(arrays) == 4 else arrays[0]
+    kept = t_end > t_start
+    return arrays if kept.all() else [array[kept] for array in arrays]
 
 
 def _total_stats(runs, model, wall):

@@ -32,6 +32,7 @@ from itertools import pairwise
 import numpy as np
 from scipy import sparse
 
+from dolfinode.compile import lower
 from dolfinode.modeling import validity
 from dolfinode.modeling.declaration import ReducedDeclaration
 from dolfinode.modeling.manifold import project
@@ -586,6 +587,21 @@ class ReducedModel:
             raise ValueError("no control points: max |g~ - g-bar| is unknown; solve with "
                              "control_points >= 1")
         return validity.modeling_error(self, goal)
+
+    def __getstate__(self):
+        # the kernels (ctypes) do not pickle: lowered again from the declaration when read
+        state = self.__dict__.copy()
+        if state["_compiled"] is not None:
+            state["_lower_again"] = True
+            del state["_compiled"]
+        return state
+
+    def __getattr__(self, name):
+        # (called only for what the instance lacks: _compiled after unpickling)
+        if name == "_compiled" and self.__dict__.get("_lower_again"):
+            self._compiled = lower(self.ode)
+            return self._compiled
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     def __repr__(self):
         return (f"ReducedModel(tau={self.average_length:.3g}, "

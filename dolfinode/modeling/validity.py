@@ -187,6 +187,22 @@ def _weighted_defect(phi, model):
     return total
 
 
+def _remedies(model):
+    """What a warning about the reduced ``model`` suggests: subgrid_model='flow' where a
+    parameter sets the fast scale (it carries the fast state instead of a model of it: on
+    a fast mode driven by slow forcing, or coupled cubically, or with a fast relaxation, it
+    met the tolerance where the affine model was 3-316 x off), 'affine' where the model is
+    not affine yet."""
+    from dolfinode.modeling.flow import stiffness_parameter  # (flow imports this module)
+
+    remedies = ["a longer average_length", "more control_points"]
+    if not model.affine:
+        remedies.append("subgrid_model='affine'")
+    if model._compiled is not None and stiffness_parameter(model.ode, model._compiled):
+        remedies.insert(0, "subgrid_model='flow'")
+    return ", ".join(remedies)
+
+
 def unfollowed_rate(model):
     """Per component, |r_i|: the rate at which g-bar moves inside the resolved windows beyond
     what the affine model's slope G gives for the slow state's move there (the median over
@@ -295,8 +311,7 @@ def check_validity(model, tolerance, model_tolerance, strict, stacklevel=5):
                     "(the fast oscillation changes by itself: a resonant or parametric "
                     "forcing), which the checks, restarted from the recorded fluctuation, "
                     "do not see")
-    message += (". Try a longer average_length, more control_points, "
-                "subgrid_model='affine', or solve without automatic_modeling")
+    message += f". Try {_remedies(model)}, or solve without automatic_modeling"
     if strict:
         raise SolverError("automatic modeling: " + message, t=estimate.worst_time)
     warnings.warn(message, ModelingWarning, stacklevel=stacklevel)

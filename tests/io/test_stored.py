@@ -94,3 +94,28 @@ def test_a_declaration_with_events_streams_and_pickles(tmp_path):
     again = pickle.loads(pickle.dumps(ode))
     assert np.allclose(dn.solve(again, "cG(2)", tolerance=1e-8)(3.0), dense(3.0))
     assert sorted(os.listdir(tmp_path)) == ["run.h5"]
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "dG(1)"])
+def test_evaluation_reads_the_element_times_in_blocks(tmp_path, method):
+    """sol(t) of a file history longer than a dataset chunk (131072 elements) reads the
+    element times of the blocks around t only, not all of them (16 bytes per element, which
+    a history too long for memory may not have), and gives the in-memory values bit for bit,
+    on block boundaries as well."""
+    import sympy as sp
+
+    u, v = sp.symbols("u v")
+    ode = dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=300.0)
+    options = {"fixed_time_step": True, "initial_time_step": 1e-3}
+    dense = dn.solve(ode, method, **options)
+    stored = dn.solve(ode, method, dense_output=str(tmp_path / "run.h5"), **options)
+    block = stored._h5["t_start"].chunks[0]
+    assert stored.stats["time slabs"] > 2 * block
+    edges = dense.t_start[[block - 1, block, 2 * block]]
+    times = np.concatenate([edges, edges + 1e-4, np.random.default_rng(2).uniform(0, 300, 20)])
+    np.testing.assert_array_equal(stored(times), dense(times))
+    np.testing.assert_array_equal(stored.y, dense.y)
+    assert "_times" not in stored.__dict__
+    np.testing.assert_array_equal(stored.t_start, dense.t_start)  # asked for: read whole
+    np.testing.assert_array_equal(stored(times), dense(times))
+    stored.close()

@@ -249,3 +249,63 @@ def test_a_window_that_fails_names_its_global_time():
     start, end = (float(x) for x in message.split("full model on [")[1].split("]")[0].split(", "))
     assert start < caught.value.t < end and end - start < 1.0
     assert f"failed at t = {caught.value.t:.6g}" in message
+
+
+@pytest.mark.parametrize("start_stored", [True, False])
+def test_result_independent_of_later_changes_and_pickles(monkeypatch, start_stored):
+    """The result of a modeling solve is that of the declaration as solved: changing the
+    ODE's u0 and parameters afterwards changes neither sol(t) (also where a start that is not
+    stored is solved again) nor the modeling error; the Solution pickles (the model's kernels
+    are lowered again where read) and gives the same values, including the reduced part,
+    whose elements solve models rebuilt along the way (no dense value from one f)."""
+    import pickle
+
+    from dolfinode.modeling import driver
+
+    if not start_stored:
+        monkeypatch.setattr(driver, "START_BYTES", 4096)
+    ode = simple_model(1e8, T=2.0)
+    sol = dn.solve(ode, **dict(SETTINGS, average_length=1e-2, control_points=3))
+    assert isinstance(sol, driver.ModelingSolution) is not start_stored
+    t = np.array([1e-3, 4e-3, 8e-3, 0.5, 1.9])
+    before, bound = sol(t), sol.model.modeling_error().bound
+    copy = pickle.loads(pickle.dumps(sol))
+    ode.u0 = [0.5, 2.0, 0.0, 0.0]
+    ode.params["kappa"] = 4e8
+    for result in (sol, copy):
+        np.testing.assert_array_equal(result(t), before)
+        assert result.model.modeling_error().bound == bound
+
+
+@pytest.mark.parametrize("start_stored", [True, False])
+def test_sample_times(monkeypatch, start_stored):
+    """sample_times gives the output samples of a modeling solve (the inner solves of the
+    windows, in their local time, keep their own); outside [t0, T] it is refused."""
+    from dolfinode.modeling import driver
+
+    if not start_stored:
+        monkeypatch.setattr(driver, "START_BYTES", 4096)
+    ode = simple_model(1e8, T=2.0)
+    times = np.array([0.0, 1e-3, 0.5, 1.25, 2.0])
+    options = dict(SETTINGS, average_length=1e-2, control_points=3)
+    sol = dn.solve(ode, sample_times=times, **options)
+    np.testing.assert_array_equal(sol.t, times)
+    np.testing.assert_array_equal(sol.y, dn.solve(ode, **options)(times))
+    with pytest.raises(ValueError, match=r"sample_times must lie in \[t0, T\]"):
+        dn.solve(ode, sample_times=[0.0, 3.0], **options)
+
+
+def test_far_time_origin():
+    """At t0 = 1e6 the windows, solved in their local time from 0, take first steps (5e-11)
+    below the spacing of doubles there: the output drops them and is the solve at t0 = 0
+    shifted (it raised ZeroDivisionError on such an element)."""
+    options = dict(SETTINGS, average_length=1e-2, control_points=3)
+    near = dn.solve(simple_model(1e8, T=2.0), **options)
+    ode = simple_model(1e8, T=2.0)
+    ode.T, ode.t0 = 1e6 + 2.0, 1e6
+    far = dn.solve(ode, **options)
+    assert np.all(far.k > 0)
+    s = np.linspace(0.0, 2.0, 21)
+    # measured 3e-7: the reduced model solves in absolute time (rounding of t at 1e6)
+    assert np.max(np.abs(far(1e6 + s) - near(s))[0]) < 1e-5
+    np.testing.assert_allclose(far.y[0], near.y[0], rtol=0, atol=1e-5)
