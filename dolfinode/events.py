@@ -1106,7 +1106,7 @@ class MultiPieces(_Pieces):
         b = np.concatenate([b, np.full(frozen.size, self.t())])
         values = np.concatenate([values, np.repeat(self.x[frozen, None], values.shape[1], 1)])
         sol = Solution.multi_adaptive(self.ode, self.method, comp, a, b, values, {}, 2)
-        return sol, begin, times, sol._evaluate(times)
+        return sol, begin, times, sol._galerkin(times)
 
     def truncate(self, chunk, te):
         """Nothing of the chunk, and te: the loop restarts at its start (a slab boundary,

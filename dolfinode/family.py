@@ -507,9 +507,14 @@ def _joined(ode, pieces, samples):
     for (elements, _), offset in zip(parts, offsets):
         _place_elements(offset, *elements, t_start, t_end, values)
     if len(slabs[0]) == 0:
-        return Solution.grouped(solved, method, ptr, t_start, t_end, values, stats, samples)
-    return MixedSolution(solved, method, (ptr, t_start, t_end, values), slabs, stats,
-                         samples)
+        sol = Solution.grouped(solved, method, ptr, t_start, t_end, values, stats, samples)
+    else:
+        sol = MixedSolution(solved, method, (ptr, t_start, t_end, values), slabs, stats,
+                            samples)
+    # (U inside the elements: mcG(q)'s dense value in the joined form would test the
+    # defect of a mono-adaptive stretch's cG(q) slab otherwise than its own evaluation)
+    sol._rhs = None
+    return sol
 
 
 def _parts(sol):

@@ -7,7 +7,7 @@ from numba import njit
 
 from dolfinode.compile.jit import helper
 from dolfinode.compile.lowering import lower
-from dolfinode.compile.signatures import address, rhs_kernel
+from dolfinode.compile.signatures import address, component_kernel, rhs_kernel
 from dolfinode.methods.method import (
     element_value,
     lagrange_matrices,
@@ -287,6 +287,116 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
     for i in range(ptr.shape[0] - 1):
         _evaluate_component(i, ptr, t_start, t_end, values, s_end, s_values, nodes, bary,
                             dense, t0, u0, times, slab, out)
+
+
+@helper()
+def _component_value(d, t, ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
+                     bary):
+    """U_d(t) by the Galerkin polynomial of component d's first element ending at or after
+    t, of the shared slabs (s_start, s_end, s_values) and its own elements together: the
+    element the joined history (:class:`MixedSolution`) reads, with the same bits."""
+    slab, e = -1, -1
+    if s_end.shape[0] > 0:
+        slab = _locate(s_end, t, 0)
+    if ptr[d + 1] > ptr[d]:
+        e = ptr[d] + _locate(t_end[ptr[d]:ptr[d + 1]], t, 0)
+    use_slab = slab >= 0
+    if slab >= 0 and e >= 0:
+        slab_after, own_after = s_end[slab] >= t, t_end[e] >= t
+        if slab_after and own_after:
+            use_slab = s_end[slab] < t_end[e]
+        elif slab_after or own_after:
+            use_slab = slab_after
+        else:  # (past both: the last)
+            use_slab = s_end[slab] > t_end[e]
+    if use_slab:
+        tau = min(max((t - s_start[slab]) / (s_end[slab] - s_start[slab]), 0.0), 1.0)
+        return element_value(s_values[slab].T, d, tau, nodes, bary)
+    tau = min(max((t - t_start[e]) / (t_end[e] - t_start[e]), 0.0), 1.0)
+    return element_value(values, e, tau, nodes, bary)
+
+
+@njit(cache=True)
+def _correct_cg(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, bary, rhs,
+                indptr, indices, p, check, theta, times, out):
+    """out[i, m] += c Q(tau): mcG(q)'s dense value, the collocation polynomial of
+    :func:`_evaluate_cg` per component, out holding U at ``times`` (component i's elements
+    ptr[i]:ptr[i + 1] and the shared slabs (s_start, s_end, s_values (S, q + 1, N)) as
+    :func:`_evaluate_mixed` reads them; the slabs empty for a grouped history).
+
+    On component i's element [a, a + k] with nodal values U_j at the Lobatto nodes tau_j,
+    f_j = f_i(U(a + tau_j k), a + tau_j k), the other components read from their own
+    polynomials (as the element's moments read them), and
+
+        P(tau) = U_i(tau) + c Q(tau),  Q(tau) = prod_j (tau - tau_j),
+        c = k / (q + 1) sum_j w_j f_j,
+
+    used where its defect at tau* = tau_1 / 2 passes the test of :func:`_evaluate_cg`
+    (``check``, ``theta``), else U_i (a component stiff on its step). f_i is the component
+    kernel at address ``rhs`` (CSR dependencies ``indptr``, ``indices``, parameters p),
+    evaluated q + 2 times per element the times fall inside. Element ends are unchanged."""
+    q1, N = nodes.shape[0], out.shape[0]
+    star, basis, slopes, q_star, dq_star = check
+    f = component_kernel(rhs)
+    u = np.zeros(N)
+    F = np.zeros(1)
+    xi = np.empty(q1)
+    for i in range(N):
+        own = t_end[ptr[i]:ptr[i + 1]]
+        n, slab, current, c = 0, 0, -1, 0.0
+        for m in range(times.shape[0]):
+            t = times[m]
+            where = -1  # the element holding t inside: a slab (index) or own (S + index)
+            if s_end.shape[0] > 0:
+                slab = _locate(s_end, t, slab)
+                if s_start[slab] < t < s_end[slab]:
+                    where = slab
+                    a, b = s_start[slab], s_end[slab]
+                    for j in range(q1):
+                        xi[j] = s_values[slab, j, i]
+            if where < 0 and own.shape[0] > 0:
+                n = _locate(own, t, n)
+                e = ptr[i] + n
+                if t_start[e] < t < t_end[e]:
+                    where = s_end.shape[0] + e
+                    a, b = t_start[e], t_end[e]
+                    for j in range(q1):
+                        xi[j] = values[e, j]
+            if where < 0:
+                continue
+            k = b - a
+            if where != current:
+                current = where
+                lead = 0.0
+                for j in range(q1 + 1):
+                    tj = a + (nodes[j] if j < q1 else star) * k
+                    value = 0.0
+                    if j == q1:  # P_i(tau*), U_i's value there corrected
+                        for r in range(q1):
+                            value += basis[r] * xi[r]
+                        value += c * q_star
+                    for nz in range(indptr[i], indptr[i + 1]):
+                        d = indices[nz]
+                        u[d] = (xi[j] if j < q1 else value) if d == i else _component_value(
+                            d, tj, ptr, t_start, t_end, values, s_start, s_end, s_values,
+                            nodes, bary)
+                    f(i, address(u, 0), tj, address(p, 0), address(F, 0))
+                    if j < q1:
+                        lead += bary[j] * F[0]
+                        if j == q1 - 1:
+                            c = k * lead / q1
+                    else:
+                        defect = c * dq_star - k * F[0]
+                        for r in range(q1):
+                            defect += slopes[r] * xi[r]
+                        if not abs(defect) * (0.5 * star) <= theta * abs(c * q_star):
+                            c = 0.0  # (NaN: U)
+            if c != 0.0:
+                tau = (t - a) / k
+                r = c
+                for j in range(q1):
+                    r *= tau - nodes[j]
+                out[i, m] += r
 
 
 #: A component's jump [U] at an element's start is taken as resolved, and the collocation
@@ -675,17 +785,34 @@ class Solution:
         _set_initial(times, declared.t0, declared.u0, out)
         return out
 
-    def _evaluate(self, times):
-        """U at ``times`` in [t0, T], shape (N, len(times)), from the elements."""
+    def _evaluate(self, times, dense=True):
+        """U at ``times`` in [t0, T], shape (N, len(times)), from the elements (cG(q)'s and
+        mcG(q)'s collocation dense value unless ``dense`` is False)."""
         declared = self._declaration
         out = np.empty((times.size, declared.N)).T  # components contiguous at each time
         if self.multi:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
                                  self.method.nodes, self.method.barycentric_weights,
                                  dense_rule(self.method), declared.t0, declared.u0, times, out)
+            if dense:
+                none = np.empty(0)
+                self._correct(self._component_ptr, self.t_start, self._t_end, self.values,
+                              none, none, np.empty((0, self.values.shape[1], declared.N)),
+                              times, out)
         else:
-            self._evaluate_mono(times, self._rhs, out)
+            self._evaluate_mono(times, self._rhs if dense else None, out)
         return out
+
+    def _correct(self, ptr, t_start, t_end, values, s_start, s_end, s_values, times, out):
+        """mcG(q), q >= 2: add the collocation correction to U at ``times`` in ``out``
+        (:func:`_correct_cg`), where the solution reads f (``_rhs``)."""
+        compiled = self._rhs
+        if compiled is None:
+            return
+        _correct_cg(ptr, t_start, t_end, values, s_start, s_end, s_values, self.method.nodes,
+                    self.method.barycentric_weights, compiled.rhs_component.address,
+                    compiled.indptr, compiled.indices, compiled.p,
+                    _defect_check(self.method.family, self.method.q), DEFECT_THETA, times, out)
 
     def _evaluate_mono(self, times, rhs, out):
         """out = U at ``times`` from the shared partition, cG(q)'s dense value reading the
@@ -698,10 +825,10 @@ class Solution:
 
     @cached_property
     def _rhs(self):
-        """The lowered ODE whose f cG(q)'s dense value reads (:func:`_evaluate_cg`), None for
-        other methods, multi-adaptive solutions and where the elements solve more than one
-        model (a restart)."""
-        if self.multi or "_restarts" in self.__dict__ or not _reads_f(self.method):
+        """The lowered ODE whose f cG(q)'s and mcG(q)'s dense values read
+        (:func:`_evaluate_cg`, :func:`_correct_cg`), None for other methods and where the
+        elements solve more than one model (a restart)."""
+        if "_restarts" in self.__dict__ or not _reads_f(self.method):
             return None  # (the ode not read: a solution may make it on first read)
         return dense_rhs(self.method, self.ode)
 
@@ -711,9 +838,7 @@ class Solution:
         the solve there, on U; the estimates read U's residual)."""
         if self._rhs is None:
             return self._evaluate(times)
-        out = np.empty((times.size, self._declaration.N)).T
-        self._evaluate_mono(times, None, out)
-        return out
+        return self._evaluate(times, dense=False)
 
     def _end_values(self):
         """U at the end of the last element of a shared partition: its last nodal values,
@@ -844,14 +969,16 @@ class MixedSolution(Solution):
         self.__dict__.update(_component_ptr=merged, t_start=t_start, _t_end=t_end,
                              values=joined, k=t_end - t_start)
 
-    def _evaluate(self, times):
+    def _evaluate(self, times, dense=True):
         parts = self.__dict__.get("_parts")
         if parts is None:  # joined (and maybe shifted by its reader)
-            return super()._evaluate(times)
+            return super()._evaluate(times, dense)
         out = np.empty((times.size, self.ode.N)).T
         declared = self._declaration
         _evaluate_mixed(*parts, self.method.nodes, self.method.barycentric_weights,
                         dense_rule(self.method), declared.t0, declared.u0, times, out)
+        if dense:
+            self._correct(*parts, times, out)
         return out
 
     def __repr__(self):

@@ -511,11 +511,12 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     :class:`~dolfinode.ToleranceWarning` is raised where cG(q), q even, carries a stiff deviation it
     cannot damp into T). Values inside
     elements (``sol(t)`` between element ends, samples, events) are less accurate than at
-    the nodes: a mono-adaptive dG(q), q >= 1, evaluates its collocation polynomial there,
-    O(k^(q+2)) (harmonic oscillator, dG(2): 1.2 / 1.5 / 1.9 x at 1e-4 / 1e-6 / 1e-8, dG(3):
-    1.0 / 2.3 / 3.5 x; dG(1) 7 / 28 / 48 x), cG(q) and the multi-adaptive methods their
-    Galerkin polynomial, O(k^(q+1)) (cG(3): 2.7 / 12 / 43 x), against 0.2-2 x at the nodes
-    (doc/benchmarks/dense_output.md), and more where the steps are long for
+    the nodes: dG(q), q >= 1, and cG(q), q >= 2, mono- or multi-adaptive, evaluate their
+    collocation polynomial there, O(k^(q+2)) (harmonic oscillator, dG(2): 1.2 / 1.5 / 1.9 x
+    at 1e-4 / 1e-6 / 1e-8, dG(3): 1.0 / 2.3 / 3.5 x, cG(3): 1.5 / 3.0 / 3.7 x; dG(1) 7 / 28 /
+    48 x), the Galerkin polynomial, O(k^(q+1)), on stiff components and where f jumps,
+    against 0.2-2 x at the nodes (doc/benchmarks/dense_output.md), and more where the steps
+    are long for
     the solution's curvature (1,300 x measured: mdG(1) at 1e-4 on a component that turns
     stiff mid-run); ``calibrate_tolerance=False`` bounds each step's
     estimate by the tolerance instead, as scipy's rtol and atol do (the error at T then

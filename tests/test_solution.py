@@ -48,6 +48,31 @@ def test_samples_are_made_when_first_read(method):
     np.testing.assert_allclose(y, sol(sol.t), rtol=0, atol=0)
 
 
+@pytest.mark.parametrize("q, steps", [(2, (0.1, 0.05, 0.025)), (3, (0.2, 0.1, 0.05))])
+def test_mcg_values_inside_elements_converge_one_order_above_the_polynomial(q, steps):
+    """mcG(q), q >= 2, is evaluated inside its elements by the collocation polynomial
+    P = U + c Q, as mono cG(q): on the harmonic oscillator with fixed steps k for u and k / 2
+    for v (each reading the other inside its elements), the largest error at tau = 0.3, 0.5,
+    0.7 of every element converges with order q + 2, the polynomial U's with q + 1, and the
+    values at the element ends are U's nodal values."""
+    u, v = sp.symbols("u v")
+    ode = dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=2.0)
+    dense, galerkin = [], []
+    for k in steps:
+        sol = dn.solve(ode, f"mcG({q})", fixed_time_step=True, initial_time_step={u: k, v: k / 2})
+        worst = np.zeros(2)
+        for i, exact in enumerate((np.cos, lambda t: -np.sin(t))):
+            a, h = sol.time_steps(i)
+            t = (a[:, None] + h[:, None] * np.array([0.3, 0.5, 0.7])).ravel()
+            worst = np.maximum(worst, [np.max(np.abs(sol(t)[i] - exact(t))),
+                                       np.max(np.abs(sol._galerkin(t)[i] - exact(t)))])
+            np.testing.assert_array_equal(sol(a + h)[i], sol._galerkin(a + h)[i])
+        dense.append(worst[0])
+        galerkin.append(worst[1])
+    assert np.all(np.log2(np.divide(dense[:-1], dense[1:])) > q + 1.8)
+    assert np.all(np.abs(np.log2(np.divide(galerkin[:-1], galerkin[1:])) - (q + 1)) < 0.2)
+
+
 def test_values_at_element_ends_are_nodal_values():
     u = sp.Symbol("u")
     sol = dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), method="dG(2)", tolerance=1e-6)

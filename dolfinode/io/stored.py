@@ -19,7 +19,13 @@ import numpy as np
 from dolfinode.io.atomic import new_file
 from dolfinode.io.history import as_elements
 from dolfinode.methods import parse_method
-from dolfinode.solution import Solution, _evaluate_components, dense_rule, evaluate_mono
+from dolfinode.solution import (
+    Solution,
+    _defect_check,
+    _evaluate_components,
+    dense_rule,
+    evaluate_mono,
+)
 
 #: The format's name and version, checked when a file is opened.
 FORMAT, VERSION = "dolfinode solution history", 1
@@ -201,10 +207,10 @@ class StoredSolution(Solution):
             self.__dict__["_all_values"] = stored[self._rows] if self.multi else stored
         return self.__dict__["_all_values"]
 
-    def _evaluate(self, times):
+    def _evaluate(self, times, dense=True):
         """U at ``times`` from the elements around them, read from the file."""
         if "_all_values" in self.__dict__:
-            return super()._evaluate(times)
+            return super()._evaluate(times, dense)
         out = np.empty((times.size, self.ode.N)).T
         nodes, bary = self.method.nodes, self.method.barycentric_weights
         if not self.multi:
@@ -215,14 +221,15 @@ class StoredSolution(Solution):
             t_start = h5["t_start"][needed]
             evaluate_mono(self.method, t_start, t_start + h5["k"][needed],
                           self._stored[needed], [self.ode.t0], [self.ode.u0], times, out,
-                          self._rhs)
+                          self._rhs if dense else None)
             return out
         ptr = self._component_ptr
-        needed = np.unique(np.concatenate([
-            ptr[i] + np.minimum(np.searchsorted(self._t_end[ptr[i]:ptr[i + 1]], times),
-                                ptr[i + 1] - ptr[i] - 1) for i in range(self.ode.N)]))
+        needed = self._holding([times] * self.ode.N)
         # (with each component's element before them: mdG(q)'s dense value reads its end)
         needed = np.union1d(needed, needed[~np.isin(needed, ptr)] - 1)
+        compiled = self._rhs if dense else None
+        if compiled is not None:  # (mcG(q)'s dense value reads f_i at its elements' nodes)
+            needed = np.union1d(needed, self._read_by(needed, compiled))
         rows = self._rows[needed]
         order = np.argsort(rows)  # h5py reads rows in increasing order
         values = np.empty((needed.size, *self._stored.shape[1:]))
@@ -231,6 +238,10 @@ class StoredSolution(Solution):
         _evaluate_components(counts, self.t_start[needed], self._t_end[needed], values, nodes,
                              bary, dense_rule(self.method), self.ode.t0, self.ode.u0, times,
                              out)
+        if compiled is not None:
+            none = np.empty(0)
+            self._correct(counts, self.t_start[needed], self._t_end[needed], values, none,
+                          none, np.empty((0, values.shape[1], self.ode.N)), times, out)
         return out
 
     def _end_values(self):
@@ -259,6 +270,30 @@ class StoredSolution(Solution):
             ends = t_start[a:b] + k[a:b]
             rows.append(a + np.minimum(np.searchsorted(ends, times[of_time == j]), b - a - 1))
         return np.unique(np.concatenate(rows))
+
+    def _holding(self, times):
+        """The elements holding times[i] (the first ending at or after each) per component i."""
+        ptr = self._component_ptr
+        return np.unique(np.concatenate([
+            ptr[i] + np.minimum(np.searchsorted(self._t_end[ptr[i]:ptr[i + 1]], times[i]),
+                                ptr[i + 1] - ptr[i] - 1) for i in range(self.ode.N)]))
+
+    def _read_by(self, elements, compiled):
+        """The elements of the components that f_i reads at the nodes of component i's
+        ``elements`` and at the defect check's point (what :func:`_correct_cg` reads)."""
+        ptr = self._component_ptr
+        star = _defect_check(self.method.family, self.method.q)[0]
+        fractions = np.append(self.method.nodes, star)
+        owner = np.searchsorted(ptr, elements, side="right") - 1
+        a, b = self.t_start[elements], self._t_end[elements]
+        points = (a[:, None] + (b - a)[:, None] * fractions).ravel()
+        owners = np.repeat(owner, fractions.size)
+        read = [[] for _ in range(self.ode.N)]
+        for i in np.unique(owner):
+            mine = points[owners == i]
+            for d in compiled.indices[compiled.indptr[i]:compiled.indptr[i + 1]]:
+                read[d].append(mine)
+        return self._holding([np.concatenate(r) if r else np.empty(0) for r in read])
 
     def close(self):
         """Close the file (a later evaluation that needs it raises)."""

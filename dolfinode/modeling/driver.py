@@ -516,14 +516,16 @@ def _concatenate(ode, pieces, number_of_samples):
         arrays = [np.concatenate(comp)] + [np.concatenate([getattr(p, name) for p in pieces])
                                            for name in ("t_start", "_t_end", "values")]
         pieces.clear()
-        return Solution.multi_adaptive(ode, method, *_resolved(arrays, arrays[2]), {},
-                                       number_of_samples)
-    chunks = [[p.t_start, p.k, p.values] for p in pieces]
-    pieces.clear()
-    arrays = join_elements(chunks)
-    sol = Solution(ode, method, *_resolved(arrays, arrays[0] + arrays[1]), {},
-                   number_of_samples)
-    sol._rhs = None  # (the pieces may solve other models than ode: cG(q)'s dense value is U)
+        sol = Solution.multi_adaptive(ode, method, *_resolved(arrays, arrays[2]), {},
+                                      number_of_samples)
+    else:
+        chunks = [[p.t_start, p.k, p.values] for p in pieces]
+        pieces.clear()
+        arrays = join_elements(chunks)
+        sol = Solution(ode, method, *_resolved(arrays, arrays[0] + arrays[1]), {},
+                       number_of_samples)
+    # (the pieces may solve other models than ode: cG(q)'s and mcG(q)'s dense value is U)
+    sol._rhs = None
     return sol
 
 

@@ -17,7 +17,7 @@ def chain():
     return ode
 
 
-@pytest.mark.parametrize("method", ["cG(2)", "mcG(1)", "dG(1)"])
+@pytest.mark.parametrize("method", ["cG(2)", "mcG(1)", "dG(1)", "mcG(2)"])
 def test_streamed_history_reads_back_equal_to_the_in_memory_one(chain, tmp_path, method):
     dense = dn.solve(chain, method, tolerance=1e-6)
     path = tmp_path / "out" / "run.h5"

@@ -38,11 +38,10 @@ def test_equal_steps_reproduce_mono_adaptive(coupled, method, solver):
     for mine, theirs in zip(multi.elements(), mono.elements()):  # the same elements
         np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-13)
     times = np.linspace(0, 4, 57)
-    # and the same dense values (for dG(q), q >= 1, each component's collocation
-    # polynomial inside the elements, as mono's solution._evaluate_dg; mcG(q) reads U,
-    # which mono cG(q) keeps as its Galerkin polynomial under its collocation value)
-    expected = mono._galerkin(times) if method.startswith("cG") else mono(times)
-    np.testing.assert_allclose(multi(times), expected, rtol=0, atol=1e-13)
+    # and the same dense values (each component's collocation polynomial inside the
+    # elements, as mono's solution._evaluate_dg and _evaluate_cg) and Galerkin polynomials
+    np.testing.assert_allclose(multi(times), mono(times), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(multi._galerkin(times), mono._galerkin(times), rtol=0, atol=1e-13)
     np.testing.assert_allclose(multi(times[-1]), mono(times[-1]), rtol=0, atol=1e-13)
 
 
