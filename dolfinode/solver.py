@@ -29,6 +29,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from dolfinode import timeslab as ts
+from dolfinode.adaptivity import UNDAMPED_DEVIATION
 from dolfinode.ensemble import parameter_symbol
 from dolfinode.family import auto_base
 from dolfinode.features import narrow_features
@@ -48,6 +49,7 @@ from dolfinode.solve import (
     _has_negative,
     _has_zero,
     _initial_steps,
+    _largest_step,
     _mono_arguments,
     _mono_capacity,
     _mono_stats,
@@ -60,11 +62,11 @@ from dolfinode.solve import (
     _options,
     _signs,
     _warn_undamped,
+    check_error_at_T,
     check_tolerance,
-    estimate_global_error,
-    longest_run,
     lower,
     lowered,
+    note_step_bound,
     run_started,
     solve,
     solve_lowered,
@@ -130,6 +132,7 @@ class Solver:
         self.parameters = dict(parameters)
         self._pool = pool
         self._continued = 0  # prepared calls that did not end in the kept buffers
+        self._driver = self._params["automatic_modeling"] or self._auto  # (many solves a call)
         self._prepare()
 
     def _prepare(self):
@@ -138,8 +141,11 @@ class Solver:
         ode, params = self.ode, self._params
         compiled, plan = lowered(ode, params)
         self._declared = ode.params  # a new assignment ode.params = {...} prepares again
+        self._symbols = tuple(ode.params)
         self._by_name = {s.name: s for s in ode.params}
-        self._by_key = {**self._by_name, **{s: s for s in ode.params}}
+        self._index = {key: i for i, s in enumerate(self._symbols) for key in (s, s.name)}
+        # the values of the last call (its Parameters, its u0 vector): kept while equal
+        self._call_values = self._call_u0 = None
         self._work = object.__new__(type(ode))
         self._work.__dict__.update(ode.__dict__)
         self._work.__dict__.pop("_kept_solvers", None)  # (its solutions would keep them alive)
@@ -185,11 +191,11 @@ class Solver:
             As :func:`dolfinode.solve`.
         """
         work = self._declaration(u0, params, T, t0)
-        if self._params["automatic_modeling"] or self._auto:  # a driver over many solves
+        if self._driver:
             return solve(work._snapshot(), self.method, **self.parameters)
-        features = narrow_features(work)
-        # (an oscillating term's step cap moves with the parameters: set in the general path)
-        if self._buffers is not None and not (features or features.oscillations):
+        # (narrow features are breakpoints of the general path; an oscillating term's step
+        # bound is set in the prepared call)
+        if self._buffers is not None and not narrow_features(work):
             sol = self._solve_prepared(work)
             if sol is not None:
                 return sol
@@ -199,14 +205,21 @@ class Solver:
 
     def _declaration(self, u0, params, T, t0):
         """The solver's copy of the declaration with the values of this call, checked as
-        :func:`dolfinode.vary` checks them (the declaration's values where not given)."""
+        :func:`dolfinode.vary` checks them (the declaration's values where not given). Its
+        ``params`` and ``u0`` are the objects of the last call while their values are equal
+        (values with a zero are made anew: 0.0 == -0.0), which is how the prepared call
+        sees what changed."""
         ode = self.ode
         if ode.params is not self._declared:
             self._prepare()
         work = self._work
         fields = work.__dict__
         # the declaration's values are checked already: only those given here are
-        fields["params"] = ode.params if params is None else self._parameters(params)
+        values = tuple(ode.params.values()) if params is None else self._parameters(params)
+        last = self._call_values
+        if last is None or values != last[0] or 0.0 in values:
+            last = self._call_values = (values, Parameters(zip(self._symbols, values)))
+        fields["params"] = last[1]
         fields["u0"] = ode.u0 if u0 is None else self._initial_values(u0)
         if t0 is None and T is None:
             fields["t0"], fields["T"] = ode.t0, ode.T
@@ -215,31 +228,39 @@ class Solver:
         return work
 
     def _parameters(self, params):
-        """The declaration's parameter values with those of ``params`` (by symbol or name),
-        checked as :class:`~dolfinode.ODE` checks them; a float is taken as it is once
-        found finite."""
+        """The parameter values of a call in the declaration's order: the declaration's,
+        with those of ``params`` (by symbol or name) checked as :class:`~dolfinode.ODE`
+        checks them; a float is taken as it is once found finite."""
         if type(params) is not dict and not isinstance(params, Mapping):
             raise TypeError("params must be a dict {parameter symbol or name: value}, got "
                             f"{type(params).__name__}")
-        values = dict(self.ode.params.items())
+        values = list(self.ode.params.values())
         for key, value in params.items():
-            symbol = self._by_key.get(key) or parameter_symbol(self._by_name, key)
-            values[symbol] = (value if type(value) is float and math.isfinite(value)
-                              else _parameter_value(symbol, value))
-        return Parameters(values)
+            i = self._index.get(key)
+            if i is None:
+                i = self._index[parameter_symbol(self._by_name, key)]
+            values[i] = (value if type(value) is float and math.isfinite(value)
+                         else _parameter_value(self._symbols[i], value))
+        return tuple(values)
 
     def _initial_values(self, u0):
         """u0 of a call as :class:`~dolfinode.ODE` takes it (a read-only float vector): a
-        short list, tuple or vector of finite floats (as a fit passes) directly, anything
-        else through the declaration's check, which names what is wrong."""
+        short list, tuple or vector of finite floats (as a fit passes) directly, the vector
+        of the last call where the values are equal, anything else through the
+        declaration's check, which names what is wrong."""
         values = u0.tolist() if type(u0) is np.ndarray and u0.dtype == float else u0
         work = self._work
-        if (type(values) in (list, tuple) and len(values) == work.N <= _DIRECT_U0
-                and all(type(x) is float and math.isfinite(x) for x in values)
-                and not (work._constrained and min(values) < 0)):
-            u0 = np.array(values)
-            u0.flags.writeable = False
-            return u0
+        if type(values) in (list, tuple) and len(values) == work.N <= _DIRECT_U0:
+            values = tuple(values)
+            last = self._call_u0
+            if last is not None and values == last[0]:
+                return last[1]
+            if (all(type(x) is float and math.isfinite(x) for x in values)
+                    and not (work._constrained and min(values) < 0)):
+                u0 = np.array(values)
+                u0.flags.writeable = False
+                self._call_u0 = None if 0.0 in values else (values, u0)
+                return u0
         work.u0 = u0
         return work.u0
 
@@ -279,8 +300,13 @@ class Solver:
             advance = mono.advance
         self._samples = history.sink(work, m, multi_adaptive, params).samples  # (checked)
         self._interval = (work.t0, work.T)
-        # p, floor: written by the next call
+        # p, floor, the step bound: written by the next call
         self._values = self._signs = self._u0 = self._floor_key = None
+        # an oscillating f(t) bounds the steps by what the parameter values make of it
+        self._bounded_steps = (params["maximum_time_step"] is None
+                               and not params["fixed_time_step"] and not work.autonomous)
+        self._step_bound = None
+        self._deviation = state["last_deviation"]  # (a view: read after every call)
         self._kept = (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
                       structure, options, loop_atol)
         self._start = (start.entry(), (compiled.rhs.address, compiled.p, work.t0, atol, rtol,
@@ -294,22 +320,28 @@ class Solver:
     def _solve_prepared(self, work):
         """The solve of ``work`` as one call of the loop into the kept buffers, a run that
         does not fit them going on into new ones as dn.solve's does (:func:`run_started`:
-        the same chunks, the same Solution). The Solution copies
-        the used part of the buffers; a mono-adaptive one makes its ``ode`` and ``stats``
-        when first read (the ``makers`` of :class:`~dolfinode.Solution`)."""
+        the same chunks, the same Solution). What depends on the values of the call (p,
+        the floor of the values, the steps' bound under an oscillating f(t), the warnings
+        read from u0) is made again only when they change (:meth:`_declaration`). The
+        Solution copies the used part of the buffers; a mono-adaptive one makes its ``ode``
+        and ``stats`` when first read (the ``makers`` of :class:`~dolfinode.Solution`)."""
         started = time.perf_counter()
         if (work.t0, work.T) != self._interval:
             self._workspace(work)
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
         (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
          structure, options, loop_atol) = self._kept
-        values = tuple(work.params.values())
-        if values != self._values:
+        if work.params is not self._values:
+            values = tuple(work.params.values())
             compiled.p[:len(values)] = values
-            self._values, signs = values, _signs(values)
-            self._solved = None
+            self._values, self._solved = work.params, None
+            signs = _signs(values)
             if signs != self._signs:
                 self._signs, self._u0 = signs, None
+            if self._bounded_steps:  # (as _options sets it for dn.solve)
+                bound = _largest_step(work, False, atol)
+                options["kmax"] = bound
+                self._step_bound = bound if bound < work.T - work.t0 else None
         if work.u0 is not self._u0:
             floor_key = (self._signs, _has_negative(work.u0))  # all the floor depends on
             if floor_key != self._floor_key:
@@ -318,10 +350,12 @@ class Solver:
             self._u0, self._solved = work.u0, None
             if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
                 _check_resolvable_tolerance(work, atol, params["tolerance"])
-        if self._solved is None and not params["fixed_time_step"]:  # (u0 or values new)
-            warn_growth_below_tolerance(work, compiled, atol)
-            self._below = (params["absolute_tolerance"] is None
-                           and starts_below_tolerance(work.u0, atol))
+        if self._solved is None:  # (u0 or the values new)
+            if not params["fixed_time_step"]:
+                warn_growth_below_tolerance(work, compiled, atol)
+                self._below = (params["absolute_tolerance"] is None
+                               and starts_below_tolerance(work.u0, atol))
+            self._solved = _Solved(work)
         x[:] = work.u0
         if params["initial_time_step"] is not None:
             steps[:] = given
@@ -345,38 +379,61 @@ class Solver:
             sol = run_started(work, compiled, None, multi_adaptive, m, params,
                               (loop_atol, floor, x, f0, steps, options, state, counters),
                               started, kept)
-            estimate_global_error(work, compiled, m, params, sol,
-                                  longest_run(sol, multi_adaptive))
+            if self._step_bound is not None:
+                note_step_bound(sol.stats, self._step_bound, work.T - work.t0)
+            check_error_at_T(work, compiled, None, multi_adaptive, m, params, sol)
             warn_lost_components(work, compiled, params, sol)
             if not params["fixed_time_step"] and self._below:
                 warn_below_tolerance_throughout(work, atol, sol)
             return sol
-        if self._solved is None:  # the values of this call, kept while they are unchanged
-            self._solved = work._snapshot()
         n, seconds = counts[ts.STORED], time.perf_counter() - started
-        _warn_undamped(work, compiled, m, params, options, state, multi_adaptive)
+        if self._deviation[0] > UNDAMPED_DEVIATION:  # (what _warn_undamped reads first)
+            _warn_undamped(work, compiled, m, params, options, state, multi_adaptive)
+        solved, bound = self._solved, self._step_bound
         if multi_adaptive:
             sink = history.InMemory(work, True, self._samples)
             sink.add(history.filled(self._buffers, counts), float(state["t"][0]))
             stats = _completed_stats(
                 _multi_stats(counts, state["mono_elements"].item(), sink.per_component,
                              steps), counts, True, m, params, compiled.compile_time, seconds)
-            sol = sink.solution(self._solved._snapshot(), m, sink.finish(True), stats, x)
+            note_step_bound(stats, bound, solved.T - solved.t0)
+            sol = sink.solution(solved.declaration(), m, sink.finish(True), stats, x)
         else:
             k_next, N = state["k_next"].item(), x.size
             out_t, out_k, out_X = self._buffers
-            makers = {"ode": self._solved._snapshot, "declared": self._solved,
-                      "stats": lambda: _completed_stats(
+            makers = {"ode": solved.declaration, "declared": solved,
+                      "stats": lambda: note_step_bound(_completed_stats(
                           _mono_stats(N, structure, counts, k_next), counts, False, m, params,
-                          compiled.compile_time, seconds)}
+                          compiled.compile_time, seconds), bound, solved.T - solved.t0)}
             sol = Solution(None, m, out_t[:n].copy(), out_k[:n].copy(), out_X[:n].copy(), None,
                            self._samples, makers)
         sol.parameters = params
-        estimate_global_error(work, compiled, m, params, sol, longest_run(sol, True)
-                              if multi_adaptive else counts[ts.SLABS])
+        check_error_at_T(work, compiled, None, multi_adaptive, m, params, sol,
+                         None if multi_adaptive else counts[ts.SLABS])
         # values projected to 0 (:func:`warn_lost_components`); mono: none where none ends at 0
         if self._bounded and (multi_adaptive or _has_zero(sol.values[-1, -1])):
             warn_lost_components(work, compiled, params, sol)
         if not params["fixed_time_step"] and self._below:  # (read when u0 was new)
             warn_below_tolerance_throughout(work, atol, sol)
         return sol
+
+
+class _Solved:
+    """The declaration as a prepared call solved it: what evaluating its Solution reads
+    (t0, T, N, u0) at once, the declaration itself (the solver's copy with the call's
+    values) made when read, as a loop of small solves seldom does."""
+
+    __slots__ = ("N", "T", "_params", "_work", "t0", "u0")
+
+    def __init__(self, work):
+        fields = work.__dict__  # (the call's values: made again when they change)
+        self.t0, self.T, self.u0, self._params = (fields["t0"], fields["T"], fields["u0"],
+                                                  fields["params"])
+        self.N, self._work = work.N, work
+
+    def declaration(self):
+        """A new copy of the declaration as solved (its own parameter values)."""
+        ode = self._work._snapshot()  # (with a later call's values: replaced here)
+        ode.__dict__.update(params=Parameters(self._params.items()), u0=self.u0, t0=self.t0,
+                            T=self.T)
+        return ode
