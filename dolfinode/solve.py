@@ -1139,11 +1139,11 @@ def estimate_global_error(ode, compiled, m, params, sol, steps):
     carried (:func:`_estimating`), and where there is none sol.stats["global error note"]
     says so."""
     choice = params["estimate_global_error"]
+    if choice == "auto" and (steps < SHORTEST_RUN or not sol.success):
+        return  # (a run of one step: its step's error, which the step control bounds)
     running = getattr(sol, "_running_estimate", None)
     slabs = False
     if choice == "auto":
-        if steps < SHORTEST_RUN or not sol.success:
-            return  # (a run of one step: its step's error, which the step control bounds)
         kept = params["dense_output"] is True
         small = (m.q + 2) * ode.N <= AUTO_ROWS
         choice = small and (kept or running is not None)

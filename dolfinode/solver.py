@@ -141,9 +141,11 @@ class Solver:
         ode, params = self.ode, self._params
         compiled, plan = lowered(ode, params)
         self._declared = ode.params  # a new assignment ode.params = {...} prepares again
-        self._symbols = tuple(ode.params)
+        self._symbols, self._n = tuple(ode.params), ode.N
         self._by_name = {s.name: s for s in ode.params}
         self._index = {key: i for i, s in enumerate(self._symbols) for key in (s, s.name)}
+        # (the declaration's own symbols by identity: sympy's hash of a symbol is Python code)
+        self._by_id = {id(s): i for i, s in enumerate(self._symbols)}
         # the values of the last call (its Parameters, its u0 vector): kept while equal
         self._call_values = self._call_u0 = None
         self._work = object.__new__(type(ode))
@@ -160,8 +162,10 @@ class Solver:
             elif (not sparse_candidate(compiled.band_structure)
                   or m.name in compiled.newton_plans):  # (as in _run_mono)
                 size = min(_mono_capacity(ode, m), params["maximum_steps"])
-                self._buffers = self._kept_buffers(
-                    ((size, float), (size, float), ((size, m.q + 1, ode.N), float)))
+                # t and k as the rows of one array: a Solution copies them at once
+                self._times, out_X = self._kept_buffers(
+                    (((2, size), float), ((size, m.q + 1, ode.N), float)))
+                self._buffers = (self._times[0], self._times[1], out_X)
 
     def _kept_buffers(self, shapes):
         """Output buffers of the given (shape, dtype)s from the pool, made when missing."""
@@ -236,9 +240,11 @@ class Solver:
                             f"{type(params).__name__}")
         values = list(self.ode.params.values())
         for key, value in params.items():
-            i = self._index.get(key)
+            i = self._by_id.get(id(key))
             if i is None:
-                i = self._index[parameter_symbol(self._by_name, key)]
+                i = self._index.get(key)
+                if i is None:
+                    i = self._index[parameter_symbol(self._by_name, key)]
             values[i] = (value if type(value) is float and math.isfinite(value)
                          else _parameter_value(self._symbols[i], value))
         return tuple(values)
@@ -250,7 +256,7 @@ class Solver:
         declaration's check, which names what is wrong."""
         values = u0.tolist() if type(u0) is np.ndarray and u0.dtype == float else u0
         work = self._work
-        if type(values) in (list, tuple) and len(values) == work.N <= _DIRECT_U0:
+        if type(values) in (list, tuple) and len(values) == self._n <= _DIRECT_U0:
             values = tuple(values)
             last = self._call_u0
             if last is not None and values == last[0]:
@@ -306,7 +312,8 @@ class Solver:
         self._bounded_steps = (params["maximum_time_step"] is None
                                and not params["fixed_time_step"] and not work.autonomous)
         self._step_bound = None
-        self._deviation = state["last_deviation"]  # (a view: read after every call)
+        # (views of the loop's state, read after every call)
+        self._deviation, self._k_next = state["last_deviation"], state["k_next"]
         self._kept = (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
                       structure, options, loop_atol)
         self._start = (start.entry(), (compiled.rhs.address, compiled.p, work.t0, atol, rtol,
@@ -314,8 +321,10 @@ class Solver:
                                        options, state, counters, not multi_adaptive))
         self._loop = (advance.entry(), (*arguments, *self._buffers))
         # mono: both in one compiled call, which unboxes one object instead of ~40 arrays
+        self._initial = np.empty(n)  # (u0, from which the one compiled call sets x)
         self._prepared = None if multi_adaptive else (prepared.run.entry(), prepared.workspace(
-            start.compile(), self._start[1], advance.compile(), self._loop[1]))
+            start.compile(), self._start[1], advance.compile(), self._loop[1], x,
+            self._initial))
 
     def _solve_prepared(self, work):
         """The solve of ``work`` as one call of the loop into the kept buffers, a run that
@@ -348,6 +357,7 @@ class Solver:
                 floor[:] = _floor(work, atol)
                 self._floor_key, self._bounded = floor_key, bool(np.isfinite(floor).any())
             self._u0, self._solved = work.u0, None
+            self._initial[:] = work.u0
             if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
                 _check_resolvable_tolerance(work, atol, params["tolerance"])
         if self._solved is None:  # (u0 or the values new)
@@ -356,10 +366,10 @@ class Solver:
                 self._below = (params["absolute_tolerance"] is None
                                and starts_below_tolerance(work.u0, atol))
             self._solved = _Solved(work)
-        x[:] = work.u0
         if params["initial_time_step"] is not None:
             steps[:] = given
         if multi_adaptive:
+            x[:] = self._initial
             started_at, arguments = self._start
             _check_start(work, params, started_at(*arguments), f0, steps)
             frozen.fill(np.nan)  # since when each component is frozen (NaN: active)
@@ -399,19 +409,20 @@ class Solver:
             note_step_bound(stats, bound, solved.T - solved.t0)
             sol = sink.solution(solved.declaration(), m, sink.finish(True), stats, x)
         else:
-            k_next, N = state["k_next"].item(), x.size
-            out_t, out_k, out_X = self._buffers
+            k_next, N = self._k_next.item(), x.size
             makers = {"ode": solved.declaration, "declared": solved,
                       "stats": lambda: note_step_bound(_completed_stats(
                           _mono_stats(N, structure, counts, k_next), counts, False, m, params,
                           compiled.compile_time, seconds), bound, solved.T - solved.t0)}
-            sol = Solution(None, m, out_t[:n].copy(), out_k[:n].copy(), out_X[:n].copy(), None,
+            times = self._times[:, :n].copy()
+            sol = Solution(None, m, times[0], times[1], self._buffers[2][:n].copy(), None,
                            self._samples, makers)
         sol.parameters = params
         check_error_at_T(work, compiled, None, multi_adaptive, m, params, sol,
                          None if multi_adaptive else counts[ts.SLABS])
-        # values projected to 0 (:func:`warn_lost_components`); mono: none where none ends at 0
-        if self._bounded and (multi_adaptive or _has_zero(sol.values[-1, -1])):
+        # values projected to 0 (:func:`warn_lost_components`); mono: none where none ends at
+        # 0 (x: the values at the end, sol.values[-1, -1])
+        if self._bounded and (multi_adaptive or _has_zero(x)):
             warn_lost_components(work, compiled, params, sol)
         if not params["fixed_time_step"] and self._below:  # (read when u0 was new)
             warn_below_tolerance_throughout(work, atol, sol)
