@@ -24,6 +24,7 @@ was called with before (:mod:`dolfinode.kept`).
 """
 import math
 import time
+from collections import namedtuple
 from collections.abc import Mapping
 
 import numpy as np
@@ -200,9 +201,7 @@ class Solver:
         # (narrow features are breakpoints of the general path; an oscillating term's step
         # bound is set in the prepared call)
         if self._buffers is not None and not narrow_features(work):
-            sol = self._solve_prepared(work)
-            if sol is not None:
-                return sol
+            return self._solve_prepared(work)
         compiled, plan = lowered(work, self._params)
         return solve_lowered(work, compiled, plan, self._multi_adaptive, self._method,
                              self._params)
@@ -314,8 +313,8 @@ class Solver:
         self._step_bound = None
         # (views of the loop's state, read after every call)
         self._deviation, self._k_next = state["last_deviation"], state["k_next"]
-        self._kept = (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
-                      structure, options, loop_atol)
+        self._kept = _Kept(compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
+                           structure, options, loop_atol)
         self._start = (start.entry(), (compiled.rhs.address, compiled.p, work.t0, atol, rtol,
                                        params["initial_time_step"] is None, x, f0, steps,
                                        options, state, counters, not multi_adaptive))
@@ -328,47 +327,22 @@ class Solver:
 
     def _solve_prepared(self, work):
         """The solve of ``work`` as one call of the loop into the kept buffers, a run that
-        does not fit them going on into new ones as dn.solve's does (:func:`run_started`:
-        the same chunks, the same Solution). What depends on the values of the call (p,
-        the floor of the values, the steps' bound under an oscillating f(t), the warnings
-        read from u0) is made again only when they change (:meth:`_declaration`). The
-        Solution copies the used part of the buffers; a mono-adaptive one makes its ``ode``
-        and ``stats`` when first read (the ``makers`` of :class:`~dolfinode.Solution`)."""
+        does not fit them going on into new ones as dn.solve's does (:meth:`_go_on`). What
+        depends on the values of the call is made again only when they change
+        (:meth:`_take_values`). The Solution copies the used part of the buffers; a
+        mono-adaptive one makes its ``ode`` and ``stats`` when first read (the ``makers``
+        of :class:`~dolfinode.Solution`)."""
         started = time.perf_counter()
         if (work.t0, work.T) != self._interval:
             self._workspace(work)
-        params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
-        (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
-         structure, options, loop_atol) = self._kept
-        if work.params is not self._values:
-            values = tuple(work.params.values())
-            compiled.p[:len(values)] = values
-            self._values, self._solved = work.params, None
-            signs = _signs(values)
-            if signs != self._signs:
-                self._signs, self._u0 = signs, None
-            if self._bounded_steps:  # (as _options sets it for dn.solve)
-                bound = _largest_step(work, False, atol)
-                options["kmax"] = bound
-                self._step_bound = bound if bound < work.T - work.t0 else None
-        if work.u0 is not self._u0:
-            floor_key = (self._signs, _has_negative(work.u0))  # all the floor depends on
-            if floor_key != self._floor_key:
-                floor[:] = _floor(work, atol)
-                self._floor_key, self._bounded = floor_key, bool(np.isfinite(floor).any())
-            self._u0, self._solved = work.u0, None
-            self._initial[:] = work.u0
-            if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
-                _check_resolvable_tolerance(work, atol, params["tolerance"])
-        if self._solved is None:  # (u0 or the values new)
-            if not params["fixed_time_step"]:
-                warn_growth_below_tolerance(work, compiled, atol)
-                self._below = (params["absolute_tolerance"] is None
-                               and starts_below_tolerance(work.u0, atol))
-            self._solved = _Solved(work)
+        if work.params is not self._values or work.u0 is not self._u0:
+            self._take_values(work)
+        params = self._params
+        (compiled, atol, given, x, f0, steps, state, counters, _, frozen, structure, options,
+         _) = self._kept
         if params["initial_time_step"] is not None:
             steps[:] = given
-        if multi_adaptive:
+        if self._multi_adaptive:
             x[:] = self._initial
             started_at, arguments = self._start
             _check_start(work, params, started_at(*arguments), f0, steps)
@@ -380,27 +354,15 @@ class Solver:
             status = run(workspace)
             if status < 0:
                 _check_start(work, params, -status, f0, steps)
-            advance, arguments = self._loop
         counts = counters.tolist()
         if status != ts.DONE or counts[ts.SLABS] > params["maximum_steps"]:
-            # the run goes on into new buffers, as dn.solve's would
-            self._continued += 1
-            kept = (advance, arguments[:-len(self._buffers)], (status, self._buffers))
-            sol = run_started(work, compiled, None, multi_adaptive, m, params,
-                              (loop_atol, floor, x, f0, steps, options, state, counters),
-                              started, kept)
-            if self._step_bound is not None:
-                note_step_bound(sol.stats, self._step_bound, work.T - work.t0)
-            check_error_at_T(work, compiled, None, multi_adaptive, m, params, sol)
-            warn_lost_components(work, compiled, params, sol)
-            if not params["fixed_time_step"] and self._below:
-                warn_below_tolerance_throughout(work, atol, sol)
-            return sol
-        n, seconds = counts[ts.STORED], time.perf_counter() - started
+            return self._go_on(work, status, started)
+        seconds = time.perf_counter() - started
+        m = self._method
         if self._deviation[0] > UNDAMPED_DEVIATION:  # (what _warn_undamped reads first)
-            _warn_undamped(work, compiled, m, params, options, state, multi_adaptive)
+            _warn_undamped(work, compiled, m, params, options, state, self._multi_adaptive)
         solved, bound = self._solved, self._step_bound
-        if multi_adaptive:
+        if self._multi_adaptive:
             sink = history.InMemory(work, True, self._samples)
             sink.add(history.filled(self._buffers, counts), float(state["t"][0]))
             stats = _completed_stats(
@@ -408,25 +370,86 @@ class Solver:
                              steps), counts, True, m, params, compiled.compile_time, seconds)
             note_step_bound(stats, bound, solved.T - solved.t0)
             sol = sink.solution(solved.declaration(), m, sink.finish(True), stats, x)
+            steps_run = None  # (check_error_at_T reads the busiest component's in the stats)
         else:
             k_next, N = self._k_next.item(), x.size
             makers = {"ode": solved.declaration, "declared": solved,
                       "stats": lambda: note_step_bound(_completed_stats(
                           _mono_stats(N, structure, counts, k_next), counts, False, m, params,
                           compiled.compile_time, seconds), bound, solved.T - solved.t0)}
+            n = counts[ts.STORED]
             times = self._times[:, :n].copy()
             sol = Solution(None, m, times[0], times[1], self._buffers[2][:n].copy(), None,
                            self._samples, makers)
+            steps_run = counts[ts.SLABS]
         sol.parameters = params
-        check_error_at_T(work, compiled, None, multi_adaptive, m, params, sol,
-                         None if multi_adaptive else counts[ts.SLABS])
+        check_error_at_T(work, compiled, None, self._multi_adaptive, m, params, sol, steps_run)
         # values projected to 0 (:func:`warn_lost_components`); mono: none where none ends at
         # 0 (x: the values at the end, sol.values[-1, -1])
-        if self._bounded and (multi_adaptive or _has_zero(x)):
+        if self._bounded and (self._multi_adaptive or _has_zero(x)):
             warn_lost_components(work, compiled, params, sol)
-        if not params["fixed_time_step"] and self._below:  # (read when u0 was new)
+        if self._below:  # (read when u0 was new)
             warn_below_tolerance_throughout(work, atol, sol)
         return sol
+
+    def _take_values(self, work):
+        """Write the values of ``work`` that changed since the last call into the work
+        space: the parameter values into p, and with them the steps' bound under an
+        oscillating f(t) (as dn.solve's options set it); u0 into the initial
+        values, and the floor of the values where the signs it depends on changed; then
+        the checks and warnings of new values, and the declaration as solved."""
+        params, kept = self._params, self._kept
+        compiled, atol = kept.compiled, kept.atol
+        if work.params is not self._values:
+            values = tuple(work.params.values())
+            compiled.p[:len(values)] = values
+            self._values = work.params
+            signs = _signs(values)
+            if signs != self._signs:
+                self._signs, self._u0 = signs, None
+            if self._bounded_steps:
+                bound = _largest_step(work, False, atol)
+                kept.options["kmax"] = bound
+                self._step_bound = bound if bound < work.T - work.t0 else None
+        if work.u0 is not self._u0:
+            floor_key = (self._signs, _has_negative(work.u0))  # all the floor depends on
+            if floor_key != self._floor_key:
+                kept.floor[:] = _floor(work, atol)
+                self._floor_key = floor_key
+                self._bounded = bool(np.isfinite(kept.floor).any())
+            self._u0 = work.u0
+            self._initial[:] = work.u0
+            if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
+                _check_resolvable_tolerance(work, atol, params["tolerance"])
+        if not params["fixed_time_step"]:
+            warn_growth_below_tolerance(work, compiled, atol)
+        self._below = (not params["fixed_time_step"] and params["absolute_tolerance"] is None
+                       and starts_below_tolerance(work.u0, atol))
+        self._solved = _Solved(work)
+
+    def _go_on(self, work, status, started):
+        """The Solution of a prepared run that stopped with ``status`` (the buffers full,
+        maximum_steps passed, a failure): it goes on into new buffers, as dn.solve's would
+        (:func:`run_started`: the same chunks, the same Solution or error)."""
+        self._continued += 1
+        params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
+        k = self._kept
+        advance, arguments = self._loop
+        sol = run_started(work, k.compiled, None, multi_adaptive, m, params,
+                          (k.loop_atol, k.floor, k.x, k.f0, k.steps, k.options, k.state,
+                           k.counters), started,
+                          (advance, arguments[:-len(self._buffers)], (status, self._buffers)))
+        note_step_bound(sol.stats, self._step_bound, work.T - work.t0)
+        check_error_at_T(work, k.compiled, None, multi_adaptive, m, params, sol)
+        warn_lost_components(work, k.compiled, params, sol)
+        if self._below:
+            warn_below_tolerance_throughout(work, k.atol, sol)
+        return sol
+
+
+#: What a Solver keeps per interval for its prepared calls (:meth:`Solver._workspace`).
+_Kept = namedtuple("_Kept", "compiled atol given x f0 steps state counters floor frozen "
+                            "structure options loop_atol")
 
 
 class _Solved:
