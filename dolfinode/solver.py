@@ -15,10 +15,13 @@ the loop's whole argument tuple; a call writes the values that changed into it, 
 compiled start of dn.solve (:mod:`dolfinode.timeslab.start`) and calls the loop once (for
 cG/dG in one compiled call, :mod:`dolfinode.timeslab.prepared`), and
 the Solution copies the used part of the buffers. A call's u0 and parameter values are
-checked as the declaration checks them, floats directly; the floor of the values is made
-again only when the parameters' signs or the sign of u0 change. A mono-adaptive Solution's
-``ode`` (the declaration as solved) and ``stats`` are made when first read. Everything
-else, and a solve that outgrows the buffers or fails, goes through the general path
+checked as the declaration checks them, floats directly; values equal to the last call's
+are taken as they were checked then, and what depends on them (p, the floor of the values,
+the steps' bound of an f(t) that oscillates in t, the warnings read from u0) is made again
+only when they change (the floor only when the parameters' signs or the sign of u0 do). A
+mono-adaptive Solution's ``ode`` (the declaration as solved) and ``stats`` are made when
+first read. Narrow features of f(t) (breakpoints), everything else, and a solve that
+outgrows the buffers or fails, go through the general path
 (``solve_lowered``, the driver of dn.solve). dn.solve itself keeps Solvers for options it
 was called with before (:mod:`dolfinode.kept`).
 """
