@@ -50,7 +50,9 @@ def _workspace(start, start_arguments, loop, loop_arguments, x, u0):
 def _run(w):
     """x = u0, start(*start_arguments), then, if it returned READY, loop(*loop_arguments);
     returns the loop's status (>= 0), or minus the start's where it is not READY."""
-    w.x[:] = w.u0
+    x, u0 = w.x, w.u0
+    for i in range(x.size):  # (a slice assignment took 2.8 s more CPU to compile)
+        x[i] = u0[i]
     started = w.start(*w.start_arguments)
     if started != READY:
         return -started
