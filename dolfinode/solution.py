@@ -679,7 +679,7 @@ class Solution:
     @property
     def _declaration(self):
         """What evaluation reads of the declaration (t0, T, N, u0): ``ode``, or before it is
-        made the declaration it copies (copying it cost a small solve 2-5 us)."""
+        made the makers' "declared" (copying it cost a small solve 2-5 us)."""
         ode = self.__dict__.get("ode")
         if ode is None:
             ode = self._makers.get("declared")
@@ -693,8 +693,8 @@ class Solution:
     def __init__(self, ode, method, t_start, k, values, stats, number_of_samples, makers=None):
         """``makers``: {"ode": maker, "stats": maker} (``ode`` and ``stats`` then None), the
         two made by maker() on first read: a loop of many small solves often reads neither;
-        with "declared": the declaration the ode maker copies (never changed), which
-        evaluation reads instead."""
+        with "declared": what evaluation reads of the declaration instead (t0, T, N, u0:
+        the declaration the ode maker copies, or an object with these four, never changed)."""
         self.method, self.t_start, self.k, self.values = method, t_start, k, values
         self._component_ptr = None
         if makers is None:

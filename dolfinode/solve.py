@@ -644,9 +644,8 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
             if params["maximum_time_step"] != given:
                 sol.stats["switch step bound"] = params["maximum_time_step"]
             elif given is None and not ode.autonomous:
-                cap = _largest_step(ode, params["fixed_time_step"], atol)
-                if cap < ode.T - ode.t0:
-                    sol.stats["oscillation step bound"] = cap
+                note_step_bound(sol.stats, _largest_step(ode, params["fixed_time_step"], atol),
+                                ode.T - ode.t0)
             check_error_at_T(ode, compiled, plan, multi_adaptive, m, params, sol)
             warn_lost_components(ode, compiled, params, sol)
             if not params["fixed_time_step"] and params["absolute_tolerance"] is None:
@@ -759,6 +758,14 @@ def _largest_step(ode, fixed, atol):
     if fixed or ode.autonomous:
         return span
     return min(span, narrow_features(ode).step_cap(atol, span))
+
+
+def note_step_bound(stats, bound, span):
+    """``stats`` with the largest step an oscillating f(t) allows (:func:`_largest_step`),
+    where there is one (None: none) below the ``span`` T - t0."""
+    if bound is not None and bound < span:
+        stats["oscillation step bound"] = bound
+    return stats
 
 
 def _floor(ode, atol):
@@ -1111,15 +1118,18 @@ SHORTEST_RUN = 2
 AUTO_ROWS = 64
 
 
-def check_error_at_T(ode, compiled, plan, multi_adaptive, m, params, sol):
+def check_error_at_T(ode, compiled, plan, multi_adaptive, m, params, sol, steps=None):
     """The check of the error at T of ``sol`` (by the method ``m``) that
     ``params["estimate_global_error"]`` asks for: the linearised estimate where f is smooth
-    (:func:`estimate_global_error`), else measured (:func:`measure_piecewise_error`)."""
+    (:func:`estimate_global_error`), else measured (:func:`measure_piecewise_error`).
+    ``steps``: the :func:`longest_run` of ``sol`` where the caller has it (a prepared
+    call's counters: reading sol.stats would make them)."""
     if params["estimate_global_error"] is False:
         return
     smooth = plan is None or not plan.watched
     check = estimate_global_error if smooth else measure_piecewise_error
-    check(ode, compiled, m, params, sol, longest_run(sol, multi_adaptive))
+    check(ode, compiled, m, params, sol,
+          longest_run(sol, multi_adaptive) if steps is None else steps)
 
 
 def longest_run(sol, multi_adaptive):
@@ -1153,16 +1163,17 @@ def estimate_global_error(ode, compiled, m, params, sol, steps):
     carried (:func:`_estimating`), and where there is none sol.stats["global error note"]
     says so."""
     choice = params["estimate_global_error"]
+    if choice == "auto" and (steps < SHORTEST_RUN or not sol.success):
+        return  # (a run of one step: its step's error, which the step control bounds)
     running = getattr(sol, "_running_estimate", None)
     slabs = False
     if choice == "auto":
-        long = sol.success and steps >= SHORTEST_RUN
         kept = params["dense_output"] is True
         small = (m.q + 2) * ode.N <= AUTO_ROWS
-        choice = long and small and (kept or running is not None)
+        choice = small and (kept or running is not None)
         # larger runs: the slab estimate (no stage systems, no common refinement)
-        slabs = long and kept and not small
-        if long and not (choice or slabs):
+        slabs = kept and not small
+        if not (choice or slabs):
             sol.stats["global error note"] = NO_HISTORY_NOTE
     if choice or slabs:
         _warn_global_error(ode, compiled, params, sol, slabs, running)

@@ -15,20 +15,25 @@ the loop's whole argument tuple; a call writes the values that changed into it, 
 compiled start of dn.solve (:mod:`dolfinode.timeslab.start`) and calls the loop once (for
 cG/dG in one compiled call, :mod:`dolfinode.timeslab.prepared`), and
 the Solution copies the used part of the buffers. A call's u0 and parameter values are
-checked as the declaration checks them, floats directly; the floor of the values is made
-again only when the parameters' signs or the sign of u0 change. A mono-adaptive Solution's
-``ode`` (the declaration as solved) and ``stats`` are made when first read. Everything
-else, and a solve that outgrows the buffers or fails, goes through the general path
+checked as the declaration checks them, floats directly; values equal to the last call's
+are taken as they were checked then, and what depends on them (p, the floor of the values,
+the steps' bound of an f(t) that oscillates in t, the warnings read from u0) is made again
+only when they change (the floor only when the parameters' signs or the sign of u0 do). A
+mono-adaptive Solution's ``ode`` (the declaration as solved) and ``stats`` are made when
+first read. Narrow features of f(t) (breakpoints), everything else, and a solve that
+outgrows the buffers or fails, go through the general path
 (``solve_lowered``, the driver of dn.solve). dn.solve itself keeps Solvers for options it
 was called with before (:mod:`dolfinode.kept`).
 """
 import math
 import time
+from collections import namedtuple
 from collections.abc import Mapping
 
 import numpy as np
 
 from dolfinode import timeslab as ts
+from dolfinode.adaptivity import UNDAMPED_DEVIATION
 from dolfinode.ensemble import parameter_symbol
 from dolfinode.family import auto_base
 from dolfinode.features import narrow_features
@@ -48,6 +53,7 @@ from dolfinode.solve import (
     _has_negative,
     _has_zero,
     _initial_steps,
+    _largest_step,
     _mono_arguments,
     _mono_capacity,
     _mono_stats,
@@ -60,11 +66,11 @@ from dolfinode.solve import (
     _options,
     _signs,
     _warn_undamped,
+    check_error_at_T,
     check_tolerance,
-    estimate_global_error,
-    longest_run,
     lower,
     lowered,
+    note_step_bound,
     run_started,
     solve,
     solve_lowered,
@@ -130,6 +136,7 @@ class Solver:
         self.parameters = dict(parameters)
         self._pool = pool
         self._continued = 0  # prepared calls that did not end in the kept buffers
+        self._driver = self._params["automatic_modeling"] or self._auto  # (many solves a call)
         self._prepare()
 
     def _prepare(self):
@@ -138,8 +145,13 @@ class Solver:
         ode, params = self.ode, self._params
         compiled, plan = lowered(ode, params)
         self._declared = ode.params  # a new assignment ode.params = {...} prepares again
+        self._symbols, self._n = tuple(ode.params), ode.N
         self._by_name = {s.name: s for s in ode.params}
-        self._by_key = {**self._by_name, **{s: s for s in ode.params}}
+        self._index = {key: i for i, s in enumerate(self._symbols) for key in (s, s.name)}
+        # (the declaration's own symbols by identity: sympy's hash of a symbol is Python code)
+        self._by_id = {id(s): i for i, s in enumerate(self._symbols)}
+        # the values of the last call (its Parameters, its u0 vector): kept while equal
+        self._call_values = self._call_u0 = None
         self._work = object.__new__(type(ode))
         self._work.__dict__.update(ode.__dict__)
         self._work.__dict__.pop("_kept_solvers", None)  # (its solutions would keep them alive)
@@ -154,8 +166,10 @@ class Solver:
             elif (not sparse_candidate(compiled.band_structure)
                   or m.name in compiled.newton_plans):  # (as in _run_mono)
                 size = min(_mono_capacity(ode, m), params["maximum_steps"])
-                self._buffers = self._kept_buffers(
-                    ((size, float), (size, float), ((size, m.q + 1, ode.N), float)))
+                # t and k as the rows of one array: a Solution copies them at once
+                self._times, out_X = self._kept_buffers(
+                    (((2, size), float), ((size, m.q + 1, ode.N), float)))
+                self._buffers = (self._times[0], self._times[1], out_X)
 
     def _kept_buffers(self, shapes):
         """Output buffers of the given (shape, dtype)s from the pool, made when missing."""
@@ -185,28 +199,33 @@ class Solver:
             As :func:`dolfinode.solve`.
         """
         work = self._declaration(u0, params, T, t0)
-        if self._params["automatic_modeling"] or self._auto:  # a driver over many solves
+        if self._driver:
             return solve(work._snapshot(), self.method, **self.parameters)
-        features = narrow_features(work)
-        # (an oscillating term's step cap moves with the parameters: set in the general path)
-        if self._buffers is not None and not (features or features.oscillations):
-            sol = self._solve_prepared(work)
-            if sol is not None:
-                return sol
+        # (narrow features are breakpoints of the general path; an oscillating term's step
+        # bound is set in the prepared call)
+        if self._buffers is not None and not narrow_features(work):
+            return self._solve_prepared(work)
         compiled, plan = lowered(work, self._params)
         return solve_lowered(work, compiled, plan, self._multi_adaptive, self._method,
                              self._params)
 
     def _declaration(self, u0, params, T, t0):
         """The solver's copy of the declaration with the values of this call, checked as
-        :func:`dolfinode.vary` checks them (the declaration's values where not given)."""
+        :func:`dolfinode.vary` checks them (the declaration's values where not given). Its
+        ``params`` and ``u0`` are the objects of the last call while their values are equal
+        (values with a zero are made anew: 0.0 == -0.0), which is how the prepared call
+        sees what changed."""
         ode = self.ode
         if ode.params is not self._declared:
             self._prepare()
         work = self._work
         fields = work.__dict__
         # the declaration's values are checked already: only those given here are
-        fields["params"] = ode.params if params is None else self._parameters(params)
+        values = tuple(ode.params.values()) if params is None else self._parameters(params)
+        last = self._call_values
+        if last is None or values != last[0] or 0.0 in values:
+            last = self._call_values = (values, Parameters(zip(self._symbols, values)))
+        fields["params"] = last[1]
         fields["u0"] = ode.u0 if u0 is None else self._initial_values(u0)
         if t0 is None and T is None:
             fields["t0"], fields["T"] = ode.t0, ode.T
@@ -215,31 +234,41 @@ class Solver:
         return work
 
     def _parameters(self, params):
-        """The declaration's parameter values with those of ``params`` (by symbol or name),
-        checked as :class:`~dolfinode.ODE` checks them; a float is taken as it is once
-        found finite."""
+        """The parameter values of a call in the declaration's order: the declaration's,
+        with those of ``params`` (by symbol or name) checked as :class:`~dolfinode.ODE`
+        checks them; a float is taken as it is once found finite."""
         if type(params) is not dict and not isinstance(params, Mapping):
             raise TypeError("params must be a dict {parameter symbol or name: value}, got "
                             f"{type(params).__name__}")
-        values = dict(self.ode.params.items())
+        values = list(self.ode.params.values())
         for key, value in params.items():
-            symbol = self._by_key.get(key) or parameter_symbol(self._by_name, key)
-            values[symbol] = (value if type(value) is float and math.isfinite(value)
-                              else _parameter_value(symbol, value))
-        return Parameters(values)
+            i = self._by_id.get(id(key))
+            if i is None:
+                i = self._index.get(key)
+                if i is None:
+                    i = self._index[parameter_symbol(self._by_name, key)]
+            values[i] = (value if type(value) is float and math.isfinite(value)
+                         else _parameter_value(self._symbols[i], value))
+        return tuple(values)
 
     def _initial_values(self, u0):
         """u0 of a call as :class:`~dolfinode.ODE` takes it (a read-only float vector): a
-        short list, tuple or vector of finite floats (as a fit passes) directly, anything
-        else through the declaration's check, which names what is wrong."""
+        short list, tuple or vector of finite floats (as a fit passes) directly, the vector
+        of the last call where the values are equal, anything else through the
+        declaration's check, which names what is wrong."""
         values = u0.tolist() if type(u0) is np.ndarray and u0.dtype == float else u0
         work = self._work
-        if (type(values) in (list, tuple) and len(values) == work.N <= _DIRECT_U0
-                and all(type(x) is float and math.isfinite(x) for x in values)
-                and not (work._constrained and min(values) < 0)):
-            u0 = np.array(values)
-            u0.flags.writeable = False
-            return u0
+        if type(values) in (list, tuple) and len(values) == self._n <= _DIRECT_U0:
+            values = tuple(values)
+            last = self._call_u0
+            if last is not None and values == last[0]:
+                return last[1]
+            if (all(type(x) is float and math.isfinite(x) for x in values)
+                    and not (work._constrained and min(values) < 0)):
+                u0 = np.array(values)
+                u0.flags.writeable = False
+                self._call_u0 = None if 0.0 in values else (values, u0)
+                return u0
         work.u0 = u0
         return work.u0
 
@@ -279,53 +308,45 @@ class Solver:
             advance = mono.advance
         self._samples = history.sink(work, m, multi_adaptive, params).samples  # (checked)
         self._interval = (work.t0, work.T)
-        # p, floor: written by the next call
+        # p, floor, the step bound: written by the next call
         self._values = self._signs = self._u0 = self._floor_key = None
-        self._kept = (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
-                      structure, options, loop_atol)
+        # an oscillating f(t) bounds the steps by what the parameter values make of it
+        self._bounded_steps = (params["maximum_time_step"] is None
+                               and not params["fixed_time_step"] and not work.autonomous)
+        self._step_bound = None
+        # (views of the loop's state, read after every call)
+        self._deviation, self._k_next = state["last_deviation"], state["k_next"]
+        self._kept = _Kept(compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
+                           structure, options, loop_atol)
         self._start = (start.entry(), (compiled.rhs.address, compiled.p, work.t0, atol, rtol,
                                        params["initial_time_step"] is None, x, f0, steps,
                                        options, state, counters, not multi_adaptive))
         self._loop = (advance.entry(), (*arguments, *self._buffers))
         # mono: both in one compiled call, which unboxes one object instead of ~40 arrays
+        self._initial = np.empty(n)  # (u0, from which the one compiled call sets x)
         self._prepared = None if multi_adaptive else (prepared.run.entry(), prepared.workspace(
-            start.compile(), self._start[1], advance.compile(), self._loop[1]))
+            start.compile(), self._start[1], advance.compile(), self._loop[1], x,
+            self._initial))
 
     def _solve_prepared(self, work):
         """The solve of ``work`` as one call of the loop into the kept buffers, a run that
-        does not fit them going on into new ones as dn.solve's does (:func:`run_started`:
-        the same chunks, the same Solution). The Solution copies
-        the used part of the buffers; a mono-adaptive one makes its ``ode`` and ``stats``
-        when first read (the ``makers`` of :class:`~dolfinode.Solution`)."""
+        does not fit them going on into new ones as dn.solve's does (:meth:`_go_on`). What
+        depends on the values of the call is made again only when they change
+        (:meth:`_take_values`). The Solution copies the used part of the buffers; a
+        mono-adaptive one makes its ``ode`` and ``stats`` when first read (the ``makers``
+        of :class:`~dolfinode.Solution`)."""
         started = time.perf_counter()
         if (work.t0, work.T) != self._interval:
             self._workspace(work)
-        params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
-        (compiled, atol, given, x, f0, steps, state, counters, floor, frozen,
-         structure, options, loop_atol) = self._kept
-        values = tuple(work.params.values())
-        if values != self._values:
-            compiled.p[:len(values)] = values
-            self._values, signs = values, _signs(values)
-            self._solved = None
-            if signs != self._signs:
-                self._signs, self._u0 = signs, None
-        if work.u0 is not self._u0:
-            floor_key = (self._signs, _has_negative(work.u0))  # all the floor depends on
-            if floor_key != self._floor_key:
-                floor[:] = _floor(work, atol)
-                self._floor_key, self._bounded = floor_key, bool(np.isfinite(floor).any())
-            self._u0, self._solved = work.u0, None
-            if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
-                _check_resolvable_tolerance(work, atol, params["tolerance"])
-        if self._solved is None and not params["fixed_time_step"]:  # (u0 or values new)
-            warn_growth_below_tolerance(work, compiled, atol)
-            self._below = (params["absolute_tolerance"] is None
-                           and starts_below_tolerance(work.u0, atol))
-        x[:] = work.u0
+        if work.params is not self._values or work.u0 is not self._u0:
+            self._take_values(work)
+        params = self._params
+        (compiled, atol, given, x, f0, steps, state, counters, _, frozen, structure, options,
+         _) = self._kept
         if params["initial_time_step"] is not None:
             steps[:] = given
-        if multi_adaptive:
+        if self._multi_adaptive:
+            x[:] = self._initial
             started_at, arguments = self._start
             _check_start(work, params, started_at(*arguments), f0, steps)
             frozen.fill(np.nan)  # since when each component is frozen (NaN: active)
@@ -336,47 +357,120 @@ class Solver:
             status = run(workspace)
             if status < 0:
                 _check_start(work, params, -status, f0, steps)
-            advance, arguments = self._loop
         counts = counters.tolist()
         if status != ts.DONE or counts[ts.SLABS] > params["maximum_steps"]:
-            # the run goes on into new buffers, as dn.solve's would
-            self._continued += 1
-            kept = (advance, arguments[:-len(self._buffers)], (status, self._buffers))
-            sol = run_started(work, compiled, None, multi_adaptive, m, params,
-                              (loop_atol, floor, x, f0, steps, options, state, counters),
-                              started, kept)
-            estimate_global_error(work, compiled, m, params, sol,
-                                  longest_run(sol, multi_adaptive))
-            warn_lost_components(work, compiled, params, sol)
-            if not params["fixed_time_step"] and self._below:
-                warn_below_tolerance_throughout(work, atol, sol)
-            return sol
-        if self._solved is None:  # the values of this call, kept while they are unchanged
-            self._solved = work._snapshot()
-        n, seconds = counts[ts.STORED], time.perf_counter() - started
-        _warn_undamped(work, compiled, m, params, options, state, multi_adaptive)
-        if multi_adaptive:
+            return self._go_on(work, status, started)
+        seconds = time.perf_counter() - started
+        m = self._method
+        if self._deviation[0] > UNDAMPED_DEVIATION:  # (what _warn_undamped reads first)
+            _warn_undamped(work, compiled, m, params, options, state, self._multi_adaptive)
+        solved, bound = self._solved, self._step_bound
+        if self._multi_adaptive:
             sink = history.InMemory(work, True, self._samples)
             sink.add(history.filled(self._buffers, counts), float(state["t"][0]))
             stats = _completed_stats(
                 _multi_stats(counts, state["mono_elements"].item(), sink.per_component,
                              steps), counts, True, m, params, compiled.compile_time, seconds)
-            sol = sink.solution(self._solved._snapshot(), m, sink.finish(True), stats, x)
+            note_step_bound(stats, bound, solved.T - solved.t0)
+            sol = sink.solution(solved.declaration(), m, sink.finish(True), stats, x)
+            steps_run = None  # (check_error_at_T reads the busiest component's in the stats)
         else:
-            k_next, N = state["k_next"].item(), x.size
-            out_t, out_k, out_X = self._buffers
-            makers = {"ode": self._solved._snapshot, "declared": self._solved,
-                      "stats": lambda: _completed_stats(
+            k_next, N = self._k_next.item(), x.size
+            makers = {"ode": solved.declaration, "declared": solved,
+                      "stats": lambda: note_step_bound(_completed_stats(
                           _mono_stats(N, structure, counts, k_next), counts, False, m, params,
-                          compiled.compile_time, seconds)}
-            sol = Solution(None, m, out_t[:n].copy(), out_k[:n].copy(), out_X[:n].copy(), None,
+                          compiled.compile_time, seconds), bound, solved.T - solved.t0)}
+            n = counts[ts.STORED]
+            times = self._times[:, :n].copy()
+            sol = Solution(None, m, times[0], times[1], self._buffers[2][:n].copy(), None,
                            self._samples, makers)
+            steps_run = counts[ts.SLABS]
         sol.parameters = params
-        estimate_global_error(work, compiled, m, params, sol, longest_run(sol, True)
-                              if multi_adaptive else counts[ts.SLABS])
-        # values projected to 0 (:func:`warn_lost_components`); mono: none where none ends at 0
-        if self._bounded and (multi_adaptive or _has_zero(sol.values[-1, -1])):
+        check_error_at_T(work, compiled, None, self._multi_adaptive, m, params, sol, steps_run)
+        # values projected to 0 (:func:`warn_lost_components`); mono: none where none ends at
+        # 0 (x: the values at the end, sol.values[-1, -1])
+        if self._bounded and (self._multi_adaptive or _has_zero(x)):
             warn_lost_components(work, compiled, params, sol)
-        if not params["fixed_time_step"] and self._below:  # (read when u0 was new)
+        if self._below:  # (read when u0 was new)
             warn_below_tolerance_throughout(work, atol, sol)
         return sol
+
+    def _take_values(self, work):
+        """Write the values of ``work`` that changed since the last call into the work
+        space: the parameter values into p, and with them the steps' bound under an
+        oscillating f(t) (as dn.solve's options set it); u0 into the initial
+        values, and the floor of the values where the signs it depends on changed; then
+        the checks and warnings of new values, and the declaration as solved."""
+        params, kept = self._params, self._kept
+        compiled, atol = kept.compiled, kept.atol
+        if work.params is not self._values:
+            values = tuple(work.params.values())
+            compiled.p[:len(values)] = values
+            self._values = work.params
+            signs = _signs(values)
+            if signs != self._signs:
+                self._signs, self._u0 = signs, None
+            if self._bounded_steps:
+                bound = _largest_step(work, False, atol)
+                kept.options["kmax"] = bound
+                self._step_bound = bound if bound < work.T - work.t0 else None
+        if work.u0 is not self._u0:
+            floor_key = (self._signs, _has_negative(work.u0))  # all the floor depends on
+            if floor_key != self._floor_key:
+                kept.floor[:] = _floor(work, atol)
+                self._floor_key = floor_key
+                self._bounded = bool(np.isfinite(kept.floor).any())
+            self._u0 = work.u0
+            self._initial[:] = work.u0
+            if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
+                _check_resolvable_tolerance(work, atol, params["tolerance"])
+        if not params["fixed_time_step"]:
+            warn_growth_below_tolerance(work, compiled, atol)
+        self._below = (not params["fixed_time_step"] and params["absolute_tolerance"] is None
+                       and starts_below_tolerance(work.u0, atol))
+        self._solved = _Solved(work)
+
+    def _go_on(self, work, status, started):
+        """The Solution of a prepared run that stopped with ``status`` (the buffers full,
+        maximum_steps passed, a failure): it goes on into new buffers, as dn.solve's would
+        (:func:`run_started`: the same chunks, the same Solution or error)."""
+        self._continued += 1
+        params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
+        k = self._kept
+        advance, arguments = self._loop
+        sol = run_started(work, k.compiled, None, multi_adaptive, m, params,
+                          (k.loop_atol, k.floor, k.x, k.f0, k.steps, k.options, k.state,
+                           k.counters), started,
+                          (advance, arguments[:-len(self._buffers)], (status, self._buffers)))
+        note_step_bound(sol.stats, self._step_bound, work.T - work.t0)
+        check_error_at_T(work, k.compiled, None, multi_adaptive, m, params, sol)
+        warn_lost_components(work, k.compiled, params, sol)
+        if self._below:
+            warn_below_tolerance_throughout(work, k.atol, sol)
+        return sol
+
+
+#: What a Solver keeps per interval for its prepared calls (:meth:`Solver._workspace`).
+_Kept = namedtuple("_Kept", "compiled atol given x f0 steps state counters floor frozen "
+                            "structure options loop_atol")
+
+
+class _Solved:
+    """The declaration as a prepared call solved it: what evaluating its Solution reads
+    (t0, T, N, u0) at once, the declaration itself (the solver's copy with the call's
+    values) made when read, as a loop of small solves seldom does."""
+
+    __slots__ = ("N", "T", "_params", "_work", "t0", "u0")
+
+    def __init__(self, work):
+        fields = work.__dict__  # (the call's values: made again when they change)
+        self.t0, self.T, self.u0, self._params = (fields["t0"], fields["T"], fields["u0"],
+                                                  fields["params"])
+        self.N, self._work = work.N, work
+
+    def declaration(self):
+        """A new copy of the declaration as solved (its own parameter values)."""
+        ode = self._work._snapshot()  # (with a later call's values: replaced here)
+        ode.__dict__.update(params=Parameters(self._params.items()), u0=self.u0, t0=self.t0,
+                            T=self.T)
+        return ode

@@ -232,6 +232,55 @@ def test_the_prepared_path_keeps_the_given_steps_and_tolerances(oscillator, monk
                                                              method=method, **parameters))
 
 
+def test_values_equal_to_the_last_calls_are_reused_and_bad_ones_still_refused(oscillator):
+    """A call whose u0 and parameter values equal the last call's (in new objects, by name,
+    as a tuple) solves bitwise as it did; a value that is not finite or not a number after
+    it is refused as on a fresh solver, and a zero keeps its sign (0.0 == -0.0)."""
+    solver = dn.Solver(oscillator, method="dG(1)")
+    first = solver.solve(u0=[0.5, 0.1], params={k: 9.0})
+    _assert_same_solution(solver.solve(u0=(0.5, 0.1), params={"k": 9.0}), first)
+    for call, error, match in [
+            ({"u0": [0.5, np.nan], "params": {k: 9.0}}, ValueError, "u0 is not finite for v"),
+            ({"u0": [0.5, 0.1], "params": {k: np.nan}}, ValueError, "k must be finite"),
+            ({"params": {k: np.array([9.0, 1.0])}}, TypeError, "k must be a real number")]:
+        with pytest.raises(error, match=match):
+            solver.solve(**call)
+        _assert_same_solution(solver.solve(u0=[0.5, 0.1], params={k: 9.0}), first)
+    for zero in (0.0, -0.0, -0.0, 0.0):
+        sol = solver.solve(u0=[zero, 0.1], params={k: zero})
+        assert np.signbit(sol.ode.u0[0]) == np.signbit(sol.ode.params[k]) == np.signbit(zero)
+        _assert_same_solution(sol, dn.solve(dn.vary(oscillator, {"u0": [zero, 0.1], k: zero}),
+                                            method="dG(1)"))
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(1)"])
+def test_an_oscillating_forcing_keeps_the_prepared_path(monkeypatch, method):
+    """u' = -u + sin(w t): the step bound of the oscillation (1 / w where w t spans many
+    periods, none for w = 1) follows the values of each call on the prepared path, bitwise
+    dn.solve of the varied declaration, with the same stats (the bound and the estimate of
+    the error at T among them)."""
+    w = sp.Symbol("w")
+    ode = dn.ODE({u: -u + sp.sin(w * dn.t)}, u0=[1.0], T=0.5, params={w: 1.0})
+    solver = dn.Solver(ode, method=method, tolerance=1e-3)
+
+    def general_path(*args):
+        raise AssertionError("the prepared path gave way to the general one")
+
+    monkeypatch.setattr("dolfinode.solver.solve_lowered", general_path)
+    for call in ({}, {"params": {w: 300.0}}, {"params": {w: 300.0}, "u0": [2.0]},
+                 {"params": {w: 1.0}}, {"params": {w: 300.0}, "T": 0.25}):
+        sol = solver.solve(**call)
+        variation = {**call["params"], **{name: call[name] for name in ("u0", "T")
+                                          if name in call}} if call else {}
+        reference = dn.solve(dn.vary(ode, variation), method=method, tolerance=1e-3)
+        _assert_same_solution(sol, reference)
+        bound = sol.stats.get("oscillation step bound")
+        assert bound == reference.stats.get("oscillation step bound")
+        assert bound == (None if variation.get(w, 1.0) == 1.0 else pytest.approx(1 / 300, rel=1e-3))
+        assert {name: value for name, value in sol.stats.items() if "time" not in name} == {
+            name: value for name, value in reference.stats.items() if "time" not in name}
+
+
 @pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(1)"])
 def test_what_a_solution_makes_on_first_read_equals_dn_solve(oscillator, method):
     """The prepared path makes sol.ode and sol.stats when first read: the same declaration
