@@ -794,7 +794,7 @@ class Solution:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
                                  self.method.nodes, self.method.barycentric_weights,
                                  dense_rule(self.method), declared.t0, declared.u0, times, out)
-            if dense:
+            if dense and self._rhs is not None:  # (mcG(1), mdG(q): nothing to add)
                 none = np.empty(0)
                 self._correct(self._component_ptr, self.t_start, self._t_end, self.values,
                               none, none, np.empty((0, self.values.shape[1], declared.N)),
