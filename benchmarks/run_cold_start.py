@@ -77,6 +77,7 @@ def main():
     record = {"commit": commit, "load": load, "cold": cold, "warm": warm,
               "notices": [line for line in notices.splitlines() if "dolfinode:" in line]}
     output = Path(args.output)
+    output.mkdir(parents=True, exist_ok=True)
     (output / "cold_start.json").write_text(json.dumps(record, indent=1) + "\n")
     lines = ["# Cold start", "",
              ("CPU seconds (user + system, with the C compiler) of each stage in a fresh process, "

@@ -228,6 +228,7 @@ def main():
         lines.append(f"| {method} | {b_s * 1e9:.1f} / {a_s * 1e9:.1f} ns ({a_s / b_s:.2f}) | "
                      f"{b_c * 1e6:.2f} / {a_c * 1e6:.2f} us ({a_c / b_c:.2f}) |")
     text = "\n".join(lines) + "\n"
+    Path(args.output).mkdir(parents=True, exist_ok=True)
     Path(args.output, "dense_output.md").write_text(text)
     print(text)
 

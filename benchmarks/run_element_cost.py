@@ -97,6 +97,7 @@ def main(argv=None):
         "load": list(__import__("os").getloadavg()),
         "rounds": args.rounds, "rows": rows}
     output = Path(args.output)
+    output.mkdir(parents=True, exist_ok=True)
     (output / "element_cost.json").write_text(json.dumps(record, indent=1) + "\n")
     header = ("| setting | q | cG(q): CPU, component-steps, per step, error | "
               "mcG(q): CPU, elements (synchronised slabs / slabs), per element, error | "

@@ -121,6 +121,7 @@ def main():
     for name, tol, method, steps, error, seconds in jumps():
         lines.append(f"| {name} | {tol:g} | {method} | {steps} | {error:.2e} | "
                      f"{seconds:.2e} |")
+    Path(args.output).mkdir(parents=True, exist_ok=True)
     out = Path(args.output) / "events.md"
     out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -152,6 +152,7 @@ def main():
                                                for (p, name), seconds in stiff.items()
                                                if p == problem} for problem in STIFF}}
     output = Path(args.output)
+    output.mkdir(parents=True, exist_ok=True)
     (output / "per_call.json").write_text(json.dumps(record, indent=1) + "\n")
     reference = best.get("numbalsoda lsoda")
     load = ", ".join(f"{value:.1f}" for value in os.getloadavg())

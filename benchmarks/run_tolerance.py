@@ -177,6 +177,7 @@ def main():
                                         else METHODS)).split(",")
     tolerances = OUT_OF_SAMPLE_TOLERANCES if out_of_sample else TOLERANCES
     output = Path(args.output)
+    output.mkdir(parents=True, exist_ok=True)
     record = output / f"{name}.json"
     old = json.loads(record.read_text()) if record.exists() else {"runs": []}
     chosen = cases(any(m.startswith("m") for m in methods), args.problems)
