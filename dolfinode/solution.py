@@ -177,6 +177,13 @@ def _evaluate_shared(t_start, t_end, values, nodes, bary, times, out):
                 out[i, m] += weights[j] * values[n, j, i]
 
 
+@njit(cache=True, inline="always")
+def _passes_defect_test(c, defect, star, q_star, theta):
+    """c where P = U + c Q passes :func:`_evaluate_cg`'s test, |d(tau*)| tau* / 2 <= theta
+    |c Q(tau*)| (d the defect at tau*), else 0 (U; a NaN fails)."""
+    return c if abs(defect) * (0.5 * star) <= theta * abs(c * q_star) else 0.0
+
+
 @njit(cache=True)
 def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, p, check, theta, times, out):
     """out[i, m] = the dense value of a mono-adaptive cG(q) solution at times[m].
@@ -246,8 +253,7 @@ def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, p, check, theta, time
                 defect = c[i] * dq_star - k * F[q1, i]
                 for j in range(q1):
                     defect += slopes[j] * values[n, j, i]
-                if not abs(defect) * (0.5 * star) <= theta * abs(c[i] * q_star):  # (NaN: U)
-                    c[i] = 0.0
+                c[i] = _passes_defect_test(c[i], defect, star, q_star, theta)
         r = 1.0
         for j in range(q1):
             r *= tau - nodes[j]
@@ -389,8 +395,7 @@ def _correct_cg(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, ba
                         defect = c * dq_star - k * F[0]
                         for r in range(q1):
                             defect += slopes[r] * xi[r]
-                        if not abs(defect) * (0.5 * star) <= theta * abs(c * q_star):
-                            c = 0.0  # (NaN: U)
+                        c = _passes_defect_test(c, defect, star, q_star, theta)
             if c != 0.0:
                 tau = (t - a) / k
                 r = c
