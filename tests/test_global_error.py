@@ -343,7 +343,7 @@ def test_a_banded_stage_system_gives_the_dense_estimate():
     c = global_error.radau_nodes(3)
     position, kl, ku = global_error.stage_band(compiled, 3)
     assert global_error.banded(3 * ode.N, kl, ku)
-    B, D = global_error.lagrange_matrices(sol.method.nodes, np.concatenate([[0.0], c]))
+    B, D = lagrange_matrices(sol.method.nodes, np.concatenate([[0.0], c]))
     dense, nu_dense = global_error._recursion(
         compiled.rhs.address, compiled.jacobian.address, compiled.p, compiled.indptr,
         compiled.indices, np.ascontiguousarray(sol.values), sol.k, sol.t_start,
