@@ -51,7 +51,7 @@ from dolfinode.modeling.reduced import (
     fast_time_scale,
     inactive_components,
 )
-from dolfinode.modeling.validity import check_oscillation, check_validity
+from dolfinode.modeling.validity import check_oscillation, check_validity, model_fails
 from dolfinode.solution import Solution, equispaced, join_elements
 
 #: Solver parameters that configure the modeling, not the inner solves.
@@ -106,11 +106,13 @@ def solve_with_modeling(ode, method, params, solve):
         runs.append(sol.stats)
         return sol
 
+    def solve_flow_model(reason):
+        return solve_flow(ode, method, params["tolerance"], params["average_samples"],
+                          samples, run, reason)
+
     def flow(reason):
         """The flow-averaged model instead (:mod:`dolfinode.modeling.flow`), checked."""
-        sol = solve_flow(ode, method, params["tolerance"],
-                         params["average_samples"],
-                         samples, run, reason)
+        sol = solve_flow_model(reason)
         return _checked(sol, sol.model, runs, params, start_time, stacklevel=6)
 
     if params["subgrid_model"] == "flow":
@@ -314,9 +316,32 @@ def solve_with_modeling(ode, method, params, solve):
         sol._restarts = ([ode.t0, model.reduced.ode.t0], [ode.u0, model.reduced.ode.u0])
     else:
         sol = ModelingSolution(ode, model, start, samples)
-    sol = _checked(sol, model, runs, params, start_time)
+    estimate = model.modeling_error() if model.control_points else None
+    if auto and model_fails(estimate, params["tolerance"]) and stiffness_parameter(ode, compiled):
+        # the model failed its check: the flow carries the fast state that the reduced model
+        # froze (a damped or relaxing fast amplitude); the one of smaller estimate is returned
+        flowed, flow_estimate = _flow_instead(solve_flow_model, estimate)
+        if flowed is not None:
+            return _checked(flowed, flowed.model, runs, params, start_time,
+                            estimate=flow_estimate)
+    sol = _checked(sol, model, runs, params, start_time, estimate=estimate)
     sol.stats["resolved fraction"] = resolved
     return sol
+
+
+def _flow_instead(solve_flow_model, estimate):
+    """(the flow-averaged solution, its estimate) where that is below the failed
+    ``estimate`` of the reduced model, else (None, None): also where the flows' averages do
+    not fit in [t0, T]."""
+    try:
+        sol = solve_flow_model(f"subgrid_model='auto': the reduced model failed its check "
+                               f"(estimate {estimate.total:.3g}, local {estimate.local:.3g})")
+    except ValueError:
+        return None, None
+    flow_estimate = sol.model.modeling_error()
+    if max(flow_estimate.total, flow_estimate.local) < max(estimate.total, estimate.local):
+        return sol, flow_estimate
+    return None, None
 
 
 def _samples(ode, params):
@@ -327,13 +352,14 @@ def _samples(ode, params):
     return params["number_of_samples"] if times is None else times
 
 
-def _checked(sol, model, runs, params, start_time, stacklevel=5):
+def _checked(sol, model, runs, params, start_time, stacklevel=5, estimate=None):
     """``sol`` with its model, stats and the a posteriori check of the model (its warning
-    ``stacklevel`` frames up from check_validity: the caller of dn.solve)."""
+    ``stacklevel`` frames up from check_validity: the caller of dn.solve; ``estimate`` the
+    model's, where made already)."""
     sol.stats = _total_stats(runs, model, time.perf_counter() - start_time)
     sol.model = model
     model.estimate = check_validity(model, params["tolerance"], params["model_tolerance"],
-                                    params["strict"], stacklevel)
+                                    params["strict"], stacklevel, estimate)
     sol.stats["modeling error estimate"] = model.estimate.total if model.estimate else np.nan
     sol.stats["fast oscillation"] = check_oscillation(model, params["tolerance"], stacklevel)
     return sol

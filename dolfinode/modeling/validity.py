@@ -254,15 +254,22 @@ def half_window_response(omega, half_width, samples=HALF_WINDOW_SAMPLES):
     return float(abs(kernel_weights(samples) @ np.exp(1j * omega * half_width * s)))
 
 
-def check_validity(model, tolerance, model_tolerance, strict, stacklevel=5):
+def model_fails(estimate, tolerance):
+    """Whether the model itself fails the check, not the discretisation: the modeling part
+    of the :class:`ModelingError` or its ``local`` part above ``tolerance``."""
+    return estimate is not None and max(estimate.bound, estimate.local) > tolerance
+
+
+def check_validity(model, tolerance, model_tolerance, strict, stacklevel=5, estimate=None):
     """Warn (``ModelingWarning``), or raise SolverError when ``strict``, when the reduced
     model's error estimate in the default goal, or its ``local`` part, exceeds ``tolerance``;
     the message says too when the last two control points both found a relative defect above
     ``model_tolerance`` (rebuilding did not help). Returns the :class:`ModelingError` (None
-    without control points)."""
+    without control points); ``estimate``, where given, is ``model.modeling_error()``."""
     if model.subgrid_model != "flow" and not model.control_points:
         return None
-    estimate = model.modeling_error()
+    if estimate is None:
+        estimate = model.modeling_error()
     problems = []
     if estimate.total > tolerance:
         problems.append(f"its error estimate {estimate.total:.3g} in {estimate.goal} (modeling "
