@@ -11,6 +11,7 @@ import dolfinode as dn
 from dolfinode import global_error
 from dolfinode.bench import problems
 from dolfinode.compile import lower
+from dolfinode.methods.method import lagrange_matrices
 
 
 def _solve(problem, method, tol, **parameters):
