@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import scipy.linalg as sl
 import sympy as sp
+from scipy.integrate import solve_ivp
 
 import dolfinode as dn
 from dolfinode import problems
@@ -262,6 +263,25 @@ def test_components_outside_the_goal_take_large_steps(method):
     plain_counts = plain.stats["elements per component"]
     assert np.all(goal_counts[1:] < 0.25 * plain_counts[1:]), (goal_counts, plain_counts)
     assert np.sum(np.abs(sol.error_estimate.contributions[1:])) == 0.0
+
+
+def test_goal_iterations_control_the_discrete_solves_error():
+    """c' = -c + a^2 / 2 driven by a rotation (a, b) at 30 rad/s, goal c(T), dG(1) at 1e-8:
+    the iterations raise c's tolerance (its residual share is 1e-5 of the others'), the
+    discrete solves follow it and their error appears as the orthogonality defect (2e-8,
+    above the goal tolerance). The discrete tolerance factor now shrinks with it; it
+    stopped with maximum_steps (steps collapsing to 1.5e-7) and now meets the tolerance in
+    four iterations with the estimate equal to the error (measured -0.20 x tol both)."""
+    a, b, c = sp.symbols("a b c")
+    ode = dn.ODE({a: 30 * b, b: -30 * a, c: -c + a**2 / 2}, u0=[1.0, 0.0, 0.0], T=3.0)
+    reference = solve_ivp(lambda t, u: [30 * u[1], -30 * u[0], -u[2] + u[0]**2 / 2], (0, 3),
+                          [1, 0, 0], method="DOP853", rtol=1e-13, atol=1e-15).y[2, -1]
+    sol = dn.solve(ode, "dG(1)", tolerance=1e-8, goal={c: 1.0})
+    assert sol.stats["goal tolerance reached"]
+    error = sol(ode.T)[2] - reference
+    assert abs(error) <= 1e-8
+    assert sol.error_estimate.value == pytest.approx(error, rel=0.1)
+    assert sol.error_estimate.orthogonality_defect < 0.25e-8
 
 
 def test_goal_not_reached_warns(monkeypatch):

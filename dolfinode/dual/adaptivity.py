@@ -9,7 +9,11 @@ solve the shares are equidistributed towards a target below the tolerance:
     gamma = sum_i b_i / |value|,
 
 where gamma >= 1 accounts for the cancellation between the local contributions, theta = 0.5
-is the safety margin and F = 100 limits the change per iteration. The loop stops when the
+is the safety margin and F = 100 limits the change per iteration. The shares do not see the
+error of the discrete (nonlinear) solves, which is relative to each atol_i: a component whose
+tolerance was raised is solved less exactly, and the goal reads that error as the estimate's
+orthogonality defect d. Where d exceeds theta TOL / 2 the discrete tolerance factor is
+divided by F (an iteration's error falls in steps, one more iteration per slab at a time). The loop stops when the
 estimate is below TOL and no tolerance would grow by more than ``_BALANCED`` (the error is
 balanced between the components), and returns the cheapest solution (fewest elements) whose
 estimate met TOL. A component whose residual
@@ -21,6 +25,7 @@ import warnings
 import numpy as np
 
 from dolfinode.dual.estimate import estimate_linearised
+from dolfinode.parameters import DEFAULTS
 
 #: Fraction of the tolerance the next iteration aims at.
 _THETA = 0.5
@@ -61,12 +66,14 @@ def solve_for_goal(solve, ode, method, goal, tolerance, parameters):
     start = parameters.pop("absolute_tolerance", None)
     atol = np.full(ode.N, tolerance) if start is None else np.broadcast_to(
         np.asarray(start, dtype=float), (ode.N,)).copy()
+    discrete = parameters.pop("discrete_tolerance_factor",
+                              DEFAULTS["discrete_tolerance_factor"])
     history = []
     best = None
     for iteration in range(1, MAXIMUM_ITERATIONS + 1):
         # rtol far below every atol: the dual weights alone set each component's tolerance
         sol = solve(ode, method, tolerance=1e-3 * atol.min(), absolute_tolerance=atol,
-                    **parameters)
+                    discrete_tolerance_factor=discrete, **parameters)
         est = estimate_linearised(sol, goal)
         sol.error_estimate = est
         history.append({"value": est.value, "bound": est.bound,
@@ -79,6 +86,8 @@ def solve_for_goal(solve, ode, method, goal, tolerance, parameters):
         if met and np.all(new <= _BALANCED * atol):
             break
         atol = new
+        if est.orthogonality_defect > _THETA * tolerance / 2:
+            discrete /= _FACTOR
     reached = best is not None
     if not reached:
         best = sol
@@ -94,7 +103,7 @@ def solve_for_goal(solve, ode, method, goal, tolerance, parameters):
 def _update_tolerances(atol, est, tolerance, size):
     shares = est.bound_contributions
     total = shares.sum()
-    gamma = total / max(abs(est.value), 1e-300) if total > 0 else 1.0
+    gamma = max(total / max(abs(est.value), 1e-300), 1.0)
     target = _THETA * tolerance * gamma / len(atol)
     with np.errstate(divide="ignore"):
         factor = np.where(shares > 0, target / shares, _FACTOR)
