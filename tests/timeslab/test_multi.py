@@ -428,6 +428,29 @@ def test_frozen_components_wake_up(autonomous):
     assert abs(sol(ode.T)[0] - exact) <= 10 * 1e-6 * (1 + exact)
 
 
+@pytest.mark.parametrize("method", ["mcG(2)", "mcG(3)", "mdG(2)", "mdG(3)"])
+def test_a_front_wakes_the_frozen_chain_ahead_in_time(method):
+    """u_1' = k (1 - u_1), u_i' = k (u_{i-1} - u_i) from 0: u_i(t) = P(i, k t), a front whose
+    leading edge moves faster than one stage per slab. The components ahead of it are
+    frozen at 0; woken one coupling per slab they fell behind the edge, and the error
+    there grew with the stage number (19, 190, 295, 99 x the tolerance; the error at T
+    stays small: the front has left). Checked at the sample times where u_i < 1e-2, ahead
+    of the front (inside it mdG(2) and mdG(3) are 12 and 14 x: the step control of active
+    components, not their waking)."""
+    from scipy.special import gammainc
+
+    n, k = 200, 1000.0
+    u = sp.symbols(f"u0:{n}")
+    rhs = {u[0]: k * (1 - u[0])} | {u[i]: k * (u[i - 1] - u[i]) for i in range(1, n)}
+    ode = dn.ODE(rhs, u0=np.zeros(n), T=0.3)
+    sol = dn.solve(ode, method=method, tolerance=1e-6, absolute_tolerance=1e-6)
+    times = np.linspace(0.01, 0.3, 30)
+    exact = gammainc(np.arange(1, n + 1)[:, None], k * times[None, :])
+    scale = 1e-6 + 1e-6 * exact.max(axis=1)
+    error = np.abs(sol(times) - exact) / scale[:, None]
+    assert error[exact < 1e-2].max() <= 10, error.max()
+
+
 def test_growing_components_are_not_frozen():
     """u' = u from u = 1e-12 changes by only 3e-11 at its present rate over T = 30 (far below
     QUIET x atol), but grows to 11: the drift bound includes the growth e^(mu t) of its row's

@@ -8,7 +8,7 @@ from numba import types
 
 from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
-from dolfinode.counters import ELEMENTS, F_EVALUATIONS, STORED
+from dolfinode.counters import ELEMENTS, F_EVALUATIONS, JACOBIANS, STORED
 
 #: A component whose change on a slab and drift over the rest of the interval stay below QUIET
 #: times its error scale is frozen: a constant, with no elements, until it drifts (``freeze``).
@@ -93,6 +93,63 @@ def freeze(b, k, active, checked, indptr, indices, drift, atol, rtol, umax, x, f
         if count >= awake:
             break
     return changed
+
+
+@helper(**NO_REFCOUNT)
+def wake_readers(b, k, checked, nchecked, frozen, quiet, drift, rptr, readers, indptr, indices,
+                 ji, x, p, jrow, atol, rtol, kdes, last_a, last_b, stack, depth, counters,
+                 out_comp, out_a, out_b, out_values):
+    """Wake, at the end b of an accepted slab of length k, the frozen readers of the
+    components that woke there (``freeze``) which would drift within the next slab; returns
+    whether any woke.
+
+    A frozen component is checked only after a slab in which a component it reads was
+    active, so without this a front moving along a chain of frozen components woke one
+    coupling per slab and fell behind the solution's leading edge wherever that moves
+    faster (a 1000-stage linear chain: components woke at 45 x the tolerance). A woken
+    component i with drift bound d_i moves by about its rate times k over the next slab, and
+    its reader r, at depth m of the couplings from a component woken by ``freeze``, then
+    drifts by about (the m-th Taylor term of the chain u_r' = J_ri u_i)
+
+        d_r = |J_ri| k d_i / m,
+
+    J_ri from r's row of df/du at (x, b). r wakes when d_r exceeds QUIET times
+    atol_r + rtol |x_r|, and its readers are tried in turn."""
+    n = 0
+    for c in range(nchecked):
+        i = checked[c]
+        if math.isnan(frozen[i]) and not quiet[i]:
+            stack[n] = i
+            depth[n] = 1
+            n += 1
+    woke = False
+    while n > 0:
+        n -= 1
+        i, m = stack[n], depth[n]
+        for q in range(rptr[i], rptr[i + 1]):
+            r = readers[q]
+            if math.isnan(frozen[r]):
+                continue
+            ji(r, x.ctypes, b, p.ctypes, jrow.ctypes)
+            counters[JACOBIANS] += 1
+            jri = 0.0
+            for nz in range(indptr[r], indptr[r + 1]):
+                if indices[nz] == i:
+                    jri = abs(jrow[nz - indptr[r]])
+            d = jri * k * drift[i] / m
+            if not d > QUIET * (atol[r] + rtol * abs(x[r])):
+                continue
+            store_constant(r, frozen[r], b, x, counters, out_comp, out_a, out_b, out_values)
+            frozen[r] = math.nan
+            quiet[r] = False
+            drift[r] = d
+            last_b[r] = last_a[r]
+            kdes[r] = k
+            stack[n] = r
+            depth[n] = m + 1
+            n += 1
+            woke = True
+    return woke
 
 
 @helper()

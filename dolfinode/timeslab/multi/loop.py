@@ -61,6 +61,7 @@ from dolfinode.timeslab.multi.freezing import (
     store_frozen,
     transpose_pattern,
     wake_failed,
+    wake_readers,
 )
 from dolfinode.timeslab.multi.slab import (
     guess_stages,
@@ -340,6 +341,8 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     check_stamp = np.zeros(N, dtype=np.int64)
     check_round = 0
     rptr, readers = transpose_pattern(indptr, indices, N)
+    wake_stack = np.empty(N, dtype=np.int64)  # (``wake_readers``)
+    wake_depth = np.empty(N, dtype=np.int64)
     drift = np.empty(N)  # change on the slab and bound of the drift until T (``drift_bound``)
     quiet = np.ones(N, dtype=np.bool_)  # (stays True for a frozen component until it wakes)
     climb = np.array([st.climb_cost, st.climb_direction])  # (``slab_limit``)
@@ -633,6 +636,11 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                 rtol, umax, x, frozen, kdes, last_a, last_b, quiet, uw, counters, out_comp,
                 out_a, out_b, out_values):
             st.regroup = True
+            if nchecked > 0:
+                wake_readers(b, b - t, checked, nchecked, frozen, quiet, drift, rptr, readers,
+                             indptr, indices, ji, x, p, jrow, atol, rtol, kdes, last_a, last_b,
+                             wake_stack, wake_depth, counters, out_comp, out_a, out_b,
+                             out_values)
         t = b
         st.t = t
 
