@@ -1048,7 +1048,8 @@ class MonoPieces(_Pieces):
         self.p[self.n_params:] = sigma
         self.f0[:] = self.f(self.x, self.t())
         self.state[["have_f0", "eps_prev", "k_accepted", "carried"]] = True, 1.0, 0.0, False
-        self.state["k_next"] = min(self.state["k_next"][0], self.step_guess(self.x, self.t()))
+        if not self.options["fixed"][0]:  # (fixed steps stay the given step)
+            self.state["k_next"] = min(self.state["k_next"][0], self.step_guess(self.x, self.t()))
 
     def view(self, chunk):
         from dolfinode.solution import Solution
@@ -1089,7 +1090,8 @@ class MultiPieces(_Pieces):
 
     def restart(self, sigma):
         self.p[self.n_params:] = sigma
-        self.kdes[:] = np.minimum(self.kdes, self.step_guess(self.x, self.t()))
+        if not self.options["fixed"][0]:  # (fixed steps stay the given step)
+            self.kdes[:] = np.minimum(self.kdes, self.step_guess(self.x, self.t()))
         self.state["carried"] = False  # (the loop's carried state predates the jump)
 
     def view(self, chunk):

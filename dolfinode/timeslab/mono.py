@@ -363,6 +363,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         remaining = T - t
         if not fixed:
             k = min(k, kmax)
+        nominal = k  # a fixed step shortened to end at T (a jump of f) resumes after it
         if k >= remaining * (1.0 - 1e-9) or (not fixed and 1.1 * k >= remaining):
             k = remaining  # also absorbs the rounding of t0 + n k in fixed steps
         # The slab is [t, fl(t + k)]: its length is the step t + k represents, or the
@@ -551,7 +552,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                 x[i] = X[end + i]
                 f0[i] = fend[i]
             if fixed:
-                k_new = chosen
+                k_new = nominal
             elif is_dg:
                 k_new = accepted_step(k, eps, st.k_accepted, st.eps_prev, order, safety,
                                       st.theta if use_newton else 1.0)
