@@ -989,11 +989,13 @@ def _check_sliding(recent, te, switch, t0, T):
     del recent[:-SLIDING_SWITCHES]
     if len(recent) == SLIDING_SWITCHES and recent[-1] - recent[0] < SLIDING_SPAN * (T - t0):
         # the span, not the two ends: within 1e-9 of each other they print alike
+        span = recent[-1] - recent[0]
+        when = f"within {span:.2g} after" if span > 0 else "all at"
         raise SolverError(f"the switch on {switch.g} changes branch {SLIDING_SWITCHES} times "
-                          f"within {recent[-1] - recent[0]:.2g} after t = {recent[0]:.9g}: the "
-                          f"solution slides along {switch.g} = 0, where f is discontinuous (on "
-                          "both sides f points towards it). Replace the switch by a smooth one (e.g. tanh(g / eps)), "
-                          "or model the sliding motion", t=te)
+                          f"{when} t = {recent[0]:.9g}: the solution slides along {switch.g} = "
+                          "0, where f is discontinuous (on both sides f points towards it). "
+                          "Replace the switch by a smooth one (e.g. tanh(g / eps)), or model "
+                          "the sliding motion", t=te)
 
 
 class _Pieces:
