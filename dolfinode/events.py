@@ -988,11 +988,14 @@ def _check_sliding(recent, te, switch, t0, T):
     recent.append(te)
     del recent[:-SLIDING_SWITCHES]
     if len(recent) == SLIDING_SWITCHES and recent[-1] - recent[0] < SLIDING_SPAN * (T - t0):
+        # the span, not the two ends: within 1e-9 of each other they print alike
+        span = recent[-1] - recent[0]
+        when = f"within {span:.2g} after" if span > 0 else "all at"
         raise SolverError(f"the switch on {switch.g} changes branch {SLIDING_SWITCHES} times "
-                          f"between t = {recent[0]:.9g} and {recent[-1]:.9g}: the solution slides "
-                          f"along {switch.g} = 0, where f is discontinuous (on both sides f points "
-                          "towards it). Replace the switch by a smooth one (e.g. tanh(g / eps)), "
-                          "or model the sliding motion", t=te)
+                          f"{when} t = {recent[0]:.9g}: the solution slides along {switch.g} = "
+                          "0, where f is discontinuous (on both sides f points towards it). "
+                          "Replace the switch by a smooth one (e.g. tanh(g / eps)), or model "
+                          "the sliding motion", t=te)
 
 
 class _Pieces:
@@ -1047,7 +1050,8 @@ class MonoPieces(_Pieces):
         self.p[self.n_params:] = sigma
         self.f0[:] = self.f(self.x, self.t())
         self.state[["have_f0", "eps_prev", "k_accepted", "carried"]] = True, 1.0, 0.0, False
-        self.state["k_next"] = min(self.state["k_next"][0], self.step_guess(self.x, self.t()))
+        if not self.options["fixed"][0]:  # (fixed steps stay the given step)
+            self.state["k_next"] = min(self.state["k_next"][0], self.step_guess(self.x, self.t()))
 
     def view(self, chunk):
         from dolfinode.solution import Solution
@@ -1088,7 +1092,8 @@ class MultiPieces(_Pieces):
 
     def restart(self, sigma):
         self.p[self.n_params:] = sigma
-        self.kdes[:] = np.minimum(self.kdes, self.step_guess(self.x, self.t()))
+        if not self.options["fixed"][0]:  # (fixed steps stay the given step)
+            self.kdes[:] = np.minimum(self.kdes, self.step_guess(self.x, self.t()))
         self.state["carried"] = False  # (the loop's carried state predates the jump)
 
     def view(self, chunk):

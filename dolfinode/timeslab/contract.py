@@ -64,7 +64,8 @@ k_solver           mono: the largest step the nonlinear solver is trusted with: 
                    failure's, raised by NEWTON_PROBE per accepted step
 k_accuracy         mono: the step the error control asks for (solver failures aside)
 k_last             mono: the step of the last slab in the carried arrays (0: none)
-k_factored         mono: the step of the carried factors (0: none)
+k_factored         mono: the step chosen for the carried factors, before its rounding to the
+                   slab t + k represents (0: none)
 theta              mono: Newton's contraction rate with them (inf: unknown)
 newton_rate        mono: Newton's contraction rate on the last slab it solved
 age                mono: Newton slabs since the Jacobian was evaluated

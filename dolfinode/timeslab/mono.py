@@ -363,10 +363,16 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         remaining = T - t
         if not fixed:
             k = min(k, kmax)
+        nominal = k  # a fixed step shortened to end at T (a jump of f) resumes after it
         if k >= remaining * (1.0 - 1e-9) or (not fixed and 1.1 * k >= remaining):
             k = remaining  # also absorbs the rounding of t0 + n k in fixed steps
-        elif abs(t) >= o.span:  # far from 0 (near it, ulps that would only vary kept k)
-            k = (t + k) - t  # the step t + k represents: slabs that tile [t0, T]
+        # The slab is [t, fl(t + k)]: its length is the step t + k represents, or the
+        # quadrature of f(t) over it (a pulse) and the solution's grid disagree by up to
+        # ulp(t). The chosen step decides whether kept factors serve (a repeated step
+        # varies by ulps once rounded).
+        chosen = k
+        if k < remaining:
+            k = (t + k) - t
         kmin = smallest_step(t, o.span)
         if k < kmin and k < remaining:
             return UNDERFLOW
@@ -414,8 +420,8 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             iterations_before = counters[ITERATIONS]  # not the failed fixed point's
             st.age += 1
             kept = st.age <= REUSE_AGE and (
-                (keep and st.theta <= THETA_KEEP and k == st.k_factored)
-                or (reuse and near_step(k, st.k_factored, REUSE_RATIO)))
+                (keep and st.theta <= THETA_KEEP and chosen == st.k_factored)
+                or (reuse and near_step(chosen, st.k_factored, REUSE_RATIO)))
             for fresh in range(0 if kept else 1, 2):
                 if fresh == 1:
                     if kept:  # the kept factors did not converge: afresh, from the start
@@ -425,7 +431,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                     store_jacobian(jdata, indptr, indices, structure, jb)
                     factored = factor_stages(jb, k, eigenvalues, structure, ab_real,
                                              ab_complex, ipiv, counters)
-                    st.k_factored = k if factored else 0.0
+                    st.k_factored = chosen if factored else 0.0
                     st.age = 0
                     if not factored:
                         break
@@ -546,7 +552,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                 x[i] = X[end + i]
                 f0[i] = fend[i]
             if fixed:
-                k_new = k
+                k_new = nominal
             elif is_dg:
                 k_new = accepted_step(k, eps, st.k_accepted, st.eps_prev, order, safety,
                                       st.theta if use_newton else 1.0)

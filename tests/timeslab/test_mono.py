@@ -171,6 +171,21 @@ def test_nonzero_initial_time():
 
 
 @pytest.mark.parametrize("method", ["cG(2)", "dG(1)"])
+def test_a_pulse_near_t_one_is_integrated_over_the_slabs_it_spans(method):
+    """A pulse 2^-44 wide (256 ulp of t = 1) of area 1 in f(t): each slab is the step t + k
+    represents near t = 0 too, so the quadrature of the pulse spans its float width (a slab
+    of nominal length 0.70369 w spanned 0.703125 w: u(2) was 2.1e-4 off at 1e-6)."""
+    u = sp.Symbol("u")
+    w = 2.0**-44
+    pulse = (sp.Heaviside(dn.t - 1) - sp.Heaviside(dn.t - 1 - w)) / w
+    sol = dn.solve(dn.ODE({u: -u + pulse}, u0=[0.5], T=2.0), method, tolerance=1e-6)
+    exact = (0.5 * np.exp(-1.0) + 1.0) * np.exp(-1.0)
+    assert abs(sol(2.0)[0] - exact) < 1e-6
+    t_start, k = sol.time_steps()
+    np.testing.assert_array_equal((t_start + k) - t_start, k)
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)"])
 def test_a_large_initial_time_keeps_the_tolerance(method):
     """At t0 = 1e9 double precision resolves t to 1.2e-7: the slabs are the steps t + k
     represents, so that they tile [t0, T] (taking k as given drifted by up to ulp(t) per
