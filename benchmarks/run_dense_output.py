@@ -1,7 +1,8 @@
 """Dense output: the error inside elements and the cost of evaluating ``sol(t)``.
 
 Inside an element a mono-adaptive dG(q) solution (q >= 1) is evaluated by the Radau
-collocation polynomial where the jump is small (``dolfinode.solution._evaluate_dg``), a cG(q)
+collocation polynomial with its defect correction where their residual tests pass
+(``dolfinode.solution._evaluate_dg``), a cG(q)
 solution (q >= 2) by the Lobatto IIIA collocation polynomial where its defect is small
 (``_evaluate_cg``), else, and for cG(1), by the Galerkin polynomial U. Both are evaluated here
 on the same solutions (the nodes are the same bit for bit), so "Galerkin" is what ``sol(t)``

@@ -46,13 +46,15 @@ def _locate(ends, t, n):
 def _jump(values, e, before, left, theta):
     """before - U(t_{n-1}^+) = -[U], the jump at the start of element e (nodal values
     ``values[e, j]``, U(t_{n-1}^+) = sum_j left[j] values[e, j], U(t_{n-1}^-) = ``before``)
-    where it is resolved, |[U]| <= theta max_j |values[e, j] - before|, else NaN."""
+    where it is resolved, |[U]| <= theta max_j |values[e, j] - before| (any jump where
+    theta is inf), else NaN."""
     plus = 0.0
     change = 0.0
     for j in range(values.shape[1]):
         plus += left[j] * values[e, j]
         change = max(change, abs(values[e, j] - before))
-    return before - plus if abs(plus - before) <= theta * change else np.nan
+    # (not "<=": theta = inf takes every jump, a zero change too)
+    return before - plus if not abs(plus - before) > theta * change else np.nan
 
 
 @njit(cache=True, inline="always")
@@ -404,17 +406,19 @@ def _correct_cg(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, ba
                 out[i, m] += r
 
 
-#: A component's jump [U] at an element's start is taken as resolved, and the collocation
-#: polynomial used, when |[U]| <= THETA max_j |xi_j - U(t_{n-1}^-)| (see _evaluate_dg).
+#: Where dG(q)'s dense value cannot read f: a component's jump [U] at an element's start is
+#: taken as resolved, and the collocation polynomial used, when |[U]| <= THETA max_j
+#: |xi_j - U(t_{n-1}^-)| (see _evaluate_dg; mdG(q): _correction).
 DENSE_THETA = 0.25
-#: cG(q)'s collocation polynomial P is used for a component where its defect, integrated
-#: from the element start, is at most THETA times its correction of U (see _evaluate_cg).
+#: cG(q)'s and dG(q)'s collocation polynomial P is used for a component where its defect,
+#: integrated from the element start, is at most THETA times its correction of U (see
+#: _evaluate_cg, _evaluate_dg).
 DEFECT_THETA = 1.0
 
 
 @njit(cache=True)
 def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, bary0, left,
-                 times, theta, out):
+                 rhs, p, check, theta, times, out):
     """out[i, m] = the dense value of a mono-adaptive dG(q) solution at times[m].
 
     On element n, with stage values xi_j at the right Radau nodes tau_j and the previous
@@ -423,58 +427,121 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
         P(tau) = U(tau) - [U] R(tau),  [U] = U(t_{n-1}^+) - U(t_{n-1}^-),
 
     of degree q + 1 interpolates U(t_{n-1}^-) at tau = 0 and xi_j at tau_j (R the right
-    Radau polynomial, R(0) = 1, R(tau_j) = 0). Where the element resolves component i the
-    jump is O(k^(q+1)) and P's interior error O(k^(q+2)) instead of U's O(k^(q+1)); where a
-    stiff transient is stepped over the jump is O(1) and P would swing by |[U] R| inside,
+    Radau polynomial, R(0) = 1, R(tau_j) = 0): Radau IIA's, P'(tau_j) = k f(xi_j). Its
+    defect d = P' - k f(P, t) vanishes at the tau_j, d(tau) ~ g Pi(tau) with
+    Pi(tau) = prod_j (tau - tau_j), and u - P ~ -g S(tau), S(tau) = int_0^tau Pi
+    (S(1) = 0: Radau quadrature is exact for Pi), so with g = d(tau*) / Pi(tau*) at
+    tau* = tau_0 / 2 (one f per element)
+
+        V(tau) = P(tau) - g S(tau)
+
+    has interior error O(k^(q+3)) where the element resolves the component, against P's
+    O(k^(q+2)) and U's O(k^(q+1)) (the nodes: O(k^(2q+1))). Where a stiff transient is
+    stepped over, the jump is O(1) and P swings by |[U] R| inside; where k |lambda| >> 1
+    the error follows d / (k lambda), not -int d. Each value is used per element and
+    component only where its residual passes cG's test (:func:`_passes_defect_test`): P
+    where |d(tau*)| tau* / 2 <= theta |[U] R(tau*)| (P's residual, integrated from 0,
+    against its correction of U), V where also k |f_i(V(tau*)) - f_i(P(tau*))| tau* / 2
+    <= theta |g S(tau*)| (V's residual at tau*, V' = P' - g Pi, against its correction of
+    P: k |lambda| tau* / 2 <= theta along it), else P, else U; two f per element.
+    ``check`` = (tau*, l_j(tau*), l0_j(tau*), l0_j'(tau*) (l, l0 the Lagrange bases of U
+    and of P on 0, tau_0, ..., tau_q), R(tau*), Pi(tau*), S(tau*), G) with S(tau) = tau
+    (tau - 1) G(tau) (G's monomial coefficients, highest first), f the kernel at address
+    ``rhs`` (parameters p). Without f (``rhs`` 0: f jumps, or the elements solve more than one
+    model) P is used where |[U]_i| <= ``theta`` max_j |xi_ij - U_i(t_{n-1}^-)|, else U
+    (dG(1) near an extremum of a component fails it: jump and change are both O(k^2)).
+
     An element starting at starts[p] (t0; a model switch) reads befores[p] as its value
-    before (u0; the new model's initial value), not the previous element's end. P is used
-    only where |[U]_i| <= theta max_j |xi_ij - U_i(t_{n-1}^-)|, else U (per
-    element and component). Both equal xi_q at tau = 1: the nodes are unchanged. Where the
-    partition restarts (t_{n-1} not the previous element's end) U is used. dG(1) near an
-    extremum of a component: the jump and the change over the element are both O(k^2),
-    the test fails and U is used there.
+    before (u0; the new model's initial value), not the previous element's end; where the
+    partition restarts otherwise (t_{n-1} not the previous element's end) U is used. Every
+    value equals xi_q at tau = 1 (S(1) = 0 exactly): the nodes are unchanged bit for bit.
     """
-    q1 = nodes.shape[0]
+    q1, N = nodes.shape[0], out.shape[0]
+    star, basis, basis0, slopes0, r_star, pi_star, s_star, g_coefficients = check
     weights = np.empty(q1)
     weights0 = np.empty(q1 + 1)
-    # the test per element and component, made when the times enter an element: whether P
-    # is used (collocated[i]) and U(t_{n-1}^-) (before[i]); the bases only where one reads them
-    collocated = np.zeros(out.shape[0], dtype=np.bool_)
-    before = np.zeros(out.shape[0])
+    # per element and component, made when the times enter an element: whether P is used
+    # (collocated[i]), U(t_{n-1}^-) (before[i]) and V's coefficient g[i]; the bases only
+    # where one reads them
+    collocated = np.zeros(N, dtype=np.bool_)
+    before = np.zeros(N)
+    g = np.zeros(N)
+    X = np.empty(N)  # P(tau*), V(tau*) and f there
+    Y = np.empty(N)
+    F = np.empty(N)
+    F2 = np.empty(N)
+    f = rhs_kernel(rhs)
     some_p = some_u = False
     current = -1
     n = 0
     for m in range(times.shape[0]):
         n = _locate(t_end, times[m], n)
+        k = t_end[n] - t_start[n]
         if n != current:
             current = n
             # (an element cut to end at a piece's T may end a rounding away from the next
             # start)
             first = n == 0 or abs(t_end[n - 1] - t_start[n]) > 4e-16 * abs(t_start[n])
             start = -1
-            for p in range(starts.shape[0]):
-                if t_start[n] == starts[p]:
-                    start = p
+            for s in range(starts.shape[0]):
+                if t_start[n] == starts[s]:
+                    start = s
             some_p = some_u = False
             by_component = values[n].T
-            for i in range(out.shape[0]):
+            for i in range(N):
                 collocated[i] = False
+                g[i] = 0.0
+                X[i] = 0.0
                 if start >= 0 or not first:
                     before[i] = befores[start, i] if start >= 0 else values[n - 1, q1 - 1, i]
-                    collocated[i] = not np.isnan(_jump(by_component, i, before[i], left, theta))
+                    if rhs == 0:
+                        collocated[i] = not np.isnan(_jump(by_component, i, before[i], left,
+                                                           theta))
+                    else:
+                        collocated[i] = True
+                        X[i] = basis0[0] * before[i]
+                if collocated[i]:
+                    for j in range(q1):
+                        X[i] += basis0[j + 1] * values[n, j, i]
+                else:
+                    for j in range(q1):
+                        X[i] += basis[j] * values[n, j, i]
+            if rhs != 0:
+                f(address(X, 0), t_start[n] + star * k, address(p, 0), address(F, 0))
+                for i in range(N):
+                    Y[i] = X[i]
+                    if collocated[i]:
+                        defect = slopes0[0] * before[i] - k * F[i]
+                        for j in range(q1):
+                            defect += slopes0[j + 1] * values[n, j, i]
+                        c = _jump(by_component, i, before[i], left, np.inf)
+                        collocated[i] = _passes_defect_test(c, defect, star, r_star,
+                                                            theta) != 0.0
+                        g[i] = defect / pi_star
+                        Y[i] -= g[i] * s_star
+                # V's own test: its defect at tau* is k (f(P) - f(V)) there (V' = P' - g Pi)
+                f(address(Y, 0), t_start[n] + star * k, address(p, 0), address(F2, 0))
+                for i in range(N):
+                    g[i] = _passes_defect_test(g[i], k * (F[i] - F2[i]), star, s_star, theta)
+                    collocated[i] |= g[i] != 0.0
+            for i in range(N):
                 some_p |= collocated[i]
                 some_u |= not collocated[i]
-        tau = min(max((times[m] - t_start[n]) / (t_end[n] - t_start[n]), 0.0), 1.0)
+        tau = min(max((times[m] - t_start[n]) / k, 0.0), 1.0)
         if some_u:
             lagrange_weights(tau, nodes, bary, weights)
+        s_tau = 0.0
         if some_p:
             lagrange_weights(tau, nodes0, bary0, weights0)
-        for i in range(out.shape[0]):
+            for coefficient in g_coefficients:
+                s_tau = s_tau * tau + coefficient
+            s_tau *= tau * (tau - 1.0)
+        for i in range(N):
             value = 0.0
             if collocated[i]:
                 for j in range(q1):
                     value += weights0[j + 1] * values[n, j, i]
-                out[i, m] = value + weights0[0] * before[i]
+                out[i, m] = value + weights0[0] * before[i] - g[i] * s_tau
             else:
                 for j in range(q1):
                     value += weights[j] * values[n, j, i]
@@ -568,23 +635,39 @@ def dense_rule(method, dense=True):
 
 @cache
 def _defect_check(family, q):
-    """``check`` of :func:`_evaluate_cg`: (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*))
-    at tau* = tau_1 / 2 (l_j the Lagrange basis on the nodes, Q = prod_j (tau - tau_j))."""
+    """``check`` of the defect test at tau*, off the nodes. cG(q) (:func:`_evaluate_cg`):
+    (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*)) at tau* = tau_1 / 2 (l_j the Lagrange
+    basis on the nodes, Q = prod_j (tau - tau_j)). dG(q) (:func:`_evaluate_dg`): (tau*,
+    l_j(tau*), l0_j(tau*), l0_j'(tau*), R(tau*), Q(tau*), S(tau*), G) at tau* = tau_0 / 2
+    (l0_j the basis on 0 and the nodes, R = prod_j (tau_j - tau) / tau_j, G the coefficients, highest
+    first, of S(tau) / (tau (tau - 1)), S(tau) = int_0^tau Q)."""
     nodes = make_method(family, q).nodes
-    star = nodes[1] / 2
-    basis, slopes = lagrange_matrices(nodes, (star,))
     Q = np.polynomial.Polynomial.fromroots(nodes)
-    return float(star), basis[0], slopes[0], float(Q(star)), float(Q.deriv()(star))
+    if family == "cG":
+        star = nodes[1] / 2
+        basis, slopes = lagrange_matrices(nodes, (star,))
+        return float(star), basis[0], slopes[0], float(Q(star)), float(Q.deriv()(star))
+    star = nodes[0] / 2
+    basis, _ = lagrange_matrices(nodes, (star,))
+    basis0, slopes0 = lagrange_matrices(np.concatenate([[0.0], nodes]), (star,))
+    S = Q.integ(lbnd=0.0)
+    G, _ = divmod(S, np.polynomial.Polynomial([0.0, -1.0, 1.0]))
+    return (float(star), basis[0], basis0[0], slopes0[0], float(np.prod(1 - star / nodes)),
+            float(Q(star)), float(S(star)), np.ascontiguousarray(G.coef[::-1]))
 
 
-def _reads_f(method):
-    """Whether ``method``'s dense value reads f: cG(q), q >= 2 (:func:`_evaluate_cg`)."""
-    return method.family == "cG" and method.q > 1
+def _reads_f(method, multi=False):
+    """Whether ``method``'s dense value reads f: cG(q), q >= 2, mono-adaptive dG(q),
+    q >= 1 (:func:`_evaluate_cg`, :func:`_evaluate_dg`), mcG(q), q >= 2
+    (:func:`_correct_cg`)."""
+    if method.family == "dG":
+        return method.q > 0 and not multi
+    return method.q > 1
 
 
 def dense_rhs(method, ode):
-    """The lowered ``ode`` that :func:`evaluate_mono` reads for a cG(q), q >= 2, dense value
-    (its elements must solve it), None for other methods and where f jumps (a Piecewise,
+    """The lowered ``ode`` that :func:`evaluate_mono` reads for a cG(q), q >= 2, or dG(q),
+    q >= 1, dense value (its elements must solve it), None for other methods and where f jumps (a Piecewise,
     Heaviside, sign, floor of t or of the state: each element solves the branch of its
     piece, which f at its end node, on the jump, need not give: Heaviside(t - 1) made P
     460-1000 x the tolerance where U is 0.7-2.3 x)."""
@@ -604,20 +687,24 @@ def _jumps(ode):
 def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out, compiled=None):
     """out = U at ``times`` from elements of a shared partition (values (M, q + 1, N)):
     dG(q), q >= 1, by :func:`_evaluate_dg` (befores[p], the value before an element
-    starting at starts[p]: u0 at t0), cG(q), q >= 2, with ``compiled`` (the lowered ODE the
-    elements solve) by :func:`_evaluate_cg`, other methods by their element polynomials.
+    starting at starts[p]: u0 at t0; with ``compiled``, the lowered ODE the elements solve,
+    its defect test, else its jump test), cG(q), q >= 2, with ``compiled`` by
+    :func:`_evaluate_cg`, other methods by their element polynomials.
     Every reader of a mono-adaptive solution's elements (in memory, stored, streamed in
     chunks) evaluates through here."""
-    if _reads_f(method) and compiled is not None:
+    if method.family == "cG" and _reads_f(method) and compiled is not None:
         _evaluate_cg(t_start, t_end, values, method.nodes, method.barycentric_weights,
                      compiled.rhs.address, compiled.p,
                      _defect_check(method.family, method.q), DEFECT_THETA, times, out)
     elif method.family == "dG" and method.q > 0:
         nodes0, bary0 = _collocation_nodes(method.family, method.q)
+        rhs, p, theta = ((0, np.empty(0), DENSE_THETA) if compiled is None
+                         else (compiled.rhs.address, compiled.p, DEFECT_THETA))
         _evaluate_dg(t_start, t_end, values, np.asarray(starts, dtype=float),
                      np.asarray(befores, dtype=float).reshape(len(starts), values.shape[2]),
                      method.nodes, method.barycentric_weights, nodes0, bary0,
-                     method.left_value, times, DENSE_THETA, out)
+                     method.left_value, rhs, p, _defect_check(method.family, method.q),
+                     float(theta), times, out)
     else:
         _evaluate_shared(t_start, t_end, values, method.nodes, method.barycentric_weights,
                          times, out)
@@ -791,8 +878,8 @@ class Solution:
         return out
 
     def _evaluate(self, times, dense=True):
-        """U at ``times`` in [t0, T], shape (N, len(times)), from the elements (cG(q)'s and
-        mcG(q)'s collocation dense value unless ``dense`` is False)."""
+        """U at ``times`` in [t0, T], shape (N, len(times)), from the elements (the dense
+        values that read f, of cG(q), mcG(q) and dG(q), unless ``dense`` is False)."""
         declared = self._declaration
         out = np.empty((times.size, declared.N)).T  # components contiguous at each time
         if self.multi:
@@ -830,17 +917,18 @@ class Solution:
 
     @cached_property
     def _rhs(self):
-        """The lowered ODE whose f cG(q)'s and mcG(q)'s dense values read
-        (:func:`_evaluate_cg`, :func:`_correct_cg`), None for other methods and where the
-        elements solve more than one model (a restart)."""
-        if "_restarts" in self.__dict__ or not _reads_f(self.method):
+        """The lowered ODE whose f the dense values of cG(q), mcG(q) and mono-adaptive dG(q)
+        read (:func:`_evaluate_cg`, :func:`_correct_cg`, :func:`_evaluate_dg`), None for
+        other methods and where the elements solve more than one model (a restart)."""
+        if "_restarts" in self.__dict__ or not _reads_f(self.method, self.multi):
             return None  # (the ode not read: a solution may make it on first read)
         return dense_rhs(self.method, self.ode)
 
     def _galerkin(self, times):
-        """U at ``times`` in [t0, T] by the polynomials the solve solved, not cG(q)'s dense
-        value: where the crossings of events are located (a state switch or kink restarts
-        the solve there, on U; the estimates read U's residual)."""
+        """U at ``times`` in [t0, T] by the polynomials the solve solved, not the dense value
+        that reads f (dG(q): the collocation polynomial under the jump test of
+        :func:`_evaluate_dg`): where the crossings of events are located (a state switch or
+        kink restarts the solve there, on U; the estimates read U's residual)."""
         if self._rhs is None:
             return self._evaluate(times)
         return self._evaluate(times, dense=False)

@@ -212,9 +212,11 @@ def test_a_failed_solve_raises_an_error_with_failure_status():
 
 def test_ode_and_stats_given_by_makers_are_made_once_on_first_read():
     """A solve may give makers for sol.ode and sol.stats (the prepared path of dn.Solver):
-    each is called once, when first read, or before pickling; the solution is the same."""
+    each is called once, when first read, or before pickling; the solution is the same.
+    (cG(1): its dense value reads no f; cG(q), q >= 2, and dG(q), q >= 1, make the ode to
+    lower it when first evaluated.)"""
     u = sp.Symbol("u")
-    eager = dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), method="dG(1)")
+    eager = dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), method="cG(1)")
     calls = []
 
     def maker(value):
@@ -265,6 +267,39 @@ def test_dense_interior_order(family, q):
         errors.append(np.abs(sol(t) - exact).max())
     slope = np.log2(errors[0] / errors[1])
     assert slope > q + 1.6, f"interior slope {slope:.2f}"
+
+
+@pytest.mark.parametrize("q", [2, 3])
+def test_dense_dg_interior_order_with_the_defect_correction(q):
+    # fixed steps k: dG(q)'s interior error falls as k^(q+3) (the Radau collocation
+    # polynomial's as k^(q+2), measured 4.0 and 5.0 here; the nodes' as k^(2q+1))
+    ode = _harmonic(4.0)
+    t = np.linspace(0.0, 4.0, 997)[1:]
+    exact = np.array([np.cos(t), -np.sin(t)])
+    errors = [np.abs(dn.solve(ode, method=f"dG({q})", initial_time_step=k,
+                              fixed_time_step=True)(t) - exact).max() for k in (0.4, 0.2)]
+    slope = np.log2(errors[0] / errors[1])
+    assert slope > q + 2.6, f"interior slope {slope:.2f}"
+
+
+def _forced_decay():
+    u = sp.Symbol("u")  # u' = -u + sin 10 t, u(0) = 1
+    return (dn.ODE({u: -u + sp.sin(10 * dn.t)}, u0=[1.0], T=3.0),
+            lambda t: (111 * np.exp(-t) + np.sin(10 * t) - 10 * np.cos(10 * t)) / 101)
+
+
+@pytest.mark.parametrize("method, problem", [("dG(1)", "harmonic"), ("dG(1)", "forced"),
+                                             ("dG(2)", "forced")])
+def test_dense_dg_interior_error_within_the_tolerance(method, problem):
+    # adaptive steps, tolerance 1e-6: inside the elements (tau = 0.1..0.9) dG(q) is within
+    # a few times the tolerance, as at their ends (the jump test alone gave 20 x, 27 x and
+    # 8.5 x: dG(1) at the extrema of a component, dG(2) the collocation polynomial's order)
+    ode, exact = ((_harmonic(20.0), lambda t: np.array([np.cos(t), -np.sin(t)]))
+                  if problem == "harmonic" else _forced_decay())
+    sol = dn.solve(ode, method=method, tolerance=1e-6)
+    inside = (sol.t_start[:, None] + sol.k[:, None] * np.arange(1, 10) / 10).ravel()
+    error = np.abs(sol(inside) - exact(inside)).max()
+    assert error < 3e-6 * (1 + np.abs(exact(inside)).max()), f"inside {error:.3g}"
 
 
 def test_dense_dg_nodes_bitwise_and_continuous():
@@ -363,12 +398,14 @@ def fast_slow():
 
 @pytest.mark.parametrize("q", [1, 2, 3])
 def test_dense_mdg_interior_error_as_mono_dg(fast_slow, q):
-    # inside elements mdG(q)'s plain element polynomials were 4.0-20 x mono dG(q)'s dense
-    # values here (tolerance 1e-6); each component's collocation polynomial 0.7-1.2 x
+    # inside elements mdG(q)'s plain element polynomials were 4.0-20 x mono dG(q)'s
+    # collocation polynomials under the same jump test (sol._galerkin of dG(q)) here
+    # (tolerance 1e-6); each component's collocation polynomial 0.7-1.2 x
     ode, times, exact = fast_slow
     scale = 1e-6 * (1 + np.abs(exact).max(axis=1))[:, None]
-    errors = [np.max(np.abs(dn.solve(ode, f"{multi}dG({q})", tolerance=1e-6)(times) - exact)
-                     / scale) for multi in ("m", "")]
+    multi, mono = (dn.solve(ode, f"{m}dG({q})", tolerance=1e-6) for m in ("m", ""))
+    errors = [np.max(np.abs(values - exact) / scale)
+              for values in (multi(times), mono._galerkin(times))]
     assert errors[0] < 2 * errors[1], f"mdG({q}) {errors[0]:.3g}, dG({q}) {errors[1]:.3g}"
 
 
