@@ -577,6 +577,13 @@ def _defect_check(family, q):
     return float(star), basis[0], slopes[0], float(Q(star)), float(Q.deriv()(star))
 
 
+def _inside(times, t0, T):
+    """Whether a time lies strictly inside (t0, T): only there can a dense value differ from
+    U (cG(q)'s and mcG(q)'s corrections vanish at element ends), so sol(T) reads no f and
+    compiles none of the dense kernels."""
+    return bool(((times > t0) & (times < T)).any())
+
+
 def _reads_f(method):
     """Whether ``method``'s dense value reads f: cG(q), q >= 2 (:func:`_evaluate_cg`)."""
     return method.family == "cG" and method.q > 1
@@ -794,6 +801,7 @@ class Solution:
         """U at ``times`` in [t0, T], shape (N, len(times)), from the elements (cG(q)'s and
         mcG(q)'s collocation dense value unless ``dense`` is False)."""
         declared = self._declaration
+        dense = dense and _inside(times, declared.t0, declared.T)
         out = np.empty((times.size, declared.N)).T  # components contiguous at each time
         if self.multi:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
@@ -982,7 +990,7 @@ class MixedSolution(Solution):
         declared = self._declaration
         _evaluate_mixed(*parts, self.method.nodes, self.method.barycentric_weights,
                         dense_rule(self.method), declared.t0, declared.u0, times, out)
-        if dense:
+        if dense and _inside(times, declared.t0, declared.T):
             self._correct(*parts, times, out)
         return out
 
