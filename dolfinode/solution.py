@@ -803,7 +803,9 @@ class Solution:
         declared = self._declaration
         dense = dense and _inside(times, declared.t0, declared.T)
         out = np.empty((times.size, declared.N)).T  # components contiguous at each time
-        if self.multi:
+        if not self.multi and not dense and (times == declared.T).all():
+            out[:] = self._end_values()[:, None]  # (the solve's own sol(T): no kernel)
+        elif self.multi:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
                                  self.method.nodes, self.method.barycentric_weights,
                                  dense_rule(self.method), declared.t0, declared.u0, times, out)
