@@ -581,6 +581,8 @@ def _inside(times, t0, T):
     """Whether a time lies strictly inside (t0, T): only there can a dense value differ from
     U (cG(q)'s and mcG(q)'s corrections vanish at element ends), so sol(T) reads no f and
     compiles none of the dense kernels."""
+    if times.size <= 4:  # (a call at one time: numpy's three passes cost it 3-4 us)
+        return any(t0 < t < T for t in times.tolist())
     return bool(((times > t0) & (times < T)).any())
 
 
@@ -801,21 +803,24 @@ class Solution:
         """U at ``times`` in [t0, T], shape (N, len(times)), from the elements (cG(q)'s and
         mcG(q)'s collocation dense value unless ``dense`` is False)."""
         declared = self._declaration
-        dense = dense and _inside(times, declared.t0, declared.T)
         out = np.empty((times.size, declared.N)).T  # components contiguous at each time
-        if not self.multi and not dense and (times == declared.T).all():
-            out[:] = self._end_values()[:, None]  # (the solve's own sol(T): no kernel)
-        elif self.multi:
+        if self.multi:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
                                  self.method.nodes, self.method.barycentric_weights,
                                  dense_rule(self.method), declared.t0, declared.u0, times, out)
-            if dense and self._rhs is not None:  # (mcG(1), mdG(q): nothing to add)
+            # (mcG(1), mdG(q): nothing to add)
+            if dense and self._rhs is not None and _inside(times, declared.t0, declared.T):
                 none = np.empty(0)
                 self._correct(self._component_ptr, self.t_start, self._t_end, self.values,
                               none, none, np.empty((0, self.values.shape[1], declared.N)),
                               times, out)
+        elif times.size and times[0] == declared.T and (times == declared.T).all():
+            out[:] = self._end_values()[:, None]  # (the solve's own sol(T): no kernel)
         else:
-            self._evaluate_mono(times, self._rhs if dense else None, out)
+            rhs = self._rhs if dense else None
+            if rhs is not None and not _inside(times, declared.t0, declared.T):
+                rhs = None
+            self._evaluate_mono(times, rhs, out)
         return out
 
     def _correct(self, ptr, t_start, t_end, values, s_start, s_end, s_values, times, out):
@@ -992,7 +997,7 @@ class MixedSolution(Solution):
         declared = self._declaration
         _evaluate_mixed(*parts, self.method.nodes, self.method.barycentric_weights,
                         dense_rule(self.method), declared.t0, declared.u0, times, out)
-        if dense and _inside(times, declared.t0, declared.T):
+        if dense and self._rhs is not None and _inside(times, declared.t0, declared.T):
             self._correct(*parts, times, out)
         return out
 
