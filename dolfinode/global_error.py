@@ -740,7 +740,7 @@ def _constant_modes(ode, compiled):
     eigenbasis of condition number below MODAL_CONDITION; None otherwise."""
     if not compiled._derived("constant jacobian", lambda: _constant_jacobian(ode, compiled)):
         return None
-    u0 = np.asarray(ode.u0, dtype=float)
+    u0 = np.array(ode.u0, dtype=float)  # (writeable: the type f's evaluations take)
     lam, V = np.linalg.eig(_evaluators(compiled)[1](np.array([float(ode.t0)]), u0[None, :])[0])
     return None if np.linalg.cond(V) >= MODAL_CONDITION else (lam, V)
 

@@ -656,6 +656,15 @@ def _defect_check(family, q):
             float(Q(star)), float(S(star)), np.ascontiguousarray(G.coef[::-1]))
 
 
+def _inside(times, t0, T):
+    """Whether a time lies strictly inside (t0, T): only there can a dense value differ from
+    U (the corrections of cG(q) and mcG(q) vanish at element ends, dG(q)'s at right ends,
+    and t0 reads u0), so sol(T) reads no f and compiles none of the dense kernels."""
+    if times.size <= 2:  # (a call at one time, as two equal ones: numpy's passes cost 3 us)
+        return t0 < float(times[0]) < T or t0 < float(times[-1]) < T
+    return bool(((times > t0) & (times < T)).any())
+
+
 def _reads_f(method, multi=False):
     """Whether ``method``'s dense value reads f: cG(q), q >= 2, mono-adaptive dG(q),
     q >= 1 (:func:`_evaluate_cg`, :func:`_evaluate_dg`), mcG(q), q >= 2
@@ -886,13 +895,19 @@ class Solution:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
                                  self.method.nodes, self.method.barycentric_weights,
                                  dense_rule(self.method), declared.t0, declared.u0, times, out)
-            if dense and self._rhs is not None:  # (mcG(1), mdG(q): nothing to add)
+            # (mcG(1), mdG(q): nothing to add)
+            if dense and self._rhs is not None and _inside(times, declared.t0, declared.T):
                 none = np.empty(0)
                 self._correct(self._component_ptr, self.t_start, self._t_end, self.values,
                               none, none, np.empty((0, self.values.shape[1], declared.N)),
                               times, out)
+        elif times.size and times[0] == declared.T and (times == declared.T).all():
+            out[:] = self._end_values()[:, None]  # (the solve's own sol(T): no kernel)
         else:
-            self._evaluate_mono(times, self._rhs if dense else None, out)
+            rhs = self._rhs if dense else None
+            if rhs is not None and not _inside(times, declared.t0, declared.T):
+                rhs = None
+            self._evaluate_mono(times, rhs, out)
         return out
 
     def _correct(self, ptr, t_start, t_end, values, s_start, s_end, s_values, times, out):
@@ -1070,7 +1085,7 @@ class MixedSolution(Solution):
         declared = self._declaration
         _evaluate_mixed(*parts, self.method.nodes, self.method.barycentric_weights,
                         dense_rule(self.method), declared.t0, declared.u0, times, out)
-        if dense:
+        if dense and self._rhs is not None and _inside(times, declared.t0, declared.T):
             self._correct(*parts, times, out)
         return out
 

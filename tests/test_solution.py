@@ -439,3 +439,15 @@ def test_dense_mdg_every_reader_agrees_and_keeps_the_ends(fast_slow, method, tmp
                          sol.method.barycentric_weights, dense_rule(sol.method, dense=False),
                          ode.t0, ode.u0, times, galerkin)
     assert np.mean(galerkin != expected) > 0.5
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])
+def test_values_at_t0_and_T_alone_are_those_of_the_dense_evaluation(method):
+    # sol(t0) and sol(T) alone skip the dense correction (and, mono-adaptive, sol(T) reads
+    # the last nodal values): the same bits as where times inside (t0, T) come with them
+    ode = _harmonic(5.0)
+    sol = dn.solve(ode, method=method, tolerance=1e-6)
+    with_inside = sol(np.array([0.0, 2.5, 5.0]))
+    np.testing.assert_array_equal(sol(0.0), with_inside[:, 0])
+    np.testing.assert_array_equal(sol(5.0), with_inside[:, 2])
+    np.testing.assert_array_equal(sol([5.0, 5.0]), with_inside[:, [2, 2]])

@@ -152,6 +152,18 @@ def group_workspace(real, pairs, S, rows, width):
     """The workspace of ``group_newton`` for groups of up to ``rows`` components: (real band
     matrices, complex ones, pivots, rhs, real vector, complex vector, Z). Matrix j is
     ``band_view(matrices, j, n, width)``."""
-    return (np.zeros((real, rows * width)), np.zeros((pairs, rows * width), dtype=np.complex128),
-            np.zeros((max(real, S), rows), dtype=np.int64), np.empty(S * rows), np.empty(rows),
+    real_ab = np.empty((real, rows * width))
+    complex_ab = np.empty((pairs, rows * width), dtype=np.complex128)
+    pivots = np.empty((max(real, S), rows), dtype=np.int64)
+    # (zeroed by loops: numba compiles np.zeros's implementation once more for every type)
+    for m in range(real):
+        for j in range(rows * width):
+            real_ab[m, j] = 0.0
+    for m in range(pairs):
+        for j in range(rows * width):
+            complex_ab[m, j] = 0.0
+    for m in range(pivots.shape[0]):
+        for j in range(rows):
+            pivots[m, j] = 0
+    return (real_ab, complex_ab, pivots, np.empty(S * rows), np.empty(rows),
             np.empty(rows, dtype=np.complex128), np.empty((S, rows)))
