@@ -379,11 +379,15 @@ def test_out_of_sample_miss_is_not_silent():
 def test_multi_adaptive_out_of_sample_miss_is_not_silent(tolerance):
     """mcG(2) on ROBER carries y2's deviation undamped as cG(2) does (70 x, 45 x and 14 x
     measured, no warning before the multi-adaptive loop recorded it; at 1e-9 the deviation
-    at T is 0.075 x y2): the run is within the band or says so, naming y2 and mdG(2)."""
+    at T is 0.075 x y2): the run is within the band or says so; the undamped deviation's
+    warning names y2 and mdG(2). (With stiff components held to the tolerance, at 1e-6 y2's
+    deviation at T stays below its threshold and the global estimate warns: 97.5 x
+    estimated, 60 x measured.)"""
     error, warned = solve_warned(problems.rober(), "mcG(2)", tolerance)
     assert error <= 10 * tolerance or warned, error / tolerance
-    if warned:
-        assert "y2" in str(warned[0].message) and "mdG(2)" in str(warned[0].message)
+    for caught in warned:
+        if "not L-stable" in str(caught.message):
+            assert "y2" in str(caught.message) and "mdG(2)" in str(caught.message)
 
 
 @pytest.mark.parametrize("name, method, tolerance", [
