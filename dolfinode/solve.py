@@ -740,7 +740,7 @@ def _options(ode, m, params, multi_adaptive, atol):
         dtol = params["discrete_tolerance_factor"]
         if params["calibrate_tolerance"] and rtol >= MIN_TOLERANCE:
             step = step_tolerance(m, rtol, multi_adaptive)
-            loosening = 0.0 if multi_adaptive else stiff_loosening(m, rtol, step)
+            loosening = stiff_loosening(m, rtol, step, multi_adaptive)
             delivered = rtol / step
             atol, rtol = atol * (step / rtol), step
     return atol, contract.options(

@@ -31,7 +31,7 @@ delivered          mono: the error at T the tolerance delivers, in units of rtol
 order              P in the error estimate eps = O(k^P)
 span               T - t0 of the whole solve (the step floor, the iteration tolerance)
 gamma              the error filter's constant |det A|^(1/S) (dolfinode.adaptivity)
-loosening          mono: log(step tolerance / (c tolerance)) of the calibration, taken back
+loosening          log(step tolerance / (c tolerance)) of the calibration, taken back
                    on stiff components (adaptivity.stiff_factor; 0: none)
 newton_units       mono: a Newton iteration's cost in f evaluations (mono.newton_costs)
 factor_units       mono: a Jacobian with its factorizations, in f evaluations

@@ -8,7 +8,13 @@ import math
 import numpy as np
 from numba import types
 
-from dolfinode.adaptivity import MAX_FACTOR, clamped_step, filter_residuals, stiff_deviation
+from dolfinode.adaptivity import (
+    MAX_FACTOR,
+    clamped_step,
+    filter_residuals,
+    stiff_deviation,
+    stiff_factor,
+)
 from dolfinode.compile.jit import helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT
 from dolfinode.counters import F_EVALUATIONS
@@ -42,9 +48,9 @@ def desired_steps(kdes, active, nactive, fixed, kmax, t, T):
 
 @helper(**NO_REFCOUNT)
 def residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid, unfiltered,
-                        filtered, position, indptr, indices, jacobian, jdiag, coupling, gamma,
-                        elist, group_order, local, newton, active, nactive, emax, kact, umax,
-                        counters):
+                        filtered, loosening, position, indptr, indices, jacobian, jdiag,
+                        coupling, gamma, elist, group_order, local, newton, active, nactive,
+                        emax, kact, umax, counters):
     """Every element's residual k R(t_e) = k U'(t_e) - k f_i(U(t_e)) at its end (f_i from
     the last sweep, ``fend``), filtered on each sub-slab unless the slab was solved
     synchronised by fixed point (not stiff: unfiltered, as in the mono loop; ``unfiltered``
@@ -52,7 +58,10 @@ def residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid, u
     (``emax``), max |U_i| (``umax``) and longest element (``kact``) in the slab: one step
     serves all of a component's elements in the slab, so one scale (an element's own
     |U_i(t_e)| would let the zero crossings of an oscillation dictate the step of every
-    period). Returns whether a value or residual is not finite."""
+    period). A filtered residual is scaled by :func:`~dolfinode.adaptivity.stiff_factor`
+    (``loosening``), as the mono loop's estimate: the calibrated step tolerance assumes
+    superconvergent nodes, which a component stiff on its step has not. Returns whether a
+    value or residual is not finite."""
     nn = values.shape[1]
     for r in range(nactive):
         i = active[r]
@@ -75,6 +84,8 @@ def residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid, u
         i = comp[e]
         k = eb[e] - ea[e]
         res = abs(resid[e])
+        if filtered and loosening > 0.0:
+            res *= stiff_factor(res, abs(unfiltered[e]), loosening)
         uend = values[e, nn - 1]
         if not (math.isfinite(uend) and math.isfinite(res)):
             blowup = True

@@ -533,9 +533,10 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                 return NONCONVERGENCE
             continue
         blowup = residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid,
-                                     unfiltered, not solved, position, indptr, indices,
-                                     jacobian, jdiag, coupling, gamma, elist, group_order, local,
-                                     newton, active, nactive, emax, kact, umax, counters)
+                                     unfiltered, not solved, o.loosening, position, indptr,
+                                     indices, jacobian, jdiag, coupling, gamma, elist,
+                                     group_order, local, newton, active, nactive, emax, kact,
+                                     umax, counters)
         deviation, deviated, deviated_eps = 0.0, -1, 0.0
         if not solved:
             deviation, deviated, deviated_eps = slab_deviation(ne, comp, values, resid,
