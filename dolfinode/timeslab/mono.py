@@ -71,9 +71,6 @@ SOLVER_FREE = 0.1
 #: extrapolated start saves 8-27 % of dG(3)'s iterations there (doc/design/newton.md).
 #: Newton on cG(q) starts from Euler: extrapolated, cG(3) on HIRES at 1e-2 and 1e-3
 #: delivered 0.02-0.08 x the tolerance (0.6 and 1.3 from Euler), outside the calibration.
-#: dG(q) continues its collocation polynomial, through the element's start value too: its
-#: first Newton increments are 3-10 x smaller than from dG's own polynomial, and dG(2) and
-#: dG(3) take 9 % fewer iterations on HIRES, ROBER, VDPOL and POLLU at 1e-4..1e-8.
 EXTRAPOLATE = 2.0
 #: cG(q) is not L-stable (|R(-inf)| = 1): a stiff component's deviation from its
 #: quasi-steady state is never damped, and once the state decays below it, Newton fails on
@@ -158,16 +155,15 @@ def method_tables(method):
 
 def carry(N, method, structure, ready, last=None):
     """The arrays the loop carries from one call to the next (with the state's fields, see
-    :mod:`dolfinode.timeslab.contract`): the last slab's nodal values and, in [1, 0], its
-    start value (2, q + 1, N), which predict the next slab's stages (``last``: those of an
-    earlier carry, kept), and the
+    :mod:`dolfinode.timeslab.contract`): the last slab's nodal values (1, q + 1, N), which
+    predict the next slab's stages (``last``: those of an earlier carry, kept), and the
     Newton workspace for the matrices' ``structure`` (:class:`~dolfinode.linalg.
     newton_matrix.NewtonStructure`) once their storage is decided (``ready``; else empty):
     J, then the error filter's factors, in the structure's storage, the factors of one
     matrix I - k lambda J per real eigenvalue lambda of A and per complex pair, and their
     pivots."""
     if last is None:
-        last = np.empty((2, method.q + 1, N))
+        last = np.empty((1, method.q + 1, N))
     n_real = n_complex = rows = columns = n = 0  # (no workspace before it is decided)
     if ready:
         _, kl, ku, ptr, idx, _, _ = structure.tuple
@@ -194,10 +190,9 @@ def _stage_systems(method):
 
 
 @helper(**NO_REFCOUNT)
-def _suspend(out_k, out_X, counters, last_X, x_start, rate, st):
+def _suspend(out_k, out_X, counters, last_X, rate, st):
     """Keep what the next call goes on from: the last slab stored by this call (if any) in
-    the carried ``last_X`` (its start value ``x_start`` in last_X[1, 0]), Newton's last
-    contraction rate in the state."""
+    the carried ``last_X``, Newton's last contraction rate in the state."""
     st.newton_rate = rate[0]
     n = counters[STORED] - 1
     if n >= 0:
@@ -205,45 +200,21 @@ def _suspend(out_k, out_X, counters, last_X, x_start, rate, st):
         for j in range(out_X.shape[1]):
             for i in range(out_X.shape[2]):
                 last_X[0, j, i] = out_X[n, j, i]
-        for i in range(out_X.shape[2]):
-            last_X[1, 0, i] = x_start[i]
-
-
-@helper()
-def with_start(nodes):
-    """(0 and the element's ``nodes``, their barycentric weights): the nodes of dG(q)'s
-    collocation polynomial, through the element's start value and its nodal values (see
-    :func:`extrapolate`)."""
-    n = nodes.shape[0] + 1
-    nodes0 = np.zeros(n)
-    nodes0[1:] = nodes
-    bary0 = np.ones(n)
-    for j in range(n):
-        for m in range(n):
-            if m != j:
-                bary0[j] /= nodes0[j] - nodes0[m]
-    return nodes0, bary0
 
 
 @helper(**NO_REFCOUNT)
-def extrapolate(out_X, n, start, nodes, bary, k_prev, k, tau, X, weights):
+def extrapolate(out_X, n, nodes, bary, k_prev, k, tau, X, weights):
     """Predict the stages from the polynomial of stored element n (nodal values out_X[n]),
     continued past its end: X_s = U_n(1 + tau_s k / k_prev). Its error is O(k^(q+1)) on a
-    smooth solution, against O(k^2) for explicit Euler. With one node more than the element
-    has (``nodes`` = 0 and its nodes, ``bary`` their barycentric weights), the polynomial of
-    degree q + 1 through the element's ``start`` value at 0 and its nodal values: dG(q)'s
-    collocation polynomial (Radau IIA's, which RADAU5 extrapolates), whose first Newton
-    increment is 3-10 x smaller than that of dG's own polynomial (a jump at the element's
-    start); cG(q)'s nodes hold its start already. ``weights``: work space, one entry per
-    node (the basis at each stage's time, :func:`lagrange_weights`)."""
+    smooth solution, against O(k^2) for explicit Euler. ``weights``: work space, one entry
+    per node (the basis at each stage's time, :func:`lagrange_weights`)."""
     N = out_X.shape[2]
-    first = nodes.shape[0] - out_X.shape[1]  # 1: node 0 is the start value
     for s in range(tau.shape[0]):
         lagrange_weights(1.0 + tau[s] * k / k_prev, nodes, bary, weights)
         for i in range(N):
-            value = weights[0] * start[i] if first == 1 else 0.0
-            for j in range(out_X.shape[1]):
-                value += weights[first + j] * out_X[n, j, i]
+            value = 0.0
+            for j in range(nodes.shape[0]):
+                value += weights[j] * out_X[n, j, i]
             X[s * N + i] = value
 
 
@@ -375,12 +346,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     rounding = ROUNDING / rtol  # the rounding level of the scaled norm
     est = np.empty(N)
     w = np.empty(S * N)  # weights of the scaled norm (solvers' work space)
-    weights = np.empty(n_nodes + 1)  # extrapolate's work space
-    # dG(q) extrapolates through the last element's start value x_start too (extrapolate)
-    nodes0, bary0 = with_start(nodes)
-    x_start = np.empty(N)
-    for i in range(N):
-        x_start[i] = last_X[1, 0, i]  # (the last call's; read once it stored an element)
+    weights = np.empty(n_nodes)  # extrapolate's work space
     counters[STORED] = 0
 
     t = st.t
@@ -392,8 +358,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     capacity = out_t.shape[0]
     while counters[STORED] < capacity:
         if t >= T:
-            # (a piece of events goes on)
-            _suspend(out_k, out_X, counters, last_X, x_start, rate, st)
+            _suspend(out_k, out_X, counters, last_X, rate, st)  # (a piece of events goes on)
             return DONE
         remaining = T - t
         if not fixed:
@@ -414,15 +379,10 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             dtol_k = max(dtol * min(1.0, k / o.span), min(dtol, rounding))
         use_newton = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         n_prev = counters[STORED] - 1
-        if is_dg and n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
-            extrapolate(out_X, n_prev, x_start, nodes0, bary0, out_k[n_prev], k, tau, X,
-                        weights)
-        elif not use_newton and n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
-            extrapolate(out_X, n_prev, x, nodes, bary, out_k[n_prev], k, tau, X, weights)
-        elif is_dg and n_prev < 0 and 0.0 < k <= EXTRAPOLATE * st.k_last:
-            extrapolate(last_X, 0, x_start, nodes0, bary0, st.k_last, k, tau, X, weights)
-        elif not use_newton and n_prev < 0 and 0.0 < k <= EXTRAPOLATE * st.k_last:
-            extrapolate(last_X, 0, x, nodes, bary, st.k_last, k, tau, X, weights)
+        if (is_dg or not use_newton) and n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
+            extrapolate(out_X, n_prev, nodes, bary, out_k[n_prev], k, tau, X, weights)
+        elif (is_dg or not use_newton) and n_prev < 0 and 0.0 < k <= EXTRAPOLATE * st.k_last:
+            extrapolate(last_X, 0, nodes, bary, st.k_last, k, tau, X, weights)  # (last call's)
         else:
             euler_stages(x, f0, k, tau, X)
         iters = -1
@@ -448,7 +408,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         if use_newton and not o.newton_ready:  # (the driver carries its workspace then)
             st.t = t
             st.k_next = k
-            _suspend(out_k, out_X, counters, last_X, x_start, rate, st)
+            _suspend(out_k, out_X, counters, last_X, rate, st)
             return NEWTON_NEEDED
         if use_newton:
             iterations_before = counters[ITERATIONS]  # not the failed fixed point's
@@ -583,7 +543,6 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                                                                   deviated_eps)
             t = t + k if k < remaining else T
             for i in range(N):
-                x_start[i] = x[i]
                 x[i] = X[end + i]
                 f0[i] = fend[i]
             if fixed:
@@ -622,7 +581,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         st.k_next = k
     st.t = t
     st.k_next = k
-    _suspend(out_k, out_X, counters, last_X, x_start, rate, st)
+    _suspend(out_k, out_X, counters, last_X, rate, st)
     return DONE if t >= T else FULL
 
 

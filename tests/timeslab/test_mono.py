@@ -98,52 +98,6 @@ def test_fixed_point_starts_from_the_last_element_extrapolated(method, iteration
     assert np.abs(sol(ode.T) - exact(ode.T)).max() < 1e-9
 
 
-@pytest.mark.parametrize("q", [1, 2, 3])
-def test_dg_extrapolates_its_collocation_polynomial(q):
-    """dG(q)'s predictor continues the polynomial of degree q + 1 through the last element's
-    start value and its q + 1 nodal values (Radau IIA's collocation polynomial): it predicts
-    the next slab's stages exactly for a solution of degree q + 1, which the element's own
-    polynomial (degree q) does not."""
-    from dolfinode.methods import make_method
-    from dolfinode.timeslab import mono
-
-    m = make_method("dG", q)
-    nodes = np.asarray(m.nodes, dtype=float)
-    tau = nodes[m.stages]
-    k_prev, k = 0.5, 0.8  # element [1, 1.5], the next slab [1.5, 2.3]
-
-    def u(t):
-        return np.stack([t ** (q + 1), 2.0 - t ** (q + 1)], axis=-1)
-
-    out_X = u(1.0 + k_prev * nodes)[None]
-    exact = u(1.5 + k * tau).ravel()
-    X = np.empty_like(exact)
-    nodes0, bary0 = mono.with_start.py_func(nodes)
-    mono.extrapolate.py_func(out_X, 0, u(1.0), nodes0, bary0, k_prev, k, tau, X,
-                             np.empty(q + 2))
-    assert np.abs(X - exact).max() < 1e-11 * np.abs(exact).max()
-    mono.extrapolate.py_func(out_X, 0, u(1.0), nodes, np.asarray(m.barycentric_weights), k_prev,
-                             k, tau, X, np.empty(q + 1))
-    assert np.abs(X - exact).max() > 1e-3 * np.abs(exact).max()
-
-
-@pytest.mark.parametrize("method, iterations", [("dG(1)", 4.5), ("dG(2)", 3.6),
-                                                ("dG(3)", 3.0)])
-def test_dg_newton_from_the_collocation_polynomial_iterates_less(method, iterations):
-    """Van der Pol, eps = 0.01, on fixed steps k = 2e-3 with Newton: from the continued
-    collocation polynomial dG(1), dG(2), dG(3) took 4.0, 3.2, 2.7 iterations per slab, from
-    dG's own polynomial 5.0, 4.0, 3.2; the iteration still converges to the discrete solution
-    (that of a 1000 x tighter stop)."""
-    y1, y2 = sp.symbols("y1 y2")
-    ode = dn.ODE({y1: y2, y2: 100 * ((1 - y1**2) * y2 - y1)}, u0=[2.0, 0.0], T=2.0)
-    steps = {"method": method, "fixed_time_step": True, "initial_time_step": 2e-3,
-             "nonlinear_solver": "newton"}
-    sol = dn.solve(ode, **steps)
-    tight = dn.solve(ode, discrete_tolerance_factor=1e-6, **steps)
-    assert sol.stats["nonlinear iterations"] / sol.stats["time slabs"] < iterations
-    np.testing.assert_allclose(sol(ode.T), tight(ode.T), rtol=1e-9)
-
-
 @pytest.mark.parametrize("method, tol", [("cG(1)", 1e-2), ("cG(2)", 1e-2), ("cG(2)", 1e-3)])
 def test_rober_at_loose_tolerance_is_right_or_raises(method, tol):
     """ROBER with atol 1e-6 (where scipy's BDF returns y1 = -3e6) at loose tolerances.
