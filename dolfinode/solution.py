@@ -1011,7 +1011,8 @@ class PreparedSolution(Solution):
     def __init__(self, method, times, X, n, number_of_samples, makers):
         """``times``: the buffer (2, capacity) of the element starts and lengths, ``X``:
         (capacity, q + 1, N) of the nodal values, of which the first ``n`` are the
-        solution's; ``makers`` as :class:`Solution` takes them."""
+        solution's; ``makers`` as :class:`Solution` takes them, with "parameters": the
+        solver's checked parameters, copied when ``sol.parameters`` is read."""
         self.method, self._makers, self._shared = method, makers, (times, X, n)
         self._component_ptr = None
         self._sample(number_of_samples)
@@ -1025,8 +1026,14 @@ class PreparedSolution(Solution):
             times = times[:, :n].copy()
             self.__dict__.update(t_start=times[0], k=times[1], values=X[:n].copy())
 
+    @cached_property
+    def parameters(self):
+        """The checked parameters of the solve: a copy of the solver's, made when read."""
+        return dict(self._makers["parameters"])
+
     def __getstate__(self):
         self._make_elements()
+        self.parameters  # noqa: B018 (made now: its maker does not pickle)
         return super().__getstate__()
 
     def _evaluate_mono(self, times, rhs, out):

@@ -221,8 +221,10 @@ class Solver:
         if self._buffers is not None and (self._autonomous or not narrow_features(work)):
             return self._solve_prepared(work)
         compiled, plan = lowered(work, self._params)
-        return solve_lowered(work, compiled, plan, self._multi_adaptive, self._method,
-                             self._params)
+        sol = solve_lowered(work, compiled, plan, self._multi_adaptive, self._method,
+                            self._params)
+        sol.parameters = dict(sol.parameters)  # (the solver's own: every call reads them)
+        return sol
 
     def _declaration(self, u0, params, T, t0):
         """The solver's copy of the declaration with the values of this call, checked as
@@ -383,12 +385,12 @@ class Solver:
         sol = PreparedSolution(m, self._times, self._buffers[2], counts[ts.STORED],
                                self._samples, {
                                    "ode": solved.declaration, "declared": solved,
+                                   "parameters": params,
                                    "stats": lambda: note_step_bound(_completed_stats(
                                        _mono_stats(N, structure, counts, k_next), counts,
                                        False, m, params, compiled.compile_time, seconds),
                                        bound, solved.T - solved.t0)})
         holder[0] = weakref.ref(sol)
-        sol.parameters = params
         steps = counts[ts.SLABS]
         if steps >= self._checked_from:  # (check_error_at_T's own test, read once)
             check_error_at_T(work, compiled, None, False, m, params, sol, steps)
@@ -430,7 +432,7 @@ class Solver:
             counts, True, m, params, compiled.compile_time, seconds)
         note_step_bound(stats, self._step_bound, solved.T - solved.t0)
         sol = sink.solution(solved.declaration(), m, sink.finish(True), stats, x)
-        sol.parameters = params
+        sol.parameters = dict(params)
         # (check_error_at_T reads the busiest component's steps in the stats)
         check_error_at_T(work, compiled, None, True, m, params, sol)
         if self._bounded:
@@ -488,6 +490,7 @@ class Solver:
                           (k.loop_atol, k.floor, k.x, k.f0, k.steps, k.options, k.state,
                            k.counters), started,
                           (advance, arguments[:-len(self._buffers)], (status, self._buffers)))
+        sol.parameters = dict(params)
         note_step_bound(sol.stats, self._step_bound, work.T - work.t0)
         check_error_at_T(work, k.compiled, None, multi_adaptive, m, params, sol)
         warn_lost_components(work, k.compiled, params, sol)

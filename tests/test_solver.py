@@ -138,6 +138,19 @@ def test_a_solution_sharing_the_buffers_is_its_copy_until_the_next_call(oscillat
     np.testing.assert_array_equal(values, reference.values)
 
 
+@pytest.mark.parametrize("method", ["dG(2)", "mcG(1)"])
+def test_a_solution_s_parameters_are_its_own(oscillator, method):
+    """sol.parameters is a copy: changing it leaves the solver and its later solutions alone
+    (they shared the solver's dict)."""
+    solver = dn.Solver(oscillator, method=method, tolerance=1e-6)
+    sol = solver.solve()
+    sol.parameters["tolerance"] = 1.0
+    later = solver.solve(params={k: 2.0})
+    assert later.parameters["tolerance"] == 1e-6 and solver._params["tolerance"] == 1e-6
+    later.parameters["maximum_steps"] = 1
+    _assert_same_solution(solver.solve(), dn.solve(oscillator, method=method, tolerance=1e-6))
+
+
 def test_kept_solvers_sharing_buffers_leave_an_earlier_solution_alone(oscillator):
     """dn.solve's kept solvers of one declaration share their buffers: a solution of one
     option set, still shared, copies them before a call with other options writes them."""
