@@ -72,7 +72,6 @@ def solve_kept(ode, method, tolerance, parameters):
         sol = solver.solve()
     finally:
         kept.lock.release()
-    sol.parameters = dict(sol.parameters)  # (a solver's are shared by its solutions)
     return sol
 
 

@@ -1018,9 +1018,11 @@ def _merge_slabs(ptr, t_start, t_end, values, s_start, s_end, s_values, out_ptr,
                 e += 1
 
 
-class _Merged:
-    """An attribute of a :class:`MixedSolution`'s grouped elements, made on first read or
-    write (a reader that shifts them then shifts what U(t) reads)."""
+class _Made:
+    """An element array of a solution that makes its elements on first read or write of one
+    (``sol._make_elements()``): a :class:`MixedSolution` joins its parts (a reader that
+    shifts them then shifts what U(t) reads), a :class:`PreparedSolution` copies them out of
+    its solver's buffers."""
 
     def __set_name__(self, owner, name):
         self.name = name
@@ -1028,11 +1030,11 @@ class _Merged:
     def __get__(self, sol, owner=None):
         if sol is None:
             return self
-        sol._merge()
+        sol._make_elements()
         return sol.__dict__[self.name]
 
     def __set__(self, sol, value):
-        sol._merge()
+        sol._make_elements()
         sol.__dict__[self.name] = value
 
 
@@ -1049,11 +1051,11 @@ class MixedSolution(Solution):
     """
 
     multi = True
-    t_start = _Merged()
-    k = _Merged()
-    values = _Merged()
-    _t_end = _Merged()
-    _component_ptr = _Merged()
+    t_start = _Made()
+    k = _Made()
+    values = _Made()
+    _t_end = _Made()
+    _component_ptr = _Made()
 
     def __init__(self, ode, method, elements, slabs, stats, number_of_samples):
         """``elements`` (ptr, t_start, t_end, values) grouped by component as
@@ -1063,7 +1065,7 @@ class MixedSolution(Solution):
         self._parts = (*elements, *slabs)
         self._sample(number_of_samples)
 
-    def _merge(self):
+    def _make_elements(self):
         """Join the slabs into every component's elements (once)."""
         parts = self.__dict__.pop("_parts", None)
         if parts is None:
@@ -1095,3 +1097,53 @@ class MixedSolution(Solution):
                     else len(parts[1]) + len(parts[4]) * self.ode.N)
         return (f"Solution({self.method.name}, multi-adaptive, N={self.ode.N}, "
                 f"elements={elements}, t=[{self.ode.t0}, {self.ode.T}])")
+
+
+class PreparedSolution(Solution):
+    """The mono-adaptive Solution of a prepared call (:class:`dolfinode.Solver`): its elements
+    are the used part of the solver's output buffers until :meth:`_make_elements` copies
+    them, which reading ``t_start``, ``k`` or ``values``, pickling, and the solver's next
+    call before it writes the buffers do: a loop of small solves that reads only ``sol(t)``
+    of each result copies nothing (the copies were about a tenth of a trivial prepared
+    solve). ``sol(t)`` reads the buffers while they are shared."""
+
+    t_start = _Made()
+    k = _Made()
+    values = _Made()
+
+    def __init__(self, method, times, X, n, number_of_samples, makers):
+        """``times``: the buffer (2, capacity) of the element starts and lengths, ``X``:
+        (capacity, q + 1, N) of the nodal values, of which the first ``n`` are the
+        solution's; ``makers`` as :class:`Solution` takes them, with "parameters": the
+        solver's checked parameters, copied when ``sol.parameters`` is read."""
+        self.method, self._makers, self._shared = method, makers, (times, X, n)
+        self._component_ptr = None
+        self._sample(number_of_samples)
+
+    def _make_elements(self):
+        """Copy the elements out of the solver's buffers (once; before the solver writes
+        them again)."""
+        shared = self.__dict__.pop("_shared", None)
+        if shared is not None:
+            times, X, n = shared
+            times = times[:, :n].copy()
+            self.__dict__.update(t_start=times[0], k=times[1], values=X[:n].copy())
+
+    @cached_property
+    def parameters(self):
+        """The checked parameters of the solve: a copy of the solver's, made when read."""
+        return dict(self._makers["parameters"])
+
+    def __getstate__(self):
+        self._make_elements()
+        self.parameters  # noqa: B018 (made now: its maker does not pickle)
+        return super().__getstate__()
+
+    def _evaluate_mono(self, times, rhs, out):
+        shared = self.__dict__.get("_shared")
+        if shared is None:
+            return super()._evaluate_mono(times, rhs, out)
+        buffer, X, n = shared  # (no restarts: a prepared call has no switches)
+        t_start, declared = buffer[0, :n], self._declaration
+        return evaluate_mono(self.method, t_start, t_start + buffer[1, :n], X[:n],
+                             np.array([declared.t0]), declared.u0[np.newaxis], times, out, rhs)

@@ -108,14 +108,23 @@ def warn_growth_below_tolerance(ode, compiled, atol):
     an infection seeded at 1e-8 (SIR, T = 120), the error estimate at T included (it
     linearises about the wrong solution). An atol_i below |u0_i| resolves them.
     """
-    u0 = ode.u0
+    small = below_tolerance(ode.u0, atol)
+    if small:
+        warn_growth(ode, compiled, atol, small)
+
+
+def below_tolerance(u0, atol):
+    """The components i with 0 < |u0_i| < atol_i (a list: empty where none, as mostly)."""
     if u0.size <= 64:  # (in Python: a numpy pass costs a small solve 2 us a call)
-        small = [i for i, (u, a) in enumerate(zip(u0.tolist(), atol.tolist())) if 0 < abs(u) < a]
-    else:
-        small = np.flatnonzero((np.abs(u0) < atol) & (u0 != 0.0)).tolist()
-    if not small:
-        return
-    small = np.array(small)
+        return [i for i, (u, a) in enumerate(zip(u0.tolist(), atol.tolist())) if 0 < abs(u) < a]
+    return np.flatnonzero((np.abs(u0) < atol) & (u0 != 0.0)).tolist()
+
+
+def warn_growth(ode, compiled, atol, small):
+    """:func:`warn_growth_below_tolerance` for the components ``small`` that start below
+    their absolute tolerance (:func:`below_tolerance`, not empty): a Solver calls it when
+    the parameter values are new and u0 is not."""
+    u0, small = ode.u0, np.array(small)
     rate = compiled.jacobian_matrix(u0, ode.t0).diagonal()[small]
     exponent = np.minimum(rate * (ode.T - ode.t0), 700.0)  # (exp overflows past 709)
     grows = np.abs(u0[small]) * np.exp(exponent) > atol[small]

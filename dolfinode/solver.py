@@ -14,7 +14,8 @@ the start and of the loop, and output buffers as large as the first ones of dn.s
 the loop's whole argument tuple; a call writes the values that changed into it, runs the
 compiled start of dn.solve (:mod:`dolfinode.timeslab.start`) and calls the loop once (for
 cG/dG in one compiled call, :mod:`dolfinode.timeslab.prepared`), and
-the Solution copies the used part of the buffers. A call's u0 and parameter values are
+the Solution shares the used part of the buffers until it is read or the next call writes
+them (:class:`~dolfinode.solution.PreparedSolution`). A call's u0 and parameter values are
 checked as the declaration checks them, floats directly; values equal to the last call's
 are taken as they were checked then, and what depends on them (p, the floor of the values,
 the steps' bound of an f(t) that oscillates in t, the warnings read from u0) is made again
@@ -27,6 +28,7 @@ was called with before (:mod:`dolfinode.kept`).
 """
 import math
 import time
+import weakref
 from collections import namedtuple
 from collections.abc import Mapping
 
@@ -42,9 +44,10 @@ from dolfinode.linalg.newton_matrix import sparse_candidate
 from dolfinode.methods import parse_method
 from dolfinode.ode import ODE, Parameters, _parameter_value
 from dolfinode.parameters import check_parameters
-from dolfinode.solution import Solution
+from dolfinode.solution import PreparedSolution
 from dolfinode.solve import (
     MIN_TOLERANCE,
+    SHORTEST_RUN,
     _absolute_tolerance,
     _check_resolvable_tolerance,
     _check_start,
@@ -66,6 +69,7 @@ from dolfinode.solve import (
     _options,
     _signs,
     _warn_undamped,
+    below_tolerance,
     check_error_at_T,
     check_tolerance,
     lower,
@@ -76,7 +80,7 @@ from dolfinode.solve import (
     solve_lowered,
     starts_below_tolerance,
     warn_below_tolerance_throughout,
-    warn_growth_below_tolerance,
+    warn_growth,
     warn_lost_components,
 )
 from dolfinode.timeslab import contract, mono, prepared
@@ -107,7 +111,9 @@ class Solver:
     -----
     A Solver keeps work space between calls (its copy of the declaration, the loop's output
     buffers): call one Solver from one thread at a time, one per thread for parallel fits.
-    The Solutions it returns own their arrays; later calls leave them alone.
+    The Solutions it returns are left alone by later calls: a mono-adaptive one reads the
+    output buffers until it is read or the next call writes them, which copies them first
+    (:class:`~dolfinode.solution.PreparedSolution`).
 
     Examples
     --------
@@ -156,27 +162,36 @@ class Solver:
         self._work.__dict__.update(ode.__dict__)
         self._work.__dict__.pop("_kept_solvers", None)  # (its solutions would keep them alive)
         self._buffers = self._interval = None
+        self._autonomous = ode.autonomous  # (no narrow features of f(t) to look for)
+        self._given_steps = params["initial_time_step"] is not None
+        self._maximum_steps = params["maximum_steps"]
+        # the fewest steps whose error at T check_error_at_T checks (estimate_global_error)
+        self._checked_from = {False: math.inf, "auto": SHORTEST_RUN}.get(
+            params["estimate_global_error"], 0)
         if (plan is None and params["dense_output"] is True and not params["progress"]
                 and not params["automatic_modeling"] and not self._auto
                 and params["estimate_global_error"] is not True):
             m = self._method
             if self._multi_adaptive:  # (the loop's first buffers, as in _run_multi)
-                self._buffers = self._kept_buffers(
+                self._buffers, _ = self._kept_buffers(
                     _multi_buffers(ode, m, _multi_capacity(ode, m)))
             elif (not sparse_candidate(compiled.band_structure)
                   or m.name in compiled.newton_plans):  # (as in _run_mono)
                 size = min(_mono_capacity(ode, m), params["maximum_steps"])
                 # t and k as the rows of one array: a Solution copies them at once
-                self._times, out_X = self._kept_buffers(
+                (self._times, out_X), self._holder = self._kept_buffers(
                     (((2, size), float), ((size, m.q + 1, ode.N), float)))
                 self._buffers = (self._times[0], self._times[1], out_X)
 
     def _kept_buffers(self, shapes):
-        """Output buffers of the given (shape, dtype)s from the pool, made when missing."""
-        buffers = self._pool.get(shapes)
-        if buffers is None:
-            buffers = self._pool[shapes] = tuple(np.empty(shape, dtype) for shape, dtype in shapes)
-        return buffers
+        """Output buffers of the given (shape, dtype)s from the pool, made when missing, and
+        their holder: [a weak reference to the :class:`~dolfinode.solution.PreparedSolution`
+        that shares them, or None], shared with the pool's other solvers."""
+        kept = self._pool.get(shapes)
+        if kept is None:
+            kept = self._pool[shapes] = (
+                tuple(np.empty(shape, dtype) for shape, dtype in shapes), [None])
+        return kept
 
     def solve(self, u0=None, params=None, T=None, t0=None):
         """Solve with the given initial values, parameter values and interval (each defaults
@@ -203,11 +218,13 @@ class Solver:
             return solve(work._snapshot(), self.method, **self.parameters)
         # (narrow features are breakpoints of the general path; an oscillating term's step
         # bound is set in the prepared call)
-        if self._buffers is not None and not narrow_features(work):
+        if self._buffers is not None and (self._autonomous or not narrow_features(work)):
             return self._solve_prepared(work)
         compiled, plan = lowered(work, self._params)
-        return solve_lowered(work, compiled, plan, self._multi_adaptive, self._method,
-                             self._params)
+        sol = solve_lowered(work, compiled, plan, self._multi_adaptive, self._method,
+                            self._params)
+        sol.parameters = dict(sol.parameters)  # (the solver's own: every call reads them)
+        return sol
 
     def _declaration(self, u0, params, T, t0):
         """The solver's copy of the declaration with the values of this call, checked as
@@ -332,66 +349,95 @@ class Solver:
         """The solve of ``work`` as one call of the loop into the kept buffers, a run that
         does not fit them going on into new ones as dn.solve's does (:meth:`_go_on`). What
         depends on the values of the call is made again only when they change
-        (:meth:`_take_values`). The Solution copies the used part of the buffers; a
-        mono-adaptive one makes its ``ode`` and ``stats`` when first read (the ``makers``
+        (:meth:`_take_values`). The Solution shares the used part of the buffers until it is
+        read or the next call writes them (:class:`~dolfinode.solution.PreparedSolution`);
+        a mono-adaptive one makes its ``ode`` and ``stats`` when first read (the ``makers``
         of :class:`~dolfinode.Solution`)."""
         started = time.perf_counter()
         if (work.t0, work.T) != self._interval:
             self._workspace(work)
         if work.params is not self._values or work.u0 is not self._u0:
             self._take_values(work)
-        params = self._params
-        (compiled, atol, given, x, f0, steps, state, counters, _, frozen, structure, options,
-         _) = self._kept
-        if params["initial_time_step"] is not None:
-            steps[:] = given
         if self._multi_adaptive:
-            x[:] = self._initial
-            started_at, arguments = self._start
-            _check_start(work, params, started_at(*arguments), f0, steps)
-            frozen.fill(np.nan)  # since when each component is frozen (NaN: active)
-            advance, arguments = self._loop
-            status = advance(*arguments)
-        else:
-            run, workspace = self._prepared
-            status = run(workspace)
-            if status < 0:
-                _check_start(work, params, -status, f0, steps)
+            return self._solve_multi(work, started)
+        holder = self._holder
+        if holder[0] is not None:  # the last solution sharing the buffers copies them now
+            shared = holder[0]()
+            if shared is not None:
+                shared._make_elements()
+            holder[0] = None
+        params, kept = self._params, self._kept
+        if self._given_steps:
+            kept.steps[:] = kept.given
+        run, workspace = self._prepared
+        status = run(workspace)
+        if status < 0:
+            _check_start(work, params, -status, kept.f0, kept.steps)
+        counts = kept.counters.tolist()
+        if status != ts.DONE or counts[ts.SLABS] > self._maximum_steps:
+            return self._go_on(work, status, started)
+        seconds = time.perf_counter() - started
+        m, compiled = self._method, kept.compiled
+        if self._deviation[0] > UNDAMPED_DEVIATION:  # (what _warn_undamped reads first)
+            _warn_undamped(work, compiled, m, params, kept.options, kept.state, False)
+        solved, bound, structure = self._solved, self._step_bound, kept.structure
+        k_next, N = self._k_next.item(), kept.x.size
+        sol = PreparedSolution(m, self._times, self._buffers[2], counts[ts.STORED],
+                               self._samples, {
+                                   "ode": solved.declaration, "declared": solved,
+                                   "parameters": params,
+                                   "stats": lambda: note_step_bound(_completed_stats(
+                                       _mono_stats(N, structure, counts, k_next), counts,
+                                       False, m, params, compiled.compile_time, seconds),
+                                       bound, solved.T - solved.t0)})
+        holder[0] = weakref.ref(sol)
+        steps = counts[ts.SLABS]
+        if steps >= self._checked_from:  # (check_error_at_T's own test, read once)
+            check_error_at_T(work, compiled, None, False, m, params, sol, steps)
+        # values projected to 0 (:func:`warn_lost_components`): none where none ends at 0
+        # (x: the values at the end, sol.values[-1, -1])
+        if self._bounded and _has_zero(kept.x):
+            warn_lost_components(work, compiled, params, sol)
+        if self._below:  # (read when u0 was new)
+            warn_below_tolerance_throughout(work, kept.atol, sol)
+        return sol
+
+    def _solve_multi(self, work, started):
+        """:meth:`_solve_prepared` of a multi-adaptive solver: the compiled start and loop
+        in two calls, the Solution from the history sink (its stats made at once: they hold
+        arrays of the sink)."""
+        params = self._params
+        (compiled, atol, given, x, f0, steps, state, counters, _, frozen, _, _,
+         _) = self._kept
+        if self._given_steps:
+            steps[:] = given
+        x[:] = self._initial
+        started_at, arguments = self._start
+        _check_start(work, params, started_at(*arguments), f0, steps)
+        frozen.fill(np.nan)  # since when each component is frozen (NaN: active)
+        advance, arguments = self._loop
+        status = advance(*arguments)
         counts = counters.tolist()
-        if status != ts.DONE or counts[ts.SLABS] > params["maximum_steps"]:
+        if status != ts.DONE or counts[ts.SLABS] > self._maximum_steps:
             return self._go_on(work, status, started)
         seconds = time.perf_counter() - started
         m = self._method
         if self._deviation[0] > UNDAMPED_DEVIATION:  # (what _warn_undamped reads first)
-            _warn_undamped(work, compiled, m, params, options, state, self._multi_adaptive)
-        solved, bound = self._solved, self._step_bound
-        if self._multi_adaptive:
-            sink = history.InMemory(work, True, self._samples)
-            sink.add(history.filled(self._buffers, counts), float(state["t"][0]))
-            stats = _completed_stats(
-                _multi_stats(counts, state["mono_elements"].item(), sink.per_component,
-                             steps), counts, True, m, params, compiled.compile_time, seconds)
-            note_step_bound(stats, bound, solved.T - solved.t0)
-            sol = sink.solution(solved.declaration(), m, sink.finish(True), stats, x)
-            steps_run = None  # (check_error_at_T reads the busiest component's in the stats)
-        else:
-            k_next, N = self._k_next.item(), x.size
-            makers = {"ode": solved.declaration, "declared": solved,
-                      "stats": lambda: note_step_bound(_completed_stats(
-                          _mono_stats(N, structure, counts, k_next), counts, False, m, params,
-                          compiled.compile_time, seconds), bound, solved.T - solved.t0)}
-            n = counts[ts.STORED]
-            times = self._times[:, :n].copy()
-            sol = Solution(None, m, times[0], times[1], self._buffers[2][:n].copy(), None,
-                           self._samples, makers)
-            steps_run = counts[ts.SLABS]
-        sol.parameters = params
-        check_error_at_T(work, compiled, None, self._multi_adaptive, m, params, sol, steps_run)
-        # values projected to 0 (:func:`warn_lost_components`); mono: none where none ends at
-        # 0 (x: the values at the end, sol.values[-1, -1])
-        if self._bounded and (self._multi_adaptive or _has_zero(x)):
+            _warn_undamped(work, compiled, m, params, self._kept.options, state, True)
+        solved = self._solved
+        sink = history.InMemory(work, True, self._samples)
+        sink.add(history.filled(self._buffers, counts), float(state["t"][0]))
+        stats = _completed_stats(
+            _multi_stats(counts, state["mono_elements"].item(), sink.per_component, steps),
+            counts, True, m, params, compiled.compile_time, seconds)
+        note_step_bound(stats, self._step_bound, solved.T - solved.t0)
+        sol = sink.solution(solved.declaration(), m, sink.finish(True), stats, x)
+        sol.parameters = dict(params)
+        # (check_error_at_T reads the busiest component's steps in the stats)
+        check_error_at_T(work, compiled, None, True, m, params, sol)
+        if self._bounded:
             warn_lost_components(work, compiled, params, sol)
-        if self._below:  # (read when u0 was new)
+        if self._below:
             warn_below_tolerance_throughout(work, atol, sol)
         return sol
 
@@ -424,10 +470,12 @@ class Solver:
             self._initial[:] = work.u0
             if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
                 _check_resolvable_tolerance(work, atol, params["tolerance"])
-        if not params["fixed_time_step"]:
-            warn_growth_below_tolerance(work, compiled, atol)
-        self._below = (not params["fixed_time_step"] and params["absolute_tolerance"] is None
-                       and starts_below_tolerance(work.u0, atol))
+            # (what depends on u0 alone: read again only when it changes)
+            self._small = [] if params["fixed_time_step"] else below_tolerance(work.u0, atol)
+            self._below = (not params["fixed_time_step"] and params["absolute_tolerance"] is None
+                           and starts_below_tolerance(work.u0, atol))
+        if self._small:  # (warn_growth_below_tolerance: its rates read the parameters)
+            warn_growth(work, compiled, atol, self._small)
         self._solved = _Solved(work)
 
     def _go_on(self, work, status, started):
@@ -442,6 +490,7 @@ class Solver:
                           (k.loop_atol, k.floor, k.x, k.f0, k.steps, k.options, k.state,
                            k.counters), started,
                           (advance, arguments[:-len(self._buffers)], (status, self._buffers)))
+        sol.parameters = dict(params)
         note_step_bound(sol.stats, self._step_bound, work.T - work.t0)
         check_error_at_T(work, k.compiled, None, multi_adaptive, m, params, sol)
         warn_lost_components(work, k.compiled, params, sol)

@@ -113,6 +113,58 @@ def test_successive_calls_are_bitwise_dn_solve_and_keep_their_own_arrays(oscilla
         _assert_same_solution(sol, reference)
 
 
+@pytest.mark.parametrize("method", ["cG(2)", "dG(2)"])
+def test_a_solution_sharing_the_buffers_is_its_copy_until_the_next_call(oscillator, method):
+    """A prepared solution reads the solver's buffers until it is read or the next call
+    writes them (PreparedSolution): evaluated before and after it copies them, bitwise
+    dn.solve's; its arrays, pickled or read, are its own."""
+    import pickle
+
+    times = np.linspace(0.0, 2.0, 41)
+    options = {"tolerance": 1e-6, "estimate_global_error": False}  # (the estimate reads them)
+    reference = dn.solve(oscillator, method=method, **options)
+    solver = dn.Solver(oscillator, method=method, **options)
+    sol, held = solver.solve(), solver.solve()
+    assert "_shared" in held.__dict__  # (sol copied its elements when held was solved)
+    np.testing.assert_array_equal(held(times), reference(times))
+    np.testing.assert_array_equal(pickle.loads(pickle.dumps(held))(times), reference(times))
+    assert "_shared" not in held.__dict__  # (pickling copied them)
+    shared = solver.solve()
+    values = shared.values  # (a read copies)
+    solver.solve(u0=[0.3, 0.2], params={k: 1.0})
+    for solution in (sol, held, shared):
+        _assert_same_solution(solution, reference)
+        np.testing.assert_array_equal(solution(times), reference(times))
+    np.testing.assert_array_equal(values, reference.values)
+
+
+@pytest.mark.parametrize("method", ["dG(2)", "mcG(1)"])
+def test_a_solution_s_parameters_are_its_own(oscillator, method):
+    """sol.parameters is a copy: changing it leaves the solver and its later solutions alone
+    (they shared the solver's dict)."""
+    solver = dn.Solver(oscillator, method=method, tolerance=1e-6)
+    sol = solver.solve()
+    sol.parameters["tolerance"] = 1.0
+    later = solver.solve(params={k: 2.0})
+    assert later.parameters["tolerance"] == 1e-6 and solver._params["tolerance"] == 1e-6
+    later.parameters["maximum_steps"] = 1
+    _assert_same_solution(solver.solve(), dn.solve(oscillator, method=method, tolerance=1e-6))
+
+
+def test_kept_solvers_sharing_buffers_leave_an_earlier_solution_alone(oscillator):
+    """dn.solve's kept solvers of one declaration share their buffers: a solution of one
+    option set, still shared, copies them before a call with other options writes them."""
+    first = {"tolerance": 1e-6, "estimate_global_error": False}  # (the estimate reads them)
+    other = {"tolerance": 1e-4, "estimate_global_error": False}
+    reference = dn.solve(dn.vary(oscillator, {}), "dG(2)", **first)
+    for options in (first, other):
+        dn.solve(oscillator, "dG(2)", **options)  # (the second call of each is kept)
+    sol = dn.solve(oscillator, "dG(2)", **first)
+    assert "_shared" in sol.__dict__
+    dn.solve(oscillator, "dG(2)", **other)
+    _assert_same_solution(sol, reference)
+
+
 def test_solver_takes_the_prepared_path_where_it_can(oscillator, monkeypatch):
     """A solve in memory takes one loop call into the kept buffers; events, breakpoints,
     samples only and modeling take the general path, with the same answers."""
