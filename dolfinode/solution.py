@@ -660,6 +660,8 @@ def _inside(times, t0, T):
     """Whether a time lies strictly inside (t0, T): only there can a dense value differ from
     U (the corrections of cG(q) and mcG(q) vanish at element ends, dG(q)'s at right ends,
     and t0 reads u0), so sol(T) reads no f and compiles none of the dense kernels."""
+    if not times.size:
+        return False
     if times.size <= 2:  # (a call at one time, as two equal ones: numpy's passes cost 3 us)
         return t0 < float(times[0]) < T or t0 < float(times[-1]) < T
     return bool(((times > t0) & (times < T)).any())
@@ -1138,6 +1140,13 @@ class PreparedSolution(Solution):
         self._make_elements()
         self.parameters  # noqa: B018 (made now: its maker does not pickle)
         return super().__getstate__()
+
+    def _end_values(self):
+        shared = self.__dict__.get("_shared")
+        if shared is None:
+            return super()._end_values()
+        _, X, n = shared
+        return X[n - 1, -1]
 
     def _evaluate_mono(self, times, rhs, out):
         shared = self.__dict__.get("_shared")
