@@ -1127,6 +1127,12 @@ SHORTEST_RUN = 2
 AUTO_ROWS = 64
 
 
+def fewest_checked_steps(choice):
+    """The fewest steps of a run whose error at T ``estimate_global_error=choice`` checks:
+    every run (True), none (False), SHORTEST_RUN ("auto")."""
+    return {False: np.inf, "auto": SHORTEST_RUN}.get(choice, 0)
+
+
 def check_error_at_T(ode, compiled, plan, multi_adaptive, m, params, sol, steps=None):
     """The check of the error at T of ``sol`` (by the method ``m``) that
     ``params["estimate_global_error"]`` asks for: the linearised estimate where f is smooth
@@ -1172,7 +1178,7 @@ def estimate_global_error(ode, compiled, m, params, sol, steps):
     carried (:func:`_estimating`), and where there is none sol.stats["global error note"]
     says so."""
     choice = params["estimate_global_error"]
-    if choice == "auto" and (steps < SHORTEST_RUN or not sol.success):
+    if steps < fewest_checked_steps(choice) or (choice == "auto" and not sol.success):
         return  # (a run of one step: its step's error, which the step control bounds)
     running = getattr(sol, "_running_estimate", None)
     slabs = False

@@ -47,7 +47,6 @@ from dolfinode.parameters import check_parameters
 from dolfinode.solution import PreparedSolution
 from dolfinode.solve import (
     MIN_TOLERANCE,
-    SHORTEST_RUN,
     _absolute_tolerance,
     _check_resolvable_tolerance,
     _check_start,
@@ -72,6 +71,7 @@ from dolfinode.solve import (
     below_tolerance,
     check_error_at_T,
     check_tolerance,
+    fewest_checked_steps,
     lower,
     lowered,
     note_step_bound,
@@ -166,8 +166,7 @@ class Solver:
         self._given_steps = params["initial_time_step"] is not None
         self._maximum_steps = params["maximum_steps"]
         # the fewest steps whose error at T check_error_at_T checks (estimate_global_error)
-        self._checked_from = {False: math.inf, "auto": SHORTEST_RUN}.get(
-            params["estimate_global_error"], 0)
+        self._checked_from = fewest_checked_steps(params["estimate_global_error"])
         if (plan is None and params["dense_output"] is True and not params["progress"]
                 and not params["automatic_modeling"] and not self._auto
                 and params["estimate_global_error"] is not True):

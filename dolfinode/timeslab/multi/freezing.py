@@ -29,6 +29,15 @@ def store_constant(i, a, b, x, counters, out_comp, out_a, out_b, out_values):
     counters[ELEMENTS] += 1
 
 
+@helper(**NO_REFCOUNT)
+def wake(i, t, x, frozen, last_a, last_b, counters, out_comp, out_a, out_b, out_values):
+    """Make frozen component i active at t: its constant element [frozen since, t] is stored
+    and it has no polynomial to continue."""
+    store_constant(i, frozen[i], t, x, counters, out_comp, out_a, out_b, out_values)
+    frozen[i] = math.nan
+    last_b[i] = last_a[i]
+
+
 @helper(inline="always")
 def drift_bound(change, rate, tau, mu, quiet):
     """|change| + |rate| tau (e^(mu tau) - 1) / (mu tau): a component's change on a slab and a
@@ -68,9 +77,7 @@ def freeze(b, k, active, checked, indptr, indices, drift, atol, rtol, umax, x, f
     awake = active.shape[0]
     for i in checked:
         if not quiet[i]:
-            store_constant(i, frozen[i], b, x, counters, out_comp, out_a, out_b, out_values)
-            frozen[i] = math.nan
-            last_b[i] = last_a[i]  # no polynomial to continue
+            wake(i, b, x, frozen, last_a, last_b, counters, out_comp, out_a, out_b, out_values)
             kdes[i] = k  # (graded against its active neighbours)
             awake += 1
             changed = True
@@ -139,11 +146,9 @@ def wake_readers(b, k, checked, nchecked, frozen, quiet, drift, rptr, readers, i
             d = jri * k * drift[i] / m
             if not d > QUIET * (atol[r] + rtol * abs(x[r])):
                 continue
-            store_constant(r, frozen[r], b, x, counters, out_comp, out_a, out_b, out_values)
-            frozen[r] = math.nan
+            wake(r, b, x, frozen, last_a, last_b, counters, out_comp, out_a, out_b, out_values)
             quiet[r] = False
             drift[r] = d
-            last_b[r] = last_a[r]
             kdes[r] = k
             stack[n] = r
             depth[n] = m + 1
@@ -248,9 +253,7 @@ def wake_failed(checked, nchecked, emax, margin, t, x, frozen, quiet, last_a, la
     for c in range(nchecked):
         i = checked[c]
         if not emax[i] <= margin:
-            store_constant(i, frozen[i], t, x, counters, out_comp, out_a, out_b, out_values)
-            frozen[i] = math.nan
+            wake(i, t, x, frozen, last_a, last_b, counters, out_comp, out_a, out_b, out_values)
             quiet[i] = False
-            last_b[i] = last_a[i]
             woke = True
     return woke
