@@ -365,6 +365,13 @@ def _check_pieces(ends, span):
                          "this close to t0 at t0")
 
 
+def _sin_pi(g):
+    """sin(pi g), zero exactly where g is an integer (numpy's sin(pi n) is about 1e-16 n, of
+    either sign): its sign changes are where floor(g) jumps."""
+    n = np.round(g)
+    return np.where(n % 2 == 0, 1.0, -1.0) * np.sin(np.pi * (g - n))
+
+
 class Detector:
     """Sign changes of functions g_j(u, t) on the Galerkin solution, chunk by chunk.
 
@@ -374,7 +381,7 @@ class Detector:
     sign(0) = 0) is not the one that follows.
     """
 
-    def __init__(self, ode, functions, directions, switches=0):
+    def __init__(self, ode, functions, directions, switches=0, periodic=()):
         exprs = [_numeric(g, ode) for g in functions]
         used = sorted(set().union(*(e.free_symbols for e in exprs)) & set(ode.states),
                       key=ode.index)
@@ -384,7 +391,10 @@ class Detector:
                              "switch: events are functions of the states and dn.t")
         self.components = [ode.index(s) for s in used]
         self._g = [sp.lambdify([time_symbol, *used], e, "numpy") for e in exprs]
-        self.affine = [_affine(e, ode) for e in exprs]
+        #: rows whose function is sin(pi g) of the g given (:func:`_sin_pi`): a floor(g)
+        self.periodic = np.zeros(len(exprs), dtype=bool)
+        self.periodic[list(periodic)] = True
+        self.affine = [None if p else _affine(e, ode) for e, p in zip(exprs, self.periodic)]
         self.directions = np.array(directions)
         self.last = np.zeros(len(exprs))
         self.from_zero = np.arange(len(exprs)) >= len(exprs) - switches
@@ -393,10 +403,12 @@ class Detector:
         """g_j at the times, U the solution there (N, M): shape (n_g, M), or (len(rows), M)
         for the functions ``rows`` alone."""
         args = [U[i] for i in self.components]
-        functions = self._g if rows is None else [self._g[j] for j in rows]
-        out = np.empty((len(functions), times.size))
-        for g, row in zip(functions, out):
-            row[:] = g(times, *args)  # (broadcast: a constant g gives a number)
+        rows = range(len(self._g)) if rows is None else rows
+        out = np.empty((len(rows), times.size))
+        for j, row in zip(rows, out):
+            row[:] = self._g[j](times, *args)  # (broadcast: a constant g gives a number)
+            if self.periodic[j]:
+                row[:] = _sin_pi(row)
         return out
 
     def start(self, t, u):
@@ -471,6 +483,8 @@ class Plan:
     state_switches: list
     detector: Detector
     t_switches: Detector
+    #: g of each switch on the state (read for the branch of a floor(g) that crosses)
+    levels: Detector
 
     features: Features
     #: Whether f has jumps or there are events or given breakpoints (else the plan only
@@ -490,24 +504,29 @@ class Plan:
                ode.t0, ode.T,
                () if given_breakpoints is None else tuple(given_breakpoints),
                tuple((e.g, e.terminal, e.direction) for e in events))
-        times, on_state, detector, t_detector = ode._derived(
+        times, on_state, detector, t_detector, levels = ode._derived(
             "_plan", key, lambda: cls._parts(ode, switches, given_breakpoints, events))
         if not (switches or events or times.size):
             return None
-        return cls(switches, times, events, on_state, detector, t_detector, features,
+        return cls(switches, times, events, on_state, detector, t_detector, levels, features,
                    bool(switches or events or given_breakpoints is not None))
 
     @staticmethod
     def _parts(ode, switches, given_breakpoints, events):
-        """The breakpoints, the switches on the state and the two detectors of a plan."""
+        """The breakpoints, the switches on the state, the two detectors of a plan and the
+        switching functions g of those on the state. A floor(g) of the state jumps where g
+        crosses an integer: its detector watches sin(pi g)."""
         times = breakpoints(ode, switches, [] if given_breakpoints is None
                             else given_breakpoints, narrow_features(ode).edges())
         t_only = [s for s in switches if not (_numeric(s.g, ode).free_symbols - {time_symbol})]
         on_state = [s for s in switches if not any(s is o for o in t_only)]
         detector = Detector(ode, [e.g for e in events] + [s.g for s in on_state],
                             [e.direction for e in events] + [0] * len(on_state),
-                            switches=len(on_state))
-        return times, on_state, detector, Detector(ode, [s.g for s in t_only], [0] * len(t_only))
+                            switches=len(on_state),
+                            periodic=[len(events) + i for i, s in enumerate(on_state) if s.floor])
+        levels = Detector(ode, [s.g for s in on_state], [0] * len(on_state))
+        return (times, on_state, detector, Detector(ode, [s.g for s in t_only], [0] * len(t_only)),
+                levels)
 
     terminated = False
     switched = 0  # crossings of switches on the state where f jumps
@@ -524,8 +543,9 @@ class Plan:
         # (Abs(x) and Max(x, 0), on x and -x): located once, all switched at once
         on = {}
         for i, switch in enumerate(self.state_switches):
-            on.setdefault(switch.g, []).append(i)
-        self.partners = [[(i, 1.0) for i in on[s.g]] + [(i, -1.0) for i in on.get(-s.g, [])]
+            on.setdefault((switch.g, switch.floor), []).append(i)
+        self.partners = [[(i, 1.0) for i in on[s.g, s.floor]]
+                         + [(i, -1.0) for i in on.get((-s.g, s.floor), [])]
                          for s in self.state_switches]
 
     def solved_ode(self, ode):
@@ -568,9 +588,10 @@ class Plan:
         each switching function g on the final solution (:meth:`_samples`) against the
         crossings located. A crossing inside an element that was not located (an element
         longer than the time g takes to come back) leaves f on the wrong branch there.
-        Returns None when none was missed, else (step, where, g): a step bound for a new
+        Returns None when none was missed, else (step, where, what): a step bound for a new
         solve, a quarter of the shortest time between sign changes seen, and the time and
-        switching function of that shortest gap (None, None if no g changed sign twice)."""
+        crossing of that shortest gap ("g = 0", or "g at an integer" for a floor(g); None,
+        None if no g changed sign twice)."""
         if not self.state_switches or not sol.dense:
             return None
         # (partners cross together and are counted once)
@@ -584,7 +605,8 @@ class Plan:
                 gaps = np.diff(times[change])
                 if gaps.min() < shortest:
                     shortest, where = gaps.min(), float(times[change[np.argmin(gaps)]])
-                    switch = self.state_switches[k].g
+                    s = self.state_switches[k]
+                    switch = f"{s.g} at an integer" if s.floor else f"{s.g} = 0"
         if changes <= self.switched + self.kinked:
             return None
         span = sol.ode.T - sol.ode.t0
@@ -668,12 +690,22 @@ class Plan:
 
     def initial_branches(self, sigma, u0, t0, T):
         """sigma at t0 (the state switches from g(u0, t0), the t-only ones on the first
-        piece)."""
-        n_events = len(self.events)
-        g = self.detector.values(np.array([t0]), u0[:, None])[n_events:, 0]
+        piece; a g at its jump takes the branch there, and the branch it leaves to once it
+        leaves: :meth:`Detector.brackets`)."""
+        g = self.levels.values(np.array([t0]), u0[:, None])[:, 0]
         for s, value in zip(self.state_switches, g):
             sigma[self.switches.index(s)] = s.value(value)
         self.branches(sigma, t0, self.breakpoints[0] if self.breakpoints.size else T)
+
+    def branch_after(self, i, sign, t, x):
+        """sigma of state switch i after it crosses at (t, x), where its detected function
+        then has the sign ``sign``. For floor(g), g crosses the integer n = round(g(x, t)),
+        upwards where sin(pi g) takes the sign of (-1)^n: floor(g) = n, else n - 1."""
+        s = self.state_switches[i]
+        if not s.floor:
+            return s.value(sign)
+        n = round(float(self.levels.values(np.array([t]), x[:, None], [i])[0, 0]))
+        return float(n if sign * (-1) ** (n % 2) > 0 else n - 1)
 
     def branches(self, sigma, begin, end):
         """sigma on the piece (begin, end): the t-only switches from g at its midpoint, the
@@ -867,7 +899,7 @@ def march(plan, loop, t0, T):
                 same = plan.partners[j - n_events]
                 for i, sign in same:
                     s = plan.state_switches[i]
-                    sigma[plan.switches.index(s)] = s.value(sign * after)
+                    sigma[plan.switches.index(s)] = plan.branch_after(i, sign * after, te, loop.x)
                     plan.detector.last[n_events + i] = sign * after
                 if all(plan.state_switches[i].kink for i, _ in same):
                     plan.kinked += 1

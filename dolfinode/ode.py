@@ -81,6 +81,9 @@ def _as_expression(expr, state):
     if not isinstance(expr, sp.Expr) or isinstance(expr, sp.MatrixBase):
         raise TypeError(f"the right-hand side of {state} must be a scalar sympy expression, "
                         f"got {type(expr).__name__}: {expr}")
+    # a sawtooth written with Mod or frac is floor's jump, which the jump finder and C know
+    expr = expr.replace(sp.Mod, lambda x, p: x - p * sp.floor(x / p)).replace(
+        sp.frac, lambda x: x - sp.floor(x))
     if expr.has(sp.I, sp.zoo, sp.nan, sp.oo, sp.S.NegativeInfinity):  # one traversal
         raise ValueError(f"the right-hand side of {state} is not a finite real expression: {expr}")
     for call in expr.atoms(sp.Function, sp.Derivative, sp.Integral):

@@ -596,7 +596,7 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
     return solve_lowered(ode, compiled, plan, multi_adaptive, m, params)
 
 
-def _check_switch_retry(ode, params, step, where, g):
+def _check_switch_retry(ode, params, step, where, what):
     """Raise SolverError when the new solve of :func:`solve_lowered` with the step bound
     params["maximum_time_step"] would need more than maximum_steps slabs over [t0, T]: a
     switch that changes sign and back faster than any feasible step (a threshold of 1e-12
@@ -605,9 +605,9 @@ def _check_switch_retry(ode, params, step, where, g):
     slabs = (ode.T - ode.t0) / params["maximum_time_step"]
     if slabs <= params["maximum_steps"]:
         return
-    near = "" if where is None else f" ({g} = 0 twice in a short time near t = {where:.9g})"
+    near = "" if where is None else f" ({what} twice in a short time near t = {where:.9g})"
     raise SolverError(
-        f"a switch on the state (Piecewise/Heaviside/sign of a state in f) changes sign "
+        f"a switch on the state (Piecewise/Heaviside/sign/floor of a state in f) changes sign "
         f"inside elements that were not split there{near}: locating its crossings would need "
         f"maximum_time_step = {params['maximum_time_step']:.3g}, {slabs:.3g} steps over "
         f"[t0, T], more than maximum_steps = {params['maximum_steps']}, and f was evaluated on "
@@ -666,7 +666,7 @@ def solve_lowered(ode, compiled, plan, multi_adaptive, m, params):
         _check_switch_retry(ode, params, *missed)
         plan = ev.Plan.make(ode, plan.switches, params["breakpoints"], params["events"])
     raise SolverError(
-        f"a switch on the state (Piecewise/Heaviside/sign of a state in f) changes sign "
+        f"a switch on the state (Piecewise/Heaviside/sign/floor of a state in f) changes sign "
         f"inside elements that were not split there, even with maximum_time_step = "
         f"{params['maximum_time_step']:.3g}: f was evaluated on the wrong branch. Give a "
         "smaller maximum_time_step, or smooth the switch", t=float(ode.t0))

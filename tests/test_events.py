@@ -255,6 +255,43 @@ def test_state_switch_zero_at_t0_takes_the_branch_that_follows(method):
     assert abs(sol(1.0)[1] + 1.0) <= 1e-10
 
 
+def _staircase(t, w0, rate_at):
+    """w(t) of w' = rate_at(floor(w)) (> 0), from w0: piecewise linear."""
+    w, s = w0, 0.0
+    while True:
+        rate = rate_at(math.floor(w))
+        reach = s + (math.floor(w) + 1 - w) / rate
+        if reach >= t:
+            return w + rate * (t - s)
+        w, s = math.floor(w) + 1.0, reach
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mcG(2)", "mdG(1)"])
+def test_floor_of_the_state_switches_at_every_integer(method):
+    """floor(g) of the state jumps where g crosses any integer, not only 0: w' = 1.1 +
+    2 floor(w) from 0.1 ran past w = 1, 2, 3 on the first branch (1.64 for 3.45 at T = 1.4,
+    unwarned); ceiling(g) = -floor(-g) is its partner and switches with it."""
+    ode = dn.ODE({u: sp.Float(1.1) + sp.floor(u) + sp.ceiling(u) - 1}, u0=[0.1], T=1.4)
+    sol = dn.solve(ode, method=method, tolerance=1e-8)
+    exact = _staircase(1.4, 0.1, lambda n: 1.1 + 2 * n)
+    assert sol.stats["state switches"] == math.floor(exact) == 3
+    assert abs(sol(1.4)[0] - exact) <= 2e-8 * (1 + abs(exact))
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mdG(1)"])
+@pytest.mark.parametrize("rhs, u0, exact", [
+    # g = 2u starts at the jump 0 and leaves it upwards: floor(2u) = 0 there, not 1
+    (sp.Float(1.1) - 4 * u + 2 * sp.floor(2 * u), 0.0,
+     lambda t: 0.275 * (1 - math.exp(-4 * t))),
+    # u starts at the jump 1 and leaves it downwards: floor(u) = 0 after t0, -1 after t = 1
+    (-1 + sp.Float(0.3) * sp.floor(u), 1.0, lambda t: 1 - t if t <= 1 else -1.3 * (t - 1)),
+])
+def test_floor_of_the_state_at_its_jump_at_t0_takes_the_branch_that_follows(
+        method, rhs, u0, exact):
+    sol = dn.solve(dn.ODE({u: rhs}, u0=[u0], T=1.5), method=method, tolerance=1e-8)
+    assert abs(sol(1.5)[0] - exact(1.5)) <= 1e-7
+
+
 def test_coulomb_friction_from_rest():
     # x'' = -x - mu sign(x'), at rest at x = 1: each half period the amplitude drops by 2 mu
     mu = 0.1

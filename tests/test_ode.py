@@ -373,6 +373,19 @@ def test_allowed_functions_are_accepted():
     assert ode.rhs == tuple(rhs.values())
 
 
+def test_mod_and_frac_are_floors():
+    """A sawtooth written with Mod or frac is accepted as the floor it is, whose jumps the
+    solver finds (both were refused as 'cannot be compiled')."""
+    p = sp.Symbol("p")
+    ode = dn.ODE({u: sp.Mod(dn.t, p) + sp.frac(2 * dn.t), v: -v}, u0=[0.0, 1.0], T=2.0,
+                 params={p: 0.75})
+    assert not ode.rhs[0].has(sp.Mod, sp.frac)
+    sol = dn.solve(ode, method="cG(2)", tolerance=1e-8)
+    # the integrals of the teeth: 2 of 0.75^2/2, one of 0.5^2/2; 4 of 1/4 (frac(2t))
+    exact = 2 * 0.75**2 / 2 + 0.5**2 / 2 + 4 * 0.25
+    assert abs(sol(2.0)[0] - exact) <= 1e-8
+
+
 def test_derivative_in_rhs_cannot_be_compiled():
     with pytest.raises(ValueError, match=r"uses Derivative\(.*\), which cannot be compiled"):
         declare(rhs={u: v, v: sp.Derivative(sp.sin(u), u, evaluate=False)})

@@ -247,7 +247,7 @@ def estimate_linearised(sol, goal, dual_degree=None, quadrature_points=None,
                          "automatic_modeling for an estimate of the discretisation error")
     if sol.stats.get("state switches"):
         raise ValueError(f"the solution crossed {sol.stats['state switches']} switches on the "
-                         "state (Piecewise/Heaviside/sign of a state in f): the "
+                         "state (Piecewise/Heaviside/sign/floor of a state in f): the "
                          "dual linearised at U misses the jump of the sensitivity where the "
                          "switching time moves with the solution, so the estimate could fall "
                          "below the error. Estimate on a smooth (regularised) model instead")
