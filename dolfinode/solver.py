@@ -31,6 +31,7 @@ import time
 import weakref
 from collections import namedtuple
 from collections.abc import Mapping
+from types import MappingProxyType
 
 import numpy as np
 
@@ -137,13 +138,28 @@ class Solver:
         self._multi_adaptive, self._method = parse_method(base or method)
         self._params = check_parameters(parameters)
         check_tolerance(self._params)
-        self.ode = ode
-        self.method = method
-        self.parameters = dict(parameters)
+        self._ode, self._method_text = ode, method
+        self._given = MappingProxyType(dict(parameters))
         self._pool = pool
         self._continued = 0  # prepared calls that did not end in the kept buffers
         self._driver = self._params["automatic_modeling"] or self._auto  # (many solves a call)
         self._prepare()
+
+    @property
+    def ode(self):
+        """The declaration solved: its values (params, u0, T) are read at every call."""
+        return self._ode
+
+    @property
+    def method(self):
+        """The method, as given."""
+        return self._method_text
+
+    @property
+    def parameters(self):
+        """The parameters given, read-only (the solver checked and lowered them once): a
+        Solver with other parameters is a new Solver."""
+        return self._given
 
     def _prepare(self):
         """Lower the declaration (kept on it for every call) and decide the path; the

@@ -151,6 +151,19 @@ def test_a_solution_s_parameters_are_its_own(oscillator, method):
     _assert_same_solution(solver.solve(), dn.solve(oscillator, method=method, tolerance=1e-6))
 
 
+def test_a_solver_s_own_parameters_cannot_be_changed(oscillator):
+    """A Solver checked and lowered its method and parameters once: changing them after was
+    silently ignored (solver.parameters["tolerance"] = 1e-3 solved at 1e-8 still)."""
+    solver = dn.Solver(oscillator, method="cG(2)", tolerance=1e-8)
+    with pytest.raises(TypeError):
+        solver.parameters["tolerance"] = 1e-3
+    for name, value in [("parameters", {"tolerance": 1e-3}), ("method", "dG(1)"),
+                        ("ode", oscillator)]:
+        with pytest.raises(AttributeError):
+            setattr(solver, name, value)
+    assert solver.solve().parameters["tolerance"] == 1e-8 and solver.method == "cG(2)"
+
+
 def test_kept_solvers_sharing_buffers_leave_an_earlier_solution_alone(oscillator):
     """dn.solve's kept solvers of one declaration share their buffers: a solution of one
     option set, still shared, copies them before a call with other options writes them."""
