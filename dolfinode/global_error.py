@@ -873,7 +873,8 @@ def slab_estimate(sol, compiled=None, weight=None):
                          f"{size / 2**30:.3g} GB, more than {COMMON_MEMORY_FRACTION:g} x the "
                          "memory available")
     ends, counts = np.unique(t_end, return_counts=True)
-    sync = np.unique(np.concatenate([[sol.ode.t0], ends[counts == N], s_start, s_end]))
+    declared = sol._declaration  # (t0, u0; a prepared solution's ode is made when read)
+    sync = np.unique(np.concatenate([[declared.t0], ends[counts == N], s_start, s_end]))
     to_monomial, gx, gw, points = _slab_rules(tuple(float(c) for c in method.nodes))
     coef = np.ascontiguousarray(values @ to_monomial)
     weight = np.ones(N) if weight is None else np.asarray(weight, dtype=float)
@@ -883,7 +884,7 @@ def slab_estimate(sol, compiled=None, weight=None):
         compiled.p, compiled.indptr, compiled.indices, np.asarray(ptr, dtype=np.int64),
         t_start, t_end, coef, np.asarray(s_start, dtype=float),
         np.ascontiguousarray(s_values, dtype=float), to_monomial, sync,
-        np.asarray(sol.ode.u0, dtype=float), weight, second, method.family == "cG", gx, gw,
+        np.asarray(declared.u0, dtype=float), weight, second, method.family == "cG", gx, gw,
         points)
     return (e, nu, float(np.max(second))) if settled else None
 
