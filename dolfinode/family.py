@@ -520,9 +520,10 @@ def _joined(ode, pieces, samples):
 def _parts(sol):
     """((ptr, t_start, t_end, values) of the elements by component, (s_start, s_end,
     s_values) of the shared slabs) of a stretch, without joining a MixedSolution's parts."""
-    N, nn = sol.ode.N, sol.method.q + 1
+    declared, nn = sol._declaration, sol.method.q + 1  # (not sol.ode: made when read)
+    N = declared.N
     if not sol.multi:
-        end = np.append(sol.t_start[1:], sol.ode.T)
+        end = np.append(sol.t_start[1:], declared.T)
         return ((np.zeros(N + 1, dtype=np.int64), np.empty(0), np.empty(0),
                  np.empty((0, nn))), (sol.t_start, end, sol.values))
     parts = sol.__dict__.get("_parts")

@@ -1344,7 +1344,8 @@ def _reference_error(ode, params, sol, atol):
         return None
     if lost_components(ode, lower(ode), reference):  # (it lost what the run kept)
         return None
-    end = min(sol.ode.T, reference.ode.T)
+    # (what evaluation reads: a prepared solution's declaration is made when read)
+    end = min(sol._declaration.T, reference._declaration.T)
     V = reference(end)
     return global_error.scaled(sol(end) - V, V, atol, rtol)
 

@@ -7,8 +7,8 @@ steps and values, bit for bit. The parameter values reach the compiled kernels a
 vector ``p`` of each call, never through the declaration the solver was made from.
 
 A solve without events, breakpoints, switches or automatic modeling, with its history in
-memory (and for cG/dG a Newton matrix storage decided up front: all but sparse systems whose
-storage no earlier solve has analysed), takes the prepared path: the solver keeps, per
+memory (and for cG/dG a Newton matrix storage decided: a sparse system's once a solve has
+analysed it, the solver's own first call where none did), takes the prepared path: the solver keeps, per
 interval [t0, T], a work space (its own kernels, the options and tolerances, the arrays of
 the start and of the loop, and output buffers as large as the first ones of dn.solve) and
 the loop's whole argument tuple; a call writes the values that changed into it, runs the
@@ -183,6 +183,9 @@ class Solver:
         self._maximum_steps = params["maximum_steps"]
         # the fewest steps whose error at T check_error_at_T checks (estimate_global_error)
         self._checked_from = fewest_checked_steps(params["estimate_global_error"])
+        # a sparse candidate's Newton storage, decided by its first solve that needs Newton's
+        # method: the general path until then, this solver prepared again once it is
+        self._awaited_plans = None
         if (plan is None and params["dense_output"] is True and not params["progress"]
                 and not params["automatic_modeling"] and not self._auto
                 and params["estimate_global_error"] is not True):
@@ -197,6 +200,8 @@ class Solver:
                 (self._times, out_X), self._holder = self._kept_buffers(
                     (((2, size), float), ((size, m.q + 1, ode.N), float)))
                 self._buffers = (self._times[0], self._times[1], out_X)
+            else:
+                self._awaited_plans = compiled.newton_plans  # (shared by lower's copies)
 
     def _kept_buffers(self, shapes):
         """Output buffers of the given (shape, dtype)s from the pool, made when missing, and
@@ -239,6 +244,8 @@ class Solver:
         sol = solve_lowered(work, compiled, plan, self._multi_adaptive, self._method,
                             self._params)
         sol.parameters = dict(sol.parameters)  # (the solver's own: every call reads them)
+        if self._awaited_plans is not None and self._method.name in self._awaited_plans:
+            self._prepare()
         return sol
 
     def _declaration(self, u0, params, T, t0):

@@ -7,6 +7,7 @@ import sympy as sp
 
 import dolfinode as dn
 from dolfinode.compile.jit import Loop
+from dolfinode.solution import PreparedSolution
 
 u, v, k = sp.symbols("u v k")
 
@@ -194,6 +195,23 @@ def test_solver_takes_the_prepared_path_where_it_can(oscillator, monkeypatch):
     samples = dn.Solver(oscillator, method="dG(1)", dense_output=False).solve(u0=[2.0, 0.0])
     np.testing.assert_array_equal(samples.y, dn.solve(dn.vary(oscillator, {"u0": [2.0, 0.0]}),
                                                       method="dG(1)", dense_output=False).y)
+
+
+def test_a_sparse_candidate_takes_the_prepared_path_once_its_storage_is_decided():
+    """POLLU (20 components, a band of 15 + 15: its Newton storage is analysed by the first
+    solve that needs Newton's method) on a fresh declaration: the first call takes the
+    general path, the later ones the prepared path, bitwise the same solution."""
+    from dolfinode.bench import problems
+
+    ode = problems.pollu().ode
+    options = {"tolerance": 1e-6, "estimate_global_error": False}
+    solver = dn.Solver(ode, method="dG(3)", **options)
+    assert solver._buffers is None
+    first = solver.solve()
+    assert solver._buffers is not None
+    second = solver.solve()
+    assert isinstance(second, PreparedSolution) and not isinstance(first, PreparedSolution)
+    _assert_same_solution(second, first)
 
 
 @pytest.mark.parametrize("method", ["cG(1)", "mcG(1)"])
