@@ -279,34 +279,62 @@ def _sampled_roots(g, t0, T):
     """The roots of g in [t0, T] from its sign changes on ROOT_GRID equispaced times, each
     refined by Brent's method to rounding. Two roots inside one cell (a window of t
     narrower than the grid) leave no sign change; so a cell whose ends have one sign but
-    whose interval enclosure (:func:`dolfinode.features.enclose`) holds 0 is sampled again
-    at ROOT_SPLIT times, and so on down to MIN_WIDTH (T - t0): the windows left out of
-    sin(t^2) > 1 - 1e-5 on [0, 20] (5 of 64) were lost from the solution and from the
-    reference its error is measured against. Where g has no enclosure, or more than
-    ROOT_GRID cells stay in doubt (an enclosure too loose to decide), the grid's roots are
-    returned."""
-    function = sp.lambdify(time_symbol, g, "numpy")
-    a, b, n = np.array([t0]), np.array([T]), ROOT_GRID - 1
+    whose interval enclosure holds 0 is sampled again (:func:`_sampled`): the windows
+    left out of sin(t^2) > 1 - 1e-5 on [0, 20] (5 of 64) were lost from the solution and
+    from the reference its error is measured against."""
+    def hides_roots(start, end, low, high):
+        return (start * end > 0) & (low <= 0) & (high >= 0)
+
     roots = []
+    for function, times, values in _sampled(g, t0, T, ROOT_GRID - 1, hides_roots):
+        sign = np.sign(values)
+        roots += times[sign == 0].tolist()
+        change = np.flatnonzero((sign[:, :-1] * sign[:, 1:]).ravel() < 0)
+        left, right = times[:, :-1].ravel(), times[:, 1:].ravel()
+        roots += [brentq(function, left[i], right[i], xtol=1e-300) for i in change]
+    return sorted(set(roots))
+
+
+def _range(g, t0, T):
+    """(lowest, highest) value of g on [t0, T] to the integer levels that matter to
+    floor(g): its values on 1000 cells, and on the cells whose interval enclosure reaches
+    an integer level beyond them, sampled again (:func:`_sampled`): the levels of a spike
+    between samples (floor(10 exp(-((t - 3.0037) / 1e-3)^2))) were missed."""
+    bounds = [np.inf, -np.inf]
+
+    def beyond(start, end, low, high):
+        return (low < math.floor(bounds[0]) - 1) | (high > math.ceil(bounds[1]) + 1)
+
+    for _, _, values in _sampled(g, t0, T, 1000, beyond):
+        bounds = [min(bounds[0], np.min(values)), max(bounds[1], np.max(values))]
+    return bounds
+
+
+def _sampled(g, t0, T, n, doubtful):
+    """(function, times, values) of g: on n equal cells of [t0, T] (times (1, n + 1)), then,
+    round after round, on each cell that ``doubtful(g at its start, g at its end, low,
+    high)`` flags (low, high: g's interval bounds on it, :func:`~dolfinode.features.enclose`)
+    split ROOT_SPLIT-fold (times (cells, ROOT_SPLIT + 1)), down to MIN_WIDTH (T - t0).
+    Sampling alone sees nothing between two samples; the bounds hold over the whole cell.
+    It stops where g has no bounds (atan2) or more than ROOT_GRID cells are in doubt (bounds
+    too loose to decide)."""
+    function = sp.lambdify(time_symbol, g, "numpy")
+    a, b = np.array([t0]), np.array([T])
     while a.size:
         times = a[:, None] + (b - a)[:, None] * np.linspace(0.0, 1.0, n + 1)
         times[:, -1] = b
-        sign = np.sign(function(times) * np.ones_like(times))
-        roots += times[sign == 0].tolist()
+        values = function(times) * np.ones_like(times)
+        yield function, times, values
         left, right = times[:, :-1].ravel(), times[:, 1:].ravel()
-        product = (sign[:, :-1] * sign[:, 1:]).ravel()
-        roots += [brentq(function, left[i], right[i], xtol=1e-300)
-                  for i in np.flatnonzero(product < 0)]
-        same = (product > 0) & (right - left > MIN_WIDTH * (T - t0))
+        wide = right - left > MIN_WIDTH * (T - t0)
         try:
-            low, high = enclose(g, left[same], right[same])
+            low, high = enclose(g, left[wide], right[wide])
         except Unbounded:
-            break
-        doubt = (low <= 0) & (high >= 0)
+            return
+        doubt = doubtful(values[:, :-1].ravel()[wide], values[:, 1:].ravel()[wide], low, high)
         if np.count_nonzero(doubt) > ROOT_GRID:
-            break
-        a, b, n = left[same][doubt], right[same][doubt], ROOT_SPLIT
-    return sorted(set(roots))
+            return
+        a, b, n = left[wide][doubt], right[wide][doubt], ROOT_SPLIT
 
 
 def _periodic_roots(g, t0, T):
@@ -359,9 +387,8 @@ def breakpoints(ode, switches, given, edges=()):
         if not s.floor:
             times += _roots_in(g, t0, T)
             continue
-        grid = np.linspace(t0, T, 1001)
-        values = sp.lambdify(time_symbol, g, "numpy")(grid) * np.ones_like(grid)
-        low, high = math.floor(np.min(values)) - 1, math.ceil(np.max(values)) + 1
+        low, high = _range(g, t0, T)
+        low, high = math.floor(low) - 1, math.ceil(high) + 1
         if high - low > MAX_BREAKPOINTS:
             raise ValueError(f"floor/ceiling of {s.g} jumps more than {MAX_BREAKPOINTS} times "
                              "on [t0, T]: smooth it, or split the solve")

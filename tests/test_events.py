@@ -111,6 +111,19 @@ def test_windows_narrower_than_the_root_grid_are_found(method):
     assert abs(sol(T)[0] - exact) <= 1e-6 * (1 + exact)
 
 
+def test_floor_of_a_spike_between_the_range_samples():
+    """u' = floor(10 exp(-((t - c) / 1e-3)^2)) on [0, 10], c = 3.0037 off the 1001 times the
+    range of floor's argument was read from: the levels 1..9 were missed (4 breakpoints of
+    18, u(T) 0.0259 for 0.0156: 1e5 x the tolerance, silent). Exact u(T) = sum_n 2 w
+    sqrt(ln(10 / n))."""
+    w = 1e-3
+    exact = sum(2 * w * np.sqrt(np.log(10 / n)) for n in range(1, 10))
+    ode = dn.ODE({u: sp.floor(10 * sp.exp(-((dn.t - 3.0037) / w) ** 2))}, u0=[0.0], T=10.0)
+    sol = dn.solve(ode, "dG(1)", tolerance=1e-7)
+    assert sol.stats["breakpoints"] >= 18
+    assert abs(sol(10.0)[0] - exact) <= 1e-7
+
+
 #: x' = 1 below x = 1, 3 above: x(t) = t to t = 1, then 1 + 3 (t - 1)
 SWITCHES = [sp.Piecewise((1, x < 1), (3, True)), 1 + 2 * sp.Heaviside(x - 1), 2 + sp.sign(x - 1)]
 
