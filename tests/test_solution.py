@@ -119,6 +119,20 @@ def test_initial_time_gives_initial_value(method):
     assert sol(0.0)[0] == 1.0 and sol.y[0, 0] == 1.0
 
 
+@pytest.mark.parametrize("method", ["cG(1)", "cG(2)", "dG(2)", "mcG(2)"])
+def test_times_a_subnormal_distance_after_t0(method):
+    """sol(t) for t = 5e-324 .. 1e-310 after t0 = 0: tau is that close to a node, where the
+    barycentric weight bary_j / (tau - node) overflowed and the value was inf / inf = NaN
+    (every method but dG(0) and mdG(2)). It is the initial value to rounding."""
+    u, v = sp.symbols("u v")
+    sol = dn.solve(dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=6.0), method, tolerance=1e-6)
+    times = np.array([5e-324, 1e-320, 1e-310, 1e-300])
+    assert np.allclose(sol(times), np.repeat([[1.0], [0.0]], times.size, axis=1),
+                       rtol=0.0, atol=1e-15)
+    assert np.allclose(sol.method.basis(times), np.repeat(sol.method.basis(0.0), 4, axis=0),
+                       rtol=0.0, atol=1e-15)
+
+
 def test_evaluation_is_the_element_polynomial():
     """U(t) on the shared partition is the Lagrange polynomial of the element containing t
     (the left one at element ends): against the method's basis, at many times (sol(t) is

@@ -15,6 +15,7 @@ import sympy as sp
 from sympy.core.function import AppliedUndef
 
 from dolfinode.compile.lowering import _derivative
+from dolfinode.features import NONE, narrow_features
 from dolfinode.ode import t as time_symbol
 
 
@@ -66,12 +67,23 @@ class Goal:
 
 class _Functional:
     """One part (G or g) of a goal, resolved for an ODE: a constant weight vector or the
-    gradient of an expression, evaluated on arrays of states."""
+    gradient of an expression, evaluated on arrays of states.
+
+    Attributes
+    ----------
+    breakpoints : ndarray
+        The times in (t0, T) where an integrand g(u, t) jumps in t (a window of t).
+    features : Features
+        Its narrow features in t (a pulse as a kernel for an interior time), as
+        :func:`dolfinode.features.narrow_features` finds them in f.
+    """
 
     def __init__(self, spec, ode, what, allow_time):
         self.N = ode.N
         self.weights = None
         self.gradient = None
+        self.breakpoints = np.empty(0)
+        self.features = NONE
         if isinstance(spec, sp.Basic):
             self._expression(spec, ode, what, allow_time)
         else:
@@ -117,6 +129,8 @@ class _Functional:
                              for c in columns])
 
         self.gradient = gradient
+        if allow_time and expr.has(time_symbol):
+            self.breakpoints, self.features = _time_structure(expr, ode)
 
     def at(self, U, times):
         """Weights (N, M) at the states U (N, M) and times (M,)."""
@@ -126,6 +140,21 @@ class _Functional:
         if not np.all(np.isfinite(values)):
             raise ValueError("the goal's gradient is not finite at the computed solution")
         return values
+
+
+def _time_structure(expr, ode):
+    """(breakpoints, features) of the integrand ``expr`` in t on [t0, T], found as for a
+    right-hand side: of an ODE whose one equation is the integrand (the states it reads
+    held as states, so that only its terms free of them are searched)."""
+    from dolfinode.events import breakpoints, switched  # (events imports the solver)
+    from dolfinode.ode import ODE
+
+    read = sorted(expr.free_symbols & set(ode.states), key=ode.index)
+    probe = ODE({sp.Dummy("goal"): expr, **dict.fromkeys(read, sp.S.Zero)},
+                u0=np.zeros(1 + len(read)), T=ode.T, t0=ode.t0)
+    _, switches = switched(probe)
+    features = narrow_features(probe)
+    return breakpoints(probe, switches, (), features.edges()), features
 
 
 def _weights(spec, ode, what):

@@ -236,17 +236,33 @@ def _backward_cg_sparse(jac_address, p, indptr, indices, position, grid, ptr, t_
 class PrimalPolynomials:
     """The stored solution U in the layout the dual needs: per-component elements in time
     order, each a polynomial in tau = (t - t_start) / (t_end - t_start) in monomial form, and
-    the union grid of all element end points."""
+    the union grid of all element end points, refined where the goal's integrand needs it:
+    its jumps in t are grid points, and inside its narrow features the intervals are no
+    longer than the feature's step (the dual's source is read at the grid's nodes only: a
+    window of t between two nodes was read as 0, and the estimate with it)."""
 
-    def __init__(self, sol):
+    def __init__(self, sol, integral=None):
         ptr, t_start, t_end, values = sol.elements()
         self.ptr, self.t_start, self.t_end = ptr, t_start, t_end
         self.coef = np.ascontiguousarray(values @ monomial_coefficients(sol.method.nodes))
         points = np.unique(np.concatenate([t_start, t_end]))
+        if integral is not None:
+            points = _refined(points, integral)
         # end points that differ by rounding only (multi-adaptive sub-slabs) are one point
         keep = np.diff(points, prepend=-np.inf) > 1e-13 * (sol.ode.T - sol.ode.t0)
         self.grid = points[keep]
         self.grid[-1] = sol.ode.T
+
+
+def _refined(points, integral):
+    """``points`` with the integrand's breakpoints, and points a feature's step apart
+    across each of its narrow features."""
+    features = integral.features
+    more = [integral.breakpoints]
+    for start, end, step in zip(features.start, features.end, features.step):
+        more.append(np.linspace(start, end, int(np.ceil((end - start) / step)) + 1))
+    more = np.concatenate(more)
+    return np.union1d(points, more[(more > points[0]) & (more < points[-1])])
 
 
 class DualSolution:
@@ -319,7 +335,7 @@ def solve_dual(sol, final, integral, degree, primal=None, linear_solver="auto"):
         raise ValueError(f"linear_solver must be 'auto', 'banded' or 'sparse', got "
                          f"{linear_solver!r}")
     ode = sol.ode
-    primal = primal or PrimalPolynomials(sol)
+    primal = primal or PrimalPolynomials(sol, integral)
     compiled = lower(ode)
     _, position, kl, ku = compiled.ordering
     m = make_method("cG", degree)
@@ -330,8 +346,11 @@ def solve_dual(sol, final, integral, degree, primal=None, linear_solver="auto"):
     if integral is None:
         source = np.zeros((1, degree + 1, ode.N))
     else:
-        times = (grid[:-1, None] + np.outer(np.diff(grid), m.nodes)).ravel()
-        weights = integral.at(sol(times), times)
+        times = grid[:-1, None] + np.outer(np.diff(grid), m.nodes)
+        # g's t read on each interval's own side of a jump at its ends (a window of t)
+        inside = np.clip(times, np.nextafter(grid[:-1], grid[1:])[:, None],
+                         np.nextafter(grid[1:], grid[:-1])[:, None]).ravel()
+        weights = integral.at(sol(times.ravel()), inside)
         source = np.ascontiguousarray(weights.T.reshape(len(grid) - 1, degree + 1, ode.N))
     phi = np.empty((len(grid) - 1, degree + 1, ode.N))
     arguments = (grid, primal.ptr, primal.t_start, primal.t_end, primal.coef, np.array(m.A),

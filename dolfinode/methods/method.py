@@ -91,7 +91,7 @@ class Method:
         """Lagrange basis l_j(tau) on the nodes, shape (len(tau), q+1), by the barycentric formula."""
         tau = np.atleast_1d(np.asarray(tau, dtype=float))
         diff = tau[:, None] - self.nodes[None, :]
-        exact = diff == 0.0
+        exact = np.abs(diff) < NODE_HIT
         hit = exact.any(axis=1)
         values = exact.astype(float)
         terms = self.barycentric_weights / diff[~hit]
@@ -113,6 +113,12 @@ def real_eigenvalues(eigenvalues):
     return real
 
 
+#: |tau - node| below which tau is taken as the node in the barycentric formula: bary_j / d
+#: overflowed to inf and the value was inf / inf = NaN (sol(t) at t = 1e-320 after t0 = 0);
+#: the interpolant moves by |d| |U'| k there, far below rounding.
+NODE_HIT = 1e-250
+
+
 @njit(cache=True, inline="always")
 def element_value(values, e, tau, nodes, bary):
     """The polynomial of element e at tau (in [0, 1], or past it to extrapolate) from its
@@ -122,7 +128,7 @@ def element_value(values, e, tau, nodes, bary):
     den = 0.0
     for j in range(nodes.shape[0]):
         d = tau - nodes[j]
-        if d == 0.0:
+        if abs(d) < NODE_HIT:
             return values[e, j]
         w = bary[j] / d
         num += w * values[e, j]
@@ -138,7 +144,7 @@ def lagrange_weights(tau, nodes, bary, weights):
     den = 0.0
     for j in range(nodes.shape[0]):
         d = tau - nodes[j]
-        if d == 0.0:  # tau is node j
+        if abs(d) < NODE_HIT:  # tau is node j
             for m in range(nodes.shape[0]):
                 weights[m] = 0.0
             weights[j] = 1.0
