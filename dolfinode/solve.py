@@ -15,6 +15,7 @@ from dolfinode import timeslab as ts
 from dolfinode.adaptivity import (
     UNDAMPED_DEVIATION,
     filter_constant,
+    step_absolute_tolerance,
     step_tolerance,
     stiff_loosening,
     undamped_warning,
@@ -751,7 +752,8 @@ def _options(ode, m, params, multi_adaptive, atol):
             step = step_tolerance(m, rtol, multi_adaptive)
             loosening = stiff_loosening(m, rtol, step, multi_adaptive)
             delivered = rtol / step
-            atol, rtol = atol * (step / rtol), step
+            atol = step_absolute_tolerance(m, atol, rtol, step, multi_adaptive)
+            rtol = step
     return atol, contract.options(
         solver=NONLINEAR_SOLVERS.index(params["nonlinear_solver"]), fixed=fixed,
         max_iter=params["maximum_iterations"], is_dg=m.family == "dG", rtol=rtol, T=ode.T,
