@@ -1206,7 +1206,10 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
     where the run is stiff on a slab it gives up (:func:`_stiff_on_slabs`), and where its
     elements' copy exceeds the memory sol.stats["global error note"] says that the error at T
     was not estimated. ``running``: the estimate carried chunk by chunk
-    (:class:`global_error.Running`)."""
+    (:class:`global_error.Running`). The stage recursion also gives the largest error at
+    an element end mid-run, "global error mid-run", with a ToleranceWarning where it
+    exceeds 10 x the tolerance and the estimate at T does not
+    (:func:`global_error.midrun_warning`)."""
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
     if slabs:
@@ -1220,10 +1223,10 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
         if found is None:
             _stiff_on_slabs(ode, params, sol, atol)
             return
-    elif running is not None:
-        found = running.e, running.nu, running.delta
     else:
-        found = global_error.estimate(sol, compiled, atol / rtol)
+        if running is None:
+            running = global_error.carried(sol, compiled, atol / rtol)
+        found = running.e, running.nu, running.delta
     e, nu, delta = found
     # scaled by u(T) ~ U(T) - e, as the tolerance means: where the run damped |U| below |u|
     # (a stiff spring stepped over) U's own scale overstates the error (mdG(3) on the
@@ -1243,6 +1246,11 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
         _measure(ode, params, sol, atol, global_error.SECOND_ORDER)
         return
     why = global_error.warning(size, nu, rtol, ode.states[i])
+    if running is not None and running.peak[0] > 0.0:
+        peak, time, j = running.peak
+        sol.stats["global error mid-run"] = float(peak)
+        why = why or global_error.midrun_warning(peak, time, size, nu, rtol,
+                                                 ode.states[int(j)])
     if why and nu > global_error.NONLINEAR_LIMIT and np.isfinite(size):
         measured = _reference_error(ode, params, sol, atol)
         if measured is not None:

@@ -302,6 +302,34 @@ def test_multi_adaptive_stiff_component_within_ten_times_at_every_element_end(na
     assert worst <= 10 or warned, worst
 
 
+@pytest.mark.parametrize("method", ["mdG(2)", "dG(2)"])
+def test_error_mid_run_at_element_ends_is_estimated_and_warned(method):
+    """mdG(2) on the mix at 1e-8: d reads a inside a's long elements, whose Galerkin
+    polynomial is far off there (right at a's own ends), and is 20 x the tolerance off at
+    its element ends mid-run, 0.06 x at T, where the estimate looks; its recursion passes
+    every element end, and "global error mid-run" is the largest error there (scaled as the
+    tolerance means it), with a ToleranceWarning above 10 x. dG(2) stays within, unwarned."""
+    ode, f = stiff_read_problem("mix")
+    tolerance = 1e-8
+    reference = solve_ivp(f, (0.0, ode.T), np.array(ode.u0, float), method="Radau",
+                          rtol=1e-13, atol=1e-15, dense_output=True)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", dn.ToleranceWarning)
+        sol = dn.solve(ode, method, tolerance=tolerance)
+    warned = [str(w.message) for w in caught if issubclass(w.category, dn.ToleranceWarning)]
+    worst = 0.0
+    for i in range(ode.N):
+        starts, steps = sol.time_steps(i)
+        ends = starts + steps
+        exact = reference.sol(ends)[i]
+        worst = max(worst, np.max(np.abs(sol(ends)[i] - exact) / (1 + np.abs(exact))))
+    assert sol.stats["global error mid-run"] == pytest.approx(worst, rel=0.2)
+    if worst > 10 * tolerance:
+        assert any("mid-run" in w and "in d" in w for w in warned), warned
+    else:
+        assert not warned, warned
+
+
 def test_rober_cg_says_it_cannot_damp_and_dg_steps_over():
     """cG(q) is not L-stable: on ROBER at 1e-3 it took 322,000 slabs; now it stops after a
     few thousand with a SolverError that names dG(q), which reaches T in a few hundred
