@@ -459,8 +459,7 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
     is added to R at every stage of the slab ``slabs[i]`` (increasing;
     :func:`_feature_shifts`). ``peak`` (in place: value, time, component) keeps the
     largest |e_{n,i}| / (weight_i + |U_i(t_n) - e_{n,i}|) over the slabs' ends t_n, scaled
-    as :func:`scaled` (the error mid-run), where ``own_ends[n, i]`` (all where it has no
-    rows): an end of component i's own element."""
+    as :func:`scaled` (the error mid-run), where ``own_ends[n, i]``."""
     f, jac = rhs_kernel(rhs), rhs_kernel(jacobian)
     M, s, N, nnz = k.size, nodes.size, e0.size, indices.size
     U, R, F = np.empty((s + 1, N)), np.empty((s, N)), np.empty((s, N))
@@ -558,7 +557,7 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
             e[r] = b[s * position[r] + s - 1]
             starts[r, 0], starts[r, 1] = x[r], g[r]
             g[r] = c[s * position[r] + s - 1]
-            if own_ends.shape[0] == 0 or own_ends[n, r]:
+            if own_ends[n, r]:
                 ratio = abs(e[r]) / (weight[r] + abs(U[s, r] - e[r]))
                 if ratio > peak[0]:
                     peak[0], peak[1], peak[2] = ratio, t_start[n] + k[n], r
@@ -620,8 +619,7 @@ def _common_slabs(sol):
                          sol.ode.t0, sol.ode.u0, times, values)
     _set_initial(times, sol.ode.t0, sol.ode.u0, values)
     values = np.ascontiguousarray(values.T.reshape(len(k), len(nodes), -1))
-    # (each component's element ends among the slabs' ends: its nodal values, where the
-    # error mid-run is compared with the tolerance; the others lie inside its elements)
+    # (each component's element ends among the slabs' ends)
     own_ends = np.zeros((len(k), sol.ode.N), dtype=np.bool_)
     ptr = sol._component_ptr
     for i in range(sol.ode.N):
@@ -629,6 +627,19 @@ def _common_slabs(sol):
         own_ends[np.clip(slab, 0, len(k) - 1), i] = True
     return SimpleNamespace(method=sol.method, ode=sol.ode, t_start=t_start, k=k, values=values,
                            own_ends=own_ends)
+
+
+def _read_inside(own_ends, indptr, indices):
+    """Where a component's element ends while a component its f_i reads is inside an
+    element (``own_ends`` of :func:`_common_slabs`; the pattern of df/du): the ends whose
+    error the step control cannot see, as it bounds each element's residual at its end, with
+    the others read from their Galerkin polynomials, not their errors."""
+    inside = np.zeros_like(own_ends)
+    for i in range(own_ends.shape[1]):
+        reads = [j for j in indices[indptr[i]:indptr[i + 1]] if j != i]
+        if reads:
+            inside[:, i] = own_ends[:, i] & ~np.all(own_ends[:, reads], axis=1)
+    return inside
 
 
 #: Systems whose stage matrices ((q + 2) N rows per slab) have no narrow band, a non-constant
@@ -677,12 +688,17 @@ def estimate(sol, compiled=None, weight=None):
 
 def carried(sol, compiled=None, weight=None):
     """The :class:`Running` recursion of :func:`estimate` carried over the whole of ``sol``
-    (its e, nu, delta and the error mid-run ``peak``)."""
-    if sol._component_ptr is not None:
+    (its e, nu, delta and the error mid-run ``peak``, at the element ends of a multi-adaptive
+    solution that read another component inside its element, :func:`_read_inside`; none for
+    a mono-adaptive one, whose step control bounds every component where they all end)."""
+    compiled = lower(sol.ode) if compiled is None else compiled
+    run = Running(sol.ode, compiled, sol.method, weight)
+    if sol._component_ptr is None:
+        run.add(sol.t_start, sol.k, sol.values, np.zeros((len(sol.k), sol.ode.N), np.bool_))
+    else:
         sol = _common_slabs(sol)
-    run = Running(sol.ode, lower(sol.ode) if compiled is None else compiled, sol.method,
-                  weight)
-    run.add(sol.t_start, sol.k, sol.values, getattr(sol, "own_ends", None))
+        run.add(sol.t_start, sol.k, sol.values,
+                _read_inside(sol.own_ends, compiled.indptr, compiled.indices))
     return run
 
 
@@ -693,8 +709,8 @@ class Running:
     estimated as one with it: it keeps e_n, U(t_n^-), nu and the second-order part g
     (``weight``: atol / rtol per component, default 1), not the slabs, and each chunk
     continues the arithmetic of the one pass over the whole history. ``peak`` (value, time,
-    component) is the largest error mid-run at the element ends the stage recursion passed
-    (:func:`_recursion`; 0 where the run is estimated mode by mode).
+    component) is the largest error mid-run at the ends :meth:`add` is given (:func:`carried`;
+    0 where the run is estimated mode by mode).
 
     Raises
     ------
@@ -732,7 +748,7 @@ class Running:
     def add(self, t_start, k, values, own_ends=None):
         """Carry e over the next slabs of the run, (t_start (n,), k (n,), values (n, q + 1,
         N)), as a mono-adaptive loop's chunk holds them (``own_ends`` (n, N): where the
-        slab ends one of the component's elements, None: everywhere)."""
+        error mid-run is compared, :attr:`peak`; None: nowhere)."""
         if not len(k):
             return
         part = SimpleNamespace(method=self.method, ode=self.ode, t_start=t_start, k=k,
@@ -748,8 +764,8 @@ class Running:
                                     np.ascontiguousarray(values), k, t_start, self.e,
                                     self.before, self.g, *self.stages,
                                     *shifts, self.weight,
-                                    np.ones((0, 0), dtype=np.bool_) if own_ends is None
-                                    else own_ends, self.peak)
+                                    np.zeros((len(k), self.ode.N), dtype=np.bool_)
+                                    if own_ends is None else own_ends, self.peak)
             self.nu = max(self.nu, nu)
         self.before = values[-1, -1].copy()
 
