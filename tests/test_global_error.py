@@ -351,7 +351,8 @@ def test_a_banded_stage_system_gives_the_dense_estimate():
         np.zeros(ode.N), np.asarray(ode.u0, dtype=float), np.zeros(ode.N), c, B, D, global_error.collocation_matrix(c),
         position, -1, -1, *global_error._stability(3), global_error._flow_radius(3),
         global_error._flow_box(3), np.empty(0, dtype=np.int64),
-        np.empty((0, ode.N)))
+        np.empty((0, ode.N)), np.ones(ode.N), np.zeros((sol.k.size, ode.N), dtype=np.bool_),
+        np.zeros(3))
     e, nu, _ = global_error.estimate(sol, compiled)
     assert np.max(np.abs(e)) > 0
     np.testing.assert_allclose(e, dense, rtol=1e-9, atol=1e-12 * np.max(np.abs(dense)))
