@@ -269,17 +269,32 @@ def test_dense_interior_order(family, q):
     assert slope > q + 1.6, f"interior slope {slope:.2f}"
 
 
-@pytest.mark.parametrize("q", [2, 3])
-def test_dense_dg_interior_order_with_the_defect_correction(q):
-    # fixed steps k: dG(q)'s interior error falls as k^(q+3) (the Radau collocation
-    # polynomial's as k^(q+2), measured 4.0 and 5.0 here; the nodes' as k^(2q+1))
+@pytest.mark.parametrize("family, q", [("dG", 2), ("dG", 3), ("cG", 3), ("cG", 4)])
+def test_dense_interior_order_with_the_defect_correction(family, q):
+    # fixed steps k: the defect-corrected interior error falls as k^(q+3) (the collocation
+    # polynomials' as k^(q+2), measured 4.0, 5.0 (dG), 5.1, 6.0 (cG) here; the nodes' as
+    # k^(2q+1) (dG), k^(2q) (cG))
     ode = _harmonic(4.0)
     t = np.linspace(0.0, 4.0, 997)[1:]
     exact = np.array([np.cos(t), -np.sin(t)])
-    errors = [np.abs(dn.solve(ode, method=f"dG({q})", initial_time_step=k,
+    errors = [np.abs(dn.solve(ode, method=f"{family}({q})", initial_time_step=k,
                               fixed_time_step=True)(t) - exact).max() for k in (0.4, 0.2)]
     slope = np.log2(errors[0] / errors[1])
     assert slope > q + 2.6, f"interior slope {slope:.2f}"
+
+
+@pytest.mark.parametrize("q", [2, 3, 4])
+def test_dense_cg_interior_error_within_the_tolerance(q):
+    # adaptive steps, tolerance 1e-8, u' = cos t + 1.5 cos 3t: inside the elements
+    # (tau = 0.05..0.95) cG(q) is within the tolerance, as at their ends (the collocation
+    # polynomial alone: 6.5, 15 and 6.8 x, in elements the step control let grow 1.3-1.6 x
+    # past their neighbours where the end residual is small)
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: sp.cos(dn.t) + 1.5 * sp.cos(3 * dn.t)}, u0=[0.0], T=10.0)
+    sol = dn.solve(ode, method=f"cG({q})", tolerance=1e-8)
+    inside = (sol.t_start[:, None] + sol.k[:, None] * np.arange(1, 20) / 20).ravel()
+    error = np.abs(sol(inside)[0] - np.sin(inside) - np.sin(3 * inside) / 2).max()
+    assert error < 3e-8 * (1 + 1.5), f"inside {error:.3g}"
 
 
 def _forced_decay():
