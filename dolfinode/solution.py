@@ -222,8 +222,19 @@ def _correction_shape(G, tau):
     return s * tau * (tau - 1.0)
 
 
+@njit(cache=True, inline="always")
+def _cg_defects(values, n, slopes, c, dq_star, k, F, d):
+    """d[i] = P_i'(tau*) - k F[i], the defect of :func:`_evaluate_cg`'s P = U + c Q on element
+    n at tau* (F = f there; ``slopes`` l_j'(tau*), dq_star Q'(tau*))."""
+    for i in range(d.shape[0]):
+        d[i] = c[i] * dq_star - k * F[i]
+        for j in range(slopes.shape[0]):
+            d[i] += slopes[j] * values[n, j, i]
+
+
 @njit(cache=True)
-def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, p, check, theta, times, out):
+def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, jacobian, diagonal, nnz, p,
+                 check, theta, times, out):
     """out[i, m] = the dense value of a mono-adaptive cG(q) solution at times[m].
 
     On element n, with nodal values U_j at the Lobatto nodes tau_j (tau_0 = 0, tau_q = 1)
@@ -247,11 +258,26 @@ def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, p, check, theta, time
     passes, else P where its defect, integrated from tau = 0 where it vanishes (about P's
     error at tau*), is at most theta times the correction there (about U's error),
     |d(tau*)| tau* / 2 <= theta |c Q(tau*)| (:func:`_passes_defect_test`; a stiff
-    component: d(tau*) ~ k lambda c Q(tau*)), else U. ``check`` = (tau*, l_j(tau*),
-    l_j'(tau*), Q(tau*), Q'(tau*), S(tau*), G) (:func:`_defect_check`), l_j U's Lagrange
-    basis. Q and S are 0 at the ends: the element ends are unchanged bit for bit. f (the
-    kernel at address ``rhs``, parameters p) is evaluated at the q + 1 nodes and twice at
-    tau* once per element, when a time first falls inside it.
+    component: d(tau*) ~ k lambda c Q(tau*)), else U.
+
+    A component i that fails P's test and is stiff on the element, k |J_ii| tau* / 2 > theta
+    (J = df/du at U(tau*)), lies near its quasi-steady state: its error follows the defect,
+    u - P ~ d / (k J_ii) with d ~ g Q, so it takes the quasi-steady value
+
+        W(tau) = P(tau) + g / (k J_ii) Q(tau)
+
+    (one order above U: O(k^(q+2)) where the steady state is smooth), where W's residual at
+    tau*, mapped the same way, is at most theta times W's correction of U,
+    |W'(tau*) - k f_i(W(tau*))| <= theta |k J_ii (W - U)(tau*)|, else U; the other
+    components' tests then read f at W(tau*) for these, not at P(tau*), which swings (one
+    more f and one Jacobian per element where a component fails P's test).
+
+    ``check`` = (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*), S(tau*), G)
+    (:func:`_defect_check`), l_j U's Lagrange basis; ``jacobian`` the Jacobian kernel's
+    address (its nnz CSR values, J_ii at diagonal[i], -1 where f_i does not read u_i). Q and S are 0
+    at the ends: the element ends are unchanged bit for bit. f (the kernel at address
+    ``rhs``, parameters p) is evaluated at the q + 1 nodes and twice at tau* once per
+    element, when a time first falls inside it.
     """
     q1, N = nodes.shape[0], out.shape[0]
     star, basis, slopes, q_star, dq_star, s_star, g_coefficients = check
@@ -261,8 +287,10 @@ def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, p, check, theta, time
     c = np.zeros(N)
     g = np.zeros(N)
     collocated = np.zeros(N, dtype=np.bool_)
+    stiff = np.zeros(N, dtype=np.bool_)
     Y = np.empty(N)
     F2 = np.empty(N)
+    J = np.empty(max(nnz, 1))
     f = rhs_kernel(rhs)
     current = -1
     ready = False
@@ -298,12 +326,48 @@ def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, p, check, theta, time
                 U[q1, i] += c[i] * q_star
             t_star = t_start[n] + star * k
             f(address(U, q1 * N), t_star, address(p, 0), address(F, q1 * N))
-            for i in range(N):
-                g[i] = c[i] * dq_star - k * F[q1, i]
-                for j in range(q1):
-                    g[i] += slopes[j] * values[n, j, i]
+            _cg_defects(values, n, slopes, c, dq_star, k, F[q1], g)
+            some_stiff = False
             for i in range(N):
                 collocated[i] = _passes_defect_test(c[i], g[i], star, q_star, theta) != 0.0
+                stiff[i] = False
+            if not collocated.all():
+                for i in range(N):  # U(tau*)
+                    Y[i] = 0.0
+                    for j in range(q1):
+                        Y[i] += basis[j] * values[n, j, i]
+                rhs_kernel(jacobian)(address(Y, 0), t_star, address(p, 0), address(J, 0))
+                f(address(Y, 0), t_star, address(p, 0), address(F2, 0))
+                for i in range(N):
+                    kj = k * J[diagonal[i]] if diagonal[i] >= 0 else 0.0
+                    stiff[i] = not collocated[i] and abs(kj) * (0.5 * star) > theta
+                    if stiff[i]:  # W = U + c Q, c Q(tau*) = U's defect / (k J_ii)
+                        some_stiff = True
+                        c[i] = -k * F2[i]
+                        for j in range(q1):
+                            c[i] += slopes[j] * values[n, j, i]
+                        c[i] /= q_star * kj
+                        U[q1, i] = Y[i] + c[i] * q_star
+            if some_stiff:
+                f(address(U, q1 * N), t_star, address(p, 0), address(F, q1 * N))
+                _cg_defects(values, n, slopes, c, dq_star, k, F[q1], g)
+                restore = False
+                for i in range(N):
+                    if stiff[i]:  # (W's residual against k J_ii (W - U)(tau*))
+                        collocated[i] = abs(g[i]) <= theta * abs(k * J[diagonal[i]] * c[i]
+                                                                  * q_star)
+                        if not collocated[i]:  # (the others' tests read U there)
+                            U[q1, i] = Y[i]
+                            restore = True
+                if restore:
+                    f(address(U, q1 * N), t_star, address(p, 0), address(F, q1 * N))
+                    _cg_defects(values, n, slopes, c, dq_star, k, F[q1], g)
+                for i in range(N):
+                    if stiff[i]:
+                        g[i] = 0.0
+                    else:
+                        collocated[i] = _passes_defect_test(c[i], g[i], star, q_star,
+                                                            theta) != 0.0
             _defect_correction(rhs, p, t_star, k, U[q1], F[q1], g, Y, F2, star, q_star,
                                s_star, theta)
             for i in range(N):  # (V includes P's correction c Q)
@@ -707,6 +771,18 @@ def _defect_check(family, q):
             float(Q(star)), float(S(star)), G)
 
 
+def _diagonal(compiled):
+    """Where J_ii lies among the Jacobian kernel's CSR values of ``compiled``, per component
+    (-1 where f_i does not read u_i)."""
+    def make():
+        rows = np.repeat(np.arange(compiled.N), np.diff(compiled.indptr))
+        at = np.flatnonzero(compiled.indices == rows)
+        diagonal = np.full(compiled.N, -1, dtype=np.int64)
+        diagonal[rows[at]] = at
+        return diagonal
+    return compiled._derived("diagonal", make)
+
+
 def _inside(times, t0, T):
     """Whether a time lies strictly inside (t0, T): only there can a dense value differ from
     U (the corrections of cG(q) and mcG(q) vanish at element ends, dG(q)'s at right ends,
@@ -756,8 +832,9 @@ def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out, c
     chunks) evaluates through here."""
     if method.family == "cG" and _reads_f(method) and compiled is not None:
         _evaluate_cg(t_start, t_end, values, method.nodes, method.barycentric_weights,
-                     compiled.rhs.address, compiled.p,
-                     _defect_check(method.family, method.q), DEFECT_THETA, times, out)
+                     compiled.rhs.address, compiled.jacobian.address, _diagonal(compiled),
+                     compiled.nnz, compiled.p, _defect_check(method.family, method.q), DEFECT_THETA, times,
+                     out)
     elif method.family == "dG" and method.q > 0:
         nodes0, bary0 = _collocation_nodes(method.family, method.q)
         rhs, p, theta = ((0, np.empty(0), DENSE_THETA) if compiled is None
