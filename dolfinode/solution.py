@@ -195,8 +195,9 @@ def _defect_correction(rhs, p, t, k, X, F, g, Y, F2, star, pi_star, s_star, thet
     with Pi(tau) = prod_j (tau - tau_j), and the error u - P ~ -int_0^tau d = -g S(tau),
     S(tau) = int_0^tau Pi (S(0) = S(1) = 0: the element ends are unchanged), so with
     g = d(tau*) / Pi(tau*) V's interior error is O(k^(q+3)) where the element resolves the
-    component (cG(q): at most the nodes' O(k^(2q))), against P's O(k^(q+2)). Where k |lambda| >> 1 the error follows d / (k lambda), not -int d: V is
-    used where its own residual passes :func:`_passes_defect_test`, k |f_i(V(tau*)) -
+    component (cG(q): at most the nodes' O(k^(2q))), against P's O(k^(q+2)). Where
+    k |lambda| >> 1 the error follows d / (k lambda), not -int d: V is used where its own
+    residual passes :func:`_passes_defect_test`, k |f_i(V(tau*)) -
     f_i(P(tau*))| tau* / 2 <= theta |g S(tau*)| (V' = P' - g Pi, so V's defect at tau* is
     k (f(P) - f(V)) there; along the correction, k |lambda| tau* / 2 <= theta).
 
@@ -262,22 +263,25 @@ def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, jacobian, diagonal, n
 
     A component i that fails P's test and is stiff on the element, k |J_ii| tau* / 2 > theta
     (J = df/du at U(tau*)), lies near its quasi-steady state: its error follows the defect,
-    u - P ~ d / (k J_ii) with d ~ g Q, so it takes the quasi-steady value
+    u - U ~ d_U / (k J_ii) with U's defect d_U = U' - k f(U) ~ Q-shaped (U interpolates the
+    steady state at the nodes), so it takes the quasi-steady value
 
-        W(tau) = P(tau) + g / (k J_ii) Q(tau)
+        W(tau) = U(tau) + c Q(tau),  c Q(tau*) = d_U(tau*) / (k J_ii)
 
-    (one order above U: O(k^(q+2)) where the steady state is smooth), where W's residual at
-    tau*, mapped the same way, is at most theta times W's correction of U,
-    |W'(tau*) - k f_i(W(tau*))| <= theta |k J_ii (W - U)(tau*)|, else U; the other
-    components' tests then read f at W(tau*) for these, not at P(tau*), which swings (one
-    more f and one Jacobian per element where a component fails P's test).
+    (one order above U: O(k^(q+2)) where the steady state is smooth; from P instead, a
+    Newton step from P's swing, it failed on nonlinear f), where W's residual at tau*,
+    mapped the same way, is at most theta times W's correction of U,
+    |W'(tau*) - k f_i(W(tau*))| <= theta |k J_ii (W - U)(tau*)|, else U. The other
+    components' tests then read f at W(tau*) for these (at U(tau*) where W fails), not at
+    P(tau*), which swings: one Jacobian and two more f per element where a component fails
+    P's test (three where a W fails).
 
     ``check`` = (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*), S(tau*), G)
     (:func:`_defect_check`), l_j U's Lagrange basis; ``jacobian`` the Jacobian kernel's
-    address (its nnz CSR values, J_ii at diagonal[i], -1 where f_i does not read u_i). Q and S are 0
-    at the ends: the element ends are unchanged bit for bit. f (the kernel at address
-    ``rhs``, parameters p) is evaluated at the q + 1 nodes and twice at tau* once per
-    element, when a time first falls inside it.
+    address (its nnz CSR values, J_ii at diagonal[i], -1 where f_i does not read u_i).
+    Q and S are 0 at the ends: the element ends are unchanged bit for bit. f (the kernel at
+    address ``rhs``, parameters p) is evaluated at the q + 1 nodes and twice at tau* once
+    per element, when a time first falls inside it.
     """
     q1, N = nodes.shape[0], out.shape[0]
     star, basis, slopes, q_star, dq_star, s_star, g_coefficients = check
@@ -833,8 +837,8 @@ def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out, c
     if method.family == "cG" and _reads_f(method) and compiled is not None:
         _evaluate_cg(t_start, t_end, values, method.nodes, method.barycentric_weights,
                      compiled.rhs.address, compiled.jacobian.address, _diagonal(compiled),
-                     compiled.nnz, compiled.p, _defect_check(method.family, method.q), DEFECT_THETA, times,
-                     out)
+                     compiled.nnz, compiled.p, _defect_check(method.family, method.q),
+                     DEFECT_THETA, times, out)
     elif method.family == "dG" and method.q > 0:
         nodes0, bary0 = _collocation_nodes(method.family, method.q)
         rhs, p, theta = ((0, np.empty(0), DENSE_THETA) if compiled is None
