@@ -27,8 +27,9 @@ Usage::
 Runs use the default ``estimate_global_error="auto"`` (the estimate of
 :mod:`dolfinode.global_error`, which warns above 10 x the tolerance, for runs of more than
 one slab of small systems); ``--global-error`` solves every run with ``estimate_global_error=True``.
-The summary counts the runs within the band that warned (false alarms) besides those above it
-without a warning.
+The summary counts the runs within the band that warned of the error at T (false alarms) and
+those that warned of an error mid-run alone (M: real errors before T, which the run damps),
+besides those above it without a warning.
 """
 import argparse
 import itertools
@@ -77,8 +78,9 @@ def cases(multi_adaptive, sample="fitted"):
 
 
 def delivered(problem, method, tolerance, calibrate, global_error="auto"):
-    """(scaled error at T, time slabs, elements, whether it warned (ToleranceWarning)) of a
-    solve at ``tolerance`` (with ``estimate_global_error=global_error``); (inf, 0, 0, False)
+    """(scaled error at T, time slabs, elements, how it warned) of a solve at ``tolerance``
+    (with ``estimate_global_error=global_error``): True for a ToleranceWarning of the error
+    at T, "mid-run" for one of an error before T alone, False for none; (inf, 0, 0, False)
     if it fails."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", dn.ToleranceWarning)
@@ -89,7 +91,9 @@ def delivered(problem, method, tolerance, calibrate, global_error="auto"):
                            estimate_global_error=global_error)
         except dn.SolverError:
             return float("inf"), 0, 0, False
-    warned = any(issubclass(w.category, dn.ToleranceWarning) for w in caught)
+    told = [str(w.message) for w in caught if issubclass(w.category, dn.ToleranceWarning)]
+    midrun = [m for m in told if m.startswith("the estimated error mid-run")]
+    warned = "mid-run" if told and len(midrun) == len(told) else bool(told)
     scored = list(problem.scored or range(problem.ode.N))
     final = problem.final[scored]
     error = np.max(np.abs(sol(problem.T)[scored] - final) / (problem.atol_ratio + np.abs(final)))
@@ -112,12 +116,14 @@ def summary(rows):
     above = [r for r in rows if 10 < r["error"] / r["tolerance"] < float("inf")]
     silent = [f"{r['method']} on {r['problem']} at {r['tolerance']:.0e}: "
               f"{r['error'] / r['tolerance']:.3g} x" for r in above if not r.get("warned")]
+    inside = [r for r in rows if 0.1 <= r["error"] / r["tolerance"] <= 10]
     failed = [f"{r['method']} on {r['problem']} at {r['tolerance']:.0e}" for r in rows
               if r["error"] == float("inf")]
     listed = "; ".join(silent[:LISTED]) + ("; ..." if len(silent) > LISTED else "")
     alarms = [f"{r['method']} on {r['problem']} at {r['tolerance']:.0e}: "
-              f"{r['error'] / r['tolerance']:.3g} x" for r in rows
-              if r.get("warned") and 0.1 <= r["error"] / r["tolerance"] <= 10]
+              f"{r['error'] / r['tolerance']:.3g} x" for r in inside if r.get("warned") is True]
+    midrun = [f"{r['method']} on {r['problem']} at {r['tolerance']:.0e}" for r in inside
+              if r.get("warned") == "mid-run"]
     estimated = sum(r.get("global_error") is True for r in rows)
     return [f"- runs within [0.1, 10] x tolerance: {within} of {len(rows)}",
             f"- runs above 10 x: {len(above)}, without a ToleranceWarning: {len(silent)}"
@@ -125,6 +131,8 @@ def summary(rows):
             f"- runs within [0.1, 10] x with a ToleranceWarning (false alarms): {len(alarms)}"
             + (f" ({'; '.join(alarms)})" if alarms else "")
             + (f"; {estimated} runs with estimate_global_error=True" if estimated else ""),
+            f"- runs within [0.1, 10] x at T warned of an error above 10 x mid-run (M): "
+            f"{len(midrun)}" + (f" ({', '.join(midrun)})" if midrun else ""),
             f"- runs stopped by a SolverError: {len(failed)}"
             + (f" ({', '.join(failed)})" if failed else ""),
             f"- error growing > 1.5x as the tolerance tightens: {len(growing)}"
@@ -153,7 +161,7 @@ def tables(rows, tolerances):
                     cells.append("fails")
                 else:
                     cells.append(f"{run[0]['error'] / tolerance:.2g}"
-                                 + (" W" if run[0].get("warned") else ""))
+                                 + {True: " W", "mid-run": " M"}.get(run[0].get("warned"), ""))
             lines.append(f"| {tolerance:.0e} | " + " | ".join(cells) + " |")
         lines.append("")
     return lines
@@ -201,7 +209,8 @@ def main():
                              "sample": args.problems, "global_error": estimated})
                 print(f"{problem.name:8} {method:6} tol {tolerance:.0e} error {error:.2e} "
                       f"ratio {error / tolerance:8.3g} elements {elements}"
-                      + (" (warned)" if warned else ""), flush=True)
+                      + {True: " (warned)", "mid-run": " (warned mid-run)"}.get(warned, ""),
+                      flush=True)
     rows = kept + rows
     record.write_text(json.dumps({"runs": rows}, indent=1) + "\n")
     report(rows, output / f"{name}.md", calibrate)
@@ -223,7 +232,8 @@ def report(rows, path, calibrate):
         lines += ["Multi-adaptive methods:", *summary(multi), ""]
     if outside:
         multi_outside = [r for r in outside if r["method"].startswith("m")]
-        note = "(`--problems out-of-sample`; W: the run raised a ToleranceWarning):"
+        note = ("(`--problems out-of-sample`; W: the run raised a ToleranceWarning of the "
+                "error at T, M: of an error mid-run alone):")
         lines += [f"Mono-adaptive methods on problems the mapping was not fitted on {note}",
                   *summary([r for r in outside if r not in multi_outside]), ""]
         if multi_outside:
