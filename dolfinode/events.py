@@ -456,15 +456,16 @@ class Detector:
         self.last = np.zeros(len(exprs))
         self.from_zero = np.arange(len(exprs)) >= len(exprs) - switches
 
-    def values(self, times, U, rows=None):
+    def values(self, times, U, rows=None, levels=False):
         """g_j at the times, U the solution there (N, M): shape (n_g, M), or (len(rows), M)
-        for the functions ``rows`` alone."""
+        for the functions ``rows`` alone; ``levels``: the g given of a periodic row, not
+        sin(pi g)."""
         args = [U[i] for i in self.components]
         rows = range(len(self._g)) if rows is None else rows
         out = np.empty((len(rows), times.size))
         for j, row in zip(rows, out):
             row[:] = self._g[j](times, *args)  # (broadcast: a constant g gives a number)
-            if self.periodic[j]:
+            if self.periodic[j] and not levels:
                 row[:] = _sin_pi(row)
         return out
 
@@ -540,8 +541,6 @@ class Plan:
     state_switches: list
     detector: Detector
     t_switches: Detector
-    #: g of each switch on the state (read for the branch of a floor(g) that crosses)
-    levels: Detector
 
     features: Features
     #: Whether f has jumps or there are events or given breakpoints (else the plan only
@@ -561,18 +560,18 @@ class Plan:
                ode.t0, ode.T,
                () if given_breakpoints is None else tuple(given_breakpoints),
                tuple((e.g, e.terminal, e.direction) for e in events))
-        times, on_state, detector, t_detector, levels = ode._derived(
+        times, on_state, detector, t_detector = ode._derived(
             "_plan", key, lambda: cls._parts(ode, switches, given_breakpoints, events))
         if not (switches or events or times.size):
             return None
-        return cls(switches, times, events, on_state, detector, t_detector, levels, features,
+        return cls(switches, times, events, on_state, detector, t_detector, features,
                    bool(switches or events or given_breakpoints is not None))
 
     @staticmethod
     def _parts(ode, switches, given_breakpoints, events):
-        """The breakpoints, the switches on the state, the two detectors of a plan and the
-        switching functions g of those on the state. A floor(g) of the state jumps where g
-        crosses an integer: its detector watches sin(pi g)."""
+        """The breakpoints, the switches on the state and the two detectors of a plan. A
+        floor(g) of the state jumps where g crosses an integer: its detector watches
+        sin(pi g)."""
         times = breakpoints(ode, switches, [] if given_breakpoints is None
                             else given_breakpoints, narrow_features(ode).edges())
         t_only = [s for s in switches if not (_numeric(s.g, ode).free_symbols - {time_symbol})]
@@ -581,9 +580,7 @@ class Plan:
                             [e.direction for e in events] + [0] * len(on_state),
                             switches=len(on_state),
                             periodic=[len(events) + i for i, s in enumerate(on_state) if s.floor])
-        levels = Detector(ode, [s.g for s in on_state], [0] * len(on_state))
-        return (times, on_state, detector, Detector(ode, [s.g for s in t_only], [0] * len(t_only)),
-                levels)
+        return times, on_state, detector, Detector(ode, [s.g for s in t_only], [0] * len(t_only))
 
     terminated = False
     switched = 0  # crossings of switches on the state where f jumps
@@ -749,7 +746,8 @@ class Plan:
         """sigma at t0 (the state switches from g(u0, t0), the t-only ones on the first
         piece; a g at its jump takes the branch there, and the branch it leaves to once it
         leaves: :meth:`Detector.brackets`)."""
-        g = self.levels.values(np.array([t0]), u0[:, None])[:, 0]
+        rows = len(self.events) + np.arange(len(self.state_switches))
+        g = self.detector.values(np.array([t0]), u0[:, None], rows, levels=True)[:, 0]
         for s, value in zip(self.state_switches, g):
             sigma[self.switches.index(s)] = s.value(value)
         self.branches(sigma, t0, self.breakpoints[0] if self.breakpoints.size else T)
@@ -761,7 +759,8 @@ class Plan:
         s = self.state_switches[i]
         if not s.floor:
             return s.value(sign)
-        n = round(float(self.levels.values(np.array([t]), x[:, None], [i])[0, 0]))
+        row = [len(self.events) + i]
+        n = round(float(self.detector.values(np.array([t]), x[:, None], row, levels=True)[0, 0]))
         return float(n if sign * (-1) ** (n % 2) > 0 else n - 1)
 
     def branches(self, sigma, begin, end):
