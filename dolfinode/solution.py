@@ -1132,6 +1132,16 @@ class PreparedSolution(Solution):
             self.__dict__.update(t_start=times[0], k=times[1], values=X[:n].copy())
 
     @cached_property
+    def _rhs(self):
+        """The lowered ODE the dense value reads (:meth:`Solution._rhs`), the solver's for
+        every solution of the same declaration solved (``makers["rhs"]``); unpickled, its
+        own."""
+        makers = self.__dict__.get("_makers")
+        if makers is None or not _reads_f(self.method):
+            return Solution._rhs.func(self)
+        return makers["rhs"]()
+
+    @cached_property
     def parameters(self):
         """The checked parameters of the solve: a copy of the solver's, made when read."""
         return dict(self._makers["parameters"])

@@ -139,6 +139,28 @@ def test_a_solution_sharing_the_buffers_is_its_copy_until_the_next_call(oscillat
     np.testing.assert_array_equal(values, reference.values)
 
 
+@pytest.mark.parametrize("method", ["cG(2)", "dG(2)"])
+def test_the_lowered_f_of_dense_values_is_made_once_per_declaration_solved(oscillator,
+                                                                            method):
+    """The solutions of repeated calls share the lowered f their dense values read
+    (_Solved.dense_rhs); new parameter values make another; a solution first evaluated
+    after a later call with other values reads its own, bitwise dn.solve's."""
+    times = np.linspace(0.0, 2.0, 41)
+    options = {"tolerance": 1e-6, "estimate_global_error": False}
+    solver = dn.Solver(oscillator, method=method, **options)
+    first, second = solver.solve(), solver.solve()
+    first(times)
+    second(times)
+    assert first._rhs is not None and first._rhs is second._rhs
+    late = solver.solve()
+    stiffer = solver.solve(params={k: 9.0})
+    stiffer(times)
+    assert stiffer._rhs is not first._rhs
+    for sol, values in ((late, {k: 4.0}), (stiffer, {k: 9.0}), (first, {k: 4.0})):
+        reference = dn.solve(dn.vary(oscillator, values), method=method, **options)
+        np.testing.assert_array_equal(sol(times), reference(times))
+
+
 @pytest.mark.parametrize("method", ["dG(2)", "mcG(1)"])
 def test_a_solution_s_parameters_are_its_own(oscillator, method):
     """sol.parameters is a copy: changing it leaves the solver and its later solutions alone
