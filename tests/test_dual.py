@@ -346,6 +346,24 @@ def test_goal_iterations_control_the_discrete_solves_error():
     assert sol.error_estimate.orthogonality_defect < 0.25e-8
 
 
+@pytest.mark.parametrize(("method", "tolerance"), [("cG(2)", 1e-4), ("mcG(2)", 1e-7)])
+def test_goal_iterations_shrink_the_steps_for_the_quadrature_defect(method, tolerance):
+    """u' = u^2 to T = 0.95 (blow-up at 1), goal u(T) = 20: the orthogonality defect is the
+    primal's quadrature error of u^2 (0.6 x TOL), which the steps set. Dividing the discrete
+    tolerance left it unchanged; it now shrinks the steps, and the goal is met (measured
+    0.48 x TOL in four iterations) where the loop ended at 1.25 x TOL after eight (and
+    cG(2) at 1e-7 raised SolverError at a discrete tolerance of 1e-13 x atol)."""
+    u = sp.symbols("u")
+    ode = dn.ODE({u: u**2}, u0=[1.0], T=0.95)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        sol = dn.solve(ode, method, tolerance=tolerance, goal={u: 1.0})
+    assert sol.stats["goal tolerance reached"]
+    error = sol(ode.T)[0] - 1.0 / (1.0 - ode.T)
+    assert abs(error) <= tolerance
+    assert sol.error_estimate.value == pytest.approx(error, rel=0.1)
+
+
 def test_goal_not_reached_warns(monkeypatch):
     monkeypatch.setattr(adaptivity, "MAXIMUM_ITERATIONS", 1)
     ode, _ = problems.harmonic(T=10.0)

@@ -63,6 +63,8 @@ class ErrorEstimate:
         Share of each component in ``bound`` (without the orthogonality defect).
     orthogonality_defect : float
         ``|sum (R, pi phi) + [U] pi phi|``: zero for an exact Galerkin solution.
+    defect_contributions : ndarray (N,)
+        Share of each component in the signed sum of ``orthogonality_defect``.
     dual_error : float
         ``|value - value with the dual of one degree lower|``: a (pessimistic) measure of the dual's
         discretisation error in ``value``.
@@ -82,6 +84,7 @@ class ErrorEstimate:
     contributions: np.ndarray
     bound_contributions: np.ndarray
     orthogonality_defect: float
+    defect_contributions: np.ndarray
     dual_error: float
     stability_factors: dict
     dual: DualSolution
@@ -269,7 +272,9 @@ def estimate_linearised(sol, goal, dual_degree=None, quadrature_points=None,
                                      + dual_error),
                          contributions=parts["contributions"],
                          bound_contributions=parts["bound_contributions"],
-                         orthogonality_defect=parts["defect"], dual_error=dual_error,
+                         orthogonality_defect=parts["defect"],
+                         defect_contributions=parts["defect_contributions"],
+                         dual_error=dual_error,
                          stability_factors=parts["stability_factors"], dual=dual,
                          states=ode.states)
 
@@ -319,11 +324,13 @@ def _error_representation(sol, primal, dual, gauss):
     jump = _jumps(primal, sol.ode.u0)
     pi_start = projection @ (-1.0) ** degrees  # P_m(-1) = (-1)^m
     eta = r_phi + jump * phi_start
-    defect = float(np.sum(np.sum(r_moments * projection, axis=1) + jump * pi_start))
+    defects = np.sum(r_moments * projection, axis=1) + jump * pi_start
     local = abs_weighted + np.abs(jump) * np.abs(phi_start - pi_start)
     starts = primal.ptr[:-1]
     return {"value": float(eta.sum()), "contributions": np.add.reduceat(eta, starts),
-            "bound_contributions": np.add.reduceat(local, starts), "defect": abs(defect),
+            "bound_contributions": np.add.reduceat(local, starts),
+            "defect": abs(float(defects.sum())),
+            "defect_contributions": np.add.reduceat(defects, starts),
             "stability_factors": {"S0": float(norms[0]), "S1": float(norms[1])}}
 
 
