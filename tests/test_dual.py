@@ -346,6 +346,27 @@ def test_goal_iterations_control_the_discrete_solves_error():
     assert sol.error_estimate.orthogonality_defect < 0.25e-8
 
 
+@pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])
+def test_goal_far_from_linear_over_the_error_warns(method):
+    """u' = -u to T = 20 (u(T) = 2.1e-9) at 1e-3: U(T) is 1.7e-7..3.8e-7, right within the
+    absolute tolerance, and 1 / u(T), log u(T) linearised at U(T) were estimated at 0.005-0.22
+    x their errors, unwarned. With an absolute tolerance below u(T) the linearisation holds:
+    the estimate is the error (within 1 %) and nothing is said."""
+    u = sp.symbols("u")
+    ode = dn.ODE({u: -u}, u0=[1.0], T=20.0)
+    loose = dn.solve(ode, method, tolerance=1e-3)
+    for goal, G in ((1 / u, lambda v: 1 / v), (sp.log(u), np.log)):
+        with pytest.warns(dn.ToleranceWarning, match="far from linear over the error"):
+            est = dn.estimate_error(loose, goal)
+        error = G(loose(ode.T)[0]) - G(np.exp(-20.0))
+        assert abs(est.value) < 0.5 * abs(error)
+    tight = dn.solve(ode, method, tolerance=1e-3, absolute_tolerance=1e-14)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        est = dn.estimate_error(tight, 1 / u)
+    assert est.value == pytest.approx(1 / tight(ode.T)[0] - np.exp(20.0), rel=0.01)
+
+
 @pytest.mark.parametrize(("method", "tolerance"), [("cG(2)", 1e-4), ("mcG(2)", 1e-7)])
 def test_goal_iterations_shrink_the_steps_for_the_quadrature_defect(method, tolerance):
     """u' = u^2 to T = 0.95 (blow-up at 1), goal u(T) = 20: the orthogonality defect is the

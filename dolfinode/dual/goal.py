@@ -82,6 +82,7 @@ class _Functional:
         self.N = ode.N
         self.weights = None
         self.gradient = None
+        self.expression = None  # G (or g) itself, for an expression
         self.breakpoints = np.empty(0)
         self.features = NONE
         if isinstance(spec, sp.Basic):
@@ -117,6 +118,7 @@ class _Functional:
         if all(g == 0 for g in grad):
             raise ValueError(f"the {what} goal {expr} does not depend on the states")
         function = sp.lambdify((real, time_symbol), grad, modules="numpy")
+        self.expression = sp.lambdify((real, time_symbol), expr_real, modules="numpy")
         try:
             function(list(ode.u0), ode.t0)
         except NameError as error:
