@@ -367,6 +367,17 @@ def test_goal_far_from_linear_over_the_error_warns(method):
     assert est.value == pytest.approx(1 / tight(ode.T)[0] - np.exp(20.0), rel=0.01)
 
 
+def test_goal_undefined_at_the_solution_says_what_to_try():
+    """dG(1) at 1e-3 on u' = -u to T = 20 ends at U(T) <= 0, where log u(T) has no
+    gradient: the error names the absolute tolerance (it said only "not finite")."""
+    u = sp.symbols("u")
+    ode = dn.ODE({u: -u}, u0=[1.0], T=20.0)
+    sol = dn.solve(ode, "dG(1)", tolerance=1e-3)
+    assert sol(ode.T)[0] <= 0.0
+    with pytest.raises(ValueError, match="absolute_tolerance below that state's size"):
+        dn.estimate_error(sol, sp.log(u))
+
+
 @pytest.mark.parametrize(("method", "tolerance"), [("cG(2)", 1e-4), ("mcG(2)", 1e-7)])
 def test_goal_iterations_shrink_the_steps_for_the_quadrature_defect(method, tolerance):
     """u' = u^2 to T = 0.95 (blow-up at 1), goal u(T) = 20: the orthogonality defect is the

@@ -140,7 +140,10 @@ class _Functional:
             return np.repeat(self.weights[:, None], len(times), axis=1)
         values = self.gradient(U, times)
         if not np.all(np.isfinite(values)):
-            raise ValueError("the goal's gradient is not finite at the computed solution")
+            raise ValueError("the goal's gradient is not finite at the computed solution (a "
+                             "goal dividing by a state, or taking its logarithm, where U is 0 "
+                             "or below): solve with an absolute_tolerance below that state's "
+                             "size (for goal=, the starting one)")
         return values
 
 
