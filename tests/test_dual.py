@@ -367,6 +367,22 @@ def test_goal_far_from_linear_over_the_error_warns(method):
     assert est.value == pytest.approx(1 / tight(ode.T)[0] - np.exp(20.0), rel=0.01)
 
 
+@pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])
+def test_integral_goal_far_from_linear_over_the_error_warns(method):
+    """int_0^20 1/u dt on u' = -u at 1e-3: U is right within the absolute tolerance but far
+    above u near T, and the estimate was -4.5e28 x (cG(2)) and 0.025 x (mcG(2)) the error,
+    unwarned. With an absolute tolerance below u(T) nothing is said."""
+    u = sp.symbols("u")
+    ode = dn.ODE({u: -u}, u0=[1.0], T=20.0)
+    with pytest.warns(dn.ToleranceWarning, match="far from linear over the error"):
+        dn.estimate_error(dn.solve(ode, method, tolerance=1e-3), ("integral", 1 / u))
+    tight = dn.solve(ode, method, tolerance=1e-3, absolute_tolerance=1e-14)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        est = dn.estimate_error(tight, ("integral", 1 / u))
+    assert abs(est.value) < 1e-3 * np.exp(20.0)
+
+
 def test_goal_undefined_at_the_solution_says_what_to_try():
     """dG(1) at 1e-3 on u' = -u to T = 20 ends at U(T) <= 0, where log u(T) has no
     gradient: the error names the absolute tolerance (it said only "not finite")."""
