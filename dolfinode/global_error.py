@@ -44,6 +44,7 @@ sum_n k_n |r_{n,i}| / (w_i + |U_{n,i} - e_{n,i}|) at the slabs' ends (on a dampe
 over-counts). :func:`dolfinode.solve` measures the error where delta leaves the estimate on
 either side of 10 x the tolerance.
 """
+import itertools
 from functools import lru_cache
 from math import factorial
 from types import SimpleNamespace
@@ -701,6 +702,24 @@ def carried(sol, compiled=None, weight=None):
         run.add(sol.t_start, sol.k, sol.values,
                 _read_inside(sol.own_ends, compiled.indptr, compiled.indices))
     return run
+
+
+def along(sol, chunks=64, compiled=None):
+    """(times, e): the estimate e ~ U - u, shape (N, M), at t0 and at the ends of ``chunks``
+    equal runs of slabs (M <= chunks + 1), carried as :func:`carried` carries it to T (a
+    multi-adaptive solution on the common refinement of its elements)."""
+    compiled = lower(sol.ode) if compiled is None else compiled
+    run = Running(sol.ode, compiled, sol.method)
+    if sol._component_ptr is not None:
+        sol = _common_slabs(sol)
+    n = len(sol.k)
+    cuts = np.unique(np.linspace(0, n, min(chunks, n) + 1).astype(int))
+    times, errors = [sol.ode.t0], [run.e.copy()]
+    for a, b in itertools.pairwise(cuts):
+        run.add(sol.t_start[a:b], sol.k[a:b], sol.values[a:b])
+        times.append(sol.t_start[b - 1] + sol.k[b - 1])
+        errors.append(run.e.copy())
+    return np.array(times), np.array(errors).T
 
 
 class Running:

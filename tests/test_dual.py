@@ -346,6 +346,72 @@ def test_goal_iterations_control_the_discrete_solves_error():
     assert sol.error_estimate.orthogonality_defect < 0.25e-8
 
 
+@pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])
+def test_goal_far_from_linear_over_the_error_warns(method):
+    """u' = -u to T = 20 (u(T) = 2.1e-9) at 1e-3: U(T) is 1.7e-7..3.8e-7, right within the
+    absolute tolerance, and 1 / u(T), log u(T) linearised at U(T) were estimated at 0.005-0.22
+    x their errors, unwarned. With an absolute tolerance below u(T) the linearisation holds:
+    the estimate is the error (within 1 %) and nothing is said."""
+    u = sp.symbols("u")
+    ode = dn.ODE({u: -u}, u0=[1.0], T=20.0)
+    loose = dn.solve(ode, method, tolerance=1e-3)
+    for goal, G in ((1 / u, lambda v: 1 / v), (sp.log(u), np.log)):
+        with pytest.warns(dn.ToleranceWarning, match="far from linear over the error"):
+            est = dn.estimate_error(loose, goal)
+        error = G(loose(ode.T)[0]) - G(np.exp(-20.0))
+        assert abs(est.value) < 0.5 * abs(error)
+    tight = dn.solve(ode, method, tolerance=1e-3, absolute_tolerance=1e-14)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        est = dn.estimate_error(tight, 1 / u)
+    assert est.value == pytest.approx(1 / tight(ode.T)[0] - np.exp(20.0), rel=0.01)
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])
+def test_integral_goal_far_from_linear_over_the_error_warns(method):
+    """int_0^20 1/u dt on u' = -u at 1e-3: U is right within the absolute tolerance but far
+    above u near T, and the estimate was -4.5e28 x (cG(2)) and 0.025 x (mcG(2)) the error,
+    unwarned. With an absolute tolerance below u(T) nothing is said."""
+    u = sp.symbols("u")
+    ode = dn.ODE({u: -u}, u0=[1.0], T=20.0)
+    with pytest.warns(dn.ToleranceWarning, match="far from linear over the error"):
+        dn.estimate_error(dn.solve(ode, method, tolerance=1e-3), ("integral", 1 / u))
+    tight = dn.solve(ode, method, tolerance=1e-3, absolute_tolerance=1e-14)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        est = dn.estimate_error(tight, ("integral", 1 / u))
+    assert abs(est.value) < 1e-3 * np.exp(20.0)
+
+
+def test_goal_undefined_at_the_solution_says_what_to_try():
+    """dG(1) at 1e-3 on u' = -u to T = 20 ends at U(T) <= 0, where log u(T) has no
+    gradient: the error names the absolute tolerance (it said only "not finite")."""
+    u = sp.symbols("u")
+    ode = dn.ODE({u: -u}, u0=[1.0], T=20.0)
+    sol = dn.solve(ode, "dG(1)", tolerance=1e-3)
+    assert sol(ode.T)[0] <= 0.0
+    with pytest.raises(ValueError, match="absolute_tolerance below that state's size"):
+        dn.estimate_error(sol, sp.log(u))
+
+
+@pytest.mark.parametrize(("method", "tolerance"), [("cG(2)", 1e-4), ("mcG(2)", 1e-7)])
+def test_goal_iterations_shrink_the_steps_for_the_quadrature_defect(method, tolerance):
+    """u' = u^2 to T = 0.95 (blow-up at 1), goal u(T) = 20: the orthogonality defect is the
+    primal's quadrature error of u^2 (0.6 x TOL), which the steps set. Dividing the discrete
+    tolerance left it unchanged; it now shrinks the steps, and the goal is met (measured
+    0.48 x TOL in four iterations) where the loop ended at 1.25 x TOL after eight (and
+    cG(2) at 1e-7 raised SolverError at a discrete tolerance of 1e-13 x atol)."""
+    u = sp.symbols("u")
+    ode = dn.ODE({u: u**2}, u0=[1.0], T=0.95)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        sol = dn.solve(ode, method, tolerance=tolerance, goal={u: 1.0})
+    assert sol.stats["goal tolerance reached"]
+    error = sol(ode.T)[0] - 1.0 / (1.0 - ode.T)
+    assert abs(error) <= tolerance
+    assert sol.error_estimate.value == pytest.approx(error, rel=0.1)
+
+
 def test_goal_not_reached_warns(monkeypatch):
     monkeypatch.setattr(adaptivity, "MAXIMUM_ITERATIONS", 1)
     ode, _ = problems.harmonic(T=10.0)

@@ -63,6 +63,8 @@ class ErrorEstimate:
         Share of each component in ``bound`` (without the orthogonality defect).
     orthogonality_defect : float
         ``|sum (R, pi phi) + [U] pi phi|``: zero for an exact Galerkin solution.
+    defect_contributions : ndarray (N,)
+        Share of each component in the signed sum of ``orthogonality_defect``.
     dual_error : float
         ``|value - value with the dual of one degree lower|``: a (pessimistic) measure of the dual's
         discretisation error in ``value``.
@@ -82,6 +84,7 @@ class ErrorEstimate:
     contributions: np.ndarray
     bound_contributions: np.ndarray
     orthogonality_defect: float
+    defect_contributions: np.ndarray
     dual_error: float
     stability_factors: dict
     dual: DualSolution
@@ -201,7 +204,9 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None,
     -----
     ToleranceWarning
         Where the nonlinearity of the error equation along U exceeds NONLINEAR_GOAL: the
-        linearised value and bound may then be far below the error.
+        linearised value and bound may then be far below the error. And where a goal given
+        as an expression is far from linear over the error itself (:func:`_goal_curvature`):
+        1 / u(T), log u(T) or int 1/u dt with an error of U above u.
 
     Raises
     ------
@@ -223,6 +228,9 @@ def estimate_error(sol, goal, dual_degree=None, quadrature_points=None,
             f"error can be several times the estimate {estimate.value:.3g} and its bound. "
             "Solve at a tighter tolerance and estimate that solution", ToleranceWarning,
             stacklevel=2)
+    why = _goal_curvature(sol, goal, estimate.value)
+    if why:
+        warnings.warn(why, ToleranceWarning, stacklevel=2)
     return estimate
 
 
@@ -269,7 +277,9 @@ def estimate_linearised(sol, goal, dual_degree=None, quadrature_points=None,
                                      + dual_error),
                          contributions=parts["contributions"],
                          bound_contributions=parts["bound_contributions"],
-                         orthogonality_defect=parts["defect"], dual_error=dual_error,
+                         orthogonality_defect=parts["defect"],
+                         defect_contributions=parts["defect_contributions"],
+                         dual_error=dual_error,
                          stability_factors=parts["stability_factors"], dual=dual,
                          states=ode.states)
 
@@ -279,6 +289,64 @@ def estimate_linearised(sol, goal, dual_degree=None, quadrature_points=None,
 #: error 0.05-0.19 at nu = 30-64 (Lotka-Volterra from 0.05, Arenstorf's orbit), 0.6-8 at
 #: nu <= 5 (pendulum, Lotka-Volterra dG(2), y' = y^2 near its blow-up), 0.98-1.03 at nu < 0.04.
 NONLINEAR_GOAL = 10.0
+
+
+#: The linearised change of a goal along the estimated error and its secant (G(U) - G(U - e),
+#: for an integral goal int g(U) - g(U - e) dt) may differ by this fraction of the larger
+#: before a warning.
+GOAL_CURVATURE = 0.5
+#: Runs of slabs at whose ends an integral goal's integrand is checked (:func:`_goal_curvature`).
+CURVATURE_SAMPLES = 64
+
+
+def _goal_curvature(sol, goal, value):
+    """The warning where a goal expression is far from linear over the error itself.
+
+    The estimate linearises G at U(T) and g at U(t): M(U) - M(u) ~ (grad G(U), e(T)) +
+    int (grad g(U, t), e(t)) dt. With e the estimated error (:func:`dolfinode.global_error.along`:
+    at T, and at the ends of CURVATURE_SAMPLES runs of slabs for an integral, trapezoidal
+    there), that holds where the linearised change d and the secant s = G(U) - G(U - e)
+    (+ int g(U) - g(U - e)) agree; the warning is given where
+    |s - d| > GOAL_CURVATURE max(|s|, |d|) and |s - d| > rtol (1 + |M(U)|), or where s is not
+    finite. Measured (u' = -u to T = 20, u(T) = 2.1e-9, cG(2) and mcG(2) at 1e-3 and 1e-6):
+    1/u(T) was estimated at 0.005-0.46 x its error, log u(T) at 0.19-0.69 x, int 1/u dt at
+    -4.5e28..0.5 x, unwarned. None for linear goals or where e is not computed
+    (:func:`_nonlinearity`).
+    """
+    final, integral = resolve(goal, sol.ode)
+    parts = [p for p in (final, integral) if p is not None and p.expression is not None]
+    if not parts:
+        return None
+    from dolfinode import global_error  # (it imports dolfinode.dual)
+
+    try:
+        times, e = global_error.along(sol, CURVATURE_SAMPLES if integral in parts else 1)
+    except ValueError:
+        return None
+    linear = secant = size = 0.0
+    with np.errstate(all="ignore"):
+        for part, at in ((final, times[-1:]), (integral, times)):
+            if part not in parts:
+                continue
+            U = sol(at)
+            E = e[:, -len(at):]
+            lin = np.sum(part.at(U, at) * E, axis=0)
+            sec = part.expression(list(U), at) - part.expression(list(U - E), at)
+            own = part.expression(list(U), at) * np.ones(len(at))
+            if part is integral:
+                lin, sec, own = (np.trapezoid(v, at) for v in (lin, sec, own))
+            linear += float(np.sum(lin))
+            secant += float(np.sum(sec))
+            size += float(np.sum(own))
+    gap = abs(secant - linear)
+    if np.isfinite(secant) and (gap <= GOAL_CURVATURE * max(abs(secant), abs(linear))
+                                or gap <= sol.parameters["tolerance"] * (1.0 + abs(size))):
+        return None
+    return (f"the goal is far from linear over the error of this solution: along the "
+            f"estimated error its change is {secant:.3g}, and {linear:.3g} linearised at U, "
+            f"which the estimate {value:.3g} assumes. The error in the goal can be far from "
+            f"the estimate; solve with a smaller absolute_tolerance (below the size of the "
+            f"states the goal divides by or takes the logarithm of) and estimate that solution")
 
 
 def _nonlinearity(sol):
@@ -319,11 +387,13 @@ def _error_representation(sol, primal, dual, gauss):
     jump = _jumps(primal, sol.ode.u0)
     pi_start = projection @ (-1.0) ** degrees  # P_m(-1) = (-1)^m
     eta = r_phi + jump * phi_start
-    defect = float(np.sum(np.sum(r_moments * projection, axis=1) + jump * pi_start))
+    defects = np.sum(r_moments * projection, axis=1) + jump * pi_start
     local = abs_weighted + np.abs(jump) * np.abs(phi_start - pi_start)
     starts = primal.ptr[:-1]
     return {"value": float(eta.sum()), "contributions": np.add.reduceat(eta, starts),
-            "bound_contributions": np.add.reduceat(local, starts), "defect": abs(defect),
+            "bound_contributions": np.add.reduceat(local, starts),
+            "defect": abs(float(defects.sum())),
+            "defect_contributions": np.add.reduceat(defects, starts),
             "stability_factors": {"S0": float(norms[0]), "S1": float(norms[1])}}
 
 

@@ -82,6 +82,7 @@ class _Functional:
         self.N = ode.N
         self.weights = None
         self.gradient = None
+        self.expression = None  # G (or g) itself, for an expression
         self.breakpoints = np.empty(0)
         self.features = NONE
         if isinstance(spec, sp.Basic):
@@ -117,6 +118,7 @@ class _Functional:
         if all(g == 0 for g in grad):
             raise ValueError(f"the {what} goal {expr} does not depend on the states")
         function = sp.lambdify((real, time_symbol), grad, modules="numpy")
+        self.expression = sp.lambdify((real, time_symbol), expr_real, modules="numpy")
         try:
             function(list(ode.u0), ode.t0)
         except NameError as error:
@@ -138,7 +140,10 @@ class _Functional:
             return np.repeat(self.weights[:, None], len(times), axis=1)
         values = self.gradient(U, times)
         if not np.all(np.isfinite(values)):
-            raise ValueError("the goal's gradient is not finite at the computed solution")
+            raise ValueError("the goal's gradient is not finite at the computed solution (a "
+                             "goal dividing by a state, or taking its logarithm, where U is 0 "
+                             "or below): solve with an absolute_tolerance below that state's "
+                             "size (for goal=, the starting one)")
         return values
 
 
