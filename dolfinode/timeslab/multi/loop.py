@@ -10,7 +10,7 @@ from functools import cache
 import numpy as np
 from numba import types
 
-from dolfinode.compile.jit import Loop, helper
+from dolfinode.compile.jit import Loop, helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT, component_kernel, rhs_kernel
 from dolfinode.counters import (
     ELEMENTS,
@@ -166,6 +166,7 @@ def grown(carried, capacity):
     return carried[:8] + tuple(attempt[:3]) + (carried[11], attempt[3])
 
 
+@linked(returns=types.none, what="the multi-adaptive rejected attempt's partition", seconds=1)
 @helper(**NO_REFCOUNT)
 def _keep_partition(N, ne, cptr, celems, ocptr, ocelems):
     """Copy the CSR of each component's elements of a rejected attempt."""
@@ -175,6 +176,7 @@ def _keep_partition(N, ne, cptr, celems, ocptr, ocelems):
         ocelems[e] = celems[e]
 
 
+@linked(returns=types.int64, what="the multi-adaptive partition's sub-slabs", seconds=1)
 @helper(**NO_REFCOUNT)
 def _largest_sub_slab(ne, ea, eb):
     """The most elements on one interval (the slab's elements are ordered by interval)."""
@@ -340,7 +342,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     checked = np.empty(N, dtype=np.int64)
     check_stamp = np.zeros(N, dtype=np.int64)
     check_round = 0
-    rptr, readers = transpose_pattern(indptr, indices, N)
+    rptr = readers = np.empty(0, dtype=np.int64)  # (``transpose_pattern``, once one froze)
     wake_stack = np.empty(N, dtype=np.int64)  # (``wake_readers``)
     wake_depth = np.empty(N, dtype=np.int64)
     drift = np.empty(N)  # change on the slab and bound of the drift until T (``drift_bound``)
@@ -400,8 +402,9 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         if t >= T:
             if nfrozen > capacity - counters[STORED]:
                 return FULL
-            store_frozen(frozen, t, x, counters, out_comp, out_a, out_b, out_values)
-            st.regroup = st.regroup or nfrozen > 0
+            if nfrozen > 0:
+                store_frozen(frozen, t, x, counters, out_comp, out_a, out_b, out_values)
+                st.regroup = True
             return DONE
         factored[0] = 0
         kcap, kmin, rate = desired_steps(kdes, active, nactive, fixed, kmax, t, T)
@@ -543,6 +546,8 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                                                                unfiltered, atol, rtol)
         nchecked = 0
         if nfrozen > 0:
+            if rptr.shape[0] == 0:
+                rptr, readers = transpose_pattern(indptr, indices, N)
             check_round += 1
             nchecked, frozen_blowup = check_frozen(
                 check_round, active, nactive, o.autonomous, rptr, readers, check_stamp, frozen,
@@ -550,8 +555,9 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                 emax, umax, kact, drift, atol, rtol, counters)
             blowup = blowup or frozen_blowup
         scale_indicators(active, nactive, checked, nchecked, emax, atol, rtol, umax)
-        if wake_failed(checked, nchecked, emax, ACCEPTANCE_MARGIN, t, x, frozen, quiet, last_a,
-                       last_b, counters, out_comp, out_a, out_b, out_values):
+        if nchecked > 0 and wake_failed(checked, nchecked, emax, ACCEPTANCE_MARGIN, t, x, frozen,
+                                        quiet, last_a, last_b, counters, out_comp, out_a,
+                                        out_b, out_values):
             st.regroup = True
         if blowup:
             st.retry = False
