@@ -342,7 +342,8 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     z_complex = np.empty(N, dtype=np.complex128)
     reuse = o.reuse
     keep = o.keep_factors
-    rate = np.full(1, st.newton_rate)  # Newton's contraction rate on the last slab (newton)
+    rate = np.empty(1)  # Newton's contraction rate on the last slab (newton)
+    rate[0] = st.newton_rate
     # Newton stops relative to the delivered error (newton_tolerance), dG(q) only: cG(q) is
     # not L-stable and keeps a stiff component's iteration error (ROBER cG(2), 1e-2)
     delivered = o.delivered if is_dg else 0.0
