@@ -18,7 +18,7 @@ from dolfinode.adaptivity import (
     stiff_deviation,
     stiff_factor,
 )
-from dolfinode.compile.jit import Loop, helper
+from dolfinode.compile.jit import Loop, helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
 from dolfinode.linalg.newton_matrix import shift, store_jacobian
 from dolfinode.methods.method import lagrange_weights
@@ -233,6 +233,7 @@ def undamped(failed, slabs):
     return failed > UNDAMPED_FAILURES and failed >= UNDAMPED_SHARE * slabs
 
 
+@linked(returns=types.int64, what="the declared domain's check", seconds=1)
 @helper()
 def leaves_domain(X, floor):
     """The first component with a stage value X_(s N + i) below its floor (-atol_i for a
@@ -245,6 +246,7 @@ def leaves_domain(X, floor):
     return -1
 
 
+@linked(returns=types.boolean, what="the declared domain's projection", seconds=1)
 @helper()
 def project(X, floor):
     """Set the stage values of the nonnegative components in [floor, 0) to 0; returns whether
@@ -259,6 +261,7 @@ def project(X, floor):
     return changed
 
 
+@linked(returns=types.int64, what="the declared domain's projection", seconds=1)
 @helper()
 def drives_out(u, fu, floor, remaining):
     """The first nonnegative component at zero that f drives below its floor by the end,
@@ -339,7 +342,8 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     z_complex = np.empty(N, dtype=np.complex128)
     reuse = o.reuse
     keep = o.keep_factors
-    rate = np.full(1, st.newton_rate)  # Newton's contraction rate on the last slab (newton)
+    rate = np.empty(1)  # Newton's contraction rate on the last slab (newton)
+    rate[0] = st.newton_rate
     # Newton stops relative to the delivered error (newton_tolerance), dG(q) only: cG(q) is
     # not L-stable and keeps a stiff component's iteration error (ROBER cG(2), 1e-2)
     delivered = o.delivered if is_dg else 0.0
@@ -348,6 +352,10 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     w = np.empty(S * N)  # weights of the scaled norm (solvers' work space)
     weights = np.empty(n_nodes)  # extrapolate's work space
     counters[STORED] = 0
+    # whether a component is declared nonnegative (floor > -inf): else no domain checks
+    bounded = False
+    for i in range(N):
+        bounded = bounded or floor[i] > -math.inf
 
     t = st.t
     k = st.k_next
@@ -519,12 +527,12 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             continue
         accepted = fixed or eps <= 1.0
         if accepted:
-            outside = leaves_domain(X, floor)
+            outside = leaves_domain(X, floor) if bounded else -1
             if outside >= 0 and not fixed and CONSTRAINT_CUT * k >= kmin:
                 counters[REJECTED] += 1
                 k *= CONSTRAINT_CUT
                 continue
-            if outside < 0 and project(X, floor):
+            if outside < 0 and bounded and project(X, floor):
                 f(address(X, end), t + k, address(p, 0), address(fend, 0))
                 counters[F_EVALUATIONS] += 1
                 outside = drives_out(X[end:], fend, floor, T - t - k)

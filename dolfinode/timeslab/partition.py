@@ -66,7 +66,10 @@ def _partition(perm, offset, kdes, theta, length):
     return end, K
 
 
-@linked
+@linked(returns=types.Tuple((types.float64, types.int64, types.int64, types.int64,
+                             types.int64[::1], types.float64[::1], types.float64[::1],
+                             types.int64[::1])),
+        what="the multi-adaptive partition", seconds=1)
 @helper()
 def build_slab(a, T, kdes, active, theta, beta, kslab, comp, ea, eb, windows):
     """Build the time slab starting at a, at most kslab long, for the components ``active``
@@ -139,7 +142,8 @@ def one_group_end(a, T, kcap, kmin, theta, beta, kslab):
     return a + K if K < beta * (T - a) else T
 
 
-@linked
+@linked(returns=types.UniTuple(types.int64[::1], 3),
+        what="the multi-adaptive partition's elements", seconds=1)
 @helper()
 def component_elements(comp, ne, n):
     """CSR (ptr, elements) of each component's elements in creation (= time) order, and each

@@ -38,7 +38,7 @@ def trial_step(rhs, p, t0, atol, rtol, x, f0, k0, order, span):
     """The first step refined by a trial explicit Euler step of length k0
     (:func:`dolfinode.adaptivity.refined_step`); k0 where f there is not finite."""
     x1 = x + k0 * f0
-    f1 = np.empty_like(f0)
+    f1 = np.empty(f0.shape[0])
     call_rhs(rhs, x1, t0 + k0, p, f1)
     return refined_step(k0, f0, f1, x, atol, rtol, order, span)
 

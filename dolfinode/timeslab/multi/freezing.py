@@ -57,7 +57,7 @@ def drift_bound(change, rate, tau, mu, quiet):
     return abs(change) + abs(rate) * tau * growth
 
 
-@linked
+@linked(returns=types.boolean, what="the multi-adaptive freezing", seconds=1)
 @helper(**NO_REFCOUNT)
 def freeze(b, k, active, checked, indptr, indices, drift, atol, rtol, umax, x, frozen, kdes,
            last_a, last_b, quiet, uw, counters, out_comp, out_a, out_b, out_values):
@@ -102,6 +102,8 @@ def freeze(b, k, active, checked, indptr, indices, drift, atol, rtol, umax, x, f
     return changed
 
 
+@linked(returns=types.boolean, what="the multi-adaptive frozen components' wake-up",
+        seconds=1)
 @helper(**NO_REFCOUNT)
 def wake_readers(b, k, checked, nchecked, frozen, quiet, drift, rptr, readers, indptr, indices,
                  ji, x, p, jrow, atol, rtol, kdes, last_a, last_b, stack, depth, counters,
@@ -157,6 +159,8 @@ def wake_readers(b, k, checked, nchecked, frozen, quiet, drift, rptr, readers, i
     return woke
 
 
+@linked(returns=types.UniTuple(types.int64[::1], 2),
+        what="the multi-adaptive dependency pattern's transpose", seconds=1)
 @helper()
 def transpose_pattern(indptr, indices, N):
     """The transpose of the dependency pattern, as CSR (rptr, readers): the components whose
@@ -187,6 +191,8 @@ def active_components(frozen, active):
     return n
 
 
+@linked(returns=types.none, what="the multi-adaptive frozen components' storage",
+        seconds=1)
 @helper(**NO_REFCOUNT)
 def store_frozen(frozen, t, x, counters, out_comp, out_a, out_b, out_values):
     """At the end t of the run: the constant element of every frozen component since it
@@ -243,6 +249,8 @@ def check_frozen(stamp, active, nactive, autonomous, rptr, readers, check_stamp,
     return nchecked, blowup
 
 
+@linked(returns=types.boolean, what="the multi-adaptive frozen components' wake-up",
+        seconds=1)
 @helper(**NO_REFCOUNT)
 def wake_failed(checked, nchecked, emax, margin, t, x, frozen, quiet, last_a, last_b,
                 counters, out_comp, out_a, out_b, out_values):

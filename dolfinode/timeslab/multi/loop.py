@@ -10,7 +10,7 @@ from functools import cache
 import numpy as np
 from numba import types
 
-from dolfinode.compile.jit import Loop, helper
+from dolfinode.compile.jit import Loop, helper, linked
 from dolfinode.compile.signatures import NO_REFCOUNT, component_kernel, rhs_kernel
 from dolfinode.counters import (
     ELEMENTS,
@@ -166,6 +166,7 @@ def grown(carried, capacity):
     return carried[:8] + tuple(attempt[:3]) + (carried[11], attempt[3])
 
 
+@linked(returns=types.none, what="the multi-adaptive rejected attempt's partition", seconds=1)
 @helper(**NO_REFCOUNT)
 def _keep_partition(N, ne, cptr, celems, ocptr, ocelems):
     """Copy the CSR of each component's elements of a rejected attempt."""
@@ -175,6 +176,7 @@ def _keep_partition(N, ne, cptr, celems, ocptr, ocelems):
         ocelems[e] = celems[e]
 
 
+@linked(returns=types.int64, what="the multi-adaptive partition's sub-slabs", seconds=1)
 @helper(**NO_REFCOUNT)
 def _largest_sub_slab(ne, ea, eb):
     """The most elements on one interval (the slab's elements are ordered by interval)."""
@@ -186,6 +188,7 @@ def _largest_sub_slab(ne, ea, eb):
     return largest
 
 
+@linked(returns=types.float64, what="the multi-adaptive slab's storage", seconds=1)
 @helper(**NO_REFCOUNT)
 def _store_slab(ne, comp, ea, eb, values, counters, out_comp, out_a, out_b, out_values):
     """Append the accepted slab's elements to the output; returns its shortest element."""
@@ -202,15 +205,6 @@ def _store_slab(ne, comp, ea, eb, values, counters, out_comp, out_a, out_b, out_
     for e in range(ne):
         kmin = min(kmin, eb[e] - ea[e])
     return kmin
-
-
-@helper(**NO_REFCOUNT)
-def _fill_synchronised(N, t, b, comp, ea, eb):
-    """The elements of a synchronised slab: component e on [t, b] (as ``build_slab``)."""
-    for e in range(N):
-        comp[e] = e
-        ea[e] = t
-        eb[e] = b
 
 
 @helper(**NO_REFCOUNT)
@@ -295,7 +289,10 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     max_iter = o.max_iter
     rtol, T, kmax, dtol = o.rtol, o.T, o.kmax, o.dtol
     theta, beta = o.theta, o.beta
-    gamma = np.full(1, o.gamma + 0j)  # the error filter's stage eigenvalue
+    # (np.empty and a fill throughout: numba compiles np.zeros, np.ones, np.full and
+    # np.arange apart for each dtype, ~0.1 s each of the first compile)
+    gamma = np.empty(1, dtype=np.complex128)  # the error filter's stage eigenvalue
+    gamma[0] = o.gamma
     stages = (transform, transform_inverse, eigenvalues)
     # sweeps stop a tenth below the discrete tolerance, but not below the rounding level
     # (fixed steps iterate to dtol = 1e-15 of |U| + 1: Gauss-Seidel stalls above 1e-16)
@@ -316,19 +313,24 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     for i in range(N):
         degree = max(degree, indptr[i + 1] - indptr[i])
     cur = np.empty(degree, dtype=np.int64)
-    local = np.full(N, -1, dtype=np.int64)
+    local = np.empty(N, dtype=np.int64)
+    local[:] = -1
     group_order = np.empty(N, dtype=np.int64)
     elist = np.empty(N, dtype=np.int64)
-    changed = np.zeros(N, dtype=np.int64)  # clock stamps of the lazy sweeps (see converge)
+    changed = np.empty(N, dtype=np.int64)  # clock stamps of the lazy sweeps (see converge)
+    changed[:] = 0
     computed = np.empty(4 * N, dtype=np.int64)
-    clock = np.zeros(1, dtype=np.int64)
+    clock = np.empty(1, dtype=np.int64)
+    clock[0] = 0
     # Newton workspace for sub-slab groups (group_newton), grown to the largest group (band:
     # the global one); at least one real matrix, which the error filter uses
     band_width = 2 * o.band_lower + o.band_upper + 1
     n_real = real_eigenvalues(eigenvalues)
     newton = group_workspace(max(n_real, 1), eigenvalues.shape[0] - n_real, S, 1, band_width)
-    factored = np.zeros(N + 3, dtype=np.int64)  # the factors in ``newton`` (group_newton)
-    factored_k = np.zeros(1)
+    factored = np.empty(N + 3, dtype=np.int64)  # the factors in ``newton`` (group_newton)
+    factored[:] = 0
+    factored_k = np.empty(1)
+    factored_k[0] = 0.0
     uw = x.copy()
     states = np.empty((nn, N))  # the states at an interval's nodes (``moments``)
     out = np.empty(1)
@@ -338,33 +340,42 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     # active components and their frozen readers, not to N
     active = np.empty(N, dtype=np.int64)
     checked = np.empty(N, dtype=np.int64)
-    check_stamp = np.zeros(N, dtype=np.int64)
+    check_stamp = np.empty(N, dtype=np.int64)
+    check_stamp[:] = 0
     check_round = 0
-    rptr, readers = transpose_pattern(indptr, indices, N)
+    rptr = readers = np.empty(0, dtype=np.int64)  # (``transpose_pattern``, once one froze)
     wake_stack = np.empty(N, dtype=np.int64)  # (``wake_readers``)
     wake_depth = np.empty(N, dtype=np.int64)
     drift = np.empty(N)  # change on the slab and bound of the drift until T (``drift_bound``)
-    quiet = np.ones(N, dtype=np.bool_)  # (stays True for a frozen component until it wakes)
-    climb = np.array([st.climb_cost, st.climb_direction])  # (``slab_limit``)
+    quiet = np.empty(N, dtype=np.bool_)  # (stays True for a frozen component until it wakes)
+    quiet[:] = True
+    climb = np.empty(2)  # (``slab_limit``)
+    climb[0], climb[1] = st.climb_cost, st.climb_direction
     emax = np.empty(N)
     kact = np.empty(N)
     umax = np.empty(N)
     saved = np.empty((N, nn))  # the top level's values before its sweeps
-    top_start = np.zeros(1, dtype=np.int64)
-    top_change = np.zeros(N)
-    mark = np.zeros(N, dtype=np.int64)
-    lowered = np.zeros(N, dtype=np.bool_)  # (``propagate``)
+    top_start = np.empty(1, dtype=np.int64)
+    top_start[0] = 0
+    top_change = np.empty(N)
+    top_change[:] = 0.0
+    mark = np.empty(N, dtype=np.int64)
+    mark[:] = 0
+    lowered = np.empty(N, dtype=np.bool_)  # (``propagate``)
+    lowered[:] = False
     stack = np.empty(N, dtype=np.int64)
     # each row's reach and each coupling's weights (``tie_reach``) for the Jacobian rows
     # since their last evaluation: the slabs that share them pass only the rows that can
     # act to the ties and grading (``acting``)
     reach = np.empty(N)
-    lopsided = np.zeros(N, dtype=np.bool_)
+    lopsided = np.empty(N, dtype=np.bool_)
+    lopsided[:] = False
     strength = np.empty(max(1, indices.shape[0]))
     reaction = np.empty(max(1, indices.shape[0]))
     reach_valid = False
     acting = np.empty(N, dtype=np.int64)
-    projected = np.zeros(N, dtype=np.bool_)
+    projected = np.empty(N, dtype=np.bool_)
+    projected[:] = False
     # the synchronised slabs' workspace: stages, f at the end
     fvec = np.empty(N)
     X = np.empty(S * N)
@@ -372,16 +383,25 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     G = np.empty(S * N)
     w = np.empty(S * N)
     guess_weights = np.empty((nn, nn))  # (``initial_guess``)
-    guess_key = np.full(4, np.nan)
-    guess_far = np.zeros(nn, dtype=np.bool_)
-    sptr = np.zeros(1, dtype=np.int64)  # (``dependency_structure``, for the sweeps)
-    spts = np.zeros(1)
-    dptr = np.zeros(1, dtype=np.int64)
-    dcur = np.zeros(1, dtype=np.int64)
+    guess_key = np.empty(4)
+    guess_key[:] = np.nan
+    guess_far = np.empty(nn, dtype=np.bool_)
+    guess_far[:] = False
+    sptr = np.empty(1, dtype=np.int64)  # (``dependency_structure``, for the sweeps)
+    sptr[0] = 0
+    spts = np.empty(1)
+    spts[0] = 0.0
+    dptr = np.empty(1, dtype=np.int64)
+    dptr[0] = 0
+    dcur = np.empty(1, dtype=np.int64)
+    dcur[0] = 0
     # the per-component index arrays of a synchronised slab (``component_elements`` of
     # comp[e] = e): element i is component i's only one
-    ident = np.arange(N + 1)
-    no_prev = np.full(N, -1, dtype=np.int64)
+    ident = np.empty(N + 1, dtype=np.int64)
+    for i in range(N + 1):
+        ident[i] = i
+    no_prev = np.empty(N, dtype=np.int64)
+    no_prev[:] = -1
     # whether a component is declared nonnegative (floor > -inf): else no domain checks
     bounded = False
     for i in range(N):
@@ -400,8 +420,9 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         if t >= T:
             if nfrozen > capacity - counters[STORED]:
                 return FULL
-            store_frozen(frozen, t, x, counters, out_comp, out_a, out_b, out_values)
-            st.regroup = st.regroup or nfrozen > 0
+            if nfrozen > 0:
+                store_frozen(frozen, t, x, counters, out_comp, out_a, out_b, out_values)
+                st.regroup = True
             return DONE
         factored[0] = 0
         kcap, kmin, rate = desired_steps(kdes, active, nactive, fixed, kmax, t, T)
@@ -419,7 +440,10 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         fused = not math.isnan(b)
         if fused:
             ne, nsub, nwin = N, 1, 0
-            _fill_synchronised(N, t, b, comp, ea, eb)
+            for e in range(N):  # component e on [t, b] (as ``build_slab``)
+                comp[e] = e
+                ea[e] = t
+                eb[e] = b
         else:
             b, ne, nsub, nwin, comp, ea, eb, windows = build_slab(t, T, kdes, active[:nactive],
                                                                   threshold, beta, st.k_slab,
@@ -543,6 +567,8 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                                                                unfiltered, atol, rtol)
         nchecked = 0
         if nfrozen > 0:
+            if rptr.shape[0] == 0:
+                rptr, readers = transpose_pattern(indptr, indices, N)
             check_round += 1
             nchecked, frozen_blowup = check_frozen(
                 check_round, active, nactive, o.autonomous, rptr, readers, check_stamp, frozen,
@@ -550,8 +576,9 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                 emax, umax, kact, drift, atol, rtol, counters)
             blowup = blowup or frozen_blowup
         scale_indicators(active, nactive, checked, nchecked, emax, atol, rtol, umax)
-        if wake_failed(checked, nchecked, emax, ACCEPTANCE_MARGIN, t, x, frozen, quiet, last_a,
-                       last_b, counters, out_comp, out_a, out_b, out_values):
+        if nchecked > 0 and wake_failed(checked, nchecked, emax, ACCEPTANCE_MARGIN, t, x, frozen,
+                                        quiet, last_a, last_b, counters, out_comp, out_a,
+                                        out_b, out_values):
             st.regroup = True
         if blowup:
             st.retry = False

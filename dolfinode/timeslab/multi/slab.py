@@ -66,6 +66,7 @@ def _continued(i, e, a, b, ea, eb, m, x, last_values, nodes, bary, key, weights,
     return value
 
 
+@linked(returns=types.none, what="the multi-adaptive elements' guess", seconds=1)
 @helper(**NO_REFCOUNT)
 def initial_guess(ne, comp, ea, eb, prev, x, last_a, last_b, last_values, nodes, bary, key,
                   weights, far, values):
