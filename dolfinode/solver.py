@@ -31,13 +31,14 @@ import time
 import weakref
 from collections import namedtuple
 from collections.abc import Mapping
+from threading import get_ident
 from types import MappingProxyType
 
 import numpy as np
 
 from dolfinode import timeslab as ts
 from dolfinode.adaptivity import UNDAMPED_DEVIATION
-from dolfinode.ensemble import parameter_symbol
+from dolfinode.ensemble import parameter_symbol, vary
 from dolfinode.family import auto_base
 from dolfinode.features import narrow_features
 from dolfinode.io import history
@@ -111,7 +112,9 @@ class Solver:
     Notes
     -----
     A Solver keeps work space between calls (its copy of the declaration, the loop's output
-    buffers): call one Solver from one thread at a time, one per thread for parallel fits.
+    buffers) for the thread of its first call; calls from other threads solve a new copy of
+    the declaration by the general path of :func:`dolfinode.solve` (the same results,
+    without the prepared path's savings): make one Solver per thread for parallel fits.
     The Solutions it returns are left alone by later calls: a mono-adaptive one reads the
     output buffers until it is read or the next call writes them, which copies them first
     (:class:`~dolfinode.solution.PreparedSolution`).
@@ -141,6 +144,9 @@ class Solver:
         self._ode, self._method_text = ode, method
         self._given = MappingProxyType(dict(parameters))
         self._pool = pool
+        # {0: the thread whose calls use the pool's buffers and the solver's copy of the
+        # declaration}, claimed by the first call (dict.setdefault: atomic); _thread: its copy
+        self._owner, self._thread = pool.setdefault("owner", {}), None
         self._continued = 0  # prepared calls that did not end in the kept buffers
         self._driver = self._params["automatic_modeling"] or self._auto  # (many solves a call)
         self._prepare()
@@ -233,6 +239,11 @@ class Solver:
         SolverError
             As :func:`dolfinode.solve`.
         """
+        thread = get_ident()
+        if thread != self._thread:
+            self._thread = self._owner.setdefault(0, thread)
+            if self._thread != thread:
+                return self._solve_elsewhere(u0, params, T, t0)
         work = self._declaration(u0, params, T, t0)
         if self._driver:
             return solve(work._snapshot(), self.method, **self.parameters)
@@ -247,6 +258,18 @@ class Solver:
         if self._awaited_plans is not None and self._method.name in self._awaited_plans:
             self._prepare()
         return sol
+
+    def _solve_elsewhere(self, u0, params, T, t0):
+        """:meth:`solve` from a thread other than the one that owns the work space (which may
+        be writing it now, or hold a Solution that shares it): dn.solve of a new copy of the
+        declaration with these values, as :func:`dolfinode.vary` makes it (bitwise the
+        prepared call's result)."""
+        values = tuple(self.ode.params.values()) if params is None else self._parameters(params)
+        variation = dict(zip(self._symbols, values))
+        for name, value in (("u0", u0), ("T", T), ("t0", t0)):
+            if value is not None:
+                variation[name] = value
+        return solve(vary(self.ode, variation), self.method, **self.parameters)
 
     def _declaration(self, u0, params, T, t0):
         """The solver's copy of the declaration with the values of this call, checked as

@@ -179,6 +179,42 @@ def test_kept_solvers_sharing_buffers_leave_an_earlier_solution_alone(oscillator
     _assert_same_solution(sol, reference)
 
 
+@pytest.mark.parametrize("method", ["dG(2)", "mcG(1)"])
+def test_a_call_from_another_thread_leaves_a_running_call_alone(oscillator, method,
+                                                                monkeypatch):
+    """A Solver used by two threads at once: the second thread's call came while the first
+    one's was in the prepared path, replaced the values of the solver's copy of the
+    declaration and wrote its buffers, and the first call returned the second's solution,
+    silently. Calls from a thread other than the first caller's solve a copy."""
+    import threading
+
+    solver = dn.Solver(oscillator, method=method, tolerance=1e-6)
+    inside, other_done, results = threading.Event(), threading.Event(), {}
+    original = dn.Solver._solve_prepared
+
+    def paused(self, work):  # the first caller's call waits inside for the other's
+        if threading.current_thread() is threading.main_thread():
+            inside.set()
+            assert other_done.wait(60)
+        return original(self, work)
+
+    def other():
+        assert inside.wait(60)
+        try:
+            results["other"] = solver.solve(params={k: 9.0})
+        finally:
+            other_done.set()
+
+    monkeypatch.setattr(dn.Solver, "_solve_prepared", paused)
+    thread = threading.Thread(target=other)
+    thread.start()
+    results["first"] = solver.solve(params={k: 1.0})
+    thread.join()
+    for name, value in (("first", 1.0), ("other", 9.0)):
+        reference = dn.solve(dn.vary(oscillator, {k: value}), method=method, tolerance=1e-6)
+        _assert_same_solution(results[name], reference)
+
+
 def test_solver_takes_the_prepared_path_where_it_can(oscillator, monkeypatch):
     """A solve in memory takes one loop call into the kept buffers; events, breakpoints,
     samples only and modeling take the general path, with the same answers."""
