@@ -342,6 +342,7 @@ class Solver:
         compiled call over one object, :mod:`dolfinode.timeslab.prepared`). The storage of the
         Newton matrices is decided here, once, and the sample times and given steps are
         checked."""
+        self._interval = None  # (set last: a call stopped before makes all of it again)
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
         compiled = lower(work)
         rtol = params["tolerance"]
@@ -369,7 +370,6 @@ class Solver:
                                                    bool(options["newton_ready"][0])))
             advance = mono.advance
         self._samples = history.sink(work, m, multi_adaptive, params).samples  # (checked)
-        self._interval = (work.t0, work.T)
         # p, floor, the step bound: written by the next call
         self._values = self._signs = self._u0 = self._floor_key = None
         # an oscillating f(t) bounds the steps by what the parameter values make of it
@@ -389,6 +389,7 @@ class Solver:
         self._prepared = None if multi_adaptive else (prepared.run.entry(), prepared.workspace(
             start.compile(), self._start[1], advance.compile(), self._loop[1], x,
             self._initial))
+        self._interval = (work.t0, work.T)
 
     def _solve_prepared(self, work):
         """The solve of ``work`` as one call of the loop into the kept buffers, a run that
@@ -491,13 +492,13 @@ class Solver:
         space: the parameter values into p, and with them the steps' bound under an
         oscillating f(t) (as dn.solve's options set it); u0 into the initial
         values, and the floor of the values where the signs it depends on changed; then
-        the checks and warnings of new values, and the declaration as solved."""
+        the checks and warnings of new values. First the declaration as solved."""
         params, kept = self._params, self._kept
         compiled, atol = kept.compiled, kept.atol
+        self._solved = _Solved(work)
         if work.params is not self._values:
             values = tuple(work.params.values())
             compiled.p[:len(values)] = values
-            self._values = work.params
             signs = _signs(values)
             if signs != self._signs:
                 self._signs, self._u0 = signs, None
@@ -505,13 +506,15 @@ class Solver:
                 bound = _largest_step(work, False, atol)
                 kept.options["kmax"] = bound
                 self._step_bound = bound if bound < work.T - work.t0 else None
+            # (each mark of values taken comes after what they set: a call stopped between,
+            # by an error or a KeyboardInterrupt, leaves them to be taken again)
+            self._values = work.params
         if work.u0 is not self._u0:
             floor_key = (self._signs, _has_negative(work.u0))  # all the floor depends on
             if floor_key != self._floor_key:
                 kept.floor[:] = _floor(work, atol)
-                self._floor_key = floor_key
                 self._bounded = bool(np.isfinite(kept.floor).any())
-            self._u0 = work.u0
+                self._floor_key = floor_key
             self._initial[:] = work.u0
             if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
                 _check_resolvable_tolerance(work, atol, params["tolerance"])
@@ -519,9 +522,9 @@ class Solver:
             self._small = [] if params["fixed_time_step"] else below_tolerance(work.u0, atol)
             self._below = (not params["fixed_time_step"] and params["absolute_tolerance"] is None
                            and starts_below_tolerance(work.u0, atol))
+            self._u0 = work.u0
         if self._small:  # (warn_growth_below_tolerance: its rates read the parameters)
             warn_growth(work, compiled, atol, self._small)
-        self._solved = _Solved(work)
 
     def _go_on(self, work, status, started):
         """The Solution of a prepared run that stopped with ``status`` (the buffers full,
