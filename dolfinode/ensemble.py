@@ -157,7 +157,10 @@ def _collect(items, progress, return_exceptions, result):
                 out.append(result(item))
             except Exception as error:
                 if hasattr(error, "add_note"):  # Python >= 3.11
-                    error.add_note(f"(in variation {number} of solve_ensemble"
+                    held = ("; the runs before it are kept in this process: reduce= keeps "
+                            "only what you need of each" if number and
+                            isinstance(error, MemoryError) else "")
+                    error.add_note(f"(in variation {number} of solve_ensemble{held}"
                                    + (")" if return_exceptions else
                                       "; return_exceptions=True keeps the other runs)"))
                 if not return_exceptions:

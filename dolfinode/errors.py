@@ -24,6 +24,12 @@ class SolverError(RuntimeError):
         return str(self)
 
 
+class OutOfMemoryError(SolverError, MemoryError):
+    """A solve that ran out of the memory available to the process: a SolverError whose
+    message says what to change (``dense_output``, ``reduce=`` of an ensemble), and a
+    MemoryError for code that catches that."""
+
+
 class ModelingWarning(UserWarning):
     """Automatic modeling whose reduced model may not represent the full one: its a posteriori
     error estimate, or a defect found at a control point times the span it acted on, exceeds

@@ -7,6 +7,8 @@ import numpy as np
 import sympy as sp
 
 from dolfinode import timeslab as ts
+from dolfinode.errors import OutOfMemoryError
+from dolfinode.memory import available_memory
 from dolfinode.ode import t as dn_t
 
 #: The status of a solve stopped by maximum_steps (the loops' codes are >= 0).
@@ -77,6 +79,25 @@ def undefined(ode, compiled, x, t, k):
         return (f"f is not defined at t = {t:.6g}: {where} from the values of {components}; "
                 + (_DOMAIN_DECLARED if ode.nonnegative.any() else _DOMAIN))
     return None
+
+
+def out_of_memory(ode, params, t, error):
+    """The OutOfMemoryError (a SolverError) for an allocation that failed at the time ``t``
+    of a run (``error``: numpy's or the compiled code's MemoryError, often without a
+    message), saying what holds memory and what to change."""
+    done = 100 * (t - ode.t0) / (ode.T - ode.t0)
+    what = str(error) or "an allocation failed"
+    if params["dense_output"] is True:
+        hint = ("solve with dense_output=False to keep only the samples (choose them with "
+                "sample_times=) and the final state, or dense_output='run.h5' to stream the "
+                "history to a file")
+    else:
+        hint = "ask for fewer samples (number_of_samples, sample_times)"
+    return OutOfMemoryError(
+        f"the solve ran out of memory at t = {t:.6g} ({done:.3g}% of [t0, T]): {what}; the "
+        f"memory left to this process is {available_memory() / 2**30:.3g} GB (the least of the "
+        "machine's available memory, its cgroup limit and RLIMIT_AS). Free what the process "
+        f"holds (the solutions of earlier solves it keeps), or {hint}", t=t)
 
 
 def undamped_message(method, t, failed, slabs, tolerance):

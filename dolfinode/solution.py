@@ -1125,11 +1125,13 @@ class PreparedSolution(Solution):
     def _make_elements(self):
         """Copy the elements out of the solver's buffers (once; before the solver writes
         them again)."""
-        shared = self.__dict__.pop("_shared", None)
+        shared = self.__dict__.get("_shared")
         if shared is not None:
             times, X, n = shared
             times = times[:, :n].copy()
             self.__dict__.update(t_start=times[0], k=times[1], values=X[:n].copy())
+            # (dropped once copied: a KeyboardInterrupt before leaves it to copy again)
+            del self.__dict__["_shared"]
 
     @cached_property
     def _rhs(self):

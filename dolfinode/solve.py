@@ -22,7 +22,13 @@ from dolfinode.adaptivity import (
 )
 from dolfinode.compile import lower
 from dolfinode.errors import SolverError, ToleranceWarning
-from dolfinode.failures import STEP_LIMIT, failure_message, undamped_message, undefined
+from dolfinode.failures import (
+    STEP_LIMIT,
+    failure_message,
+    out_of_memory,
+    undamped_message,
+    undefined,
+)
 from dolfinode.family import auto_base, solve_auto
 from dolfinode.features import narrow_features
 from dolfinode.io import history
@@ -692,14 +698,21 @@ def run_started(ode, compiled, plan, multi_adaptive, m, params, started, start, 
     ``start``) to its Solution; ``kept``: a :class:`dolfinode.Solver`'s prepared call that
     did not finish (:func:`_run_mono`), which the run continues."""
     atol, floor, x, f0, steps, options, state, counters = started
-    sink = _estimating(ode, compiled, plan, multi_adaptive, m, params,
-                       history.sink(ode, m, multi_adaptive, params))
-    run = _run_multi if multi_adaptive else _run_mono
-    status, counters, state, elements, stats = run(ode, compiled, m, params, options, atol,
-                                                   floor, x, f0, steps, state, counters, plan,
-                                                   sink, kept)
-    sol = _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, state, x,
-                  stats, start, lambda solved: sink.solution(solved, m, elements, stats, x))
+    reached = state["t"]  # (the loop's time, written in place as it runs)
+    try:
+        sink = _estimating(ode, compiled, plan, multi_adaptive, m, params,
+                           history.sink(ode, m, multi_adaptive, params))
+        run = _run_multi if multi_adaptive else _run_mono
+        status, counters, state, elements, stats = run(ode, compiled, m, params, options,
+                                                       atol, floor, x, f0, steps, state,
+                                                       counters, plan, sink, kept)
+        sol = _finish(ode, compiled, plan, multi_adaptive, m, params, status, counters, state,
+                      x, stats, start,
+                      lambda solved: sink.solution(solved, m, elements, stats, x))
+    except MemoryError as error:  # (numpy's, or the compiled code's without a message)
+        if isinstance(error, SolverError):
+            raise
+        raise out_of_memory(ode, params, float(reached[0]), error) from error
     if plan is not None:
         plan.report(sol)
     return sol

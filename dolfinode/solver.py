@@ -31,13 +31,14 @@ import time
 import weakref
 from collections import namedtuple
 from collections.abc import Mapping
+from threading import get_ident
 from types import MappingProxyType
 
 import numpy as np
 
 from dolfinode import timeslab as ts
 from dolfinode.adaptivity import UNDAMPED_DEVIATION
-from dolfinode.ensemble import parameter_symbol
+from dolfinode.ensemble import parameter_symbol, vary
 from dolfinode.family import auto_base
 from dolfinode.features import narrow_features
 from dolfinode.io import history
@@ -111,7 +112,9 @@ class Solver:
     Notes
     -----
     A Solver keeps work space between calls (its copy of the declaration, the loop's output
-    buffers): call one Solver from one thread at a time, one per thread for parallel fits.
+    buffers) for the thread of its first call; calls from other threads solve a new copy of
+    the declaration by the general path of :func:`dolfinode.solve` (the same results,
+    without the prepared path's savings): make one Solver per thread for parallel fits.
     The Solutions it returns are left alone by later calls: a mono-adaptive one reads the
     output buffers until it is read or the next call writes them, which copies them first
     (:class:`~dolfinode.solution.PreparedSolution`).
@@ -141,6 +144,9 @@ class Solver:
         self._ode, self._method_text = ode, method
         self._given = MappingProxyType(dict(parameters))
         self._pool = pool
+        # {0: the thread whose calls use the pool's buffers and the solver's copy of the
+        # declaration}, claimed by the first call (dict.setdefault: atomic); _thread: its copy
+        self._owner, self._thread = pool.setdefault("owner", {}), None
         self._continued = 0  # prepared calls that did not end in the kept buffers
         self._driver = self._params["automatic_modeling"] or self._auto  # (many solves a call)
         self._prepare()
@@ -233,6 +239,11 @@ class Solver:
         SolverError
             As :func:`dolfinode.solve`.
         """
+        thread = get_ident()
+        if thread != self._thread:
+            self._thread = self._owner.setdefault(0, thread)
+            if self._thread != thread:
+                return self._solve_elsewhere(u0, params, T, t0)
         work = self._declaration(u0, params, T, t0)
         if self._driver:
             return solve(work._snapshot(), self.method, **self.parameters)
@@ -247,6 +258,18 @@ class Solver:
         if self._awaited_plans is not None and self._method.name in self._awaited_plans:
             self._prepare()
         return sol
+
+    def _solve_elsewhere(self, u0, params, T, t0):
+        """:meth:`solve` from a thread other than the one that owns the work space (which may
+        be writing it now, or hold a Solution that shares it): dn.solve of a new copy of the
+        declaration with these values, as :func:`dolfinode.vary` makes it (bitwise the
+        prepared call's result)."""
+        values = tuple(self.ode.params.values()) if params is None else self._parameters(params)
+        variation = dict(zip(self._symbols, values))
+        for name, value in (("u0", u0), ("T", T), ("t0", t0)):
+            if value is not None:
+                variation[name] = value
+        return solve(vary(self.ode, variation), self.method, **self.parameters)
 
     def _declaration(self, u0, params, T, t0):
         """The solver's copy of the declaration with the values of this call, checked as
@@ -319,6 +342,7 @@ class Solver:
         compiled call over one object, :mod:`dolfinode.timeslab.prepared`). The storage of the
         Newton matrices is decided here, once, and the sample times and given steps are
         checked."""
+        self._interval = None  # (set last: a call stopped before makes all of it again)
         params, m, multi_adaptive = self._params, self._method, self._multi_adaptive
         compiled = lower(work)
         rtol = params["tolerance"]
@@ -346,7 +370,6 @@ class Solver:
                                                    bool(options["newton_ready"][0])))
             advance = mono.advance
         self._samples = history.sink(work, m, multi_adaptive, params).samples  # (checked)
-        self._interval = (work.t0, work.T)
         # p, floor, the step bound: written by the next call
         self._values = self._signs = self._u0 = self._floor_key = None
         # an oscillating f(t) bounds the steps by what the parameter values make of it
@@ -366,6 +389,7 @@ class Solver:
         self._prepared = None if multi_adaptive else (prepared.run.entry(), prepared.workspace(
             start.compile(), self._start[1], advance.compile(), self._loop[1], x,
             self._initial))
+        self._interval = (work.t0, work.T)
 
     def _solve_prepared(self, work):
         """The solve of ``work`` as one call of the loop into the kept buffers, a run that
@@ -469,13 +493,13 @@ class Solver:
         space: the parameter values into p, and with them the steps' bound under an
         oscillating f(t) (as dn.solve's options set it); u0 into the initial
         values, and the floor of the values where the signs it depends on changed; then
-        the checks and warnings of new values, and the declaration as solved."""
+        the checks and warnings of new values. First the declaration as solved."""
         params, kept = self._params, self._kept
         compiled, atol = kept.compiled, kept.atol
+        self._solved = _Solved(work)
         if work.params is not self._values:
             values = tuple(work.params.values())
             compiled.p[:len(values)] = values
-            self._values = work.params
             signs = _signs(values)
             if signs != self._signs:
                 self._signs, self._u0 = signs, None
@@ -483,13 +507,15 @@ class Solver:
                 bound = _largest_step(work, False, atol)
                 kept.options["kmax"] = bound
                 self._step_bound = bound if bound < work.T - work.t0 else None
+            # (each mark of values taken comes after what they set: a call stopped between,
+            # by an error or a KeyboardInterrupt, leaves them to be taken again)
+            self._values = work.params
         if work.u0 is not self._u0:
             floor_key = (self._signs, _has_negative(work.u0))  # all the floor depends on
             if floor_key != self._floor_key:
                 kept.floor[:] = _floor(work, atol)
-                self._floor_key = floor_key
                 self._bounded = bool(np.isfinite(kept.floor).any())
-            self._u0 = work.u0
+                self._floor_key = floor_key
             self._initial[:] = work.u0
             if params["tolerance"] < MIN_TOLERANCE and not params["fixed_time_step"]:
                 _check_resolvable_tolerance(work, atol, params["tolerance"])
@@ -497,9 +523,9 @@ class Solver:
             self._small = [] if params["fixed_time_step"] else below_tolerance(work.u0, atol)
             self._below = (not params["fixed_time_step"] and params["absolute_tolerance"] is None
                            and starts_below_tolerance(work.u0, atol))
+            self._u0 = work.u0
         if self._small:  # (warn_growth_below_tolerance: its rates read the parameters)
             warn_growth(work, compiled, atol, self._small)
-        self._solved = _Solved(work)
 
     def _go_on(self, work, status, started):
         """The Solution of a prepared run that stopped with ``status`` (the buffers full,

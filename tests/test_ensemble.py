@@ -190,3 +190,28 @@ def test_dask_survives_a_killed_worker(tmp_path):
         cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
     assert (tmp_path / "killed").exists()  # a worker did die
     np.testing.assert_array_equal(values, expected_final_values())
+
+
+def test_a_member_out_of_memory_is_a_solver_error_naming_what_to_try(monkeypatch):
+    """Members that fit one by one but not together: the first ones' histories take the
+    memory, a later member's allocation fails (numpy's or the compiled code's MemoryError,
+    often without a message). It comes back as a SolverError naming dense_output, its
+    variation and reduce=; the other members complete."""
+    from dolfinode.io import history
+
+    add = history.InMemory.add
+
+    def full_from_the_second_run(self, chunk, t):
+        if self.ode.T == 2.0:
+            raise MemoryError()
+        add(self, chunk, t)
+
+    monkeypatch.setattr(history.InMemory, "add", full_from_the_second_run)
+    runs = dn.solve_ensemble(oscillator(), [{}, {"T": 2.0}, {"T": 0.5}], method="cG(2)",
+                             return_exceptions=True)
+    assert [type(run).__name__ for run in runs] == ["Solution", "OutOfMemoryError", "Solution"]
+    failed = runs[1]
+    assert isinstance(failed, dn.SolverError) and isinstance(failed, MemoryError)
+    assert failed.status == -1 and 0.0 < failed.t <= 2.0
+    assert "dense_output=False" in failed.message and "ran out of memory" in failed.message
+    assert "variation 1" in "".join(failed.__notes__) and "reduce=" in "".join(failed.__notes__)

@@ -201,6 +201,90 @@ def test_kept_solvers_sharing_buffers_leave_an_earlier_solution_alone(oscillator
     _assert_same_solution(sol, reference)
 
 
+@pytest.mark.parametrize("method", ["dG(2)", "mcG(1)"])
+def test_a_call_from_another_thread_leaves_a_running_call_alone(oscillator, method,
+                                                                monkeypatch):
+    """A Solver used by two threads at once: the second thread's call came while the first
+    one's was in the prepared path, replaced the values of the solver's copy of the
+    declaration and wrote its buffers, and the first call returned the second's solution,
+    silently. Calls from a thread other than the first caller's solve a copy."""
+    import threading
+
+    solver = dn.Solver(oscillator, method=method, tolerance=1e-6)
+    inside, other_done, results = threading.Event(), threading.Event(), {}
+    original = dn.Solver._solve_prepared
+
+    def paused(self, work):  # the first caller's call waits inside for the other's
+        if threading.current_thread() is threading.main_thread():
+            inside.set()
+            assert other_done.wait(60)
+        return original(self, work)
+
+    def other():
+        assert inside.wait(60)
+        try:
+            results["other"] = solver.solve(params={k: 9.0})
+        finally:
+            other_done.set()
+
+    monkeypatch.setattr(dn.Solver, "_solve_prepared", paused)
+    thread = threading.Thread(target=other)
+    thread.start()
+    results["first"] = solver.solve(params={k: 1.0})
+    thread.join()
+    for name, value in (("first", 1.0), ("other", 9.0)):
+        reference = dn.solve(dn.vary(oscillator, {k: value}), method=method, tolerance=1e-6)
+        _assert_same_solution(results[name], reference)
+
+
+def _stopped_at(code, line):
+    """A trace function raising KeyboardInterrupt (as Ctrl-C's handler does) when ``code``
+    reaches ``line``."""
+    def local(frame, event, arg):
+        if event == "line" and frame.f_lineno == line:
+            raise KeyboardInterrupt
+        return local
+    return lambda frame, event, arg: local if frame.f_code is code else None
+
+
+@pytest.mark.parametrize("method", ["dG(2)", "mcG(1)"])
+def test_a_call_stopped_at_any_line_leaves_the_solver_right(method):
+    """A KeyboardInterrupt at any line of the code that writes a call's values and interval
+    into the work space, or copies the last solution out of the buffers: the solution held
+    from before and the next calls are bitwise dn.solve's. A stop there left the values or
+    the interval marked as taken (the next call solved with the step bound of other values
+    or the arrays of another interval) or a solution without its elements (KeyError)."""
+    import inspect
+
+    w = sp.Symbol("w")
+    ode = dn.ODE({u: v, v: -k * u + sp.sin(w * dn.t)}, u0=[1.0, 0.0], T=2.0,
+                 params={k: 4.0, w: 3.0})
+    options = {"tolerance": 1e-6, "estimate_global_error": False}
+    times = np.linspace(0.0, 1.5, 7)
+    first, other = {"params": {k: 1.0, w: 3.0}}, {"params": {k: 9.0, w: 40.0}, "T": 1.5}
+    references = [dn.solve(dn.vary(ode, {**call["params"], "T": call.get("T", 2.0)}),
+                           method=method, **options) for call in (first, other)]
+    solver = dn.Solver(ode, method=method, **options)
+    stopped = 0
+    for function in (dn.Solver._take_values, dn.Solver._workspace,
+                     PreparedSolution._make_elements):
+        lines, start = inspect.getsourcelines(function)
+        for line in range(start + 1, start + len(lines)):
+            held = solver.solve(**first)
+            tracer = sys.gettrace()
+            sys.settrace(_stopped_at(function.__code__, line))
+            try:
+                solver.solve(**other)
+            except KeyboardInterrupt:
+                stopped += 1
+            finally:
+                sys.settrace(tracer)
+            np.testing.assert_array_equal(held(times), references[0](times))
+            for call, reference in ((other, references[1]), (first, references[0])):
+                np.testing.assert_array_equal(solver.solve(**call).y, reference.y)
+    assert stopped > 20
+
+
 def test_solver_takes_the_prepared_path_where_it_can(oscillator, monkeypatch):
     """A solve in memory takes one loop call into the kept buffers; events, breakpoints,
     samples only and modeling take the general path, with the same answers."""

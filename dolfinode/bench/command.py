@@ -158,6 +158,19 @@ def _check_overwrite(args):
                          "--force to overwrite them")
 
 
+def _check_writable(folder):
+    """Make the output ``folder`` now, so that a run that could not write its outputs fails
+    before it runs instead of after (ValueError naming --output)."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ValueError(f"cannot make the output folder {folder} ({error.strerror}); choose "
+                         "another with --output") from error
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ValueError(f"the output folder {folder} is not writable; choose another with "
+                         "--output")
+
+
 def plan(args):
     """(groups, runner options) the arguments ask for, a group being (problems, methods,
     tolerances), run by one call of :func:`run_suite`; None for ``--report-only``. Sets the
@@ -167,8 +180,8 @@ def plan(args):
     ------
     ValueError
         For an unknown problem or method, a non-positive number, a missing record for
-        ``--merge`` or ``--report-only``, or outputs that would overwrite files git tracks
-        without ``--force``.
+        ``--merge`` or ``--report-only``, outputs that would overwrite files git tracks
+        without ``--force``, or an output folder that cannot be made or written (made here).
     """
     if args.output is None:
         if args.merge or args.report_only:
@@ -204,6 +217,7 @@ def plan(args):
         if not args.time_limit > 0:
             raise ValueError(f"--time-limit must be positive, got {args.time_limit}")
         options["time_limit"] = args.time_limit
+    _check_writable(Path(args.output))  # (last: a refused run leaves no folder)
     return groups, options
 
 

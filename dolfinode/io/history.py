@@ -27,7 +27,7 @@ import mmap
 import numpy as np
 from numba import njit
 
-from dolfinode.errors import SolverError
+from dolfinode.errors import OutOfMemoryError
 from dolfinode.memory import address_space_room, available_memory
 from dolfinode.solution import (
     MixedSolution,
@@ -193,7 +193,7 @@ class InMemory:
         done = (t - ode.t0) / (ode.T - ode.t0)
         projected = (f"; the whole interval would take about {self.bytes / done / 2**30:.3g} GB"
                      if done > 0 else "")
-        raise SolverError(
+        raise OutOfMemoryError(
             f"the solution history kept for dense output has grown to "
             f"{self.bytes / 2**30:.3g} GB at t = {t:.6g} ({100 * done:.3g}% of [t0, T])"
             f"{projected}; going on and joining it needs {more / 2**30:.3g} GB more, and the "

@@ -69,6 +69,17 @@ def test_merge_and_report_only_need_an_output_folder(capsys):
         assert "need the --output folder" in capsys.readouterr().err
 
 
+def test_an_output_folder_that_cannot_be_made_is_refused_before_running(tiny_registered, tmp_path,
+                                                                        capsys):
+    """--output under a regular file: refused at once; the run went through every problem
+    and then failed in mkdir with a traceback."""
+    (tmp_path / "file").write_text("")
+    with pytest.raises(SystemExit):
+        main(["bench", *TINY_RUN, "--output", str(tmp_path / "file" / "out")])
+    err = capsys.readouterr().err
+    assert "cannot make the output folder" in err and "--output" in err
+
+
 def test_help_shows_every_default():
     parser = argparse.ArgumentParser()
     add_arguments(parser)

@@ -340,3 +340,35 @@ def test_a_short_chunk_of_a_large_buffer_is_copied():
         counters[STORED] = stored
         (chunk,) = history.filled([buffer], counters)
         assert len(chunk) == stored and (chunk.base is None) == copied
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "dG(2)", "mcG(2)"])
+@pytest.mark.parametrize("where", ["add", "finish"])
+def test_an_allocation_that_fails_mid_run_is_a_solver_error(method, where, monkeypatch):
+    """An allocation that fails while the history grows (the memory taken by something else
+    since the last check) or while it is joined: OutOfMemoryError, a SolverError that names
+    the time reached and dense_output, and still a MemoryError; a bare MemoryError before."""
+    import sys
+
+    from dolfinode.errors import OutOfMemoryError
+    from dolfinode.io import history
+
+    original = getattr(history.InMemory, where)
+    calls = []
+
+    def failing(self, *arguments):
+        calls.append(None)
+        if len(calls) == 2 or where == "finish":
+            raise MemoryError()
+        return original(self, *arguments)
+
+    monkeypatch.setattr(sys.modules["dolfinode.solve"], "_CHUNK_LIMIT", 16)
+    monkeypatch.setattr(history.InMemory, where, failing)
+    x, y = sp.symbols("x y")
+    ode = dn.ODE({x: y, y: -x}, u0=[1.0, 0.0], T=10.0)
+    with pytest.raises(OutOfMemoryError) as info:
+        dn.solve(ode, method, tolerance=1e-6)
+    error = info.value
+    assert isinstance(error, dn.SolverError) and isinstance(error, MemoryError)
+    assert (ode.t0 < error.t < ode.T) if where == "add" else error.t == ode.T
+    assert f"at t = {error.t:.6g}" in error.message and "dense_output=False" in error.message
