@@ -450,11 +450,11 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         the estimate is within 10 x but its second-order part, the remainder f(U - e) -
         f(U) + J e the linearisation leaves out propagated along the run as the estimate
         is, ``sol.stats["global error second order"]``, could lift it above: a nonlinear
-        oscillator's phase error over many periods). A multi-adaptive run estimated by the
-        stage systems also gets ``sol.stats["global error mid-run"]``, the largest error at
-        the element ends that read another component inside its element, where no step
-        control sees it, with a warning above 10 x the tolerance where the estimate at T is
-        within (:func:`dolfinode.global_error.midrun_warning`). Measured within
+        oscillator's phase error over many periods). A multi-adaptive run also gets
+        ``sol.stats["global error mid-run"]``, the largest error at every element end of
+        every component (by the same estimate, stage systems or slab estimate), with a
+        warning above 10 x the tolerance where the error at T is within
+        (:func:`dolfinode.global_error.midrun_warning`). Measured within
         0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
         and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md); it
         costs 0.4-8 x a small solve (a compiled pass over the slabs, one stage solve of
@@ -1223,15 +1223,17 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
     where the run is stiff on a slab it gives up (:func:`_stiff_on_slabs`), and where its
     elements' copy exceeds the memory sol.stats["global error note"] says that the error at T
     was not estimated. ``running``: the estimate carried chunk by chunk
-    (:class:`global_error.Running`). The stage recursion also gives the largest error at
-    an element end mid-run, "global error mid-run", with a ToleranceWarning where it
-    exceeds 10 x the tolerance and the estimate at T does not
-    (:func:`global_error.midrun_warning`)."""
+    (:class:`global_error.Running`). Both estimates of a multi-adaptive run also give the
+    largest error at an element end mid-run (every component's, :func:`global_error.carried`,
+    :func:`global_error.slab_estimate`), "global error mid-run", with a ToleranceWarning
+    where it exceeds 10 x the tolerance and the error at T does not
+    (:func:`_midrun_warning`)."""
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
+    peak = np.zeros(3)  # the error mid-run: value, time, component
     if slabs:
         try:
-            found = global_error.slab_estimate(sol, compiled, atol / rtol)
+            found = global_error.slab_estimate(sol, compiled, atol / rtol, peak)
         except ValueError as error:
             sol.stats["global error note"] = f"not estimated: {error}"
             return
@@ -1243,7 +1245,7 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
     else:
         if running is None:
             running = global_error.carried(sol, compiled, atol / rtol)
-        found = running.e, running.nu, running.delta
+        found, peak = (running.e, running.nu, running.delta), running.peak
     e, nu, delta = found
     # scaled by u(T) ~ U(T) - e, as the tolerance means: where the run damped |U| below |u|
     # (a stiff spring stepped over) U's own scale overstates the error (mdG(3) on the
@@ -1253,6 +1255,8 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
     sol.stats["global error estimate"] = size
     sol.stats["global error nonlinearity"] = nu
     sol.stats["global error second order"] = delta
+    if peak[0] > 0.0:
+        sol.stats["global error mid-run"] = float(peak[0])
     if params["fixed_time_step"]:
         return
     if (size <= global_error.WARN_FACTOR * rtol < size + delta
@@ -1261,13 +1265,12 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
         # warning's threshold (a nonlinear oscillator's phase error at a node of its swing);
         # above NONLINEAR_LIMIT the estimate is not trusted either way (VDPOL's folds)
         _measure(ode, params, sol, atol, global_error.SECOND_ORDER)
+        why = _midrun_warning(ode, sol, peak, nu, rtol)
+        if why:
+            _warn(why)
         return
     why = global_error.warning(size, nu, rtol, ode.states[i])
-    if running is not None and running.peak[0] > 0.0:
-        peak, time, j = running.peak
-        sol.stats["global error mid-run"] = float(peak)
-        why = why or global_error.midrun_warning(peak, time, size, nu, rtol,
-                                                 ode.states[int(j)])
+    why = why or _midrun_warning(ode, sol, peak, nu, rtol)
     if why and nu > global_error.NONLINEAR_LIMIT and np.isfinite(size):
         measured = _reference_error(ode, params, sol, atol)
         if measured is not None:
@@ -1277,6 +1280,17 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
                                                 REFERENCE_FACTOR)
     if why:
         _warn(why)
+
+
+def _midrun_warning(ode, sol, peak, nu, rtol):
+    """The ToleranceWarning's message (:func:`global_error.midrun_warning`) for the error
+    mid-run ``peak`` (value, time, component; value 0: none compared) of ``sol``, whose error
+    at T is sol.stats["global error estimate"] (estimated or measured); None for none."""
+    largest, time, j = peak
+    if largest == 0.0:
+        return None
+    return global_error.midrun_warning(largest, time, sol.stats["global error estimate"], nu,
+                                       rtol, ode.states[int(j)])
 
 
 def _stiff_on_slabs(ode, params, sol, atol):
