@@ -1327,7 +1327,7 @@ def scaled(e, U, atol, rtol):
     return float(ratio[i]), i
 
 
-def midrun_warning(peak, time, size, nu, rtol, state):
+def midrun_warning(peak, time, size, nu, rtol, state, shift=np.inf):
     """The ToleranceWarning's message for an error mid-run, ``peak`` (as :func:`scaled`, at
     an element end of ``state`` at ``time``: :attr:`Running.peak`) above WARN_FACTOR x the
     tolerance ``rtol`` where the estimate at T, ``size``, is within it; None otherwise, and
@@ -1339,15 +1339,19 @@ def midrun_warning(peak, time, size, nu, rtol, state):
     elements (a's Galerkin polynomial 139 x off there, right at a's own ends), 0.06 x at
     T; mcG(3) and mdG(2) on a front along a 200-stage linear chain at 1e-6 17 x and 20 x,
     0.05 x and 0.09 x at T. The recursion's e_n matched the error at every end (ratio
-    0.999-1.000)."""
+    0.999-1.000). ``shift``: the time over which ``state`` changes by that error at its
+    rate there (a fast transition's phase, if one is that near)."""
     if peak <= WARN_FACTOR * rtol or size > WARN_FACTOR * rtol or nu > NONLINEAR_LIMIT:
         return None
+    phase = (f" At {state}'s rate there, that is its change over {shift:.2g} of time: if a "
+             "fast transition is that near, the error is its phase, the transition's time off "
+             "by about that much." if np.isfinite(shift) else "")
     return (f"the estimated error mid-run is {peak / rtol:.3g} x the tolerance at t = "
             f"{time:.6g} (in {state}, at its element end; sol.stats['global error mid-run'] = "
             f"{peak:.3g}), though {size / rtol:.3g} x at T: the run damps or cancels it before "
             "T. Values read before T may be that far off: try a tighter tolerance, or the "
             "mono-adaptive method (cG(q)/dG(q)) for a stiff component read by others or a "
-            "front along a chain")
+            f"front along a chain.{phase}")
 
 
 def warning(size, nu, rtol, state):

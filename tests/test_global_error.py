@@ -1,4 +1,5 @@
 """The estimate of the error at T (dolfinode.global_error) and solve's warning from it."""
+import re
 import warnings
 
 import numpy as np
@@ -740,3 +741,25 @@ def test_a_linear_chain_within_the_band_has_no_second_order_part(method):
     assert _scaled_error(p.ode, sol(p.T), p.final, tolerance) <= 10 * tolerance
     assert sol.stats["global error second order"] < 1e-6 * tolerance
     assert "global error reference" not in sol.stats
+
+
+def test_the_midrun_warning_gives_the_phase_of_a_fast_transition():
+    """Van der Pol (eps = 1e-6) by mcG(3) at 1e-6 is 1.7e5 x off at an element end in its fast
+    transition, 0.07 x at T: the warning's time shift |e_j| / |f_j| is the transition's
+    phase, the time at which the reference takes the run's value there."""
+    p = problems.vdpol()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", dn.ToleranceWarning)
+        sol = dn.solve(p.ode, "mcG(3)", tolerance=1e-6, absolute_tolerance=p.atol_ratio * 1e-6)
+    told = [str(w.message) for w in caught if "mid-run" in str(w.message)]
+    assert len(told) == 1, told
+    t = float(re.search(r"at t = ([0-9.e+-]+) \(in y2", told[0]).group(1))
+    shift = float(re.search(r"change over ([0-9.e+-]+) of time", told[0]).group(1))
+    f = lower(p.ode).f
+    ref = solve_ivp(lambda s, y: f(y, s), (0.0, t + 1e-3), p.ode.u0, method="Radau",
+                    rtol=1e-12, atol=1e-12, dense_output=True)
+    grid = np.linspace(t - 20 * shift, t + 20 * shift, 4001)
+    tau = grid[np.argmin(np.abs(ref.sol(grid)[1] - sol(t)[1]))]
+    assert 0.3 * shift <= abs(tau - t) <= 3 * shift, (tau - t, shift)
+    assert "the transition's time off" not in global_error.midrun_warning(
+        1.0, 1.0, 0.0, 0.0, 1e-3, "u")
