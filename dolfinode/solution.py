@@ -186,8 +186,56 @@ def _passes_defect_test(c, defect, star, q_star, theta):
     return c if abs(defect) * (0.5 * star) <= theta * abs(c * q_star) else 0.0
 
 
+@njit(cache=True, inline="always")
+def _defect_correction(rhs, p, t, k, X, F, g, Y, F2, star, pi_star, s_star, theta):
+    """V = P - g S, the collocation polynomial P (of :func:`_evaluate_cg` or
+    :func:`_evaluate_dg`) corrected by its defect, one order higher inside the element.
+
+    P's defect d = P' - k f(P, t) vanishes at the collocation nodes tau_j, d(tau) ~ g Pi(tau)
+    with Pi(tau) = prod_j (tau - tau_j), and the error u - P ~ -int_0^tau d = -g S(tau),
+    S(tau) = int_0^tau Pi (S(0) = S(1) = 0: the element ends are unchanged), so with
+    g = d(tau*) / Pi(tau*) V's interior error is O(k^(q+3)) where the element resolves the
+    component (cG(q): at most the nodes' O(k^(2q))), against P's O(k^(q+2)). Where
+    k |lambda| >> 1 the error follows d / (k lambda), not -int d: V is used where its own
+    residual passes :func:`_passes_defect_test`, k |f_i(V(tau*)) -
+    f_i(P(tau*))| tau* / 2 <= theta |g S(tau*)| (V' = P' - g Pi, so V's defect at tau* is
+    k (f(P) - f(V)) there; along the correction, k |lambda| tau* / 2 <= theta).
+
+    On entry X = P(tau*) at time t, F = f(X), g[i] = d_i(tau*) (0 where P is not formed);
+    on return g[i] = d_i(tau*) / Pi(tau*) where V passes, else 0. Y, F2: workspace
+    (V(tau*), f there); f the kernel at address ``rhs``, parameters p."""
+    f = rhs_kernel(rhs)
+    for i in range(X.shape[0]):
+        g[i] /= pi_star
+        Y[i] = X[i] - g[i] * s_star
+    f(address(Y, 0), t, address(p, 0), address(F2, 0))
+    for i in range(X.shape[0]):
+        g[i] = _passes_defect_test(g[i], k * (F[i] - F2[i]), star, s_star, theta)
+
+
+@njit(cache=True, inline="always")
+def _correction_shape(G, tau):
+    """S(tau) = int_0^tau Pi = tau (tau - 1) G(tau) (G's monomial coefficients, highest
+    first; :func:`_defect_check`)."""
+    s = 0.0
+    for coefficient in G:
+        s = s * tau + coefficient
+    return s * tau * (tau - 1.0)
+
+
+@njit(cache=True, inline="always")
+def _cg_defects(values, n, slopes, c, dq_star, k, F, d):
+    """d[i] = P_i'(tau*) - k F[i], the defect of :func:`_evaluate_cg`'s P = U + c Q on element
+    n at tau* (F = f there; ``slopes`` l_j'(tau*), dq_star Q'(tau*))."""
+    for i in range(d.shape[0]):
+        d[i] = c[i] * dq_star - k * F[i]
+        for j in range(slopes.shape[0]):
+            d[i] += slopes[j] * values[n, j, i]
+
+
 @njit(cache=True)
-def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, p, check, theta, times, out):
+def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, jacobian, diagonal, nnz, p,
+                 check, theta, times, out):
     """out[i, m] = the dense value of a mono-adaptive cG(q) solution at times[m].
 
     On element n, with nodal values U_j at the Lobatto nodes tau_j (tau_0 = 0, tau_q = 1)
@@ -199,24 +247,54 @@ def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, p, check, theta, time
 
     (w_j the barycentric weights: sum_j w_j f_j is the leading coefficient of the
     interpolant of the f_j; the cG(q) equations make P' - U' orthogonal to the polynomials
-    of degree q - 1, so it is c Q'). P's interior error is O(k^(q+2)) where the element
-    resolves the component, U's O(k^(q+1)). Where k |lambda| >> 1 the nodal errors enter
-    k f_j multiplied by it and P swings. P is used per element and component only where
-    its defect d = P' - k f(P, t) at tau* = tau_1 / 2 (off the nodes), integrated from
-    tau = 0 where it vanishes, about P's error at tau*, is at most theta times the
-    correction there, about U's error: |d(tau*)| tau* / 2 <= theta |c Q(tau*)|, else U (a
-    stiff component: d(tau*) ~ k lambda c Q(tau*)). ``check`` = (tau*, l_j(tau*),
-    l_j'(tau*), Q(tau*), Q'(tau*)), l_j U's Lagrange basis. Q is 0 at the nodes: the
-    element ends are unchanged bit for bit. f (the kernel at address ``rhs``, parameters
-    p) is evaluated at the q + 1 nodes and at tau* once per element, when a time first
-    falls inside it.
+    of degree q - 1, so it is c Q'), and with its defect d = P' - k f(P, t) at
+    tau* = tau_1 / 2 (off the nodes) the corrected value (:func:`_defect_correction`)
+
+        V(tau) = P(tau) - g S(tau),  g = d(tau*) / Q(tau*),  S(tau) = int_0^tau Q
+
+    (S(1) = 0: Lobatto quadrature is exact for Q, q >= 2). U's interior error is
+    O(k^(q+1)), P's O(k^(q+2)), V's O(k^(q+3)) up to the nodes' O(k^(2q)) where the element
+    resolves the component. Where k |lambda| >> 1 the nodal errors enter k f_j multiplied
+    by it and P swings. Per element and component V is used where its own residual test
+    passes, else P where its defect, integrated from tau = 0 where it vanishes (about P's
+    error at tau*), is at most theta times the correction there (about U's error),
+    |d(tau*)| tau* / 2 <= theta |c Q(tau*)| (:func:`_passes_defect_test`; a stiff
+    component: d(tau*) ~ k lambda c Q(tau*)), else U.
+
+    A component i that fails P's test and is stiff on the element, k |J_ii| tau* / 2 > theta
+    (J = df/du at U(tau*)), lies near its quasi-steady state: its error follows the defect,
+    u - U ~ d_U / (k J_ii) with U's defect d_U = U' - k f(U) ~ Q-shaped (U interpolates the
+    steady state at the nodes), so it takes the quasi-steady value
+
+        W(tau) = U(tau) + c Q(tau),  c Q(tau*) = d_U(tau*) / (k J_ii)
+
+    (one order above U: O(k^(q+2)) where the steady state is smooth; from P instead, a
+    Newton step from P's swing, it failed on nonlinear f), where W's residual at tau*,
+    mapped the same way, is at most theta times W's correction of U,
+    |W'(tau*) - k f_i(W(tau*))| <= theta |k J_ii (W - U)(tau*)|, else U. The other
+    components' tests then read f at W(tau*) for these (at U(tau*) where W fails), not at
+    P(tau*), which swings: one Jacobian and two more f per element where a component fails
+    P's test (three where a W fails).
+
+    ``check`` = (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*), S(tau*), G)
+    (:func:`_defect_check`), l_j U's Lagrange basis; ``jacobian`` the Jacobian kernel's
+    address (its nnz CSR values, J_ii at diagonal[i], -1 where f_i does not read u_i).
+    Q and S are 0 at the ends: the element ends are unchanged bit for bit. f (the kernel at
+    address ``rhs``, parameters p) is evaluated at the q + 1 nodes and twice at tau* once
+    per element, when a time first falls inside it.
     """
     q1, N = nodes.shape[0], out.shape[0]
-    star, basis, slopes, q_star, dq_star = check
+    star, basis, slopes, q_star, dq_star, s_star, g_coefficients = check
     weights = np.empty(q1)
     U = np.empty((q1 + 1, N))  # (contiguous rows for the kernel; the last P(tau*))
     F = np.empty((q1 + 1, N))
     c = np.zeros(N)
+    g = np.zeros(N)
+    collocated = np.zeros(N, dtype=np.bool_)
+    stiff = np.zeros(N, dtype=np.bool_)
+    Y = np.empty(N)
+    F2 = np.empty(N)
+    J = np.empty(max(nnz, 1))
     f = rhs_kernel(rhs)
     current = -1
     ready = False
@@ -250,18 +328,62 @@ def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, p, check, theta, time
                     U[q1, i] += basis[j] * values[n, j, i]
                 c[i] = k * lead / q1
                 U[q1, i] += c[i] * q_star
-            f(address(U, q1 * N), t_start[n] + star * k, address(p, 0), address(F, q1 * N))
+            t_star = t_start[n] + star * k
+            f(address(U, q1 * N), t_star, address(p, 0), address(F, q1 * N))
+            _cg_defects(values, n, slopes, c, dq_star, k, F[q1], g)
+            some_stiff = False
             for i in range(N):
-                defect = c[i] * dq_star - k * F[q1, i]
-                for j in range(q1):
-                    defect += slopes[j] * values[n, j, i]
-                c[i] = _passes_defect_test(c[i], defect, star, q_star, theta)
+                collocated[i] = _passes_defect_test(c[i], g[i], star, q_star, theta) != 0.0
+                stiff[i] = False
+            if not collocated.all():
+                for i in range(N):  # U(tau*)
+                    Y[i] = 0.0
+                    for j in range(q1):
+                        Y[i] += basis[j] * values[n, j, i]
+                rhs_kernel(jacobian)(address(Y, 0), t_star, address(p, 0), address(J, 0))
+                f(address(Y, 0), t_star, address(p, 0), address(F2, 0))
+                for i in range(N):
+                    kj = k * J[diagonal[i]] if diagonal[i] >= 0 else 0.0
+                    stiff[i] = not collocated[i] and abs(kj) * (0.5 * star) > theta
+                    if stiff[i]:  # W = U + c Q, c Q(tau*) = U's defect / (k J_ii)
+                        some_stiff = True
+                        c[i] = -k * F2[i]
+                        for j in range(q1):
+                            c[i] += slopes[j] * values[n, j, i]
+                        c[i] /= q_star * kj
+                        U[q1, i] = Y[i] + c[i] * q_star
+            if some_stiff:
+                f(address(U, q1 * N), t_star, address(p, 0), address(F, q1 * N))
+                _cg_defects(values, n, slopes, c, dq_star, k, F[q1], g)
+                restore = False
+                for i in range(N):
+                    if stiff[i]:  # (W's residual against k J_ii (W - U)(tau*))
+                        collocated[i] = abs(g[i]) <= theta * abs(k * J[diagonal[i]] * c[i]
+                                                                  * q_star)
+                        if not collocated[i]:  # (the others' tests read U there)
+                            U[q1, i] = Y[i]
+                            restore = True
+                if restore:
+                    f(address(U, q1 * N), t_star, address(p, 0), address(F, q1 * N))
+                    _cg_defects(values, n, slopes, c, dq_star, k, F[q1], g)
+                for i in range(N):
+                    if stiff[i]:
+                        g[i] = 0.0
+                    else:
+                        collocated[i] = _passes_defect_test(c[i], g[i], star, q_star,
+                                                            theta) != 0.0
+            _defect_correction(rhs, p, t_star, k, U[q1], F[q1], g, Y, F2, star, q_star,
+                               s_star, theta)
+            for i in range(N):  # (V includes P's correction c Q)
+                if not collocated[i] and g[i] == 0.0:
+                    c[i] = 0.0
         r = 1.0
         for j in range(q1):
             r *= tau - nodes[j]
+        s_tau = _correction_shape(g_coefficients, tau)
         for i in range(N):
-            if c[i] != 0.0:
-                out[i, m] += c[i] * r
+            if c[i] != 0.0 or g[i] != 0.0:
+                out[i, m] += c[i] * r - g[i] * s_tau
 
 
 @njit(cache=True)
@@ -344,7 +466,7 @@ def _correct_cg(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, ba
     kernel at address ``rhs`` (CSR dependencies ``indptr``, ``indices``, parameters p),
     evaluated q + 2 times per element the times fall inside. Element ends are unchanged."""
     q1, N = nodes.shape[0], out.shape[0]
-    star, basis, slopes, q_star, dq_star = check
+    star, basis, slopes, q_star, dq_star = check[:5]
     f = component_kernel(rhs)
     u = np.zeros(N)
     F = np.zeros(1)
@@ -427,15 +549,14 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
         P(tau) = U(tau) - [U] R(tau),  [U] = U(t_{n-1}^+) - U(t_{n-1}^-),
 
     of degree q + 1 interpolates U(t_{n-1}^-) at tau = 0 and xi_j at tau_j (R the right
-    Radau polynomial, R(0) = 1, R(tau_j) = 0): Radau IIA's, P'(tau_j) = k f(xi_j). Its
-    defect d = P' - k f(P, t) vanishes at the tau_j, d(tau) ~ g Pi(tau) with
-    Pi(tau) = prod_j (tau - tau_j), and u - P ~ -g S(tau), S(tau) = int_0^tau Pi
-    (S(1) = 0: Radau quadrature is exact for Pi), so with g = d(tau*) / Pi(tau*) at
-    tau* = tau_0 / 2 (one f per element)
+    Radau polynomial, R(0) = 1, R(tau_j) = 0): Radau IIA's, P'(tau_j) = k f(xi_j). With its
+    defect d = P' - k f(P, t) at tau* = tau_0 / 2 the corrected value
+    (:func:`_defect_correction`)
 
-        V(tau) = P(tau) - g S(tau)
+        V(tau) = P(tau) - g S(tau),  g = d(tau*) / Pi(tau*),  S(tau) = int_0^tau Pi
 
-    has interior error O(k^(q+3)) where the element resolves the component, against P's
+    (Pi(tau) = prod_j (tau - tau_j); S(1) = 0: Radau quadrature is exact for Pi) has
+    interior error O(k^(q+3)) where the element resolves the component, against P's
     O(k^(q+2)) and U's O(k^(q+1)) (the nodes: O(k^(2q+1))). Where a stiff transient is
     stepped over, the jump is O(1) and P swings by |[U] R| inside; where k |lambda| >> 1
     the error follows d / (k lambda), not -int d. Each value is used per element and
@@ -509,20 +630,16 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
             if rhs != 0:
                 f(address(X, 0), t_start[n] + star * k, address(p, 0), address(F, 0))
                 for i in range(N):
-                    Y[i] = X[i]
                     if collocated[i]:
-                        defect = slopes0[0] * before[i] - k * F[i]
+                        g[i] = slopes0[0] * before[i] - k * F[i]
                         for j in range(q1):
-                            defect += slopes0[j + 1] * values[n, j, i]
+                            g[i] += slopes0[j + 1] * values[n, j, i]
                         c = _jump(by_component, i, before[i], left, np.inf)
-                        collocated[i] = _passes_defect_test(c, defect, star, r_star,
+                        collocated[i] = _passes_defect_test(c, g[i], star, r_star,
                                                             theta) != 0.0
-                        g[i] = defect / pi_star
-                        Y[i] -= g[i] * s_star
-                # V's own test: its defect at tau* is k (f(P) - f(V)) there (V' = P' - g Pi)
-                f(address(Y, 0), t_start[n] + star * k, address(p, 0), address(F2, 0))
+                _defect_correction(rhs, p, t_start[n] + star * k, k, X, F, g, Y, F2, star,
+                                   pi_star, s_star, theta)
                 for i in range(N):
-                    g[i] = _passes_defect_test(g[i], k * (F[i] - F2[i]), star, s_star, theta)
                     collocated[i] |= g[i] != 0.0
             for i in range(N):
                 some_p |= collocated[i]
@@ -533,9 +650,7 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
         s_tau = 0.0
         if some_p:
             lagrange_weights(tau, nodes0, bary0, weights0)
-            for coefficient in g_coefficients:
-                s_tau = s_tau * tau + coefficient
-            s_tau *= tau * (tau - 1.0)
+            s_tau = _correction_shape(g_coefficients, tau)
         for i in range(N):
             value = 0.0
             if collocated[i]:
@@ -635,25 +750,41 @@ def dense_rule(method, dense=True):
 
 @cache
 def _defect_check(family, q):
-    """``check`` of the defect test at tau*, off the nodes. cG(q) (:func:`_evaluate_cg`):
-    (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*)) at tau* = tau_1 / 2 (l_j the Lagrange
-    basis on the nodes, Q = prod_j (tau - tau_j)). dG(q) (:func:`_evaluate_dg`): (tau*,
-    l_j(tau*), l0_j(tau*), l0_j'(tau*), R(tau*), Q(tau*), S(tau*), G) at tau* = tau_0 / 2
-    (l0_j the basis on 0 and the nodes, R = prod_j (tau_j - tau) / tau_j, G the coefficients, highest
-    first, of S(tau) / (tau (tau - 1)), S(tau) = int_0^tau Q)."""
+    """``check`` of the residual tests at tau*, off the nodes, and of V = P - g S
+    (:func:`_defect_correction`; Q = prod_j (tau - tau_j) over the method's nodes,
+    S(tau) = int_0^tau Q, G the coefficients, highest first, of S(tau) / (tau (tau - 1))).
+    cG(q) (:func:`_evaluate_cg`): (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*), S(tau*),
+    G) at tau* = tau_1 / 2 (l_j the Lagrange basis on the nodes). dG(q)
+    (:func:`_evaluate_dg`): (tau*, l_j(tau*), l0_j(tau*), l0_j'(tau*), R(tau*), Q(tau*),
+    S(tau*), G) at tau* = tau_0 / 2 (l0_j the basis on 0 and the nodes,
+    R = prod_j (tau_j - tau) / tau_j)."""
     nodes = make_method(family, q).nodes
     Q = np.polynomial.Polynomial.fromroots(nodes)
+    S = Q.integ(lbnd=0.0)
+    G, _ = divmod(S, np.polynomial.Polynomial([0.0, -1.0, 1.0]))
+    G = np.ascontiguousarray(G.coef[::-1])
     if family == "cG":
         star = nodes[1] / 2
         basis, slopes = lagrange_matrices(nodes, (star,))
-        return float(star), basis[0], slopes[0], float(Q(star)), float(Q.deriv()(star))
+        return (float(star), basis[0], slopes[0], float(Q(star)), float(Q.deriv()(star)),
+                float(S(star)), G)
     star = nodes[0] / 2
     basis, _ = lagrange_matrices(nodes, (star,))
     basis0, slopes0 = lagrange_matrices(np.concatenate([[0.0], nodes]), (star,))
-    S = Q.integ(lbnd=0.0)
-    G, _ = divmod(S, np.polynomial.Polynomial([0.0, -1.0, 1.0]))
     return (float(star), basis[0], basis0[0], slopes0[0], float(np.prod(1 - star / nodes)),
-            float(Q(star)), float(S(star)), np.ascontiguousarray(G.coef[::-1]))
+            float(Q(star)), float(S(star)), G)
+
+
+def _diagonal(compiled):
+    """Where J_ii lies among the Jacobian kernel's CSR values of ``compiled``, per component
+    (-1 where f_i does not read u_i)."""
+    def make():
+        rows = np.repeat(np.arange(compiled.N), np.diff(compiled.indptr))
+        at = np.flatnonzero(compiled.indices == rows)
+        diagonal = np.full(compiled.N, -1, dtype=np.int64)
+        diagonal[rows[at]] = at
+        return diagonal
+    return compiled._derived("diagonal", make)
 
 
 def _inside(times, t0, T):
@@ -705,8 +836,9 @@ def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out, c
     chunks) evaluates through here."""
     if method.family == "cG" and _reads_f(method) and compiled is not None:
         _evaluate_cg(t_start, t_end, values, method.nodes, method.barycentric_weights,
-                     compiled.rhs.address, compiled.p,
-                     _defect_check(method.family, method.q), DEFECT_THETA, times, out)
+                     compiled.rhs.address, compiled.jacobian.address, _diagonal(compiled),
+                     compiled.nnz, compiled.p, _defect_check(method.family, method.q),
+                     DEFECT_THETA, times, out)
     elif method.family == "dG" and method.q > 0:
         nodes0, bary0 = _collocation_nodes(method.family, method.q)
         rhs, p, theta = ((0, np.empty(0), DENSE_THETA) if compiled is None
