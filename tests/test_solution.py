@@ -314,10 +314,10 @@ def test_dense_cg_interior_error_within_the_tolerance(q):
 
 @pytest.mark.parametrize("case, method", [("linear", "cG(3)"), ("algebraic", "cG(2)")])
 def test_dense_cg_interior_error_of_a_singular_perturbation(case, method):
-    # eps = 1e-10, stepped over: the stiff component's interior value is the quasi-steady
-    # W = U + c Q from U's defect and J_ii, the other's reads f there (U alone: 181 x
-    # (linear, cG(3)) and 27 x (algebraic, cG(2)); W from P instead of U: 6e4 x on the
-    # algebraic one, whose P swings far from the steady state)
+    # eps = 1e-10, stepped over: the element's value is W = U + c Q - g S, the linearised
+    # equation collocated at two points (the stiff component at its quasi-steady state; U
+    # alone: 181 x (linear, cG(3)) and 27 x (algebraic, cG(2)); one point, U + c Q: 24.5 x
+    # on the linear one, in its non-stiff component)
     eps = 1e-10
     u, v = sp.symbols("u v")
     if case == "linear":  # u' = -u + v, eps v' = sin t - v
@@ -335,6 +335,20 @@ def test_dense_cg_interior_error_of_a_singular_perturbation(case, method):
     exact = ref.sol(inside)
     error = (np.abs(sol(inside) - exact) / (1e-8 + 1e-8 * np.abs(exact))).max()
     assert error < 3.0, f"inside {error:.3g} x"
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "cG(3)"])
+def test_dense_cg_keeps_linear_invariants_inside_elements(method):
+    # ROBER conserves y1 + y2 + y3 = 1 and HIRES y7 + y8; U and every corrected value keep
+    # them (corrections linear in f, one kind per element for all components). A kind
+    # chosen per component broke them: ROBER 1.6e-6 (cG(2)), 3.1e-8 (cG(3)) at 1e-6
+    from dolfinode.bench import problems as P
+    for ode, w, value in ((P.rober(T=40.0).ode, [0, 1, 2], 1.0), (P.hires(), [6, 7], 0.0057)):
+        sol = dn.solve(ode, method=method, tolerance=1e-6)
+        inside = (sol.t_start[:, None] + sol.k[:, None] * np.arange(1, 20) / 20).ravel()
+        dense = sol(inside)
+        assert np.mean(np.any(dense != sol._galerkin(inside), axis=0)) > 0.5  # (corrected)
+        assert np.abs(dense[w].sum(axis=0) - value).max() <= 1e-14 * value
 
 
 def _forced_decay():
