@@ -196,11 +196,14 @@ def _passes_defect_test(c, defect, star, q_star, theta):
 
 @njit(cache=True, inline="always")
 def _scaled_max(x, scale):
-    """max_i |x_i| / scale_i (0 where x_i = 0, NaN where one is): :func:`_evaluate_cg`'s
-    tests over all components, each relative to its size on the element."""
+    """max_i |x_i| / scale_i (0 where x_i = 0; NaN, which fails every test, where x_i is
+    or where scale_i = 0 and x_i is not): :func:`_evaluate_cg`'s tests over all
+    components, each relative to its size on the element."""
     big = 0.0
     for i in range(x.shape[0]):
-        r = abs(x[i]) / scale[i] if x[i] != 0.0 else 0.0
+        r = 0.0
+        if x[i] != 0.0:
+            r = abs(x[i]) / scale[i] if scale[i] > 0.0 else np.nan
         if r > big or math.isnan(r):
             big = r
     return big
