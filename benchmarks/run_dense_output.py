@@ -3,8 +3,10 @@
 Inside an element a mono-adaptive dG(q) solution (q >= 1) is evaluated by the Radau
 collocation polynomial with its defect correction where their residual tests pass
 (``dolfinode.solution._evaluate_dg``), a cG(q)
-solution (q >= 2) by the Lobatto IIIA collocation polynomial where its defect is small
-(``_evaluate_cg``), else, and for cG(1), by the Galerkin polynomial U. Both are evaluated here
+solution (q >= 2) by the Lobatto IIIA collocation polynomial, corrected by its defect, or
+a quasi-steady value where a component is stiff, one kind per element for all components,
+each where its residual test passes (``_evaluate_cg``), else, and for cG(1), by the
+Galerkin polynomial U. Both are evaluated here
 on the same solutions (the nodes are the same bit for bit), so "Galerkin" is what ``sol(t)``
 gave before.
 

@@ -8,6 +8,7 @@ from numba import njit
 from dolfinode.compile.jit import helper
 from dolfinode.compile.lowering import lower
 from dolfinode.compile.signatures import address, component_kernel, rhs_kernel
+from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.methods.method import (
     element_value,
     lagrange_matrices,
@@ -180,14 +181,168 @@ def _evaluate_shared(t_start, t_end, values, nodes, bary, times, out):
 
 
 @njit(cache=True, inline="always")
+def _defect_small(c, defect, star, q_star, theta):
+    """Whether |d(tau*)| tau* / 2 <= theta |c Q(tau*)|: a collocation polynomial's defect d,
+    integrated from tau = 0 where it vanishes, is at most theta times its correction c Q
+    (:func:`_passes_defect_test`; a NaN fails)."""
+    return abs(defect) * (0.5 * star) <= theta * abs(c * q_star)
+
+
+@njit(cache=True, inline="always")
 def _passes_defect_test(c, defect, star, q_star, theta):
-    """c where P = U + c Q passes :func:`_evaluate_cg`'s test, |d(tau*)| tau* / 2 <= theta
-    |c Q(tau*)| (d the defect at tau*), else 0 (U; a NaN fails)."""
-    return c if abs(defect) * (0.5 * star) <= theta * abs(c * q_star) else 0.0
+    """c where P = U + c Q passes :func:`_defect_small`'s test, else 0 (U)."""
+    return c if _defect_small(c, defect, star, q_star, theta) else 0.0
+
+
+@njit(cache=True, inline="always")
+def _scaled_max(x, scale):
+    """max_i |x_i| / scale_i (0 where x_i = 0; NaN, which fails every test, where x_i is
+    or where scale_i = 0 and x_i is not): :func:`_evaluate_cg`'s tests over all
+    components, each relative to its size on the element."""
+    big = 0.0
+    for i in range(x.shape[0]):
+        r = 0.0
+        if x[i] != 0.0:
+            r = abs(x[i]) / scale[i] if scale[i] > 0.0 else np.nan
+        if r > big or math.isnan(r):
+            big = r
+    return big
+
+
+@njit(cache=True, inline="always")
+def _defect_correction(rhs, p, t, k, X, F, g, Y, F2, star, pi_star, s_star, theta, scale):
+    """V = P - g S, the collocation polynomial P (of :func:`_evaluate_cg` or
+    :func:`_evaluate_dg`) corrected by its defect, one order higher inside the element.
+
+    P's defect d = P' - k f(P, t) vanishes at the collocation nodes tau_j, d(tau) ~ g Pi(tau)
+    with Pi(tau) = prod_j (tau - tau_j), and the error u - P ~ -int_0^tau d = -g S(tau),
+    S(tau) = int_0^tau Pi (S(0) = S(1) = 0: the element ends are unchanged), so with
+    g = d(tau*) / Pi(tau*) V's interior error is O(k^(q+3)) where the element resolves the
+    component (cG(q): at most the nodes' O(k^(2q))), against P's O(k^(q+2)). Where
+    k |lambda| >> 1 the error follows d / (k lambda), not -int d: V is used where its own
+    residual passes :func:`_passes_defect_test`, k |f_i(V(tau*)) -
+    f_i(P(tau*))| tau* / 2 <= theta |g S(tau*)| (V' = P' - g Pi, so V's defect at tau* is
+    k (f(P) - f(V)) there; along the correction, k |lambda| tau* / 2 <= theta).
+
+    On entry X = P(tau*) at time t, F = f(X), g[i] = d_i(tau*) (0 where P is not formed);
+    on return g[i] = d_i(tau*) / Pi(tau*) where V passes, else 0. Y, F2: workspace
+    (V(tau*), f there); f the kernel at address ``rhs``, parameters p. With a ``scale``
+    (cG(q)) the test is one over all components (:func:`_scaled_max`), and g is returned
+    whole; returns whether V passes."""
+    f = rhs_kernel(rhs)
+    for i in range(X.shape[0]):
+        g[i] /= pi_star
+        Y[i] = X[i] - g[i] * s_star
+    f(address(Y, 0), t, address(p, 0), address(F2, 0))
+    for i in range(X.shape[0]):
+        F2[i] = k * (F[i] - F2[i])
+    if scale.shape[0]:
+        return _defect_small(_scaled_max(g, scale), _scaled_max(F2, scale), star, s_star,
+                             theta)
+    for i in range(X.shape[0]):
+        g[i] = _passes_defect_test(g[i], F2[i], star, s_star, theta)
+    return True
+
+
+@njit(cache=True, inline="always")
+def _correction_shape(G, tau):
+    """S(tau) = int_0^tau Pi = tau (tau - 1) G(tau) (G's monomial coefficients, highest
+    first; :func:`_defect_check`)."""
+    s = 0.0
+    for coefficient in G:
+        s = s * tau + coefficient
+    return s * tau * (tau - 1.0)
+
+
+@njit(cache=True, inline="always")
+def _cg_defects(values, n, slopes, c, dq_star, k, F, d):
+    """d[i] = P_i'(tau*) - k F[i], the defect of :func:`_evaluate_cg`'s P = U + c Q on element
+    n at tau* (F = f there; ``slopes`` l_j'(tau*), dq_star Q'(tau*); c = 0: U's defect)."""
+    for i in range(d.shape[0]):
+        d[i] = c[i] * dq_star - k * F[i]
+        for j in range(slopes.shape[0]):
+            d[i] += slopes[j] * values[n, j, i]
+
+
+#: Up to how many components :func:`_evaluate_cg` forms the quasi-steady value W (a dense
+#: 2N x 2N factorization per element read where the collocation values fail); above, U.
+QUASI_STEADY_LIMIT = 32
+
+
+@njit(cache=True, inline="always")
+def _quasi_steady(rhs, jacobian, indptr, indices, p, values, n, t_start, k, check, theta, c,
+                  g, scale, Y, X, F, F2, J, ab, ipiv):
+    """W = U + c Q - g S on element n, U's correction by collocating the equation,
+    linearised at U(tau*), at tau* and tau** (:func:`_evaluate_cg`), all components together:
+
+        (Q'(tau) I - Q(tau) k J) c - (Q(tau) I - S(tau) k J) g = -d_U(tau),  tau = tau*, tau**,
+
+    d_U = U' - k f(U, t), J = df/du at U(tau*) (S' = Q). A component stiff on the element
+    takes its quasi-steady state, W ~ U + (k J)^-1 d_U at both points, a resolved one
+    P's and V's two shapes. Returns whether W's residual is at most theta times U's,
+    |W' - k f(W)| <= theta |d_U| (over the components, :func:`_scaled_max` with ``scale``),
+    at tau*, tau** (zero for linear f) and tau***, off both; c, g then hold W's
+    coefficients.
+    ``check`` as :func:`_evaluate_cg`'s; Y, X, F, F2: workspace of N (U, W, d_U, f), J of
+    the Jacobian's CSR values (kernel at address ``jacobian``, pattern ``indptr``,
+    ``indices``), ab (2N, 6N - 2) and ipiv the dense band storage of :func:`band_lu`."""
+    points, bases, slopes, Qs, dQs, Ss = check[7:]
+    N = c.shape[0]
+    f = rhs_kernel(rhs)
+    kv = 2 * (2 * N - 1)  # ab[j, kv + i - j] = A[i, j], kl = ku = 2N - 1
+    ab[:] = 0.0
+    for point in range(2):
+        t = t_start + points[point] * k
+        for i in range(N):
+            Y[i] = 0.0
+            for j in range(bases.shape[1]):
+                Y[i] += bases[point, j] * values[n, j, i]
+        if point == 0:
+            rhs_kernel(jacobian)(address(Y, 0), t, address(p, 0), address(J, 0))
+        f(address(Y, 0), t, address(p, 0), address(F2, 0))
+        for i in range(N):
+            r = point * N + i
+            X[i] = 0.0
+            ab[i, kv + r - i] = dQs[point]
+            ab[N + i, kv + r - N - i] = -Qs[point]
+            for nz in range(indptr[i], indptr[i + 1]):
+                j = indices[nz]
+                ab[j, kv + r - j] -= Qs[point] * k * J[nz]
+                ab[N + j, kv + r - N - j] += Ss[point] * k * J[nz]
+        _cg_defects(values, n, slopes[point], X, 0.0, k, F2, F)
+        for i in range(N):
+            (c if point == 0 else g)[i] = -F[i]
+    Z = np.empty(2 * N)  # (the right-hand side: c, then g)
+    for i in range(N):
+        Z[i] = c[i]
+        Z[N + i] = g[i]
+    if band_lu(ab, 2 * N - 1, 2 * N - 1, ipiv) != 0:
+        return False
+    band_solve(ab, 2 * N - 1, 2 * N - 1, ipiv, Z)
+    for i in range(N):
+        c[i] = Z[i]
+        g[i] = Z[N + i]
+    every = True
+    for point in range(3):
+        t = t_start + points[point] * k
+        for i in range(N):
+            Y[i] = 0.0
+            for j in range(bases.shape[1]):
+                Y[i] += bases[point, j] * values[n, j, i]
+            X[i] = Y[i] + c[i] * Qs[point] - g[i] * Ss[point]
+        f(address(Y, 0), t, address(p, 0), address(F2, 0))
+        _cg_defects(values, n, slopes[point], np.zeros(N), 0.0, k, F2, F)
+        f(address(X, 0), t, address(p, 0), address(F2, 0))
+        _cg_defects(values, n, slopes[point], c, dQs[point], k, F2, Y)
+        for i in range(N):
+            Y[i] -= g[i] * Qs[point]
+        every &= _scaled_max(Y, scale) <= theta * _scaled_max(F, scale)
+    return every
 
 
 @njit(cache=True)
-def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, p, check, theta, times, out):
+def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, jacobian, indptr, indices, p,
+                 check, theta, times, out):
     """out[i, m] = the dense value of a mono-adaptive cG(q) solution at times[m].
 
     On element n, with nodal values U_j at the Lobatto nodes tau_j (tau_0 = 0, tau_q = 1)
@@ -199,24 +354,59 @@ def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, p, check, theta, time
 
     (w_j the barycentric weights: sum_j w_j f_j is the leading coefficient of the
     interpolant of the f_j; the cG(q) equations make P' - U' orthogonal to the polynomials
-    of degree q - 1, so it is c Q'). P's interior error is O(k^(q+2)) where the element
-    resolves the component, U's O(k^(q+1)). Where k |lambda| >> 1 the nodal errors enter
-    k f_j multiplied by it and P swings. P is used per element and component only where
-    its defect d = P' - k f(P, t) at tau* = tau_1 / 2 (off the nodes), integrated from
-    tau = 0 where it vanishes, about P's error at tau*, is at most theta times the
-    correction there, about U's error: |d(tau*)| tau* / 2 <= theta |c Q(tau*)|, else U (a
-    stiff component: d(tau*) ~ k lambda c Q(tau*)). ``check`` = (tau*, l_j(tau*),
-    l_j'(tau*), Q(tau*), Q'(tau*)), l_j U's Lagrange basis. Q is 0 at the nodes: the
+    of degree q - 1, so it is c Q'), and with its defect d = P' - k f(P, t) at
+    tau* = tau_1 / 2 (off the nodes) the corrected value (:func:`_defect_correction`)
+
+        V(tau) = P(tau) - g S(tau),  g = d(tau*) / Q(tau*),  S(tau) = int_0^tau Q
+
+    (S(1) = 0: Lobatto quadrature is exact for Q, q >= 2). U's interior error is
+    O(k^(q+1)), P's O(k^(q+2)), V's O(k^(q+3)) up to the nodes' O(k^(2q)) where the element
+    resolves the component. Where k |lambda| >> 1 the nodal errors enter k f_j multiplied
+    by it and P swings: V is used where its residual test passes, else P where its defect,
+    integrated from tau = 0 where it vanishes (about P's error at tau*), is at most theta
+    times the correction there (about U's error), |d(tau*)| tau* / 2 <= theta |c Q(tau*)|
+    (:func:`_defect_small`; a stiff component: d(tau*) ~ k lambda c Q(tau*)). Each test
+    is one over the components, each relative to its largest nodal value on the element
+    (:func:`_scaled_max`): per component, one whose correction passes near zero (the
+    oscillator's where its third derivative does) failed alone and dropped the element.
+
+    Else (a component stiff on the element, near its quasi-steady state, where U's error
+    follows U's defect d_U = U' - k f(U), u - U ~ d_U / (k lambda)) the value
+    W = U + c Q - g S, c and g by collocating the linearised equation at two points
+    (:func:`_quasi_steady`: one Jacobian, a dense solve, six more f; up to
+    QUASI_STEADY_LIMIT components), where its residual at three is at most theta times
+    U's, else U.
+
+    One kind per element for every component: P, V and W differ from U by corrections
+    linear in f's values (W's through its system's inverse; w^T J = 0 where w^T f = 0), so
+    every linear invariant w^T u that the nodes keep holds at every t inside the element
+    (a kind chosen per component broke HIRES's y7 + y8: 1.15e-5 against the tolerance's
+    1e-5, and ROBER's y1 + y2 + y3: 1.6e-6).
+
+    ``check`` = (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*), S(tau*), G, and the
+    points of :func:`_quasi_steady`) (:func:`_defect_check`), l_j U's Lagrange basis;
+    ``jacobian`` the Jacobian kernel's
+    address (its CSR pattern ``indptr``, ``indices``). Q and S are 0 at the ends: the
     element ends are unchanged bit for bit. f (the kernel at address ``rhs``, parameters
-    p) is evaluated at the q + 1 nodes and at tau* once per element, when a time first
-    falls inside it.
+    p) is evaluated at the q + 1 nodes and twice at tau* once per element, when a time
+    first falls inside it.
     """
     q1, N = nodes.shape[0], out.shape[0]
-    star, basis, slopes, q_star, dq_star = check
+    star, basis, slopes, q_star, dq_star, s_star, g_coefficients = check[:7]
     weights = np.empty(q1)
     U = np.empty((q1 + 1, N))  # (contiguous rows for the kernel; the last P(tau*))
     F = np.empty((q1 + 1, N))
     c = np.zeros(N)
+    g = np.zeros(N)
+    Y = np.empty(N)
+    X = np.empty(N)
+    F2 = np.empty(N)
+    F3 = np.empty(N)
+    scale = np.empty(N)
+    J = np.empty(max(indices.shape[0], 1))
+    dense = N <= QUASI_STEADY_LIMIT
+    ab = np.empty((2 * N if dense else 0, 6 * N - 2 if dense else 0))
+    ipiv = np.empty(2 * N if dense else 0, dtype=np.int64)
     f = rhs_kernel(rhs)
     current = -1
     ready = False
@@ -250,18 +440,28 @@ def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, p, check, theta, time
                     U[q1, i] += basis[j] * values[n, j, i]
                 c[i] = k * lead / q1
                 U[q1, i] += c[i] * q_star
-            f(address(U, q1 * N), t_start[n] + star * k, address(p, 0), address(F, q1 * N))
+            t_star = t_start[n] + star * k
+            f(address(U, q1 * N), t_star, address(p, 0), address(F, q1 * N))
+            _cg_defects(values, n, slopes, c, dq_star, k, F[q1], g)
             for i in range(N):
-                defect = c[i] * dq_star - k * F[q1, i]
+                scale[i] = 0.0
                 for j in range(q1):
-                    defect += slopes[j] * values[n, j, i]
-                c[i] = _passes_defect_test(c[i], defect, star, q_star, theta)
+                    scale[i] = max(scale[i], abs(values[n, j, i]))
+            collocated = _defect_small(_scaled_max(c, scale), _scaled_max(g, scale), star,
+                                       q_star, theta)
+            if not _defect_correction(rhs, p, t_star, k, U[q1], F[q1], g, Y, F2, star,
+                                      q_star, s_star, theta, scale):
+                g[:] = 0.0
+                if not collocated and not (dense and _quasi_steady(
+                        rhs, jacobian, indptr, indices, p, values, n, t_start[n], k,
+                        check, theta, c, g, scale, Y, X, F2, F3, J, ab, ipiv)):
+                    c[:] = 0.0
         r = 1.0
         for j in range(q1):
             r *= tau - nodes[j]
+        s_tau = _correction_shape(g_coefficients, tau)
         for i in range(N):
-            if c[i] != 0.0:
-                out[i, m] += c[i] * r
+            out[i, m] += c[i] * r - g[i] * s_tau
 
 
 @njit(cache=True)
@@ -344,7 +544,7 @@ def _correct_cg(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, ba
     kernel at address ``rhs`` (CSR dependencies ``indptr``, ``indices``, parameters p),
     evaluated q + 2 times per element the times fall inside. Element ends are unchanged."""
     q1, N = nodes.shape[0], out.shape[0]
-    star, basis, slopes, q_star, dq_star = check
+    star, basis, slopes, q_star, dq_star = check[:5]
     f = component_kernel(rhs)
     u = np.zeros(N)
     F = np.zeros(1)
@@ -427,15 +627,14 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
         P(tau) = U(tau) - [U] R(tau),  [U] = U(t_{n-1}^+) - U(t_{n-1}^-),
 
     of degree q + 1 interpolates U(t_{n-1}^-) at tau = 0 and xi_j at tau_j (R the right
-    Radau polynomial, R(0) = 1, R(tau_j) = 0): Radau IIA's, P'(tau_j) = k f(xi_j). Its
-    defect d = P' - k f(P, t) vanishes at the tau_j, d(tau) ~ g Pi(tau) with
-    Pi(tau) = prod_j (tau - tau_j), and u - P ~ -g S(tau), S(tau) = int_0^tau Pi
-    (S(1) = 0: Radau quadrature is exact for Pi), so with g = d(tau*) / Pi(tau*) at
-    tau* = tau_0 / 2 (one f per element)
+    Radau polynomial, R(0) = 1, R(tau_j) = 0): Radau IIA's, P'(tau_j) = k f(xi_j). With its
+    defect d = P' - k f(P, t) at tau* = tau_0 / 2 the corrected value
+    (:func:`_defect_correction`)
 
-        V(tau) = P(tau) - g S(tau)
+        V(tau) = P(tau) - g S(tau),  g = d(tau*) / Pi(tau*),  S(tau) = int_0^tau Pi
 
-    has interior error O(k^(q+3)) where the element resolves the component, against P's
+    (Pi(tau) = prod_j (tau - tau_j); S(1) = 0: Radau quadrature is exact for Pi) has
+    interior error O(k^(q+3)) where the element resolves the component, against P's
     O(k^(q+2)) and U's O(k^(q+1)) (the nodes: O(k^(2q+1))). Where a stiff transient is
     stepped over, the jump is O(1) and P swings by |[U] R| inside; where k |lambda| >> 1
     the error follows d / (k lambda), not -int d. Each value is used per element and
@@ -509,20 +708,16 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
             if rhs != 0:
                 f(address(X, 0), t_start[n] + star * k, address(p, 0), address(F, 0))
                 for i in range(N):
-                    Y[i] = X[i]
                     if collocated[i]:
-                        defect = slopes0[0] * before[i] - k * F[i]
+                        g[i] = slopes0[0] * before[i] - k * F[i]
                         for j in range(q1):
-                            defect += slopes0[j + 1] * values[n, j, i]
+                            g[i] += slopes0[j + 1] * values[n, j, i]
                         c = _jump(by_component, i, before[i], left, np.inf)
-                        collocated[i] = _passes_defect_test(c, defect, star, r_star,
+                        collocated[i] = _passes_defect_test(c, g[i], star, r_star,
                                                             theta) != 0.0
-                        g[i] = defect / pi_star
-                        Y[i] -= g[i] * s_star
-                # V's own test: its defect at tau* is k (f(P) - f(V)) there (V' = P' - g Pi)
-                f(address(Y, 0), t_start[n] + star * k, address(p, 0), address(F2, 0))
+                _defect_correction(rhs, p, t_start[n] + star * k, k, X, F, g, Y, F2, star,
+                                   pi_star, s_star, theta, np.empty(0))
                 for i in range(N):
-                    g[i] = _passes_defect_test(g[i], k * (F[i] - F2[i]), star, s_star, theta)
                     collocated[i] |= g[i] != 0.0
             for i in range(N):
                 some_p |= collocated[i]
@@ -533,9 +728,7 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
         s_tau = 0.0
         if some_p:
             lagrange_weights(tau, nodes0, bary0, weights0)
-            for coefficient in g_coefficients:
-                s_tau = s_tau * tau + coefficient
-            s_tau *= tau * (tau - 1.0)
+            s_tau = _correction_shape(g_coefficients, tau)
         for i in range(N):
             value = 0.0
             if collocated[i]:
@@ -635,25 +828,34 @@ def dense_rule(method, dense=True):
 
 @cache
 def _defect_check(family, q):
-    """``check`` of the defect test at tau*, off the nodes. cG(q) (:func:`_evaluate_cg`):
-    (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*)) at tau* = tau_1 / 2 (l_j the Lagrange
-    basis on the nodes, Q = prod_j (tau - tau_j)). dG(q) (:func:`_evaluate_dg`): (tau*,
-    l_j(tau*), l0_j(tau*), l0_j'(tau*), R(tau*), Q(tau*), S(tau*), G) at tau* = tau_0 / 2
-    (l0_j the basis on 0 and the nodes, R = prod_j (tau_j - tau) / tau_j, G the coefficients, highest
-    first, of S(tau) / (tau (tau - 1)), S(tau) = int_0^tau Q)."""
+    """``check`` of the residual tests at tau*, off the nodes, and of V = P - g S
+    (:func:`_defect_correction`; Q = prod_j (tau - tau_j) over the method's nodes,
+    S(tau) = int_0^tau Q, G the coefficients, highest first, of S(tau) / (tau (tau - 1))).
+    cG(q) (:func:`_evaluate_cg`): (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*), S(tau*),
+    G, then points, l_j, l_j', Q, Q', S at the points tau*, tau** = (tau_(q-1) + 1) / 2,
+    tau*** = 1/2 (q odd) or (1/2 + tau**) / 2) at tau* = tau_1 / 2 (l_j the Lagrange
+    basis on the nodes). dG(q)
+    (:func:`_evaluate_dg`): (tau*, l_j(tau*), l0_j(tau*), l0_j'(tau*), R(tau*), Q(tau*),
+    S(tau*), G) at tau* = tau_0 / 2 (l0_j the basis on 0 and the nodes,
+    R = prod_j (tau_j - tau) / tau_j)."""
     nodes = make_method(family, q).nodes
     Q = np.polynomial.Polynomial.fromroots(nodes)
+    S = Q.integ(lbnd=0.0)
+    G, _ = divmod(S, np.polynomial.Polynomial([0.0, -1.0, 1.0]))
+    G = np.ascontiguousarray(G.coef[::-1])
     if family == "cG":
-        star = nodes[1] / 2
-        basis, slopes = lagrange_matrices(nodes, (star,))
-        return float(star), basis[0], slopes[0], float(Q(star)), float(Q.deriv()(star))
+        second = (nodes[-2] + 1) / 2
+        # (off the nodes: U's defect is small at a node, where its nodal value superconverges)
+        points = np.array([nodes[1] / 2, second, 0.5 if q % 2 else (0.5 + second) / 2])
+        basis, slopes = lagrange_matrices(nodes, points)
+        return (float(points[0]), basis[0], slopes[0], float(Q(points[0])),
+                float(Q.deriv()(points[0])), float(S(points[0])), G, points, basis, slopes,
+                Q(points), Q.deriv()(points), S(points))
     star = nodes[0] / 2
     basis, _ = lagrange_matrices(nodes, (star,))
     basis0, slopes0 = lagrange_matrices(np.concatenate([[0.0], nodes]), (star,))
-    S = Q.integ(lbnd=0.0)
-    G, _ = divmod(S, np.polynomial.Polynomial([0.0, -1.0, 1.0]))
     return (float(star), basis[0], basis0[0], slopes0[0], float(np.prod(1 - star / nodes)),
-            float(Q(star)), float(S(star)), np.ascontiguousarray(G.coef[::-1]))
+            float(Q(star)), float(S(star)), G)
 
 
 def _inside(times, t0, T):
@@ -705,8 +907,9 @@ def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out, c
     chunks) evaluates through here."""
     if method.family == "cG" and _reads_f(method) and compiled is not None:
         _evaluate_cg(t_start, t_end, values, method.nodes, method.barycentric_weights,
-                     compiled.rhs.address, compiled.p,
-                     _defect_check(method.family, method.q), DEFECT_THETA, times, out)
+                     compiled.rhs.address, compiled.jacobian.address, compiled.indptr,
+                     compiled.indices, compiled.p, _defect_check(method.family, method.q),
+                     DEFECT_THETA, times, out)
     elif method.family == "dG" and method.q > 0:
         nodes0, bary0 = _collocation_nodes(method.family, method.q)
         rhs, p, theta = ((0, np.empty(0), DENSE_THETA) if compiled is None

@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 import sympy as sp
+from scipy.integrate import solve_ivp
 
 import dolfinode as dn
 from dolfinode.solution import _evaluate_shared
@@ -283,17 +284,71 @@ def test_dense_interior_order(family, q):
     assert slope > q + 1.6, f"interior slope {slope:.2f}"
 
 
-@pytest.mark.parametrize("q", [2, 3])
-def test_dense_dg_interior_order_with_the_defect_correction(q):
-    # fixed steps k: dG(q)'s interior error falls as k^(q+3) (the Radau collocation
-    # polynomial's as k^(q+2), measured 4.0 and 5.0 here; the nodes' as k^(2q+1))
+@pytest.mark.parametrize("family, q", [("dG", 2), ("dG", 3), ("cG", 3), ("cG", 4)])
+def test_dense_interior_order_with_the_defect_correction(family, q):
+    # fixed steps k: the defect-corrected interior error falls as k^(q+3) (the collocation
+    # polynomials' as k^(q+2), measured 4.0, 5.0 (dG), 5.1, 6.0 (cG) here; the nodes' as
+    # k^(2q+1) (dG), k^(2q) (cG))
     ode = _harmonic(4.0)
     t = np.linspace(0.0, 4.0, 997)[1:]
     exact = np.array([np.cos(t), -np.sin(t)])
-    errors = [np.abs(dn.solve(ode, method=f"dG({q})", initial_time_step=k,
+    errors = [np.abs(dn.solve(ode, method=f"{family}({q})", initial_time_step=k,
                               fixed_time_step=True)(t) - exact).max() for k in (0.4, 0.2)]
     slope = np.log2(errors[0] / errors[1])
     assert slope > q + 2.6, f"interior slope {slope:.2f}"
+
+
+@pytest.mark.parametrize("q", [2, 3, 4])
+def test_dense_cg_interior_error_within_the_tolerance(q):
+    # adaptive steps, tolerance 1e-8, u' = cos t + 1.5 cos 3t: inside the elements
+    # (tau = 0.05..0.95) cG(q) is within the tolerance, as at their ends (the collocation
+    # polynomial alone: 6.5, 15 and 6.8 x, in elements the step control let grow 1.3-1.6 x
+    # past their neighbours where the end residual is small)
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: sp.cos(dn.t) + 1.5 * sp.cos(3 * dn.t)}, u0=[0.0], T=10.0)
+    sol = dn.solve(ode, method=f"cG({q})", tolerance=1e-8)
+    inside = (sol.t_start[:, None] + sol.k[:, None] * np.arange(1, 20) / 20).ravel()
+    error = np.abs(sol(inside)[0] - np.sin(inside) - np.sin(3 * inside) / 2).max()
+    assert error < 3e-8 * (1 + 1.5), f"inside {error:.3g}"
+
+
+@pytest.mark.parametrize("case, method", [("linear", "cG(3)"), ("algebraic", "cG(2)")])
+def test_dense_cg_interior_error_of_a_singular_perturbation(case, method):
+    # eps = 1e-10, stepped over: the element's value is W = U + c Q - g S, the linearised
+    # equation collocated at two points (the stiff component at its quasi-steady state; U
+    # alone: 181 x (linear, cG(3)) and 27 x (algebraic, cG(2)); one point, U + c Q: 24.5 x
+    # on the linear one, in its non-stiff component)
+    eps = 1e-10
+    u, v = sp.symbols("u v")
+    if case == "linear":  # u' = -u + v, eps v' = sin t - v
+        ode = dn.ODE({u: -u + v, v: (sp.sin(dn.t) - v) / eps}, u0=[1.0, 0.0], T=5.0)
+        f = lambda t, y: [-y[0] + y[1], (np.sin(t) - y[1]) / eps]
+        jac = lambda t, y: [[-1.0, 1.0], [0.0, -1 / eps]]
+    else:  # u' = -v, eps v' = u - v - v^3
+        ode = dn.ODE({u: -v, v: (u - v - v**3) / eps}, u0=[2.0, 1.0], T=3.0)
+        f = lambda t, y: [-y[1], (y[0] - y[1] - y[1] ** 3) / eps]
+        jac = lambda t, y: [[0.0, -1.0], [1 / eps, -(1 + 3 * y[1] ** 2) / eps]]
+    ref = solve_ivp(f, (0.0, ode.T), ode.u0, method="Radau", rtol=1e-12, atol=1e-14, jac=jac,
+                    dense_output=True)
+    sol = dn.solve(ode, method=method, tolerance=1e-8)
+    inside = (sol.t_start[:, None] + sol.k[:, None] * np.arange(1, 20) / 20).ravel()
+    exact = ref.sol(inside)
+    error = (np.abs(sol(inside) - exact) / (1e-8 + 1e-8 * np.abs(exact))).max()
+    assert error < 3.0, f"inside {error:.3g} x"
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "cG(3)"])
+def test_dense_cg_keeps_linear_invariants_inside_elements(method):
+    # ROBER conserves y1 + y2 + y3 = 1 and HIRES y7 + y8; U and every corrected value keep
+    # them (corrections linear in f, one kind per element for all components). A kind
+    # chosen per component broke them: ROBER 1.6e-6 (cG(2)), 3.1e-8 (cG(3)) at 1e-6
+    from dolfinode.bench import problems as P
+    for ode, w, value in ((P.rober(T=40.0).ode, [0, 1, 2], 1.0), (P.hires(), [6, 7], 0.0057)):
+        sol = dn.solve(ode, method=method, tolerance=1e-6)
+        inside = (sol.t_start[:, None] + sol.k[:, None] * np.arange(1, 20) / 20).ravel()
+        dense = sol(inside)
+        assert np.mean(np.any(dense != sol._galerkin(inside), axis=0)) > 0.5  # (corrected)
+        assert np.abs(dense[w].sum(axis=0) - value).max() <= 1e-14 * value
 
 
 def _forced_decay():
@@ -397,7 +452,6 @@ def test_dense_cg_where_f_jumps_is_the_element_polynomial():
 def fast_slow():
     """A strongly coupled fast-slow pair (eigenvalues -1, -1999) and a slow rotation driving
     it, with its reference at 121 times (scipy Radau, rtol 1e-12)."""
-    from scipy.integrate import solve_ivp
     a, b, c, d = sp.symbols("a b c d")
     ode = dn.ODE({a: -1000 * a + 999 * b + sp.sin(c), b: 999 * a - 1000 * b, c: d, d: -c},
                  u0=[1.0, 0.0, 0.0, 1.0], T=10.0)
