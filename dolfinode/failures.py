@@ -172,8 +172,10 @@ def failure_message(status, state, fixed, x, outside, kmax, newton, ode, slabs, 
               "the solution changes faster than double precision resolves a step there (a "
               "rate above about 1 / that step); ")
     return (f"the time step fell to {k:.3g} at t = {t:.6g}, below what double precision "
-            f"resolves, but max |u| did not grow ({size}): not a blow-up. The error control or "
-            f"{solver} kept cutting the step: {advice}loosen tolerance or absolute_tolerance"
+            f"resolves, but max |u| did not grow ({size}): not a blow-up of u by a power. f "
+            "may be singular near this time (a pole of f in t, or u growing like a logarithm: f "
+            f"~ 1 / (t* - t)); else the error control or {solver} kept cutting the step: "
+            f"{advice}loosen tolerance or absolute_tolerance"
             + _far_origin(ode))
 
 

@@ -183,6 +183,7 @@ def test_a_step_underflow_without_growth_is_not_called_a_blowup():
     bounded = failure_message(ts.UNDERFLOW, (8.3e9, 8e-5), False, np.array([0.5]), None,
                               None, True, ode, 1000)
     assert "not a blow-up" in bounded and "dG(q)" in bounded and "blow up" not in bounded
+    assert "singular" in bounded
     grown = failure_message(ts.UNDERFLOW, (0.99, 1e-16), False, np.array([1e6]), None, None,
                             True, ode, 1000)
     assert "may blow up" in grown and "1e+06-fold since t0" in grown
@@ -197,3 +198,12 @@ def test_a_step_floor_far_from_t_zero_says_to_shift_the_origin():
         dn.solve(ode, "dG(1)", tolerance=1e-8)
     sol = dn.solve(dn.ODE({x: v, v: -x}, u0=[1.0, 0.0], T=10.0), "dG(1)", tolerance=1e-8)
     assert abs(sol(10.0)[0] - np.cos(10.0)) < 1e-7
+
+
+def test_a_logarithmic_singularity_is_named_as_a_possible_singularity_of_f():
+    """u' = 1 / (0.5 - t): u = -log(1 - 2t) grows to only about 30 before the steps reach
+    the rounding floor at t = 0.5; the failure names a singularity of f, not only stiffness."""
+    ode = dn.ODE({u: 1 / (0.5 - dn.t)}, u0=[0.0], T=1.0)
+    with pytest.raises(dn.SolverError, match="singular") as raised:
+        dn.solve(ode, "dG(1)", tolerance=1e-6)
+    assert "t = 0.5" in str(raised.value)
