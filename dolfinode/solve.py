@@ -1285,12 +1285,13 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
 def _midrun_warning(ode, compiled, sol, peak, nu, rtol, atol):
     """The ToleranceWarning's message (:func:`global_error.midrun_warning`) for the error
     mid-run ``peak`` (value, time, component; value 0: none compared) of ``sol``, whose error
-    at T is sol.stats["global error estimate"] (estimated or measured); None for none. It
+    at T is sol.stats["global error estimate"] (estimated or measured); None where it is
+    within WARN_FACTOR x the tolerance (or none was compared). It
     gives the time over which U_j changes by that error at its rate there,
     |e_j| / |f_j(U, t)|, |e_j| ~ peak (atol_j / rtol + |U_j|): where a fast transition is
     that near, the error is its phase (Van der Pol: 1.5e-7 of time at a rate of 1e6)."""
     largest, time, j = peak
-    if largest == 0.0:
+    if largest <= global_error.WARN_FACTOR * rtol:  # (no warning: skip the f evaluation)
         return None
     j = int(j)
     U = sol(time)
