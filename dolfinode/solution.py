@@ -264,6 +264,16 @@ def _cg_defects(values, n, slopes, c, dq_star, k, F, d):
             d[i] += slopes[j] * values[n, j, i]
 
 
+@njit(cache=True, inline="always")
+def _element_value(values, n, basis, out):
+    """out[i] = sum_j basis[j] values[n, j, i]: element n's polynomial where its nodal basis
+    takes the values ``basis``."""
+    for i in range(out.shape[0]):
+        out[i] = 0.0
+        for j in range(basis.shape[0]):
+            out[i] += basis[j] * values[n, j, i]
+
+
 #: Up to how many components :func:`_evaluate_cg` forms the quasi-steady value W (a dense
 #: 2N x 2N factorization per element read where the collocation values fail); above, U.
 QUASI_STEADY_LIMIT = 32
@@ -293,10 +303,7 @@ def _quasi_steady(rhs, jacobian, indptr, indices, p, values, n, t_start, k, chec
     ab[:] = 0.0
     for point in range(2):
         t = t_start + points[point] * k
-        for i in range(N):
-            Y[i] = 0.0
-            for j in range(bases.shape[1]):
-                Y[i] += bases[point, j] * values[n, j, i]
+        _element_value(values, n, bases[point], Y)
         if point == 0:
             rhs_kernel(jacobian)(address(Y, 0), t, address(p, 0), address(J, 0))
         f(address(Y, 0), t, address(p, 0), address(F2, 0))
@@ -323,15 +330,14 @@ def _quasi_steady(rhs, jacobian, indptr, indices, p, values, n, t_start, k, chec
         c[i] = Z[i]
         g[i] = Z[N + i]
     every = True
+    zero = np.zeros(N)
     for point in range(3):
         t = t_start + points[point] * k
+        _element_value(values, n, bases[point], Y)
         for i in range(N):
-            Y[i] = 0.0
-            for j in range(bases.shape[1]):
-                Y[i] += bases[point, j] * values[n, j, i]
             X[i] = Y[i] + c[i] * Qs[point] - g[i] * Ss[point]
         f(address(Y, 0), t, address(p, 0), address(F2, 0))
-        _cg_defects(values, n, slopes[point], np.zeros(N), 0.0, k, F2, F)
+        _cg_defects(values, n, slopes[point], zero, 0.0, k, F2, F)
         f(address(X, 0), t, address(p, 0), address(F2, 0))
         _cg_defects(values, n, slopes[point], c, dQs[point], k, F2, Y)
         for i in range(N):
