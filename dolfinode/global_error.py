@@ -580,9 +580,7 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
             starts[r, 0], starts[r, 1] = x[r], g[r]
             g[r] = c[s * position[r] + s - 1]
             if own_ends[n, r]:
-                ratio = abs(e[r]) / (weight[r] + abs(U[s, r] - e[r]))
-                if ratio > peak[0]:
-                    peak[0], peak[1], peak[2] = ratio, t_start[n] + k[n], r
+                _keep_peak(peak, e[r], weight[r], U[s, r], t_start[n] + k[n], r)
         Z[:] = 0.0
         for r in range(N if exact else 0):
             for m in range(indptr[r], indptr[r + 1]):
@@ -1093,9 +1091,16 @@ def _end_errors(first, last, t_start, t_end, coef, e, weight, t, peak):
     for i in range(e.size):
         el = _element_at(t_end, first[i], last[i], t)
         if t_end[el] == t:
-            ratio = abs(e[i]) / (weight[i] + abs(_value(coef, el, 1.0) - e[i]))
-            if ratio > peak[0]:
-                peak[0], peak[1], peak[2] = ratio, t, i
+            _keep_peak(peak, e[i], weight[i], _value(coef, el, 1.0), t, i)
+
+
+@njit(cache=True, inline="always")
+def _keep_peak(peak, e, w, U, t, i):
+    """peak (value, time, component) = (|e| / (w + |U - e|), t, i) where that exceeds it:
+    the error e of component i at an element end at t, scaled as :func:`scaled` (u ~ U - e)."""
+    ratio = abs(e) / (w + abs(U - e))
+    if ratio > peak[0]:
+        peak[0], peak[1], peak[2] = ratio, t, i
 
 
 @njit(cache=True)
