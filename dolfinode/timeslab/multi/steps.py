@@ -71,11 +71,11 @@ def _propagate_pass(kdes, rows, frozen, indptr, indices, strength, jdiag, lowere
         i = stack[n]
         lowered[i] = False
         visits += 1
+        follows = -jdiag[i] * kdes[i] > 1.0
         for nz in range(indptr[i], indptr[i + 1]):
             j = indices[nz]
             if not (strength[nz] * kdes[i] > 1.0 and math.isnan(frozen[j])):
                 continue
-            follows = -jdiag[i] * kdes[i] > 1.0
             two_way = two_way or follows
             if kdes[j] > kdes[i]:
                 kdes[j] = kdes[i]
@@ -86,6 +86,7 @@ def _propagate_pass(kdes, rows, frozen, indptr, indices, strength, jdiag, lowere
                     n += 1
             elif follows and kdes[j] < kdes[i]:
                 kdes[i] = kdes[j]
+                follows = -jdiag[i] * kdes[i] > 1.0
                 moved = True
                 if not lowered[i]:
                     lowered[i] = True
