@@ -271,9 +271,45 @@ def test_ties_are_passed_on_along_chains_of_strong_couplings():
     kdes = np.array([1e-3, 2e-3, 4e-3])
     rows = np.array([1, 0])
     strength = _weights(rows, indptr, indices, np.full(2, 1e4))[2]
-    propagate(kdes, rows, np.full(3, np.nan), indptr, indices, strength,
+    propagate(kdes, rows, np.full(3, np.nan), indptr, indices, strength, np.zeros(3),
               np.zeros(3, dtype=np.bool_), np.empty(3, dtype=np.int64))
     np.testing.assert_allclose(kdes, [1e-3, 1e-3, 1e-3])
+
+
+def _diagonal(indptr, indices, jacobian):
+    """J_ii of a CSR pattern (0 where not stored), the loop's ``jdiag``."""
+    jdiag = np.zeros(indptr.size - 1)
+    for i in range(jdiag.size):
+        for nz in range(indptr[i], indptr[i + 1]):
+            if indices[nz] == i:
+                jdiag[i] = jacobian[nz]
+    return jdiag
+
+
+@pytest.mark.parametrize("order", ["forward", "backward"])
+def test_stiff_reader_and_its_input_take_one_step(order):
+    """u_i' = r (u_{i-1} - u_i), r = 1000 (a front's chain): each u_i reads u_{i-1} strongly
+    and follows it within its step (stiff on it), so the tie goes both ways and every
+    component takes the smallest step, whichever row comes first; a reader that is not stiff
+    on its step (J_ii = 0) keeps its longer one."""
+    from dolfinode.timeslab.multi.steps import propagate
+
+    n, r = 6, 1000.0
+    indptr = np.array([0, 1] + [1 + 2 * i for i in range(1, n)])
+    indices = np.array([0] + [c for i in range(1, n) for c in (i - 1, i)], dtype=np.int64)
+    jacobian = np.array([-r] + [v for _ in range(1, n) for v in (r, -r)])
+    rows = np.arange(n) if order == "forward" else np.arange(n)[::-1].copy()
+    strength = _weights(rows, indptr, indices, jacobian)[2]
+    kdes = np.array([8e-3, 6e-3, 9e-3, 2e-3, 7e-3, 5e-3])
+    lowered = np.zeros(n, dtype=np.bool_)
+    propagate(kdes, rows, np.full(n, np.nan), indptr, indices, strength,
+              _diagonal(indptr, indices, jacobian), lowered, np.empty(n, dtype=np.int64))
+    np.testing.assert_array_equal(kdes, np.full(n, 2e-3))
+    assert not lowered.any()
+    kdes = np.array([8e-3, 6e-3, 9e-3, 2e-3, 7e-3, 5e-3])
+    propagate(kdes, rows, np.full(n, np.nan), indptr, indices, strength, np.zeros(n),
+              lowered, np.empty(n, dtype=np.int64))
+    np.testing.assert_array_equal(kdes, [2e-3, 2e-3, 2e-3, 2e-3, 5e-3, 5e-3])  # inputs only
 
 
 def _random_pattern(rng, n, density, exponents):
@@ -293,18 +329,21 @@ def _random_pattern(rng, n, density, exponents):
 def test_propagation_leaves_no_tie_unresolved():
     """On random patterns (rows in a random order), the steps after ``propagate`` are a
     fixed point: no strong or lopsided coupling of a row i to an active j with k_j > k_i is
-    left, although only the rows whose step was lowered are visited again; its work flags
-    are all False on return."""
+    left, nor one with k_j < k_i where i is stiff on its step (-J_ii k_i > 1), although
+    only the rows whose step was lowered are visited again; its work flags are all False
+    on return."""
     from dolfinode.timeslab.multi.steps import ASYMMETRY, propagate
 
     rng = np.random.default_rng(3)
     n = 6
+    two_way = 0
     for _ in range(200):
         indptr, indices, jacobian, kdes, frozen = _random_pattern(rng, n, 0.4, (-1, 4))
         rows = rng.permutation(np.flatnonzero(np.isnan(frozen))).astype(np.int64)
         strength = _weights(rows, indptr, indices, jacobian)[2]
+        jdiag = _diagonal(indptr, indices, jacobian)
         lowered = np.zeros(n, dtype=np.bool_)
-        propagate(kdes, rows, frozen, indptr, indices, strength, lowered,
+        propagate(kdes, rows, frozen, indptr, indices, strength, jdiag, lowered,
                   np.empty(n, dtype=np.int64))
         assert not lowered.any()
         J = np.zeros((n, n))
@@ -315,6 +354,10 @@ def test_propagation_leaves_no_tie_unresolved():
                 lopsided = J[j, i] > 0 and J[i, j] >= ASYMMETRY**2 * J[j, i]
                 if j != i and np.isnan(frozen[j]) and (J[i, j] * kdes[i] > 1 or lopsided):
                     assert kdes[j] <= kdes[i]
+                    if -jdiag[i] * kdes[i] > 1:
+                        assert kdes[i] <= kdes[j]
+                        two_way += 1
+    assert two_way > 5
 
 
 def _direct_ties_and_grading(kdes, rows, frozen, indptr, indices, jacobian):
@@ -339,18 +382,32 @@ def _direct_ties_and_grading(kdes, rows, frozen, indptr, indices, jacobian):
         row = list(indices[indptr[j]:indptr[j + 1]])
         return abs(jacobian[indptr[j] + row.index(i)]) if i in row else 0.0
 
-    stack = list(rows[::-1])
-    visits = 0
-    while stack and visits < PROPAGATION_SWEEPS * len(rows):
-        i = stack.pop()
-        visits += 1
-        for j, jij in couplings(i):
-            jji = mutual(i, j)
-            tie = jij * kdes[i] > 1.0 or (0.0 < jji and jij >= ASYMMETRY**2 * jji)
-            if tie and kdes[j] > kdes[i]:
-                kdes[j] = kdes[i]
-                if j not in stack:
-                    stack.append(j)
+    jdiag = _diagonal(indptr, indices, jacobian)
+    for _ in range(PROPAGATION_SWEEPS):
+        stack = list(rows[::-1])
+        visits = 0
+        two_way = moved = False
+        while stack and visits < PROPAGATION_SWEEPS * len(rows):
+            i = stack.pop()
+            visits += 1
+            for j, jij in couplings(i):
+                jji = mutual(i, j)
+                if not (jij * kdes[i] > 1.0 or (0.0 < jji and jij >= ASYMMETRY**2 * jji)):
+                    continue
+                follows = -jdiag[i] * kdes[i] > 1.0
+                two_way = two_way or follows
+                if kdes[j] > kdes[i]:
+                    kdes[j] = kdes[i]
+                    moved = True
+                    if j not in stack:
+                        stack.append(j)
+                elif follows and kdes[j] < kdes[i]:
+                    kdes[i] = kdes[j]
+                    moved = True
+                    if i not in stack:
+                        stack.append(i)
+        if not (two_way and moved):
+            break
     for sweep in range(GRADING_SWEEPS):
         moved = False
         for i in (rows if sweep % 2 == 0 else rows[::-1]):
@@ -384,7 +441,8 @@ def test_ties_and_grading_over_the_acting_rows_only():
         acting = np.empty(n, dtype=np.int64)
         ties = tying_rows(subset, rows, reach, lopsided, acting)
         propagate(subset, acting[:ties], frozen, indptr, indices, strength,
-                  np.zeros(n, dtype=np.bool_), np.empty(n, dtype=np.int64))
+                  _diagonal(indptr, indices, jacobian), np.zeros(n, dtype=np.bool_),
+                  np.empty(n, dtype=np.int64))
         grading = grading_rows(subset, rows, reach, acting)
         grade(subset, acting[:grading], frozen, indptr, indices, reaction)
         np.testing.assert_array_equal(subset, every)

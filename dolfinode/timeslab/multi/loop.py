@@ -606,7 +606,8 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                           strength, reaction)
                 reach_valid = True
             n = tying_rows(kdes, active[:nactive], reach, lopsided, acting)
-            propagate(kdes, acting[:n], frozen, indptr, indices, strength, lowered, stack)
+            propagate(kdes, acting[:n], frozen, indptr, indices, strength, jdiag, lowered,
+                      stack)
             n = grading_rows(kdes, active[:nactive], reach, acting)
             grade(kdes, acting[:n], frozen, indptr, indices, reaction)
         if not accept:
