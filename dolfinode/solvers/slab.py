@@ -203,6 +203,17 @@ def _stage_sum(c, f0, F, A, s, out):
         out[_u(i)] = acc
 
 
+@njit(cache=True, inline="always")
+def _residual(x0, f0, X, F, A, b0, k, G):
+    """G = X - x0 - k (b0 f0 + A F), stage-major."""
+    N = x0.shape[0]
+    for s in range(A.shape[0]):
+        _stage_sum(b0[s], f0, F, A, s, G[s * N:])
+        for i in range(N):
+            e = _u(s * N + i)
+            G[e] = X[e] - x0[_u(i)] - k * G[e]
+
+
 # The iterations run without reference counting (NO_REFCOUNT), their helpers inlined.
 @linked
 @helper(**NO_REFCOUNT)
@@ -279,25 +290,14 @@ def factor_stages(jb, k, eigenvalues, structure, ab_real, ab_complex, ipiv, coun
 
 @linked(returns=types.int64, what="the stiff solver", seconds=4)
 @helper(**NO_REFCOUNT)
-def newton(f, p, x0, f0, t, k, A_hat, b0_hat, tau, T, T_inverse, atol, rtol, dtol, max_iter,
-           theta_max, give_up, X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real,
-           z_complex, w, counters, rate):
+def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_iter, theta_max,
+           give_up, X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w,
+           counters, rate):
     """Simplified Newton iteration on the stages, (I - k A (x) J) dX = -G(X), with the
     factors of :func:`factor_stages`: with A = T B T^{-1} (``T``, ``T_inverse``) the system is
     (I - k B (x) J) Z = -(T^{-1} (x) I) G, dX = (T (x) I) Z, and B's blocks decouple it into
     one N x N solve per real eigenvalue and one complex one per pair (RADAU5's
     transformation): S N x S N with bandwidth ~S b becomes ~S/2 N x N with bandwidth b.
-
-    The residual is formed transformed, as RADAU5 does: with ``A_hat`` = T^{-1} A and
-    ``b0_hat`` = T^{-1} b0,
-
-        (T^{-1} (x) I) G = V - k (A_hat (x) I) F(X),
-        V = (T^{-1} (x) I)(X - 1 (x) x0) - k b0_hat (x) f0,
-
-    V made once per solve and updated with the transformed increments Z (dV = Z): one stage
-    transformation an iteration fewer than forming G and transforming it. ``Z``: work space
-    of 2 S N entries, Z and V (not an argument of its own: one more array argument made
-    ROBER's solve 20 % slower, doc/design/newton.md).
 
     It fails when an increment shrinks by less than ``theta_max`` (1: when it grows), and
     with ``give_up`` as soon as it cannot reach dtol in max_iter iterations at its rate
@@ -310,39 +310,32 @@ def newton(f, p, x0, f0, t, k, A_hat, b0_hat, tau, T, T_inverse, atol, rtol, dto
     |dX_1| / |dX_0| mostly measures the start's error, which the first iteration removes at
     once (HIRES: 0.01 where the rest contracts at 0.2-0.5)."""
     position = structure[0]
-    S = A_hat.shape[0]
+    S = A.shape[0]
     N = x0.shape[0]
     r = ab_real.shape[0]
-    V = Z[S * N:]
     d_prev = 0.0
     # the first ratio |dX_1| / |dX_0| is mostly the predictor's error, removed at once, and
     # underestimates the rate at which the rest contracts: the last solve's rate bounds it
     # (not a diverged one's)
     carried = rate[0] if rate[0] < 1.0 else 0.0
     rate[0] = 0.0
-    for s in range(S):  # V = (T^{-1} (x) I)(X - 1 (x) x0) - k b0_hat (x) f0
-        for i in range(N):
-            G[s * N + i] = X[s * N + i] - x0[i]
-    for j in range(S):
-        _stage_sum(-k * b0_hat[j], f0, G, T_inverse, j, V[j * N:])
     for it in range(max_iter):
         counters[F_EVALUATIONS] += stage_rhs(f, p, X, t, k, tau, F)
-        for j in range(S):  # Z = (A_hat (x) I) F, so that (T^{-1} (x) I) G = V - k Z
-            _stage_sum(0.0, x0, F, A_hat, j, Z[j * N:])
-        # Z_j <- (I - k lambda_j J)^{-1} (k Z_j - V_j), in the matrices' ordering; a complex
-        # pair's two real blocks are the real and imaginary parts of one complex vector
+        _residual(x0, f0, X, F, A, b0, k, G)
+        for j in range(S):  # Z = (T^{-1} (x) I) G
+            _stage_sum(0.0, x0, G, T_inverse, j, Z[j * N:])
+        # Z_j <- (I - k lambda_j J)^{-1} (-Z_j), in the matrices' ordering; a complex pair's two
+        # real blocks are the real and imaginary parts of one complex vector
         for j in range(r):
             for i in range(N):
-                e = j * N + i
-                z_real[position[i]] = k * Z[e] - V[e]
+                z_real[position[i]] = -Z[j * N + i]
             lu_solve(ab_real[j], structure, ipiv[j], z_real)
             for i in range(N):
                 Z[j * N + i] = z_real[position[i]]
         for c in range(ab_complex.shape[0]):
             re = (r + 2 * c) * N
             for i in range(N):
-                e = re + i
-                z_complex[position[i]] = complex(k * Z[e] - V[e], k * Z[e + N] - V[e + N])
+                z_complex[position[i]] = complex(-Z[re + i], -Z[re + N + i])
             lu_solve(ab_complex[c], structure, ipiv[r + c], z_complex)
             for i in range(N):
                 Z[re + i] = z_complex[position[i]].real
@@ -351,8 +344,6 @@ def newton(f, p, x0, f0, t, k, A_hat, b0_hat, tau, T, T_inverse, atol, rtol, dto
             _stage_sum(0.0, x0, Z, T, s, G[s * N:])
         for e in range(S * N):
             X[e] += G[e]
-        for e in range(S * N):
-            V[e] += Z[e]
         counters[ITERATIONS] += 1
         scale_weights(X, atol, rtol, w)
         d = weighted_norm(G, w)

@@ -337,15 +337,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         st.k_solver, st.k_last, st.k_factored, st.theta = math.inf, 0.0, 0.0, math.inf
         st.k_accuracy = st.k_next
         st.age, st.filter_ok, st.newton_rate, st.carried = 0, False, 0.0, True
-    Z = np.empty(2 * S * N)  # (newton's transformed increments and residual)
-    # Newton forms its residual transformed (slab.newton): T^{-1} A and T^{-1} b0
-    A_hat = np.zeros((S, S))
-    b0_hat = np.zeros(S)
-    for j in range(S):
-        for m in range(S):
-            b0_hat[j] += transform_inverse[j, m] * b0[m]
-            for n in range(S):
-                A_hat[j, n] += transform_inverse[j, m] * A[m, n]
+    Z = np.empty(S * N)
     z_real = np.empty(N)
     z_complex = np.empty(N, dtype=np.complex128)
     reuse = o.reuse
@@ -466,10 +458,10 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                         # (ROBER at k ~ t: 1e6-1e11); start once more from the constant x
                         # before reducing k.
                         euler_stages(x, f0, 0.0, tau, X)
-                    iters = newton(f, p, x, f0, t, k, A_hat, b0_hat, tau, transform,
+                    iters = newton(f, p, x, f0, t, k, A, b0, tau, transform,
                                    transform_inverse, atol, rtol, tol, max_iter, theta_max,
-                                   is_dg, X, F, G, Z, ab_real, ab_complex, structure,
-                                   ipiv, z_real, z_complex, w, counters, rate)
+                                   is_dg, X, F, G, Z, ab_real, ab_complex, structure, ipiv,
+                                   z_real, z_complex, w, counters, rate)
                     if iters >= 0:
                         break
                 if iters >= 0:

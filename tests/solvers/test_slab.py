@@ -36,9 +36,9 @@ def permuted_band_system(N=7, seed=0):
 def _newton_steps(f_address, p, x0, f0, k, A, b0, tau, T, T_inverse, atol, X, F, G, Z, ab_real,
                   ab_complex, structure, ipiv, z_real, z_complex, w, counters, steps):
     f = rhs_kernel(f_address)
-    return slab.newton(f, p, x0, f0, 0.0, k, T_inverse @ A, T_inverse @ b0, tau, T, T_inverse,
-                       atol, 1e-6, 0.0, steps, 1.0, True, X, F, G, Z, ab_real, ab_complex,
-                       structure, ipiv, z_real, z_complex, w, counters, np.zeros(1))
+    return slab.newton(f, p, x0, f0, 0.0, k, A, b0, tau, T, T_inverse, atol, 1e-6, 0.0, steps,
+                       1.0, True, X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real,
+                       z_complex, w, counters, np.zeros(1))
 
 
 @pytest.mark.parametrize("storage", ["banded", "sparse"])
@@ -73,7 +73,7 @@ def test_one_newton_step_solves_a_linear_stage_system(family, q, storage):
     assert slab.factor_stages(jb, k, eigenvalues, structure.tuple, ab_real, ab_complex, ipiv,
                               counters)
     X = np.random.default_rng(1).standard_normal(S * N)  # any start
-    work = [np.empty(n * S * N) for n in (1, 1, 2, 1)]
+    work = [np.empty(S * N) for _ in range(4)]
     _newton_steps(compiled.rhs.address, compiled.p, x0, f0, k, A, b0, m.nodes[m.stages].copy(),
                   m.stage_transform.copy(), m.stage_transform_inverse.copy(), np.full(N, 1e-6),
                   X, work[0], work[1], work[2], ab_real, ab_complex, structure.tuple, ipiv,
