@@ -297,16 +297,23 @@ def _modal_ends(sol, part, V, flow, d, e, own_ends, weight, peak):
     """peak (value, time, component) = the largest scaled error so far (:func:`_modal`) at
     the ends of the slabs ``part``, e_n = flow_n e_{n-1} + d_n from ``e`` in the eigenbasis
     (a scan beside the chunk's product, which e at T keeps)."""
-    ends = sol.t_start[part] + sol.k[part]
+    own = own_ends[part]
+    error = (_modal_scan(flow, d, e) @ V.T).real  # (M, N)
     values = _basis(sol.method, (1.0,))[0][0] @ sol.values[part]  # U(t_n), (M, N)
-    for n, own in enumerate(own_ends[part]):
-        e = flow[n] * e + d[n]
-        if own.any():
-            error = (V @ e).real
-            ratio = np.where(own, np.abs(error) / (weight + np.abs(values[n] - error)), 0.0)
-            i = int(np.argmax(ratio))
-            if ratio[i] > peak[0]:
-                peak[:] = ratio[i], ends[n], i
+    ratio = np.where(own, np.abs(error) / (weight + np.abs(values - error)), 0.0)
+    n, i = np.unravel_index(np.argmax(ratio), ratio.shape)
+    if ratio[n, i] > peak[0]:
+        peak[:] = ratio[n, i], sol.t_start[part][n] + sol.k[part][n], i
+
+
+@njit(cache=True)
+def _modal_scan(flow, d, e):
+    """E_n = flow_n E_{n-1} + d_n, E_{-1} = ``e``: a chunk's errors at its slab ends by mode."""
+    E = np.empty_like(d)
+    for n in range(d.shape[0]):
+        for i in range(d.shape[1]):
+            E[n, i] = flow[n, i] * (E[n - 1, i] if n else e[i]) + d[n, i]
+    return E
 
 
 #: Stage systems without a narrow band are solved by LAPACK above LAPACK_SIZE rows, and by
@@ -579,8 +586,6 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
             e[r] = b[s * position[r] + s - 1]
             starts[r, 0], starts[r, 1] = x[r], g[r]
             g[r] = c[s * position[r] + s - 1]
-            if own_ends[n, r]:
-                _keep_peak(peak, e[r], weight[r], U[s, r], t_start[n] + k[n], r)
         Z[:] = 0.0
         for r in range(N if exact else 0):
             for m in range(indptr[r], indptr[r + 1]):
@@ -591,6 +596,9 @@ def _recursion(rhs, jacobian, p, indptr, indices, values, k, t_start, e0, before
             gap, kept = _flow_gap(Z, starts, num, den, basis)
             e += gap[:, 0]
             g += gap[:, 1]
+        for r in range(N):
+            if own_ends[n, r]:
+                _keep_peak(peak, e[r], weight[r], U[s, r], t_start[n] + k[n], r)
         # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, its last stage point
         for col in range(N):
             shifted[col] = U[s, col] - e[col]
@@ -696,8 +704,7 @@ def estimate(sol, compiled=None, weight=None):
 def carried(sol, compiled=None, weight=None):
     """The :class:`Running` recursion of :func:`estimate` carried over the whole of ``sol``
     (its e, nu, delta and the error mid-run ``peak``, at every element end of every
-    component of a multi-adaptive solution; none for a mono-adaptive one, whose step control
-    bounds every component where they all end)."""
+    component: a mono-adaptive solution's slab ends)."""
     compiled = lower(sol.ode) if compiled is None else compiled
     run = Running(sol.ode, compiled, sol.method, weight)
     if sol._component_ptr is None:
@@ -772,9 +779,12 @@ class Running:
     def add(self, t_start, k, values, own_ends=None):
         """Carry e over the next slabs of the run, (t_start (n,), k (n,), values (n, q + 1,
         N)), as a mono-adaptive loop's chunk holds them (``own_ends`` (n, N): where the
-        error mid-run is compared, :attr:`peak`; None: nowhere)."""
+        error mid-run is compared, :attr:`peak`; None: at every slab end, where every
+        component of a mono-adaptive run ends)."""
         if not len(k):
             return
+        if own_ends is None:
+            own_ends = np.ones((len(k), self.ode.N), dtype=np.bool_)
         part = SimpleNamespace(method=self.method, ode=self.ode, t_start=t_start, k=k,
                                values=values)
         shifts = _feature_shifts(part, self.compiled, self.c, self.a)
@@ -788,9 +798,7 @@ class Running:
                                     compiled.p, compiled.indptr, compiled.indices,
                                     np.ascontiguousarray(values), k, t_start, self.e,
                                     self.before, self.g, *self.stages,
-                                    *shifts, self.weight,
-                                    np.zeros((len(k), self.ode.N), dtype=np.bool_)
-                                    if own_ends is None else own_ends, self.peak)
+                                    *shifts, self.weight, own_ends, self.peak)
             self.nu = max(self.nu, nu)
         self.before = values[-1, -1].copy()
 
@@ -815,19 +823,23 @@ def _constant_modes(ode, compiled):
     return None if np.linalg.cond(V) >= MODAL_CONDITION else (lam, V)
 
 
-def modal_estimate(sol, compiled):
+def modal_estimate(sol, compiled, weight=None, peak=None):
     """(e, 0.0, 0.0) as :func:`estimate` (linear: no remainder), mode by mode
     (:func:`_modal`), for a solution on shared
     slabs of a linear system with a constant J whose eigenbasis has a condition number below
     MODAL_CONDITION; None for any other. Each mode is carried by its exact flow
     exp(k lambda), also where a step spans many periods of a weakly damped oscillation (a
-    stiff spring stepped over), where the slab estimate's series gives up."""
+    stiff spring stepped over), where the slab estimate's series gives up. ``peak`` (in
+    place, as :attr:`Running.peak`; none given: not kept) keeps the largest error at a slab
+    end (``weight``: atol / rtol per component, default 1)."""
     modes = _constant_modes(sol.ode, compiled)
     if modes is None:
         return None
     c, a = _collocation(sol.method.q + 2)
-    return (_modal(sol, compiled, *modes, c, *_feature_shifts(sol, compiled, c, a)), 0.0,
-            0.0)
+    ends = None if peak is None else np.ones((len(sol.k), compiled.N), dtype=np.bool_)
+    weight = np.ones(compiled.N) if weight is None else np.asarray(weight, dtype=float)
+    return (_modal(sol, compiled, *modes, c, *_feature_shifts(sol, compiled, c, a),
+                   own_ends=ends, weight=weight, peak=peak), 0.0, 0.0)
 
 
 def measured_warning(size, linearised, nu, rtol, state, factor):
@@ -931,11 +943,10 @@ def slab_estimate(sol, compiled=None, weight=None, peak=None):
     by the neutral sum of the module docstring (``weight``: atol / rtol per component,
     default 1), at the slabs' ends. A :class:`~dolfinode.solution.MixedSolution` keeps its parts.
 
-    At every element end of a slab of elements, ``peak`` (in place, as :attr:`Running.peak`:
-    value, time, component; none given: not kept) keeps the largest |e_i| / (w_i + |U_i -
-    e_i|) of the components whose element ends there (the error mid-run; not on shared
-    slabs, whose step control bounds every component where they all end). An end inside a
-    sub-step gets e carried to it from the sub-step's start by the same series; the
+    At every element end, ``peak`` (in place, as :attr:`Running.peak`: value, time,
+    component; none given: not kept) keeps the largest |e_i| / (w_i + |U_i - e_i|) of the
+    components whose element ends there (the error mid-run; every component at a shared
+    slab's end). An end inside a sub-step gets e carried to it from the sub-step's start by the same series; the
     sub-steps do not end there (cut at every end, mdG(2)'s estimate of an undamped 50-mass
     chain at 1e-8 fell from 17.0 x, the error 17.2 x, to 8.1 x)."""
     compiled = lower(sol.ode) if compiled is None else compiled
@@ -1208,9 +1219,10 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
     than a length h: halved (and the sub-step redone) where exp(h J)'s series does not
     settle, doubled after a sub-step where it settled in at most SLAB_TERMS // 2 terms;
     settled False: a slab that would need more than SLAB_SUBSTEPS sub-steps per element of
-    the slab. On a slab of elements ``peak`` (in place) keeps the largest scaled error of
-    the components ending at the element ends ``cuts`` (increasing; :func:`slab_estimate`),
-    those inside a sub-step carried to them from its start (not into the sub-steps)."""
+    the slab. ``peak`` (in place) keeps the largest scaled error of the components ending
+    at the element ends ``cuts`` (increasing; :func:`slab_estimate`), those inside a
+    sub-step carried to them from its start (not into the sub-steps), and of every
+    component at a shared slab's end."""
     fi, f, jac = component_kernel(fi_address), rhs_kernel(rhs), rhs_kernel(jacobian)
     N, nnz = u0.size, indices.size
     first, last = ptr[:-1].copy(), ptr[:-1].copy()
@@ -1299,6 +1311,8 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
         # nu: |f(U - e) - f(U) + J e| / |J e| at the slab's end, U(tb) the next slab's before
         if shared:
             _shared_state(sc, 1.0, x)
+            for r in range(N):  # (every component ends here)
+                _keep_peak(peak, e[r], weight[r], x[r], tb, r)
         else:
             _state(first, last, t_start, t_end, coef, tb, x)
         before[:] = x
@@ -1332,7 +1346,7 @@ def scaled(e, U, atol, rtol):
     return float(ratio[i]), i
 
 
-def midrun_warning(peak, time, size, nu, rtol, state, shift=np.inf):
+def midrun_warning(peak, time, size, nu, rtol, state, shift=np.inf, multi=True):
     """The ToleranceWarning's message for an error mid-run, ``peak`` (as :func:`scaled`, at
     an element end of ``state`` at ``time``: :attr:`Running.peak`) above WARN_FACTOR x the
     tolerance ``rtol`` where the estimate at T, ``size``, is within it; None otherwise, and
@@ -1345,18 +1359,24 @@ def midrun_warning(peak, time, size, nu, rtol, state, shift=np.inf):
     T; mcG(3) and mdG(2) on a front along a 200-stage linear chain at 1e-6 17 x and 20 x,
     0.05 x and 0.09 x at T. The recursion's e_n matched the error at every end (ratio
     0.999-1.000). ``shift``: the time over which ``state`` changes by that error at its
-    rate there (a fast transition's phase, if one is that near)."""
+    rate there (a fast transition's phase, if one is that near). ``multi``: a
+    multi-adaptive run's (False: a mono-adaptive one's, whose elements end together).
+
+    A mono-adaptive run is off mid-run where the errors of its slabs add up over a stretch
+    and the run damps them later (HIRES, cG(3) at 1e-9: 21 x), or at a fast transition's
+    phase (Van der Pol at eps = 1e-6: 1e5-1e8 x at every tolerance)."""
     if peak <= WARN_FACTOR * rtol or size > WARN_FACTOR * rtol or nu > NONLINEAR_LIMIT:
         return None
     phase = (f" At {state}'s rate there, that is its change over {shift:.2g} of time: if a "
              "fast transition is that near, the error is its phase, the transition's time off "
              "by about that much." if np.isfinite(shift) else "")
+    advice = (", or the mono-adaptive method (cG(q)/dG(q)) for a stiff component read by "
+              "others or a front along a chain" if multi else "")
     return (f"the estimated error mid-run is {peak / rtol:.3g} x the tolerance at t = "
             f"{time:.6g} (in {state}, at its element end; sol.stats['global error mid-run'] = "
             f"{peak:.3g}), though {size / rtol:.3g} x at T: the run damps or cancels it before "
-            "T. Values read before T may be that far off: try a tighter tolerance, or the "
-            "mono-adaptive method (cG(q)/dG(q)) for a stiff component read by others or a "
-            f"front along a chain.{phase}")
+            f"T. Values read before T may be that far off: try a tighter tolerance{advice}."
+            f"{phase}")
 
 
 def warning(size, nu, rtol, state):
