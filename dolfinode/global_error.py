@@ -954,7 +954,7 @@ def slab_estimate(sol, compiled=None, weight=None, peak=None):
     N = compiled.N
     (ptr, t_start, t_end, values), (s_start, s_end, s_values) = family_parts(sol)
     # the elements' monomial coefficients, and the sort of their ends
-    size = 8 * len(t_end) * (method.q + 4)
+    size = 8 * len(t_end) * (method.q + 6)
     if size > SMALL_BYTES and size > COMMON_MEMORY_FRACTION * available_memory():
         raise ValueError(f"the slab estimate's copy of the {len(t_end)} elements takes "
                          f"{size / 2**30:.3g} GB, more than {COMMON_MEMORY_FRACTION:g} x the "
@@ -973,7 +973,8 @@ def slab_estimate(sol, compiled=None, weight=None, peak=None):
         t_start, t_end, coef, np.asarray(s_start, dtype=float),
         np.ascontiguousarray(s_values, dtype=float), to_monomial, sync,
         np.asarray(declared.u0, dtype=float), weight, second, method.family == "cG", gx, gw,
-        points, ends, peak)
+        points, ends, np.concatenate(([0], np.cumsum(counts))),
+        np.argsort(t_end, kind="stable"), np.repeat(np.arange(N), np.diff(ptr)), peak)
     return (e, nu, float(np.max(second))) if settled else None
 
 
@@ -1096,13 +1097,12 @@ def _slab_moments(fi, p, indptr, indices, first, last, t_start, t_end, coef, bef
 
 
 @njit(cache=True)
-def _end_errors(first, last, t_start, t_end, coef, e, weight, t, peak):
+def _end_errors(ending, owner, coef, e, weight, t, peak):
     """peak (value, time, component) = the largest |e_i| / (w_i + |U_i(t) - e_i|) so far,
-    over the components i whose element (first[i]..last[i] - 1) ends at t."""
-    for i in range(e.size):
-        el = _element_at(t_end, first[i], last[i], t)
-        if t_end[el] == t:
-            _keep_peak(peak, e[i], weight[i], _value(coef, el, 1.0), t, i)
+    over the components i = owner[el] of the elements ``ending`` at t."""
+    for el in ending:
+        i = owner[el]
+        _keep_peak(peak, e[i], weight[i], _value(coef, el, 1.0), t, i)
 
 
 @njit(cache=True, inline="always")
@@ -1146,6 +1146,41 @@ def _shared_moments(f, p, sc, before, continuous, gx, gw, ta, tb, sa, sb, mu, x,
             for r in range(q1 - 1, 0, -1):
                 du = du * tau + r * sc[i, r]
             r_value = (du / K - fx[i]) * gw[g] * h
+            for m in range(mu.shape[0]):
+                mu[m, i] += r_value
+                r_value *= wt
+
+
+@njit(cache=True)
+def _piece_moments(f, p, current, first, t_start, t_end, coef, before, continuous, gx, gw,
+                   sa, sb, mu, x, fx):
+    """mu as :func:`_slab_moments` on a piece (sa, sb] of a slab inside which no element
+    ends, each component i on its element current[i]: the residual of all by f at once
+    (no split at the neighbours' ends, none inside)."""
+    h = sb - sa
+    q1 = coef.shape[1]
+    mu[:] = 0.0
+    for i in range(x.size):
+        el = current[i]
+        if not continuous and t_start[el] >= sa:  # the jump at sa, weight 1
+            jump = coef[el, 0] - (before[i] if el == first[i] else _value(coef, el - 1, 1.0))
+            for m in range(mu.shape[0]):
+                mu[m, i] += jump
+    for g in range(gx.size):
+        t = sa + gx[g] * h
+        for i in range(x.size):
+            el = current[i]
+            x[i] = _value(coef, el, (t - t_start[el]) / (t_end[el] - t_start[el]))
+        f(address(x, 0), t, address(p, 0), address(fx, 0))
+        wt = (sb - t) / h
+        for i in range(x.size):
+            el = current[i]
+            k = t_end[el] - t_start[el]
+            tau = (t - t_start[el]) / k
+            du = 0.0
+            for r in range(q1 - 1, 0, -1):
+                du = du * tau + r * coef[el, r]
+            r_value = (du / k - fx[i]) * gw[g] * h
             for m in range(mu.shape[0]):
                 mu[m, i] += r_value
                 r_value *= wt
@@ -1211,7 +1246,7 @@ def _moments_for(x, top):
 @njit(cache=True)
 def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start, t_end,
                     coef, s_start, s_values, to_monomial, sync, u0, weight, second,
-                    continuous, gx, gw, points, cuts, peak):
+                    continuous, gx, gw, points, cuts, cut_ptr, ending, owner, peak):
     """(e at T, nu, settled) of :func:`slab_estimate` (delta's sums added to ``second``), slab after slab between the times
     ``sync`` (a slab starting at s_start[n] is the shared slab n, nodal values s_values[n],
     the others are each component's elements ptr[i]:ptr[i + 1]; a shared slab counts as
@@ -1220,8 +1255,9 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
     settle, doubled after a sub-step where it settled in at most SLAB_TERMS // 2 terms;
     settled False: a slab that would need more than SLAB_SUBSTEPS sub-steps per element of
     the slab. ``peak`` (in place) keeps the largest scaled error of the components ending
-    at the element ends ``cuts`` (increasing; :func:`slab_estimate`), those inside a
-    sub-step carried to them from its start (not into the sub-steps), and of every
+    at the element ends ``cuts`` (increasing; :func:`slab_estimate`; the elements
+    ending[cut_ptr[c]:cut_ptr[c + 1]] end at cuts[c], of the components ``owner``), those
+    inside a sub-step carried to them from its start (not into the sub-steps), and of every
     component at a shared slab's end."""
     fi, f, jac = component_kernel(fi_address), rhs_kernel(rhs), rhs_kernel(jacobian)
     N, nnz = u0.size, indices.size
@@ -1234,6 +1270,8 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
     fU, fS, before = np.empty(N), np.empty(N), u0.copy()
     sc = np.empty((N, to_monomial.shape[1]))
     cursor = np.empty(max(nnz, 1), dtype=np.int64)
+    current = np.empty(N, dtype=np.int64)  # each component's element on the branch's piece
+    fx = np.empty(N)
     nu = 0.0
     h = rho = np.inf  # rho: rho(J) as the last sub-step saw it
     shared_next = 0
@@ -1291,18 +1329,30 @@ def _slab_recursion(fi_address, rhs, jacobian, p, indptr, indices, ptr, t_start,
                 # the sub-steps do not take (more sub-steps move e at T on undamped runs)
                 branch[:] = e
                 at = sa
+                for j in range(N):  # each component's element on the first piece
+                    current[j] = _element_at(t_end, first[j], last[j], sa)
+                    if t_end[current[j]] <= sa:
+                        current[j] += 1
                 while cut < cuts.size and cuts[cut] < sb:
-                    _slab_moments(fi, p, indptr, indices, first, last, t_start, t_end, coef,
-                                  before, continuous, gx[M, :n], gw[M, :n], at, cuts[cut],
-                                  mu[:M + 1], x, out, cursor)
-                    if _propagate(indptr, indices, data, cuts[cut] - at, mu[:M + 1], branch,
+                    # (the moments a piece's own length needs: short pieces take fewer)
+                    Mp = _moments_for(1.5 * rho * (cuts[cut] - at), M)
+                    n = points[Mp]
+                    _piece_moments(f, p, current, first, t_start, t_end, coef, before,
+                                   continuous, gx[Mp, :n], gw[Mp, :n], at, cuts[cut],
+                                   mu[:Mp + 1], x, fx)
+                    if _propagate(indptr, indices, data, cuts[cut] - at, mu[:Mp + 1], branch,
                                   branch, term, total, v, jv)[0] < 0:
                         break  # (shorter than the sub-step: its series settles as well)
                     at = cuts[cut]
-                    _end_errors(first, last, t_start, t_end, coef, branch, weight, at, peak)
+                    _end_errors(ending[cut_ptr[cut]:cut_ptr[cut + 1]], owner, coef, branch,
+                                weight, at, peak)
+                    for j in range(N):
+                        if t_end[current[j]] <= at:
+                            current[j] += 1
                     cut += 1
                 if cut < cuts.size and cuts[cut] == sb:
-                    _end_errors(first, last, t_start, t_end, coef, nxt, weight, sb, peak)
+                    _end_errors(ending[cut_ptr[cut]:cut_ptr[cut + 1]], owner, coef, nxt,
+                                weight, sb, peak)
             e[:] = nxt
             if terms <= SLAB_TERMS // 2 and h < np.inf:
                 h = max(h, 2 * (sb - sa))
