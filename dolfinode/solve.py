@@ -450,11 +450,11 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         the estimate is within 10 x but its second-order part, the remainder f(U - e) -
         f(U) + J e the linearisation leaves out propagated along the run as the estimate
         is, ``sol.stats["global error second order"]``, could lift it above: a nonlinear
-        oscillator's phase error over many periods). A multi-adaptive run also gets
+        oscillator's phase error over many periods). The run also gets
         ``sol.stats["global error mid-run"]``, the largest error at every element end of
-        every component (by the same estimate, stage systems or slab estimate), with a
-        warning above 10 x the tolerance where the error at T is within
-        (:func:`dolfinode.global_error.midrun_warning`). Measured within
+        every component (a mono-adaptive run's slab ends; by the same estimate, stage
+        systems, slab estimate or mode by mode), with a warning above 10 x the tolerance
+        where the error at T is within (:func:`dolfinode.global_error.midrun_warning`). Measured within
         0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
         and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md); it
         costs 0.4-8 x a small solve (a compiled pass over the slabs, one stage solve of
