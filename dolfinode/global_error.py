@@ -946,9 +946,9 @@ def slab_estimate(sol, compiled=None, weight=None, peak=None):
     At every element end, ``peak`` (in place, as :attr:`Running.peak`: value, time,
     component; none given: not kept) keeps the largest |e_i| / (w_i + |U_i - e_i|) of the
     components whose element ends there (the error mid-run; every component at a shared
-    slab's end). An end inside a sub-step gets e carried to it from the sub-step's start by the same series; the
-    sub-steps do not end there (cut at every end, mdG(2)'s estimate of an undamped 50-mass
-    chain at 1e-8 fell from 17.0 x, the error 17.2 x, to 8.1 x)."""
+    slab's end). An end inside a sub-step gets e carried to it from the sub-step's start by
+    the same series; the sub-steps do not end there (cut at every end, mdG(2)'s estimate of
+    an undamped 50-mass chain at 1e-8 fell from 17.0 x, the error 17.2 x, to 8.1 x)."""
     compiled = lower(sol.ode) if compiled is None else compiled
     method = sol.method
     N = compiled.N
@@ -1416,8 +1416,8 @@ def midrun_warning(peak, time, size, nu, rtol, state, shift=np.inf, multi=True):
     and the run damps them later (HIRES, cG(3) at 1e-9: 21.0 x estimated, 21.7 x measured,
     2.2 x at T), where a drifting phase meets a component's zero (the harmonic oscillator,
     cG(1): 11.6 x at a zero of v, 6.7 x at T), or at a fast transition's phase (Van der
-    Pol at eps = 1e-6: 4e4-9e6 x at every tolerance, the transition's time off by 1e-12 to
-    2e-5)."""
+    Pol at eps = 1e-6: 6e4-2e6 x measured at 1e-5..1e-10, the transition's time off by
+    1e-12 to 2e-5)."""
     if peak <= WARN_FACTOR * rtol or size > WARN_FACTOR * rtol or nu > NONLINEAR_LIMIT:
         return None
     phase = (f" At {state}'s rate there, that is its change over {shift:.2g} of time: if a "

@@ -454,8 +454,8 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         ``sol.stats["global error mid-run"]``, the largest error at every element end of
         every component (a mono-adaptive run's slab ends; by the same estimate, stage
         systems, slab estimate or mode by mode), with a warning above 10 x the tolerance
-        where the error at T is within (:func:`dolfinode.global_error.midrun_warning`). Measured within
-        0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
+        where the error at T is within (:func:`dolfinode.global_error.midrun_warning`).
+        Measured within 0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
         and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md); it
         costs 0.4-8 x a small solve (a compiled pass over the slabs, one stage solve of
         (q + 2) N rows each, banded where J's band is narrow: 6-15 x a non-stiff chain's
@@ -1239,7 +1239,7 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
             sol.stats["global error note"] = f"not estimated: {error}"
             return
         if found is None and not sol.multi and ode.N <= global_error.MAX_DENSE:
-            # (linear: exact flows)
+            peak[:] = 0.0  # (linear: exact flows, every slab end again)
             found = global_error.modal_estimate(sol, compiled, atol / rtol, peak)
         if found is None:
             _stiff_on_slabs(ode, params, sol, atol)
