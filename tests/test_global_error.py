@@ -263,7 +263,9 @@ def test_the_residual_is_integrated_across_a_steep_feature_of_f(k, method):
     """u' = atan(k (t - 3)) at 1e-7: the slabs across the feature and in its tails hold R far
     from a polynomial, which the collocation's Radau points integrated 0.4-27 x off (k = 1e6
     dG(3): error 2.7 x the tolerance, estimated 74 x, a false alarm). Integrated by the
-    composite rule, the estimate is the error to 30 %, and warns exactly above 10 x."""
+    composite rule, the estimate is the error to 30 %, and warns exactly above 10 x (of
+    the error at T; at the kink, t = 3, k = 1e6 cG(2) and dG(3) are 45.5 x and 69.8 x off,
+    measured, and warned mid-run)."""
     u = sp.Symbol("u")
     ode = dn.ODE({u: sp.atan(k * (dn.t - 3))}, [0.0], T=10.0)
 
@@ -276,7 +278,8 @@ def test_the_residual_is_integrated_across_a_steep_feature_of_f(k, method):
         sol = dn.solve(ode, method, tolerance=1e-7)
     error = abs(sol(10.0)[0] - exact) / (1 + abs(exact)) / 1e-7
     assert sol.stats["global error estimate"] / 1e-7 == pytest.approx(error, rel=0.3)
-    assert bool(caught) == (error > global_error.WARN_FACTOR)
+    at_T = [w for w in caught if "error mid-run" not in str(w.message)]
+    assert bool(at_T) == (error > global_error.WARN_FACTOR)
 
 
 @pytest.mark.parametrize("method", ["cG(1)", "dG(2)"])
@@ -699,10 +702,12 @@ def test_a_remainder_the_run_damps_is_not_measured(method, tolerance):
     with neutral weights it was 1e3-1.4e5 x the tolerance on these runs and sent them to a
     reference solve; propagated signed by the error equation's stage systems it is below the
     margin to 10 x the tolerance at T, so the estimate is trusted as it is: no reference
-    solve, no warning, and the error at T within 10 x the tolerance."""
+    solve, no warning of the error at T (mid-run, the fast transition's phase is warned:
+    3e5-4e5 x off there, measured), and the error at T within 10 x the tolerance."""
     problem = problems.get_problem("VDPOL")
     sol, error, caught = _solve(problem, method, tolerance)
-    assert not caught and "global error reference" not in sol.stats
+    assert all("error mid-run" in str(w.message) for w in caught)
+    assert "global error reference" not in sol.stats
     assert (sol.stats["global error estimate"] + sol.stats["global error second order"]
             <= global_error.WARN_FACTOR * tolerance)
     assert error <= global_error.WARN_FACTOR * tolerance
