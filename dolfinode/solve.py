@@ -450,12 +450,12 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         the estimate is within 10 x but its second-order part, the remainder f(U - e) -
         f(U) + J e the linearisation leaves out propagated along the run as the estimate
         is, ``sol.stats["global error second order"]``, could lift it above: a nonlinear
-        oscillator's phase error over many periods). A multi-adaptive run also gets
+        oscillator's phase error over many periods). The run also gets
         ``sol.stats["global error mid-run"]``, the largest error at every element end of
-        every component (by the same estimate, stage systems or slab estimate), with a
-        warning above 10 x the tolerance where the error at T is within
-        (:func:`dolfinode.global_error.midrun_warning`). Measured within
-        0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
+        every component (a mono-adaptive run's slab ends; by the same estimate, stage
+        systems, slab estimate or mode by mode), with a warning above 10 x the tolerance
+        where the error at T is within (:func:`dolfinode.global_error.midrun_warning`).
+        Measured within 0.74-1.6 x the error on HIRES, ROBER, POLLU, a heat equation, a stiff-spring chain
         and the harmonic oscillator, also multi-adaptive (doc/design/global_error.md); it
         costs 0.4-8 x a small solve (a compiled pass over the slabs, one stage solve of
         (q + 2) N rows each, banded where J's band is narrow: 6-15 x a non-stiff chain's
@@ -1223,9 +1223,10 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
     where the run is stiff on a slab it gives up (:func:`_stiff_on_slabs`), and where its
     elements' copy exceeds the memory sol.stats["global error note"] says that the error at T
     was not estimated. ``running``: the estimate carried chunk by chunk
-    (:class:`global_error.Running`). Both estimates of a multi-adaptive run also give the
-    largest error at an element end mid-run (every component's, :func:`global_error.carried`,
-    :func:`global_error.slab_estimate`), "global error mid-run", with a ToleranceWarning
+    (:class:`global_error.Running`). The estimates also give the largest error at an
+    element end mid-run (every component's, a mono-adaptive run's at every slab end;
+    :func:`global_error.carried`, :func:`global_error.slab_estimate`,
+    :func:`global_error.modal_estimate`), "global error mid-run", with a ToleranceWarning
     where it exceeds 10 x the tolerance and the error at T does not
     (:func:`_midrun_warning`)."""
     rtol = params["tolerance"]
@@ -1238,7 +1239,8 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
             sol.stats["global error note"] = f"not estimated: {error}"
             return
         if found is None and not sol.multi and ode.N <= global_error.MAX_DENSE:
-            found = global_error.modal_estimate(sol, compiled)  # (linear: exact flows)
+            peak[:] = 0.0  # (linear: exact flows, every slab end again)
+            found = global_error.modal_estimate(sol, compiled, atol / rtol, peak)
         if found is None:
             _stiff_on_slabs(ode, params, sol, atol)
             return
@@ -1298,7 +1300,7 @@ def _midrun_warning(ode, compiled, sol, peak, nu, rtol, atol):
     rate = abs(compiled.f_component(j, U, time))
     shift = largest * (atol[j] / rtol + abs(U[j])) / rate if rate > 0.0 else np.inf
     return global_error.midrun_warning(largest, time, sol.stats["global error estimate"], nu,
-                                       rtol, ode.states[j], shift)
+                                       rtol, ode.states[j], shift, sol.multi)
 
 
 def _stiff_on_slabs(ode, params, sol, atol):
