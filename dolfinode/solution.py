@@ -504,11 +504,11 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
 
 
 @helper()
-def _component_value(d, t, ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
-                     bary):
-    """U_d(t) by the Galerkin polynomial of component d's first element ending at or after
-    t, of the shared slabs (s_start, s_end, s_values) and its own elements together: the
-    element the joined history (:class:`MixedSolution`) reads, with the same bits."""
+def _element_at(d, t, ptr, t_start, t_end, s_start, s_end):
+    """The element component d is read from at t: the first of the shared slabs (s_start,
+    s_end) and of its own elements ptr[d]:ptr[d + 1] ending at or after t, as the joined
+    history (:class:`MixedSolution`) reads it; its own element e as e, slab n as E + n
+    (E = t_end.shape[0])."""
     slab, e = -1, -1
     if s_end.shape[0] > 0:
         slab = _locate(s_end, t, 0)
@@ -523,93 +523,212 @@ def _component_value(d, t, ptr, t_start, t_end, values, s_start, s_end, s_values
             use_slab = slab_after
         else:  # (past both: the last)
             use_slab = s_end[slab] > t_end[e]
-    if use_slab:
-        tau = min(max((t - s_start[slab]) / (s_end[slab] - s_start[slab]), 0.0), 1.0)
-        return element_value(s_values[slab].T, d, tau, nodes, bary)
-    tau = min(max((t - t_start[e]) / (t_end[e] - t_start[e]), 0.0), 1.0)
-    return element_value(values, e, tau, nodes, bary)
+    return t_end.shape[0] + slab if use_slab else e
+
+
+@helper()
+def _element_polynomial(d, where, t, t_start, t_end, values, s_start, s_end, s_values, nodes,
+                        bary):
+    """(U_d(t), a, b) on component d's element ``where`` (:func:`_element_at`) [a, b]."""
+    E = t_end.shape[0]
+    if where >= E:
+        a, b = s_start[where - E], s_end[where - E]
+        tau = min(max((t - a) / (b - a), 0.0), 1.0)
+        return element_value(s_values[where - E].T, d, tau, nodes, bary), a, b
+    a, b = t_start[where], t_end[where]
+    tau = min(max((t - a) / (b - a), 0.0), 1.0)
+    return element_value(values, where, tau, nodes, bary), a, b
+
+
+@helper()
+def _component_value(d, t, ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
+                     bary):
+    """U_d(t) by the Galerkin polynomial of the element :func:`_element_at` finds, with the
+    same bits as the joined history."""
+    where = _element_at(d, t, ptr, t_start, t_end, s_start, s_end)
+    return _element_polynomial(d, where, t, t_start, t_end, values, s_start, s_end, s_values,
+                               nodes, bary)[0]
+
+
+@helper()
+def _collocation_coefficient(d, where, ptr, t_start, t_end, values, s_start, s_end, s_values,
+                             nodes, bary, left, t0, u0, rhs, indptr, indices, p, q_zero, u, F):
+    """c of the collocation polynomial P = U_d + c Q (Q = prod_j (tau - tau_j)) on component
+    d's element ``where`` [a, a + k] (:func:`_correct_multi`): mcG(q) (tau_0 = 0)
+    c = k / (q + 1) sum_j w_j f_d(U(a + tau_j k)) with the other components at their
+    polynomials U (as the element's moments read them), mdG(q) c = (U_d(a^-) - U_d(a^+)) /
+    Q(0) (P(0) the value before, :func:`_before_element`), NaN where that is unknown.
+    u (N), F (1): workspace."""
+    E, q1 = t_end.shape[0], nodes.shape[0]
+    slab = where - E
+    a = s_start[slab] if slab >= 0 else t_start[where]
+    k = (s_end[slab] if slab >= 0 else t_end[where]) - a
+    if nodes[0] > 0.0:  # (dG: Radau nodes)
+        before = (_before_slab(d, slab, ptr, t_end, values, s_start, s_end, s_values, t0, u0)
+                  if slab >= 0 else _before_element(d, where, ptr, t_start, t_end, values,
+                                                    s_end, s_values, t0, u0))
+        for j in range(q1):
+            before -= left[j] * (s_values[slab, j, d] if slab >= 0 else values[where, j])
+        return before / q_zero
+    f = component_kernel(rhs)
+    lead = 0.0
+    for j in range(q1):
+        tj = a + nodes[j] * k
+        for nz in range(indptr[d], indptr[d + 1]):
+            r = indices[nz]
+            u[r] = ((s_values[slab, j, d] if slab >= 0 else values[where, j]) if r == d else
+                    _component_value(r, tj, ptr, t_start, t_end, values, s_start, s_end,
+                                     s_values, nodes, bary))
+        f(d, address(u, 0), tj, address(p, 0), address(F, 0))
+        lead += bary[j] * F[0]
+    return k * lead / q1
+
+
+@helper()
+def _collocation_value(d, t, cached, ptr, t_start, t_end, values, s_start, s_end, s_values,
+                       nodes, bary, left, t0, u0, rhs, indptr, indices, p, check, theta, u, F):
+    """P_d(t) = U_d(t) + c Q(tau), the collocation polynomial of component d's element at t
+    where its defect at tau*, the other components at their polynomials U, passes
+    :func:`_defect_small`'s test, else U_d(t): what :func:`_correct_multi` reads the other
+    components at. c is formed once per element, in ``cached`` (NaN: not yet; the element
+    ``where`` of :func:`_element_at` at where, slab n's at E + n N + d)."""
+    star, basis, slopes, q_star, dq_star, _, _, q_zero = check
+    where = _element_at(d, t, ptr, t_start, t_end, s_start, s_end)
+    E = t_end.shape[0]
+    slot = where if where < E else E + (where - E) * u.shape[0] + d
+    value, a, b = _element_polynomial(d, where, t, t_start, t_end, values, s_start, s_end,
+                                      s_values, nodes, bary)
+    k = b - a
+    if np.isnan(cached[slot]):
+        c = _collocation_coefficient(d, where, ptr, t_start, t_end, values, s_start, s_end,
+                                     s_values, nodes, bary, left, t0, u0, rhs, indptr, indices,
+                                     p, q_zero, u, F)
+        cached[slot] = 0.0
+        if not np.isnan(c):
+            t_star = a + star * k
+            X, _, _ = _element_polynomial(d, where, t_star, t_start, t_end, values, s_start,
+                                          s_end, s_values, nodes, bary)
+            for nz in range(indptr[d], indptr[d + 1]):
+                r = indices[nz]
+                u[r] = X + c * q_star if r == d else _component_value(
+                    r, t_star, ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
+                    bary)
+            component_kernel(rhs)(d, address(u, 0), t_star, address(p, 0), address(F, 0))
+            defect = c * dq_star - k * F[0]
+            for j in range(nodes.shape[0]):
+                defect += slopes[j] * (s_values[where - E, j, d] if where >= E
+                                       else values[where, j])
+            cached[slot] = _passes_defect_test(c, defect, star, q_star, theta)
+    tau = min(max((t - a) / k, 0.0), 1.0)
+    r = cached[slot]
+    for j in range(nodes.shape[0]):
+        r *= tau - nodes[j]
+    return value + r
+
+
+@helper()
+def _dense_coefficients(i, where, a, k, cached, ptr, t_start, t_end, values, s_start, s_end,
+                        s_values, nodes, bary, left, t0, u0, rhs, indptr, indices, p, check,
+                        theta, u, w, F, F2):
+    """(c, g) of component i's dense value U_i + c Q - g S on its element ``where``
+    [a, a + k] (:func:`_correct_multi`): V's (c, g), P's (c, 0) or U's (0, 0), by the
+    residual tests at tau*, the other components read at :func:`_collocation_value`.
+    u, w (N), F, F2 (1): workspace."""
+    star, _, slopes, q_star, dq_star, s_star, _, q_zero = check
+    f = component_kernel(rhs)
+    E = t_end.shape[0]
+    c = _collocation_coefficient(i, where, ptr, t_start, t_end, values, s_start, s_end,
+                                 s_values, nodes, bary, left, t0, u0, rhs, indptr, indices, p,
+                                 q_zero, u, F)
+    if np.isnan(c):
+        return 0.0, 0.0
+    t_star = a + star * k
+    X = _element_polynomial(i, where, t_star, t_start, t_end, values, s_start, s_end,
+                            s_values, nodes, bary)[0] + c * q_star
+    for nz in range(indptr[i], indptr[i + 1]):
+        r = indices[nz]
+        u[r] = X if r == i else _collocation_value(
+            r, t_star, cached, ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
+            bary, left, t0, u0, rhs, indptr, indices, p, check, theta, w, F2)
+    f(i, address(u, 0), t_star, address(p, 0), address(F, 0))
+    defect = c * dq_star - k * F[0]
+    for j in range(nodes.shape[0]):
+        defect += slopes[j] * (s_values[where - E, j, i] if where >= E else values[where, j])
+    g = defect / q_star
+    u[i] = X - g * s_star
+    f(i, address(u, 0), t_star, address(p, 0), address(F2, 0))
+    collocated = _defect_small(c, defect, star, q_star, theta)
+    # (mdG(q): V over P, as mono dG(q))
+    if _defect_small(g, k * (F[0] - F2[0]), star, s_star, theta) and (collocated
+                                                                       or nodes[0] == 0.0):
+        return c, g
+    return (c if collocated else 0.0), 0.0
 
 
 @njit(cache=True)
-def _correct_cg(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, bary, rhs,
-                indptr, indices, p, check, theta, times, out):
-    """out[i, m] += c Q(tau): mcG(q)'s dense value, the collocation polynomial of
-    :func:`_evaluate_cg` per component, out holding U at ``times`` (component i's elements
+def _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, bary, left,
+                   t0, u0, rhs, indptr, indices, p, check, theta, times, out):
+    """out[i, m] = mcG(q)'s or mdG(q)'s dense value at times[m] strictly inside component i's
+    element (elsewhere out is left as it is: the nodal values), component i's elements
     ptr[i]:ptr[i + 1] and the shared slabs (s_start, s_end, s_values (S, q + 1, N)) as
-    :func:`_evaluate_mixed` reads them; the slabs empty for a grouped history).
+    :func:`_evaluate_mixed` reads them (the slabs empty for a grouped history).
 
-    On component i's element [a, a + k] with nodal values U_j at the Lobatto nodes tau_j,
-    f_j = f_i(U(a + tau_j k), a + tau_j k), the other components read from their own
-    polynomials (as the element's moments read them), and
+    On component i's element [a, a + k] with nodal values U_j at the method's nodes tau_j
+    (Lobatto, mcG(q); right Radau, mdG(q)), the collocation polynomial of mono cG(q) or
+    dG(q) (:func:`_evaluate_cg`, :func:`_evaluate_dg`) is
 
-        P(tau) = U_i(tau) + c Q(tau),  Q(tau) = prod_j (tau - tau_j),
-        c = k / (q + 1) sum_j w_j f_j,
+        P(tau) = U_i(tau) + c Q(tau),  Q(tau) = prod_j (tau - tau_j)
 
-    used where its defect at tau* = tau_1 / 2 passes the test of :func:`_evaluate_cg`
-    (``check``, ``theta``), else U_i (a component stiff on its step). f_i is the component
-    kernel at address ``rhs`` (CSR dependencies ``indptr``, ``indices``, parameters p),
-    evaluated q + 2 times per element the times fall inside. Element ends are unchanged."""
-    q1, N = nodes.shape[0], out.shape[0]
-    star, basis, slopes, q_star, dq_star = check[:5]
-    f = component_kernel(rhs)
-    u = np.zeros(N)
+    (:func:`_collocation_coefficient`: mcG(q) P'(tau_j) = k f_i at the nodes, mdG(q) P(0)
+    the value before the element), and with its defect d = P' - k f_i(P, t) at tau* (half
+    the first node off 0), the other components read at their own collocation polynomials
+    there (:func:`_collocation_value`; at their U they put k J times U's O(k^(q+1)) error
+    into d), the defect-corrected value
+
+        V(tau) = P(tau) - g S(tau),  g = d(tau*) / Q(tau*),  S(tau) = int_0^tau Q,
+
+    one order higher (:func:`_defect_correction`). Each per element of component i under
+    the residual tests of the mono-adaptive values (:func:`_defect_small`): V where its
+    residual at tau*, k |f_i(V) - f_i(P)|, integrated, is at most theta |g S(tau*)| (for
+    mdG(q) P's test passing too, as :func:`_evaluate_dg`), else P where |d(tau*)| tau* / 2
+    <= theta |c Q(tau*)|, else U_i (no P: mdG(q) where the value before is unknown). P,
+    V and U differ by corrections linear in f's values: a linear invariant that the nodes
+    keep holds inside an interval where all components take the same kind on it (a
+    synchronised slab).
+
+    ``check`` = (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*), S(tau*), G, Q(0))
+    (:func:`_multi_check`), ``left`` l_j(0); f_i the component kernel at address ``rhs``
+    (CSR dependencies ``indptr``, ``indices``, parameters p), evaluated q + 3 (mcG(q)) or
+    2 (mdG(q)) times per element the times fall inside, and as many again per element of
+    another component read at tau*. Q and S vanish at tau = 1: the ends are unchanged."""
+    N = out.shape[0]
+    cached = np.full(t_end.shape[0] + s_start.shape[0] * N, np.nan)  # (P's c, read at tau*)
+    u = np.zeros(N)  # (f_i's argument; the other components' reads have their own)
+    w = np.zeros(N)
     F = np.zeros(1)
-    xi = np.empty(q1)
+    F2 = np.zeros(1)
     for i in range(N):
-        own = t_end[ptr[i]:ptr[i + 1]]
-        n, slab, current, c = 0, 0, -1, 0.0
+        current, c, g = -1, 0.0, 0.0
         for m in range(times.shape[0]):
             t = times[m]
-            where = -1  # the element holding t inside: a slab (index) or own (S + index)
-            if s_end.shape[0] > 0:
-                slab = _locate(s_end, t, slab)
-                if s_start[slab] < t < s_end[slab]:
-                    where = slab
-                    a, b = s_start[slab], s_end[slab]
-                    for j in range(q1):
-                        xi[j] = s_values[slab, j, i]
-            if where < 0 and own.shape[0] > 0:
-                n = _locate(own, t, n)
-                e = ptr[i] + n
-                if t_start[e] < t < t_end[e]:
-                    where = s_end.shape[0] + e
-                    a, b = t_start[e], t_end[e]
-                    for j in range(q1):
-                        xi[j] = values[e, j]
+            where = _element_at(i, t, ptr, t_start, t_end, s_start, s_end)
             if where < 0:
                 continue
-            k = b - a
+            value, a, b = _element_polynomial(i, where, t, t_start, t_end, values, s_start,
+                                              s_end, s_values, nodes, bary)
+            if not a < t < b:
+                continue
             if where != current:
                 current = where
-                lead = 0.0
-                for j in range(q1 + 1):
-                    tj = a + (nodes[j] if j < q1 else star) * k
-                    value = 0.0
-                    if j == q1:  # P_i(tau*), U_i's value there corrected
-                        for r in range(q1):
-                            value += basis[r] * xi[r]
-                        value += c * q_star
-                    for nz in range(indptr[i], indptr[i + 1]):
-                        d = indices[nz]
-                        u[d] = (xi[j] if j < q1 else value) if d == i else _component_value(
-                            d, tj, ptr, t_start, t_end, values, s_start, s_end, s_values,
-                            nodes, bary)
-                    f(i, address(u, 0), tj, address(p, 0), address(F, 0))
-                    if j < q1:
-                        lead += bary[j] * F[0]
-                        if j == q1 - 1:
-                            c = k * lead / q1
-                    else:
-                        defect = c * dq_star - k * F[0]
-                        for r in range(q1):
-                            defect += slopes[r] * xi[r]
-                        c = _passes_defect_test(c, defect, star, q_star, theta)
-            if c != 0.0:
-                tau = (t - a) / k
-                r = c
-                for j in range(q1):
-                    r *= tau - nodes[j]
-                out[i, m] += r
+                c, g = _dense_coefficients(i, where, a, b - a, cached, ptr, t_start, t_end,
+                                           values, s_start, s_end, s_values, nodes, bary,
+                                           left, t0, u0, rhs, indptr, indices, p, check,
+                                           theta, u, w, F, F2)
+            tau = (t - a) / (b - a)
+            r = 1.0
+            for j in range(nodes.shape[0]):
+                r *= tau - nodes[j]
+            out[i, m] = value + c * r - g * _correction_shape(check[6], tau)
 
 
 #: Where dG(q)'s dense value cannot read f: a component's jump [U] at an element's start is
@@ -832,6 +951,28 @@ def dense_rule(method, dense=True):
     return method.nodes, -1.0
 
 
+def _shapes(nodes):
+    """Q = prod_j (tau - tau_j), S(tau) = int_0^tau Q (polynomials) and G, the coefficients
+    of S(tau) / (tau (tau - 1)), highest first (:func:`_correction_shape`)."""
+    Q = np.polynomial.Polynomial.fromroots(nodes)
+    S = Q.integ(lbnd=0.0)
+    G, _ = divmod(S, np.polynomial.Polynomial([0.0, -1.0, 1.0]))
+    return Q, S, np.ascontiguousarray(G.coef[::-1])
+
+
+@cache
+def _multi_check(family, q):
+    """``check`` of :func:`_correct_multi`: (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*),
+    S(tau*), G, Q(0)) at the tau* of :func:`_defect_check` (half the first node off 0; l_j
+    the Lagrange basis on the method's nodes)."""
+    nodes = make_method(family, q).nodes
+    Q, S, G = _shapes(nodes)
+    star = _defect_check(family, q)[0]
+    basis, slopes = lagrange_matrices(nodes, (star,))
+    return (star, basis[0], slopes[0], float(Q(star)), float(Q.deriv()(star)), float(S(star)),
+            G, float(Q(0.0)))
+
+
 @cache
 def _defect_check(family, q):
     """``check`` of the residual tests at tau*, off the nodes, and of V = P - g S
@@ -845,10 +986,7 @@ def _defect_check(family, q):
     S(tau*), G) at tau* = tau_0 / 2 (l0_j the basis on 0 and the nodes,
     R = prod_j (tau_j - tau) / tau_j)."""
     nodes = make_method(family, q).nodes
-    Q = np.polynomial.Polynomial.fromroots(nodes)
-    S = Q.integ(lbnd=0.0)
-    G, _ = divmod(S, np.polynomial.Polynomial([0.0, -1.0, 1.0]))
-    G = np.ascontiguousarray(G.coef[::-1])
+    Q, S, G = _shapes(nodes)
     if family == "cG":
         second = (nodes[-2] + 1) / 2
         # (off the nodes: U's defect is small at a node, where its nodal value superconverges)
@@ -875,13 +1013,10 @@ def _inside(times, t0, T):
     return bool(((times > t0) & (times < T)).any())
 
 
-def _reads_f(method, multi=False):
-    """Whether ``method``'s dense value reads f: cG(q), q >= 2, mono-adaptive dG(q),
-    q >= 1 (:func:`_evaluate_cg`, :func:`_evaluate_dg`), mcG(q), q >= 2
-    (:func:`_correct_cg`)."""
-    if method.family == "dG":
-        return method.q > 0 and not multi
-    return method.q > 1
+def _reads_f(method):
+    """Whether ``method``'s dense value reads f: cG(q) and mcG(q), q >= 2, dG(q) and mdG(q),
+    q >= 1 (:func:`_evaluate_cg`, :func:`_evaluate_dg`, :func:`_correct_multi`)."""
+    return method.q > (0 if method.family == "dG" else 1)
 
 
 def dense_rhs(method, ode):
@@ -1106,7 +1241,6 @@ class Solution:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
                                  self.method.nodes, self.method.barycentric_weights,
                                  dense_rule(self.method), declared.t0, declared.u0, times, out)
-            # (mcG(1), mdG(q): nothing to add)
             if dense and self._rhs is not None and _inside(times, declared.t0, declared.T):
                 none = np.empty(0)
                 self._correct(self._component_ptr, self.t_start, self._t_end, self.values,
@@ -1122,15 +1256,18 @@ class Solution:
         return out
 
     def _correct(self, ptr, t_start, t_end, values, s_start, s_end, s_values, times, out):
-        """mcG(q), q >= 2: add the collocation correction to U at ``times`` in ``out``
-        (:func:`_correct_cg`), where the solution reads f (``_rhs``)."""
+        """mcG(q), q >= 2, mdG(q), q >= 1: the dense value inside the elements at ``times``
+        in ``out``, which holds the element polynomials (:func:`_correct_multi`), where the
+        solution reads f (``_rhs``)."""
         compiled = self._rhs
         if compiled is None:
             return
-        _correct_cg(ptr, t_start, t_end, values, s_start, s_end, s_values, self.method.nodes,
-                    self.method.barycentric_weights, compiled.rhs_component.address,
-                    compiled.indptr, compiled.indices, compiled.p,
-                    _defect_check(self.method.family, self.method.q), DEFECT_THETA, times, out)
+        method, declared = self.method, self._declaration
+        _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, method.nodes,
+                       method.barycentric_weights, method.left_value, float(declared.t0),
+                       np.asarray(declared.u0, dtype=float), compiled.rhs_component.address,
+                       compiled.indptr, compiled.indices, compiled.p,
+                       _multi_check(method.family, method.q), DEFECT_THETA, times, out)
 
     def _evaluate_mono(self, times, rhs, out):
         """out = U at ``times`` from the shared partition, cG(q)'s dense value reading the
@@ -1144,9 +1281,9 @@ class Solution:
     @cached_property
     def _rhs(self):
         """The lowered ODE whose f the dense values of cG(q), mcG(q) and mono-adaptive dG(q)
-        read (:func:`_evaluate_cg`, :func:`_correct_cg`, :func:`_evaluate_dg`), None for
+        read (:func:`_evaluate_cg`, :func:`_correct_multi`, :func:`_evaluate_dg`), None for
         other methods and where the elements solve more than one model (a restart)."""
-        if "_restarts" in self.__dict__ or not _reads_f(self.method, self.multi):
+        if "_restarts" in self.__dict__ or not _reads_f(self.method):
             return None  # (the ode not read: a solution may make it on first read)
         return dense_rhs(self.method, self.ode)
 
