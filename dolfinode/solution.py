@@ -504,11 +504,13 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
 
 
 @helper()
-def _element_at(d, t, ptr, t_start, t_end, s_start, s_end):
-    """The element component d is read from at t: the first of the shared slabs (s_start,
-    s_end) and of its own elements ptr[d]:ptr[d + 1] ending at or after t, as the joined
-    history (:class:`MixedSolution`) reads it; its own element e as e, slab n as E + n
+def _element_at(d, t, history):
+    """The element component d is read from at t: the first of the shared slabs and of its
+    own elements ending at or after t, as the joined history (:class:`MixedSolution`) reads
+    it (``history`` = (ptr, t_start, t_end, values, s_start, s_end, s_values) as
+    :func:`_correct_multi` takes it); its own element e as e, slab n as E + n
     (E = t_end.shape[0])."""
+    ptr, _, t_end, _, _, s_end, _ = history
     slab, e = -1, -1
     if s_end.shape[0] > 0:
         slab = _locate(s_end, t, 0)
@@ -527,9 +529,17 @@ def _element_at(d, t, ptr, t_start, t_end, s_start, s_end):
 
 
 @helper()
-def _element_polynomial(d, where, t, t_start, t_end, values, s_start, s_end, s_values, nodes,
-                        bary):
+def _nodal_value(d, where, j, history):
+    """Component d's nodal value j on its element ``where`` (:func:`_element_at`)."""
+    _, _, t_end, values, _, _, s_values = history
+    E = t_end.shape[0]
+    return s_values[where - E, j, d] if where >= E else values[where, j]
+
+
+@helper()
+def _element_polynomial(d, where, t, history, nodes, bary):
     """(U_d(t), a, b) on component d's element ``where`` (:func:`_element_at`) [a, b]."""
+    _, t_start, t_end, values, s_start, s_end, s_values = history
     E = t_end.shape[0]
     if where >= E:
         a, b = s_start[where - E], s_end[where - E]
@@ -541,137 +551,146 @@ def _element_polynomial(d, where, t, t_start, t_end, values, s_start, s_end, s_v
 
 
 @helper()
-def _component_value(d, t, ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
-                     bary):
-    """U_d(t) by the Galerkin polynomial of the element :func:`_element_at` finds, with the
-    same bits as the joined history."""
-    where = _element_at(d, t, ptr, t_start, t_end, s_start, s_end)
-    return _element_polynomial(d, where, t, t_start, t_end, values, s_start, s_end, s_values,
-                               nodes, bary)[0]
-
-
-@helper()
-def _collocation_coefficient(d, where, ptr, t_start, t_end, values, s_start, s_end, s_values,
-                             nodes, bary, left, t0, u0, rhs, indptr, indices, p, q_zero, u, F):
+def _collocation_coefficient(d, where, history, method, ode, q_zero, u, F):
     """c of the collocation polynomial P = U_d + c Q (Q = prod_j (tau - tau_j)) on component
     d's element ``where`` [a, a + k] (:func:`_correct_multi`): mcG(q) (tau_0 = 0)
     c = k / (q + 1) sum_j w_j f_d(U(a + tau_j k)) with the other components at their
     polynomials U (as the element's moments read them), mdG(q) c = (U_d(a^-) - U_d(a^+)) /
     Q(0) (P(0) the value before, :func:`_before_element`), NaN where that is unknown.
     u (N), F (1): workspace."""
+    ptr, t_start, t_end, values, s_start, s_end, s_values = history
+    nodes, bary, left, t0, u0 = method
+    rhs, indptr, indices, p = ode
     E, q1 = t_end.shape[0], nodes.shape[0]
     slab = where - E
-    a = s_start[slab] if slab >= 0 else t_start[where]
-    k = (s_end[slab] if slab >= 0 else t_end[where]) - a
     if nodes[0] > 0.0:  # (dG: Radau nodes)
         before = (_before_slab(d, slab, ptr, t_end, values, s_start, s_end, s_values, t0, u0)
                   if slab >= 0 else _before_element(d, where, ptr, t_start, t_end, values,
                                                     s_end, s_values, t0, u0))
         for j in range(q1):
-            before -= left[j] * (s_values[slab, j, d] if slab >= 0 else values[where, j])
+            before -= left[j] * _nodal_value(d, where, j, history)
         return before / q_zero
+    a = s_start[slab] if slab >= 0 else t_start[where]
+    k = (s_end[slab] if slab >= 0 else t_end[where]) - a
     f = component_kernel(rhs)
     lead = 0.0
     for j in range(q1):
         tj = a + nodes[j] * k
         for nz in range(indptr[d], indptr[d + 1]):
             r = indices[nz]
-            u[r] = ((s_values[slab, j, d] if slab >= 0 else values[where, j]) if r == d else
-                    _component_value(r, tj, ptr, t_start, t_end, values, s_start, s_end,
-                                     s_values, nodes, bary))
+            u[r] = (_nodal_value(d, where, j, history) if r == d else _element_polynomial(
+                r, _element_at(r, tj, history), tj, history, nodes, bary)[0])
         f(d, address(u, 0), tj, address(p, 0), address(F, 0))
         lead += bary[j] * F[0]
     return k * lead / q1
 
 
 @helper()
-def _collocation_value(d, t, cached, ptr, t_start, t_end, values, s_start, s_end, s_values,
-                       nodes, bary, left, t0, u0, rhs, indptr, indices, p, check, theta, u, F):
-    """P_d(t) = U_d(t) + c Q(tau), the collocation polynomial of component d's element at t
-    where its defect at tau*, the other components at their polynomials U, passes
-    :func:`_defect_small`'s test, else U_d(t): what :func:`_correct_multi` reads the other
-    components at. c is formed once per element, in ``cached`` (NaN: not yet; the element
-    ``where`` of :func:`_element_at` at where, slab n's at E + n N + d)."""
-    star, basis, slopes, q_star, dq_star, _, _, q_zero = check
-    where = _element_at(d, t, ptr, t_start, t_end, s_start, s_end)
-    E = t_end.shape[0]
+def _coefficients_at(d, t, history, method, ode, check, cached, u, F):
+    """(where, c, a, b): component d's element at t (:func:`_element_at`) [a, b] and its
+    collocation coefficient (:func:`_collocation_coefficient`, 0 where unknown), formed once
+    per element in cached[slot, 0] (NaN: not yet; the element at ``where``, slab n's at
+    E + n N + d)."""
+    where = _element_at(d, t, history)
+    E = history[2].shape[0]
     slot = where if where < E else E + (where - E) * u.shape[0] + d
-    value, a, b = _element_polynomial(d, where, t, t_start, t_end, values, s_start, s_end,
-                                      s_values, nodes, bary)
-    k = b - a
-    if np.isnan(cached[slot]):
-        c = _collocation_coefficient(d, where, ptr, t_start, t_end, values, s_start, s_end,
-                                     s_values, nodes, bary, left, t0, u0, rhs, indptr, indices,
-                                     p, q_zero, u, F)
-        cached[slot] = 0.0
-        if not np.isnan(c):
-            t_star = a + star * k
-            X, _, _ = _element_polynomial(d, where, t_star, t_start, t_end, values, s_start,
-                                          s_end, s_values, nodes, bary)
-            for nz in range(indptr[d], indptr[d + 1]):
-                r = indices[nz]
-                u[r] = X + c * q_star if r == d else _component_value(
-                    r, t_star, ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
-                    bary)
-            component_kernel(rhs)(d, address(u, 0), t_star, address(p, 0), address(F, 0))
-            defect = c * dq_star - k * F[0]
-            for j in range(nodes.shape[0]):
-                defect += slopes[j] * (s_values[where - E, j, d] if where >= E
-                                       else values[where, j])
-            cached[slot] = _passes_defect_test(c, defect, star, q_star, theta)
-    tau = min(max((t - a) / k, 0.0), 1.0)
-    r = cached[slot]
-    for j in range(nodes.shape[0]):
-        r *= tau - nodes[j]
-    return value + r
+    if np.isnan(cached[slot, 0]):
+        c = _collocation_coefficient(d, where, history, method, ode, check[7], u, F)
+        cached[slot, 0] = 0.0 if np.isnan(c) else c
+    return where, slot, cached[slot, 0]
 
 
 @helper()
-def _dense_coefficients(i, where, a, k, cached, ptr, t_start, t_end, values, s_start, s_end,
-                        s_values, nodes, bary, left, t0, u0, rhs, indptr, indices, p, check,
-                        theta, u, w, F, F2):
-    """(c, g) of component i's dense value U_i + c Q - g S on its element ``where``
-    [a, a + k] (:func:`_correct_multi`): V's (c, g), P's (c, 0) or U's (0, 0), by the
-    residual tests at tau*, the other components read at :func:`_collocation_value`.
-    u, w (N), F, F2 (1): workspace."""
-    star, _, slopes, q_star, dq_star, s_star, _, q_zero = check
-    f = component_kernel(rhs)
-    E = t_end.shape[0]
-    c = _collocation_coefficient(i, where, ptr, t_start, t_end, values, s_start, s_end,
-                                 s_values, nodes, bary, left, t0, u0, rhs, indptr, indices, p,
-                                 q_zero, u, F)
-    if np.isnan(c):
-        return 0.0, 0.0
+def _collocation_value(d, t, history, method, ode, check, cached, u, F):
+    """P_d(t) = U_d(t) + c Q(tau), the collocation polynomial of component d's element at t
+    (:func:`_coefficients_at`), untested: what :func:`_correct_multi` reads the other
+    components at."""
+    nodes, bary = method[0], method[1]
+    where, _, c = _coefficients_at(d, t, history, method, ode, check, cached, u, F)
+    value, a, b = _element_polynomial(d, where, t, history, nodes, bary)
+    tau = min(max((t - a) / (b - a), 0.0), 1.0)
+    for j in range(nodes.shape[0]):
+        c *= tau - nodes[j]
+    return value + c
+
+
+@helper()
+def _collocation_defect(d, where, c, history, method, ode, check, cached, u, w, F):
+    """(P_d(tau*), D): component d's collocation polynomial on its element ``where`` at
+    tau* and its defect there, D = P_d'(tau*) - k f_d(P(t*), t*), the other components at
+    theirs (:func:`_collocation_value`). u, w (N), F (1): workspace."""
+    nodes, bary = method[0], method[1]
+    rhs, indptr, indices, p = ode
+    star, _, slopes, q_star, dq_star = check[:5]
+    _, a, b = _element_polynomial(d, where, 0.0, history, nodes, bary)
+    k = b - a
     t_star = a + star * k
-    X = _element_polynomial(i, where, t_star, t_start, t_end, values, s_start, s_end,
-                            s_values, nodes, bary)[0] + c * q_star
-    for nz in range(indptr[i], indptr[i + 1]):
+    X = _element_polynomial(d, where, t_star, history, nodes, bary)[0] + c * q_star
+    for nz in range(indptr[d], indptr[d + 1]):
         r = indices[nz]
-        u[r] = X if r == i else _collocation_value(
-            r, t_star, cached, ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
-            bary, left, t0, u0, rhs, indptr, indices, p, check, theta, w, F2)
-    f(i, address(u, 0), t_star, address(p, 0), address(F, 0))
+        u[r] = X if r == d else _collocation_value(r, t_star, history, method, ode, check,
+                                                   cached, w, F)
+    component_kernel(rhs)(d, address(u, 0), t_star, address(p, 0), address(F, 0))
     defect = c * dq_star - k * F[0]
     for j in range(nodes.shape[0]):
-        defect += slopes[j] * (s_values[where - E, j, i] if where >= E else values[where, j])
+        defect += slopes[j] * _nodal_value(d, where, j, history)
+    return X, defect
+
+
+@helper()
+def _corrected_value(d, t, history, method, ode, check, cached, u, w, F):
+    """V_d(t) = P_d(t) - g S(tau), g = D / Q(tau*) (:func:`_collocation_defect`), untested:
+    where :func:`_correct_multi`'s test of V reads the other components (as the
+    mono-adaptive test moves every component to V). g is formed once per element, in
+    cached[slot, 1]."""
+    nodes = method[0]
+    where, slot, c = _coefficients_at(d, t, history, method, ode, check, cached, w, F)
+    if np.isnan(cached[slot, 1]):
+        cached[slot, 1] = _collocation_defect(d, where, c, history, method, ode, check, cached,
+                                              u, w, F)[1] / check[3]
+    _, a, b = _element_polynomial(d, where, t, history, nodes, method[1])
+    tau = min(max((t - a) / (b - a), 0.0), 1.0)
+    return (_collocation_value(d, t, history, method, ode, check, cached, w, F)
+            - cached[slot, 1] * _correction_shape(check[6], tau))
+
+
+@helper()
+def _dense_coefficients(i, where, history, method, ode, check, theta, cached, u, v, w, F, F2):
+    """(c, g) of component i's dense value U_i + c Q - g S on its element ``where``
+    (:func:`_correct_multi`): V's (c, g), P's (c, 0) or U's (0, 0) by the residual tests
+    at tau*. u, v, w (N), F, F2 (1): workspace."""
+    nodes, bary = method[0], method[1]
+    rhs, indptr, indices, p = ode
+    star, q_star, s_star, q_zero = check[0], check[3], check[5], check[7]
+    c = _collocation_coefficient(i, where, history, method, ode, q_zero, u, F)
+    if np.isnan(c):
+        return 0.0, 0.0
+    X, defect = _collocation_defect(i, where, c, history, method, ode, check, cached, u, w, F)
     g = defect / q_star
-    u[i] = X - g * s_star
-    f(i, address(u, 0), t_star, address(p, 0), address(F2, 0))
+    _, a, b = _element_polynomial(i, where, 0.0, history, nodes, bary)
+    t_star = a + star * (b - a)
+    for nz in range(indptr[i], indptr[i + 1]):
+        r = indices[nz]
+        u[r] = X - g * s_star if r == i else _corrected_value(
+            r, t_star, history, method, ode, check, cached, v, w, F2)
+    component_kernel(rhs)(i, address(u, 0), t_star, address(p, 0), address(F2, 0))
     collocated = _defect_small(c, defect, star, q_star, theta)
     # (mdG(q): V over P, as mono dG(q))
-    if _defect_small(g, k * (F[0] - F2[0]), star, s_star, theta) and (collocated
-                                                                       or nodes[0] == 0.0):
+    if (_defect_small(g, (b - a) * (F[0] - F2[0]), star, s_star, theta)
+            and (collocated or nodes[0] == 0.0)):
         return c, g
     return (c if collocated else 0.0), 0.0
 
 
 @njit(cache=True)
-def _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, bary, left,
-                   t0, u0, rhs, indptr, indices, p, check, theta, times, out):
+def _correct_multi(history, method, ode, check, theta, times, out):
     """out[i, m] = mcG(q)'s or mdG(q)'s dense value at times[m] strictly inside component i's
-    element (elsewhere out is left as it is: the nodal values), component i's elements
-    ptr[i]:ptr[i + 1] and the shared slabs (s_start, s_end, s_values (S, q + 1, N)) as
-    :func:`_evaluate_mixed` reads them (the slabs empty for a grouped history).
+    element (elsewhere out is left as it is: the nodal values). ``history`` = (ptr,
+    t_start, t_end, values, s_start, s_end, s_values): component i's elements
+    ptr[i]:ptr[i + 1] and the shared slabs (s_values (S, q + 1, N)) as
+    :func:`_evaluate_mixed` reads them (the slabs empty for a grouped history); ``method``
+    = (nodes, barycentric weights, l_j(0), t0, u0); ``ode`` = (address of the component
+    kernel f_i, its CSR dependencies indptr, indices, parameters p).
 
     On component i's element [a, a + k] with nodal values U_j at the method's nodes tau_j
     (Lobatto, mcG(q); right Radau, mdG(q)), the collocation polynomial of mono cG(q) or
@@ -689,41 +708,37 @@ def _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
 
     one order higher (:func:`_defect_correction`). Each per element of component i under
     the residual tests of the mono-adaptive values (:func:`_defect_small`): V where its
-    residual at tau*, k |f_i(V) - f_i(P)|, integrated, is at most theta |g S(tau*)| (for
-    mdG(q) P's test passing too, as :func:`_evaluate_dg`), else P where |d(tau*)| tau* / 2
-    <= theta |c Q(tau*)|, else U_i (no P: mdG(q) where the value before is unknown). P,
-    V and U differ by corrections linear in f's values: a linear invariant that the nodes
-    keep holds inside an interval where all components take the same kind on it (a
-    synchronised slab).
+    residual at tau*, k |f_i(V) - f_i(P)| (the other components at their V,
+    :func:`_corrected_value`), integrated, is at most theta |g S(tau*)| (for mdG(q) P's
+    test passing too, as :func:`_evaluate_dg`), else P where |d(tau*)| tau* / 2 <= theta
+    |c Q(tau*)|, else U_i (no P: mdG(q) where the value before is unknown). P, V and U
+    differ by corrections linear in f's values: a linear invariant that the nodes keep holds
+    inside an interval where all components take the same kind on it (a synchronised slab).
 
     ``check`` = (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*), S(tau*), G, Q(0))
-    (:func:`_multi_check`), ``left`` l_j(0); f_i the component kernel at address ``rhs``
-    (CSR dependencies ``indptr``, ``indices``, parameters p), evaluated q + 3 (mcG(q)) or
-    2 (mdG(q)) times per element the times fall inside, and as many again per element of
-    another component read at tau*. Q and S vanish at tau = 1: the ends are unchanged."""
+    (:func:`_multi_check`). f_i is evaluated q + 3 (mcG(q)) or 3 (mdG(q)) times per element
+    the times fall inside, and about as many times per element of another component read
+    at tau*. Q and S vanish at tau = 1: the ends are unchanged."""
     N = out.shape[0]
-    cached = np.full(t_end.shape[0] + s_start.shape[0] * N, np.nan)  # (P's c, read at tau*)
-    u = np.zeros(N)  # (f_i's argument; the other components' reads have their own)
-    w = np.zeros(N)
-    F = np.zeros(1)
-    F2 = np.zeros(1)
+    nodes, bary = method[0], method[1]
+    E, S = history[2].shape[0], history[4].shape[0]
+    cached = np.full((E + S * N, 2), np.nan)  # (the others' c and g, read at tau*)
+    u, v, w = np.zeros(N), np.zeros(N), np.zeros(N)  # (f's arguments, one per depth)
+    F, F2 = np.zeros(1), np.zeros(1)
     for i in range(N):
         current, c, g = -1, 0.0, 0.0
         for m in range(times.shape[0]):
             t = times[m]
-            where = _element_at(i, t, ptr, t_start, t_end, s_start, s_end)
+            where = _element_at(i, t, history)
             if where < 0:
                 continue
-            value, a, b = _element_polynomial(i, where, t, t_start, t_end, values, s_start,
-                                              s_end, s_values, nodes, bary)
+            value, a, b = _element_polynomial(i, where, t, history, nodes, bary)
             if not a < t < b:
                 continue
             if where != current:
                 current = where
-                c, g = _dense_coefficients(i, where, a, b - a, cached, ptr, t_start, t_end,
-                                           values, s_start, s_end, s_values, nodes, bary,
-                                           left, t0, u0, rhs, indptr, indices, p, check,
-                                           theta, u, w, F, F2)
+                c, g = _dense_coefficients(i, where, history, method, ode, check, theta,
+                                           cached, u, v, w, F, F2)
             tau = (t - a) / (b - a)
             r = 1.0
             for j in range(nodes.shape[0]):
@@ -1263,11 +1278,12 @@ class Solution:
         if compiled is None:
             return
         method, declared = self.method, self._declaration
-        _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, method.nodes,
-                       method.barycentric_weights, method.left_value, float(declared.t0),
-                       np.asarray(declared.u0, dtype=float), compiled.rhs_component.address,
-                       compiled.indptr, compiled.indices, compiled.p,
-                       _multi_check(method.family, method.q), DEFECT_THETA, times, out)
+        _correct_multi((ptr, t_start, t_end, values, s_start, s_end, s_values),
+                       (method.nodes, method.barycentric_weights, method.left_value,
+                        float(declared.t0), np.asarray(declared.u0, dtype=float)),
+                       (compiled.rhs_component.address, compiled.indptr, compiled.indices,
+                        compiled.p), _multi_check(method.family, method.q), DEFECT_THETA,
+                       times, out)
 
     def _evaluate_mono(self, times, rhs, out):
         """out = U at ``times`` from the shared partition, cG(q)'s dense value reading the
