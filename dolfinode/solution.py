@@ -675,9 +675,7 @@ def _dense_coefficients(i, where, history, method, ode, check, theta, cached, u,
             r, t_star, history, method, ode, check, cached, v, w, F2)
     component_kernel(rhs)(i, address(u, 0), t_star, address(p, 0), address(F2, 0))
     collocated = _defect_small(c, defect, star, q_star, theta)
-    # (mdG(q): V over P, as mono dG(q))
-    if (_defect_small(g, (b - a) * (F[0] - F2[0]), star, s_star, theta)
-            and (collocated or nodes[0] == 0.0)):
+    if _defect_small(g, (b - a) * (F[0] - F2[0]), star, s_star, theta):
         return c, g
     return (c if collocated else 0.0), 0.0
 
