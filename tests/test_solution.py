@@ -477,13 +477,14 @@ def test_dense_mdg_interior_error_as_mono_dg(fast_slow, q):
     assert errors[0] < 2 * errors[1], f"mdG({q}) {errors[0]:.3g}, dG({q}) {errors[1]:.3g}"
 
 
-@pytest.mark.parametrize("method", ["mdG(1)", "mdG(2)"])
-def test_dense_mdg_every_reader_agrees_and_keeps_the_ends(fast_slow, method, tmp_path,
-                                                          monkeypatch):
+@pytest.mark.parametrize("method", ["mdG(1)", "mdG(2)", "mdG(3)", "mcG(2)", "mcG(3)"])
+def test_dense_multi_every_reader_agrees_and_keeps_the_ends(fast_slow, method, tmp_path,
+                                                            monkeypatch):
     # element ends are each component's end node values bitwise; the mixed history, its
-    # joined elements, the samples of dense_output=False (the history in many chunks) and
-    # a stored history give the same dense values bitwise, and differ from the Galerkin
-    # polynomials inside
+    # joined elements and a stored history give the same dense values bitwise, and differ
+    # from the Galerkin polynomials inside. The samples of dense_output=False (the history
+    # in many chunks, a long element of one component stored chunks after the others'
+    # around it) are the values without f, sol._galerkin's
     import sys
 
     from dolfinode.solution import _evaluate_components, dense_rule
@@ -494,7 +495,7 @@ def test_dense_mdg_every_reader_agrees_and_keeps_the_ends(fast_slow, method, tmp
     monkeypatch.setattr(sys.modules["dolfinode.solve"], "_CHUNK_LIMIT", 64)
     sampled = dn.solve(ode, method, tolerance=1e-5, sample_times=times, dense_output=False)
     stored = dn.solve(ode, method, tolerance=1e-5, dense_output=str(tmp_path / "run.h5"))
-    np.testing.assert_array_equal(sampled.y, expected)
+    np.testing.assert_array_equal(sampled.y, sol._galerkin(times))
     np.testing.assert_array_equal(stored(times), expected)
     np.testing.assert_array_equal(dn.load_solution(tmp_path / "run.h5")(times), expected)
     ptr, t_start, t_end, values = sol.elements()  # (joins a mixed history)
