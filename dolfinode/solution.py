@@ -560,7 +560,7 @@ def _collocation_coefficient(d, where, history, method, ode, q_zero, u, F):
     u (N), F (1): workspace."""
     ptr, t_start, t_end, values, s_start, s_end, s_values = history
     nodes, bary, left, t0, u0 = method
-    rhs, indptr, indices, p = ode
+    rhs, indptr, indices, p = ode[:4]
     E, q1 = t_end.shape[0], nodes.shape[0]
     slab = where - E
     if nodes[0] > 0.0:  # (dG: Radau nodes)
@@ -587,10 +587,10 @@ def _collocation_coefficient(d, where, history, method, ode, q_zero, u, F):
 
 @helper()
 def _coefficients_at(d, t, history, method, ode, check, cached, u, F):
-    """(where, c, a, b): component d's element at t (:func:`_element_at`) [a, b] and its
-    collocation coefficient (:func:`_collocation_coefficient`, 0 where unknown), formed once
-    per element in cached[slot, 0] (NaN: not yet; the element at ``where``, slab n's at
-    E + n N + d)."""
+    """(where, slot, c): component d's element at t (:func:`_element_at`), its row of
+    ``cached`` (the element at ``where``, slab n's at E + n N + d) and its collocation
+    coefficient (:func:`_collocation_coefficient`, 0 where unknown), formed once per element
+    in cached[slot, 0] (NaN: not yet)."""
     where = _element_at(d, t, history)
     E = history[2].shape[0]
     slot = where if where < E else E + (where - E) * u.shape[0] + d
@@ -615,13 +615,17 @@ def _collocation_value(d, t, history, method, ode, check, cached, u, F):
 
 
 @helper()
-def _collocation_defect(d, where, c, history, method, ode, check, cached, u, w, F):
-    """(P_d(tau*), D): component d's collocation polynomial on its element ``where`` at
-    tau* and its defect there, D = P_d'(tau*) - k f_d(P(t*), t*), the other components at
-    theirs (:func:`_collocation_value`). u, w (N), F (1): workspace."""
+def _defect_coefficient(d, where, slot, history, method, ode, check, cached, u, w, F):
+    """g = D / Q(tau*) of V = P - g S on component d's element ``where``, D = P_d'(tau*) -
+    k f_d(P(t*), t*) its collocation polynomial's defect, the other components at theirs
+    (:func:`_collocation_value`), formed once per element in cached[slot, 1]. u, w (N),
+    F (1): workspace."""
+    if not np.isnan(cached[slot, 1]):
+        return cached[slot, 1]
     nodes, bary = method[0], method[1]
-    rhs, indptr, indices, p = ode
+    rhs, indptr, indices, p = ode[:4]
     star, _, slopes, q_star, dq_star = check[:5]
+    c = cached[slot, 0]
     _, a, b = _element_polynomial(d, where, 0.0, history, nodes, bary)
     k = b - a
     t_star = a + star * k
@@ -634,50 +638,100 @@ def _collocation_defect(d, where, c, history, method, ode, check, cached, u, w, 
     defect = c * dq_star - k * F[0]
     for j in range(nodes.shape[0]):
         defect += slopes[j] * _nodal_value(d, where, j, history)
-    return X, defect
+    cached[slot, 1] = defect / q_star
+    return cached[slot, 1]
 
 
 @helper()
 def _corrected_value(d, t, history, method, ode, check, cached, u, w, F):
-    """V_d(t) = P_d(t) - g S(tau), g = D / Q(tau*) (:func:`_collocation_defect`), untested:
-    where :func:`_correct_multi`'s test of V reads the other components (as the
-    mono-adaptive test moves every component to V). g is formed once per element, in
-    cached[slot, 1]."""
-    nodes = method[0]
-    where, slot, c = _coefficients_at(d, t, history, method, ode, check, cached, w, F)
-    if np.isnan(cached[slot, 1]):
-        cached[slot, 1] = _collocation_defect(d, where, c, history, method, ode, check, cached,
-                                              u, w, F)[1] / check[3]
-    _, a, b = _element_polynomial(d, where, t, history, nodes, method[1])
+    """V_d(t) = P_d(t) - g S(tau) (:func:`_defect_coefficient`), untested: where
+    :func:`_correct_multi`'s test of V reads the other components (as the mono-adaptive
+    test moves every component to V). u, w (N), F (1): workspace."""
+    where, slot, _ = _coefficients_at(d, t, history, method, ode, check, cached, w, F)
+    g = _defect_coefficient(d, where, slot, history, method, ode, check, cached, u, w, F)
+    _, a, b = _element_polynomial(d, where, t, history, method[0], method[1])
     tau = min(max((t - a) / (b - a), 0.0), 1.0)
     return (_collocation_value(d, t, history, method, ode, check, cached, w, F)
-            - cached[slot, 1] * _correction_shape(check[6], tau))
+            - g * _correction_shape(check[6], tau))
 
 
 @helper()
-def _dense_coefficients(i, where, history, method, ode, check, theta, cached, u, v, w, F, F2):
-    """(c, g) of component i's dense value U_i + c Q - g S on its element ``where``
-    (:func:`_correct_multi`): V's (c, g), P's (c, 0) or U's (0, 0) by the residual tests
-    at tau*. u, v, w (N), F, F2 (1): workspace."""
+def _kind(d, t, history, method, ode, check, theta, cached, u, v, w, F):
+    """The kind of component d's dense value on its element at t by its own residual tests
+    at tau* (:func:`_correct_multi`): 2 (V) where V's residual, the other components at
+    their V (:func:`_corrected_value`), integrated, is at most theta |g S(tau*)|, else 1 (P)
+    where |D| tau* / 2 <= theta |c Q(tau*)|, else 0 (U); once per element, in
+    cached[slot, 2]. u, v, w (N), F (1): workspace."""
+    where, slot, c = _coefficients_at(d, t, history, method, ode, check, cached, w, F)
+    if not np.isnan(cached[slot, 2]):
+        return cached[slot, 2]
     nodes, bary = method[0], method[1]
-    rhs, indptr, indices, p = ode
-    star, q_star, s_star, q_zero = check[0], check[3], check[5], check[7]
-    c = _collocation_coefficient(i, where, history, method, ode, q_zero, u, F)
-    if np.isnan(c):
-        return 0.0, 0.0
-    X, defect = _collocation_defect(i, where, c, history, method, ode, check, cached, u, w, F)
-    g = defect / q_star
-    _, a, b = _element_polynomial(i, where, 0.0, history, nodes, bary)
-    t_star = a + star * (b - a)
-    for nz in range(indptr[i], indptr[i + 1]):
+    rhs, indptr, indices, p = ode[:4]
+    star, _, slopes, q_star, dq_star, s_star = check[:6]
+    g = _defect_coefficient(d, where, slot, history, method, ode, check, cached, u, w, F)
+    _, a, b = _element_polynomial(d, where, 0.0, history, nodes, bary)
+    k = b - a
+    t_star = a + star * k
+    X = _element_polynomial(d, where, t_star, history, nodes, bary)[0] + c * q_star
+    for nz in range(indptr[d], indptr[d + 1]):
         r = indices[nz]
-        u[r] = X - g * s_star if r == i else _corrected_value(
-            r, t_star, history, method, ode, check, cached, v, w, F2)
-    component_kernel(rhs)(i, address(u, 0), t_star, address(p, 0), address(F2, 0))
-    collocated = _defect_small(c, defect, star, q_star, theta)
-    if _defect_small(g, (b - a) * (F[0] - F2[0]), star, s_star, theta):
-        return c, g
-    return (c if collocated else 0.0), 0.0
+        u[r] = X - g * s_star if r == d else _corrected_value(r, t_star, history, method,
+                                                              ode, check, cached, v, w, F)
+    component_kernel(rhs)(d, address(u, 0), t_star, address(p, 0), address(F, 0))
+    slope = c * dq_star  # k f_d(P(t*)) = P_d'(tau*) - D
+    for j in range(nodes.shape[0]):
+        slope += slopes[j] * _nodal_value(d, where, j, history)
+    defect = g * q_star
+    kind = 0.0
+    if _defect_small(g, slope - defect - k * F[0], star, s_star, theta):
+        kind = 2.0
+    elif _defect_small(c, defect, star, q_star, theta):
+        kind = 1.0
+    cached[slot, 2] = kind
+    return kind
+
+
+@helper()
+def _shared_kind(i, t, history, method, ode, check, theta, cached, u, v, w, F, stack, seen):
+    """The kind of component i's dense value on its element at t: the lowest
+    :func:`_kind` of the components that reach i through f's dependencies (either way,
+    ``ode``'s pattern and its transpose) over elements of the same interval, one kind for
+    them all (a linear invariant that the nodes keep then holds inside), formed once per
+    such set in cached[slot, 3] of each. stack, seen (N, int): workspace, seen[r] the last
+    i whose set r was put in (+ 1)."""
+    where, slot, _ = _coefficients_at(i, t, history, method, ode, check, cached, w, F)
+    if not np.isnan(cached[slot, 3]):
+        return cached[slot, 3]
+    indptr, indices, tindptr, tindices = ode[1], ode[2], ode[4], ode[5]
+    _, a, b = _element_polynomial(i, where, t, history, method[0], method[1])
+    t_star = a + check[0] * (b - a)
+    kind, top = 2.0, 1
+    stack[0] = i
+    seen[i] = i + 1
+    while top > 0:  # (over the set once: its members' slots are collected on the stack)
+        top -= 1
+        d = stack[top]
+        kind = min(kind, _kind(d, t_star, history, method, ode, check, theta, cached, u, v,
+                               w, F))
+        for pattern in range(2):
+            ptr, idx = (indptr, indices) if pattern == 0 else (tindptr, tindices)
+            for nz in range(ptr[d], ptr[d + 1]):
+                r = idx[nz]
+                if seen[r] == i + 1:
+                    continue
+                other = _element_at(r, t_star, history)
+                _, ra, rb = _element_polynomial(r, other, t_star, history, method[0],
+                                                method[1])
+                if ra == a and rb == b:
+                    seen[r] = i + 1
+                    stack[top] = r
+                    top += 1
+    for d in range(u.shape[0]):  # (the members: seen in this pass)
+        if seen[d] == i + 1:
+            cached[_coefficients_at(d, t_star, history, method, ode, check, cached, w,
+                                    F)[1], 3] = kind
+            seen[d] = 0
+    return kind
 
 
 @njit(cache=True)
@@ -688,7 +742,8 @@ def _correct_multi(history, method, ode, check, theta, times, out):
     ptr[i]:ptr[i + 1] and the shared slabs (s_values (S, q + 1, N)) as
     :func:`_evaluate_mixed` reads them (the slabs empty for a grouped history); ``method``
     = (nodes, barycentric weights, l_j(0), t0, u0); ``ode`` = (address of the component
-    kernel f_i, its CSR dependencies indptr, indices, parameters p).
+    kernel f_i, its CSR dependencies indptr, indices, parameters p, the transposed pattern
+    tindptr, tindices).
 
     On component i's element [a, a + k] with nodal values U_j at the method's nodes tau_j
     (Lobatto, mcG(q); right Radau, mdG(q)), the collocation polynomial of mono cG(q) or
@@ -697,21 +752,19 @@ def _correct_multi(history, method, ode, check, theta, times, out):
         P(tau) = U_i(tau) + c Q(tau),  Q(tau) = prod_j (tau - tau_j)
 
     (:func:`_collocation_coefficient`: mcG(q) P'(tau_j) = k f_i at the nodes, mdG(q) P(0)
-    the value before the element), and with its defect d = P' - k f_i(P, t) at tau* (half
+    the value before the element), and with its defect D = P' - k f_i(P, t) at tau* (half
     the first node off 0), the other components read at their own collocation polynomials
     there (:func:`_collocation_value`; at their U they put k J times U's O(k^(q+1)) error
-    into d), the defect-corrected value
+    into D), the defect-corrected value
 
-        V(tau) = P(tau) - g S(tau),  g = d(tau*) / Q(tau*),  S(tau) = int_0^tau Q,
+        V(tau) = P(tau) - g S(tau),  g = D(tau*) / Q(tau*),  S(tau) = int_0^tau Q,
 
-    one order higher (:func:`_defect_correction`). Each per element of component i under
-    the residual tests of the mono-adaptive values (:func:`_defect_small`): V where its
-    residual at tau*, k |f_i(V) - f_i(P)| (the other components at their V,
-    :func:`_corrected_value`), integrated, is at most theta |g S(tau*)| (for mdG(q) P's
-    test passing too, as :func:`_evaluate_dg`), else P where |d(tau*)| tau* / 2 <= theta
-    |c Q(tau*)|, else U_i (no P: mdG(q) where the value before is unknown). P, V and U
-    differ by corrections linear in f's values: a linear invariant that the nodes keep holds
-    inside an interval where all components take the same kind on it (a synchronised slab).
+    one order higher (:func:`_defect_coefficient`, as :func:`_defect_correction`). Each is
+    used under the residual tests of the mono-adaptive values (:func:`_kind`: V, else P,
+    else U_i; no P for mdG(q) where the value before is unknown), one kind for the
+    components coupled over elements of the same interval (:func:`_shared_kind`): P, V
+    and U differ by corrections linear in f's values, so a linear invariant that the nodes
+    keep holds inside such an interval.
 
     ``check`` = (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*), S(tau*), G, Q(0))
     (:func:`_multi_check`). f_i is evaluated q + 3 (mcG(q)) or 3 (mdG(q)) times per element
@@ -720,9 +773,12 @@ def _correct_multi(history, method, ode, check, theta, times, out):
     N = out.shape[0]
     nodes, bary = method[0], method[1]
     E, S = history[2].shape[0], history[4].shape[0]
-    cached = np.full((E + S * N, 2), np.nan)  # (the others' c and g, read at tau*)
+    # per element read: c, g, its kind, the shared kind (NaN: not yet)
+    cached = np.full((E + S * N, 4), np.nan)
     u, v, w = np.zeros(N), np.zeros(N), np.zeros(N)  # (f's arguments, one per depth)
-    F, F2 = np.zeros(1), np.zeros(1)
+    F = np.zeros(1)
+    stack = np.empty(N, dtype=np.int64)
+    seen = np.zeros(N, dtype=np.int64)
     for i in range(N):
         current, c, g = -1, 0.0, 0.0
         for m in range(times.shape[0]):
@@ -735,8 +791,11 @@ def _correct_multi(history, method, ode, check, theta, times, out):
                 continue
             if where != current:
                 current = where
-                c, g = _dense_coefficients(i, where, history, method, ode, check, theta,
-                                           cached, u, v, w, F, F2)
+                kind = _shared_kind(i, t, history, method, ode, check, theta, cached, u, v,
+                                    w, F, stack, seen)
+                slot = _coefficients_at(i, t, history, method, ode, check, cached, w, F)[1]
+                c = cached[slot, 0] if kind > 0.0 else 0.0
+                g = cached[slot, 1] if kind > 1.0 else 0.0
             tau = (t - a) / (b - a)
             r = 1.0
             for j in range(nodes.shape[0]):
@@ -971,6 +1030,14 @@ def _shapes(nodes):
     S = Q.integ(lbnd=0.0)
     G, _ = divmod(S, np.polynomial.Polynomial([0.0, -1.0, 1.0]))
     return Q, S, np.ascontiguousarray(G.coef[::-1])
+
+
+def _transposed(indptr, indices):
+    """(indptr, indices) of the transposed CSR pattern: the components whose f reads each."""
+    counts = np.bincount(indices, minlength=indptr.shape[0] - 1)
+    order = np.argsort(indices, kind="stable")
+    rows = np.repeat(np.arange(indptr.shape[0] - 1), np.diff(indptr))
+    return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), rows[order].astype(np.int64)
 
 
 @cache
@@ -1280,8 +1347,8 @@ class Solution:
                        (method.nodes, method.barycentric_weights, method.left_value,
                         float(declared.t0), np.asarray(declared.u0, dtype=float)),
                        (compiled.rhs_component.address, compiled.indptr, compiled.indices,
-                        compiled.p), _multi_check(method.family, method.q), DEFECT_THETA,
-                       times, out)
+                        compiled.p, *_transposed(compiled.indptr, compiled.indices)),
+                       _multi_check(method.family, method.q), DEFECT_THETA, times, out)
 
     def _evaluate_mono(self, times, rhs, out):
         """out = U at ``times`` from the shared partition, cG(q)'s dense value reading the
