@@ -656,12 +656,11 @@ def _corrected_value(d, t, history, method, ode, check, cached, u, w, F):
 
 
 @helper()
-def _kind(d, t, history, method, ode, check, theta, cached, u, v, w, F):
-    """The kind of component d's dense value on its element at t by its own residual tests
-    at tau* (:func:`_correct_multi`): 2 (V) where V's residual, the other components at
-    their V (:func:`_corrected_value`), integrated, is at most theta |g S(tau*)|, else 1 (P)
-    where |D| tau* / 2 <= theta |c Q(tau*)|, else 0 (U); once per element, in
-    cached[slot, 2]. u, v, w (N), F (1): workspace."""
+def _residual(d, t, history, method, ode, check, cached, u, v, w, F):
+    """V's residual at tau* on component d's element at t, k (f_d(P(t*)) - f_d(V(t*))) =
+    V_d' - k f_d(V) there (V' = P' - g Q), the other components at their V
+    (:func:`_corrected_value`, as the mono-adaptive test moves every component to V); once
+    per element, in cached[slot, 2]. u, v, w (N), F (1): workspace."""
     where, slot, c = _coefficients_at(d, t, history, method, ode, check, cached, w, F)
     if not np.isnan(cached[slot, 2]):
         return cached[slot, 2]
@@ -678,59 +677,74 @@ def _kind(d, t, history, method, ode, check, theta, cached, u, v, w, F):
         u[r] = X - g * s_star if r == d else _corrected_value(r, t_star, history, method,
                                                               ode, check, cached, v, w, F)
     component_kernel(rhs)(d, address(u, 0), t_star, address(p, 0), address(F, 0))
-    slope = c * dq_star  # k f_d(P(t*)) = P_d'(tau*) - D
+    residual = c * dq_star - g * q_star - k * F[0]  # (k f_d(P(t*)) = P_d'(tau*) - D)
     for j in range(nodes.shape[0]):
-        slope += slopes[j] * _nodal_value(d, where, j, history)
-    defect = g * q_star
-    kind = 0.0
-    if _defect_small(g, slope - defect - k * F[0], star, s_star, theta):
-        kind = 2.0
-    elif _defect_small(c, defect, star, q_star, theta):
-        kind = 1.0
-    cached[slot, 2] = kind
-    return kind
+        residual += slopes[j] * _nodal_value(d, where, j, history)
+    cached[slot, 2] = residual
+    return residual
 
 
 @helper()
-def _shared_kind(i, t, history, method, ode, check, theta, cached, u, v, w, F, stack, seen):
-    """The kind of component i's dense value on its element at t: the lowest
-    :func:`_kind` of the components that reach i through f's dependencies (either way,
-    ``ode``'s pattern and its transpose) over elements of the same interval, one kind for
-    them all (a linear invariant that the nodes keep then holds inside), formed once per
-    such set in cached[slot, 3] of each. stack, seen (N, int): workspace, seen[r] the last
-    i whose set r was put in (+ 1)."""
+def _shared_kind(i, t, history, method, ode, check, theta, cached, u, v, w, F, members,
+                 seen, tests):
+    """The kind of component i's dense value on its element at t (:func:`_correct_multi`),
+    one for the components that reach i through f's dependencies (either way: ``ode``'s
+    pattern and its transpose) over elements of the same interval, so that a linear
+    invariant the nodes keep holds inside: 2 (V) where V's residuals
+    (:func:`_residual`), integrated from 0, are at most theta times its corrections g S at
+    tau*, else 1 (P) where P's defects D = g Q(tau*) are at most theta times its
+    corrections c Q, else 0 (U), each test one over the set (:func:`_defect_small` of
+    :func:`_scaled_max`, each component relative to its largest nodal value: per component,
+    one whose correction passes near zero failed alone and dropped the set); once per set,
+    in cached[slot, 3] of each. members, seen (N, int; seen zero), tests (5, N): workspace."""
     where, slot, _ = _coefficients_at(i, t, history, method, ode, check, cached, w, F)
     if not np.isnan(cached[slot, 3]):
         return cached[slot, 3]
+    nodes, bary = method[0], method[1]
     indptr, indices, tindptr, tindices = ode[1], ode[2], ode[4], ode[5]
-    _, a, b = _element_polynomial(i, where, t, history, method[0], method[1])
-    t_star = a + check[0] * (b - a)
-    kind, top = 2.0, 1
-    stack[0] = i
-    seen[i] = i + 1
-    while top > 0:  # (over the set once: its members' slots are collected on the stack)
-        top -= 1
-        d = stack[top]
-        kind = min(kind, _kind(d, t_star, history, method, ode, check, theta, cached, u, v,
-                               w, F))
+    star, q_star, s_star = check[0], check[3], check[5]
+    _, a, b = _element_polynomial(i, where, t, history, nodes, bary)
+    t_star = a + star * (b - a)
+    members[0] = i
+    seen[i] = 1
+    count = 1
+    for n in range(u.shape[0]):  # (breadth first: members[n] is the next to visit)
+        if n == count:
+            break
+        d = members[n]
         for pattern in range(2):
             ptr, idx = (indptr, indices) if pattern == 0 else (tindptr, tindices)
             for nz in range(ptr[d], ptr[d + 1]):
                 r = idx[nz]
-                if seen[r] == i + 1:
-                    continue
-                other = _element_at(r, t_star, history)
-                _, ra, rb = _element_polynomial(r, other, t_star, history, method[0],
-                                                method[1])
-                if ra == a and rb == b:
-                    seen[r] = i + 1
-                    stack[top] = r
-                    top += 1
-    for d in range(u.shape[0]):  # (the members: seen in this pass)
-        if seen[d] == i + 1:
-            cached[_coefficients_at(d, t_star, history, method, ode, check, cached, w,
-                                    F)[1], 3] = kind
-            seen[d] = 0
+                if not seen[r]:
+                    _, ra, rb = _element_polynomial(r, _element_at(r, t_star, history),
+                                                    t_star, history, nodes, bary)
+                    if ra == a and rb == b:
+                        seen[r] = 1
+                        members[count] = r
+                        count += 1
+    for n in range(count):
+        d = members[n]
+        residual = _residual(d, t_star, history, method, ode, check, cached, u, v, w, F)
+        where, slot, c = _coefficients_at(d, t_star, history, method, ode, check, cached, w,
+                                          F)
+        g = cached[slot, 1]
+        tests[0, n], tests[1, n], tests[2, n], tests[3, n] = residual, g, g * q_star, c
+        tests[4, n] = 0.0
+        for j in range(nodes.shape[0]):
+            tests[4, n] = max(tests[4, n], abs(_nodal_value(d, where, j, history)))
+    scale = tests[4, :count]
+    kind = 0.0
+    if _defect_small(_scaled_max(tests[1, :count], scale),
+                     _scaled_max(tests[0, :count], scale), star, s_star, theta):
+        kind = 2.0
+    elif _defect_small(_scaled_max(tests[3, :count], scale),
+                       _scaled_max(tests[2, :count], scale), star, q_star, theta):
+        kind = 1.0
+    for n in range(count):
+        cached[_coefficients_at(members[n], t_star, history, method, ode, check, cached, w,
+                                F)[1], 3] = kind
+        seen[members[n]] = 0
     return kind
 
 
@@ -760,8 +774,8 @@ def _correct_multi(history, method, ode, check, theta, times, out):
         V(tau) = P(tau) - g S(tau),  g = D(tau*) / Q(tau*),  S(tau) = int_0^tau Q,
 
     one order higher (:func:`_defect_coefficient`, as :func:`_defect_correction`). Each is
-    used under the residual tests of the mono-adaptive values (:func:`_kind`: V, else P,
-    else U_i; no P for mdG(q) where the value before is unknown), one kind for the
+    used under the residual tests of the mono-adaptive values, V, else P, else U_i (no P
+    for mdG(q) where the value before is unknown), one kind and one test for the
     components coupled over elements of the same interval (:func:`_shared_kind`): P, V
     and U differ by corrections linear in f's values, so a linear invariant that the nodes
     keep holds inside such an interval.
@@ -777,8 +791,9 @@ def _correct_multi(history, method, ode, check, theta, times, out):
     cached = np.full((E + S * N, 4), np.nan)
     u, v, w = np.zeros(N), np.zeros(N), np.zeros(N)  # (f's arguments, one per depth)
     F = np.zeros(1)
-    stack = np.empty(N, dtype=np.int64)
+    members = np.empty(N, dtype=np.int64)
     seen = np.zeros(N, dtype=np.int64)
+    tests = np.empty((5, N))
     for i in range(N):
         current, c, g = -1, 0.0, 0.0
         for m in range(times.shape[0]):
@@ -792,7 +807,7 @@ def _correct_multi(history, method, ode, check, theta, times, out):
             if where != current:
                 current = where
                 kind = _shared_kind(i, t, history, method, ode, check, theta, cached, u, v,
-                                    w, F, stack, seen)
+                                    w, F, members, seen, tests)
                 slot = _coefficients_at(i, t, history, method, ode, check, cached, w, F)[1]
                 c = cached[slot, 0] if kind > 0.0 else 0.0
                 g = cached[slot, 1] if kind > 1.0 else 0.0
