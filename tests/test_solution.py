@@ -560,7 +560,7 @@ def test_dense_multi_every_reader_agrees_and_keeps_the_ends(fast_slow, method, t
     _evaluate_components(ptr, t_start, t_end, values, sol.method.nodes,
                          sol.method.barycentric_weights, dense_rule(sol.method, dense=False),
                          ode.t0, ode.u0, times, galerkin)
-    assert np.mean(galerkin != expected) > 0.5
+    assert np.mean(galerkin != expected) > 0.25  # (the stiff pair's elements: U)
 
 
 @pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])
