@@ -749,15 +749,19 @@ def _shared_kind(i, t, history, method, ode, check, theta, cached, u, v, w, F, m
 
 
 @njit(cache=True)
-def _correct_multi(history, method, ode, check, theta, times, out):
+def _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, bary, left,
+                   t0, u0, rhs, indptr, indices, p, tindptr, tindices, check, theta, times,
+                   out):
     """out[i, m] = mcG(q)'s or mdG(q)'s dense value at times[m] strictly inside component i's
-    element (elsewhere out is left as it is: the nodal values). ``history`` = (ptr,
-    t_start, t_end, values, s_start, s_end, s_values): component i's elements
-    ptr[i]:ptr[i + 1] and the shared slabs (s_values (S, q + 1, N)) as
-    :func:`_evaluate_mixed` reads them (the slabs empty for a grouped history); ``method``
-    = (nodes, barycentric weights, l_j(0), t0, u0); ``ode`` = (address of the component
-    kernel f_i, its CSR dependencies indptr, indices, parameters p, the transposed pattern
-    tindptr, tindices).
+    element (elsewhere out is left as it is: the nodal values), from component i's elements
+    ptr[i]:ptr[i + 1] and the shared slabs (s_start, s_end, s_values (S, q + 1, N)) as
+    :func:`_evaluate_mixed` reads them (the slabs empty for a grouped history); the method's
+    nodes, barycentric weights and l_j(0) (``left``), t0, u0; f_i the component kernel at
+    address ``rhs``, its CSR dependencies (``indptr``, ``indices``) and their transpose
+    (``tindptr``, ``tindices``: the components whose f reads each), parameters p. (The
+    helpers take them as ``history`` = (ptr, ..., s_values), ``method`` = (nodes, ...,
+    u0), ``ode`` = (rhs, ..., tindices); the arguments are arrays: a tuple argument costs
+    the call several us to type.)
 
     On component i's element [a, a + k] with nodal values U_j at the method's nodes tau_j
     (Lobatto, mcG(q); right Radau, mdG(q)), the collocation polynomial of mono cG(q) or
@@ -784,9 +788,10 @@ def _correct_multi(history, method, ode, check, theta, times, out):
     (:func:`_multi_check`). f_i is evaluated q + 3 (mcG(q)) or 3 (mdG(q)) times per element
     the times fall inside, and about as many times per element of another component read
     at tau*. Q and S vanish at tau = 1: the ends are unchanged."""
-    N = out.shape[0]
-    nodes, bary = method[0], method[1]
-    E, S = history[2].shape[0], history[4].shape[0]
+    N, E, S = out.shape[0], t_end.shape[0], s_start.shape[0]
+    history = (ptr, t_start, t_end, values, s_start, s_end, s_values)
+    method = (nodes, bary, left, t0, u0)
+    ode = (rhs, indptr, indices, p, tindptr, tindices)
     # per element read: c, g, its kind, the shared kind (NaN: not yet)
     cached = np.full((E + S * N, 4), np.nan)
     u, v, w = np.zeros(N), np.zeros(N), np.zeros(N)  # (f's arguments, one per depth)
@@ -795,14 +800,21 @@ def _correct_multi(history, method, ode, check, theta, times, out):
     seen = np.zeros(N, dtype=np.int64)
     tests = np.empty((5, N))
     for i in range(N):
-        current, c, g = -1, 0.0, 0.0
+        own = t_end[ptr[i]:ptr[i + 1]]
+        n, slab, current, c, g = 0, 0, -1, 0.0, 0.0
         for m in range(times.shape[0]):
             t = times[m]
-            where = _element_at(i, t, history)
+            where = -1  # (found as _element_at finds it, walking forward from the last)
+            if S > 0:
+                slab = _locate(s_end, t, slab)
+                if s_start[slab] < t < s_end[slab]:
+                    where, a, b = E + slab, s_start[slab], s_end[slab]
+            if where < 0 and own.shape[0] > 0:
+                n = _locate(own, t, n)
+                e = ptr[i] + n
+                if t_start[e] < t < t_end[e]:
+                    where, a, b = e, t_start[e], t_end[e]
             if where < 0:
-                continue
-            value, a, b = _element_polynomial(i, where, t, history, nodes, bary)
-            if not a < t < b:
                 continue
             if where != current:
                 current = where
@@ -812,6 +824,8 @@ def _correct_multi(history, method, ode, check, theta, times, out):
                 c = cached[slot, 0] if kind > 0.0 else 0.0
                 g = cached[slot, 1] if kind > 1.0 else 0.0
             tau = (t - a) / (b - a)
+            value = (element_value(s_values[slab].T, i, tau, nodes, bary) if where >= E
+                     else element_value(values, where, tau, nodes, bary))
             r = 1.0
             for j in range(nodes.shape[0]):
                 r *= tau - nodes[j]
@@ -1358,11 +1372,10 @@ class Solution:
         if compiled is None:
             return
         method, declared = self.method, self._declaration
-        _correct_multi((ptr, t_start, t_end, values, s_start, s_end, s_values),
-                       (method.nodes, method.barycentric_weights, method.left_value,
-                        float(declared.t0), np.asarray(declared.u0, dtype=float)),
-                       (compiled.rhs_component.address, compiled.indptr, compiled.indices,
-                        compiled.p, *_transposed(compiled.indptr, compiled.indices)),
+        _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, method.nodes,
+                       method.barycentric_weights, method.left_value, float(declared.t0),
+                       np.asarray(declared.u0, dtype=float), compiled.rhs_component.address,
+                       compiled.indptr, compiled.indices, compiled.p, *self._dependents,
                        _multi_check(method.family, method.q), DEFECT_THETA, times, out)
 
     def _evaluate_mono(self, times, rhs, out):
@@ -1373,6 +1386,12 @@ class Solution:
                                                              declared.u0[np.newaxis])
         evaluate_mono(self.method, self.t_start, self.t_start + self.k, self.values, starts,
                       befores, times, out, rhs)
+
+    @cached_property
+    def _dependents(self):
+        """(indptr, indices) of the components whose f_i reads each component (the
+        transposed pattern of ``_rhs``'s), read by :func:`_correct_multi`."""
+        return _transposed(self._rhs.indptr, self._rhs.indices)
 
     @cached_property
     def _rhs(self):
