@@ -3,7 +3,8 @@ import math
 from functools import cache, cached_property
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.typed import Dict
 
 from dolfinode.compile.jit import helper
 from dolfinode.compile.lowering import lower
@@ -504,6 +505,17 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
 
 
 @helper()
+def _row(cached, slot):
+    """What :func:`_correct_multi` keeps of an element read, by its slot (the element at
+    ``where`` of :func:`_element_at`, slab n's at E + n N + d): c, g, V's residual, the
+    shared kind, NaN where not yet formed (a dict: a scalar call reads a few of the
+    elements, whose array it would fill)."""
+    if slot not in cached:
+        cached[slot] = np.full(4, np.nan)
+    return cached[slot]
+
+
+@helper()
 def _element_at(d, t, history):
     """The element component d is read from at t: the first of the shared slabs and of its
     own elements ending at or after t, as the joined history (:class:`MixedSolution`) reads
@@ -590,14 +602,14 @@ def _coefficients_at(d, t, history, method, ode, check, cached, u, F):
     """(where, slot, c): component d's element at t (:func:`_element_at`), its row of
     ``cached`` (the element at ``where``, slab n's at E + n N + d) and its collocation
     coefficient (:func:`_collocation_coefficient`, 0 where unknown), formed once per element
-    in cached[slot, 0] (NaN: not yet)."""
+    in _row(cached, slot)[0] (NaN: not yet)."""
     where = _element_at(d, t, history)
     E = history[2].shape[0]
     slot = where if where < E else E + (where - E) * u.shape[0] + d
-    if np.isnan(cached[slot, 0]):
+    if np.isnan(_row(cached, slot)[0]):
         c = _collocation_coefficient(d, where, history, method, ode, check[7], u, F)
-        cached[slot, 0] = 0.0 if np.isnan(c) else c
-    return where, slot, cached[slot, 0]
+        _row(cached, slot)[0] = 0.0 if np.isnan(c) else c
+    return where, slot, _row(cached, slot)[0]
 
 
 @helper()
@@ -618,14 +630,14 @@ def _collocation_value(d, t, history, method, ode, check, cached, u, F):
 def _defect_coefficient(d, where, slot, history, method, ode, check, cached, u, w, F):
     """g = D / Q(tau*) of V = P - g S on component d's element ``where``, D = P_d'(tau*) -
     k f_d(P(t*), t*) its collocation polynomial's defect, the other components at theirs
-    (:func:`_collocation_value`), formed once per element in cached[slot, 1]. u, w (N),
+    (:func:`_collocation_value`), formed once per element in _row(cached, slot)[1]. u, w (N),
     F (1): workspace."""
-    if not np.isnan(cached[slot, 1]):
-        return cached[slot, 1]
+    if not np.isnan(_row(cached, slot)[1]):
+        return _row(cached, slot)[1]
     nodes, bary = method[0], method[1]
     rhs, indptr, indices, p = ode[:4]
     star, _, slopes, q_star, dq_star = check[:5]
-    c = cached[slot, 0]
+    c = _row(cached, slot)[0]
     _, a, b = _element_polynomial(d, where, 0.0, history, nodes, bary)
     k = b - a
     t_star = a + star * k
@@ -638,8 +650,8 @@ def _defect_coefficient(d, where, slot, history, method, ode, check, cached, u, 
     defect = c * dq_star - k * F[0]
     for j in range(nodes.shape[0]):
         defect += slopes[j] * _nodal_value(d, where, j, history)
-    cached[slot, 1] = defect / q_star
-    return cached[slot, 1]
+    _row(cached, slot)[1] = defect / q_star
+    return _row(cached, slot)[1]
 
 
 @helper()
@@ -660,10 +672,10 @@ def _residual(d, t, history, method, ode, check, cached, u, v, w, F):
     """V's residual at tau* on component d's element at t, k (f_d(P(t*)) - f_d(V(t*))) =
     V_d' - k f_d(V) there (V' = P' - g Q), the other components at their V
     (:func:`_corrected_value`, as the mono-adaptive test moves every component to V); once
-    per element, in cached[slot, 2]. u, v, w (N), F (1): workspace."""
+    per element, in _row(cached, slot)[2]. u, v, w (N), F (1): workspace."""
     where, slot, c = _coefficients_at(d, t, history, method, ode, check, cached, w, F)
-    if not np.isnan(cached[slot, 2]):
-        return cached[slot, 2]
+    if not np.isnan(_row(cached, slot)[2]):
+        return _row(cached, slot)[2]
     nodes, bary = method[0], method[1]
     rhs, indptr, indices, p = ode[:4]
     star, _, slopes, q_star, dq_star, s_star = check[:6]
@@ -680,7 +692,7 @@ def _residual(d, t, history, method, ode, check, cached, u, v, w, F):
     residual = c * dq_star - g * q_star - k * F[0]  # (k f_d(P(t*)) = P_d'(tau*) - D)
     for j in range(nodes.shape[0]):
         residual += slopes[j] * _nodal_value(d, where, j, history)
-    cached[slot, 2] = residual
+    _row(cached, slot)[2] = residual
     return residual
 
 
@@ -696,10 +708,10 @@ def _shared_kind(i, t, history, method, ode, check, theta, cached, u, v, w, F, m
     corrections c Q, else 0 (U), each test one over the set (:func:`_defect_small` of
     :func:`_scaled_max`, each component relative to its largest nodal value: per component,
     one whose correction passes near zero failed alone and dropped the set); once per set,
-    in cached[slot, 3] of each. members, seen (N, int; seen zero), tests (5, N): workspace."""
+    in _row(cached, slot)[3] of each. members, seen (N, int; seen zero), tests (5, N): workspace."""
     where, slot, _ = _coefficients_at(i, t, history, method, ode, check, cached, w, F)
-    if not np.isnan(cached[slot, 3]):
-        return cached[slot, 3]
+    if not np.isnan(_row(cached, slot)[3]):
+        return _row(cached, slot)[3]
     nodes, bary = method[0], method[1]
     indptr, indices, tindptr, tindices = ode[1], ode[2], ode[4], ode[5]
     star, q_star, s_star = check[0], check[3], check[5]
@@ -728,7 +740,7 @@ def _shared_kind(i, t, history, method, ode, check, theta, cached, u, v, w, F, m
         residual = _residual(d, t_star, history, method, ode, check, cached, u, v, w, F)
         where, slot, c = _coefficients_at(d, t_star, history, method, ode, check, cached, w,
                                           F)
-        g = cached[slot, 1]
+        g = _row(cached, slot)[1]
         tests[0, n], tests[1, n], tests[2, n], tests[3, n] = residual, g, g * q_star, c
         tests[4, n] = 0.0
         for j in range(nodes.shape[0]):
@@ -742,8 +754,8 @@ def _shared_kind(i, t, history, method, ode, check, theta, cached, u, v, w, F, m
                        _scaled_max(tests[2, :count], scale), star, q_star, theta):
         kind = 1.0
     for n in range(count):
-        cached[_coefficients_at(members[n], t_star, history, method, ode, check, cached, w,
-                                F)[1], 3] = kind
+        _row(cached, _coefficients_at(members[n], t_star, history, method, ode, check,
+                                      cached, w, F)[1])[3] = kind
         seen[members[n]] = 0
     return kind
 
@@ -792,8 +804,8 @@ def _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
     history = (ptr, t_start, t_end, values, s_start, s_end, s_values)
     method = (nodes, bary, left, t0, u0)
     ode = (rhs, indptr, indices, p, tindptr, tindices)
-    # per element read: c, g, its kind, the shared kind (NaN: not yet)
-    cached = np.full((E + S * N, 4), np.nan)
+    # per element read: c, g, V's residual, the shared kind (:func:`_row`)
+    cached = Dict.empty(types.int64, types.float64[::1])
     u, v, w = np.zeros(N), np.zeros(N), np.zeros(N)  # (f's arguments, one per depth)
     F = np.zeros(1)
     members = np.empty(N, dtype=np.int64)
@@ -821,8 +833,8 @@ def _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
                 kind = _shared_kind(i, t, history, method, ode, check, theta, cached, u, v,
                                     w, F, members, seen, tests)
                 slot = _coefficients_at(i, t, history, method, ode, check, cached, w, F)[1]
-                c = cached[slot, 0] if kind > 0.0 else 0.0
-                g = cached[slot, 1] if kind > 1.0 else 0.0
+                c = _row(cached, slot)[0] if kind > 0.0 else 0.0
+                g = _row(cached, slot)[1] if kind > 1.0 else 0.0
             tau = (t - a) / (b - a)
             value = (element_value(s_values[slab].T, i, tau, nodes, bary) if where >= E
                      else element_value(values, where, tau, nodes, bary))
