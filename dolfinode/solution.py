@@ -627,6 +627,32 @@ def _collocation_value(d, t, history, method, ode, check, cached, u, F):
 
 
 @helper()
+def _star_value(d, where, c, g, history, method, check):
+    """(t*, U_d(tau*) + c Q(tau*) - g S(tau*)) on component d's element ``where``: P's
+    value at tau* (g = 0), V's (:func:`_correct_multi`)."""
+    nodes, bary = method[0], method[1]
+    _, a, b = _element_polynomial(d, where, 0.0, history, nodes, bary)
+    t_star = a + check[0] * (b - a)
+    return t_star, (_element_polynomial(d, where, t_star, history, nodes, bary)[0]
+                    + c * check[3] - g * check[5])
+
+
+@helper()
+def _defect_at(d, where, t_star, c, g, history, method, ode, check, u, F):
+    """The defect at tau* of U_d + c Q - g S on component d's element ``where``,
+    U_d'(tau*) + c Q'(tau*) - g Q(tau*) - k f_d(u, t*) (u: its value and the other
+    components' there; S' = Q). F (1): workspace."""
+    rhs, p = ode[0], ode[3]
+    nodes, bary = method[0], method[1]
+    _, a, b = _element_polynomial(d, where, 0.0, history, nodes, bary)
+    component_kernel(rhs)(d, address(u, 0), t_star, address(p, 0), address(F, 0))
+    defect = c * check[4] - g * check[3] - (b - a) * F[0]
+    for j in range(nodes.shape[0]):
+        defect += check[2][j] * _nodal_value(d, where, j, history)
+    return defect
+
+
+@helper()
 def _defect_coefficient(d, where, slot, history, method, ode, check, cached, u, w, F):
     """g = D / Q(tau*) of V = P - g S on component d's element ``where``, D = P_d'(tau*) -
     k f_d(P(t*), t*) its collocation polynomial's defect, the other components at theirs
@@ -634,23 +660,15 @@ def _defect_coefficient(d, where, slot, history, method, ode, check, cached, u, 
     F (1): workspace."""
     if not np.isnan(_row(cached, slot)[1]):
         return _row(cached, slot)[1]
-    nodes, bary = method[0], method[1]
-    rhs, indptr, indices, p = ode[:4]
-    star, _, slopes, q_star, dq_star = check[:5]
+    indptr, indices = ode[1], ode[2]
     c = _row(cached, slot)[0]
-    _, a, b = _element_polynomial(d, where, 0.0, history, nodes, bary)
-    k = b - a
-    t_star = a + star * k
-    X = _element_polynomial(d, where, t_star, history, nodes, bary)[0] + c * q_star
+    t_star, X = _star_value(d, where, c, 0.0, history, method, check)
     for nz in range(indptr[d], indptr[d + 1]):
         r = indices[nz]
         u[r] = X if r == d else _collocation_value(r, t_star, history, method, ode, check,
                                                    cached, w, F)
-    component_kernel(rhs)(d, address(u, 0), t_star, address(p, 0), address(F, 0))
-    defect = c * dq_star - k * F[0]
-    for j in range(nodes.shape[0]):
-        defect += slopes[j] * _nodal_value(d, where, j, history)
-    _row(cached, slot)[1] = defect / q_star
+    _row(cached, slot)[1] = _defect_at(d, where, t_star, c, 0.0, history, method, ode, check,
+                                       u, F) / check[3]
     return _row(cached, slot)[1]
 
 
@@ -669,31 +687,23 @@ def _corrected_value(d, t, history, method, ode, check, cached, u, w, F):
 
 @helper()
 def _residual(d, t, history, method, ode, check, cached, u, v, w, F):
-    """V's residual at tau* on component d's element at t, k (f_d(P(t*)) - f_d(V(t*))) =
-    V_d' - k f_d(V) there (V' = P' - g Q), the other components at their V
+    """V's residual at tau* on component d's element at t, V_d' - k f_d(V) there
+    (:func:`_defect_at`), the other components at their V
     (:func:`_corrected_value`, as the mono-adaptive test moves every component to V); once
     per element, in _row(cached, slot)[2]. u, v, w (N), F (1): workspace."""
     where, slot, c = _coefficients_at(d, t, history, method, ode, check, cached, w, F)
     if not np.isnan(_row(cached, slot)[2]):
         return _row(cached, slot)[2]
-    nodes, bary = method[0], method[1]
-    rhs, indptr, indices, p = ode[:4]
-    star, _, slopes, q_star, dq_star, s_star = check[:6]
+    indptr, indices = ode[1], ode[2]
     g = _defect_coefficient(d, where, slot, history, method, ode, check, cached, u, w, F)
-    _, a, b = _element_polynomial(d, where, 0.0, history, nodes, bary)
-    k = b - a
-    t_star = a + star * k
-    X = _element_polynomial(d, where, t_star, history, nodes, bary)[0] + c * q_star
+    t_star, X = _star_value(d, where, c, g, history, method, check)
     for nz in range(indptr[d], indptr[d + 1]):
         r = indices[nz]
-        u[r] = X - g * s_star if r == d else _corrected_value(r, t_star, history, method,
-                                                              ode, check, cached, v, w, F)
-    component_kernel(rhs)(d, address(u, 0), t_star, address(p, 0), address(F, 0))
-    residual = c * dq_star - g * q_star - k * F[0]  # (k f_d(P(t*)) = P_d'(tau*) - D)
-    for j in range(nodes.shape[0]):
-        residual += slopes[j] * _nodal_value(d, where, j, history)
-    _row(cached, slot)[2] = residual
-    return residual
+        u[r] = X if r == d else _corrected_value(r, t_star, history, method, ode, check,
+                                                 cached, v, w, F)
+    _row(cached, slot)[2] = _defect_at(d, where, t_star, c, g, history, method, ode, check,
+                                       u, F)
+    return _row(cached, slot)[2]
 
 
 @helper()
