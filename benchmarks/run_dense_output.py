@@ -15,8 +15,8 @@ gave before.
   random stiff linear systems of tests/stability/test_random_linear.py (T = 1, 101 samples,
   12 systems: seed s, 2 + s % 3 states, stiffness 8 s / 11), with the error at the element
   ends (the nodes) for reference;
-* multi-adaptive: mdG(q) (its own collocation polynomial per component and element) and
-  mcG(3) against mono dG(q) and cG(3) on two problems whose components take different
+* multi-adaptive: mdG(q) and mcG(3) (the same dense values per component and element,
+  ``_correct_multi``) against mono dG(q) and cG(3) on two problems whose components take different
   steps, a strongly coupled fast-slow pair driving a slow rotation (T = 10) and the
   two-species Brusselator (T = 20), 20001 samples against solve_ivp's Radau at 1e-13,
   with the longest element's component and its step over the shortest step of the others

@@ -504,11 +504,31 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
 
 
 @helper()
-def _component_value(d, t, ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
-                     bary):
-    """U_d(t) by the Galerkin polynomial of component d's first element ending at or after
-    t, of the shared slabs (s_start, s_end, s_values) and its own elements together: the
-    element the joined history (:class:`MixedSolution`) reads, with the same bits."""
+def _row(cached, slot):
+    """What :func:`_correct_multi` keeps of an element read, by its slot (the element at
+    ``where`` of :func:`_element_at`, slab n's at E + n N + d): c, g, V's residual, the
+    shared kind, NaN where not yet formed. ``cached`` = (rows, index, slots, count), a
+    sparse set over uninitialised arrays (a scalar call reads a few elements: filling an
+    array of every element cost it 30-80 us on 26536 elements): slot's row is formed where
+    slots[index[slot]] == slot among the first count[0]."""
+    rows, index, slots, count = cached
+    n = index[slot]
+    if not (0 <= n < count[0] and slots[n] == slot):
+        n = count[0]
+        count[0] += 1
+        index[slot], slots[n] = n, slot
+        rows[slot, :] = np.nan
+    return rows[slot]
+
+
+@helper()
+def _element_at(d, t, history):
+    """The element component d is read from at t: the first of the shared slabs and of its
+    own elements ending at or after t, as the joined history (:class:`MixedSolution`) reads
+    it (``history`` = (ptr, t_start, t_end, values, s_start, s_end, s_values) as
+    :func:`_correct_multi` takes it); its own element e as e, slab n as E + n
+    (E = t_end.shape[0])."""
+    ptr, _, t_end, _, _, s_end, _ = history
     slab, e = -1, -1
     if s_end.shape[0] > 0:
         slab = _locate(s_end, t, 0)
@@ -523,93 +543,323 @@ def _component_value(d, t, ptr, t_start, t_end, values, s_start, s_end, s_values
             use_slab = slab_after
         else:  # (past both: the last)
             use_slab = s_end[slab] > t_end[e]
-    if use_slab:
-        tau = min(max((t - s_start[slab]) / (s_end[slab] - s_start[slab]), 0.0), 1.0)
-        return element_value(s_values[slab].T, d, tau, nodes, bary)
-    tau = min(max((t - t_start[e]) / (t_end[e] - t_start[e]), 0.0), 1.0)
-    return element_value(values, e, tau, nodes, bary)
+    return t_end.shape[0] + slab if use_slab else e
+
+
+@helper()
+def _nodal_value(d, where, j, history):
+    """Component d's nodal value j on its element ``where`` (:func:`_element_at`)."""
+    _, _, t_end, values, _, _, s_values = history
+    E = t_end.shape[0]
+    return s_values[where - E, j, d] if where >= E else values[where, j]
+
+
+@helper()
+def _element_polynomial(d, where, t, history, nodes, bary):
+    """(U_d(t), a, b) on component d's element ``where`` (:func:`_element_at`) [a, b]."""
+    _, t_start, t_end, values, s_start, s_end, s_values = history
+    E = t_end.shape[0]
+    if where >= E:
+        a, b = s_start[where - E], s_end[where - E]
+        tau = min(max((t - a) / (b - a), 0.0), 1.0)
+        return element_value(s_values[where - E].T, d, tau, nodes, bary), a, b
+    a, b = t_start[where], t_end[where]
+    tau = min(max((t - a) / (b - a), 0.0), 1.0)
+    return element_value(values, where, tau, nodes, bary), a, b
+
+
+@helper()
+def _collocation_coefficient(d, where, history, method, ode, q_zero, u, F):
+    """c of the collocation polynomial P = U_d + c Q (Q = prod_j (tau - tau_j)) on component
+    d's element ``where`` [a, a + k] (:func:`_correct_multi`): mcG(q) (tau_0 = 0)
+    c = k / (q + 1) sum_j w_j f_d(U(a + tau_j k)) with the other components at their
+    polynomials U (as the element's moments read them), mdG(q) c = (U_d(a^-) - U_d(a^+)) /
+    Q(0) (P(0) the value before, :func:`_before_element`), NaN where that is unknown.
+    u (N), F (1): workspace."""
+    ptr, t_start, t_end, values, s_start, s_end, s_values = history
+    nodes, bary, left, t0, u0 = method
+    rhs, indptr, indices, p = ode[:4]
+    E, q1 = t_end.shape[0], nodes.shape[0]
+    slab = where - E
+    if nodes[0] > 0.0:  # (dG: Radau nodes)
+        before = (_before_slab(d, slab, ptr, t_end, values, s_start, s_end, s_values, t0, u0)
+                  if slab >= 0 else _before_element(d, where, ptr, t_start, t_end, values,
+                                                    s_end, s_values, t0, u0))
+        for j in range(q1):
+            before -= left[j] * _nodal_value(d, where, j, history)
+        return before / q_zero
+    a = s_start[slab] if slab >= 0 else t_start[where]
+    k = (s_end[slab] if slab >= 0 else t_end[where]) - a
+    f = component_kernel(rhs)
+    lead = 0.0
+    for j in range(q1):
+        tj = a + nodes[j] * k
+        for nz in range(indptr[d], indptr[d + 1]):
+            r = indices[nz]
+            u[r] = (_nodal_value(d, where, j, history) if r == d else _element_polynomial(
+                r, _element_at(r, tj, history), tj, history, nodes, bary)[0])
+        f(d, address(u, 0), tj, address(p, 0), address(F, 0))
+        lead += bary[j] * F[0]
+    return k * lead / q1
+
+
+@helper()
+def _coefficients_at(d, t, history, method, ode, check, cached, u, F):
+    """(where, slot, c): component d's element at t (:func:`_element_at`), its row of
+    ``cached`` (the element at ``where``, slab n's at E + n N + d) and its collocation
+    coefficient (:func:`_collocation_coefficient`, 0 where unknown), formed once per element
+    in _row(cached, slot)[0] (NaN: not yet)."""
+    where = _element_at(d, t, history)
+    E = history[2].shape[0]
+    slot = where if where < E else E + (where - E) * u.shape[0] + d
+    if np.isnan(_row(cached, slot)[0]):
+        c = _collocation_coefficient(d, where, history, method, ode, check[7], u, F)
+        _row(cached, slot)[0] = 0.0 if np.isnan(c) else c
+    return where, slot, _row(cached, slot)[0]
+
+
+@helper()
+def _collocation_value(d, t, history, method, ode, check, cached, u, F):
+    """P_d(t) = U_d(t) + c Q(tau), the collocation polynomial of component d's element at t
+    (:func:`_coefficients_at`), untested: what :func:`_correct_multi` reads the other
+    components at."""
+    nodes, bary = method[0], method[1]
+    where, _, c = _coefficients_at(d, t, history, method, ode, check, cached, u, F)
+    value, a, b = _element_polynomial(d, where, t, history, nodes, bary)
+    tau = min(max((t - a) / (b - a), 0.0), 1.0)
+    for j in range(nodes.shape[0]):
+        c *= tau - nodes[j]
+    return value + c
+
+
+@helper()
+def _star_value(d, where, c, g, history, method, check):
+    """(t*, U_d(tau*) + c Q(tau*) - g S(tau*)) on component d's element ``where``: P's
+    value at tau* (g = 0), V's (:func:`_correct_multi`)."""
+    nodes, bary = method[0], method[1]
+    _, a, b = _element_polynomial(d, where, 0.0, history, nodes, bary)
+    t_star = a + check[0] * (b - a)
+    return t_star, (_element_polynomial(d, where, t_star, history, nodes, bary)[0]
+                    + c * check[3] - g * check[5])
+
+
+@helper()
+def _defect_at(d, where, t_star, c, g, history, method, ode, check, u, F):
+    """The defect at tau* of U_d + c Q - g S on component d's element ``where``,
+    U_d'(tau*) + c Q'(tau*) - g Q(tau*) - k f_d(u, t*) (u: its value and the other
+    components' there; S' = Q). F (1): workspace."""
+    rhs, p = ode[0], ode[3]
+    nodes, bary = method[0], method[1]
+    _, a, b = _element_polynomial(d, where, 0.0, history, nodes, bary)
+    component_kernel(rhs)(d, address(u, 0), t_star, address(p, 0), address(F, 0))
+    defect = c * check[4] - g * check[3] - (b - a) * F[0]
+    for j in range(nodes.shape[0]):
+        defect += check[2][j] * _nodal_value(d, where, j, history)
+    return defect
+
+
+@helper()
+def _defect_coefficient(d, where, slot, history, method, ode, check, cached, u, w, F):
+    """g = D / Q(tau*) of V = P - g S on component d's element ``where``, D = P_d'(tau*) -
+    k f_d(P(t*), t*) its collocation polynomial's defect, the other components at theirs
+    (:func:`_collocation_value`), formed once per element in _row(cached, slot)[1]. u, w (N),
+    F (1): workspace."""
+    if not np.isnan(_row(cached, slot)[1]):
+        return _row(cached, slot)[1]
+    indptr, indices = ode[1], ode[2]
+    c = _row(cached, slot)[0]
+    t_star, X = _star_value(d, where, c, 0.0, history, method, check)
+    for nz in range(indptr[d], indptr[d + 1]):
+        r = indices[nz]
+        u[r] = X if r == d else _collocation_value(r, t_star, history, method, ode, check,
+                                                   cached, w, F)
+    _row(cached, slot)[1] = _defect_at(d, where, t_star, c, 0.0, history, method, ode, check,
+                                       u, F) / check[3]
+    return _row(cached, slot)[1]
+
+
+@helper()
+def _corrected_value(d, t, history, method, ode, check, cached, u, w, F):
+    """V_d(t) = P_d(t) - g S(tau) (:func:`_defect_coefficient`), untested: where
+    :func:`_correct_multi`'s test of V reads the other components (as the mono-adaptive
+    test moves every component to V). u, w (N), F (1): workspace."""
+    where, slot, _ = _coefficients_at(d, t, history, method, ode, check, cached, w, F)
+    g = _defect_coefficient(d, where, slot, history, method, ode, check, cached, u, w, F)
+    _, a, b = _element_polynomial(d, where, t, history, method[0], method[1])
+    tau = min(max((t - a) / (b - a), 0.0), 1.0)
+    return (_collocation_value(d, t, history, method, ode, check, cached, w, F)
+            - g * _correction_shape(check[6], tau))
+
+
+@helper()
+def _residual(d, t, history, method, ode, check, cached, u, v, w, F):
+    """V's residual at tau* on component d's element at t, V_d' - k f_d(V) there
+    (:func:`_defect_at`), the other components at their V
+    (:func:`_corrected_value`, as the mono-adaptive test moves every component to V); once
+    per element, in _row(cached, slot)[2]. u, v, w (N), F (1): workspace."""
+    where, slot, c = _coefficients_at(d, t, history, method, ode, check, cached, w, F)
+    if not np.isnan(_row(cached, slot)[2]):
+        return _row(cached, slot)[2]
+    indptr, indices = ode[1], ode[2]
+    g = _defect_coefficient(d, where, slot, history, method, ode, check, cached, u, w, F)
+    t_star, X = _star_value(d, where, c, g, history, method, check)
+    for nz in range(indptr[d], indptr[d + 1]):
+        r = indices[nz]
+        u[r] = X if r == d else _corrected_value(r, t_star, history, method, ode, check,
+                                                 cached, v, w, F)
+    _row(cached, slot)[2] = _defect_at(d, where, t_star, c, g, history, method, ode, check,
+                                       u, F)
+    return _row(cached, slot)[2]
+
+
+@helper()
+def _shared_kind(i, t, history, method, ode, check, theta, cached, u, v, w, F, members,
+                 seen, tests):
+    """The kind of component i's dense value on its element at t (:func:`_correct_multi`),
+    one for the components that reach i through f's dependencies (either way: ``ode``'s
+    pattern and its transpose) over elements of the same interval, so that a linear
+    invariant the nodes keep holds inside: 2 (V) where V's residuals
+    (:func:`_residual`), integrated from 0, are at most theta times its corrections g S at
+    tau*, else 1 (P) where P's defects D = g Q(tau*) are at most theta times its
+    corrections c Q, else 0 (U), each test one over the set (:func:`_defect_small` of
+    :func:`_scaled_max`, each component relative to its largest nodal value: per component,
+    one whose correction passes near zero failed alone and dropped the set); once per set,
+    in _row(cached, slot)[3] of each. members, seen (N, int; seen zero), tests (5, N): workspace."""
+    where, slot, _ = _coefficients_at(i, t, history, method, ode, check, cached, w, F)
+    if not np.isnan(_row(cached, slot)[3]):
+        return _row(cached, slot)[3]
+    nodes, bary = method[0], method[1]
+    indptr, indices, tindptr, tindices = ode[1], ode[2], ode[4], ode[5]
+    star, q_star, s_star = check[0], check[3], check[5]
+    _, a, b = _element_polynomial(i, where, t, history, nodes, bary)
+    t_star = a + star * (b - a)
+    members[0] = i
+    seen[i] = 1
+    count = 1
+    for n in range(u.shape[0]):  # (breadth first: members[n] is the next to visit)
+        if n == count:
+            break
+        d = members[n]
+        for pattern in range(2):
+            ptr, idx = (indptr, indices) if pattern == 0 else (tindptr, tindices)
+            for nz in range(ptr[d], ptr[d + 1]):
+                r = idx[nz]
+                if not seen[r]:
+                    _, ra, rb = _element_polynomial(r, _element_at(r, t_star, history),
+                                                    t_star, history, nodes, bary)
+                    if ra == a and rb == b:
+                        seen[r] = 1
+                        members[count] = r
+                        count += 1
+    for n in range(count):
+        d = members[n]
+        residual = _residual(d, t_star, history, method, ode, check, cached, u, v, w, F)
+        where, slot, c = _coefficients_at(d, t_star, history, method, ode, check, cached, w,
+                                          F)
+        g = _row(cached, slot)[1]
+        tests[0, n], tests[1, n], tests[2, n], tests[3, n] = residual, g, g * q_star, c
+        tests[4, n] = 0.0
+        for j in range(nodes.shape[0]):
+            tests[4, n] = max(tests[4, n], abs(_nodal_value(d, where, j, history)))
+    scale = tests[4, :count]
+    kind = 0.0
+    if _defect_small(_scaled_max(tests[1, :count], scale),
+                     _scaled_max(tests[0, :count], scale), star, s_star, theta):
+        kind = 2.0
+    elif _defect_small(_scaled_max(tests[3, :count], scale),
+                       _scaled_max(tests[2, :count], scale), star, q_star, theta):
+        kind = 1.0
+    for n in range(count):
+        _row(cached, _coefficients_at(members[n], t_star, history, method, ode, check,
+                                      cached, w, F)[1])[3] = kind
+        seen[members[n]] = 0
+    return kind
 
 
 @njit(cache=True)
-def _correct_cg(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, bary, rhs,
-                indptr, indices, p, check, theta, times, out):
-    """out[i, m] += c Q(tau): mcG(q)'s dense value, the collocation polynomial of
-    :func:`_evaluate_cg` per component, out holding U at ``times`` (component i's elements
+def _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, bary, left,
+                   t0, u0, rhs, indptr, indices, p, tindptr, tindices, check, theta, times,
+                   out):
+    """out[i, m] = mcG(q)'s or mdG(q)'s dense value at times[m] strictly inside component i's
+    element (elsewhere out is left as it is: the nodal values), from component i's elements
     ptr[i]:ptr[i + 1] and the shared slabs (s_start, s_end, s_values (S, q + 1, N)) as
-    :func:`_evaluate_mixed` reads them; the slabs empty for a grouped history).
+    :func:`_evaluate_mixed` reads them (the slabs empty for a grouped history); the method's
+    nodes, barycentric weights and l_j(0) (``left``), t0, u0; f_i the component kernel at
+    address ``rhs``, its CSR dependencies (``indptr``, ``indices``) and their transpose
+    (``tindptr``, ``tindices``: the components whose f reads each), parameters p. (The
+    helpers take them as ``history`` = (ptr, ..., s_values), ``method`` = (nodes, ...,
+    u0), ``ode`` = (rhs, ..., tindices); the arguments are arrays: a tuple argument costs
+    the call several us to type.)
 
-    On component i's element [a, a + k] with nodal values U_j at the Lobatto nodes tau_j,
-    f_j = f_i(U(a + tau_j k), a + tau_j k), the other components read from their own
-    polynomials (as the element's moments read them), and
+    On component i's element [a, a + k] with nodal values U_j at the method's nodes tau_j
+    (Lobatto, mcG(q); right Radau, mdG(q)), the collocation polynomial of mono cG(q) or
+    dG(q) (:func:`_evaluate_cg`, :func:`_evaluate_dg`) is
 
-        P(tau) = U_i(tau) + c Q(tau),  Q(tau) = prod_j (tau - tau_j),
-        c = k / (q + 1) sum_j w_j f_j,
+        P(tau) = U_i(tau) + c Q(tau),  Q(tau) = prod_j (tau - tau_j)
 
-    used where its defect at tau* = tau_1 / 2 passes the test of :func:`_evaluate_cg`
-    (``check``, ``theta``), else U_i (a component stiff on its step). f_i is the component
-    kernel at address ``rhs`` (CSR dependencies ``indptr``, ``indices``, parameters p),
-    evaluated q + 2 times per element the times fall inside. Element ends are unchanged."""
-    q1, N = nodes.shape[0], out.shape[0]
-    star, basis, slopes, q_star, dq_star = check[:5]
-    f = component_kernel(rhs)
-    u = np.zeros(N)
+    (:func:`_collocation_coefficient`: mcG(q) P'(tau_j) = k f_i at the nodes, mdG(q) P(0)
+    the value before the element), and with its defect D = P' - k f_i(P, t) at tau* (half
+    the first node off 0), the other components read at their own collocation polynomials
+    there (:func:`_collocation_value`; at their U they put k J times U's O(k^(q+1)) error
+    into D), the defect-corrected value
+
+        V(tau) = P(tau) - g S(tau),  g = D(tau*) / Q(tau*),  S(tau) = int_0^tau Q,
+
+    one order higher (:func:`_defect_coefficient`, as :func:`_defect_correction`). Each is
+    used under the residual tests of the mono-adaptive values, V, else P, else U_i (no P
+    for mdG(q) where the value before is unknown), one kind and one test for the
+    components coupled over elements of the same interval (:func:`_shared_kind`): P, V
+    and U differ by corrections linear in f's values, so a linear invariant that the nodes
+    keep holds inside such an interval.
+
+    ``check`` = (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*), S(tau*), G, Q(0))
+    (:func:`_multi_check`). f_i is evaluated q + 3 (mcG(q)) or 3 (mdG(q)) times per element
+    the times fall inside, and about as many times per element of another component read
+    at tau*. Q and S vanish at tau = 1: the ends are unchanged."""
+    N, E, S = out.shape[0], t_end.shape[0], s_start.shape[0]
+    history = (ptr, t_start, t_end, values, s_start, s_end, s_values)
+    method = (nodes, bary, left, t0, u0)
+    ode = (rhs, indptr, indices, p, tindptr, tindices)
+    # per element read: c, g, V's residual, the shared kind (:func:`_row`)
+    size = E + S * N
+    cached = (np.empty((size, 4)), np.empty(size, dtype=np.int64),
+              np.empty(size, dtype=np.int64), np.zeros(1, dtype=np.int64))
+    u, v, w = np.zeros(N), np.zeros(N), np.zeros(N)  # (f's arguments, one per depth)
     F = np.zeros(1)
-    xi = np.empty(q1)
+    members = np.empty(N, dtype=np.int64)
+    seen = np.zeros(N, dtype=np.int64)
+    tests = np.empty((5, N))
     for i in range(N):
         own = t_end[ptr[i]:ptr[i + 1]]
-        n, slab, current, c = 0, 0, -1, 0.0
+        n, slab, current, c, g = 0, 0, -1, 0.0, 0.0
         for m in range(times.shape[0]):
             t = times[m]
-            where = -1  # the element holding t inside: a slab (index) or own (S + index)
-            if s_end.shape[0] > 0:
+            where = -1  # (found as _element_at finds it, walking forward from the last)
+            if S > 0:
                 slab = _locate(s_end, t, slab)
                 if s_start[slab] < t < s_end[slab]:
-                    where = slab
-                    a, b = s_start[slab], s_end[slab]
-                    for j in range(q1):
-                        xi[j] = s_values[slab, j, i]
+                    where, a, b = E + slab, s_start[slab], s_end[slab]
             if where < 0 and own.shape[0] > 0:
                 n = _locate(own, t, n)
                 e = ptr[i] + n
                 if t_start[e] < t < t_end[e]:
-                    where = s_end.shape[0] + e
-                    a, b = t_start[e], t_end[e]
-                    for j in range(q1):
-                        xi[j] = values[e, j]
+                    where, a, b = e, t_start[e], t_end[e]
             if where < 0:
                 continue
-            k = b - a
             if where != current:
                 current = where
-                lead = 0.0
-                for j in range(q1 + 1):
-                    tj = a + (nodes[j] if j < q1 else star) * k
-                    value = 0.0
-                    if j == q1:  # P_i(tau*), U_i's value there corrected
-                        for r in range(q1):
-                            value += basis[r] * xi[r]
-                        value += c * q_star
-                    for nz in range(indptr[i], indptr[i + 1]):
-                        d = indices[nz]
-                        u[d] = (xi[j] if j < q1 else value) if d == i else _component_value(
-                            d, tj, ptr, t_start, t_end, values, s_start, s_end, s_values,
-                            nodes, bary)
-                    f(i, address(u, 0), tj, address(p, 0), address(F, 0))
-                    if j < q1:
-                        lead += bary[j] * F[0]
-                        if j == q1 - 1:
-                            c = k * lead / q1
-                    else:
-                        defect = c * dq_star - k * F[0]
-                        for r in range(q1):
-                            defect += slopes[r] * xi[r]
-                        c = _passes_defect_test(c, defect, star, q_star, theta)
-            if c != 0.0:
-                tau = (t - a) / k
-                r = c
-                for j in range(q1):
-                    r *= tau - nodes[j]
-                out[i, m] += r
+                kind = _shared_kind(i, t, history, method, ode, check, theta, cached, u, v,
+                                    w, F, members, seen, tests)
+                slot = _coefficients_at(i, t, history, method, ode, check, cached, w, F)[1]
+                c = _row(cached, slot)[0] if kind > 0.0 else 0.0
+                g = _row(cached, slot)[1] if kind > 1.0 else 0.0
+            tau = (t - a) / (b - a)
+            value = (element_value(s_values[slab].T, i, tau, nodes, bary) if where >= E
+                     else element_value(values, where, tau, nodes, bary))
+            r = 1.0
+            for j in range(nodes.shape[0]):
+                r *= tau - nodes[j]
+            out[i, m] = value + c * r - g * _correction_shape(check[6], tau)
 
 
 #: Where dG(q)'s dense value cannot read f: a component's jump [U] at an element's start is
@@ -832,6 +1082,36 @@ def dense_rule(method, dense=True):
     return method.nodes, -1.0
 
 
+def _shapes(nodes):
+    """Q = prod_j (tau - tau_j), S(tau) = int_0^tau Q (polynomials) and G, the coefficients
+    of S(tau) / (tau (tau - 1)), highest first (:func:`_correction_shape`)."""
+    Q = np.polynomial.Polynomial.fromroots(nodes)
+    S = Q.integ(lbnd=0.0)
+    G, _ = divmod(S, np.polynomial.Polynomial([0.0, -1.0, 1.0]))
+    return Q, S, np.ascontiguousarray(G.coef[::-1])
+
+
+def _transposed(indptr, indices):
+    """(indptr, indices) of the transposed CSR pattern: the components whose f reads each."""
+    counts = np.bincount(indices, minlength=indptr.shape[0] - 1)
+    order = np.argsort(indices, kind="stable")
+    rows = np.repeat(np.arange(indptr.shape[0] - 1), np.diff(indptr))
+    return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), rows[order].astype(np.int64)
+
+
+@cache
+def _multi_check(family, q):
+    """``check`` of :func:`_correct_multi`: (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*),
+    S(tau*), G, Q(0)) at the tau* of :func:`_defect_check` (half the first node off 0; l_j
+    the Lagrange basis on the method's nodes)."""
+    nodes = make_method(family, q).nodes
+    Q, S, G = _shapes(nodes)
+    star = _defect_check(family, q)[0]
+    basis, slopes = lagrange_matrices(nodes, (star,))
+    return (star, basis[0], slopes[0], float(Q(star)), float(Q.deriv()(star)), float(S(star)),
+            G, float(Q(0.0)))
+
+
 @cache
 def _defect_check(family, q):
     """``check`` of the residual tests at tau*, off the nodes, and of V = P - g S
@@ -845,10 +1125,7 @@ def _defect_check(family, q):
     S(tau*), G) at tau* = tau_0 / 2 (l0_j the basis on 0 and the nodes,
     R = prod_j (tau_j - tau) / tau_j)."""
     nodes = make_method(family, q).nodes
-    Q = np.polynomial.Polynomial.fromroots(nodes)
-    S = Q.integ(lbnd=0.0)
-    G, _ = divmod(S, np.polynomial.Polynomial([0.0, -1.0, 1.0]))
-    G = np.ascontiguousarray(G.coef[::-1])
+    Q, S, G = _shapes(nodes)
     if family == "cG":
         second = (nodes[-2] + 1) / 2
         # (off the nodes: U's defect is small at a node, where its nodal value superconverges)
@@ -875,13 +1152,10 @@ def _inside(times, t0, T):
     return bool(((times > t0) & (times < T)).any())
 
 
-def _reads_f(method, multi=False):
-    """Whether ``method``'s dense value reads f: cG(q), q >= 2, mono-adaptive dG(q),
-    q >= 1 (:func:`_evaluate_cg`, :func:`_evaluate_dg`), mcG(q), q >= 2
-    (:func:`_correct_cg`)."""
-    if method.family == "dG":
-        return method.q > 0 and not multi
-    return method.q > 1
+def _reads_f(method):
+    """Whether ``method``'s dense value reads f: cG(q) and mcG(q), q >= 2, dG(q) and mdG(q),
+    q >= 1 (:func:`_evaluate_cg`, :func:`_evaluate_dg`, :func:`_correct_multi`)."""
+    return method.q > (0 if method.family == "dG" else 1)
 
 
 def dense_rhs(method, ode):
@@ -1106,7 +1380,6 @@ class Solution:
             _evaluate_components(self._component_ptr, self.t_start, self._t_end, self.values,
                                  self.method.nodes, self.method.barycentric_weights,
                                  dense_rule(self.method), declared.t0, declared.u0, times, out)
-            # (mcG(1), mdG(q): nothing to add)
             if dense and self._rhs is not None and _inside(times, declared.t0, declared.T):
                 none = np.empty(0)
                 self._correct(self._component_ptr, self.t_start, self._t_end, self.values,
@@ -1122,15 +1395,18 @@ class Solution:
         return out
 
     def _correct(self, ptr, t_start, t_end, values, s_start, s_end, s_values, times, out):
-        """mcG(q), q >= 2: add the collocation correction to U at ``times`` in ``out``
-        (:func:`_correct_cg`), where the solution reads f (``_rhs``)."""
+        """mcG(q), q >= 2, mdG(q), q >= 1: the dense value inside the elements at ``times``
+        in ``out``, which holds the element polynomials (:func:`_correct_multi`), where the
+        solution reads f (``_rhs``)."""
         compiled = self._rhs
         if compiled is None:
             return
-        _correct_cg(ptr, t_start, t_end, values, s_start, s_end, s_values, self.method.nodes,
-                    self.method.barycentric_weights, compiled.rhs_component.address,
-                    compiled.indptr, compiled.indices, compiled.p,
-                    _defect_check(self.method.family, self.method.q), DEFECT_THETA, times, out)
+        method, declared = self.method, self._declaration
+        _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, method.nodes,
+                       method.barycentric_weights, method.left_value, float(declared.t0),
+                       np.asarray(declared.u0, dtype=float), compiled.rhs_component.address,
+                       compiled.indptr, compiled.indices, compiled.p, *self._dependents,
+                       _multi_check(method.family, method.q), DEFECT_THETA, times, out)
 
     def _evaluate_mono(self, times, rhs, out):
         """out = U at ``times`` from the shared partition, cG(q)'s dense value reading the
@@ -1142,11 +1418,17 @@ class Solution:
                       befores, times, out, rhs)
 
     @cached_property
+    def _dependents(self):
+        """(indptr, indices) of the components whose f_i reads each component (the
+        transposed pattern of ``_rhs``'s), read by :func:`_correct_multi`."""
+        return _transposed(self._rhs.indptr, self._rhs.indices)
+
+    @cached_property
     def _rhs(self):
         """The lowered ODE whose f the dense values of cG(q), mcG(q) and mono-adaptive dG(q)
-        read (:func:`_evaluate_cg`, :func:`_correct_cg`, :func:`_evaluate_dg`), None for
+        read (:func:`_evaluate_cg`, :func:`_correct_multi`, :func:`_evaluate_dg`), None for
         other methods and where the elements solve more than one model (a restart)."""
-        if "_restarts" in self.__dict__ or not _reads_f(self.method, self.multi):
+        if "_restarts" in self.__dict__ or not _reads_f(self.method):
             return None  # (the ode not read: a solution may make it on first read)
         return dense_rhs(self.method, self.ode)
 

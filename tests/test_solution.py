@@ -49,18 +49,22 @@ def test_samples_are_made_when_first_read(method):
     np.testing.assert_allclose(y, sol(sol.t), rtol=0, atol=0)
 
 
-@pytest.mark.parametrize("q, steps", [(2, (0.1, 0.05, 0.025)), (3, (0.2, 0.1, 0.05))])
-def test_mcg_values_inside_elements_converge_one_order_above_the_polynomial(q, steps):
-    """mcG(q), q >= 2, is evaluated inside its elements by the collocation polynomial
-    P = U + c Q, as mono cG(q): on the harmonic oscillator with fixed steps k for u and k / 2
-    for v (each reading the other inside its elements), the largest error at tau = 0.3, 0.5,
-    0.7 of every element converges with order q + 2, the polynomial U's with q + 1, and the
-    values at the element ends are U's nodal values."""
+@pytest.mark.parametrize("method, steps, order", [
+    ("mcG(2)", (0.2, 0.1, 0.05), 4), ("mcG(3)", (0.4, 0.2, 0.1), 6),
+    ("mdG(1)", (0.1, 0.05, 0.025), 3), ("mdG(2)", (0.2, 0.1, 0.05), 5)])
+def test_multi_values_inside_elements_converge_with_the_defect_correction(method, steps, order):
+    """mcG(q), mdG(q) are evaluated inside their elements by the defect-corrected collocation
+    polynomial V = P - g S, as mono cG(q), dG(q): on the harmonic oscillator with fixed steps
+    k for u and k / 2 for v (each reading the other inside its elements), the largest error
+    at tau = 0.3, 0.5, 0.7 of every element converges with order min(q + 3, the nodes')
+    (measured 4.0, 6.0, 3.0, 5.0; the collocation polynomial alone, as before: 4, 5, 2, 4),
+    the polynomial U's with q + 1, and the values at the element ends are U's nodal values."""
     u, v = sp.symbols("u v")
     ode = dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=2.0)
+    q = dn.parse_method(method)[1].q
     dense, galerkin = [], []
     for k in steps:
-        sol = dn.solve(ode, f"mcG({q})", fixed_time_step=True, initial_time_step={u: k, v: k / 2})
+        sol = dn.solve(ode, method, fixed_time_step=True, initial_time_step={u: k, v: k / 2})
         worst = np.zeros(2)
         for i, exact in enumerate((np.cos, lambda t: -np.sin(t))):
             a, h = sol.time_steps(i)
@@ -70,8 +74,57 @@ def test_mcg_values_inside_elements_converge_one_order_above_the_polynomial(q, s
             np.testing.assert_array_equal(sol(a + h)[i], sol._galerkin(a + h)[i])
         dense.append(worst[0])
         galerkin.append(worst[1])
-    assert np.all(np.log2(np.divide(dense[:-1], dense[1:])) > q + 1.8)
-    assert np.all(np.abs(np.log2(np.divide(galerkin[:-1], galerkin[1:])) - (q + 1)) < 0.2)
+    assert np.all(np.log2(np.divide(dense[:-1], dense[1:])) > order - 0.3), dense
+    if method.startswith("mcG"):  # (mdG(q)'s _galerkin is its collocation polynomial)
+        assert np.all(np.abs(np.log2(np.divide(galerkin[:-1], galerkin[1:])) - (q + 1)) < 0.2)
+
+
+def _lotka_volterra():
+    x, y = sp.symbols("x y")
+    return (dn.ODE({x: 1.5 * x - x * y, y: -3 * y + x * y}, u0=[1.0, 1.0], T=10.0),
+            lambda t, z: [1.5 * z[0] - z[0] * z[1], -3 * z[1] + z[0] * z[1]])
+
+
+def _forced_decay_pair():
+    x, y = sp.symbols("x y")  # x' = -x + sin 10 t driving y' = -y / 2 + x
+    return (dn.ODE({x: -x + sp.sin(10 * dn.t), y: -0.5 * y + x}, u0=[1.0, 0.0], T=3.0),
+            lambda t, z: [-z[0] + np.sin(10 * t), -0.5 * z[1] + z[0]])
+
+
+@pytest.mark.parametrize("problem", [_lotka_volterra, _forced_decay_pair])
+@pytest.mark.parametrize("method", ["mcG(2)", "mcG(3)", "mdG(1)", "mdG(2)", "mdG(3)"])
+def test_multi_interior_error_within_the_tolerance(problem, method):
+    # adaptive steps, tolerance 1e-7: inside every component's elements (tau = 0.1..0.9)
+    # mcG(q), mdG(q) are within a few times the tolerance, as at the ends (measured 0.09-2.2
+    # x; the collocation polynomial per component before: mcG(3) 2.1 / 32, mdG(1) 44 / 63,
+    # mdG(2) 10 / 18, mdG(3) 10 / 9.3 x on the two problems)
+    ode, f = problem()
+    reference = solve_ivp(f, (ode.t0, ode.T), ode.u0, method="DOP853", rtol=1e-13,
+                          atol=1e-15, dense_output=True).sol
+    sol = dn.solve(ode, method, tolerance=1e-7)
+    for i in range(ode.N):
+        a, h = sol.time_steps(i)
+        t = (a[:, None] + h[:, None] * np.arange(1, 10) / 10).ravel()
+        exact = reference(t)
+        error = np.abs(sol(t)[i] - exact[i]).max() / (1e-7 * (1 + np.abs(exact[i]).max()))
+        assert error < 3.0, f"{ode.states[i]}: inside {error:.3g} x"
+
+
+@pytest.mark.parametrize("method", ["mcG(2)", "mcG(3)", "mdG(1)", "mdG(2)"])
+def test_multi_dense_values_keep_linear_invariants_on_shared_intervals(method):
+    # x + y + z = 1 (w^T f = 0): the components coupled over elements of one interval take
+    # one kind of value there (V, P or U: corrections linear in f), so the sum holds inside
+    # as at the nodes (a kind per component: mcG(2) 9.4e-9; U: mdG(1) 2e-5, its components
+    # on one partition, each element's U starting after its jump)
+    x, y, z = sp.symbols("x y z")
+    ode = dn.ODE({x: -x + 0.5 * y, y: x - 20.5 * y + 5 * z, z: 20 * y - 5 * z},
+                 u0=[1.0, 0.0, 0.0], T=5.0)
+    sol = dn.solve(ode, method, tolerance=1e-6)
+    a, h = sol.time_steps(0)
+    inside = (a[:, None] + h[:, None] * np.arange(1, 10) / 10).ravel()
+    dense = sol(inside)
+    assert np.mean(np.any(dense != sol._galerkin(inside), axis=0)) > 0.5  # (corrected)
+    assert np.abs(dense.sum(axis=0) - 1.0).max() <= 1e-14
 
 
 def test_values_at_element_ends_are_nodal_values():
@@ -477,13 +530,14 @@ def test_dense_mdg_interior_error_as_mono_dg(fast_slow, q):
     assert errors[0] < 2 * errors[1], f"mdG({q}) {errors[0]:.3g}, dG({q}) {errors[1]:.3g}"
 
 
-@pytest.mark.parametrize("method", ["mdG(1)", "mdG(2)"])
-def test_dense_mdg_every_reader_agrees_and_keeps_the_ends(fast_slow, method, tmp_path,
-                                                          monkeypatch):
+@pytest.mark.parametrize("method", ["mdG(1)", "mdG(2)", "mdG(3)", "mcG(2)", "mcG(3)"])
+def test_dense_multi_every_reader_agrees_and_keeps_the_ends(fast_slow, method, tmp_path,
+                                                            monkeypatch):
     # element ends are each component's end node values bitwise; the mixed history, its
-    # joined elements, the samples of dense_output=False (the history in many chunks) and
-    # a stored history give the same dense values bitwise, and differ from the Galerkin
-    # polynomials inside
+    # joined elements and a stored history give the same dense values bitwise, and differ
+    # from the Galerkin polynomials inside. The samples of dense_output=False (the history
+    # in many chunks, a long element of one component stored chunks after the others'
+    # around it) are the values without f, sol._galerkin's
     import sys
 
     from dolfinode.solution import _evaluate_components, dense_rule
@@ -494,7 +548,7 @@ def test_dense_mdg_every_reader_agrees_and_keeps_the_ends(fast_slow, method, tmp
     monkeypatch.setattr(sys.modules["dolfinode.solve"], "_CHUNK_LIMIT", 64)
     sampled = dn.solve(ode, method, tolerance=1e-5, sample_times=times, dense_output=False)
     stored = dn.solve(ode, method, tolerance=1e-5, dense_output=str(tmp_path / "run.h5"))
-    np.testing.assert_array_equal(sampled.y, expected)
+    np.testing.assert_array_equal(sampled.y, sol._galerkin(times))
     np.testing.assert_array_equal(stored(times), expected)
     np.testing.assert_array_equal(dn.load_solution(tmp_path / "run.h5")(times), expected)
     ptr, t_start, t_end, values = sol.elements()  # (joins a mixed history)
@@ -506,7 +560,7 @@ def test_dense_mdg_every_reader_agrees_and_keeps_the_ends(fast_slow, method, tmp
     _evaluate_components(ptr, t_start, t_end, values, sol.method.nodes,
                          sol.method.barycentric_weights, dense_rule(sol.method, dense=False),
                          ode.t0, ode.u0, times, galerkin)
-    assert np.mean(galerkin != expected) > 0.5
+    assert np.mean(galerkin != expected) > 0.25  # (the stiff pair's elements: U)
 
 
 @pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])

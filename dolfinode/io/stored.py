@@ -224,12 +224,13 @@ class StoredSolution(Solution):
                           self._rhs if dense else None)
             return out
         ptr = self._component_ptr
-        needed = self._holding([times] * self.ode.N)
-        # (with each component's element before them: mdG(q)'s dense value reads its end)
-        needed = np.union1d(needed, needed[~np.isin(needed, ptr)] - 1)
+        needed = self._with_previous(self._holding([times] * self.ode.N))
         compiled = self._rhs if dense else None
-        if compiled is not None:  # (mcG(q)'s dense value reads f_i at its elements' nodes)
-            needed = np.union1d(needed, self._read_by(needed, compiled))
+        if compiled is not None:
+            # (the dense value reads f_i at its elements' nodes and tau*, the others there
+            # at their collocation polynomials, which read their neighbours alike)
+            read = self._with_previous(self._read_by(needed, compiled))
+            needed = np.union1d(np.union1d(needed, read), self._read_by(read, compiled))
         rows = self._rows[needed]
         order = np.argsort(rows)  # h5py reads rows in increasing order
         values = np.empty((needed.size, *self._stored.shape[1:]))
@@ -278,9 +279,14 @@ class StoredSolution(Solution):
             ptr[i] + np.minimum(np.searchsorted(self._t_end[ptr[i]:ptr[i + 1]], times[i]),
                                 ptr[i + 1] - ptr[i] - 1) for i in range(self.ode.N)]))
 
+    def _with_previous(self, elements):
+        """``elements`` with each one's previous element of its component (mdG(q)'s dense
+        value reads its end)."""
+        return np.union1d(elements, elements[~np.isin(elements, self._component_ptr)] - 1)
+
     def _read_by(self, elements, compiled):
         """The elements of the components that f_i reads at the nodes of component i's
-        ``elements`` and at the defect check's point (what :func:`_correct_cg` reads)."""
+        ``elements`` and at the defect check's point (what :func:`_correct_multi` reads)."""
         ptr = self._component_ptr
         star = _defect_check(self.method.family, self.method.q)[0]
         fractions = np.append(self.method.nodes, star)
