@@ -5,7 +5,7 @@ from functools import cache, cached_property
 import numpy as np
 from numba import njit
 
-from dolfinode.compile.jit import helper
+from dolfinode.compile.jit import first_use, helper
 from dolfinode.compile.lowering import lower
 from dolfinode.compile.signatures import address, component_kernel, rhs_kernel
 from dolfinode.linalg.banded import band_lu, band_solve
@@ -1186,19 +1186,21 @@ def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out, c
     Every reader of a mono-adaptive solution's elements (in memory, stored, streamed in
     chunks) evaluates through here."""
     if method.family == "cG" and _reads_f(method) and compiled is not None:
-        _evaluate_cg(t_start, t_end, values, method.nodes, method.barycentric_weights,
-                     compiled.rhs.address, compiled.jacobian.address, compiled.indptr,
-                     compiled.indices, compiled.p, _defect_check(method.family, method.q),
-                     DEFECT_THETA, times, out)
+        with first_use(_evaluate_cg, "cG(q)'s dense values", 6):
+            _evaluate_cg(t_start, t_end, values, method.nodes, method.barycentric_weights,
+                         compiled.rhs.address, compiled.jacobian.address, compiled.indptr,
+                         compiled.indices, compiled.p, _defect_check(method.family, method.q),
+                         DEFECT_THETA, times, out)
     elif method.family == "dG" and method.q > 0:
         nodes0, bary0 = _collocation_nodes(method.family, method.q)
         rhs, p, theta = ((0, np.empty(0), DENSE_THETA) if compiled is None
                          else (compiled.rhs.address, compiled.p, DEFECT_THETA))
-        _evaluate_dg(t_start, t_end, values, np.asarray(starts, dtype=float),
-                     np.asarray(befores, dtype=float).reshape(len(starts), values.shape[2]),
-                     method.nodes, method.barycentric_weights, nodes0, bary0,
-                     method.left_value, rhs, p, _defect_check(method.family, method.q),
-                     float(theta), times, out)
+        with first_use(_evaluate_dg, "dG(q)'s dense values", 2):
+            _evaluate_dg(t_start, t_end, values, np.asarray(starts, dtype=float),
+                         np.asarray(befores, dtype=float).reshape(len(starts), values.shape[2]),
+                         method.nodes, method.barycentric_weights, nodes0, bary0,
+                         method.left_value, rhs, p, _defect_check(method.family, method.q),
+                         float(theta), times, out)
     else:
         _evaluate_shared(t_start, t_end, values, method.nodes, method.barycentric_weights,
                          times, out)
@@ -1402,11 +1404,13 @@ class Solution:
         if compiled is None:
             return
         method, declared = self.method, self._declaration
-        _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, method.nodes,
-                       method.barycentric_weights, method.left_value, float(declared.t0),
-                       np.asarray(declared.u0, dtype=float), compiled.rhs_component.address,
-                       compiled.indptr, compiled.indices, compiled.p, *self._dependents,
-                       _multi_check(method.family, method.q), DEFECT_THETA, times, out)
+        with first_use(_correct_multi, "the multi-adaptive dense values", 7):
+            _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values,
+                           method.nodes, method.barycentric_weights, method.left_value,
+                           float(declared.t0), np.asarray(declared.u0, dtype=float),
+                           compiled.rhs_component.address, compiled.indptr, compiled.indices,
+                           compiled.p, *self._dependents, _multi_check(method.family, method.q),
+                           DEFECT_THETA, times, out)
 
     def _evaluate_mono(self, times, rhs, out):
         """out = U at ``times`` from the shared partition, cG(q)'s dense value reading the

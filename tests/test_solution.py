@@ -573,3 +573,23 @@ def test_values_at_t0_and_T_alone_are_those_of_the_dense_evaluation(method):
     np.testing.assert_array_equal(sol(0.0), with_inside[:, 0])
     np.testing.assert_array_equal(sol(5.0), with_inside[:, 2])
     np.testing.assert_array_equal(sol([5.0, 5.0]), with_inside[:, [2, 2]])
+
+
+def test_the_dense_values_announce_their_first_compile(monkeypatch):
+    """cG(q)'s, dG(q)'s and the multi-adaptive dense values compile for 2-7 s on their first
+    call: each is run under the compile notice (``first_use``) with its own routine."""
+    from dolfinode import solution
+
+    seen = []
+    real = solution.first_use
+
+    def recording(dispatcher, what, seconds):
+        seen.append(dispatcher.py_func.__name__)
+        return real(dispatcher, what, seconds)
+
+    monkeypatch.setattr(solution, "first_use", recording)
+    u, v = sp.symbols("u v")
+    ode = dn.ODE({u: v, v: -u}, u0=[1.0, 0.0], T=1.0)
+    for method in ("cG(2)", "dG(2)", "mcG(2)"):
+        dn.solve(ode, method=method, tolerance=1e-4)(0.5)
+    assert seen == ["_evaluate_cg", "_evaluate_dg", "_correct_multi"]
