@@ -111,14 +111,30 @@ def _steps(sol):
             return np.concatenate([sol.ode.u0[None, :], before]) if first == 0 else before
 
         return t_start, lambda rows: np.repeat(k[rows, None], N, axis=1), states
-    ptr, t_start, t_end, _ = sol.elements()
-    times = np.unique(t_start)
+    partitions = _partitions(sol)
+    times = np.unique(np.concatenate([start for start, _ in partitions]))
     steps = np.empty((times.size, N))
-    for i in range(N):
-        a, b = ptr[i], ptr[i + 1]
-        at = np.clip(np.searchsorted(t_start[a:b], times, side="right") - 1, 0, b - a - 1)
-        steps[:, i] = (t_end[a:b] - t_start[a:b])[at]
+    for i, (start, end) in enumerate(partitions):
+        at = np.clip(np.searchsorted(start, times, side="right") - 1, 0, start.size - 1)
+        steps[:, i] = (end - start)[at]
     return times, lambda rows: steps[rows], lambda rows: sol(times[rows]).T
+
+
+def _partitions(sol):
+    """Per component of a multi-adaptive ``sol``, its elements' (start, end), time-sorted;
+    of a mixed history (its own elements and shared slabs) without joining them, which
+    would copy every value (:class:`dolfinode.solution.MixedSolution`)."""
+    parts = sol.__dict__.get("_parts")
+    if parts is None:
+        ptr, t_start, t_end, _ = sol.elements()
+        return [(t_start[a:b], t_end[a:b]) for a, b in zip(ptr[:-1], ptr[1:])]
+    ptr, t_start, t_end, _, s_start, s_end, _ = parts
+    partitions = []
+    for a, b in zip(ptr[:-1], ptr[1:]):
+        start = np.concatenate([t_start[a:b], s_start])
+        order = np.argsort(start, kind="stable")
+        partitions.append((start[order], np.concatenate([t_end[a:b], s_end])[order]))
+    return partitions
 
 
 @njit(cache=True)
