@@ -19,6 +19,8 @@ of Re z selects the candidates, and the bound plus log max_i |k_i f_i| / (atol_i
 |U_i|) of log(a exp(z)) ranks them (at most MAX_CANDIDATES), so that a run without growing
 modes pays one Jacobian per step.
 """
+from itertools import pairwise
+
 import numpy as np
 from numba import njit
 
@@ -127,10 +129,10 @@ def _partitions(sol):
     parts = sol.__dict__.get("_parts")
     if parts is None:
         ptr, t_start, t_end, _ = sol.elements()
-        return [(t_start[a:b], t_end[a:b]) for a, b in zip(ptr[:-1], ptr[1:])]
+        return [(t_start[a:b], t_end[a:b]) for a, b in pairwise(ptr)]
     ptr, t_start, t_end, _, s_start, s_end, _ = parts
     partitions = []
-    for a, b in zip(ptr[:-1], ptr[1:]):
+    for a, b in pairwise(ptr):
         start = np.concatenate([t_start[a:b], s_start])
         order = np.argsort(start, kind="stable")
         partitions.append((start[order], np.concatenate([t_end[a:b], s_end])[order]))
