@@ -1169,7 +1169,10 @@ def check_error_at_T(ode, compiled, plan, multi_adaptive, m, params, sol, steps=
 
 def warn_spanned_growth(ode, compiled, m, params, sol):
     """A ToleranceWarning where a step of ``sol`` spans a growing mode whose error the
-    step control does not see (:func:`dolfinode.growth.spanned_growth`)."""
+    step control does not see (:func:`dolfinode.growth.spanned_growth`), for a history
+    held in memory (a file's is not read back: it may not fit)."""
+    if params["dense_output"] is not True:
+        return
     rtol = params["tolerance"]
     found = growth.spanned_growth(
         sol, compiled, m, _absolute_tolerance(ode, params["absolute_tolerance"], rtol), rtol)
