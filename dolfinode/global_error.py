@@ -46,7 +46,6 @@ either side of 10 x the tolerance.
 """
 import itertools
 from functools import lru_cache
-from math import factorial
 from types import SimpleNamespace
 
 import numpy as np
@@ -59,7 +58,7 @@ from dolfinode.family import _parts as family_parts
 from dolfinode.features import narrow_features
 from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.memory import SMALL_BYTES, available_memory
-from dolfinode.methods.method import lagrange_matrices, monomial_coefficients
+from dolfinode.methods.method import lagrange_matrices, monomial_coefficients, pade
 from dolfinode.methods.quadrature import radau
 from dolfinode.ode import t as time_symbol
 from dolfinode.solution import _evaluate_components, _set_initial, dense_rule
@@ -103,12 +102,7 @@ def _stability(s):
     """(numerator, denominator): the coefficients, lowest degree first, of the s-stage Radau
     IIA stability function P(z), the (s - 1, s) Pade approximant of exp(z): the flow the
     collocation applies to its initial value for a constant J."""
-    m, n = s - 1, s
-    num = [factorial(m + n - j) * factorial(m) / (factorial(m + n) * factorial(j)
-                                                    * factorial(m - j)) for j in range(m + 1)]
-    den = [(-1) ** j * factorial(m + n - j) * factorial(n)
-           / (factorial(m + n) * factorial(j) * factorial(n - j)) for j in range(n + 1)]
-    return np.array(num), np.array(den)
+    return pade(s - 1, s)
 
 
 @lru_cache(maxsize=32)

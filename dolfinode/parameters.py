@@ -60,6 +60,9 @@ _FOREIGN_NAMES = {
     "jac": "nothing: the exact sparse Jacobian is derived from the declaration",
 }
 
+#: Values of the declaration, which dn.Solver.solve takes per call and dn.solve does not.
+_DECLARATION_NAMES = ("u0", "params", "T", "t0")
+
 NONLINEAR_SOLVERS = ("default", "fixed-point", "newton")
 #: The subgrid models of automatic modeling (see :mod:`dolfinode.modeling.reduced`).
 SUBGRID_MODELS = ("auto", "constant", "affine", "flow")
@@ -241,6 +244,9 @@ _CHECKS = {
 def _suggestion(name):
     """'; did you mean ...?' for an unknown parameter name: scipy's names first, then the
     closest of dolfinode's."""
+    if name in _DECLARATION_NAMES:
+        return (f": {name} is the declaration's: set ode.{name} (the next solve uses it), or "
+                f"call dn.Solver(ode, method).solve({name}=...) for solves that vary it.")
     if name in _FOREIGN_NAMES:
         meant = _FOREIGN_NAMES[name]
         if " " in meant:

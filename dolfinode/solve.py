@@ -10,7 +10,7 @@ import numpy as np
 import sympy as sp
 
 from dolfinode import events as ev
-from dolfinode import global_error
+from dolfinode import global_error, growth
 from dolfinode import timeslab as ts
 from dolfinode.adaptivity import (
     UNDAMPED_DEVIATION,
@@ -1160,10 +1160,24 @@ def check_error_at_T(ode, compiled, plan, multi_adaptive, m, params, sol, steps=
     call's counters: reading sol.stats would make them)."""
     if params["estimate_global_error"] is False:
         return
+    warn_spanned_growth(ode, compiled, m, params, sol)
     smooth = plan is None or not plan.watched
     check = estimate_global_error if smooth else measure_piecewise_error
     check(ode, compiled, m, params, sol,
           longest_run(sol, multi_adaptive) if steps is None else steps)
+
+
+def warn_spanned_growth(ode, compiled, m, params, sol):
+    """A ToleranceWarning where a step of ``sol`` spans a growing mode whose error the
+    step control does not see (:func:`dolfinode.growth.spanned_growth`), for a history
+    held in memory (a file's is not read back: it may not fit)."""
+    if params["dense_output"] is not True:
+        return
+    rtol = params["tolerance"]
+    found = growth.spanned_growth(
+        sol, compiled, m, _absolute_tolerance(ode, params["absolute_tolerance"], rtol), rtol)
+    if found is not None:
+        _warn(growth.message(ode, m, found))
 
 
 def longest_run(sol, multi_adaptive):

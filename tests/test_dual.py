@@ -484,3 +484,30 @@ def test_an_automatic_modeling_solution_is_not_estimated_as_a_discretisation():
         dn.estimate_error(sol, {ode.states[0]: 1.0})
     with pytest.raises(ValueError, match="goal= cannot be combined with automatic_modeling"):
         dn.solve(ode, "cG(2)", tolerance=1e-4, automatic_modeling=True, goal={ode.states[0]: 1.0})
+
+
+def test_goal_past_double_precision_stops_with_the_cause():
+    """Goal 1/u(T), u' = -3u to T = 5 (u(T) = 3e-7) at goal tolerance 1e-2 needs atol 1e-14
+    on u, which starts at 1: the loop's solve raised ValueError about a tolerance of 1e-17
+    that the user had not given. It stops with the best solution and says why."""
+    u = sp.symbols("u")
+    ode = dn.ODE({u: -3 * u}, u0=[1.0], T=5.0)
+    with pytest.warns(RuntimeWarning, match="absolute tolerance of .* on u .* below what "
+                                            "double precision resolves"):
+        sol = dn.solve(ode, "cG(2)", tolerance=1e-2, goal=1 / u, absolute_tolerance=1e-6)
+    assert not sol.stats["goal tolerance reached"]
+    error = 1 / sol(ode.T)[0] - np.exp(15.0)
+    assert sol.error_estimate.value == pytest.approx(error, rel=0.1)
+
+
+def test_goal_primal_failure_at_tightened_tolerances_is_a_warning():
+    """dG(0) for goal 1/u(T), u' = -3u to T = 2: the third iteration's tolerances need more
+    than maximum_steps; the loop returns its last solution and names the failure."""
+    u = sp.symbols("u")
+    ode = dn.ODE({u: -3 * u}, u0=[1.0], T=2.0)
+    with pytest.warns(RuntimeWarning, match="the absolute tolerances the loop chose .* "
+                                            "maximum_steps"):
+        sol = dn.solve(ode, "dG(0)", tolerance=1e-2, goal=1 / u, maximum_steps=20000)
+    assert not sol.stats["goal tolerance reached"]
+    error = 1 / sol(ode.T)[0] - np.exp(6.0)
+    assert sol.error_estimate.value == pytest.approx(error, rel=0.1)

@@ -658,3 +658,15 @@ def test_check_of_affine_events_warns_as_the_full_sampling(monkeypatch, method):
         if tolerance == 1e-3 and method in ("cG(2)", "dG(1)", "dG(2)"):
             assert screened
     assert sum(cleared) > 0
+
+
+@pytest.mark.parametrize("method", ["dG(1)", "mdG(1)"])
+def test_breakpoints_given_at_a_jump_the_library_finds_are_that_jump(method):
+    # pi k / 3 given for sign(sin(3 t)) lie 2 ulp from the roots found: ValueError about a
+    # piece [1.0471975511965976, 1.0471975511965979] shorter than the smallest step
+    u = sp.symbols("u")
+    ode = dn.ODE({u: sp.sign(sp.sin(3 * dn.t)) - 0.5 * u}, u0=[0.0], T=6.0)
+    given = dn.solve(ode, method, tolerance=1e-6,
+                     breakpoints=[k * np.pi / 3 for k in range(1, 6)])
+    found = dn.solve(ode, method, tolerance=1e-6)
+    assert given(6.0)[0] == found(6.0)[0]

@@ -74,6 +74,14 @@ def test_scipy_names_suggest_dolfinodes(ode, scipy_name, meant):
         dn.solve(ode, **{scipy_name: 1e-3})
 
 
+@pytest.mark.parametrize("name", ["params", "u0", "T"])
+def test_declaration_values_passed_to_solve_say_where_they_live(ode, name):
+    # params= suggested 'progress'
+    with pytest.raises(ValueError, match=f"{name} is the declaration's: set ode.{name} .*"
+                                         f"Solver.*solve\\({name}="):
+        dn.solve(ode, **{name: 1.0})
+
+
 def test_scipy_arguments_without_a_parameter_say_where_they_live(ode):
     with pytest.raises(ValueError, match="'y0' .*scipy's name.*u0 of the ODE"):
         dn.solve(ode, y0=[1.0])

@@ -31,7 +31,9 @@ import warnings
 import numpy as np
 
 from dolfinode.dual.estimate import estimate_linearised
+from dolfinode.errors import SolverError
 from dolfinode.parameters import DEFAULTS
+from dolfinode.solve import MIN_TOLERANCE
 
 #: Fraction of the tolerance the next iteration aims at.
 _THETA = 0.5
@@ -69,7 +71,9 @@ def solve_for_goal(solve, ode, method, goal, tolerance, parameters):
         :class:`~dolfinode.dual.ErrorEstimate`) and ``sol.stats["goal iterations"]``,
         ``sol.stats["goal history"]`` (estimate, bound and elements per iteration) and
         ``sol.stats["goal tolerance reached"]``. A :class:`RuntimeWarning` says when the
-        tolerance was not reached within ``MAXIMUM_ITERATIONS``.
+        tolerance was not reached: within ``MAXIMUM_ITERATIONS``, or before the tolerances
+        it needs fall below what double precision resolves (:func:`unresolvable`), or a
+        primal solve at tightened tolerances fails (its error in the warning).
     """
     parameters = dict(parameters)
     start = parameters.pop("absolute_tolerance", None)
@@ -81,10 +85,20 @@ def solve_for_goal(solve, ode, method, goal, tolerance, parameters):
     best = None
     tightened = None  # the defect when the discrete tolerance was last divided
     step_bound = False  # the defect is the quadrature's: the steps must shrink
+    why = f"after {MAXIMUM_ITERATIONS} iterations"
     for iteration in range(1, MAXIMUM_ITERATIONS + 1):
         # rtol far below every atol: the dual weights alone set each component's tolerance
-        sol = solve(ode, method, tolerance=1e-3 * atol.min(), absolute_tolerance=atol,
-                    discrete_tolerance_factor=discrete, **parameters)
+        # (not below what double precision resolves: :func:`unresolvable` stops before)
+        try:
+            sol = solve(ode, method, tolerance=max(1e-3 * atol.min(), MIN_TOLERANCE),
+                        absolute_tolerance=atol, discrete_tolerance_factor=discrete,
+                        **parameters)
+        except SolverError as error:
+            if iteration == 1:
+                raise
+            why = (f"because the primal solve at the absolute tolerances the loop chose for "
+                   f"it (down to {atol.min():.3g}) failed: {error}")
+            break
         est = estimate_linearised(sol, goal)
         sol.error_estimate = est
         history.append({"value": est.value, "bound": est.bound,
@@ -96,8 +110,14 @@ def solve_for_goal(solve, ode, method, goal, tolerance, parameters):
         large = est.orthogonality_defect > _THETA * tolerance / 2
         if large and tightened is not None and est.orthogonality_defect > tightened / _FALL:
             step_bound = True
-        new = _update_tolerances(atol, est, tolerance, np.abs(sol.y).max(axis=1), step_bound)
+        size = np.abs(sol.y).max(axis=1)
+        new = _update_tolerances(atol, est, tolerance, size, step_bound)
         if met and np.all(new <= _BALANCED * atol):
+            break
+        below = unresolvable(ode, new, size)
+        if below is not None:
+            if not met:
+                why = below
             break
         atol = new
         tightened = None
@@ -107,13 +127,32 @@ def solve_for_goal(solve, ode, method, goal, tolerance, parameters):
     reached = best is not None
     if not reached:
         best = sol
-        warnings.warn(f"goal-oriented adaptivity stopped after {MAXIMUM_ITERATIONS} iterations "
-                      f"with the estimated goal error {abs(est.value):.3g} above the tolerance "
+        warnings.warn(f"goal-oriented adaptivity stopped {why}, with the estimated goal error "
+                      f"{abs(best.error_estimate.value):.3g} above the tolerance "
                       f"{tolerance:.3g}; use a higher-order method or a looser tolerance",
                       RuntimeWarning, stacklevel=3)
     best.stats.update({"goal iterations": iteration, "goal history": history,
                        "goal tolerance reached": reached})
     return best
+
+
+def unresolvable(ode, atol, size):
+    """Why the absolute tolerances ``atol`` the loop chose cannot be solved for, or None:
+    one is below what double precision resolves at its component's size (MIN_TOLERANCE x
+    max(|u0_i|, max |U_i| = ``size``_i)), where the step control's indicator is rounding.
+    A goal as sensitive as 1/u(T) to a u that decays from 1 to 3e-7 (u' = -3u, T = 5, goal
+    tolerance 1e-2) asked atol = 1e-14 with a loop-chosen tolerance of 1e-17, and the solve
+    raised an error about that tolerance, which the user had not given."""
+    floor = MIN_TOLERANCE * np.maximum(np.abs(ode.u0), size)
+    if np.all(atol >= floor):
+        return None
+    i = int(np.argmax(floor / atol))
+    return (f"because the goal needs an absolute tolerance of {atol[i]:.3g} on "
+            f"{ode.states[i].name} (its dual weight: the goal is that sensitive to it), below "
+            f"what double precision resolves at its size {floor[i] / MIN_TOLERANCE:.3g} "
+            f"({floor[i]:.3g}); a goal of a component that becomes small (1/u, log u) is "
+            f"better posed as its relative error, or give a goal tolerance the estimate can "
+            f"reach")
 
 
 def _update_tolerances(atol, est, tolerance, size, step_bound=False):

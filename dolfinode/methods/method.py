@@ -12,6 +12,7 @@ Galerkin equations solved in 60-digit arithmetic (see ``galerkin_weights``).
 import re
 from dataclasses import dataclass
 from functools import cache
+from math import factorial
 
 import mpmath as mp
 import numpy as np
@@ -236,6 +237,26 @@ def stage_eigenstructure(A):
                            + [complex(B[c, c], B[c + 1, c]) for c in range(r, len(lam), 2)],
                            dtype=complex)
     return T, T_inverse, eigenvalues
+
+
+def pade(m, n):
+    """(numerator, denominator): the coefficients, lowest degree first, of the (m, n) Pade
+    approximant of exp(z), P(z) = sum_j a_j z^j / sum_j b_j z^j with
+
+        a_j = (m + n - j)! m! / ((m + n)! j! (m - j)!),
+        b_j = (-1)^j (m + n - j)! n! / ((m + n)! j! (n - j)!)."""
+    num = [factorial(m + n - j) * factorial(m) / (factorial(m + n) * factorial(j)
+                                                    * factorial(m - j)) for j in range(m + 1)]
+    den = [(-1) ** j * factorial(m + n - j) * factorial(n)
+           / (factorial(m + n) * factorial(j) * factorial(n - j)) for j in range(n + 1)]
+    return np.array(num), np.array(den)
+
+
+def stability_function(method):
+    """(numerator, denominator) of ``method``'s stability function R(z), U_n = R(k lambda)
+    U_{n-1} on u' = lambda u: the (q, q) Pade approximant of exp(z) for cG(q) (A-stable,
+    |R(+-inf)| = 1), the (q, q + 1) one for dG(q) (L-stable, R(+-inf) = 0)."""
+    return pade(method.q, method.q + (method.family == "dG"))
 
 
 def _frozen(values):

@@ -58,6 +58,11 @@ def trend_basis(samples):
     return basis
 
 
+#: A component whose range over the window, max u - min u, is at most REST_ROUNDING x its size
+#: is at rest there (its values differ by rounding): drift 0.
+REST_ROUNDING = 64 * np.finfo(float).eps
+
+
 @dataclass
 class WindowAverages:
     """Averages of the full model over one resolved window [t_c - tau, t_c + tau].
@@ -69,7 +74,8 @@ class WindowAverages:
     f_bar : average of f(u(t), t)
     g_bar : the variance  g-bar = f-bar - f(u-bar, t_c)
     drift : |u-bar(t_c + tau/2) - u-bar(t_c - tau/2)| / (max u - min u) per component: the
-        change of the average relative to the oscillation (DOLFIN's activity test)
+        change of the average relative to the oscillation (DOLFIN's activity test); 0 for a
+        component at rest (max u - min u within rounding of |u|, REST_ROUNDING)
     fluctuation : u(t_c + tau) - u-bar(t_c): a point on the fast orbit, used as the
         perturbation that restarts the full model at control points
     halves : the averages of the two half windows, :class:`HalfWindow` about t_c -+ tau / 2
@@ -174,8 +180,10 @@ class WindowAverager:
         """The :class:`WindowAverages` once every piece is recorded."""
         u_bar, f_bar, first, second, f_first, f_second = self._sums
         spread = self._max - self._min
+        # at rest (no spread above the rounding of its size): its average does not move
+        rest = spread <= REST_ROUNDING * np.maximum(np.abs(self._max), np.abs(self._min))
         with np.errstate(divide="ignore", invalid="ignore"):
-            drift = np.where(spread > 0, np.abs(second - first) / spread, np.inf)
+            drift = np.where(rest, 0.0, np.abs(second - first) / spread)
         halves = (HalfWindow(self.center - self.tau / 2, first, f_first),
                   HalfWindow(self.center + self.tau / 2, second, f_second))
         residual = np.maximum(self._squares - np.sum(self._trend**2, axis=1), 0.0)

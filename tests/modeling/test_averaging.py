@@ -92,3 +92,17 @@ def test_amplitude_of_a_fast_oscillation_about_a_slow_trend(amplitude):
     averager.record(Piece())
     measured = averager.averages().amplitude[0]
     assert measured == pytest.approx(amplitude, rel=0.02, abs=1e-9)
+
+
+@pytest.mark.parametrize("subgrid_model", ["constant", "affine", "auto"])
+def test_fast_component_at_rest_has_zero_drift_and_is_inactivated(subgrid_model):
+    # u2 at rest (x0 = v0 = 0) had drift inf: "constant" and "affine" refused it as moving
+    u1, u2, k = sp.symbols("u1 u2 kappa")
+    ode = dn.ODE.second_order({u1: -u1 + u2**2 / 2 + 1, u2: -k * u2},
+                              x0={u1: 0.0, u2: 0.0}, v0={u1: 0.0, u2: 0.0}, T=20.0,
+                              params={k: 1e8})
+    sol = dn.solve(ode, "cG(2)", tolerance=1e-4, automatic_modeling=True,
+                   average_length=1e-2, subgrid_model=subgrid_model)
+    assert set(sol.model.inactive) == {ode.states[1], ode.states[3]}
+    t = np.linspace(0.0, 20.0, 201)
+    assert np.max(np.abs(sol(t)[0] - (1 - np.cos(t)))) < 1e-4
