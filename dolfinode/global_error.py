@@ -861,9 +861,27 @@ SECOND_ORDER = (("the error grew along the run to where f's nonlinearity moves t
                  "estimate across 10 x the tolerance (sol.stats['global error second order']: "
                  "a phase error of a nonlinear oscillation over many periods)"),
                 "Try a tighter tolerance, a higher order, or dn.estimate_error with a goal")
+NONLINEAR = (("the error equation is far from linear along this run (sol.stats['global error "
+              "nonlinearity'] > NONLINEAR_LIMIT), so that the linearised estimate neither "
+              "confirms nor excludes an error above the tolerance"),
+             "Try a tighter tolerance, or dn.estimate_error with a goal")
 NOT_SMOOTH = (("f jumps, switches or an event ends the run, where the linearised estimate, "
                "made for one smooth f, does not apply"),
               "Try a tighter tolerance or a higher order")
+
+
+def measured_midrun_warning(peak, time, size, rtol, state, factor, reason):
+    """The ToleranceWarning's message for an error mid-run ``peak`` (as :func:`scaled`, of
+    ``state`` at ``time``) measured against a solve at ``factor`` x the tolerance ``rtol``
+    for ``reason`` (as :func:`reference_warning`'s), where the error at T, ``size``, is
+    within WARN_FACTOR x the tolerance; None where ``peak`` is within it too."""
+    if peak <= WARN_FACTOR * rtol:
+        return None
+    why, advice = reason
+    return (f"the error mid-run is {peak / rtol:.3g} x the tolerance at t = {time:.6g} (in "
+            f"{state}; sol.stats['global error mid-run'] = {peak:.3g}), though {size / rtol:.3g} "
+            f"x at T, measured against a solve at {factor:g} x the tolerance: {why}. Values "
+            f"read before T may be that far off. {advice}")
 
 
 def reference_warning(size, rtol, state, factor, reason):

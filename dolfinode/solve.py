@@ -1242,7 +1242,9 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
     :func:`global_error.carried`, :func:`global_error.slab_estimate`,
     :func:`global_error.modal_estimate`), "global error mid-run", with a ToleranceWarning
     where it exceeds 10 x the tolerance and the error at T does not
-    (:func:`_midrun_warning`)."""
+    (:func:`_midrun_warning`). Where the nonlinearity exceeds NONLINEAR_LIMIT, so that the
+    estimate certifies nothing, and it or its remainder reaches 10 x at T or its mid-run
+    value does, both are measured against a reference solve (:func:`_measure`)."""
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
     peak = np.zeros(3)  # the error mid-run: value, time, component
@@ -1285,14 +1287,21 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
         if why:
             _warn(why)
         return
+    if (nu > global_error.NONLINEAR_LIMIT and size <= global_error.WARN_FACTOR * rtol
+            < max(size + delta, peak[0])):
+        # not certified either way (far from linear), and near 10 x at T or past it mid-run:
+        # measured (Van der Pol, mu = 10, dG(0) at 1e-2: 584 x mid-run, estimated 1184 x)
+        _measure(ode, params, sol, atol, global_error.NONLINEAR, midrun=True)
+        return
     why = global_error.warning(size, nu, rtol, ode.states[i])
     why = why or _midrun_warning(ode, compiled, sol, peak, nu, rtol, atol)
     if why and nu > global_error.NONLINEAR_LIMIT and np.isfinite(size):
-        measured = _reference_error(ode, params, sol, atol)
-        if measured is not None:
-            sol.stats["global error estimate"], i = measured
+        reference = _reference(ode, params, sol, atol)
+        if reference is not None:
+            measured, i, _ = _reference_error(sol, reference, atol, rtol)
+            sol.stats["global error estimate"] = measured
             sol.stats["global error reference"] = rtol * REFERENCE_FACTOR
-            why = global_error.measured_warning(measured[0], size, nu, rtol, ode.states[i],
+            why = global_error.measured_warning(measured, size, nu, rtol, ode.states[i],
                                                 REFERENCE_FACTOR)
     if why:
         _warn(why)
@@ -1321,7 +1330,7 @@ def _stiff_on_slabs(ode, params, sol, atol):
     """The error at T of a larger run stiff on its slabs, where the slab estimate gives up
     (and it is not linear of at most MAX_DENSE components: global_error.modal_estimate):
     measured against a REFERENCE_METHOD solve at REFERENCE_FACTOR x the tolerance
-    (:func:`_reference_error`), with a ToleranceWarning above 10 x the tolerance, or where
+    (:func:`_reference`), with a ToleranceWarning above 10 x the tolerance, or where
     that solve fails, one that says the error could not be estimated. The stage-system
     estimate, L-stable, would follow the stiff modes, but damps a weakly damped oscillation
     the steps span (a stiff spring) as dG(q) does, and costs many times such a run (a
@@ -1332,22 +1341,54 @@ def _stiff_on_slabs(ode, params, sol, atol):
     _measure(ode, params, sol, atol, global_error.STIFF_SLABS)
 
 
-def _measure(ode, params, sol, atol, reason):
+def _measure(ode, params, sol, atol, reason, midrun=False):
     """sol.stats["global error estimate"] measured against a reference solve
-    (:func:`_reference_error`, at REFERENCE_FACTOR x the tolerance: "global error
-    reference"), and the ToleranceWarning of :func:`global_error.reference_warning` for
-    ``reason`` above WARN_FACTOR x the tolerance, or where the reference solve failed."""
+    (:func:`_reference`, at REFERENCE_FACTOR x the tolerance: "global error reference"), and
+    the ToleranceWarning of :func:`global_error.reference_warning` for ``reason`` above
+    WARN_FACTOR x the tolerance, or where the reference solve failed. ``midrun``: also
+    "global error mid-run", measured at the run's element ends (:func:`_reference_midrun`),
+    with a ToleranceWarning where it exceeds WARN_FACTOR x the tolerance and the error at T
+    does not."""
     rtol = params["tolerance"]
-    measured = _reference_error(ode, params, sol, atol)
-    if measured is None:
+    reference = _reference(ode, params, sol, atol)
+    if reference is None:
         _warn(global_error.reference_warning(None, rtol, None, REFERENCE_FACTOR, reason))
         return
-    sol.stats["global error estimate"], i = measured
+    size, i, end = _reference_error(sol, reference, atol, rtol)
+    sol.stats["global error estimate"] = size
     sol.stats["global error reference"] = rtol * REFERENCE_FACTOR
-    why = global_error.reference_warning(measured[0], rtol, ode.states[i], REFERENCE_FACTOR,
-                                         reason)
+    why = global_error.reference_warning(size, rtol, ode.states[i], REFERENCE_FACTOR, reason)
+    if midrun:
+        peak, time, j = _reference_midrun(sol, reference, end, atol, rtol)
+        sol.stats["global error mid-run"] = peak
+        why = why or global_error.measured_midrun_warning(peak, time, size, rtol, ode.states[j],
+                                                          REFERENCE_FACTOR, reason)
     if why:
         _warn(why)
+
+
+#: Element ends compared at once by :func:`_reference_midrun` (bounds its (N, M) arrays).
+MIDRUN_CHUNK = 2**16
+
+
+def _reference_midrun(sol, reference, end, atol, rtol):
+    """(peak, t, j): the largest error of ``sol`` against ``reference`` at the element ends
+    before ``end`` (every component's, at the union of the ends), scaled as
+    :func:`global_error.scaled`, its time and component."""
+    if sol.multi:
+        ends = np.unique(np.concatenate([np.add(*sol.time_steps(i)) for i in range(sol.ode.N)]))
+    else:
+        ends = np.add(*sol.time_steps())
+    ends = ends[ends < end]
+    peak, time, j = 0.0, float(end), 0
+    for first in range(0, ends.size, MIDRUN_CHUNK):
+        times = ends[first:first + MIDRUN_CHUNK]
+        V = reference(times)
+        ratio = np.abs(sol(times) - V) / (atol[:, None] / rtol + np.abs(V))
+        r, c = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+        if ratio[r, c] > peak:
+            peak, time, j = float(ratio[r, c]), float(times[c]), int(r)
+    return peak, time, j
 
 
 #: sol.stats["global error note"] of a larger run with fixed steps stiff on its slabs: there
@@ -1378,7 +1419,7 @@ REFERENCE_FACTOR, REFERENCE_METHOD, REFERENCE_STEPS = 1e-2, "dG(3)", 20
 def measure_piecewise_error(ode, compiled, m, params, sol, steps):
     """The error at T of ``sol``, a solve of ``ode`` with events, breakpoints or switches in
     f (where the linearised estimate, made for one smooth f, does not apply), measured
-    against a reference solve (:func:`_reference_error`) when
+    against a reference solve (:func:`_reference`) when
     ``params["estimate_global_error"]`` asks for it (as :func:`estimate_global_error`), into
     sol.stats["global error estimate"], with a ToleranceWarning above WARN_FACTOR x the
     tolerance or where the reference solve failed (:func:`_measure`)."""
@@ -1391,11 +1432,10 @@ def measure_piecewise_error(ode, compiled, m, params, sol, steps):
                  global_error.NOT_SMOOTH)
 
 
-def _reference_error(ode, params, sol, atol):
-    """(size, i): U(T) - V(T) scaled as the tolerance means it (:func:`global_error.scaled`,
-    by V(T), the closer to u(T)), V(T) of a solve by REFERENCE_METHOD at REFERENCE_FACTOR x
-    the tolerance (T: where ``sol`` ends, or the reference where a terminal event ended it
-    first); None where that solve fails or loses a component (:func:`lost_components`)."""
+def _reference(ode, params, sol, atol):
+    """The solve of ``ode`` by REFERENCE_METHOD at REFERENCE_FACTOR x the tolerance that
+    ``sol``'s error is measured against; None where it fails or loses a component
+    (:func:`lost_components`)."""
     rtol = params["tolerance"]
     tighter = {**params, "tolerance": rtol * REFERENCE_FACTOR,
                "absolute_tolerance": atol * REFERENCE_FACTOR, "estimate_global_error": False,
@@ -1409,10 +1449,17 @@ def _reference_error(ode, params, sol, atol):
         return None
     if lost_components(ode, lower(ode), reference):  # (it lost what the run kept)
         return None
+    return reference
+
+
+def _reference_error(sol, reference, atol, rtol):
+    """(size, i, end): U(end) - V(end) scaled as the tolerance means it
+    (:func:`global_error.scaled`, by V, the closer to u), V the ``reference`` solve
+    (:func:`_reference`); end: T, or where a terminal event ended either run first."""
     # (what evaluation reads: a prepared solution's declaration is made when read)
     end = min(sol._declaration.T, reference._declaration.T)
     V = reference(end)
-    return global_error.scaled(sol(end) - V, V, atol, rtol)
+    return (*global_error.scaled(sol(end) - V, V, atol, rtol), end)
 
 
 def _warn(why):

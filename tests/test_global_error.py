@@ -827,3 +827,27 @@ def test_a_mono_adaptive_error_the_run_damps_before_t_is_warned():
     assert true > global_error.WARN_FACTOR * 1e-9
     assert 0.5 * true <= warned * 1e-9 <= 2 * true
     assert "mono-adaptive method" not in told["cG(3)"][0]
+
+
+@pytest.mark.parametrize("method", ["dG(0)", "mdG(0)"])
+def test_a_midrun_error_the_estimate_cannot_certify_is_measured(method):
+    """Van der Pol, mu = 10, at 1e-2: the error equation is far from linear (nu 150-290 >
+    NONLINEAR_LIMIT) and the estimate puts the error at T within 10 x, so nothing was
+    compared; mid-run the run is 580-700 x off. Measured against the reference solve at the
+    element ends: warned, the value within 20 % of the error against Radau at 1e-12."""
+    x, y = sp.symbols("x y")
+    ode = dn.ODE({x: y, y: 10 * (1 - x**2) * y - x}, u0=[2.0, 0.0], T=20.0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sol = dn.solve(ode, method, tolerance=1e-2)
+    assert sol.stats["global error nonlinearity"] > global_error.NONLINEAR_LIMIT
+    reference = solve_ivp(lambda t, u: [u[1], 10 * (1 - u[0]**2) * u[1] - u[0]], (0.0, 20.0),
+                          [2.0, 0.0], method="Radau", rtol=1e-12, atol=1e-12, dense_output=True)
+    ends = np.unique(np.concatenate([np.add(*sol.time_steps(i)) for i in range(2)])
+                     if sol.multi else np.add(*sol.time_steps()))
+    V = reference.sol(ends[ends < 20.0])
+    error = np.max(np.abs(sol(ends[ends < 20.0]) - V) / (1.0 + np.abs(V))) / 1e-2
+    assert error > 100
+    midrun = [str(w.message) for w in caught if "mid-run" in str(w.message)]
+    assert len(midrun) == 1 and "measured against a solve" in midrun[0]
+    assert sol.stats["global error mid-run"] / 1e-2 == pytest.approx(error, rel=0.2)
