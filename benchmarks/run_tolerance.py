@@ -92,7 +92,8 @@ def delivered(problem, method, tolerance, calibrate, global_error="auto"):
         except dn.SolverError:
             return float("inf"), 0, 0, False
     told = [str(w.message) for w in caught if issubclass(w.category, dn.ToleranceWarning)]
-    midrun = [m for m in told if m.startswith("the estimated error mid-run")]
+    midrun = [m for m in told
+              if m.startswith(("the estimated error mid-run", "the measured error mid-run"))]
     warned = "mid-run" if told and len(midrun) == len(told) else bool(told)
     scored = list(problem.scored or range(problem.ode.N))
     final = problem.final[scored]

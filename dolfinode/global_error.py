@@ -870,18 +870,19 @@ NOT_SMOOTH = (("f jumps, switches or an event ends the run, where the linearised
               "Try a tighter tolerance or a higher order")
 
 
-def measured_midrun_warning(peak, time, size, rtol, state, factor, reason):
+def measured_midrun_warning(peak, time, size, rtol, state, factor, reason, shift=np.inf):
     """The ToleranceWarning's message for an error mid-run ``peak`` (as :func:`scaled`, of
     ``state`` at ``time``) measured against a solve at ``factor`` x the tolerance ``rtol``
     for ``reason`` (as :func:`reference_warning`'s), where the error at T, ``size``, is
-    within WARN_FACTOR x the tolerance; None where ``peak`` is within it too."""
+    within WARN_FACTOR x the tolerance; None where ``peak`` is within it too. ``shift`` as
+    :func:`midrun_warning`'s."""
     if peak <= WARN_FACTOR * rtol:
         return None
     why, advice = reason
-    return (f"the error mid-run is {peak / rtol:.3g} x the tolerance at t = {time:.6g} (in "
-            f"{state}; sol.stats['global error mid-run'] = {peak:.3g}), though {size / rtol:.3g} "
-            f"x at T, measured against a solve at {factor:g} x the tolerance: {why}. Values "
-            f"read before T may be that far off. {advice}")
+    return (f"the measured error mid-run is {peak / rtol:.3g} x the tolerance at t = "
+            f"{time:.6g} (in {state}; sol.stats['global error mid-run'] = {peak:.3g}), though "
+            f"{size / rtol:.3g} x at T, against a solve at {factor:g} x the tolerance: {why}. "
+            f"Values read before T may be that far off. {advice}.{_phase(state, shift)}")
 
 
 def reference_warning(size, rtol, state, factor, reason):
@@ -1432,17 +1433,23 @@ def midrun_warning(peak, time, size, nu, rtol, state, shift=np.inf, multi=True):
     1e-12 to 2e-5)."""
     if peak <= WARN_FACTOR * rtol or size > WARN_FACTOR * rtol or nu > NONLINEAR_LIMIT:
         return None
-    phase = (f" At {state}'s rate there, that is its change over {shift:.2g} of time: if a "
-             "fast transition is that near, the error is its phase, the transition's time off "
-             "by about that much." if np.isfinite(shift) else "")
     advice = (", or the mono-adaptive method (cG(q)/dG(q)) for a stiff component read by "
               "others or a front along a chain" if multi else "")
     return (f"the estimated error mid-run is {peak / rtol:.3g} x the tolerance at t = "
             f"{time:.6g} (in {state}, at its element end; sol.stats['global error mid-run'] = "
             f"{peak:.3g}), though {size / rtol:.3g} x at T: the run damps or cancels it before "
             "T, or the solution is larger there against it. Values read before T may be that "
-            f"far off: try a tighter tolerance{advice}."
-            f"{phase}")
+            f"far off: try a tighter tolerance{advice}.{_phase(state, shift)}")
+
+
+def _phase(state, shift):
+    """The mid-run warnings' sentence on a fast transition's phase: ``shift``, the time over
+    which ``state`` changes by the error at its rate there ("" where not finite)."""
+    if not np.isfinite(shift):
+        return ""
+    return (f" At {state}'s rate there, that is its change over {shift:.2g} of time: if a "
+            "fast transition is that near, the error is its phase, the transition's time off "
+            "by about that much.")
 
 
 def warning(size, nu, rtol, state):

@@ -1319,11 +1319,18 @@ def _midrun_warning(ode, compiled, sol, peak, nu, rtol, atol):
     if largest <= global_error.WARN_FACTOR * rtol:  # (no warning: skip the f evaluation)
         return None
     j = int(j)
-    U = sol(time)
-    rate = abs(compiled.f_component(j, U, time))
-    shift = largest * (atol[j] / rtol + abs(U[j])) / rate if rate > 0.0 else np.inf
+    shift = _time_shift(compiled, sol, largest, time, j, atol, rtol)
     return global_error.midrun_warning(largest, time, sol.stats["global error estimate"], nu,
                                        rtol, ode.states[j], shift, sol.multi)
+
+
+def _time_shift(compiled, sol, error, time, j, atol, rtol):
+    """|e_j| / |f_j(U, t)|: the time over which U_j changes by its error at ``time`` at its
+    rate there, |e_j| = ``error`` (atol_j / rtol + |U_j|) (scaled as global_error.scaled);
+    inf where U_j does not change."""
+    U = sol(time)
+    rate = abs(compiled.f_component(j, U, time))
+    return error * (atol[j] / rtol + abs(U[j])) / rate if rate > 0.0 else np.inf
 
 
 def _stiff_on_slabs(ode, params, sol, atol):
@@ -1361,8 +1368,10 @@ def _measure(ode, params, sol, atol, reason, midrun=False):
     if midrun:
         peak, time, j = _reference_midrun(sol, reference, end, atol, rtol)
         sol.stats["global error mid-run"] = peak
-        why = why or global_error.measured_midrun_warning(peak, time, size, rtol, ode.states[j],
-                                                          REFERENCE_FACTOR, reason)
+        if not why and peak > global_error.WARN_FACTOR * rtol:
+            why = global_error.measured_midrun_warning(
+                peak, time, size, rtol, ode.states[j], REFERENCE_FACTOR, reason,
+                _time_shift(lower(ode), sol, peak, time, j, atol, rtol))
     if why:
         _warn(why)
 
