@@ -1020,6 +1020,19 @@ def _value(coef, el, tau):
 
 
 @njit(cache=True)
+def _add_residual(mu, i, coef, row, tau, k, f_i, weight, length, wt):
+    """mu[m, i] += (U_i' - f_i) weight length wt^m at tau of an element of length k whose
+    monomial coefficients in tau are coef[row] (a quadrature point of a moment sum)."""
+    du = 0.0
+    for r in range(coef.shape[1] - 1, 0, -1):
+        du = du * tau + r * coef[row, r]
+    value = (du / k - f_i) * weight * length
+    for m in range(mu.shape[0]):
+        mu[m, i] += value
+        value *= wt
+
+
+@njit(cache=True)
 def _element_at(t_end, lo, hi, t):
     """The first element in lo..hi - 1 (time-sorted) ending at or after t (hi - 1 if none)."""
     hi -= 1
@@ -1058,7 +1071,6 @@ def _slab_moments(fi, p, indptr, indices, first, last, t_start, t_end, coef, bef
     first[i]..last[i] - 1 (U_i(t_n-) = before[i]), each part split where an element of a
     component f_i reads ends (``cursor``: room for J's nonzeros)."""
     h = sb - sa
-    q1 = coef.shape[1]
     mu[:] = 0.0
     for i in range(x.size):
         el = _element_at(t_end, first[i], last[i], sa)
@@ -1097,14 +1109,8 @@ def _slab_moments(fi, p, indptr, indices, first, last, t_start, t_end, coef, bef
                     tau = (t - a) / k
                     x[i] = _value(coef, el, tau)
                     fi(i, address(x, 0), t, address(p, 0), address(out, 0))
-                    du = 0.0
-                    for r in range(q1 - 1, 0, -1):
-                        du = du * tau + r * coef[el, r]
-                    r_value = (du / k - out[0]) * gw[g] * (s1 - s0)
-                    wt = (sb - t) / h
-                    for m in range(mu.shape[0]):
-                        mu[m, i] += r_value
-                        r_value *= wt
+                    _add_residual(mu, i, coef, el, tau, k, out[0], gw[g], s1 - s0,
+                                  (sb - t) / h)
                 s0 = s1
             el += 1
 
@@ -1142,7 +1148,6 @@ def _shared_moments(f, p, sc, before, continuous, gx, gw, ta, tb, sa, sb, mu, x,
     """mu as :func:`_slab_moments` on a shared slab (ta, tb]: every component on one element,
     monomial coefficients sc[i] in tau = (t - ta) / (tb - ta), its residual by f at once."""
     K, h = tb - ta, sb - sa
-    q1 = sc.shape[1]
     mu[:] = 0.0
     if not continuous and sa == ta:  # the jumps at ta, weight 1
         for i in range(x.size):
@@ -1155,13 +1160,7 @@ def _shared_moments(f, p, sc, before, continuous, gx, gw, ta, tb, sa, sb, mu, x,
         f(address(x, 0), t, address(p, 0), address(fx, 0))
         wt = (sb - t) / h
         for i in range(x.size):
-            du = 0.0
-            for r in range(q1 - 1, 0, -1):
-                du = du * tau + r * sc[i, r]
-            r_value = (du / K - fx[i]) * gw[g] * h
-            for m in range(mu.shape[0]):
-                mu[m, i] += r_value
-                r_value *= wt
+            _add_residual(mu, i, sc, i, tau, K, fx[i], gw[g], h, wt)
 
 
 @njit(cache=True)
@@ -1171,7 +1170,6 @@ def _piece_moments(f, p, current, first, t_start, t_end, coef, before, continuou
     ends, each component i on its element current[i]: the residual of all by f at once
     (no split at the neighbours' ends, none inside)."""
     h = sb - sa
-    q1 = coef.shape[1]
     mu[:] = 0.0
     for i in range(x.size):
         el = current[i]
@@ -1189,14 +1187,7 @@ def _piece_moments(f, p, current, first, t_start, t_end, coef, before, continuou
         for i in range(x.size):
             el = current[i]
             k = t_end[el] - t_start[el]
-            tau = (t - t_start[el]) / k
-            du = 0.0
-            for r in range(q1 - 1, 0, -1):
-                du = du * tau + r * coef[el, r]
-            r_value = (du / k - fx[i]) * gw[g] * h
-            for m in range(mu.shape[0]):
-                mu[m, i] += r_value
-                r_value *= wt
+            _add_residual(mu, i, coef, el, (t - t_start[el]) / k, k, fx[i], gw[g], h, wt)
 
 
 @njit(cache=True)
