@@ -254,6 +254,21 @@ def fixed_point(f, p, x0, f0, t, k, A, b0, tau, atol, rtol, dtol, max_iter, X, F
     return -1
 
 
+@njit(cache=True)
+def transformed_tables(A, b0, T_inverse, A_hat, b0_hat):
+    """A_hat = T^{-1} A, b0_hat = T^{-1} b0: the tables of :func:`newton`'s transformed
+    residual."""
+    S = A.shape[0]
+    for j in range(S):
+        b0_hat[j] = 0.0
+        for m in range(S):
+            b0_hat[j] += T_inverse[j, m] * b0[m]
+        for n in range(S):
+            A_hat[j, n] = 0.0
+            for m in range(S):
+                A_hat[j, n] += T_inverse[j, m] * A[m, n]
+
+
 @njit(cache=True, inline="always")
 def near_step(k, k_factored, ratio):
     """Whether factors made on the step k_factored (0: none) serve the step k: the two within
@@ -291,8 +306,8 @@ def factor_stages(jb, k, eigenvalues, structure, ab_real, ab_complex, ipiv, coun
 @linked(returns=types.int64, what="the stiff solver", seconds=4)
 @helper(**NO_REFCOUNT)
 def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_iter, theta_max,
-           give_up, X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w,
-           counters, rate):
+           give_up, transformed, X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real,
+           z_complex, w, counters, rate):
     """Simplified Newton iteration on the stages, (I - k A (x) J) dX = -G(X), with the
     factors of :func:`factor_stages`: with A = T B T^{-1} (``T``, ``T_inverse``) the system is
     (I - k B (x) J) Z = -(T^{-1} (x) I) G, dX = (T (x) I) Z, and B's blocks decouple it into
@@ -308,7 +323,20 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
     when theta/(1 - theta) |dX| <= ``dtol`` (:func:`newton_tolerance`), theta at least the
     rate ``rate[0]`` of the solve before (RADAU5 carries its rate likewise): the first ratio
     |dX_1| / |dX_0| mostly measures the start's error, which the first iteration removes at
-    once (HIRES: 0.01 where the rest contracts at 0.2-0.5)."""
+    once (HIRES: 0.01 where the rest contracts at 0.2-0.5).
+
+    ``transformed`` (dG(q)): A and b0 are T^{-1} A and T^{-1} b0 (:func:`transformed_tables`)
+    and the residual is formed in the transformed variables, as RADAU5 forms it,
+
+        (T^{-1} (x) I) G = V - k (T^{-1} A (x) I) F,
+        V = (T^{-1} (x) I)(X - 1 (x) x0) - k (T^{-1} b0) (x) f0,
+
+    V made once and updated by V += Z: two stage sums an iteration, not three (5-12 % of
+    dG(3)'s solve). It converges to the equations with T^{-1} A rounded, coefficients off by
+    about cond(T) x eps on every slab: far below a dissipative method's error, but a drift
+    of cG(3)'s energy on a long oscillation (5e-12 over 10^4 periods against 1e-13), so cG(q)
+    forms G as it is. V lives in the second half of Z (length 2 S N): an argument more
+    slowed every call of this linked routine (doc/design/newton.md)."""
     position = structure[0]
     S = A.shape[0]
     N = x0.shape[0]
@@ -319,11 +347,24 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
     # (not a diverged one's)
     carried = rate[0] if rate[0] < 1.0 else 0.0
     rate[0] = 0.0
+    V = Z[S * N:]
+    if transformed:
+        for s in range(S):
+            for i in range(N):
+                G[s * N + i] = X[s * N + i] - x0[i]
+        for j in range(S):
+            _stage_sum(-k * b0[j], f0, G, T_inverse, j, V[j * N:])
     for it in range(max_iter):
         counters[F_EVALUATIONS] += stage_rhs(f, p, X, t, k, tau, F)
-        _residual(x0, f0, X, F, A, b0, k, G)
-        for j in range(S):  # Z = (T^{-1} (x) I) G
-            _stage_sum(0.0, x0, G, T_inverse, j, Z[j * N:])
+        if transformed:  # Z = V - k (T^{-1} A (x) I) F
+            for j in range(S):
+                _stage_sum(0.0, x0, F, A, j, Z[j * N:])
+                for i in range(N):
+                    Z[j * N + i] = V[j * N + i] - k * Z[j * N + i]
+        else:
+            _residual(x0, f0, X, F, A, b0, k, G)
+            for j in range(S):  # Z = (T^{-1} (x) I) G
+                _stage_sum(0.0, x0, G, T_inverse, j, Z[j * N:])
         # Z_j <- (I - k lambda_j J)^{-1} (-Z_j), in the matrices' ordering; a complex pair's two
         # real blocks are the real and imaginary parts of one complex vector
         for j in range(r):
@@ -344,6 +385,9 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
             _stage_sum(0.0, x0, Z, T, s, G[s * N:])
         for e in range(S * N):
             X[e] += G[e]
+        if transformed:
+            for e in range(S * N):
+                V[e] += Z[e]
         counters[ITERATIONS] += 1
         scale_weights(X, atol, rtol, w)
         d = weighted_norm(G, w)

@@ -29,6 +29,7 @@ from dolfinode.solvers.slab import (
     near_step,
     newton,
     newton_tolerance,
+    transformed_tables,
 )
 from dolfinode.timeslab import (
     BLOWUP,
@@ -337,7 +338,13 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         st.k_solver, st.k_last, st.k_factored, st.theta = math.inf, 0.0, 0.0, math.inf
         st.k_accuracy = st.k_next
         st.age, st.filter_ok, st.newton_rate, st.carried = 0, False, 0.0, True
-    Z = np.empty(S * N)
+    # Newton's work space, twice the stages: dG(q)'s residual keeps V in the second half and
+    # reads the transformed tables (slab.newton)
+    Z = np.empty(2 * S * N)
+    A_newton, b0_newton = A, b0
+    if is_dg:
+        A_newton, b0_newton = np.empty((S, S)), np.empty(S)
+        transformed_tables(A, b0, transform_inverse, A_newton, b0_newton)
     z_real = np.empty(N)
     z_complex = np.empty(N, dtype=np.complex128)
     reuse = o.reuse
@@ -458,10 +465,10 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                         # (ROBER at k ~ t: 1e6-1e11); start once more from the constant x
                         # before reducing k.
                         euler_stages(x, f0, 0.0, tau, X)
-                    iters = newton(f, p, x, f0, t, k, A, b0, tau, transform,
+                    iters = newton(f, p, x, f0, t, k, A_newton, b0_newton, tau, transform,
                                    transform_inverse, atol, rtol, tol, max_iter, theta_max,
-                                   is_dg, X, F, G, Z, ab_real, ab_complex, structure, ipiv,
-                                   z_real, z_complex, w, counters, rate)
+                                   is_dg, is_dg, X, F, G, Z, ab_real, ab_complex, structure,
+                                   ipiv, z_real, z_complex, w, counters, rate)
                     if iters >= 0:
                         break
                 if iters >= 0:

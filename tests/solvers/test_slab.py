@@ -33,19 +33,22 @@ def permuted_band_system(N=7, seed=0):
 
 
 @njit
-def _newton_steps(f_address, p, x0, f0, k, A, b0, tau, T, T_inverse, atol, X, F, G, Z, ab_real,
-                  ab_complex, structure, ipiv, z_real, z_complex, w, counters, steps):
+def _newton_steps(f_address, p, x0, f0, k, A, b0, tau, T, T_inverse, atol, transformed, X, F,
+                  G, Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w, counters,
+                  steps):
     f = rhs_kernel(f_address)
     return slab.newton(f, p, x0, f0, 0.0, k, A, b0, tau, T, T_inverse, atol, 1e-6, 0.0, steps,
-                       1.0, True, X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real,
-                       z_complex, w, counters, np.zeros(1))
+                       1.0, True, transformed, X, F, G, Z, ab_real, ab_complex, structure, ipiv,
+                       z_real, z_complex, w, counters, np.zeros(1))
 
 
+@pytest.mark.parametrize("transformed", [False, True], ids=["residual", "transformed"])
 @pytest.mark.parametrize("storage", ["banded", "sparse"])
 @pytest.mark.parametrize("family, q", METHODS, ids=[f"{f}({q})" for f, q in METHODS])
-def test_one_newton_step_solves_a_linear_stage_system(family, q, storage):
+def test_one_newton_step_solves_a_linear_stage_system(family, q, storage, transformed):
     """On u' = M u, one simplified Newton step with J = M gives the stage values exactly,
-    whatever the start and in either storage of the Newton matrices: the block-diagonalized
+    whatever the start, in either storage of the Newton matrices and with the residual formed
+    in either variables (transformed: from T^-1 A and T^-1 b0): the block-diagonalized
     solves equal the direct solve of (I - k A (x) M) X = 1 (x) x0 + k b0 (x) M x0."""
     ode, M = permuted_band_system()
     compiled = lower(ode)
@@ -73,11 +76,17 @@ def test_one_newton_step_solves_a_linear_stage_system(family, q, storage):
     assert slab.factor_stages(jb, k, eigenvalues, structure.tuple, ab_real, ab_complex, ipiv,
                               counters)
     X = np.random.default_rng(1).standard_normal(S * N)  # any start
-    work = [np.empty(S * N) for _ in range(4)]
-    _newton_steps(compiled.rhs.address, compiled.p, x0, f0, k, A, b0, m.nodes[m.stages].copy(),
-                  m.stage_transform.copy(), m.stage_transform_inverse.copy(), np.full(N, 1e-6),
-                  X, work[0], work[1], work[2], ab_real, ab_complex, structure.tuple, ipiv,
-                  np.empty(N), np.empty(N, dtype=complex), work[3], counters, 1)
+    work = [np.empty(S * N), np.empty(S * N), np.empty(2 * S * N), np.empty(S * N)]
+    T_inverse = m.stage_transform_inverse.copy()
+    A_newton, b0_newton = A, b0
+    if transformed:
+        A_newton, b0_newton = np.empty((S, S)), np.empty(S)
+        slab.transformed_tables(A, b0, T_inverse, A_newton, b0_newton)
+    _newton_steps(compiled.rhs.address, compiled.p, x0, f0, k, A_newton, b0_newton,
+                  m.nodes[m.stages].copy(), m.stage_transform.copy(), T_inverse,
+                  np.full(N, 1e-6), transformed, X, work[0], work[1], work[2], ab_real,
+                  ab_complex, structure.tuple, ipiv, np.empty(N), np.empty(N, dtype=complex),
+                  work[3], counters, 1)
     expected = np.linalg.solve(np.eye(S * N) - k * np.kron(A, M),
                                np.tile(x0, S) + k * np.kron(b0, f0))
     scale = np.linalg.cond(m.stage_transform) * np.abs(expected).max()  # 1 to 800
