@@ -28,6 +28,10 @@ from dolfinode.linalg.newton_matrix import lu_factor, lu_solve, shift
 
 #: An iteration that stops contracting with scaled increments below this has reached rounding.
 ROUNDING_LEVEL = 1e-10
+#: The flags of :func:`newton`: give up as soon as the rate says the iteration cannot
+#: converge in time; the residual formed in the transformed variables.
+GIVE_UP = 1
+TRANSFORMED = 2
 #: The iteration errors of Newton's slabs together may take at most about this fraction of
 #: the error the tolerance delivers at T (see newton_tolerance).
 KAPPA = 0.1
@@ -306,16 +310,19 @@ def factor_stages(jb, k, eigenvalues, structure, ab_real, ab_complex, ipiv, coun
 @linked(returns=types.int64, what="the stiff solver", seconds=4)
 @helper(**NO_REFCOUNT)
 def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_iter, theta_max,
-           give_up, transformed, X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real,
-           z_complex, w, counters, rate):
+           flags, X, F, G, Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w,
+           counters, rate):
     """Simplified Newton iteration on the stages, (I - k A (x) J) dX = -G(X), with the
     factors of :func:`factor_stages`: with A = T B T^{-1} (``T``, ``T_inverse``) the system is
     (I - k B (x) J) Z = -(T^{-1} (x) I) G, dX = (T (x) I) Z, and B's blocks decouple it into
     one N x N solve per real eigenvalue and one complex one per pair (RADAU5's
     transformation): S N x S N with bandwidth ~S b becomes ~S/2 N x N with bandwidth b.
 
+    ``flags``: GIVE_UP and TRANSFORMED, or'ed (one argument: each argument more of this
+    linked routine cost about 0.3 us a call, doc/design/newton.md).
+
     It fails when an increment shrinks by less than ``theta_max`` (1: when it grows), and
-    with ``give_up`` as soon as it cannot reach dtol in max_iter iterations at its rate
+    with GIVE_UP as soon as it cannot reach dtol in max_iter iterations at its rate
     (:func:`_hopeless`; dG(q): cG(q)'s slabs with an undamped stiff deviation converge
     late, and its failures count towards the loop's stop, mono.UNDAMPED_FAILURES); the
     largest contraction rate theta = |dX_(m+1)| / |dX_m| seen goes to ``rate[0]`` (0 after
@@ -325,7 +332,7 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
     |dX_1| / |dX_0| mostly measures the start's error, which the first iteration removes at
     once (HIRES: 0.01 where the rest contracts at 0.2-0.5).
 
-    ``transformed`` (dG(q)): A and b0 are T^{-1} A and T^{-1} b0 (:func:`transformed_tables`)
+    TRANSFORMED (dG(q)): A and b0 are T^{-1} A and T^{-1} b0 (:func:`transformed_tables`)
     and the residual is formed in the transformed variables, as RADAU5 forms it,
 
         (T^{-1} (x) I) G = V - k (T^{-1} A (x) I) F,
@@ -335,8 +342,7 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
     dG(3)'s solve). It converges to the equations with T^{-1} A rounded, coefficients off by
     about cond(T) x eps on every slab: far below a dissipative method's error, but a drift
     of cG(3)'s energy on a long oscillation (5e-12 over 10^4 periods against 1e-13), so cG(q)
-    forms G as it is. V lives in the second half of Z (length 2 S N): an argument more
-    slowed every call of this linked routine (doc/design/newton.md)."""
+    forms G as it is. V lives in the second half of Z (length 2 S N), not in an argument."""
     position = structure[0]
     S = A.shape[0]
     N = x0.shape[0]
@@ -347,6 +353,8 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
     # (not a diverged one's)
     carried = rate[0] if rate[0] < 1.0 else 0.0
     rate[0] = 0.0
+    give_up = (flags & GIVE_UP) != 0
+    transformed = (flags & TRANSFORMED) != 0
     V = Z[S * N:]
     if transformed:
         for s in range(S):

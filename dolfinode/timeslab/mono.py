@@ -23,6 +23,8 @@ from dolfinode.compile.signatures import NO_REFCOUNT, address, rhs_kernel
 from dolfinode.linalg.newton_matrix import shift, store_jacobian
 from dolfinode.methods.method import lagrange_weights
 from dolfinode.solvers.slab import (
+    GIVE_UP,
+    TRANSFORMED,
     factor,
     factor_stages,
     fixed_point,
@@ -342,9 +344,11 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
     # reads the transformed tables (slab.newton)
     Z = np.empty(2 * S * N)
     A_newton, b0_newton = A, b0
+    newton_flags = 0
     if is_dg:
         A_newton, b0_newton = np.empty((S, S)), np.empty(S)
         transformed_tables(A, b0, transform_inverse, A_newton, b0_newton)
+        newton_flags = GIVE_UP | TRANSFORMED
     z_real = np.empty(N)
     z_complex = np.empty(N, dtype=np.complex128)
     reuse = o.reuse
@@ -467,7 +471,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                         euler_stages(x, f0, 0.0, tau, X)
                     iters = newton(f, p, x, f0, t, k, A_newton, b0_newton, tau, transform,
                                    transform_inverse, atol, rtol, tol, max_iter, theta_max,
-                                   is_dg, is_dg, X, F, G, Z, ab_real, ab_complex, structure,
+                                   newton_flags, X, F, G, Z, ab_real, ab_complex, structure,
                                    ipiv, z_real, z_complex, w, counters, rate)
                     if iters >= 0:
                         break

@@ -38,8 +38,9 @@ def _newton_steps(f_address, p, x0, f0, k, A, b0, tau, T, T_inverse, atol, trans
                   steps):
     f = rhs_kernel(f_address)
     return slab.newton(f, p, x0, f0, 0.0, k, A, b0, tau, T, T_inverse, atol, 1e-6, 0.0, steps,
-                       1.0, True, transformed, X, F, G, Z, ab_real, ab_complex, structure, ipiv,
-                       z_real, z_complex, w, counters, np.zeros(1))
+                       1.0, slab.GIVE_UP | (slab.TRANSFORMED if transformed else 0), X, F, G,
+                       Z, ab_real, ab_complex, structure, ipiv, z_real, z_complex, w, counters,
+                       np.zeros(1))
 
 
 @pytest.mark.parametrize("transformed", [False, True], ids=["residual", "transformed"])
