@@ -338,11 +338,11 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
         (T^{-1} (x) I) G = V - k (T^{-1} A (x) I) F,
         V = (T^{-1} (x) I)(X - 1 (x) x0) - k (T^{-1} b0) (x) f0,
 
-    V made once and updated by V += Z: two stage sums an iteration, not three (5-12 % of
-    dG(3)'s solve). It converges to the equations with T^{-1} A rounded, coefficients off by
-    about cond(T) x eps on every slab: far below a dissipative method's error, but a drift
-    of cG(3)'s energy on a long oscillation (5e-12 over 10^4 periods against 1e-13), so cG(q)
-    forms G as it is. V lives in the second half of Z (length 2 S N), not in an argument."""
+    V made once and updated by V += Z: two stage sums an iteration, not three (5-9 % of
+    dG(3)'s and dG(5)'s solve). It converges to the equations with T^{-1} A rounded,
+    coefficients off by about cond(T) x eps on every slab: far below a dissipative method's
+    error, but a drift of cG(3)'s energy on a long oscillation (5e-12 over 10^4 periods
+    against 1e-13), so cG(q) forms G as it is. V lives in the second half of Z (length 2 S N), not in an argument."""
     position = structure[0]
     S = A.shape[0]
     N = x0.shape[0]
