@@ -1091,7 +1091,7 @@ def _shapes(nodes):
     return Q, S, np.ascontiguousarray(G.coef[::-1])
 
 
-def _transposed(indptr, indices):
+def transposed(indptr, indices):
     """(indptr, indices) of the transposed CSR pattern: the components whose f reads each."""
     counts = np.bincount(indices, minlength=indptr.shape[0] - 1)
     order = np.argsort(indices, kind="stable")
@@ -1165,6 +1165,21 @@ def dense_rhs(method, ode):
     piece, which f at its end node, on the jump, need not give: Heaviside(t - 1) made P
     460-1000 x the tolerance where U is 0.7-2.3 x)."""
     return lower(ode) if _reads_f(method) and not _jumps(ode) else None
+
+
+def correct_multi(method, compiled, dependents, declared, history, times, out):
+    """The multi-adaptive dense value inside the elements of ``history`` = (ptr, t_start,
+    t_end, values, s_start, s_end, s_values) at ``times`` in ``out``, which holds the element
+    polynomials there (:func:`_correct_multi`): ``compiled`` the lowered ODE
+    (:func:`dense_rhs`), ``dependents`` its transposed pattern, ``declared`` its t0, u0.
+    Every reader of multi-adaptive elements (a Solution, the samples of dense_output=False)
+    corrects through here."""
+    with first_use(_correct_multi, "the multi-adaptive dense values", 7):
+        _correct_multi(*history, method.nodes, method.barycentric_weights, method.left_value,
+                       float(declared.t0), np.asarray(declared.u0, dtype=float),
+                       compiled.rhs_component.address, compiled.indptr, compiled.indices,
+                       compiled.p, *dependents, _multi_check(method.family, method.q),
+                       DEFECT_THETA, times, out)
 
 
 def _jumps(ode):
@@ -1400,17 +1415,9 @@ class Solution:
         """mcG(q), q >= 2, mdG(q), q >= 1: the dense value inside the elements at ``times``
         in ``out``, which holds the element polynomials (:func:`_correct_multi`), where the
         solution reads f (``_rhs``)."""
-        compiled = self._rhs
-        if compiled is None:
-            return
-        method, declared = self.method, self._declaration
-        with first_use(_correct_multi, "the multi-adaptive dense values", 7):
-            _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values,
-                           method.nodes, method.barycentric_weights, method.left_value,
-                           float(declared.t0), np.asarray(declared.u0, dtype=float),
-                           compiled.rhs_component.address, compiled.indptr, compiled.indices,
-                           compiled.p, *self._dependents, _multi_check(method.family, method.q),
-                           DEFECT_THETA, times, out)
+        if self._rhs is not None:
+            correct_multi(self.method, self._rhs, self._dependents, self._declaration,
+                          (ptr, t_start, t_end, values, s_start, s_end, s_values), times, out)
 
     def _evaluate_mono(self, times, rhs, out):
         """out = U at ``times`` from the shared partition, cG(q)'s dense value reading the
@@ -1425,7 +1432,7 @@ class Solution:
     def _dependents(self):
         """(indptr, indices) of the components whose f_i reads each component (the
         transposed pattern of ``_rhs``'s), read by :func:`_correct_multi`."""
-        return _transposed(self._rhs.indptr, self._rhs.indices)
+        return transposed(self._rhs.indptr, self._rhs.indices)
 
     @cached_property
     def _rhs(self):
