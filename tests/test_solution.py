@@ -564,6 +564,28 @@ def test_dense_multi_every_reader_agrees_and_keeps_the_ends(fast_slow, method, t
     assert np.mean(galerkin != expected) > 0.25  # (the stiff pair's elements: U)
 
 
+@pytest.mark.parametrize("method", ["mdG(2)", "mcG(2)"])
+def test_dense_multi_values_kept_between_calls_are_those_of_a_fresh_solution(fast_slow,
+                                                                            method):
+    # a solution keeps what its elements read from call to call (solution.element_cache):
+    # scalar calls, a vector call after them and a fresh solution give the same bits, and
+    # new elements (a reader's) are read anew
+    import pickle
+
+    ode, times, _ = fast_slow
+    sol = dn.solve(ode, method, tolerance=1e-5)
+    ptr, t_start, t_end, values = sol.elements()
+    fresh = dn.Solution.grouped(ode, sol.method, ptr, t_start, t_end, values, {}, 11)
+    expected = fresh(times)
+    scalars = np.array([sol(t) for t in times]).T
+    np.testing.assert_array_equal(scalars, expected)
+    np.testing.assert_array_equal(sol(times), expected)
+    sol.values = values * (1 + 1e-3)
+    moved = dn.Solution.grouped(ode, sol.method, ptr, t_start, t_end, sol.values, {}, 11)
+    np.testing.assert_array_equal(sol(times), moved(times))
+    assert "_element_cache" not in pickle.loads(pickle.dumps(sol)).__dict__
+
+
 @pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])
 def test_values_at_t0_and_T_alone_are_those_of_the_dense_evaluation(method):
     # sol(t0) and sol(T) alone skip the dense correction (and, mono-adaptive, sol(T) reads
