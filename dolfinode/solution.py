@@ -1,5 +1,6 @@
 """The Galerkin solution: exact piecewise polynomials, dense evaluation and samples."""
 import math
+import weakref
 from functools import cache, cached_property
 
 import numpy as np
@@ -1439,13 +1440,15 @@ class Solution:
             return
         history = (ptr, t_start, t_end, values, s_start, s_end, s_values)
         kept = self.__dict__.get("_element_cache")
-        if kept is not None and all(a is b or a.size == b.size == 0
-                                    for a, b in zip(kept[0], history)):
+        # (weak references: a joined or replaced history is not held by its cache)
+        if kept is not None and all(r() is a or a.size == 0 and r() is None
+                                    for r, a in zip(kept[0], history)):
             cache = kept[1]
         else:  # (a new history: the first call, a join, or a reader's elements around times)
             cache = element_cache(history, self._declaration.N)
             if cache[0].nbytes <= KEPT_CACHE:
-                self.__dict__["_element_cache"] = (history, cache)
+                self.__dict__["_element_cache"] = (
+                    [weakref.ref(a) if a.size else lambda: None for a in history], cache)
         correct_multi(self.method, self._rhs, self._dependents, self._declaration, history,
                       times, out, cache)
 
