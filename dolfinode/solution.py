@@ -1,5 +1,6 @@
 """The Galerkin solution: exact piecewise polynomials, dense evaluation and samples."""
 import math
+import weakref
 from functools import cache, cached_property
 
 import numpy as np
@@ -503,7 +504,7 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
                             dense, t0, u0, times, slab, out)
 
 
-@helper()
+@helper(inline="always")
 def _row(cached, slot):
     """What :func:`_correct_multi` keeps of an element read, by its slot (the element at
     ``where`` of :func:`_element_at`, slab n's at E + n N + d): c, g, V's residual, the
@@ -521,7 +522,7 @@ def _row(cached, slot):
     return rows[slot]
 
 
-@helper()
+@helper(inline="always")
 def _element_at(d, t, history):
     """The element component d is read from at t: the first of the shared slabs and of its
     own elements ending at or after t, as the joined history (:class:`MixedSolution`) reads
@@ -546,7 +547,7 @@ def _element_at(d, t, history):
     return t_end.shape[0] + slab if use_slab else e
 
 
-@helper()
+@helper(inline="always")
 def _nodal_value(d, where, j, history):
     """Component d's nodal value j on its element ``where`` (:func:`_element_at`)."""
     _, _, t_end, values, _, _, s_values = history
@@ -554,7 +555,7 @@ def _nodal_value(d, where, j, history):
     return s_values[where - E, j, d] if where >= E else values[where, j]
 
 
-@helper()
+@helper(inline="always")
 def _element_polynomial(d, where, t, history, nodes, bary):
     """(U_d(t), a, b) on component d's element ``where`` (:func:`_element_at`) [a, b]."""
     _, t_start, t_end, values, s_start, s_end, s_values = history
@@ -778,8 +779,8 @@ def _shared_kind(i, t, history, method, ode, check, theta, cached, u, v, w, F, m
 
 @njit(cache=True)
 def _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes, bary, left,
-                   t0, u0, rhs, indptr, indices, p, tindptr, tindices, check, theta, times,
-                   out):
+                   t0, u0, rhs, indptr, indices, p, tindptr, tindices, check, theta, rows,
+                   index, slots, count, times, out):
     """out[i, m] = mcG(q)'s or mdG(q)'s dense value at times[m] strictly inside component i's
     element (elsewhere out is left as it is: the nodal values), from component i's elements
     ptr[i]:ptr[i + 1] and the shared slabs (s_start, s_end, s_values (S, q + 1, N)) as
@@ -813,17 +814,16 @@ def _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
     keep holds inside such an interval.
 
     ``check`` = (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*), S(tau*), G, Q(0))
-    (:func:`_multi_check`). f_i is evaluated q + 3 (mcG(q)) or 3 (mdG(q)) times per element
+    (:func:`_multi_check`). (rows, index, slots, count) keep per element read c, g, V's
+    residual and the shared kind (:func:`_row`, :func:`element_cache`; kept from call to
+    call for the same history). f_i is evaluated q + 3 (mcG(q)) or 3 (mdG(q)) times per element
     the times fall inside, and about as many times per element of another component read
     at tau*. Q and S vanish at tau = 1: the ends are unchanged."""
     N, E, S = out.shape[0], t_end.shape[0], s_start.shape[0]
     history = (ptr, t_start, t_end, values, s_start, s_end, s_values)
     method = (nodes, bary, left, t0, u0)
     ode = (rhs, indptr, indices, p, tindptr, tindices)
-    # per element read: c, g, V's residual, the shared kind (:func:`_row`)
-    size = E + S * N
-    cached = (np.empty((size, 4)), np.empty(size, dtype=np.int64),
-              np.empty(size, dtype=np.int64), np.zeros(1, dtype=np.int64))
+    cached = (rows, index, slots, count)
     u, v, w = np.zeros(N), np.zeros(N), np.zeros(N)  # (f's arguments, one per depth)
     F = np.zeros(1)
     members = np.empty(N, dtype=np.int64)
@@ -848,11 +848,15 @@ def _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
                 continue
             if where != current:
                 current = where
-                kind = _shared_kind(i, t, history, method, ode, check, theta, cached, u, v,
-                                    w, F, members, seen, tests)
-                slot = _coefficients_at(i, t, history, method, ode, check, cached, w, F)[1]
-                c = _row(cached, slot)[0] if kind > 0.0 else 0.0
-                g = _row(cached, slot)[1] if kind > 1.0 else 0.0
+                # (an element read before, in this call or an earlier one, is looked up
+                # alone: the helpers' calls pass every array of the history)
+                row = _row(cached, where if where < E else E + (where - E) * N + i)
+                if np.isnan(row[3]):
+                    _shared_kind(i, t, history, method, ode, check, theta, cached, u, v, w, F,
+                                 members, seen, tests)
+                kind = row[3]
+                c = row[0] if kind > 0.0 else 0.0
+                g = row[1] if kind > 1.0 else 0.0
             tau = (t - a) / (b - a)
             value = (element_value(s_values[slab].T, i, tau, nodes, bary) if where >= E
                      else element_value(values, where, tau, nodes, bary))
@@ -862,6 +866,10 @@ def _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
             out[i, m] = value + c * r - g * _correction_shape(check[6], tau)
 
 
+#: A solution keeps what its multi-adaptive dense values read per element (c, g, the
+#: tests: :func:`element_cache`) from call to call where that takes at most these bytes
+#: (1.4 M elements): a loop of scalar calls reads the same elements again.
+KEPT_CACHE = 2**26
 #: Where dG(q)'s dense value cannot read f: a component's jump [U] at an element's start is
 #: taken as resolved, and the collocation polynomial used, when |[U]| <= THETA max_j
 #: |xi_j - U(t_{n-1}^-)| (see _evaluate_dg; mdG(q): _correction).
@@ -1091,7 +1099,7 @@ def _shapes(nodes):
     return Q, S, np.ascontiguousarray(G.coef[::-1])
 
 
-def _transposed(indptr, indices):
+def transposed(indptr, indices):
     """(indptr, indices) of the transposed CSR pattern: the components whose f reads each."""
     counts = np.bincount(indices, minlength=indptr.shape[0] - 1)
     order = np.argsort(indices, kind="stable")
@@ -1166,6 +1174,33 @@ def dense_rhs(method, ode):
     piece, which f at its end node, on the jump, need not give: Heaviside(t - 1) made P
     460-1000 x the tolerance where U is 0.7-2.3 x)."""
     return lower(ode) if _reads_f(method) and not _jumps(ode) else None
+
+
+def correct_multi(method, compiled, dependents, declared, history, times, out, cache=None):
+    """The multi-adaptive dense value inside the elements of ``history`` = (ptr, t_start,
+    t_end, values, s_start, s_end, s_values) at ``times`` in ``out``, which holds the element
+    polynomials there (:func:`_correct_multi`): ``compiled`` the lowered ODE
+    (:func:`dense_rhs`), ``dependents`` its transposed pattern, ``declared`` its t0, u0,
+    ``cache`` what the elements read keep (:func:`element_cache` of this history, made for
+    this call if None). Every reader of multi-adaptive elements (a Solution, the samples of
+    dense_output=False) corrects through here."""
+    if cache is None:
+        cache = element_cache(history, declared.N)
+    with first_use(_correct_multi, "the multi-adaptive dense values", 7):
+        _correct_multi(*history, method.nodes, method.barycentric_weights, method.left_value,
+                       float(declared.t0), np.asarray(declared.u0, dtype=float),
+                       compiled.rhs_component.address, compiled.indptr, compiled.indices,
+                       compiled.p, *dependents, _multi_check(method.family, method.q),
+                       DEFECT_THETA, *cache, times, out)
+
+
+def element_cache(history, N):
+    """What :func:`_correct_multi` keeps per element read of ``history`` (rows, index,
+    slots, count: :func:`_row`'s sparse set, empty), 48 bytes per element and slab
+    component, committed only where an element is read."""
+    size = history[2].shape[0] + history[4].shape[0] * N
+    return (np.empty((size, 4)), np.empty(size, dtype=np.int64),
+            np.empty(size, dtype=np.int64), np.zeros(1, dtype=np.int64))
 
 
 def _jumps(ode):
@@ -1261,6 +1296,7 @@ class Solution:
             self.ode, self.stats  # noqa: B018 (made now)
         state = self.__dict__.copy()
         state.pop("_makers", None)
+        state.pop("_element_cache", None)
         if state.get("_rhs") is not None:  # (the kernels: lowered again where read; a None
             del state["_rhs"]                # set by the solve, elements of several models, kept)
         return state
@@ -1400,18 +1436,22 @@ class Solution:
     def _correct(self, ptr, t_start, t_end, values, s_start, s_end, s_values, times, out):
         """mcG(q), q >= 2, mdG(q), q >= 1: the dense value inside the elements at ``times``
         in ``out``, which holds the element polynomials (:func:`_correct_multi`), where the
-        solution reads f (``_rhs``)."""
-        compiled = self._rhs
-        if compiled is None:
+        solution reads f (``_rhs``), with the element cache kept for this history."""
+        if self._rhs is None:
             return
-        method, declared = self.method, self._declaration
-        with first_use(_correct_multi, "the multi-adaptive dense values", 7):
-            _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values,
-                           method.nodes, method.barycentric_weights, method.left_value,
-                           float(declared.t0), np.asarray(declared.u0, dtype=float),
-                           compiled.rhs_component.address, compiled.indptr, compiled.indices,
-                           compiled.p, *self._dependents, _multi_check(method.family, method.q),
-                           DEFECT_THETA, times, out)
+        history = (ptr, t_start, t_end, values, s_start, s_end, s_values)
+        kept = self.__dict__.get("_element_cache")
+        # (weak references: a joined or replaced history is not held by its cache)
+        if kept is not None and all(r() is a or a.size == 0 and r() is None
+                                    for r, a in zip(kept[0], history)):
+            cache = kept[1]
+        else:  # (a new history: the first call, a join, or a reader's elements around times)
+            cache = element_cache(history, self._declaration.N)
+            if cache[0].nbytes <= KEPT_CACHE:
+                self.__dict__["_element_cache"] = (
+                    [weakref.ref(a) if a.size else lambda: None for a in history], cache)
+        correct_multi(self.method, self._rhs, self._dependents, self._declaration, history,
+                      times, out, cache)
 
     def _evaluate_mono(self, times, rhs, out):
         """out = U at ``times`` from the shared partition, cG(q)'s dense value reading the
@@ -1426,7 +1466,7 @@ class Solution:
     def _dependents(self):
         """(indptr, indices) of the components whose f_i reads each component (the
         transposed pattern of ``_rhs``'s), read by :func:`_correct_multi`."""
-        return _transposed(self._rhs.indptr, self._rhs.indices)
+        return transposed(self._rhs.indptr, self._rhs.indices)
 
     @cached_property
     def _rhs(self):

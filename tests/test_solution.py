@@ -537,7 +537,8 @@ def test_dense_multi_every_reader_agrees_and_keeps_the_ends(fast_slow, method, t
     # joined elements and a stored history give the same dense values bitwise, and differ
     # from the Galerkin polynomials inside. The samples of dense_output=False (the history
     # in many chunks, a long element of one component stored chunks after the others'
-    # around it) are the values without f, sol._galerkin's
+    # around it) are the same values bitwise (they were the values without f, 10 x the
+    # tolerance apart)
     import sys
 
     from dolfinode.solution import _evaluate_components, dense_rule
@@ -548,7 +549,7 @@ def test_dense_multi_every_reader_agrees_and_keeps_the_ends(fast_slow, method, t
     monkeypatch.setattr(sys.modules["dolfinode.solve"], "_CHUNK_LIMIT", 64)
     sampled = dn.solve(ode, method, tolerance=1e-5, sample_times=times, dense_output=False)
     stored = dn.solve(ode, method, tolerance=1e-5, dense_output=str(tmp_path / "run.h5"))
-    np.testing.assert_array_equal(sampled.y, sol._galerkin(times))
+    np.testing.assert_array_equal(sampled.y, expected)
     np.testing.assert_array_equal(stored(times), expected)
     np.testing.assert_array_equal(dn.load_solution(tmp_path / "run.h5")(times), expected)
     ptr, t_start, t_end, values = sol.elements()  # (joins a mixed history)
@@ -561,6 +562,28 @@ def test_dense_multi_every_reader_agrees_and_keeps_the_ends(fast_slow, method, t
                          sol.method.barycentric_weights, dense_rule(sol.method, dense=False),
                          ode.t0, ode.u0, times, galerkin)
     assert np.mean(galerkin != expected) > 0.25  # (the stiff pair's elements: U)
+
+
+@pytest.mark.parametrize("method", ["mdG(2)", "mcG(2)"])
+def test_dense_multi_values_kept_between_calls_are_those_of_a_fresh_solution(fast_slow,
+                                                                            method):
+    # a solution keeps what its elements read from call to call (solution.element_cache):
+    # scalar calls, a vector call after them and a fresh solution give the same bits, and
+    # new elements (a reader's) are read anew
+    import pickle
+
+    ode, times, _ = fast_slow
+    sol = dn.solve(ode, method, tolerance=1e-5)
+    ptr, t_start, t_end, values = sol.elements()
+    fresh = dn.Solution.grouped(ode, sol.method, ptr, t_start, t_end, values, {}, 11)
+    expected = fresh(times)
+    scalars = np.array([sol(t) for t in times]).T
+    np.testing.assert_array_equal(scalars, expected)
+    np.testing.assert_array_equal(sol(times), expected)
+    sol.values = values * (1 + 1e-3)
+    moved = dn.Solution.grouped(ode, sol.method, ptr, t_start, t_end, sol.values, {}, 11)
+    np.testing.assert_array_equal(sol(times), moved(times))
+    assert "_element_cache" not in pickle.loads(pickle.dumps(sol)).__dict__
 
 
 @pytest.mark.parametrize("method", ["cG(2)", "mcG(2)"])

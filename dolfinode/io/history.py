@@ -8,7 +8,8 @@ and, at the end, asks the sink for the :class:`~dolfinode.Solution`. The paramet
   available to the process after each chunk, so that a history that would not fit stops
   with a SolverError naming ``dense_output`` instead of numpy's MemoryError or the OOM killer;
 - False (:class:`Samples`): each chunk is evaluated at the sample times it covers and
-  dropped; the memory does not grow with the number of steps;
+  dropped (a multi-adaptive dense value once the few slabs it reads are in, :class:`Window`);
+  the memory does not grow with the number of steps;
 - a path "run.h5" (:class:`dolfinode.io.stored.ToFile`): each chunk is appended to an HDF5
   file, which :func:`dolfinode.load_solution` opens lazily.
 
@@ -34,12 +35,16 @@ from dolfinode.solution import (
     Solution,
     _correction,
     _dense_value,
+    _group,
+    _locate,
     _set_initial,
+    correct_multi,
     dense_rhs,
     dense_rule,
     equispaced,
     evaluate_mono,
     join_elements,
+    transposed,
 )
 from dolfinode.timeslab import STORED, STORED_BLOCKS
 
@@ -364,9 +369,74 @@ def _sample_chunk(comp, t_start, t_end, values, s_start, s_end, s_values, order,
         p += 1
 
 
+#: How many elements deep a multi-adaptive dense value reads around its own (its
+#: neighbours' polynomials, their collocation coefficients, V's test, each neighbour's
+#: neighbours; one more for the value before an element): :class:`Window`'s reach.
+READ_DEPTH = 6
+
+
+@njit(cache=True)
+def _reach(ptr, t_start, t_end, x, depth, forward):
+    """Where the elements read around x reach, ``depth`` elements deep (component i's
+    elements ptr[i]:ptr[i + 1], time-sorted, each covering every time up to x): forward,
+    the latest time y <= x whose reads end at or before x (each step: the start of every
+    element holding x that ends after it); back, the earliest start of what times >= x
+    read (each step: the start of every element holding x)."""
+    for _ in range(depth):
+        y = x
+        for i in range(ptr.shape[0] - 1):
+            if ptr[i + 1] > ptr[i]:
+                e = ptr[i] + _locate(t_end[ptr[i]:ptr[i + 1]], x, 0)
+                if not forward or t_end[e] > x:
+                    y = min(y, t_start[e])
+        x = y
+    return x
+
+
+class Window:
+    """The multi-adaptive elements that the dense values of pending samples read
+    (:func:`dolfinode.solution.correct_multi`), for ``dense_output=False``: each chunk's
+    elements are added (blocks spelt out, :func:`as_elements`), the samples whose reads the
+    stored elements cover (:func:`_reach` forward from the time every component has
+    reached) are corrected, and the elements no later sample reads are dropped. It holds
+    the elements READ_DEPTH deep around the next pending sample and those after: a few
+    slabs, more while a component's element is still open (a frozen component's is stored
+    when it wakes up, and the samples in it wait for it)."""
+
+    def __init__(self, ode, method, compiled):
+        self.ode, self.method, self.compiled = ode, method, compiled
+        self.dependents = transposed(compiled.indptr, compiled.indices)
+        self.elements = [np.empty(0, dtype=np.int64), np.empty(0), np.empty(0),
+                         np.empty((0, method.q + 1))]
+        self.next = 0  # (the first sample not yet corrected)
+
+    def add(self, chunk, reached, times, out):
+        """Add ``chunk``'s elements and correct the samples out[:, m] at ``times`` that they
+        now cover (``reached``: the time up to which every component's elements are in)."""
+        N = self.ode.N
+        comp, t_start, t_end, values = (np.concatenate(parts) for parts in zip(
+            self.elements, as_elements(chunk, N)))
+        ptr, t_start, t_end, values = _group(N, comp, t_start, t_end, values)
+        comp = np.repeat(np.arange(N), np.diff(ptr))
+        ready = _reach(ptr, t_start, t_end, reached, READ_DEPTH, True)
+        last = np.searchsorted(times, ready, side="right")
+        if last > self.next:
+            none = np.empty(0)
+            correct_multi(self.method, self.compiled, self.dependents, self.ode,
+                          (ptr, t_start, t_end, values, none, none,
+                           np.empty((0, values.shape[1], N))),
+                          times[self.next:last], out[:, self.next:last])
+            self.next = last
+        start = min(reached, times[self.next]) if self.next < times.size else reached
+        keep = t_end >= _reach(ptr, t_start, t_end, start, READ_DEPTH, False)
+        self.elements = [comp[keep], t_start[keep], t_end[keep], values[keep]]
+
+
 class Samples:
     """``dense_output=False``: each chunk evaluated at the sample times it covers, then
-    dropped (memory: the samples and one chunk, whatever the number of steps)."""
+    dropped (memory: the samples and one chunk, whatever the number of steps; the dense
+    value of mcG(q), q >= 2, and mdG(q), q >= 1, also the few slabs of elements it reads,
+    :class:`Window`)."""
 
     def __init__(self, ode, method, multi_adaptive, times):
         self.ode, self.method, self.multi_adaptive, self.times = ode, method, multi_adaptive, times
@@ -381,7 +451,9 @@ class Samples:
         self.last_value = np.array(ode.u0, dtype=float)
         # (mono-adaptive) the last chunk's end and end value, read by dG(q)'s dense value
         self.end, self.before = ode.t0, ode.u0
-        self.rhs = None if multi_adaptive else dense_rhs(method, ode)  # (cG(q)'s dense value)
+        self.rhs = dense_rhs(method, ode)  # (the dense value of cG(q), dG(q), mcG(q), mdG(q))
+        self.window = (Window(ode, method, self.rhs) if multi_adaptive and self.rhs is not None
+                       else None)
 
     def add(self, chunk, t):
         nodes, bary = self.method.nodes, self.method.barycentric_weights
@@ -390,6 +462,8 @@ class Samples:
             order = np.argsort(chunk[1], kind="stable")
             _sample_chunk(*chunk, order, nodes, bary, dense_rule(self.method), self.times,
                           self.last_end, self.last_value, self.y)
+            if self.window is not None:
+                self.window.add(chunk, self.last_end.min(), self.times, self.y)
             return
         t_start, k, values = chunk
         if t_start.shape[0] == 0:

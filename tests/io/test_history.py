@@ -373,3 +373,30 @@ def test_an_allocation_that_fails_mid_run_is_a_solver_error(method, where, monke
     assert isinstance(error, dn.SolverError) and isinstance(error, MemoryError)
     assert (ode.t0 < error.t < ode.T) if where == "add" else error.t == ode.T
     assert f"at t = {error.t:.6g}" in error.message and "dense_output=False" in error.message
+
+
+@pytest.mark.parametrize("method", ["mcG(2)", "mdG(1)"])
+def test_multi_adaptive_samples_are_the_dense_values_from_a_few_slabs(method, monkeypatch):
+    # dense_output=False samples of mcG(q), mdG(q) are sol.y of the dense solve bitwise
+    # (they were the element polynomials, 8.8 and 27 x the tolerance apart); the elements
+    # kept for them (io.history.Window) stay a few slabs' while the history grows
+    import sys
+
+    from dolfinode.io import history
+
+    a, b = sp.symbols("a b")
+    bruss = dn.ODE({a: 1 + a**2 * b - 4 * a, b: 3 * a - a**2 * b}, u0=[1.5, 3.0], T=20.0)
+    kept = []
+    add = history.Window.add
+
+    def spy(self, *args):
+        add(self, *args)
+        kept.append(len(self.elements[1]))
+
+    monkeypatch.setattr(history.Window, "add", spy)
+    monkeypatch.setattr(sys.modules["dolfinode.solve"], "_CHUNK_LIMIT", 64)
+    dense = dn.solve(bruss, method, tolerance=1e-6, number_of_samples=2001)
+    sampled = dn.solve(bruss, method, tolerance=1e-6, number_of_samples=2001,
+                       dense_output=False)
+    np.testing.assert_array_equal(sampled.y, dense.y)
+    assert len(kept) >= 10 and max(kept) <= 40 < dense.stats["elements"] / 10
