@@ -692,3 +692,19 @@ def test_a_crossing_and_back_between_two_samples_warns(method):
     expected = [first, np.pi - first, 2 * np.pi + first, 3 * np.pi - first]
     # (a crossing's time is off by the error in u over the slope there, 0.014)
     np.testing.assert_allclose(sol.t_events[0], expected, atol=1e-6 / 0.014 * 10)
+
+
+@pytest.mark.parametrize("method", ["cG(4)", "dG(5)"])
+def test_a_switch_crossed_and_back_between_two_samples_is_solved_again(method):
+    """w' = Heaviside(x - 0.9999) with x = sin t: the switch is on for 0.028 around each
+    maximum, between two samples of these methods' elements at 1e-6. It was never seen:
+    w(T) = 0, off by 0.057 (5.7e4 x the tolerance; the error check warned). The a posteriori
+    check samples the switching function's extremes between its samples, and the solve is
+    repeated with a step that locates the switches."""
+    x, w = sp.symbols("x w")
+    ode = dn.ODE({x: v, v: -x, w: sp.Heaviside(x - 0.9999)}, u0=[0.0, 1.0, 0.0], T=10.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        sol = dn.solve(ode, method, tolerance=1e-6)
+    assert sol.stats["switch step bound"] < 0.01
+    assert sol(10.0)[2] == pytest.approx(2 * (np.pi - 2 * np.arcsin(0.9999)), abs=1e-6)
