@@ -663,7 +663,7 @@ class Plan:
             return None
         # (partners cross together and are counted once)
         distinct = [k for k, same in enumerate(self.partners) if min(same)[0] == k]
-        times, G = self._samples(sol, len(self.events) + np.array(distinct, dtype=int))
+        times, G, _ = self._samples(sol, len(self.events) + np.array(distinct, dtype=int))
         changes, shortest, where, switch = 0, np.inf, None, None
         for k, g in zip(distinct, G):
             change = _changes(g)
@@ -681,23 +681,26 @@ class Plan:
 
     def check_events(self, sol, tolerance):
         """Warn (ToleranceWarning) where an event's function, sampled on the final solution
-        (:meth:`_samples`), has the same sign at both ends of an element and the other
-        sign inside it: events are located between element ends, and two crossings inside
-        one element are not seen (u' = -u with the event sin(50 t): 5 of 159 located at
-        tolerance 1e-3). Samples within ``tolerance`` max |g| of zero do not count. The
-        warning gives the largest excursion missed (a g that touches zero crosses it by the
-        error inside an element: sin t - 1 by 3e-5 with dG(1) at 1e-6) and the
-        maximum_time_step that would show the crossings: a quarter of the shortest time
-        between the sign changes seen. The events :meth:`_may_hide` clears are not sampled."""
+        (:meth:`_samples`), crosses zero inside an element more often than the crossing its
+        ends show: events are located where g changes sign between element ends, and two
+        crossings inside one element are not seen (u' = -u with the event sin(50 t): 5 of
+        159 located at tolerance 1e-3). The samples include g's extremes between them
+        (:func:`_extremes`): u - 0.9999 on u = sin t crosses zero and back in 0.028, between
+        two samples of cG(4)'s elements at 1e-6, unseen. Samples within ``tolerance`` max
+        |g| of zero do not count. The warning gives the largest excursion missed (a g that
+        touches zero crosses it by the error inside an element: sin t - 1 by 3e-5 with
+        dG(1) at 1e-6) and the maximum_time_step that would show the crossings: a quarter of
+        the shortest time between the sign changes seen. The events :meth:`_may_hide`
+        clears are not sampled."""
         if not self.events or not sol.dense:
             return
         rows = self._may_hide(sol, tolerance)
         if not rows.size:
             return
-        times, G = self._samples(sol, rows)
+        times, G, first = self._samples(sol, rows, tolerance)
         for event, g in zip([self.events[j] for j in rows], G):
             floor = tolerance * np.max(np.abs(g))
-            missed, largest = _hidden_crossings(g, floor, SWITCH_SAMPLES)
+            missed, largest = _hidden_crossings(g, floor, first)
             if not missed:
                 continue
             gaps = np.diff(times[_changes(g, floor=floor)])
@@ -705,8 +708,8 @@ class Plan:
             from dolfinode.solve import _warn  # (solve imports this module)
 
             _warn(f"the event {event.g} crosses zero and back inside {missed} elements (its "
-                  f"values at {SWITCH_SAMPLES} points in each, by up to "
-                  f"{largest:.3g} where g ranges over "
+                  f"values at {SWITCH_SAMPLES} points in each and at its extremes between "
+                  f"them, by up to {largest:.3g} where g ranges over "
                   f"{np.ptp(g):.3g}), where the crossings were not located: events are "
                   "located where g changes sign between element ends; give "
                   f"maximum_time_step={bound:.3g} (a quarter of the shortest time between the "
@@ -738,17 +741,28 @@ class Plan:
             *self.detector.affine[j], tolerance)}
         return np.array([j for j in every if j not in cleared], dtype=int)
 
-    def _samples(self, sol, rows):
-        """(times, G): the detector's functions ``rows`` on the final solution at
+    def _samples(self, sol, rows, tolerance=0.0):
+        """(times, G, first): the detector's functions ``rows`` on the final solution at
         SWITCH_SAMPLES points in every element of the components they read (of every
-        component for functions of t alone), and at the end."""
+        component for functions of t alone), at the end, and at the extremes between them
+        that may cross zero (:func:`_extremes`, ``tolerance`` x max |g| as its floor), in
+        time order; element n's samples are first[n] to first[n + 1] (its start and end)."""
         read = self.detector.components or range(sol.ode.N)
         starts = [sol.time_steps(i if sol.multi else None) for i in (read if sol.multi else [None])]
         ends = np.unique(np.concatenate([[sol.ode.t0]] + [t + k for t, k in starts]))
         fractions = np.linspace(0.0, 1.0, SWITCH_SAMPLES + 1)[:-1]
         times = np.append((ends[:-1, None] + np.diff(ends)[:, None] * fractions).ravel(),
                           ends[-1])
-        return times, self.detector.values(times, sol._galerkin(times), rows)
+        G = self.detector.values(times, sol._galerkin(times), rows)
+        extra = np.unique(np.concatenate(
+            [_extremes(times, g, tolerance * np.max(np.abs(g))) for g in G]))
+        if extra.size:
+            times = np.concatenate([times, extra])
+            G = np.concatenate([G, self.detector.values(extra, sol._galerkin(extra), rows)],
+                               axis=1)
+            order = np.argsort(times, kind="stable")
+            times, G = times[order], G[:, order]
+        return times, G, np.searchsorted(times, ends)
 
     @property
     def truncates(self):
@@ -792,23 +806,60 @@ SWITCH_SAMPLES = 8
 
 
 @njit(cache=True)
-def _hidden_crossings(g, floor, samples):
-    """(missed, largest): the elements whose samples of g (``samples`` per element, from its
-    start; g's last value at T) have the same sign at both ends and a value of the other sign
-    beyond ``floor`` inside, and the largest |g| of those values (one pass: the arrays of
-    a vectorised test took half of an events check)."""
+def _hidden_crossings(g, floor, first):
+    """(missed, largest): the elements (samples first[n] to first[n + 1] of g, from its
+    start to its end) whose samples have the same sign at both ends and a value of the
+    other sign beyond ``floor`` inside, and the largest |g| of those values."""
     missed, largest = 0, 0.0
-    for n in range((g.size - 1) // samples):
-        sign = np.sign(g[n * samples])
-        if not sign * np.sign(g[(n + 1) * samples]) > 0:
+    for n in range(first.size - 1):
+        start, end = first[n], first[n + 1]
+        sign = np.sign(g[start])
+        if not sign * np.sign(g[end]) > 0:
             continue
-        other = False
-        for r in range(n * samples + 1, (n + 1) * samples):
-            if g[r] * sign < -floor:
-                other = True
-                largest = max(largest, abs(g[r]))
-        missed += other
+        inner = g[start + 1:end]
+        other = inner[sign * inner < -floor]
+        if other.size:
+            missed += 1
+            largest = max(largest, float(np.max(np.abs(other))))
     return missed, largest
+
+
+@njit(cache=True)
+def _vertex(t0, t1, t2, a, b, c):
+    """(tv, gv): the extreme of the parabola through (t0, a), (t1, b), (t2, c), in [t0, t2],
+    where b is nearer zero than a and c, of one sign (an extreme of g between samples);
+    (t1, b) elsewhere."""
+    s = np.sign(b)
+    if not (s * a > 0 and s * c > 0 and s * b <= s * a and s * b <= s * c):
+        return t1, b
+    slope = (b - a) / (t1 - t0)
+    curve = ((c - b) / (t2 - t1) - slope) / (t2 - t0)
+    if not s * curve > 0:
+        return t1, b
+    tv = min(max(0.5 * (t0 + t1) - slope / (2 * curve), t0), t2)
+    return tv, a + (tv - t0) * (slope + curve * (tv - t1))
+
+
+@njit(cache=True)
+def _near_zero(b, gv, floor):
+    """Whether an extreme gv of g between samples, by the one b nearest zero, may cross it:
+    it comes within max(``floor``, |b| / 2) of zero."""
+    return np.sign(b) * gv < max(floor, 0.5 * abs(b))
+
+
+@njit(cache=True)
+def _extremes(times, g, floor):
+    """The times of the extremes of g between its samples (:func:`_vertex`) that may cross
+    zero (:func:`_near_zero`): a crossing and back narrower than the samples' spacing (a
+    level just below a smooth maximum) shows no sample of the other sign."""
+    found = np.empty(max(g.size - 2, 0))
+    count = 0
+    for i in range(1, g.size - 1):
+        tv, gv = _vertex(times[i - 1], times[i], times[i + 1], g[i - 1], g[i], g[i + 1])
+        if times[i - 1] < tv < times[i + 1] and tv != times[i] and _near_zero(g[i], gv, floor):
+            found[count] = tv
+            count += 1
+    return found[:count]
 
 
 def _affine(expr, ode):
@@ -885,21 +936,36 @@ def _may_hide_crossings(values, ends, u0, start, inside, radau, spread, c, d, to
             == np.sign(g_first - margin[0]) == np.sign(g_first + margin[0])):
         return True
     floor = tolerance * max(floor, min(abs(g_end[0]), abs(g_first)) - margin[0])
+    samples = inside.shape[0] + 2
+    g = np.empty(samples)
+    before = np.empty(2)  # the previous element's last inner sample and its spacing
     for n in range(M):
         sign = np.sign(g_end[n])
         if abs(g_end[n + 1]) <= margin[n] or (n and abs(g_end[n]) <= margin[n - 1]):
             return True  # (the sample's sign is not known)
-        if not sign * np.sign(g_end[n + 1]) > 0:
-            continue
+        g[0], g[samples - 1] = g_end[n], g_end[n + 1]
         for r in range(inside.shape[0]):
-            g = d
+            g[r + 1] = d
             for i in range(c.size):
                 if c[i] != 0.0:
                     u = 0.0
                     for j in range(q1):
                         u += inside[r, j] * values[n, j, i]
-                    g += c[i] * u
-            if sign * g - jump[n] * abs(radau[r]) - margin[n] < -floor:
+                    g[r + 1] += c[i] * u
+        # the samples' and their extremes' offsets from the values the check reads
+        offset = margin[n] + jump[n] * np.max(np.abs(radau))
+        h = (ends[n + 1] - ends[n]) / (samples - 1)
+        if n and _near_zero(g[0], _vertex(-before[1], 0.0, h, before[0], g[0] - offset * sign,
+                                          g[1])[1], floor + offset):
+            return True
+        before[0], before[1] = g[samples - 2], h
+        if not sign * np.sign(g_end[n + 1]) > 0:
+            continue
+        for r in range(1, samples - 1):
+            if sign * g[r] - jump[n] * abs(radau[r - 1]) - margin[n] < -floor:
+                return True
+            if _near_zero(g[r], _vertex(-h, 0.0, h, g[r - 1], g[r] - offset * sign,
+                                        g[r + 1])[1], floor + offset):
                 return True
     return False
 

@@ -124,6 +124,13 @@ def failure_message(status, state, fixed, x, outside, kmax, newton, ode, slabs, 
         grew, growth = _growth(ode, x)
         mean = (t - ode.t0) / max(slabs, 1)
         hint = ""
+        if fixed:
+            # (the user's step: neither the tolerance nor the order sets it)
+            return (f"maximum_steps was reached at t = {t:.6g} ({size}) with fixed_time_step: "
+                    f"the step {k:.3g} takes {(ode.T - ode.t0) / k:.6g} steps over [t0, T], "
+                    f"{slabs} taken (the steps' sum rounds, so a count equal to maximum_steps "
+                    "may need one more); raise maximum_steps or give a longer "
+                    "initial_time_step")
         if k < _BLOWUP_STEP * (ode.T - ode.t0) and k < _STEADY * mean and grew:
             hint = (f"; the steps shrank to {k:.3g} while max |u| grew {growth}: the solution "
                     "may blow up near this time")

@@ -140,6 +140,14 @@ def _listed_vector(values, states, what):
     except ComplexValueError:
         raise
     except (TypeError, ValueError):
+        symbolic = [(s, v) for s, v in zip(states, vector) if getattr(v, "free_symbols", None)]
+        if symbolic:
+            state, value = symbolic[0]
+            names = ", ".join(sorted(map(str, value.free_symbols)))
+            raise TypeError(f"{what} for {state.name} is {value}, an expression of {names}: "
+                            f"{what} holds numbers, read when the ODE is made. Substitute the "
+                            "values (value.subs(params)); to vary them with a parameter, pass "
+                            "both to dn.Solver(ode).solve(u0=..., params=...)") from None
         raise TypeError(f"{what} must hold real numbers, got {vector!r}") from None
 
 

@@ -670,3 +670,41 @@ def test_breakpoints_given_at_a_jump_the_library_finds_are_that_jump(method):
                      breakpoints=[k * np.pi / 3 for k in range(1, 6)])
     found = dn.solve(ode, method, tolerance=1e-6)
     assert given(6.0)[0] == found(6.0)[0]
+
+
+@pytest.mark.parametrize("method", ["cG(4)", "dG(5)", "cG(5)"])
+def test_a_crossing_and_back_between_two_samples_warns(method):
+    """u = sin t crosses 0.9999 and back within 0.028 around each maximum: between two of
+    the check's samples of these methods' elements at 1e-6, so no sample showed it and the
+    four crossings were missed silently (g exceeds zero by 100 x the tolerance). The check
+    samples g's extremes between its samples; the step it names finds all four."""
+    ode = dn.ODE({u: v, v: -u}, u0=[0.0, 1.0], T=10.0)
+    level = 0.9999
+    with pytest.warns(dn.ToleranceWarning, match="crosses zero and back inside") as caught:
+        sol = dn.solve(ode, method, tolerance=1e-6, events=[u - level])
+    assert len(sol.t_events[0]) < 4
+    bound = float(str(caught[0].message).split("maximum_time_step=")[1].split(" ")[0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        sol = dn.solve(ode, method, tolerance=1e-6, events=[u - level],
+                       maximum_time_step=bound)
+    first = np.arcsin(level)
+    expected = [first, np.pi - first, 2 * np.pi + first, 3 * np.pi - first]
+    # (a crossing's time is off by the error in u over the slope there, 0.014)
+    np.testing.assert_allclose(sol.t_events[0], expected, atol=1e-6 / 0.014 * 10)
+
+
+@pytest.mark.parametrize("method", ["cG(4)", "dG(5)"])
+def test_a_switch_crossed_and_back_between_two_samples_is_solved_again(method):
+    """w' = Heaviside(x - 0.9999) with x = sin t: the switch is on for 0.028 around each
+    maximum, between two samples of these methods' elements at 1e-6. It was never seen:
+    w(T) = 0, off by 0.057 (5.7e4 x the tolerance; the error check warned). The a posteriori
+    check samples the switching function's extremes between its samples, and the solve is
+    repeated with a step that locates the switches."""
+    x, w = sp.symbols("x w")
+    ode = dn.ODE({x: v, v: -x, w: sp.Heaviside(x - 0.9999)}, u0=[0.0, 1.0, 0.0], T=10.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dn.ToleranceWarning)
+        sol = dn.solve(ode, method, tolerance=1e-6)
+    assert sol.stats["switch step bound"] < 0.01
+    assert sol(10.0)[2] == pytest.approx(2 * (np.pi - 2 * np.arcsin(0.9999)), abs=1e-6)

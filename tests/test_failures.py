@@ -35,6 +35,16 @@ def test_maximum_steps():
     assert "blow up" not in str(info.value)
 
 
+def test_maximum_steps_with_fixed_steps_names_the_step_count_not_the_tolerance():
+    # it advised a looser tolerance, a higher order, or (1e7 steps of 1e-7) automatic
+    # modeling for a fast oscillation, none of which sets a fixed step
+    with pytest.raises(dn.SolverError, match=r"maximum_steps was reached at t = 0\.99 .* with "
+                       r"fixed_time_step: the step 0\.01 takes 100 steps over \[t0, T\], 99 "
+                       r"taken .* raise maximum_steps or give a longer initial_time_step$"):
+        dn.solve(dn.ODE({u: -u}, u0=[1.0], T=1.0), method="cG(1)", fixed_time_step=True,
+                 initial_time_step=0.01, maximum_steps=99)
+
+
 def test_maximum_steps_near_a_blowup_says_so():
     # dG(0) creeps towards the singularity of u' = u^2 at t = 1 until maximum_steps (it gave
     # only "raise maximum_steps, loosen the tolerance, ...")

@@ -220,6 +220,13 @@ def test_u0_with_non_numbers_raises_type_error():
         declare(u0=[1.0, "one"])
 
 
+def test_u0_with_a_parameter_expression_names_it_and_the_way_to_vary_it():
+    # it said "u0 must hold real numbers, got [1.0, sqrt(k)]"
+    with pytest.raises(TypeError, match=r"u0 for v is sqrt\(k\), an expression of k: .*"
+                                        r"dn.Solver\(ode\).solve\(u0=..., params=...\)"):
+        declare(u0={u: 1.0, v: sp.sqrt(k)})
+
+
 def test_u0_dict_missing_a_state():
     with pytest.raises(ValueError, match="u0 is missing values for v"):
         declare(u0={u: 1.0})
