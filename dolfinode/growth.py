@@ -15,9 +15,13 @@ cG(1), dG(0), unwarned), and u' = 1e100 u returned u(T) = 0. A run is warned whe
 with Re z > SPANNED misses more than MISSED x the tolerance (atol_i + rtol |U_i|) in a
 mode. For a multi-adaptive run z is an eigenvalue of K J, K = diag(k_i) the components'
 steps (k J for a shared step). The steps' Gershgorin bound max_i k_i (J_ii + sum_j |J_ij|)
-of Re z selects the candidates, and the bound plus log max_i |k_i f_i| / (atol_i + rtol
-|U_i|) of log(a exp(z)) ranks them (at most MAX_CANDIDATES), so that a run without growing
-modes pays one Jacobian per step.
+of Re z selects the candidates; of a system of at most CERTIFIED components each is then
+certified (no eigenvalue with Re z > SPANNED: the spectral abscissa of the comparison
+matrix of K J, or of W K J V in the eigenbasis V of a step decomposed before, is below
+SPANNED) or decomposed, which on stiff decaying runs leaves none (the plain bound selected
+every stiff step: off-diagonal couplings). The bound plus log max_i |k_i f_i| / (atol_i +
+rtol |U_i|) of log(a exp(z)) ranks those left (at most MAX_CANDIDATES), so that a run
+without growing modes pays one Jacobian per step and few decompositions.
 """
 from itertools import pairwise
 
@@ -39,6 +43,9 @@ MISSED = 10.0
 MAX_CANDIDATES, DENSE_ENTRIES, MAX_DENSE = 8, 2**21, 512
 #: Steps whose bounds are computed at once (the Jacobian's values of a chunk are held).
 CHUNK = 4096
+#: Systems of at most CERTIFIED components have each step the Gershgorin bound selects
+#: certified or decomposed (:func:`_growing`: its dense products cost N^3 a step).
+CERTIFIED = 32
 
 
 def spanned_growth(sol, compiled, m, atol, rtol):
@@ -56,9 +63,11 @@ def spanned_growth(sol, compiled, m, atol, rtol):
     for start in range(0, len(times), CHUNK):
         rows = slice(start, start + CHUNK)
         U, K = states(rows), steps(rows)
-        bound = _gershgorin(_jacobian_values(compiled, U, times[rows]), compiled.indptr,
-                            compiled.indices, K)
+        values = _jacobian_values(compiled, U, times[rows])
+        bound = _gershgorin(values, compiled.indptr, compiled.indices, K)
         keep = np.flatnonzero(bound > SPANNED)
+        if N <= CERTIFIED:
+            keep = _growing(values, compiled.indptr, compiled.indices, K, keep)
         if not keep.size:
             continue
         # ranked by log(a exp(z)) <= bound + log |K f|_scaled: a spanned mode's error
@@ -153,6 +162,113 @@ def _gershgorin(data, indptr, indices, steps):
             best = max(best, steps[p, i] * row)
         out[p] = best
     return out
+
+
+def _growing(data, indptr, indices, steps, candidates):
+    """The ``candidates`` (step indices) whose Z = K J (J's nonzero values ``data``, (P, nnz),
+    CSR order; ``steps`` K, (P, N)) has an eigenvalue with Re z > SPANNED. Each is certified
+    without (:func:`_certified`): by the comparison matrix of Z, or of B = W Z V, V the
+    eigenvectors of the last step decomposed (W = V^-1: B is similar to Z, and near
+    diagonal while J changes little), else it is decomposed, its eigenvalues exact."""
+    N = indptr.size - 1
+    rows = np.repeat(np.arange(N), np.diff(indptr))
+    none = np.empty((0, 0), dtype=np.complex128)
+    V = W = none  # no basis yet: Z's comparison matrix alone
+    R, growing, at = np.empty((0, 0)), [], 0
+    while True:
+        at += _certified(data, indptr, indices, steps, candidates[at:], V, W, R)
+        if at == candidates.size:
+            return np.array(growing, dtype=np.int64)
+        p = candidates[at]
+        Z = np.zeros((N, N))
+        Z[rows, indices] = data[p]
+        with np.errstate(all="ignore"):
+            z, V = np.linalg.eig(steps[p][:, None] * Z)
+        if not (z.real <= SPANNED).all():  # (NaN: not certified either)
+            growing.append(p)
+        try:
+            W = np.linalg.inv(V)
+        except np.linalg.LinAlgError:  # (defective: no basis)
+            V, W, R = none, none, np.empty((0, 0))
+        else:
+            # |W V - I| (W = V^-1 up to rounding): bounds B's distance to V^-1 Z V
+            V, W = V.astype(np.complex128), W.astype(np.complex128)
+            R = np.abs(W @ V - np.eye(N))
+        at += 1
+
+
+@njit(cache=True)
+def _certified(data, indptr, indices, steps, candidates, V, W, R):
+    """How many of the ``candidates`` (in order) have Re z <= SPANNED for every eigenvalue
+    of Z = K J certified by Gershgorin's bound scaled at best: the spectral abscissa of the
+    comparison matrix C (C_ii = Re Z_ii, C_ij = |Z_ij|) bounds Re z (the Gershgorin bound of
+    D^-1 Z D, minimized over diagonal D > 0), first of Z, then of B = W Z V (``V``, ``W``: a
+    basis and its inverse, empty where there is none), with B's distance to V^-1 Z V added
+    to C: |R| |B| (``R`` = |W V - I|) and the products' rounding, 2 N eps |W| |Z| |V|."""
+    N = indptr.size - 1
+    Z, C, A = np.zeros((N, N)), np.zeros((N, N)), np.zeros((N, N))
+    B, T = np.zeros((N, N), dtype=np.complex128), np.zeros((N, N), dtype=np.complex128)
+    absV, sum_W, sum_R = np.abs(V), np.sum(np.abs(W), axis=1), np.sum(R, axis=1)
+    rounding = 2 * N * np.finfo(np.float64).eps
+    for count in range(candidates.size):
+        p = candidates[count]
+        Z[:] = 0.0
+        for i in range(N):
+            for m in range(indptr[i], indptr[i + 1]):
+                Z[i, indices[m]] = steps[p, i] * data[p, m]
+        for i in range(N):
+            for j in range(N):
+                C[i, j] = Z[i, j] if i == j else abs(Z[i, j])
+        if _abscissa_below(C, SPANNED):
+            continue
+        if V.shape[0] == 0:
+            return count
+        T[:] = 0.0
+        A[:] = 0.0
+        for i in range(N):
+            for k in range(N):
+                if Z[i, k] != 0.0:
+                    for j in range(N):
+                        T[i, j] += Z[i, k] * V[k, j]
+                        A[i, j] += abs(Z[i, k]) * absV[k, j]
+        B[:] = 0.0
+        for i in range(N):
+            for k in range(N):
+                for j in range(N):
+                    B[i, j] += W[i, k] * T[k, j]
+        # (X Y)_ij <= (sum_k X_ik) max_k Y_kj for X, Y >= 0: the margins in N^2
+        for j in range(N):
+            top_A = top_B = 0.0
+            for k in range(N):
+                top_A, top_B = max(top_A, A[k, j]), max(top_B, abs(B[k, j]))
+            for i in range(N):
+                C[i, j] = rounding * sum_W[i] * top_A + sum_R[i] * top_B + (
+                    B[i, j].real if i == j else abs(B[i, j]))
+        if not _abscissa_below(C, SPANNED):
+            return count
+    return candidates.size
+
+
+@njit(cache=True)
+def _abscissa_below(C, s):
+    """Whether the spectral abscissa of C (off-diagonal entries >= 0: a Metzler matrix) is
+    below s: A = s I - C (off-diagonal entries <= 0) is then a nonsingular M-matrix, which
+    is where its elimination without pivoting has positive pivots (its leading principal
+    minors; each Schur complement keeps the sign pattern). C is overwritten."""
+    N = C.shape[0]
+    for i in range(N):
+        for j in range(N):
+            C[i, j] = (s if i == j else 0.0) - C[i, j]
+    for k in range(N):
+        pivot = C[k, k]
+        if not pivot > 0.0:
+            return False
+        for i in range(k + 1, N):
+            factor = C[i, k] / pivot
+            if factor != 0.0:
+                for j in range(k + 1, N):
+                    C[i, j] -= factor * C[k, j]
+    return True
 
 
 def _missed(Z, g, U, atol, rtol, num, den):
