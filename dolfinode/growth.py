@@ -28,7 +28,7 @@ from itertools import pairwise
 import numpy as np
 from numba import njit
 
-from dolfinode.compile.signatures import call_rhs_rows
+from dolfinode.compile.signatures import address, call_rhs_rows, rhs_kernel
 from dolfinode.methods.method import stability_function
 
 #: A step spans a mode where Re z > SPANNED (the mode grows e-fold within the step).
@@ -148,6 +148,32 @@ def _partitions(sol):
     return partitions
 
 
+def may_span(compiled, u0, times, X, n):
+    """Whether a step of the first ``n`` elements of a cG(q)/dG(q) history in a prepared
+    call's buffers (``times`` (2, capacity): starts and lengths, ``X`` (capacity, q + 1, N):
+    nodal values; from ``u0``) may span a growing mode: where Gershgorin's bound of Re z
+    (:func:`spanned_growth`'s first test) passes SPANNED at a step's start; one compiled
+    call, which a prepared call of one step makes before :func:`spanned_growth` (its
+    Python would cost several times such a call)."""
+    return _gershgorin_passes(compiled.jacobian.address, compiled.indptr, compiled.indices,
+                              compiled.p, u0, times, X, n)
+
+
+@njit(cache=True)
+def _gershgorin_passes(jacobian, indptr, indices, p, u0, times, X, n):
+    """:func:`may_span` with the Jacobian's kernel at the address ``jacobian``."""
+    u, data = u0.copy(), np.empty(max(indices.size, 1))
+    kernel = rhs_kernel(jacobian)
+    for step in range(n):
+        if step > 0:
+            u[:] = X[step - 1, -1]
+        kernel(address(u, 0), times[0, step], address(p, 0), address(data, 0))
+        for i in range(u.size):
+            if times[1, step] * _row_bound(data, indptr, indices, i) > SPANNED:
+                return True
+    return False
+
+
 @njit(cache=True)
 def _gershgorin(data, indptr, indices, steps):
     """Per step p, max_i k_pi (J_ii + sum_{j != i} |J_ij|) from J's nonzero values ``data``
@@ -156,12 +182,18 @@ def _gershgorin(data, indptr, indices, steps):
     for p in range(data.shape[0]):
         best = -np.inf
         for i in range(indptr.size - 1):
-            row = 0.0
-            for m in range(indptr[i], indptr[i + 1]):
-                row += data[p, m] if indices[m] == i else abs(data[p, m])
-            best = max(best, steps[p, i] * row)
+            best = max(best, steps[p, i] * _row_bound(data[p], indptr, indices, i))
         out[p] = best
     return out
+
+
+@njit(cache=True)
+def _row_bound(values, indptr, indices, i):
+    """J_ii + sum_{j != i} |J_ij| of row i, from J's nonzero ``values`` (CSR order)."""
+    row = 0.0
+    for m in range(indptr[i], indptr[i + 1]):
+        row += values[m] if indices[m] == i else abs(values[m])
+    return row
 
 
 def _growing(data, indptr, indices, steps, candidates):

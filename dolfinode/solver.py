@@ -36,6 +36,7 @@ from types import MappingProxyType
 
 import numpy as np
 
+from dolfinode import growth
 from dolfinode import timeslab as ts
 from dolfinode.adaptivity import UNDAMPED_DEVIATION
 from dolfinode.ensemble import parameter_symbol, vary
@@ -84,6 +85,7 @@ from dolfinode.solve import (
     warn_below_tolerance_throughout,
     warn_growth,
     warn_lost_components,
+    warn_spanned_growth,
 )
 from dolfinode.timeslab import contract, mono, prepared
 from dolfinode.timeslab.start import READY, start
@@ -441,6 +443,10 @@ class Solver:
         steps = counts[ts.SLABS]
         if steps >= self._checked_from:  # (check_error_at_T's own test, read once)
             check_error_at_T(work, compiled, None, False, m, params, sol, steps)
+        elif (params["estimate_global_error"] is not False  # (its growth check alone)
+              and growth.may_span(compiled, self._initial, self._times, self._buffers[2],
+                                  counts[ts.STORED])):
+            warn_spanned_growth(work, compiled, m, params, sol)
         # values projected to 0 (:func:`warn_lost_components`): none where none ends at 0
         # (x: the values at the end, sol.values[-1, -1])
         if self._bounded and _has_zero(kept.x):

@@ -128,3 +128,14 @@ def test_certificate_passes_no_matrix_with_a_growing_mode():
             growing += exceeds
             assert not (passed and exceeds)
     assert certified > 100 and growing > 100
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_prepared_solve_of_one_step_is_checked(method):
+    # Solver.solve of one step skipped the checks at T: u(1) = 1 for 5e15, unwarned
+    ode = dn.ODE({u: 50 * (u - 1)}, u0=[1 + 1e-6], T=1.0)
+    solver = dn.Solver(ode, method=method, tolerance=1e-3)
+    for u0 in ([1 + 1e-6], [1 - 1e-6]):  # (the second call: the prepared path's values)
+        with pytest.warns(dn.ToleranceWarning, match="growing mode .* spans the step"):
+            sol = solver.solve(u0=u0)
+        assert sol.stats["time slabs"] == 1
