@@ -74,6 +74,7 @@ from dolfinode.solve import (
     below_tolerance,
     check_error_at_T,
     check_tolerance,
+    checks_at_T,
     fewest_checked_steps,
     lower,
     lowered,
@@ -190,7 +191,9 @@ class Solver:
         self._given_steps = params["initial_time_step"] is not None
         self._maximum_steps = params["maximum_steps"]
         # the fewest steps whose error at T check_error_at_T checks (estimate_global_error)
-        self._checked_from = fewest_checked_steps(params["estimate_global_error"])
+        self._checks = checks_at_T(params)
+        self._checked_from = (fewest_checked_steps(params["estimate_global_error"])
+                              if self._checks else np.inf)
         # a sparse candidate's Newton storage, decided by its first solve that needs Newton's
         # method: the general path until then, this solver prepared again once it is
         self._awaited_plans = None
@@ -443,7 +446,7 @@ class Solver:
         steps = counts[ts.SLABS]
         if steps >= self._checked_from:  # (check_error_at_T's own test, read once)
             check_error_at_T(work, compiled, None, False, m, params, sol, steps)
-        elif (params["estimate_global_error"] is not False  # (its growth check alone)
+        elif (self._checks  # (its growth check alone)
               and growth.may_span(compiled, self._initial, self._times, self._buffers[2],
                                   counts[ts.STORED])):
             warn_spanned_growth(work, compiled, m, params, sol)
