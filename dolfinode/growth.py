@@ -27,6 +27,7 @@ from itertools import pairwise
 
 import numpy as np
 from numba import njit
+from scipy.linalg import lapack
 
 from dolfinode.compile.signatures import address, call_rhs_rows, rhs_kernel
 from dolfinode.methods.method import stability_function
@@ -201,46 +202,65 @@ def _growing(data, indptr, indices, steps, candidates):
     CSR order; ``steps`` K, (P, N)) has an eigenvalue with Re z > SPANNED. Each is certified
     without (:func:`_certified`): by the comparison matrix of Z, or of B = W Z V, V the
     eigenvectors of the last step decomposed (W = V^-1: B is similar to Z, and near
-    diagonal while J changes little), else it is decomposed, its eigenvalues exact."""
-    N = indptr.size - 1
-    rows = np.repeat(np.arange(N), np.diff(indptr))
-    none = np.empty((0, 0), dtype=np.complex128)
-    V = W = none  # no basis yet: Z's comparison matrix alone
-    R, growing, at = np.empty((0, 0)), [], 0
+    diagonal while J changes little), else it is decomposed (:func:`_basis`)."""
+    Z = np.empty((indptr.size - 1,) * 2)  # (the Z of the step _certified stopped at)
+    basis, growing, at = NO_BASIS, [], 0  # (no basis yet: Z's comparison matrix alone)
     while True:
-        at += _certified(data, indptr, indices, steps, candidates[at:], V, W, R)
+        at += _certified(data, indptr, indices, steps, candidates[at:], *basis, Z)
         if at == candidates.size:
             return np.array(growing, dtype=np.int64)
-        p = candidates[at]
-        Z = np.zeros((N, N))
-        Z[rows, indices] = data[p]
-        with np.errstate(all="ignore"):
-            z, V = np.linalg.eig(steps[p][:, None] * Z)
-        if not (z.real <= SPANNED).all():  # (NaN: not certified either)
-            growing.append(p)
-        try:
-            W = np.linalg.inv(V)
-        except np.linalg.LinAlgError:  # (defective: no basis)
-            V, W, R = none, none, np.empty((0, 0))
-        else:
-            # |W V - I| (W = V^-1 up to rounding): bounds B's distance to V^-1 Z V
-            V, W = V.astype(np.complex128), W.astype(np.complex128)
-            R = np.abs(W @ V - np.eye(N))
+        grows, basis = _basis(Z)
+        if grows:
+            growing.append(candidates[at])
         at += 1
 
 
+#: V, W of :func:`_certified` where there is no basis.
+NO_BASIS = (np.empty((0, 0), dtype=np.complex128),) * 2
+
+
+def _basis(Z):
+    """(whether Z has an eigenvalue with Re z > SPANNED, (V, W)): its eigenvectors V and
+    W = V^-1 (up to rounding: :func:`_certified` bounds it); NO_BASIS where Z is not
+    finite (left to the ranking: Gershgorin's bound selected it) or defective. LAPACK's
+    routines directly: numpy's eig costs 16 us on 3 x 3 (its checks), dgeev 2."""
+    if not np.isfinite(Z).all():
+        return True, NO_BASIS
+    real, imaginary, _, vectors, failed = lapack.dgeev(Z, compute_vl=0)
+    if failed:
+        return True, NO_BASIS
+    grows = not (real <= SPANNED).all()
+    # a complex pair's vectors are columns j, j + 1 (Im z_j > 0): v = VR_j +- i VR_j+1
+    V, pair = vectors.astype(np.complex128), np.flatnonzero(imaginary > 0)
+    if pair.size:
+        V[:, pair] += 1j * vectors[:, pair + 1]
+        V[:, pair + 1] = np.conj(V[:, pair])
+    lu, pivots, singular = lapack.zgetrf(V)
+    if singular:
+        return grows, NO_BASIS
+    return grows, (V, lapack.zgetri(lu, pivots)[0])
+
+
 @njit(cache=True)
-def _certified(data, indptr, indices, steps, candidates, V, W, R):
+def _certified(data, indptr, indices, steps, candidates, V, W, Z):
     """How many of the ``candidates`` (in order) have Re z <= SPANNED for every eigenvalue
     of Z = K J certified by Gershgorin's bound scaled at best: the spectral abscissa of the
     comparison matrix C (C_ii = Re Z_ii, C_ij = |Z_ij|) bounds Re z (the Gershgorin bound of
     D^-1 Z D, minimized over diagonal D > 0), first of Z, then of B = W Z V (``V``, ``W``: a
     basis and its inverse, empty where there is none), with B's distance to V^-1 Z V added
-    to C: |R| |B| (``R`` = |W V - I|) and the products' rounding, 2 N eps |W| |Z| |V|."""
+    to C: |R| |B| (R = W V - I: W's rounding) and the products' rounding,
+    2 N eps |W| |Z| |V|.
+    ``Z``: (N, N), holds the Z of the step not certified."""
     N = indptr.size - 1
-    Z, C, A = np.zeros((N, N)), np.zeros((N, N)), np.zeros((N, N))
+    C, A = np.zeros((N, N)), np.zeros((N, N))
     B, T = np.zeros((N, N), dtype=np.complex128), np.zeros((N, N), dtype=np.complex128)
-    absV, sum_W, sum_R = np.abs(V), np.sum(np.abs(W), axis=1), np.sum(R, axis=1)
+    absV, sum_W, sum_R = np.abs(V), np.sum(np.abs(W), axis=1), np.zeros(V.shape[0])
+    for i in range(V.shape[0]):
+        for j in range(V.shape[0]):
+            entry = -1.0 + 0j if i == j else 0j
+            for k in range(V.shape[0]):
+                entry += W[i, k] * V[k, j]
+            sum_R[i] += abs(entry)
     rounding = 2 * N * np.finfo(np.float64).eps
     for count in range(candidates.size):
         p = candidates[count]
