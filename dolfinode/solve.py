@@ -1256,11 +1256,11 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
     a ToleranceWarning when the estimate exceeds 10 x the tolerance where it holds (with
     fixed steps too: estimate_global_error=True compares them with the tolerance); where it
     is within 10 x but not with its second-order part added, the error is measured
-    (:func:`_measure`, global_error.SECOND_ORDER). ``slabs``: by :func:`~dolfinode.global_error.slab_estimate`;
-    where the run is stiff on a slab it gives up (:func:`_stiff_on_slabs`), and where its
-    elements' copy exceeds the memory sol.stats["global error note"] says that the error at T
-    was not estimated. ``running``: the estimate carried chunk by chunk
-    (:class:`global_error.Running`). The estimates also give the largest error at an
+    (:func:`_measure`, global_error.SECOND_ORDER). ``slabs``: by
+    :func:`~dolfinode.global_error.slab_estimate`; where the run is stiff on a slab it gives
+    up (:func:`_stiff_on_slabs`), and where its elements' copy exceeds the memory
+    sol.stats["global error note"] says that the error at T was not estimated. ``running``:
+    the estimate carried chunk by chunk (:class:`global_error.Running`). The estimates also give the largest error at an
     element end mid-run (every component's, a mono-adaptive run's at every slab end;
     :func:`global_error.carried`, :func:`global_error.slab_estimate`,
     :func:`global_error.modal_estimate`), "global error mid-run", with a ToleranceWarning
