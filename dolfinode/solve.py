@@ -1260,14 +1260,14 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
     :func:`~dolfinode.global_error.slab_estimate`; where the run is stiff on a slab it gives
     up (:func:`_stiff_on_slabs`), and where its elements' copy exceeds the memory
     sol.stats["global error note"] says that the error at T was not estimated. ``running``:
-    the estimate carried chunk by chunk (:class:`global_error.Running`). The estimates also give the largest error at an
-    element end mid-run (every component's, a mono-adaptive run's at every slab end;
-    :func:`global_error.carried`, :func:`global_error.slab_estimate`,
-    :func:`global_error.modal_estimate`), "global error mid-run", with a ToleranceWarning
-    where it exceeds 10 x the tolerance and the error at T does not
-    (:func:`_midrun_warning`). Where the nonlinearity exceeds NONLINEAR_LIMIT, so that the
-    estimate certifies nothing, and it or its remainder reaches 10 x at T or its mid-run
-    value does, both are measured against a reference solve (:func:`_measure`)."""
+    the estimate carried chunk by chunk (:class:`global_error.Running`). The estimates
+    also give the largest error at an element end mid-run (every component's, a
+    mono-adaptive run's at every slab end; :func:`global_error.carried`,
+    :func:`global_error.slab_estimate`, :func:`global_error.modal_estimate`), "global error
+    mid-run", with a ToleranceWarning where it exceeds 10 x the tolerance and the error at
+    T does not (:func:`_midrun_warning`). Where the nonlinearity exceeds NONLINEAR_LIMIT,
+    so that the estimate certifies nothing, and it or its remainder reaches 10 x at T or
+    its mid-run value does, both are measured against a reference solve (:func:`_measure`)."""
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
     peak = np.zeros(3)  # the error mid-run: value, time, component
