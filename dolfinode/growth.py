@@ -15,16 +15,21 @@ cG(1), dG(0), unwarned), and u' = 1e100 u returned u(T) = 0. A run is warned whe
 with Re z > SPANNED misses more than MISSED x the tolerance (atol_i + rtol |U_i|) in a
 mode. For a multi-adaptive run z is an eigenvalue of K J, K = diag(k_i) the components'
 steps (k J for a shared step). The steps' Gershgorin bound max_i k_i (J_ii + sum_j |J_ij|)
-of Re z selects the candidates, and the bound plus log max_i |k_i f_i| / (atol_i + rtol
-|U_i|) of log(a exp(z)) ranks them (at most MAX_CANDIDATES), so that a run without growing
-modes pays one Jacobian per step.
+of Re z selects the candidates; of a system of at most CERTIFIED components each is then
+certified (no eigenvalue with Re z > SPANNED: the spectral abscissa of the comparison
+matrix of K J, or of W K J V in the eigenbasis V of a step decomposed before, is below
+SPANNED) or decomposed, which on stiff decaying runs leaves none (the plain bound selected
+every stiff step: off-diagonal couplings). The bound plus log max_i |k_i f_i| / (atol_i +
+rtol |U_i|) of log(a exp(z)) ranks those left (at most MAX_CANDIDATES), so that a run
+without growing modes pays one Jacobian per step and few decompositions.
 """
 from itertools import pairwise
 
 import numpy as np
 from numba import njit
+from scipy.linalg import lapack
 
-from dolfinode.compile.signatures import call_rhs_rows
+from dolfinode.compile.signatures import address, call_rhs_rows, rhs_kernel
 from dolfinode.methods.method import stability_function
 
 #: A step spans a mode where Re z > SPANNED (the mode grows e-fold within the step).
@@ -39,6 +44,9 @@ MISSED = 10.0
 MAX_CANDIDATES, DENSE_ENTRIES, MAX_DENSE = 8, 2**21, 512
 #: Steps whose bounds are computed at once (the Jacobian's values of a chunk are held).
 CHUNK = 4096
+#: Systems of at most CERTIFIED components have each step the Gershgorin bound selects
+#: certified or decomposed (:func:`_growing`: its dense products cost N^3 a step).
+CERTIFIED = 32
 
 
 def spanned_growth(sol, compiled, m, atol, rtol):
@@ -56,9 +64,11 @@ def spanned_growth(sol, compiled, m, atol, rtol):
     for start in range(0, len(times), CHUNK):
         rows = slice(start, start + CHUNK)
         U, K = states(rows), steps(rows)
-        bound = _gershgorin(_jacobian_values(compiled, U, times[rows]), compiled.indptr,
-                            compiled.indices, K)
+        values = _jacobian_values(compiled, U, times[rows])
+        bound = _gershgorin(values, compiled.indptr, compiled.indices, K)
         keep = np.flatnonzero(bound > SPANNED)
+        if N <= CERTIFIED:
+            keep = _growing(values, compiled.indptr, compiled.indices, K, keep)
         if not keep.size:
             continue
         # ranked by log(a exp(z)) <= bound + log |K f|_scaled: a spanned mode's error
@@ -139,6 +149,32 @@ def _partitions(sol):
     return partitions
 
 
+def may_span(compiled, u0, times, X, n):
+    """Whether a step of the first ``n`` elements of a cG(q)/dG(q) history in a prepared
+    call's buffers (``times`` (2, capacity): starts and lengths, ``X`` (capacity, q + 1, N):
+    nodal values; from ``u0``) may span a growing mode: where Gershgorin's bound of Re z
+    (:func:`spanned_growth`'s first test) passes SPANNED at a step's start; one compiled
+    call, which a prepared call of one step makes before :func:`spanned_growth` (its
+    Python would cost several times such a call)."""
+    return _gershgorin_passes(compiled.jacobian.address, compiled.indptr, compiled.indices,
+                              compiled.p, u0, times, X, n)
+
+
+@njit(cache=True)
+def _gershgorin_passes(jacobian, indptr, indices, p, u0, times, X, n):
+    """:func:`may_span` with the Jacobian's kernel at the address ``jacobian``."""
+    u, data = u0.copy(), np.empty(max(indices.size, 1))
+    kernel = rhs_kernel(jacobian)
+    for step in range(n):
+        if step > 0:
+            u[:] = X[step - 1, -1]
+        kernel(address(u, 0), times[0, step], address(p, 0), address(data, 0))
+        for i in range(u.size):
+            if times[1, step] * _row_bound(data, indptr, indices, i) > SPANNED:
+                return True
+    return False
+
+
 @njit(cache=True)
 def _gershgorin(data, indptr, indices, steps):
     """Per step p, max_i k_pi (J_ii + sum_{j != i} |J_ij|) from J's nonzero values ``data``
@@ -147,12 +183,144 @@ def _gershgorin(data, indptr, indices, steps):
     for p in range(data.shape[0]):
         best = -np.inf
         for i in range(indptr.size - 1):
-            row = 0.0
-            for m in range(indptr[i], indptr[i + 1]):
-                row += data[p, m] if indices[m] == i else abs(data[p, m])
-            best = max(best, steps[p, i] * row)
+            best = max(best, steps[p, i] * _row_bound(data[p], indptr, indices, i))
         out[p] = best
     return out
+
+
+@njit(cache=True)
+def _row_bound(values, indptr, indices, i):
+    """J_ii + sum_{j != i} |J_ij| of row i, from J's nonzero ``values`` (CSR order)."""
+    row = 0.0
+    for m in range(indptr[i], indptr[i + 1]):
+        row += values[m] if indices[m] == i else abs(values[m])
+    return row
+
+
+def _growing(data, indptr, indices, steps, candidates):
+    """The ``candidates`` (step indices) whose Z = K J (J's nonzero values ``data``, (P, nnz),
+    CSR order; ``steps`` K, (P, N)) has an eigenvalue with Re z > SPANNED. Each is certified
+    without (:func:`_certified`): by the comparison matrix of Z, or of B = W Z V, V the
+    eigenvectors of the last step decomposed (W = V^-1: B is similar to Z, and near
+    diagonal while J changes little), else it is decomposed (:func:`_basis`)."""
+    Z = np.empty((indptr.size - 1,) * 2)  # (the Z of the step _certified stopped at)
+    basis, growing, at = NO_BASIS, [], 0  # (no basis yet: Z's comparison matrix alone)
+    while True:
+        at += _certified(data, indptr, indices, steps, candidates[at:], *basis, Z)
+        if at == candidates.size:
+            return np.array(growing, dtype=np.int64)
+        grows, basis = _basis(Z)
+        if grows:
+            growing.append(candidates[at])
+        at += 1
+
+
+#: V, W of :func:`_certified` where there is no basis.
+NO_BASIS = (np.empty((0, 0), dtype=np.complex128),) * 2
+
+
+def _basis(Z):
+    """(whether Z has an eigenvalue with Re z > SPANNED, (V, W)): its eigenvectors V and
+    W = V^-1 (up to rounding: :func:`_certified` bounds it); NO_BASIS where Z is not
+    finite (left to the ranking: Gershgorin's bound selected it) or defective. LAPACK's
+    routines directly: numpy's eig costs 16 us on 3 x 3 (its checks), dgeev 2."""
+    if not np.isfinite(Z).all():
+        return True, NO_BASIS
+    real, imaginary, _, vectors, failed = lapack.dgeev(Z, compute_vl=0)
+    if failed:
+        return True, NO_BASIS
+    grows = not (real <= SPANNED).all()
+    # a complex pair's vectors are columns j, j + 1 (Im z_j > 0): v = VR_j +- i VR_j+1
+    V, pair = vectors.astype(np.complex128), np.flatnonzero(imaginary > 0)
+    if pair.size:
+        V[:, pair] += 1j * vectors[:, pair + 1]
+        V[:, pair + 1] = np.conj(V[:, pair])
+    lu, pivots, singular = lapack.zgetrf(V)
+    if singular:
+        return grows, NO_BASIS
+    return grows, (V, lapack.zgetri(lu, pivots)[0])
+
+
+@njit(cache=True)
+def _certified(data, indptr, indices, steps, candidates, V, W, Z):
+    """How many of the ``candidates`` (in order) have Re z <= SPANNED for every eigenvalue
+    of Z = K J certified by Gershgorin's bound scaled at best: the spectral abscissa of the
+    comparison matrix C (C_ii = Re Z_ii, C_ij = |Z_ij|) bounds Re z (the Gershgorin bound of
+    D^-1 Z D, minimized over diagonal D > 0), first of Z, then of B = W Z V (``V``, ``W``: a
+    basis and its inverse, empty where there is none), with B's distance to V^-1 Z V added
+    to C: |R| |B| (R = W V - I: W's rounding) and the products' rounding,
+    2 N eps |W| |Z| |V|.
+    ``Z``: (N, N), holds the Z of the step not certified."""
+    N = indptr.size - 1
+    C, A = np.zeros((N, N)), np.zeros((N, N))
+    B, T = np.zeros((N, N), dtype=np.complex128), np.zeros((N, N), dtype=np.complex128)
+    absV, sum_W, sum_R = np.abs(V), np.sum(np.abs(W), axis=1), np.zeros(V.shape[0])
+    for i in range(V.shape[0]):
+        for j in range(V.shape[0]):
+            entry = -1.0 + 0j if i == j else 0j
+            for k in range(V.shape[0]):
+                entry += W[i, k] * V[k, j]
+            sum_R[i] += abs(entry)
+    rounding = 2 * N * np.finfo(np.float64).eps
+    for count in range(candidates.size):
+        p = candidates[count]
+        Z[:] = 0.0
+        for i in range(N):
+            for m in range(indptr[i], indptr[i + 1]):
+                Z[i, indices[m]] = steps[p, i] * data[p, m]
+        for i in range(N):
+            for j in range(N):
+                C[i, j] = Z[i, j] if i == j else abs(Z[i, j])
+        if _abscissa_below(C, SPANNED):
+            continue
+        if V.shape[0] == 0:
+            return count
+        T[:] = 0.0
+        A[:] = 0.0
+        for i in range(N):
+            for k in range(N):
+                if Z[i, k] != 0.0:
+                    for j in range(N):
+                        T[i, j] += Z[i, k] * V[k, j]
+                        A[i, j] += abs(Z[i, k]) * absV[k, j]
+        B[:] = 0.0
+        for i in range(N):
+            for k in range(N):
+                for j in range(N):
+                    B[i, j] += W[i, k] * T[k, j]
+        # (X Y)_ij <= (sum_k X_ik) max_k Y_kj for X, Y >= 0: the margins in N^2
+        for j in range(N):
+            top_A = top_B = 0.0
+            for k in range(N):
+                top_A, top_B = max(top_A, A[k, j]), max(top_B, abs(B[k, j]))
+            for i in range(N):
+                C[i, j] = rounding * sum_W[i] * top_A + sum_R[i] * top_B + (
+                    B[i, j].real if i == j else abs(B[i, j]))
+        if not _abscissa_below(C, SPANNED):
+            return count
+    return candidates.size
+
+
+@njit(cache=True)
+def _abscissa_below(C, s):
+    """Whether the spectral abscissa of C (off-diagonal entries >= 0: a Metzler matrix) is
+    below s: A = s I - C (off-diagonal entries <= 0) is then a nonsingular M-matrix, which
+    is where its elimination without pivoting has positive pivots (its leading principal
+    minors; each Schur complement keeps the sign pattern). C is overwritten."""
+    N = C.shape[0]
+    for i in range(N):
+        for j in range(N):
+            C[i, j] = (s if i == j else 0.0) - C[i, j]
+    for k in range(N):
+        pivot = C[k, k]
+        if not pivot > 0.0:
+            return False
+        for i in range(k + 1, N):
+            factor = C[i, k] / pivot
+            if factor != 0.0:
+                for j in range(k + 1, N):
+                    C[i, j] -= factor * C[k, j]
+    return True
 
 
 def _missed(Z, g, U, atol, rtol, num, den):

@@ -365,7 +365,10 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         the absolute tolerance), whose period a longer step aliases
         (:mod:`dolfinode.features`, ``sol.stats["oscillation step bound"]``).
     fixed_time_step : bool, default False
-        True: uniform steps equal to ``initial_time_step``, no error control.
+        True: uniform steps equal to ``initial_time_step``, no error control; not checked
+        at T unless ``estimate_global_error=True``, which then estimates the error at T
+        and warns above 10 x ``tolerance`` (the run's only check: set the tolerance the
+        steps are meant to meet).
     nonlinear_solver : {"default", "fixed-point", "newton"}, default "default"
         "default" starts with fixed-point iteration and switches to Newton's method with the
         exact sparse Jacobian when the problem turns out stiff.
@@ -481,7 +484,10 @@ def solve(ode, method="cG(1)", *, tolerance=DEFAULTS["tolerance"], goal=None, **
         stored slabs as they are stored (the estimate of the whole history); runs whose
         estimate needs the elements (mcG(q), mdG(q), the slab estimate's) are not, and
         ``sol.stats["global error note"]`` says so (True raises for mcG(q), mdG(q)). True
-        estimates every run (a ValueError where it cannot), False none.
+        estimates every run (a ValueError where it cannot), False none. Runs with
+        ``fixed_time_step=True`` are estimated with True only (and warned as above: the
+        estimate is their only check); "auto" leaves them unchecked at T, as cheap as
+        their steps, and ``sol.stats["global error note"]`` says so.
 
     Returns
     -------
@@ -887,6 +893,8 @@ def _completed_stats(stats, counts, multi_adaptive, m, params, compile_time, sec
         "compile time": compile_time,
         "solve time": seconds,
     })
+    if params["fixed_time_step"] and params["estimate_global_error"] == "auto":
+        stats["global error note"] = FIXED_NOTE
     return stats
 
 
@@ -1152,13 +1160,28 @@ def fewest_checked_steps(choice):
     return {False: np.inf, "auto": SHORTEST_RUN}.get(choice, 0)
 
 
+#: sol.stats["global error note"] of a fixed-step run under "auto": its steps have no
+#: step control, and no tolerance the user meant for them; it is not checked at T, so that
+#: it costs its steps alone (the estimate was 35 s of a 40 s mcG(1) run of 1e6 steps).
+FIXED_NOTE = ("not estimated: fixed steps; estimate_global_error=True estimates the error at T "
+              "and warns above 10 x the tolerance, as for adaptive steps")
+
+
+def checks_at_T(params):
+    """Whether a run with ``params`` is checked at T (:func:`check_error_at_T`): not with
+    estimate_global_error=False, nor "auto" with fixed steps (FIXED_NOTE)."""
+    choice = params["estimate_global_error"]
+    return choice is True or (choice == "auto" and not params["fixed_time_step"])
+
+
 def check_error_at_T(ode, compiled, plan, multi_adaptive, m, params, sol, steps=None):
     """The check of the error at T of ``sol`` (by the method ``m``) that
-    ``params["estimate_global_error"]`` asks for: the linearised estimate where f is smooth
-    (:func:`estimate_global_error`), else measured (:func:`measure_piecewise_error`).
+    ``params["estimate_global_error"]`` asks for (:func:`checks_at_T`): the growing modes
+    its steps span (:func:`warn_spanned_growth`), and the linearised estimate where f is
+    smooth (:func:`estimate_global_error`), else measured (:func:`measure_piecewise_error`).
     ``steps``: the :func:`longest_run` of ``sol`` where the caller has it (a prepared
     call's counters: reading sol.stats would make them)."""
-    if params["estimate_global_error"] is False:
+    if not checks_at_T(params):
         return
     warn_spanned_growth(ode, compiled, m, params, sol)
     smooth = plan is None or not plan.watched
@@ -1193,7 +1216,7 @@ def _estimating(ode, compiled, plan, multi_adaptive, m, params, sink):
     (``dense_output`` False or a file) whose error at T :func:`estimate_global_error` may
     estimate also carries the estimate chunk by chunk (:class:`history.Estimating`)."""
     choice = params["estimate_global_error"]
-    if (params["dense_output"] is True or multi_adaptive or choice is False
+    if (params["dense_output"] is True or multi_adaptive or not checks_at_T(params)
             or (plan is not None and plan.watched)
             or (choice == "auto" and (m.q + 2) * ode.N > AUTO_ROWS)):
         return sink
@@ -1230,21 +1253,21 @@ def estimate_global_error(ode, compiled, m, params, sol, steps):
 def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
     """sol.stats["global error estimate"] (:mod:`dolfinode.global_error`, scaled as the
     tolerance means it), "global error nonlinearity" and "global error second order", and
-    a ToleranceWarning when the estimate exceeds 10 x the tolerance where it holds (not
-    with fixed steps, which have no tolerance to compare with); where it is within 10 x but
-    not with its second-order part added, the error is measured (:func:`_measure`,
-    global_error.SECOND_ORDER). ``slabs``: by :func:`~dolfinode.global_error.slab_estimate`;
-    where the run is stiff on a slab it gives up (:func:`_stiff_on_slabs`), and where its
-    elements' copy exceeds the memory sol.stats["global error note"] says that the error at T
-    was not estimated. ``running``: the estimate carried chunk by chunk
-    (:class:`global_error.Running`). The estimates also give the largest error at an
-    element end mid-run (every component's, a mono-adaptive run's at every slab end;
-    :func:`global_error.carried`, :func:`global_error.slab_estimate`,
-    :func:`global_error.modal_estimate`), "global error mid-run", with a ToleranceWarning
-    where it exceeds 10 x the tolerance and the error at T does not
-    (:func:`_midrun_warning`). Where the nonlinearity exceeds NONLINEAR_LIMIT, so that the
-    estimate certifies nothing, and it or its remainder reaches 10 x at T or its mid-run
-    value does, both are measured against a reference solve (:func:`_measure`)."""
+    a ToleranceWarning when the estimate exceeds 10 x the tolerance where it holds (with
+    fixed steps too: estimate_global_error=True compares them with the tolerance); where it
+    is within 10 x but not with its second-order part added, the error is measured
+    (:func:`_measure`, global_error.SECOND_ORDER). ``slabs``: by
+    :func:`~dolfinode.global_error.slab_estimate`; where the run is stiff on a slab it gives
+    up (:func:`_stiff_on_slabs`), and where its elements' copy exceeds the memory
+    sol.stats["global error note"] says that the error at T was not estimated. ``running``:
+    the estimate carried chunk by chunk (:class:`global_error.Running`). The estimates
+    also give the largest error at an element end mid-run (every component's, a
+    mono-adaptive run's at every slab end; :func:`global_error.carried`,
+    :func:`global_error.slab_estimate`, :func:`global_error.modal_estimate`), "global error
+    mid-run", with a ToleranceWarning where it exceeds 10 x the tolerance and the error at
+    T does not (:func:`_midrun_warning`). Where the nonlinearity exceeds NONLINEAR_LIMIT,
+    so that the estimate certifies nothing, and it or its remainder reaches 10 x at T or
+    its mid-run value does, both are measured against a reference solve (:func:`_measure`)."""
     rtol = params["tolerance"]
     atol = _absolute_tolerance(ode, params["absolute_tolerance"], rtol)
     peak = np.zeros(3)  # the error mid-run: value, time, component
@@ -1275,8 +1298,6 @@ def _warn_global_error(ode, compiled, params, sol, slabs=False, running=None):
     sol.stats["global error second order"] = delta
     if peak[0] > 0.0:
         sol.stats["global error mid-run"] = float(peak[0])
-    if params["fixed_time_step"]:
-        return
     if (size <= global_error.WARN_FACTOR * rtol < size + delta
             and nu <= global_error.NONLINEAR_LIMIT):
         # the remainder the linearisation leaves out could lift the error above the
@@ -1342,9 +1363,6 @@ def _stiff_on_slabs(ode, params, sol, atol):
     estimate, L-stable, would follow the stiff modes, but damps a weakly damped oscillation
     the steps span (a stiff spring) as dG(q) does, and costs many times such a run (a
     nonlinear 50-mass chain's dG(1) at 1e-2: minutes against 0.2 s)."""
-    if params["fixed_time_step"]:  # (no tolerance to compare with)
-        sol.stats["global error note"] = SLAB_NOTE
-        return
     _measure(ode, params, sol, atol, global_error.STIFF_SLABS)
 
 
@@ -1400,13 +1418,6 @@ def _reference_midrun(sol, reference, end, atol, rtol):
     return peak, time, j
 
 
-#: sol.stats["global error note"] of a larger run with fixed steps stiff on its slabs: there
-#: is no tolerance to measure its error against (:func:`_stiff_on_slabs`).
-SLAB_NOTE = ("not estimated: the run is stiff on its slabs (the slab estimate would need more "
-             f"than {global_error.SLAB_SUBSTEPS} sub-steps per element); "
-             "estimate_global_error=True estimates it on the common slabs")
-
-
 #: sol.stats["global error note"] of a run without history "auto" did not estimate: a
 #: multi-adaptive run or a larger system, whose estimates need the elements.
 NO_HISTORY_NOTE = ("not estimated: without the history (dense_output=False or a file) the error "
@@ -1434,7 +1445,7 @@ def measure_piecewise_error(ode, compiled, m, params, sol, steps):
     tolerance or where the reference solve failed (:func:`_measure`)."""
     choice = params["estimate_global_error"]
     if choice == "auto":
-        choice = sol.success and steps >= SHORTEST_RUN and not params["fixed_time_step"]
+        choice = sol.success and steps >= SHORTEST_RUN
     if choice:
         _measure(ode, params, sol,
                  _absolute_tolerance(ode, params["absolute_tolerance"], params["tolerance"]),
@@ -1448,6 +1459,7 @@ def _reference(ode, params, sol, atol):
     rtol = params["tolerance"]
     tighter = {**params, "tolerance": rtol * REFERENCE_FACTOR,
                "absolute_tolerance": atol * REFERENCE_FACTOR, "estimate_global_error": False,
+               "fixed_time_step": False,  # (a fixed-step run's: its steps would be the run's)
                "progress": False, "dense_output": True,  # (never the user's file)
                "maximum_steps": REFERENCE_STEPS * max(sol.stats["time slabs"], 100)}
     try:

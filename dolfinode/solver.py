@@ -36,6 +36,7 @@ from types import MappingProxyType
 
 import numpy as np
 
+from dolfinode import growth
 from dolfinode import timeslab as ts
 from dolfinode.adaptivity import UNDAMPED_DEVIATION
 from dolfinode.ensemble import parameter_symbol, vary
@@ -73,6 +74,7 @@ from dolfinode.solve import (
     below_tolerance,
     check_error_at_T,
     check_tolerance,
+    checks_at_T,
     fewest_checked_steps,
     lower,
     lowered,
@@ -84,6 +86,7 @@ from dolfinode.solve import (
     warn_below_tolerance_throughout,
     warn_growth,
     warn_lost_components,
+    warn_spanned_growth,
 )
 from dolfinode.timeslab import contract, mono, prepared
 from dolfinode.timeslab.start import READY, start
@@ -188,7 +191,9 @@ class Solver:
         self._given_steps = params["initial_time_step"] is not None
         self._maximum_steps = params["maximum_steps"]
         # the fewest steps whose error at T check_error_at_T checks (estimate_global_error)
-        self._checked_from = fewest_checked_steps(params["estimate_global_error"])
+        self._checks = checks_at_T(params)
+        self._checked_from = (fewest_checked_steps(params["estimate_global_error"])
+                              if self._checks else np.inf)
         # a sparse candidate's Newton storage, decided by its first solve that needs Newton's
         # method: the general path until then, this solver prepared again once it is
         self._awaited_plans = None
@@ -441,6 +446,10 @@ class Solver:
         steps = counts[ts.SLABS]
         if steps >= self._checked_from:  # (check_error_at_T's own test, read once)
             check_error_at_T(work, compiled, None, False, m, params, sol, steps)
+        elif (self._checks  # (its growth check alone)
+              and growth.may_span(compiled, self._initial, self._times, self._buffers[2],
+                                  counts[ts.STORED])):
+            warn_spanned_growth(work, compiled, m, params, sol)
         # values projected to 0 (:func:`warn_lost_components`): none where none ends at 0
         # (x: the values at the end, sol.values[-1, -1])
         if self._bounded and _has_zero(kept.x):

@@ -59,3 +59,80 @@ def test_stability_function_is_the_methods_step_map(family, q, z):
     num, den = stability_function(make_method(family, q))
     R = np.polyval(num[::-1], z) / np.polyval(den[::-1], z)
     assert sol(1.0)[0] == pytest.approx(-R, rel=1e-12)
+
+
+def _coupled(rates, seed=0):
+    """u' = A (u - 1), A = S diag(rates) S^-1 with a fixed well-conditioned S: its modes
+    coupled in every component, from 1 + 1e-6 (near the equilibrium: one step may span)."""
+    names = sp.symbols(f"x0:{len(rates)}")
+    S = np.eye(len(rates)) + 0.3 * np.random.default_rng(seed).standard_normal((len(rates),) * 2)
+    A = S @ np.diag(rates) @ np.linalg.inv(S)
+    rhs = {x: sum(float(a) * (y - 1) for a, y in zip(row, names)) for x, row in zip(names, A)}
+    return dn.ODE(rhs, u0=[1 + 1e-6] * len(rates), T=1.0)
+
+
+@pytest.mark.parametrize("method", ["dG(2)", "cG(1)", "mdG(1)"])
+@pytest.mark.parametrize("ode", [
+    # a growing mode among stiff decaying ones (8 components, HIRES-like rates)
+    _coupled([-1e4, -3e3, -1e3, -300.0, -40.0, -10.0, -1.0, 50.0]),
+    # a rotation that grows: z complex (u - 1, v - 1) turns at 30 and grows at 50
+    dn.ODE({u: 50 * (u - 1) - 30 * (v - 1), v: 30 * (u - 1) + 50 * (v - 1)},
+           u0=[1 + 1e-6, 1.0], T=1.0),
+], ids=["stiff-coupled", "rotation"])
+def test_growing_mode_among_others_is_warned(method, ode):
+    with pytest.warns(dn.ToleranceWarning, match="growing mode .* spans the step"):
+        dn.solve(ode, method=method, tolerance=1e-3)
+
+
+def test_decaying_stiff_steps_are_certified_without_decomposition(monkeypatch):
+    # VDPOL at mu = 1e3: Gershgorin's bound of Re z passes SPANNED on most steps (J_21 ~ 1e6)
+    # and no mode grows; 8 of those steps were eigen-decomposed at every check
+    from dolfinode import growth
+    bounds, decomposed = [], []
+    gershgorin = growth._gershgorin
+    monkeypatch.setattr(growth, "_gershgorin", lambda *a: bounds.append(gershgorin(*a))
+                        or bounds[-1])
+    monkeypatch.setattr(growth, "_missed", lambda *a: decomposed.append(a) or None)
+    y1, y2 = sp.symbols("y1 y2")
+    ode = dn.ODE({y1: y2, y2: 1e3 * ((1 - y1**2) * y2 - y1)}, u0=[2.0, 0.0], T=2.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        dn.solve(ode, method="dG(3)", tolerance=1e-6)
+    assert np.sum(np.concatenate(bounds) > growth.SPANNED) > 10  # (the check ran)
+    assert not decomposed
+
+
+def test_certificate_passes_no_matrix_with_a_growing_mode():
+    # random Z near a decomposed one, stiff rates and complex pairs around Re z = SPANNED: a
+    # certified Z (with and without the basis) has no eigenvalue with Re z > SPANNED
+    from dolfinode import growth
+    rng, N = np.random.default_rng(1), 6
+    indptr, indices = np.arange(0, N * N + 1, N), np.tile(np.arange(N), N)
+    certified = growing = 0
+    for _ in range(400):
+        rates = -(10.0 ** rng.uniform(-1, 4, N)) + 1j * rng.choice(2, N) * rng.uniform(0, 5, N)
+        rates[0] = rng.uniform(0, 2 * growth.SPANNED)
+        rates = np.concatenate([rates[: N // 2], np.conj(rates[: N // 2])])
+        S = np.eye(N) + 0.5 * rng.standard_normal((N, N))
+        reference = np.real(S @ np.diag(rates) @ np.linalg.inv(S))
+        Z = reference * (1 + 10.0 ** rng.uniform(-6, -1) * rng.standard_normal((N, N)))
+        V = np.linalg.eig(reference)[1].astype(complex)
+        for basis in [(V, np.linalg.inv(V)), growth.NO_BASIS]:
+            passed = growth._certified(Z.reshape(1, -1), indptr, indices, np.ones((1, N)),
+                                       np.zeros(1, dtype=np.int64), *basis, np.empty((N, N)))
+            certified += passed
+            exceeds = np.max(np.linalg.eigvals(Z).real) > growth.SPANNED
+            growing += exceeds
+            assert not (passed and exceeds)
+    assert certified > 100 and growing > 100
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_prepared_solve_of_one_step_is_checked(method):
+    # Solver.solve of one step skipped the checks at T: u(1) = 1 for 5e15, unwarned
+    ode = dn.ODE({u: 50 * (u - 1)}, u0=[1 + 1e-6], T=1.0)
+    solver = dn.Solver(ode, method=method, tolerance=1e-3)
+    for u0 in ([1 + 1e-6], [1 - 1e-6]):  # (the second call: the prepared path's values)
+        with pytest.warns(dn.ToleranceWarning, match="growing mode .* spans the step"):
+            sol = solver.solve(u0=u0)
+        assert sol.stats["time slabs"] == 1

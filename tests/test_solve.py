@@ -172,3 +172,29 @@ def test_a_consumed_component_projected_to_zero_does_not_warn():
         assert abs(sol(10.0)[1] - 1.0) < 1e-2
         assert sol(10.0)[0] == 0.0 or method != "dG(1)"  # (dG(1) projects a to 0)
         assert not [w for w in caught if "was set to 0" in str(w.message)]
+
+
+@pytest.mark.parametrize("method", ["cG(1)", "dG(1)", "mcG(1)"])
+def test_fixed_steps_are_checked_when_asked_and_cost_nothing_otherwise(method):
+    # the estimate at T of fixed steps was computed on every run (35 s of a 40 s mcG(1)
+    # run of 1e6 steps) and never warned, however far off
+    x, y = sp.symbols("x y")
+    ode = dn.ODE({x: y, y: -x}, u0=[1.0, 0.0], T=20.0)
+    coarse = {"fixed_time_step": True, "initial_time_step": 0.5, "tolerance": 1e-6}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sol = dn.solve(ode, method, **coarse)
+    assert "global error estimate" not in sol.stats
+    assert "estimate_global_error=True" in sol.stats["global error note"]
+    assert not [w for w in caught if w.category is dn.ToleranceWarning]
+    error = np.max(np.abs(sol(20.0) - [np.cos(20.0), -np.sin(20.0)]))
+    assert error > 1e-3  # (off by more than 1000 x the tolerance: warned when asked)
+    with pytest.warns(dn.ToleranceWarning, match="tolerance"):
+        sol = dn.solve(ode, method, estimate_global_error=True, **coarse)
+    assert sol.stats["global error estimate"] > 100 * 1e-6
+    fine = {**coarse, "initial_time_step": 0.01, "tolerance": 1e-2}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sol = dn.solve(ode, method, estimate_global_error=True, **fine)
+    assert not [w for w in caught if w.category is dn.ToleranceWarning]
+    assert sol.stats["global error estimate"] < 1e-2
