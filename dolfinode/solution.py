@@ -1168,12 +1168,17 @@ def _reads_f(method):
 
 
 def dense_rhs(method, ode):
-    """The lowered ``ode`` that :func:`evaluate_mono` reads for a cG(q), q >= 2, or dG(q),
-    q >= 1, dense value (its elements must solve it), None for other methods and where f jumps (a Piecewise,
-    Heaviside, sign, floor of t or of the state: each element solves the branch of its
-    piece, which f at its end node, on the jump, need not give: Heaviside(t - 1) made P
-    460-1000 x the tolerance where U is 0.7-2.3 x)."""
-    return lower(ode) if _reads_f(method) and not _jumps(ode) else None
+    """The lowered ``ode`` that :func:`evaluate_mono` and :func:`correct_multi` read for a
+    cG(q), mcG(q), q >= 2, or dG(q), mdG(q), q >= 1, dense value (its elements must solve
+    it); None for other methods, and for cG(q), mcG(q) where f jumps (a Piecewise,
+    Heaviside, sign, floor of t or of the state): their P reads f at the end nodes, on the
+    jump, where f need not give the element's branch (Heaviside(t - 1) made P 460-1000 x
+    the tolerance where U is 0.7-2.3 x). dG(q)'s reads f only at tau* inside the element,
+    which no jump crosses (the solve ends its pieces there); f on the wrong side of a
+    state switch fails its residual test (U is used)."""
+    if not _reads_f(method) or (method.family == "cG" and _jumps(ode)):
+        return None
+    return lower(ode)
 
 
 def correct_multi(method, compiled, dependents, declared, history, times, out, cache=None):

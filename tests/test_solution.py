@@ -499,6 +499,45 @@ def test_dense_cg_where_f_jumps_is_the_element_polynomial():
     np.testing.assert_array_equal(sol(t), sol._galerkin(t))
 
 
+@pytest.mark.parametrize("method", ["dG(1)", "mdG(1)", "dG(2)"])
+@pytest.mark.parametrize("jump", ["step", "kink"])
+def test_dense_dg_where_f_jumps_reads_f_inside_the_element(method, jump):
+    # dG's dense value reads f only inside an element, which no jump crosses; without f,
+    # dG(1) fell back to U near an extremum of u: 15-69 x the tolerance inside elements
+    u, v = sp.symbols("u v")
+    t = dn.t
+    if jump == "step":  # u = sin t + (t - 3.3)_+ / 2, an extremum at pi / 2
+        rhs, T = {u: sp.cos(t) + sp.Heaviside(t - 3.3) / 2, v: -v}, 4.0
+        exact = lambda s: np.sin(s) + np.maximum(s - 3.3, 0) / 2  # noqa: E731
+    else:  # u' = |t - 0.4| u: u' = 0 at the kink
+        rhs, T = {u: sp.Abs(t - 0.4) * u, v: -v}, 1.0
+        exact = lambda s: np.exp(np.where(s < 0.4, 0.4 * s - s**2 / 2,  # noqa: E731
+                                          0.08 + (s - 0.4) ** 2 / 2))
+    tolerance = 1e-7
+    sol = dn.solve(dn.ODE(rhs, u0=[0.0 if jump == "step" else 1.0, 1.0], T=T), method=method,
+                   tolerance=tolerance)
+    times = np.linspace(0.0, T, 4001)
+    error = np.abs(sol(times)[0] - exact(times)) / (tolerance * (1 + np.abs(exact(times))))
+    assert sol.stats["breakpoints"] >= 1
+    assert error.max() < 3.0
+
+
+def test_dense_dg_across_a_state_switch_keeps_its_accuracy():
+    # f on the wrong side of a switch in u fails the residual test: U, not a wrong P
+    u, v = sp.symbols("u v")
+    ode = dn.ODE({u: sp.cos(dn.t) + sp.Heaviside(u - sp.Rational(1, 2)) * u, v: -v},
+                 u0=[0.0, 1.0], T=2.0)
+    reference = solve_ivp(lambda t, y: [np.cos(t) + (y[0] > 0.5) * y[0], -y[1]], (0.0, 2.0),
+                          [0.0, 1.0], method="Radau", rtol=1e-12, atol=1e-14,
+                          dense_output=True)
+    for method in ["dG(1)", "dG(2)", "mdG(1)"]:
+        sol = dn.solve(ode, method=method, tolerance=1e-6)
+        times = np.linspace(0.0, 2.0, 2001)
+        exact = reference.sol(times)[0]
+        error = np.abs(sol(times)[0] - exact) / (1e-6 * (1 + np.abs(exact)))
+        assert error.max() < 3.0, method
+
+
 # --- dense output of multi-adaptive mdG(q): the collocation polynomial per component ---
 
 @pytest.fixture(scope="module")
