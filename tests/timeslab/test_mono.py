@@ -155,6 +155,17 @@ def test_fixed_time_step_gives_uniform_partition():
     assert sol.stats["rejected steps"] == 0
 
 
+@pytest.mark.parametrize("n", [100_000, 1_234_567])
+def test_fixed_steps_of_T_over_n_take_n_steps(n):
+    # the running sum t0 + k + k + ... rounds: 1e5 steps of 1e-5 left a sliver of 1e-11,
+    # one step past maximum_steps = n
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: -u}, u0=[1.0], T=1.0)
+    sol = dn.solve(ode, "dG(0)", fixed_time_step=True, initial_time_step=1.0 / n,
+                   maximum_steps=n, estimate_global_error=False, dense_output=False)
+    assert sol.stats["time slabs"] == n
+
+
 def test_time_dependent_rhs_and_parameters():
     u, a = sp.symbols("u a")
     ode = dn.ODE({u: -a * u + dn.t}, u0=[1.0], T=3.0, params={a: 2.0})
