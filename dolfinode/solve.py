@@ -1183,7 +1183,10 @@ def check_error_at_T(ode, compiled, plan, multi_adaptive, m, params, sol, steps=
     call's counters: reading sol.stats would make them)."""
     if not checks_at_T(params):
         return
-    warn_spanned_growth(ode, compiled, m, params, sol)
+    # each step's Jacobian on its own branch: the declared f, not the smooth one holding the
+    # last piece's branches (Max(1, 3 x - 2) was warned of rate 3 where x < 1 and J = 0)
+    warn_spanned_growth(ode, compiled if plan is None or not plan.switches else lower(ode), m,
+                        params, sol)
     smooth = plan is None or not plan.watched
     check = estimate_global_error if smooth else measure_piecewise_error
     check(ode, compiled, m, params, sol,

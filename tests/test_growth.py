@@ -48,6 +48,17 @@ def test_resolved_or_absent_growth_is_not_warned(method, rhs, u0, T):
     assert not [w for w in caught if "growing mode" in str(w.message)]
 
 
+@pytest.mark.parametrize("rhs, T", [(sp.Max(1, 3 * u - 2), 1.5),
+                                     (1 + 60 * sp.Heaviside(u - 1) * (u - 1), 1.3)])
+def test_each_step_is_checked_on_its_own_branch(rhs, T):
+    # the Jacobian of the smooth f holds the last piece's branch: rate 3 (60) was warned
+    # at t = 0.15, where u < 1 and J = 0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        dn.solve(dn.ODE({u: rhs}, u0=[0.0], T=T), method="dG(2)", tolerance=1e-6)
+    assert not [w for w in caught if "growing mode" in str(w.message)]
+
+
 @pytest.mark.parametrize("family, q", [("cG", 1), ("cG", 3), ("dG", 0), ("dG", 2)])
 @pytest.mark.parametrize("z", [-4.0, 0.5])
 def test_stability_function_is_the_methods_step_map(family, q, z):
