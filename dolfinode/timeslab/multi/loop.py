@@ -571,10 +571,10 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                                      indices, jacobian, jdiag, coupling, gamma, elist,
                                      group_order, local, newton, active, nactive, emax, kact,
                                      umax, counters)
-        if not fixed:
-            interior_indicators(ne, comp, ea, eb, values, jdiag, interior, fi, p, x, indptr,
-                                indices, cptr, celems, nodes, bary, states, out, o.delivered,
-                                emax, counters)
+        if not (fixed or solved):
+            interior_indicators(ne, comp, ea, eb, values, resid, unfiltered, jdiag, interior,
+                                fi, p, x, indptr, indices, cptr, celems, nodes, bary, states,
+                                out, o.delivered, emax, counters)
         deviation, deviated, deviated_eps = 0.0, -1, 0.0
         if not solved:
             deviation, deviated, deviated_eps = slab_deviation(ne, comp, values, resid,
