@@ -232,6 +232,23 @@ def test_a_stiff_component_is_accurate_inside_its_elements(method, tol):
     assert (np.abs(sol(times) - exact) / (tol * (1.0 + np.abs(exact)))).max() < 10.0
 
 
+@pytest.mark.parametrize(("method", "tol"), [("mdG(1)", 1e-2), ("mdG(2)", 3e-3)])
+def test_hires_stiff_components_are_accurate_inside_their_elements(method, tol):
+    """HIRES's stiff components follow their quasi-steady states inside long elements: 20-38 x
+    the tolerance off between their nodes, within it at the nodes and at T, silent."""
+    from scipy.integrate import solve_ivp
+
+    from dolfinode.compile import lower
+
+    ode = problems.hires()
+    compiled = lower(ode)
+    times = np.linspace(0.0, ode.T, 4001)
+    exact = solve_ivp(lambda t, y: compiled.f(np.ascontiguousarray(y), t), (0.0, ode.T),
+                      ode.u0, method="Radau", rtol=1e-12, atol=1e-14, t_eval=times).y
+    sol = dn.solve(ode, method, tolerance=tol, absolute_tolerance=1e-4 * tol)
+    assert (np.abs(sol(times) - exact) / (tol * (1e-4 + np.abs(exact)))).max() < 10.0
+
+
 def _weights(rows, indptr, indices, jacobian):
     """(reach, lopsided, strength, reaction) of ``tie_reach`` for the ``rows``."""
     from dolfinode.timeslab.multi.steps import tie_reach
