@@ -101,34 +101,37 @@ def residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid, u
 def interior_indicators(ne, comp, ea, eb, values, resid, unfiltered, jdiag, interior, fi, p,
                         x, indptr, indices, cptr, celems, nodes, bary, states, out, delivered,
                         emax, counters):
-    """The interior estimate of every element of a component that follows its quasi-steady
-    state within its step, stiff on its own rate, -k J_ii > 1, with an end estimate that the
-    filter reduced below STIFF_RATIO x its residual (``resid``, ``unfiltered``; as
-    :func:`~dolfinode.adaptivity.stiff_factor`): the excess of its residual at tau*
-    (``interior[0]``; ``interior[1:]``: l_j'(tau*)) over the one at its end, filtered by
-    its diagonal, (|k R(tau*)| - |k R(1)|) / (1 - k J_ii) (k R / (1 - k J_ii) tends to
-    U_i - g_i, g_i the quasi-steady state f_i = 0), into ``emax`` in units of the step
-    tolerance (times its ratio to the tolerance, 1 / ``delivered``: the interior does not
-    superconverge). The end's distance from g_i is the end estimate's: mcG(q), not
-    L-stable, carries it from node to node undamped (:func:`~dolfinode.adaptivity.
-    undamped_warning`), and held to the tolerance inside as well it cut ROBER's steps to
-    |k J_ii| ~ 1 (mcG(2) at 1e-3: 471 -> 743,814 elements).
+    """The interior estimates of the elements of components that follow their quasi-steady
+    state g_i (f_i = 0) within their step, into ``emax`` (in units of the step tolerance):
 
-    Such a component's nodal values follow g_i, so its end residual, filtered, is the
-    distance from g_i at the last node, small whatever the step: between the nodes U_i is
-    the interpolant of g_i off by k^(q+1) g_i^(q+1) times the node polynomial. On
-    u' = -1000 (u - cos t) mdG(1) at 1e-2 stepped 2.1 long, the ends within 0.03 x the
-    tolerance and the interior 19 x off, a slow v' = u - 0.1 v reading it 8.6 x
-    (doc/design/multiadaptive-loose.md). tau* = 0 for mdG(q) (right Radau nodes: the node
-    polynomial is largest there), half the first node gap for mcG(q); the other components
-    are read at t* from their elements of the slab (a frozen one at x_j). A component stiff
-    on its diagonal alone, -k J_ii > 1, that the filter leaves as it is follows a slow mode
-    of its couplings (a smooth front along a diffusion chain), whose interior is accurate:
-    held to its residual at tau*, mdG(1) on a 40-point front took 3 x the elements at 1e-5
-    for the same error. So does a component stiff only through its couplings (J_ii = 0: the
-    stiff springs of a chain, whose filter acts on the oscillation stepped over): mdG(3) on
-    the 50-mass chain at 1e-6 took 5.4 x the elements. (Not on a slab solved synchronised,
-    which is unfiltered: not stiff.)"""
+        e_int = max(0, |k R(tau*)| - |k R(1)|) / (1 - k J_ii) / delivered,
+
+    the excess of the residual at tau* (``interior[0]``; ``interior[1:]``: l_j'(tau*)) over
+    the one at the element's end (``unfiltered``), filtered by the diagonal (k R / (1 - k
+    J_ii) tends to U_i - g_i), held to the tolerance as given (1 / ``delivered``, the ratio
+    of the step tolerance to it: the interior does not superconverge). tau* = 0 for mdG(q)
+    (right Radau nodes: the node polynomial is largest there), half the first node gap for
+    mcG(q); the other components are read at t* from their elements of the slab (a frozen
+    one at x_j). One f_i per such element.
+
+    Such a component's nodal values sit on g_i, so its filtered end estimate, the distance
+    from g_i at the last node, is small whatever the step, while between the nodes U_i is
+    g_i's interpolant, off by k^(q+1) g_i^(q+1) times the node polynomial: on u' = -1000
+    (u - cos t), mdG(1) at 1e-2 stepped 2.1 long with its ends within 0.03 x the tolerance
+    and its interior 19 x off, and a slow v' = u - v / 10 reading it 8.6 x
+    (doc/design/multiadaptive-loose.md). The end's own distance from g_i is the end
+    estimate's, hence the excess: mcG(q), not L-stable, carries it from node to node
+    (:func:`~dolfinode.adaptivity.undamped_warning`), and held to the tolerance inside as well
+    it cut ROBER's mcG(2) steps to |k J_ii| ~ 1 (1e-3: 471 -> 743,814 elements).
+
+    Following g_i takes both conditions: stiff on its own rate, -k J_ii > 1, and an end
+    estimate that the sub-slab's filter reduced below STIFF_RATIO x the residual (``resid``,
+    as :func:`~dolfinode.adaptivity.stiff_factor`). On the first alone, the components of a
+    smooth front along a diffusion chain (the filter leaves their slow mode as it is: their
+    interior is accurate) took 3 x the elements (mdG(1), 40 points, 1e-5); on the second
+    alone, the stiff springs of a chain (J_ii = 0, the filter acting on the oscillation
+    stepped over), 5.4 x (mdG(3), 50 masses, 1e-6). Not on a slab solved synchronised,
+    which is unfiltered (not stiff)."""
     if not delivered > 0.0:  # (fixed steps)
         return
     nn = values.shape[1]
