@@ -254,14 +254,18 @@ def _certified(data, indptr, indices, steps, candidates, V, W, Z):
     N = indptr.size - 1
     C, A = np.zeros((N, N)), np.zeros((N, N))
     B, T = np.zeros((N, N), dtype=np.complex128), np.zeros((N, N), dtype=np.complex128)
-    absV, sum_W, sum_R = np.abs(V), np.sum(np.abs(W), axis=1), np.zeros(V.shape[0])
-    for i in range(V.shape[0]):
-        for j in range(V.shape[0]):
+    # (loops, not numpy's reductions: they cost seconds of compile)
+    n = V.shape[0]
+    absV, sum_W, sum_R = np.empty((n, n)), np.zeros(n), np.zeros(n)
+    for i in range(n):
+        for j in range(n):
+            absV[i, j] = abs(V[i, j])
+            sum_W[i] += abs(W[i, j])
             entry = -1.0 + 0j if i == j else 0j
-            for k in range(V.shape[0]):
+            for k in range(n):
                 entry += W[i, k] * V[k, j]
             sum_R[i] += abs(entry)
-    rounding = 2 * N * np.finfo(np.float64).eps
+    rounding = 2 * N * 2.220446049250313e-16
     for count in range(candidates.size):
         p = candidates[count]
         Z[:] = 0.0

@@ -504,7 +504,7 @@ def _evaluate_mixed(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes
                             dense, t0, u0, times, slab, out)
 
 
-@helper(inline="always")
+@helper()
 def _row(cached, slot):
     """What :func:`_correct_multi` keeps of an element read, by its slot (the element at
     ``where`` of :func:`_element_at`, slab n's at E + n N + d): c, g, V's residual, the
@@ -522,7 +522,7 @@ def _row(cached, slot):
     return rows[slot]
 
 
-@helper(inline="always")
+@helper()
 def _element_at(d, t, history):
     """The element component d is read from at t: the first of the shared slabs and of its
     own elements ending at or after t, as the joined history (:class:`MixedSolution`) reads
@@ -547,7 +547,7 @@ def _element_at(d, t, history):
     return t_end.shape[0] + slab if use_slab else e
 
 
-@helper(inline="always")
+@helper()
 def _nodal_value(d, where, j, history):
     """Component d's nodal value j on its element ``where`` (:func:`_element_at`)."""
     _, _, t_end, values, _, _, s_values = history
@@ -555,7 +555,7 @@ def _nodal_value(d, where, j, history):
     return s_values[where - E, j, d] if where >= E else values[where, j]
 
 
-@helper(inline="always")
+@helper()
 def _element_polynomial(d, where, t, history, nodes, bary):
     """(U_d(t), a, b) on component d's element ``where`` (:func:`_element_at`) [a, b]."""
     _, t_start, t_end, values, s_start, s_end, s_values = history
