@@ -42,6 +42,8 @@ MISSED = 10.0
 #: all 452 cost more than the solve), fewer where their matrices would hold more than
 #: DENSE_ENTRIES numbers; systems of more than MAX_DENSE components are not checked.
 MAX_CANDIDATES, DENSE_ENTRIES, MAX_DENSE = 8, 2**21, 512
+#: Double precision's machine epsilon (a module constant: numba reads it compiled in).
+EPS = np.finfo(float).eps
 #: Steps whose bounds are computed at once (the Jacobian's values of a chunk are held).
 CHUNK = 4096
 #: Systems of at most CERTIFIED components have each step the Gershgorin bound selects
@@ -265,7 +267,7 @@ def _certified(data, indptr, indices, steps, candidates, V, W, Z):
             for k in range(n):
                 entry += W[i, k] * V[k, j]
             sum_R[i] += abs(entry)
-    rounding = 2 * N * 2.220446049250313e-16
+    rounding = 2 * N * EPS
     for count in range(candidates.size):
         p = candidates[count]
         Z[:] = 0.0

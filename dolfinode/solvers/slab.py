@@ -342,7 +342,8 @@ def newton(f, p, x0, f0, t, k, A, b0, tau, T, T_inverse, atol, rtol, dtol, max_i
     dG(3)'s and dG(5)'s solve). It converges to the equations with T^{-1} A rounded,
     coefficients off by about cond(T) x eps on every slab: far below a dissipative method's
     error, but a drift of cG(3)'s energy on a long oscillation (5e-12 over 10^4 periods
-    against 1e-13), so cG(q) forms G as it is. V lives in the second half of Z (length 2 S N), not in an argument."""
+    against 1e-13), so cG(q) forms G as it is. V lives in the second half of Z (length
+    2 S N), not in an argument."""
     position = structure[0]
     S = A.shape[0]
     N = x0.shape[0]

@@ -58,6 +58,9 @@ from dolfinode.timeslab import (
 )
 from dolfinode.timeslab.contract import OPTIONS_TYPE, STATE_TYPE
 
+#: A fixed step's running sum t0 + k + k + ... rounds by up to this x |t| a step.
+SUM_ROUNDING = np.finfo(float).eps
+
 #: After a failed nonlinear solve of length k_fail, steps stay below SOLVER_MARGIN x k_fail,
 #: and k_fail grows by NEWTON_PROBE per accepted step.
 SOLVER_MARGIN = 0.8
@@ -386,7 +389,8 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
         # a fixed step also absorbs the running sum's rounding, up to an ulp of |t| a step
         # over the (T - t0) / k steps (1e5 steps of 1e-5 left a sliver of 1e-11 to T)
         if (k >= remaining * (1.0 - 1e-9) or (not fixed and 1.1 * k >= remaining)
-                or (fixed and remaining - k <= o.span / nominal * 2.3e-16 * max(abs(t), abs(T)))):
+                or (fixed and remaining - k <= o.span / nominal * SUM_ROUNDING
+                    * max(abs(t), abs(T)))):
             k = remaining
         # The slab is [t, fl(t + k)]: its length is the step t + k represents, or the
         # quadrature of f(t) over it (a pulse) and the solution's grid disagree by up to
