@@ -78,6 +78,13 @@ SOLVER_FREE = 0.1
 #: Newton on cG(q) starts from Euler: extrapolated, cG(3) on HIRES at 1e-2 and 1e-3
 #: delivered 0.02-0.08 x the tolerance (0.6 and 1.3 from Euler), outside the calibration.
 EXTRAPOLATE = 2.0
+#: A fresh Newton solve that fails is tried once more from the constant x, except after an
+#: extrapolated start whose iteration contracted (took more than RETRY_AFTER iterations)
+#: before it failed: there J or the step failed, not the start, and the retry from x
+#: converged in 5 of 131 such failures (dG(1..5) on HIRES, ROBER, VDPOL, POLLU, VDPOLM at
+#: 1e-2..1e-10), after 8 iterations on average; after a first increment that grew, in 50 of
+#: 541 (doc/design/newton.md).
+RETRY_AFTER = 2
 #: cG(q) is not L-stable (|R(-inf)| = 1): a stiff component's deviation from its
 #: quasi-steady state is never damped, and once the state decays below it, Newton fails on
 #: most steps and the steps collapse (ROBER, cG(2), tolerance 1e-3: 322,000 slabs, 45 % failed
@@ -411,11 +418,13 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
             dtol_k = max(dtol * min(1.0, k / o.span), min(dtol, rounding))
         use_newton = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
         n_prev = counters[STORED] - 1
+        extrapolated = True
         if (is_dg or not use_newton) and n_prev >= 0 and k <= EXTRAPOLATE * out_k[n_prev]:
             extrapolate(out_X, n_prev, nodes, bary, out_k[n_prev], k, tau, X, weights)
         elif (is_dg or not use_newton) and n_prev < 0 and 0.0 < k <= EXTRAPOLATE * st.k_last:
             extrapolate(last_X, 0, nodes, bary, st.k_last, k, tau, X, weights)  # (last call's)
         else:
+            extrapolated = False
             euler_stages(x, f0, k, tau, X)
         iters = -1
         iterations_before, jacobians_before = counters[ITERATIONS], counters[JACOBIANS]
@@ -436,6 +445,7 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                     continue
                 counters[STIFF] = 1  # treat the problem as stiff
                 use_newton = True
+                extrapolated = False
                 euler_stages(x, f0, k, tau, X)
         if use_newton and not o.newton_ready:  # (the driver carries its workspace then)
             st.t = t
@@ -470,11 +480,16 @@ def _advance(f_address, jac_address, p, indptr, indices, structure, A, b0, tau,
                 theta_max = 1.0 if fresh == 1 else THETA_KEPT
                 tol = newton_tolerance(dtol_k, min(dtol, rounding), dtol, delivered,
                                        k / o.span, counters[SLABS])
+                attempt_start = counters[ITERATIONS]
                 for attempt in range(2 if fresh == 1 else 1):  # kept factors: one try
                     if attempt == 1:
                         # On stiff components the Euler predictor overshoots by |k lambda|
                         # (ROBER at k ~ t: 1e6-1e11); start once more from the constant x
-                        # before reducing k.
+                        # before reducing k. Not where an extrapolated start contracted
+                        # before it failed (RETRY_AFTER): the start was not what failed.
+                        if (extrapolated and not kept
+                                and counters[ITERATIONS] - attempt_start > RETRY_AFTER):
+                            break
                         euler_stages(x, f0, 0.0, tau, X)
                     iters = newton(f, p, x, f0, t, k, A_newton, b0_newton, tau, transform,
                                    transform_inverse, atol, rtol, tol, max_iter, theta_max,
