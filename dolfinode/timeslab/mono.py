@@ -82,8 +82,8 @@ EXTRAPOLATE = 2.0
 #: extrapolated start whose iteration contracted (took more than RETRY_AFTER iterations)
 #: before it failed: there J or the step failed, not the start, and the retry from x
 #: converged in 5 of 131 such failures (dG(1..5) on HIRES, ROBER, VDPOL, POLLU, VDPOLM at
-#: 1e-2..1e-10), after 8 iterations on average; after a first increment that grew, in 50 of
-#: 541 (doc/design/newton.md).
+#: 1e-2..1e-10; 8 iterations each on HIRES dG(3) at 1e-6); after a first increment that grew,
+#: in 50 of 541 (doc/design/newton.md).
 RETRY_AFTER = 2
 #: cG(q) is not L-stable (|R(-inf)| = 1): a stiff component's deviation from its
 #: quasi-steady state is never damped, and once the state decays below it, Newton fails on
