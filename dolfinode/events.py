@@ -516,6 +516,16 @@ class Detector:
         if a.size == 0:
             return roots
         ga, gb = self._at(sol, a, which), self._at(sol, b, which)
+        # at a restart on the switch just crossed, g(a) is zero or rounding's sign (3u =
+        # 101 to 1 ulp, before 3u = 102 in the same bracket); where g is on the side it came
+        # from just after a, the crossing is inside, searched from there
+        near = np.flatnonzero((ga == 0) | (np.sign(ga) == np.sign(gb)))
+        if near.size:
+            nudged = a[near] + _ROOT_RTOL * np.maximum(abs(a[near]), abs(b[near]))
+            g_after = self._at(sol, nudged, which[near])
+            inside = (np.sign(g_after) == -np.sign(gb[near])) & (nudged < b[near])
+            a, ga = a.copy(), ga.copy()
+            a[near[inside]], ga[near[inside]] = nudged[inside], g_after[inside]
         roots[ga == 0] = a[ga == 0]
         live = np.flatnonzero((ga != 0) & (np.sign(ga) != np.sign(gb)))
         lo, hi, glo, ghi, rows = a[live], b[live], ga[live], gb[live], which[live]

@@ -275,6 +275,21 @@ def _element_value(values, n, basis, out):
             out[i] += basis[j] * values[n, j, i]
 
 
+#: How far inside its element, relative to |t| + k, a cG(q) dense value reads f at an end
+#: node: 16 ulp, where a jump in t at the end (the solve ends its pieces there) is on the
+#: element's side (f at the jump itself need not be; Heaviside(t - 1) made P 460-1000 x
+#: the tolerance), and f is otherwise as at the node to rounding.
+NODE_INSET = 16 * np.finfo(float).eps
+
+
+@helper()
+def _node_time(a, k, node):
+    """a + node k, the time of a nodal value of the element [a, a + k], moved inside it by
+    NODE_INSET (|a| + k) where f reads it at an end."""
+    h = min(NODE_INSET * (abs(a) + k), 0.25 * k)
+    return min(max(a + node * k, a + h), a + k - h)
+
+
 #: Up to how many components :func:`_evaluate_cg` forms the quasi-steady value W (a dense
 #: 2N x 2N factorization per element read where the collocation values fail); above, U.
 QUASI_STEADY_LIMIT = 32
@@ -438,7 +453,8 @@ def _evaluate_cg(t_start, t_end, values, nodes, bary, rhs, jacobian, indptr, ind
             for j in range(q1):
                 for i in range(N):
                     U[j, i] = values[n, j, i]
-                f(address(U, j * N), t_start[n] + nodes[j] * k, address(p, 0), address(F, j * N))
+                f(address(U, j * N), _node_time(t_start[n], k, nodes[j]), address(p, 0),
+                  address(F, j * N))
             for i in range(N):
                 lead = 0.0
                 U[q1, i] = 0.0
@@ -594,7 +610,7 @@ def _collocation_coefficient(d, where, history, method, ode, q_zero, u, F):
     f = component_kernel(rhs)
     lead = 0.0
     for j in range(q1):
-        tj = a + nodes[j] * k
+        tj = _node_time(a, k, nodes[j])
         for nz in range(indptr[d], indptr[d + 1]):
             r = indices[nz]
             u[r] = (_nodal_value(d, where, j, history) if r == d else _element_polynomial(
@@ -1170,13 +1186,14 @@ def _reads_f(method):
 def dense_rhs(method, ode):
     """The lowered ``ode`` that :func:`evaluate_mono` and :func:`correct_multi` read for a
     cG(q), mcG(q), q >= 2, or dG(q), mdG(q), q >= 1, dense value (its elements must solve
-    it); None for other methods, and for cG(q), mcG(q) where f jumps (a Piecewise,
-    Heaviside, sign, floor of t or of the state): their P reads f at the end nodes, on the
-    jump, where f need not give the element's branch (Heaviside(t - 1) made P 460-1000 x
-    the tolerance where U is 0.7-2.3 x). dG(q)'s reads f only at tau* inside the element,
-    which no jump crosses (the solve ends its pieces there); f on the wrong side of a
-    state switch fails its residual test (U is used)."""
-    if not _reads_f(method) or (method.family == "cG" and _jumps(ode)):
+    it); None for other methods, and for cG(q), mcG(q) where f jumps across a switch of the
+    state (a Piecewise, Heaviside, sign, floor of the state): their P reads f at the end
+    nodes, on the switch, where f need not give the element's branch. A jump in t is read
+    on the element's side (:data:`NODE_INSET`; without, cG(3) was 25 x the tolerance inside
+    the elements of u' = -u + Heaviside(t - 1), at 1e-8). dG(q)'s reads f only at tau*
+    inside the element, which no jump crosses (the solve ends its pieces there); f on the
+    wrong side of a state switch fails its residual test (U is used)."""
+    if not _reads_f(method) or (method.family == "cG" and _switches_on_state(ode)):
         return None
     return lower(ode)
 
@@ -1208,14 +1225,16 @@ def element_cache(history, N):
             np.empty(size, dtype=np.int64), np.zeros(1, dtype=np.int64))
 
 
-def _jumps(ode):
-    """Whether f of ``ode`` has a non-smooth function other than a kink of the state
-    (:func:`dolfinode.events.switched`; for a template system, a term that jumps)."""
+def _switches_on_state(ode):
+    """Whether f of ``ode`` jumps across a switch of the state (a non-smooth function of the
+    state other than a kink, :func:`dolfinode.events.switched`; for a template system, a
+    term that jumps)."""
     from dolfinode import events  # (it imports this module)
 
     if hasattr(ode, "templates"):
         return bool(ode._derived("_jumps", ode.templates, lambda: events._template_jumps(ode)))
-    return any(not s.kink for s in events.switched(ode)[1])
+    states = set(ode.states)
+    return any(not s.kink and s.g.free_symbols & states for s in events.switched(ode)[1])
 
 
 def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out, compiled=None):

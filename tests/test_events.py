@@ -310,6 +310,29 @@ def test_floor_of_the_state_switches_at_every_integer(method):
     assert abs(sol(1.4)[0] - exact) <= 2e-8 * (1 + abs(exact))
 
 
+def _floor_growth(t, w0):
+    """w(t) of w' = floor(3 w) - w from w0 >= 1/3: exponential pieces between the levels n/3."""
+    w, s = w0, 0.0
+    while True:
+        n = math.floor(3 * w)
+        reach = s + math.log((n - w) / (n - (n + 1) / 3))
+        if reach >= t:
+            return n - (n - w) * math.exp(-(t - s))
+        w, s = (n + 1) / 3, reach
+
+
+@pytest.mark.parametrize("tol", [1e-4, 1e-6])
+def test_floor_of_the_state_restarted_on_a_level_finds_the_next(tol):
+    """After the restart at a crossing, g = 3u sits on the level 101 to rounding; a step
+    that also crosses 102 took the zero at its start for that crossing and flipped between
+    the branches 100 and 101 (a false "slides along" SolverError, cG(2), with the steps
+    that the second component sets)."""
+    ode = dn.ODE({u: sp.floor(3 * u) - u, v: u - v}, u0=[1.0, 1.0], T=2.0)
+    sol = dn.solve(ode, method="cG(2)", tolerance=tol)
+    exact = _floor_growth(2.0, 1.0)
+    assert abs(sol(2.0)[0] - exact) <= tol * abs(exact)
+
+
 @pytest.mark.parametrize("method", ["cG(2)", "dG(1)", "mdG(1)"])
 @pytest.mark.parametrize("rhs, u0, exact", [
     # g = 2u starts at the jump 0 and leaves it upwards: floor(2u) = 0 there, not 1
