@@ -214,8 +214,6 @@ def test_stiff_decay(method):
     assert k.max() > 0.1  # far beyond the explicit stability limit 2/1000
 
 
-@pytest.mark.xfail(strict=True, reason="known miss: a stiff component's interior between its "
-                   "nodes (doc/design/multiadaptive-loose.md)")
 @pytest.mark.parametrize(("method", "tol"), [("mdG(1)", 1e-2), ("mcG(1)", 3e-3),
                                            ("mdG(2)", 1e-3), ("mcG(2)", 1e-3)])
 def test_a_stiff_component_is_accurate_inside_its_elements(method, tol):
@@ -234,8 +232,6 @@ def test_a_stiff_component_is_accurate_inside_its_elements(method, tol):
     assert (np.abs(sol(times) - exact) / (tol * (1.0 + np.abs(exact)))).max() < 10.0
 
 
-@pytest.mark.xfail(strict=True, reason="known miss: a stiff component's interior between its "
-                   "nodes (doc/design/multiadaptive-loose.md)")
 @pytest.mark.parametrize(("method", "tol"), [("mdG(1)", 1e-2), ("mdG(2)", 3e-3)])
 def test_hires_stiff_components_are_accurate_inside_their_elements(method, tol):
     """HIRES's stiff components follow their quasi-steady states inside long elements: 20-38 x
