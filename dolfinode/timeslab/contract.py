@@ -26,8 +26,10 @@ T                  end time of this call
 kmax               largest step
 safety             safety factor of the step control
 dtol               discrete (iteration) tolerance, relative to the tolerance
-delivered          mono: the error at T the tolerance delivers, in units of rtol (tolerance /
-                   rtol; 1 uncalibrated, 0: none): Newton's stop (slab.newton_tolerance)
+delivered          the error at T the tolerance delivers, in units of rtol (tolerance /
+                   rtol; 1 uncalibrated, 0: none): mono, Newton's stop
+                   (slab.newton_tolerance); multi, the scale of the interior estimates
+                   (multi.control.interior_indicators)
 order              P in the error estimate eps = O(k^P)
 span               T - t0 of the whole solve (the step floor, the iteration tolerance)
 gamma              the error filter's constant |det A|^(1/S) (dolfinode.adaptivity)

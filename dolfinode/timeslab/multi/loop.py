@@ -26,7 +26,7 @@ from dolfinode.counters import (
     SYNCHRONISED,
 )
 from dolfinode.linalg.group import group_workspace
-from dolfinode.methods.method import real_eigenvalues
+from dolfinode.methods.method import lagrange_matrices, real_eigenvalues
 from dolfinode.timeslab import (
     BLOWUP,
     CONSTRAINT,
@@ -45,6 +45,7 @@ from dolfinode.timeslab.multi.control import (
     choose_steps,
     desired_steps,
     drives_out,
+    interior_indicators,
     keep_attempt,
     leaves_domain,
     project,
@@ -113,7 +114,7 @@ _SIGNATURE = types.int64(
     types.float64[:, ::1], types.float64[:, ::1],  # A = T B T^-1
     types.complex128[::1],                         # the eigenvalues of B
     _f8, _f8, _f8,                                 # nodes, quadrature weights, bary
-    _f8,                                           # end_derivative
+    _f8, _f8,                                      # end_derivative, interior
     OPTIONS_TYPE, _f8, _f8,                        # options, atol, floor
     _f8, _f8, _f8, STATE_TYPE, _i8,                # x, kdes, frozen, state, counters
     types.Tuple((_f8, _f8, types.float64[:, ::1],  # carry (see ``carry``)
@@ -128,13 +129,22 @@ _SIGNATURE = types.int64(
 def method_tables(method):
     """The method's tables in the order :func:`advance` takes them (M^{-1}, A, b0, the stage
     nodes tau, T, T^{-1}, eigenvalues, nodes, quadrature weights, barycentric weights, end
-    derivative), as writable copies (numba types read-only arrays apart); made once per
+    derivative, the interior point and derivative weights of ``interior_indicators``), as
+    writable copies (numba types read-only arrays apart); made once per
     method, as advance only reads them."""
     m = method
     tables = (m.moment_inverse, m.A, m.b0, m.nodes[m.stages], m.stage_transform,
               m.stage_transform_inverse, m.stage_eigenvalues, m.nodes, m.quadrature_weights,
-              m.barycentric_weights, m.end_derivative)
+              m.barycentric_weights, m.end_derivative, _interior(m))
     return tuple(np.array(table) for table in tables)
+
+
+def _interior(method):
+    """[tau*, l_0'(tau*), ..., l_q'(tau*)] of :func:`.control.interior_indicators`: tau* = 0
+    for dG(q) (right Radau nodes), half the first node gap for cG(q) (Lobatto nodes)."""
+    nodes = np.asarray(method.nodes, dtype=float)
+    tau = 0.0 if method.family == "dG" else 0.5 * nodes[1]
+    return np.concatenate(([tau], lagrange_matrices(nodes, (tau,))[1][0]))
 
 
 def carry(N, nn, nnz, capacity):
@@ -263,7 +273,7 @@ def _fresh(st, kmax, last_a, last_b, jdiag, coupling, jacobian_time):
 
 def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Minv, A, b0,
              stage_nodes, transform, transform_inverse, eigenvalues, nodes, qweights, bary,
-             end_derivative, options, atol, floor, x, kdes, frozen, state, counters, carried,
+             end_derivative, interior, options, atol, floor, x, kdes, frozen, state, counters, carried,
              out_comp, out_a, out_b, out_values, out_block_a, out_block_b, out_blocks):
     """Advance (x, t) slab by slab towards T, storing accepted elements; returns a status.
     ``frozen[i]`` is the time since which component i is frozen (NaN: active). A slab on
@@ -561,6 +571,10 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                                      indices, jacobian, jdiag, coupling, gamma, elist,
                                      group_order, local, newton, active, nactive, emax, kact,
                                      umax, counters)
+        if not (fixed or solved):
+            interior_indicators(ne, comp, ea, eb, values, resid, unfiltered, jdiag, interior,
+                                fi, p, x, indptr, indices, cptr, celems, nodes, bary, states,
+                                out, o.delivered, emax, counters)
         deviation, deviated, deviated_eps = 0.0, -1, 0.0
         if not solved:
             deviation, deviated, deviated_eps = slab_deviation(ne, comp, values, resid,
