@@ -410,6 +410,10 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     t = st.t
     nactive = active_components(frozen, active)
     while True:
+        # the last slab's steps not tied and graded (a synchronised slab on Jacobian rows
+        # already used, below; read before a regroup resets the age, and from the carried
+        # state, so that a run cut into loop calls steps as one)
+        untied = not fixed and st.synchronised and st.jacobian_age > 1
         if st.regroup:  # (JACOBIAN_AGE: every active row is evaluated anew)
             nactive = active_components(frozen, active)
             st.regroup = False
@@ -424,10 +428,6 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             return DONE
         factored[0] = 0
         stiff = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
-        # the last slab's steps not tied and graded (a synchronised slab on Jacobian rows
-        # already used, below; from the carried state, so that a run cut into loop calls
-        # steps as one)
-        untied = not fixed and st.synchronised and st.jacobian_age > 1
         while True:
             kcap, kmin, rate = desired_steps(kdes, active, nactive, fixed, kmax, t, T)
             # (twice the gain to leave it: a slab that flips back and forth pays both)
