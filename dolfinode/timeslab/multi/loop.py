@@ -435,7 +435,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                     and nactive <= (2.0 if st.synchronised else 1.0) * SYNCHRONISE * kmin * rate)
             if sync or not untied:
                 break
-            # a partition next (or a retry, a component frozen): tie and grade first
+            # a partition next (the spread, a component frozen): tie and grade first
             reach_valid = tie_and_grade(reach_valid, kdes, active[:nactive], frozen, indptr,
                                         indices, jacobian, reach, lopsided, strength, reaction,
                                         jdiag, lowered, stack, acting)
