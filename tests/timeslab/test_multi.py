@@ -448,8 +448,18 @@ def test_ties_and_grading_over_the_acting_rows_only():
     both sides of 1 / |J_ij|), ``propagate`` and ``grade`` with the couplings' weights of
     ``tie_reach``, over the rows that ``tying_rows`` and ``grading_rows`` pass on, give
     bitwise the steps of the rules read straight from the Jacobian over every active row;
-    the acting rows are a strict subset in some cases and the steps move in some."""
-    from dolfinode.timeslab.multi.steps import grade, grading_rows, propagate, tying_rows
+    the acting rows are a strict subset in some cases and the steps move in some, but
+    never the smallest active one (a tie copies one active step to another, grading caps at
+    GRADING times one): a synchronised slab's next step is that one, so the loop leaves the
+    steps of a synchronised slab untied and ties them (``tie_and_grade``, the same steps)
+    when a partition follows."""
+    from dolfinode.timeslab.multi.steps import (
+        grade,
+        grading_rows,
+        propagate,
+        tie_and_grade,
+        tying_rows,
+    )
 
     rng = np.random.default_rng(5)
     n = 8
@@ -468,9 +478,19 @@ def test_ties_and_grading_over_the_acting_rows_only():
         grading = grading_rows(subset, rows, reach, acting)
         grade(subset, acting[:grading], frozen, indptr, indices, reaction)
         np.testing.assert_array_equal(subset, every)
+        if rows.size:
+            assert every[rows].min() == kdes[rows].min()
+        both = kdes.copy()
+        tie_and_grade(False, both, rows, frozen, indptr, indices, jacobian,
+                      *_weights(rows, indptr, indices, jacobian),
+                      _diagonal(indptr, indices, jacobian), np.zeros(n, dtype=np.bool_),
+                      np.empty(n, dtype=np.int64), acting)
+        np.testing.assert_array_equal(both, every)
         fewer += ties < rows.size and grading < rows.size
         moved += not np.array_equal(every, kdes)
     assert fewer > 30 and moved > 30
+
+
 
 
 def _front(n, T):

@@ -72,12 +72,8 @@ from dolfinode.timeslab.multi.slab import (
     sweep_slab,
 )
 from dolfinode.timeslab.multi.steps import (
-    grade,
-    grading_rows,
-    propagate,
     slab_limit,
-    tie_reach,
-    tying_rows,
+    tie_and_grade,
 )
 from dolfinode.timeslab.multi.sweeps import guess_from
 from dolfinode.timeslab.partition import (
@@ -101,6 +97,8 @@ SYNCHRONISE = 4.0
 #: synchronised only below k, which grows by SYNCHRONISE_PROBE per synchronised slab.
 SYNCHRONISE_PROBE = 1.2
 #: Synchronised slabs over which the Jacobian rows of an earlier slab start serve the steps.
+#: The first synchronised slab on new rows ties and grades the steps; the others leave them
+#: untied, and a slab that leaves synchronisation ties them first.
 JACOBIAN_AGE = 8
 
 
@@ -422,6 +420,10 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
     t = st.t
     nactive = active_components(frozen, active)
     while True:
+        # the last slab's steps not tied and graded (a synchronised slab on Jacobian rows
+        # already used, below; read before a regroup resets the age, and from the carried
+        # state, so that a run cut into loop calls steps as one)
+        untied = not fixed and st.synchronised and st.jacobian_age > 1
         if st.regroup:  # (JACOBIAN_AGE: every active row is evaluated anew)
             nactive = active_components(frozen, active)
             st.regroup = False
@@ -435,11 +437,19 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                 st.regroup = True
             return DONE
         factored[0] = 0
-        kcap, kmin, rate = desired_steps(kdes, active, nactive, fixed, kmax, t, T)
         stiff = mode == NEWTON or (mode == DEFAULT and counters[STIFF] == 1)
-        # (twice the gain to leave it: a slab that flips back and forth pays both)
-        sync = (not fixed and not stiff and nfrozen == 0 and kmin < st.sync_fail
-                and nactive <= (2.0 if st.synchronised else 1.0) * SYNCHRONISE * kmin * rate)
+        while True:
+            kcap, kmin, rate = desired_steps(kdes, active, nactive, fixed, kmax, t, T)
+            # (twice the gain to leave it: a slab that flips back and forth pays both)
+            sync = (not fixed and not stiff and nfrozen == 0 and kmin < st.sync_fail
+                    and nactive <= (2.0 if st.synchronised else 1.0) * SYNCHRONISE * kmin * rate)
+            if sync or not untied:
+                break
+            # a partition next (the spread, a component frozen): tie and grade first
+            reach_valid = tie_and_grade(reach_valid, kdes, active[:nactive], frozen, indptr,
+                                        indices, jacobian, reach, lopsided, strength, reaction,
+                                        jdiag, lowered, stack, acting)
+            untied = False
         # (threshold 0: one group, on the smallest step)
         threshold = 0.0 if sync else theta
         # every component on one element of [t, b], in order (comp[e] = e): the fused path,
@@ -614,16 +624,14 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
             if fixed:
                 return CONSTRAINT
             accept = False
-        if not fixed:
-            if not reach_valid:  # (a Jacobian that serves up to JACOBIAN_AGE slabs)
-                tie_reach(active[:nactive], indptr, indices, jacobian, reach, lopsided,
-                          strength, reaction)
-                reach_valid = True
-            n = tying_rows(kdes, active[:nactive], reach, lopsided, acting)
-            propagate(kdes, acting[:n], frozen, indptr, indices, strength, jdiag, lowered,
-                      stack)
-            n = grading_rows(kdes, active[:nactive], reach, acting)
-            grade(kdes, acting[:n], frozen, indptr, indices, reaction)
+        # a synchronised slab on Jacobian rows already used (see JACOBIAN_AGE) leaves its
+        # steps untied: the next synchronised slab takes the smallest, which the ties and
+        # grading never change (``tie_and_grade``), and a slab that leaves synchronisation
+        # ties them first (``untied`` above)
+        if not fixed and not (solved and st.jacobian_age > 1):
+            reach_valid = tie_and_grade(reach_valid, kdes, active[:nactive], frozen, indptr,
+                                        indices, jacobian, reach, lopsided, strength, reaction,
+                                        jdiag, lowered, stack, acting)
         if not accept:
             counters[REJECTED] += 1
             # the steps chosen at the slab's start no longer fit its end (a front arrives):

@@ -191,6 +191,23 @@ def grading_rows(kdes, rows, reach, acting):
     return n
 
 
+@helper(**NO_REFCOUNT)
+def tie_and_grade(current, kdes, rows, frozen, indptr, indices, jacobian, reach, lopsided,
+                  strength, reaction, jdiag, lowered, stack, acting):
+    """:func:`propagate`, then :func:`grade`, each over the ``rows`` that can act on their
+    steps (:func:`tying_rows`, :func:`grading_rows`), with the weights of
+    :func:`tie_reach`, made first unless ``current`` (made for this ``jacobian``). Returns
+    True: the weights are current. The smallest step of the ``rows`` stays: a tie copies one
+    active step to another, grading caps at GRADING times one."""
+    if not current:
+        tie_reach(rows, indptr, indices, jacobian, reach, lopsided, strength, reaction)
+    n = tying_rows(kdes, rows, reach, lopsided, acting)
+    propagate(kdes, acting[:n], frozen, indptr, indices, strength, jdiag, lowered, stack)
+    n = grading_rows(kdes, rows, reach, acting)
+    grade(kdes, acting[:n], frozen, indptr, indices, reaction)
+    return True
+
+
 @helper(inline="always")
 def power(x, order):
     """x^order, by products for the integer orders 1..4 (the local orders q + 1 of q <= 3):
