@@ -29,6 +29,7 @@ import numpy as np
 from numba import njit
 from scipy.linalg import lapack
 
+from dolfinode.compile.jit import helper
 from dolfinode.compile.signatures import address, call_rhs_rows, rhs_kernel
 from dolfinode.methods.method import stability_function
 
@@ -151,28 +152,23 @@ def _partitions(sol):
     return partitions
 
 
-def may_span(compiled, u0, times, X, n):
-    """Whether a step of the first ``n`` elements of a cG(q)/dG(q) history in a prepared
-    call's buffers (``times`` (2, capacity): starts and lengths, ``X`` (capacity, q + 1, N):
-    nodal values; from ``u0``) may span a growing mode: where Gershgorin's bound of Re z
-    (:func:`spanned_growth`'s first test) passes SPANNED at a step's start; one compiled
-    call, which a prepared call of one step makes before :func:`spanned_growth` (its
-    Python would cost several times such a call)."""
-    return _gershgorin_passes(compiled.jacobian.address, compiled.indptr, compiled.indices,
-                              compiled.p, u0, times, X, n)
-
-
-@njit(cache=True)
-def _gershgorin_passes(jacobian, indptr, indices, p, u0, times, X, n):
-    """:func:`may_span` with the Jacobian's kernel at the address ``jacobian``."""
-    u, data = u0.copy(), np.empty(max(indices.size, 1))
+@helper()
+def may_span(jacobian, indptr, indices, p, u0, starts, lengths, X, n):
+    """Whether a step of the first ``n`` elements of a cG(q)/dG(q) history (``starts``,
+    ``lengths``, ``X`` (capacity, q + 1, N): nodal values; from ``u0``) may span a growing
+    mode: where Gershgorin's bound of Re z (:func:`spanned_growth`'s first test) passes
+    SPANNED at a step's start, J from the kernel at the address ``jacobian``. Compiled into
+    a prepared call (:mod:`dolfinode.timeslab.prepared`), which checks a run of one step by
+    it before :func:`spanned_growth` (whose Python costs several prepared calls)."""
+    data = np.empty(max(indices.size, 1))
     kernel = rhs_kernel(jacobian)
+    N, q = u0.size, X.shape[1] - 1
     for step in range(n):
-        if step > 0:
-            u[:] = X[step - 1, -1]
-        kernel(address(u, 0), times[0, step], address(p, 0), address(data, 0))
-        for i in range(u.size):
-            if times[1, step] * _row_bound(data, indptr, indices, i) > SPANNED:
+        # U at the step's start: u0, else the previous step's end X[step - 1, q]
+        u = address(u0, 0) if step == 0 else address(X, ((step - 1) * (q + 1) + q) * N)
+        kernel(u, starts[step], address(p, 0), address(data, 0))
+        for i in range(N):
+            if lengths[step] * _row_bound(data, indptr, indices, i) > SPANNED:
                 return True
     return False
 

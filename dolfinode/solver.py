@@ -36,7 +36,6 @@ from types import MappingProxyType
 
 import numpy as np
 
-from dolfinode import growth
 from dolfinode import timeslab as ts
 from dolfinode.adaptivity import UNDAMPED_DEVIATION
 from dolfinode.ensemble import parameter_symbol, vary
@@ -393,7 +392,10 @@ class Solver:
         self._initial = np.empty(n)  # (u0, from which the one compiled call sets x)
         self._prepared = None if multi_adaptive else (prepared.run.entry(), prepared.workspace(
             start.compile(), self._start[1], advance.compile(), self._loop[1], x,
-            self._initial))
+            self._initial, (compiled.jacobian.address, compiled.p, compiled.indptr,
+                            compiled.indices, *self._buffers, counters),
+            # (runs of more steps, or past maximum_steps, are checked in Python)
+            int(min(self._checked_from, self._maximum_steps + 1)) if self._checks else 0))
         self._interval = (work.t0, work.T)
 
     def _solve_prepared(self, work):
@@ -422,11 +424,13 @@ class Solver:
             kept.steps[:] = kept.given
         run, workspace = self._prepared
         status = run(workspace)
-        if status < 0:
-            _check_start(work, params, -status, kept.f0, kept.steps)
-        counts = kept.counters.tolist()
-        if status != ts.DONE or counts[ts.SLABS] > self._maximum_steps:
+        if status != ts.DONE and status != prepared.MAY_SPAN:
+            if status < 0:
+                _check_start(work, params, -status, kept.f0, kept.steps)
             return self._go_on(work, status, started)
+        counts = kept.counters.tolist()
+        if counts[ts.SLABS] > self._maximum_steps:
+            return self._go_on(work, ts.DONE, started)
         seconds = time.perf_counter() - started
         m, compiled = self._method, kept.compiled
         if self._deviation[0] > UNDAMPED_DEVIATION:  # (what _warn_undamped reads first)
@@ -446,9 +450,7 @@ class Solver:
         steps = counts[ts.SLABS]
         if steps >= self._checked_from:  # (check_error_at_T's own test, read once)
             check_error_at_T(work, compiled, None, False, m, params, sol, steps)
-        elif (self._checks  # (its growth check alone)
-              and growth.may_span(compiled, self._initial, self._times, self._buffers[2],
-                                  counts[ts.STORED])):
+        elif status == prepared.MAY_SPAN:  # (its growth check alone, begun in the call)
             warn_spanned_growth(work, compiled, m, params, sol)
         # values projected to 0 (:func:`warn_lost_components`): none where none ends at 0
         # (x: the values at the end, sol.values[-1, -1])
