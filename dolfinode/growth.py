@@ -17,9 +17,10 @@ mode. For a multi-adaptive run z is an eigenvalue of K J, K = diag(k_i) the comp
 steps (k J for a shared step). The steps' Gershgorin bound max_i k_i (J_ii + sum_j |J_ij|)
 of Re z selects the candidates; of a system of at most CERTIFIED components each is then
 certified (no eigenvalue with Re z > SPANNED: the spectral abscissa of the comparison
-matrix of K J, or of W K J V in the eigenbasis V of a step decomposed before, is below
-SPANNED) or decomposed, which on stiff decaying runs leaves none (the plain bound selected
-every stiff step: off-diagonal couplings). The bound plus log max_i |k_i f_i| / (atol_i +
+matrix of K J, or of W K J V in the eigenbasis V of a step decomposed before, kept per
+compiled system for the next check, is below SPANNED) or decomposed, which on stiff
+decaying runs leaves none (the plain bound selected every stiff step: off-diagonal
+couplings). The bound plus log max_i |k_i f_i| / (atol_i +
 rtol |U_i|) of log(a exp(z)) ranks those left (at most MAX_CANDIDATES), so that a run
 without growing modes pays one Jacobian per step and few decompositions.
 """
@@ -71,7 +72,8 @@ def spanned_growth(sol, compiled, m, atol, rtol):
         bound = _gershgorin(values, compiled.indptr, compiled.indices, K)
         keep = np.flatnonzero(bound > SPANNED)
         if N <= CERTIFIED:
-            keep = _growing(values, compiled.indptr, compiled.indices, K, keep)
+            keep = _growing(values, compiled.indptr, compiled.indices, K, keep,
+                            compiled.growth_basis)
         if not keep.size:
             continue
         # ranked by log(a exp(z)) <= bound + log |K f|_scaled: a spanned mode's error
@@ -195,19 +197,25 @@ def _row_bound(values, indptr, indices, i):
     return row
 
 
-def _growing(data, indptr, indices, steps, candidates):
+def _growing(data, indptr, indices, steps, candidates, kept):
     """The ``candidates`` (step indices) whose Z = K J (J's nonzero values ``data``, (P, nnz),
     CSR order; ``steps`` K, (P, N)) has an eigenvalue with Re z > SPANNED. Each is certified
     without (:func:`_certified`): by the comparison matrix of Z, or of B = W Z V, V the
     eigenvectors of the last step decomposed (W = V^-1: B is similar to Z, and near
-    diagonal while J changes little), else it is decomposed (:func:`_basis`)."""
+    diagonal while J changes little), else it is decomposed (:func:`_basis`). ``kept``:
+    [the basis (V, W) of the last decomposition of an earlier check of this system, or
+    None], where this one starts, and which it updates: a second solve of a system (other
+    values, parameters) mostly decomposes nothing. Any invertible V certifies only what
+    has no growing mode (B is similar to Z whatever V is)."""
     Z = np.empty((indptr.size - 1,) * 2)  # (the Z of the step _certified stopped at)
-    basis, growing, at = NO_BASIS, [], 0  # (no basis yet: Z's comparison matrix alone)
+    basis, growing, at = kept[0] or NO_BASIS, [], 0  # (no basis: Z's comparison matrix)
     while True:
         at += _certified(data, indptr, indices, steps, candidates[at:], *basis, Z)
         if at == candidates.size:
             return np.array(growing, dtype=np.int64)
         grows, basis = _basis(Z)
+        if basis is not NO_BASIS:
+            kept[0] = basis
         if grows:
             growing.append(candidates[at])
         at += 1
