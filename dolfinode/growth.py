@@ -24,6 +24,7 @@ couplings). The bound plus log max_i |k_i f_i| / (atol_i +
 rtol |U_i|) of log(a exp(z)) ranks those left (at most MAX_CANDIDATES), so that a run
 without growing modes pays one Jacobian per step and few decompositions.
 """
+import math
 from itertools import pairwise
 
 import numpy as np
@@ -221,15 +222,16 @@ def _growing(data, indptr, indices, steps, candidates, kept):
         at += 1
 
 
-#: V, W of :func:`_certified` where there is no basis.
-NO_BASIS = (np.empty((0, 0), dtype=np.complex128),) * 2
+#: :func:`_certified`'s basis where there is none.
+NO_BASIS = (np.empty((0, 0)),) * 4 + (np.empty(0),)
 
 
 def _basis(Z):
-    """(whether Z has an eigenvalue with Re z > SPANNED, (V, W)): its eigenvectors V and
-    W = V^-1 (up to rounding: :func:`_certified` bounds it); NO_BASIS where Z is not
-    finite (left to the ranking: Gershgorin's bound selected it) or defective. LAPACK's
-    routines directly: numpy's eig costs 16 us on 3 x 3 (its checks), dgeev 2."""
+    """(whether Z has an eigenvalue with Re z > SPANNED, its eigenbasis as
+    :func:`_certified` takes it (:func:`_basis_of` its eigenvectors V and W = V^-1));
+    NO_BASIS where Z is not finite (left to the ranking: Gershgorin's bound selected it)
+    or defective. LAPACK's routines directly: numpy's eig costs 16 us on 3 x 3 (its
+    checks), dgeev 2."""
     if not np.isfinite(Z).all():
         return True, NO_BASIS
     real, imaginary, _, vectors, failed = lapack.dgeev(Z, compute_vl=0)
@@ -244,33 +246,54 @@ def _basis(Z):
     lu, pivots, singular = lapack.zgetrf(V)
     if singular:
         return grows, NO_BASIS
-    return grows, (V, lapack.zgetri(lu, pivots)[0])
+    W, real_rows = lapack.zgetri(lu, pivots)[0], np.ones(len(V), dtype=bool)
+    real_rows[pair], real_rows[pair + 1] = False, False
+    W[real_rows] = W[real_rows].real  # (V^-1's; not its rounding's: real products there)
+    return grows, _basis_of(V, W)
+
+
+def _basis_of(V, W):
+    """The basis V (W = V^-1 up to rounding) as :func:`_certified` takes it: Re V, Im V,
+    Re W, Im W (real products: a real basis, or one of few complex pairs, costs a quarter
+    of complex ones), and sum_j |R_ij|, R = W V - I, made once per basis."""
+    inverse_error = np.abs(W @ V - np.eye(V.shape[0])).sum(axis=1)
+    return (*(np.ascontiguousarray(part) for part in (V.real, V.imag, W.real, W.imag)),
+            inverse_error)
 
 
 @njit(cache=True)
-def _certified(data, indptr, indices, steps, candidates, V, W, Z):
+def _certified(data, indptr, indices, steps, candidates, Vr, Vi, Wr, Wi, sum_R, Z):
     """How many of the ``candidates`` (in order) have Re z <= SPANNED for every eigenvalue
     of Z = K J certified by Gershgorin's bound scaled at best: the spectral abscissa of the
     comparison matrix C (C_ii = Re Z_ii, C_ij = |Z_ij|) bounds Re z (the Gershgorin bound of
-    D^-1 Z D, minimized over diagonal D > 0), first of Z, then of B = W Z V (``V``, ``W``: a
-    basis and its inverse, empty where there is none), with B's distance to V^-1 Z V added
-    to C: |R| |B| (R = W V - I: W's rounding) and the products' rounding,
-    2 N eps |W| |Z| |V|.
+    D^-1 Z D, minimized over diagonal D > 0), first of Z, then of B = W Z V (V = ``Vr`` + i
+    ``Vi``, W = ``Wr`` + i ``Wi``: a basis and its inverse, empty where there is none), with
+    B's distance to V^-1 Z V added to C: |R| |B| (R = W V - I: W's rounding, ``sum_R`` its
+    row sums) and the products' rounding, 2 N eps |W| |Z| |V|. B in real products: those of
+    Im V and Im W only over the columns and rows where they are not zero.
     ``Z``: (N, N), holds the Z of the step not certified."""
     N = indptr.size - 1
     C, A = np.zeros((N, N)), np.zeros((N, N))
-    B, T = np.zeros((N, N), dtype=np.complex128), np.zeros((N, N), dtype=np.complex128)
     # (loops, not numpy's reductions: they cost seconds of compile)
-    n = V.shape[0]
-    absV, sum_W, sum_R = np.empty((n, n)), np.zeros(n), np.zeros(n)
+    n = Vr.shape[0]
+    Tr, Ti, Br, Bi = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+    absV, sum_W = np.empty((n, n)), np.zeros(n)
+    columns, rows = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    n_columns = n_rows = 0
     for i in range(n):
+        imaginary_column = imaginary_row = False
         for j in range(n):
-            absV[i, j] = abs(V[i, j])
-            sum_W[i] += abs(W[i, j])
-            entry = -1.0 + 0j if i == j else 0j
-            for k in range(n):
-                entry += W[i, k] * V[k, j]
-            sum_R[i] += abs(entry)
+            absV[i, j] = _modulus(Vr[i, j], Vi[i, j])
+            sum_W[i] += _modulus(Wr[i, j], Wi[i, j])
+            imaginary_column |= Vi[j, i] != 0.0
+            imaginary_row |= Wi[i, j] != 0.0
+        if imaginary_column:
+            columns[n_columns] = i
+            n_columns += 1
+        if imaginary_row:
+            rows[n_rows] = i
+            n_rows += 1
+    columns_used, rows_used = columns[:n_columns], rows[:n_rows]
     rounding = 2 * N * EPS
     for count in range(candidates.size):
         p = candidates[count]
@@ -283,32 +306,56 @@ def _certified(data, indptr, indices, steps, candidates, V, W, Z):
                 C[i, j] = Z[i, j] if i == j else abs(Z[i, j])
         if _abscissa_below(C, SPANNED):
             continue
-        if V.shape[0] == 0:
+        if n == 0:
             return count
-        T[:] = 0.0
+        # T = Z V, A = |Z| |V|
+        Tr[:] = 0.0
+        Ti[:] = 0.0
         A[:] = 0.0
         for i in range(N):
             for k in range(N):
-                if Z[i, k] != 0.0:
+                z = Z[i, k]
+                if z != 0.0:
                     for j in range(N):
-                        T[i, j] += Z[i, k] * V[k, j]
-                        A[i, j] += abs(Z[i, k]) * absV[k, j]
-        B[:] = 0.0
+                        Tr[i, j] += z * Vr[k, j]
+                        A[i, j] += abs(z) * absV[k, j]
+                    for c in columns_used:
+                        Ti[i, c] += z * Vi[k, c]
+        # B = W T: Re W Re T, then the products of Im W (its rows) and Im T (its columns)
+        Br[:] = 0.0
+        Bi[:] = 0.0
         for i in range(N):
             for k in range(N):
+                w = Wr[i, k]
                 for j in range(N):
-                    B[i, j] += W[i, k] * T[k, j]
+                    Br[i, j] += w * Tr[k, j]
+                for c in columns_used:
+                    Bi[i, c] += w * Ti[k, c]
+        for i in rows_used:
+            for k in range(N):
+                w = Wi[i, k]
+                for j in range(N):
+                    Bi[i, j] += w * Tr[k, j]
+                for c in columns_used:
+                    Br[i, c] -= w * Ti[k, c]
         # (X Y)_ij <= (sum_k X_ik) max_k Y_kj for X, Y >= 0: the margins in N^2
         for j in range(N):
             top_A = top_B = 0.0
             for k in range(N):
-                top_A, top_B = max(top_A, A[k, j]), max(top_B, abs(B[k, j]))
+                top_A, top_B = max(top_A, A[k, j]), max(top_B, _modulus(Br[k, j], Bi[k, j]))
             for i in range(N):
                 C[i, j] = rounding * sum_W[i] * top_A + sum_R[i] * top_B + (
-                    B[i, j].real if i == j else abs(B[i, j]))
+                    Br[i, j] if i == j else _modulus(Br[i, j], Bi[i, j]))
         if not _abscissa_below(C, SPANNED):
             return count
     return candidates.size
+
+
+@njit(cache=True)
+def _modulus(x, y):
+    """|x + i y| (math.hypot's care for overflow costs a certificate more than its products;
+    an overflow gives inf, which certifies nothing)."""
+    return abs(x) if y == 0.0 else math.sqrt(x * x + y * y)
 
 
 @njit(cache=True)
