@@ -31,6 +31,7 @@ import time
 import weakref
 from collections import namedtuple
 from collections.abc import Mapping
+from functools import partial
 from threading import get_ident
 from types import MappingProxyType
 
@@ -435,17 +436,10 @@ class Solver:
         m, compiled = self._method, kept.compiled
         if self._deviation[0] > UNDAMPED_DEVIATION:  # (what _warn_undamped reads first)
             _warn_undamped(work, compiled, m, params, kept.options, kept.state, False)
-        solved, bound, structure = self._solved, self._step_bound, kept.structure
-        k_next, N = self._k_next.item(), kept.x.size
+        makers = self._makers.copy()  # (those of the call's values, and its stats)
+        makers["stats"] = partial(self._stats, counts, self._k_next.item(), seconds)
         sol = PreparedSolution(m, self._times, self._buffers[2], counts[ts.STORED],
-                               self._samples, {
-                                   "ode": solved.declaration, "declared": solved,
-                                   "rhs": lambda: solved.dense_rhs(m),
-                                   "parameters": params,
-                                   "stats": lambda: note_step_bound(_completed_stats(
-                                       _mono_stats(N, structure, counts, k_next), counts,
-                                       False, m, params, compiled.compile_time, seconds),
-                                       bound, solved.T - solved.t0)})
+                               self._samples, makers)
         holder[0] = weakref.ref(sol)
         steps = counts[ts.SLABS]
         if steps >= self._checked_from:  # (check_error_at_T's own test, read once)
@@ -504,7 +498,8 @@ class Solver:
         space: the parameter values into p, and with them the steps' bound under an
         oscillating f(t) (as dn.solve's options set it); u0 into the initial
         values, and the floor of the values where the signs it depends on changed; then
-        the checks and warnings of new values. First the declaration as solved."""
+        the checks and warnings of new values. First the declaration as solved, then with
+        the parameters' what makes a mono-adaptive Solution's ``ode`` and ``stats``."""
         params, kept = self._params, self._kept
         compiled, atol = kept.compiled, kept.atol
         self._solved = _Solved(work)
@@ -521,6 +516,12 @@ class Solver:
             # (each mark of values taken comes after what they set: a call stopped between,
             # by an error or a KeyboardInterrupt, leaves them to be taken again)
             self._values = work.params
+        # a mono-adaptive Solution's makers of these values (but its stats' own values)
+        solved, m = self._solved, self._method
+        self._makers = {"ode": solved.declaration, "declared": solved,
+                        "rhs": partial(solved.dense_rhs, m), "parameters": params}
+        self._stats = partial(_prepared_stats, solved, m, params, kept.structure,
+                              compiled.compile_time, self._step_bound)
         if work.u0 is not self._u0:
             floor_key = (self._signs, _has_negative(work.u0))  # all the floor depends on
             if floor_key != self._floor_key:
@@ -557,6 +558,16 @@ class Solver:
         if self._below:
             warn_below_tolerance_throughout(work, k.atol, sol)
         return sol
+
+
+def _prepared_stats(solved, m, params, structure, compile_time, bound, counts, k_next,
+                    seconds):
+    """The stats of a mono-adaptive prepared call of ``solved`` (:class:`_Solved`) by ``m``
+    (made when first read): from its ``counts``, the next step ``k_next`` and its
+    ``seconds``."""
+    return note_step_bound(_completed_stats(
+        _mono_stats(solved.N, structure, counts, k_next), counts, False, m, params,
+        compile_time, seconds), bound, solved.T - solved.t0)
 
 
 #: What a Solver keeps per interval for its prepared calls (:meth:`Solver._workspace`).
