@@ -20,9 +20,9 @@ certified (no eigenvalue with Re z > SPANNED: the spectral abscissa of the compa
 matrix of K J, or of W K J V in the eigenbasis V of a step decomposed before, kept per
 compiled system for the next check, is below SPANNED) or decomposed, which on stiff
 decaying runs leaves none (the plain bound selected every stiff step: off-diagonal
-couplings). The bound plus log max_i |k_i f_i| / (atol_i +
-rtol |U_i|) of log(a exp(z)) ranks those left (at most MAX_CANDIDATES), so that a run
-without growing modes pays one Jacobian per step and few decompositions.
+couplings). The bound plus log max_i |k_i f_i| / (atol_i + rtol |U_i|) of log(a exp(z))
+ranks those left (at most MAX_CANDIDATES), so that a run without growing modes pays one
+Jacobian per step and few decompositions.
 """
 import math
 from itertools import pairwise
@@ -204,8 +204,8 @@ def _growing(data, indptr, indices, steps, candidates, kept):
     without (:func:`_certified`): by the comparison matrix of Z, or of B = W Z V, V the
     eigenvectors of the last step decomposed (W = V^-1: B is similar to Z, and near
     diagonal while J changes little), else it is decomposed (:func:`_basis`). ``kept``:
-    [the basis (V, W) of the last decomposition of an earlier check of this system, or
-    None], where this one starts, and which it updates: a second solve of a system (other
+    [the basis (:func:`_basis_of`) of the last decomposition of an earlier check of this
+    system, or None], where this one starts, and which it updates: a second solve of a system (other
     values, parameters) mostly decomposes nothing. Any invertible V certifies only what
     has no growing mode (B is similar to Z whatever V is)."""
     Z = np.empty((indptr.size - 1,) * 2)  # (the Z of the step _certified stopped at)
@@ -248,7 +248,9 @@ def _basis(Z):
         return grows, NO_BASIS
     W, real_rows = lapack.zgetri(lu, pivots)[0], np.ones(len(V), dtype=bool)
     real_rows[pair], real_rows[pair + 1] = False, False
-    W[real_rows] = W[real_rows].real  # (V^-1's; not its rounding's: real products there)
+    # V^-1 is real outside a pair's rows: an Im W of rounding alone there would make every
+    # product of the certificate complex (R = W V - I bounds the change)
+    W[real_rows] = W[real_rows].real
     return grows, _basis_of(V, W)
 
 
