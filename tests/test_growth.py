@@ -216,3 +216,14 @@ def test_prepared_solve_of_one_step_is_checked(method):
         with pytest.warns(dn.ToleranceWarning, match="growing mode .* spans the step"):
             sol = solver.solve(u0=u0)
         assert sol.stats["time slabs"] == 1
+
+
+def test_prepared_solve_unchecked_at_T_is_not_warned():
+    # estimate_global_error=False skips the checks at T, as in dn.solve: the prepared call's
+    # compiled growth test too
+    ode = dn.ODE({u: 50 * (u - 1)}, u0=[1 + 1e-6], T=1.0)
+    solver = dn.Solver(ode, method="dG(2)", tolerance=1e-3, estimate_global_error=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for u0 in ([1 + 1e-6], [1 - 1e-6]):
+            assert solver.solve(u0=u0).stats["time slabs"] == 1
