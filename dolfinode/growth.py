@@ -204,8 +204,8 @@ def _growing(data, indptr, indices, steps, candidates, kept):
     without (:func:`_certified`): by the comparison matrix of Z, or of B = W Z V, V the
     eigenvectors of the last step decomposed (W = V^-1: B is similar to Z, and near
     diagonal while J changes little), else it is decomposed (:func:`_basis`). ``kept``:
-    [the basis (:func:`_basis_of`) of the last decomposition of an earlier check of this
-    system, or None], where this one starts, and which it updates: a second solve of a system (other
+    [the basis (V, W) of the last decomposition of an earlier check of this system, or
+    None], where this one starts, and which it updates: a second solve of a system (other
     values, parameters) mostly decomposes nothing. Any invertible V certifies only what
     has no growing mode (B is similar to Z whatever V is)."""
     Z = np.empty((indptr.size - 1,) * 2)  # (the Z of the step _certified stopped at)
@@ -222,16 +222,15 @@ def _growing(data, indptr, indices, steps, candidates, kept):
         at += 1
 
 
-#: :func:`_certified`'s basis where there is none.
-NO_BASIS = (np.empty((0, 0)),) * 4 + (np.empty(0),)
+#: V, W of :func:`_certified` where there is no basis.
+NO_BASIS = (np.empty((0, 0), dtype=np.complex128),) * 2
 
 
 def _basis(Z):
-    """(whether Z has an eigenvalue with Re z > SPANNED, its eigenbasis as
-    :func:`_certified` takes it (:func:`_basis_of` its eigenvectors V and W = V^-1));
-    NO_BASIS where Z is not finite (left to the ranking: Gershgorin's bound selected it)
-    or defective. LAPACK's routines directly: numpy's eig costs 16 us on 3 x 3 (its
-    checks), dgeev 2."""
+    """(whether Z has an eigenvalue with Re z > SPANNED, (V, W)): its eigenvectors V and
+    W = V^-1 (up to rounding: :func:`_certified` bounds it); NO_BASIS where Z is not
+    finite (left to the ranking: Gershgorin's bound selected it) or defective. LAPACK's
+    routines directly: numpy's eig costs 16 us on 3 x 3 (its checks), dgeev 2."""
     if not np.isfinite(Z).all():
         return True, NO_BASIS
     real, imaginary, _, vectors, failed = lapack.dgeev(Z, compute_vl=0)
@@ -246,56 +245,49 @@ def _basis(Z):
     lu, pivots, singular = lapack.zgetrf(V)
     if singular:
         return grows, NO_BASIS
-    W, real_rows = lapack.zgetri(lu, pivots)[0], np.ones(len(V), dtype=bool)
-    real_rows[pair], real_rows[pair + 1] = False, False
-    # V^-1 is real outside a pair's rows: an Im W of rounding alone there would make every
-    # product of the certificate complex (R = W V - I bounds the change)
-    W[real_rows] = W[real_rows].real
-    return grows, _basis_of(V, W)
-
-
-def _basis_of(V, W):
-    """The basis V (W = V^-1 up to rounding) as :func:`_certified` takes it: Re V, Im V,
-    Re W, Im W (real products: a real basis, or one of few complex pairs, costs a quarter
-    of complex ones), and sum_j |R_ij|, R = W V - I, made once per basis."""
-    inverse_error = np.abs(W @ V - np.eye(V.shape[0])).sum(axis=1)
-    return (*(np.ascontiguousarray(part) for part in (V.real, V.imag, W.real, W.imag)),
-            inverse_error)
+    return grows, (V, lapack.zgetri(lu, pivots)[0])
 
 
 @njit(cache=True)
-def _certified(data, indptr, indices, steps, candidates, Vr, Vi, Wr, Wi, sum_R, Z):
+def _certified(data, indptr, indices, steps, candidates, V, W, Z):
     """How many of the ``candidates`` (in order) have Re z <= SPANNED for every eigenvalue
     of Z = K J certified by Gershgorin's bound scaled at best: the spectral abscissa of the
     comparison matrix C (C_ii = Re Z_ii, C_ij = |Z_ij|) bounds Re z (the Gershgorin bound of
-    D^-1 Z D, minimized over diagonal D > 0), first of Z, then of B = W Z V (V = ``Vr`` + i
-    ``Vi``, W = ``Wr`` + i ``Wi``: a basis and its inverse, empty where there is none), with
-    B's distance to V^-1 Z V added to C: |R| |B| (R = W V - I: W's rounding, ``sum_R`` its
-    row sums) and the products' rounding, 2 N eps |W| |Z| |V|. B in real products: those of
-    Im V and Im W only over the columns and rows where they are not zero.
+    D^-1 Z D, minimized over diagonal D > 0), first of Z, then of B = W Z V (``V``, ``W``: a
+    basis and its inverse, empty where there is none), with B's distance to V^-1 Z V added
+    to C: |R| |B| (R = W V - I: W's rounding) and the products' rounding,
+    2 N eps |W| |Z| |V|. B in real products: V^-1 is complex only in the rows of V's
+    complex columns (a pair's), W is taken real in the others (R bounds the change), and
+    the products of Im V and Im W run over those columns and rows alone.
     ``Z``: (N, N), holds the Z of the step not certified."""
     N = indptr.size - 1
     C, A = np.zeros((N, N)), np.zeros((N, N))
     # (loops, not numpy's reductions: they cost seconds of compile)
-    n = Vr.shape[0]
+    n = V.shape[0]
+    Vr, Vi, Wr, Wi = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
     Tr, Ti, Br, Bi = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
-    absV, sum_W = np.empty((n, n)), np.zeros(n)
-    columns, rows = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
-    n_columns = n_rows = 0
+    absV, sum_W, sum_R = np.empty((n, n)), np.zeros(n), np.zeros(n)
+    complex_at = np.zeros(n, dtype=np.bool_)  # (V's columns, W's rows)
     for i in range(n):
-        imaginary_column = imaginary_row = False
         for j in range(n):
+            complex_at[j] |= V[i, j].imag != 0.0
+    for i in range(n):
+        for j in range(n):
+            Vr[i, j], Vi[i, j] = V[i, j].real, V[i, j].imag
+            Wr[i, j], Wi[i, j] = W[i, j].real, W[i, j].imag if complex_at[i] else 0.0
             absV[i, j] = _modulus(Vr[i, j], Vi[i, j])
             sum_W[i] += _modulus(Wr[i, j], Wi[i, j])
-            imaginary_column |= Vi[j, i] != 0.0
-            imaginary_row |= Wi[i, j] != 0.0
-        if imaginary_column:
-            columns[n_columns] = i
-            n_columns += 1
-        if imaginary_row:
-            rows[n_rows] = i
-            n_rows += 1
-    columns_used, rows_used = columns[:n_columns], rows[:n_rows]
+    pairs = np.flatnonzero(complex_at)
+    for i in range(n):
+        for j in range(n):
+            real, imaginary = (-1.0 if i == j else 0.0), 0.0
+            for k in range(n):
+                real += Wr[i, k] * Vr[k, j]
+            if complex_at[i] or complex_at[j]:
+                for k in range(n):
+                    real -= Wi[i, k] * Vi[k, j]
+                    imaginary += Wr[i, k] * Vi[k, j] + Wi[i, k] * Vr[k, j]
+            sum_R[i] += _modulus(real, imaginary)
     rounding = 2 * N * EPS
     for count in range(candidates.size):
         p = candidates[count]
@@ -321,7 +313,7 @@ def _certified(data, indptr, indices, steps, candidates, Vr, Vi, Wr, Wi, sum_R, 
                     for j in range(N):
                         Tr[i, j] += z * Vr[k, j]
                         A[i, j] += abs(z) * absV[k, j]
-                    for c in columns_used:
+                    for c in pairs:
                         Ti[i, c] += z * Vi[k, c]
         # B = W T: Re W Re T, then the products of Im W (its rows) and Im T (its columns)
         Br[:] = 0.0
@@ -331,14 +323,14 @@ def _certified(data, indptr, indices, steps, candidates, Vr, Vi, Wr, Wi, sum_R, 
                 w = Wr[i, k]
                 for j in range(N):
                     Br[i, j] += w * Tr[k, j]
-                for c in columns_used:
+                for c in pairs:
                     Bi[i, c] += w * Ti[k, c]
-        for i in rows_used:
+        for i in pairs:
             for k in range(N):
                 w = Wi[i, k]
                 for j in range(N):
                     Bi[i, j] += w * Tr[k, j]
-                for c in columns_used:
+                for c in pairs:
                     Br[i, c] -= w * Ti[k, c]
         # (X Y)_ij <= (sum_k X_ik) max_k Y_kj for X, Y >= 0: the margins in N^2
         for j in range(N):
