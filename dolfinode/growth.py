@@ -24,7 +24,6 @@ couplings). The bound plus log max_i |k_i f_i| / (atol_i + rtol |U_i|) of log(a 
 ranks those left (at most MAX_CANDIDATES), so that a run without growing modes pays one
 Jacobian per step and few decompositions.
 """
-import math
 from itertools import pairwise
 
 import numpy as np
@@ -256,38 +255,22 @@ def _certified(data, indptr, indices, steps, candidates, V, W, Z):
     D^-1 Z D, minimized over diagonal D > 0), first of Z, then of B = W Z V (``V``, ``W``: a
     basis and its inverse, empty where there is none), with B's distance to V^-1 Z V added
     to C: |R| |B| (R = W V - I: W's rounding) and the products' rounding,
-    2 N eps |W| |Z| |V|. B in real products: V^-1 is complex only in the rows of V's
-    complex columns (a pair's), W is taken real in the others (R bounds the change), and
-    the products of Im V and Im W run over those columns and rows alone.
+    2 N eps |W| |Z| |V|.
     ``Z``: (N, N), holds the Z of the step not certified."""
     N = indptr.size - 1
     C, A = np.zeros((N, N)), np.zeros((N, N))
+    B, T = np.zeros((N, N), dtype=np.complex128), np.zeros((N, N), dtype=np.complex128)
     # (loops, not numpy's reductions: they cost seconds of compile)
     n = V.shape[0]
-    Vr, Vi, Wr, Wi = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
-    Tr, Ti, Br, Bi = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
     absV, sum_W, sum_R = np.empty((n, n)), np.zeros(n), np.zeros(n)
-    complex_at = np.zeros(n, dtype=np.bool_)  # (V's columns, W's rows)
     for i in range(n):
         for j in range(n):
-            complex_at[j] |= V[i, j].imag != 0.0
-    for i in range(n):
-        for j in range(n):
-            Vr[i, j], Vi[i, j] = V[i, j].real, V[i, j].imag
-            Wr[i, j], Wi[i, j] = W[i, j].real, W[i, j].imag if complex_at[i] else 0.0
-            absV[i, j] = _modulus(Vr[i, j], Vi[i, j])
-            sum_W[i] += _modulus(Wr[i, j], Wi[i, j])
-    pairs = np.flatnonzero(complex_at)
-    for i in range(n):
-        for j in range(n):
-            real, imaginary = (-1.0 if i == j else 0.0), 0.0
+            absV[i, j] = abs(V[i, j])
+            sum_W[i] += abs(W[i, j])
+            entry = -1.0 + 0j if i == j else 0j
             for k in range(n):
-                real += Wr[i, k] * Vr[k, j]
-            if complex_at[i] or complex_at[j]:
-                for k in range(n):
-                    real -= Wi[i, k] * Vi[k, j]
-                    imaginary += Wr[i, k] * Vi[k, j] + Wi[i, k] * Vr[k, j]
-            sum_R[i] += _modulus(real, imaginary)
+                entry += W[i, k] * V[k, j]
+            sum_R[i] += abs(entry)
     rounding = 2 * N * EPS
     for count in range(candidates.size):
         p = candidates[count]
@@ -300,56 +283,32 @@ def _certified(data, indptr, indices, steps, candidates, V, W, Z):
                 C[i, j] = Z[i, j] if i == j else abs(Z[i, j])
         if _abscissa_below(C, SPANNED):
             continue
-        if n == 0:
+        if V.shape[0] == 0:
             return count
-        # T = Z V, A = |Z| |V|
-        Tr[:] = 0.0
-        Ti[:] = 0.0
+        T[:] = 0.0
         A[:] = 0.0
         for i in range(N):
             for k in range(N):
-                z = Z[i, k]
-                if z != 0.0:
+                if Z[i, k] != 0.0:
                     for j in range(N):
-                        Tr[i, j] += z * Vr[k, j]
-                        A[i, j] += abs(z) * absV[k, j]
-                    for c in pairs:
-                        Ti[i, c] += z * Vi[k, c]
-        # B = W T: Re W Re T, then the products of Im W (its rows) and Im T (its columns)
-        Br[:] = 0.0
-        Bi[:] = 0.0
+                        T[i, j] += Z[i, k] * V[k, j]
+                        A[i, j] += abs(Z[i, k]) * absV[k, j]
+        B[:] = 0.0
         for i in range(N):
             for k in range(N):
-                w = Wr[i, k]
                 for j in range(N):
-                    Br[i, j] += w * Tr[k, j]
-                for c in pairs:
-                    Bi[i, c] += w * Ti[k, c]
-        for i in pairs:
-            for k in range(N):
-                w = Wi[i, k]
-                for j in range(N):
-                    Bi[i, j] += w * Tr[k, j]
-                for c in pairs:
-                    Br[i, c] -= w * Ti[k, c]
+                    B[i, j] += W[i, k] * T[k, j]
         # (X Y)_ij <= (sum_k X_ik) max_k Y_kj for X, Y >= 0: the margins in N^2
         for j in range(N):
             top_A = top_B = 0.0
             for k in range(N):
-                top_A, top_B = max(top_A, A[k, j]), max(top_B, _modulus(Br[k, j], Bi[k, j]))
+                top_A, top_B = max(top_A, A[k, j]), max(top_B, abs(B[k, j]))
             for i in range(N):
                 C[i, j] = rounding * sum_W[i] * top_A + sum_R[i] * top_B + (
-                    Br[i, j] if i == j else _modulus(Br[i, j], Bi[i, j]))
+                    B[i, j].real if i == j else abs(B[i, j]))
         if not _abscissa_below(C, SPANNED):
             return count
     return candidates.size
-
-
-@njit(cache=True)
-def _modulus(x, y):
-    """|x + i y| (math.hypot's care for overflow costs a certificate more than its products;
-    an overflow gives inf, which certifies nothing)."""
-    return abs(x) if y == 0.0 else math.sqrt(x * x + y * y)
 
 
 @njit(cache=True)
