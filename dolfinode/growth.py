@@ -17,11 +17,12 @@ mode. For a multi-adaptive run z is an eigenvalue of K J, K = diag(k_i) the comp
 steps (k J for a shared step). The steps' Gershgorin bound max_i k_i (J_ii + sum_j |J_ij|)
 of Re z selects the candidates; of a system of at most CERTIFIED components each is then
 certified (no eigenvalue with Re z > SPANNED: the spectral abscissa of the comparison
-matrix of K J, or of W K J V in the eigenbasis V of a step decomposed before, is below
-SPANNED) or decomposed, which on stiff decaying runs leaves none (the plain bound selected
-every stiff step: off-diagonal couplings). The bound plus log max_i |k_i f_i| / (atol_i +
-rtol |U_i|) of log(a exp(z)) ranks those left (at most MAX_CANDIDATES), so that a run
-without growing modes pays one Jacobian per step and few decompositions.
+matrix of K J, or of W K J V in the eigenbasis V of a step decomposed before, kept per
+compiled system for the next check, is below SPANNED) or decomposed, which on stiff
+decaying runs leaves none (the plain bound selected every stiff step: off-diagonal
+couplings). The bound plus log max_i |k_i f_i| / (atol_i + rtol |U_i|) of log(a exp(z))
+ranks those left (at most MAX_CANDIDATES), so that a run without growing modes pays one
+Jacobian per step and few decompositions.
 """
 from itertools import pairwise
 
@@ -29,6 +30,7 @@ import numpy as np
 from numba import njit
 from scipy.linalg import lapack
 
+from dolfinode.compile.jit import helper
 from dolfinode.compile.signatures import address, call_rhs_rows, rhs_kernel
 from dolfinode.methods.method import stability_function
 
@@ -70,7 +72,8 @@ def spanned_growth(sol, compiled, m, atol, rtol):
         bound = _gershgorin(values, compiled.indptr, compiled.indices, K)
         keep = np.flatnonzero(bound > SPANNED)
         if N <= CERTIFIED:
-            keep = _growing(values, compiled.indptr, compiled.indices, K, keep)
+            keep = _growing(values, compiled.indptr, compiled.indices, K, keep,
+                            compiled.growth_basis)
         if not keep.size:
             continue
         # ranked by log(a exp(z)) <= bound + log |K f|_scaled: a spanned mode's error
@@ -151,28 +154,23 @@ def _partitions(sol):
     return partitions
 
 
-def may_span(compiled, u0, times, X, n):
-    """Whether a step of the first ``n`` elements of a cG(q)/dG(q) history in a prepared
-    call's buffers (``times`` (2, capacity): starts and lengths, ``X`` (capacity, q + 1, N):
-    nodal values; from ``u0``) may span a growing mode: where Gershgorin's bound of Re z
-    (:func:`spanned_growth`'s first test) passes SPANNED at a step's start; one compiled
-    call, which a prepared call of one step makes before :func:`spanned_growth` (its
-    Python would cost several times such a call)."""
-    return _gershgorin_passes(compiled.jacobian.address, compiled.indptr, compiled.indices,
-                              compiled.p, u0, times, X, n)
-
-
-@njit(cache=True)
-def _gershgorin_passes(jacobian, indptr, indices, p, u0, times, X, n):
-    """:func:`may_span` with the Jacobian's kernel at the address ``jacobian``."""
-    u, data = u0.copy(), np.empty(max(indices.size, 1))
+@helper()
+def may_span(jacobian, indptr, indices, p, u0, starts, lengths, X, n):
+    """Whether a step of the first ``n`` elements of a cG(q)/dG(q) history (``starts``,
+    ``lengths``, ``X`` (capacity, q + 1, N): nodal values; from ``u0``) may span a growing
+    mode: where Gershgorin's bound of Re z (:func:`spanned_growth`'s first test) passes
+    SPANNED at a step's start, J from the kernel at the address ``jacobian``. Compiled into
+    a prepared call (:mod:`dolfinode.timeslab.prepared`), which checks a run of one step by
+    it before :func:`spanned_growth` (whose Python costs several prepared calls)."""
+    data = np.empty(max(indices.size, 1))
     kernel = rhs_kernel(jacobian)
+    N, q = u0.size, X.shape[1] - 1
     for step in range(n):
-        if step > 0:
-            u[:] = X[step - 1, -1]
-        kernel(address(u, 0), times[0, step], address(p, 0), address(data, 0))
-        for i in range(u.size):
-            if times[1, step] * _row_bound(data, indptr, indices, i) > SPANNED:
+        # U at the step's start: u0, else the previous step's end X[step - 1, q]
+        u = address(u0, 0) if step == 0 else address(X, ((step - 1) * (q + 1) + q) * N)
+        kernel(u, starts[step], address(p, 0), address(data, 0))
+        for i in range(N):
+            if lengths[step] * _row_bound(data, indptr, indices, i) > SPANNED:
                 return True
     return False
 
@@ -199,19 +197,25 @@ def _row_bound(values, indptr, indices, i):
     return row
 
 
-def _growing(data, indptr, indices, steps, candidates):
+def _growing(data, indptr, indices, steps, candidates, kept):
     """The ``candidates`` (step indices) whose Z = K J (J's nonzero values ``data``, (P, nnz),
     CSR order; ``steps`` K, (P, N)) has an eigenvalue with Re z > SPANNED. Each is certified
     without (:func:`_certified`): by the comparison matrix of Z, or of B = W Z V, V the
     eigenvectors of the last step decomposed (W = V^-1: B is similar to Z, and near
-    diagonal while J changes little), else it is decomposed (:func:`_basis`)."""
+    diagonal while J changes little), else it is decomposed (:func:`_basis`). ``kept``:
+    [the basis (V, W) of the last decomposition of an earlier check of this system, or
+    None], where this one starts, and which it updates: a second solve of a system (other
+    values, parameters) mostly decomposes nothing. Any invertible V certifies only what
+    has no growing mode (B is similar to Z whatever V is)."""
     Z = np.empty((indptr.size - 1,) * 2)  # (the Z of the step _certified stopped at)
-    basis, growing, at = NO_BASIS, [], 0  # (no basis yet: Z's comparison matrix alone)
+    basis, growing, at = kept[0] or NO_BASIS, [], 0  # (no basis: Z's comparison matrix)
     while True:
         at += _certified(data, indptr, indices, steps, candidates[at:], *basis, Z)
         if at == candidates.size:
             return np.array(growing, dtype=np.int64)
         grows, basis = _basis(Z)
+        if basis is not NO_BASIS:
+            kept[0] = basis
         if grows:
             growing.append(candidates[at])
         at += 1

@@ -31,12 +31,12 @@ import time
 import weakref
 from collections import namedtuple
 from collections.abc import Mapping
+from functools import partial
 from threading import get_ident
 from types import MappingProxyType
 
 import numpy as np
 
-from dolfinode import growth
 from dolfinode import timeslab as ts
 from dolfinode.adaptivity import UNDAMPED_DEVIATION
 from dolfinode.ensemble import parameter_symbol, vary
@@ -393,7 +393,10 @@ class Solver:
         self._initial = np.empty(n)  # (u0, from which the one compiled call sets x)
         self._prepared = None if multi_adaptive else (prepared.run.entry(), prepared.workspace(
             start.compile(), self._start[1], advance.compile(), self._loop[1], x,
-            self._initial))
+            self._initial, (compiled.jacobian.address, compiled.p, compiled.indptr,
+                            compiled.indices, *self._buffers, counters),
+            # (runs of more steps, or past maximum_steps, are checked in Python)
+            int(min(self._checked_from, self._maximum_steps + 1)) if self._checks else 0))
         self._interval = (work.t0, work.T)
 
     def _solve_prepared(self, work):
@@ -422,33 +425,26 @@ class Solver:
             kept.steps[:] = kept.given
         run, workspace = self._prepared
         status = run(workspace)
-        if status < 0:
-            _check_start(work, params, -status, kept.f0, kept.steps)
-        counts = kept.counters.tolist()
-        if status != ts.DONE or counts[ts.SLABS] > self._maximum_steps:
+        if status != ts.DONE and status != prepared.MAY_SPAN:
+            if status < 0:
+                _check_start(work, params, -status, kept.f0, kept.steps)
             return self._go_on(work, status, started)
+        counts = kept.counters.tolist()
+        if counts[ts.SLABS] > self._maximum_steps:
+            return self._go_on(work, ts.DONE, started)
         seconds = time.perf_counter() - started
         m, compiled = self._method, kept.compiled
         if self._deviation[0] > UNDAMPED_DEVIATION:  # (what _warn_undamped reads first)
             _warn_undamped(work, compiled, m, params, kept.options, kept.state, False)
-        solved, bound, structure = self._solved, self._step_bound, kept.structure
-        k_next, N = self._k_next.item(), kept.x.size
+        makers = self._makers.copy()  # (those of the call's values, and its stats)
+        makers["stats"] = partial(self._stats, counts, self._k_next.item(), seconds)
         sol = PreparedSolution(m, self._times, self._buffers[2], counts[ts.STORED],
-                               self._samples, {
-                                   "ode": solved.declaration, "declared": solved,
-                                   "rhs": lambda: solved.dense_rhs(m),
-                                   "parameters": params,
-                                   "stats": lambda: note_step_bound(_completed_stats(
-                                       _mono_stats(N, structure, counts, k_next), counts,
-                                       False, m, params, compiled.compile_time, seconds),
-                                       bound, solved.T - solved.t0)})
+                               self._samples, makers)
         holder[0] = weakref.ref(sol)
         steps = counts[ts.SLABS]
         if steps >= self._checked_from:  # (check_error_at_T's own test, read once)
             check_error_at_T(work, compiled, None, False, m, params, sol, steps)
-        elif (self._checks  # (its growth check alone)
-              and growth.may_span(compiled, self._initial, self._times, self._buffers[2],
-                                  counts[ts.STORED])):
+        elif status == prepared.MAY_SPAN:  # (its growth check alone, begun in the call)
             warn_spanned_growth(work, compiled, m, params, sol)
         # values projected to 0 (:func:`warn_lost_components`): none where none ends at 0
         # (x: the values at the end, sol.values[-1, -1])
@@ -502,7 +498,8 @@ class Solver:
         space: the parameter values into p, and with them the steps' bound under an
         oscillating f(t) (as dn.solve's options set it); u0 into the initial
         values, and the floor of the values where the signs it depends on changed; then
-        the checks and warnings of new values. First the declaration as solved."""
+        the checks and warnings of new values. First the declaration as solved, then with
+        the parameters' what makes a mono-adaptive Solution's ``ode`` and ``stats``."""
         params, kept = self._params, self._kept
         compiled, atol = kept.compiled, kept.atol
         self._solved = _Solved(work)
@@ -519,6 +516,12 @@ class Solver:
             # (each mark of values taken comes after what they set: a call stopped between,
             # by an error or a KeyboardInterrupt, leaves them to be taken again)
             self._values = work.params
+        # a mono-adaptive Solution's makers of these values (but its stats' own values)
+        solved, m = self._solved, self._method
+        self._makers = {"ode": solved.declaration, "declared": solved,
+                        "rhs": partial(solved.dense_rhs, m), "parameters": params}
+        self._stats = partial(_prepared_stats, solved, m, params, kept.structure,
+                              compiled.compile_time, self._step_bound)
         if work.u0 is not self._u0:
             floor_key = (self._signs, _has_negative(work.u0))  # all the floor depends on
             if floor_key != self._floor_key:
@@ -555,6 +558,16 @@ class Solver:
         if self._below:
             warn_below_tolerance_throughout(work, k.atol, sol)
         return sol
+
+
+def _prepared_stats(solved, m, params, structure, compile_time, bound, counts, k_next,
+                    seconds):
+    """The stats of a mono-adaptive prepared call of ``solved`` (:class:`_Solved`) by ``m``
+    (made when first read): from its ``counts``, the next step ``k_next`` and its
+    ``seconds``."""
+    return note_step_bound(_completed_stats(
+        _mono_stats(solved.N, structure, counts, k_next), counts, False, m, params,
+        compile_time, seconds), bound, solved.T - solved.t0)
 
 
 #: What a Solver keeps per interval for its prepared calls (:meth:`Solver._workspace`).

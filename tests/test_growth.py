@@ -138,6 +138,75 @@ def test_certificate_passes_no_matrix_with_a_growing_mode():
     assert certified > 100 and growing > 100
 
 
+def _coupled_with_rate(rates, a):
+    """:func:`_coupled` with a last rate given by the parameter ``a``: A = A_0 + a s w^T
+    (s, w: the last column of S, the last row of S^-1)."""
+    S = np.eye(len(rates) + 1) + 0.3 * np.random.default_rng(0).standard_normal(
+        (len(rates) + 1,) * 2)
+    W = np.linalg.inv(S)
+    A = S @ np.diag([*rates, 0.0]) @ W
+    names = sp.symbols(f"x0:{len(rates) + 1}")
+    mode = sum(float(w) * (y - 1) for w, y in zip(W[-1], names))
+    rhs = {x: sum(float(c) * (y - 1) for c, y in zip(row, names)) + a * float(s) * mode
+           for x, row, s in zip(names, A, S[:, -1])}
+    return dn.ODE(rhs, u0=[1 + 1e-6] * (len(rates) + 1), T=1.0, params={a: -1.0})
+
+
+def _counting(monkeypatch):
+    """Count the growth check's decompositions, its certificates begun from a basis, and
+    the steps they certified."""
+    from dolfinode import growth
+    counts = {"decomposed": 0, "from a basis": 0, "by a basis": 0}
+    basis, certified = growth._basis, growth._certified
+
+    def counted_basis(Z):
+        counts["decomposed"] += 1
+        return basis(Z)
+
+    def counted_certified(*args):
+        passed = certified(*args)
+        counts["from a basis"] += args[5].size > 0 and args[4].size > 0
+        counts["by a basis"] += passed * (args[5].size > 0)
+        return passed
+
+    monkeypatch.setattr(growth, "_basis", counted_basis)
+    monkeypatch.setattr(growth, "_certified", counted_certified)
+    return counts
+
+
+RATES = [-1e4, -3e3, -1e3, -300.0, -40.0, -10.0, -1.0]
+
+
+def test_second_check_of_a_system_starts_from_its_kept_basis(monkeypatch):
+    # the check decomposed the first step its plain bound did not certify in every solve (one
+    # step to T here: J constant, Z = J)
+    a = sp.Symbol("a")
+    counts = _counting(monkeypatch)
+    solver = dn.Solver(_coupled_with_rate(RATES, a), method="dG(2)", tolerance=1e-3,
+                       estimate_global_error=True)
+    solver.solve()
+    assert counts["decomposed"] >= 1
+    counts.update({"decomposed": 0, "by a basis": 0})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # (no growing mode: nothing to warn)
+        solver.solve(u0=[1 + 2e-6] * 8)
+    assert counts["decomposed"] == 0 and counts["by a basis"] >= 1
+
+
+def test_kept_basis_of_other_parameters_certifies_no_growing_step(monkeypatch):
+    # the basis kept from a = -1 (every mode decaying) meets the steps of a = 50
+    a = sp.Symbol("a")
+    counts = _counting(monkeypatch)
+    solver = dn.Solver(_coupled_with_rate(RATES, a), method="dG(2)", tolerance=1e-3,
+                       estimate_global_error=True)
+    solver.solve()
+    assert counts["decomposed"] >= 1
+    counts["from a basis"] = 0
+    with pytest.warns(dn.ToleranceWarning, match="growing mode .* spans the step"):
+        solver.solve(params={a: 50.0})
+    assert counts["from a basis"] >= 1
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_prepared_solve_of_one_step_is_checked(method):
     # Solver.solve of one step skipped the checks at T: u(1) = 1 for 5e15, unwarned
@@ -147,3 +216,14 @@ def test_prepared_solve_of_one_step_is_checked(method):
         with pytest.warns(dn.ToleranceWarning, match="growing mode .* spans the step"):
             sol = solver.solve(u0=u0)
         assert sol.stats["time slabs"] == 1
+
+
+def test_prepared_solve_unchecked_at_T_is_not_warned():
+    # estimate_global_error=False skips the checks at T, as in dn.solve: the prepared call's
+    # compiled growth test too
+    ode = dn.ODE({u: 50 * (u - 1)}, u0=[1 + 1e-6], T=1.0)
+    solver = dn.Solver(ode, method="dG(2)", tolerance=1e-3, estimate_global_error=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for u0 in ([1 + 1e-6], [1 - 1e-6]):
+            assert solver.solve(u0=u0).stats["time slabs"] == 1

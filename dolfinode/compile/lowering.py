@@ -49,6 +49,9 @@ class CompiledODE:
     derived : the orderings and structures derived from the pattern (see ``_derived``)
     workspaces : loop workspaces a finished solve left for the next one, by method (see
         :func:`dolfinode.solve._carried`); shared, as ``derived``, by every :meth:`again` copy
+    growth_basis : [the eigenbasis of the step the growth check decomposed last, or None]
+        (:func:`dolfinode.growth.spanned_growth`: a later check starts from it); shared, as
+        ``derived``
     """
 
     N: int
@@ -67,6 +70,7 @@ class CompiledODE:
     header: np.ndarray = None
     derived: dict = field(default_factory=dict)
     workspaces: dict = field(default_factory=dict)
+    growth_basis: list = field(default_factory=lambda: [None])
 
     def again(self, values):
         """This lowering as a later ``lower`` of the same ODE returns it: loaded, no compile
