@@ -177,15 +177,21 @@ def _counting(monkeypatch):
 RATES = [-1e4, -3e3, -1e3, -300.0, -40.0, -10.0, -1.0]
 
 
-def test_second_check_of_a_system_starts_from_its_kept_basis(monkeypatch):
-    # the check decomposed the first step its plain bound did not certify in every solve (one
-    # step to T here: J constant, Z = J)
+def _solved_once(monkeypatch):
+    """(a, a Solver of :func:`_coupled_with_rate` by dG(2), :func:`_counting`'s counts) after
+    its first solve, which decomposed a step (one step to T: J constant, Z = J)."""
     a = sp.Symbol("a")
     counts = _counting(monkeypatch)
     solver = dn.Solver(_coupled_with_rate(RATES, a), method="dG(2)", tolerance=1e-3,
                        estimate_global_error=True)
     solver.solve()
     assert counts["decomposed"] >= 1
+    return a, solver, counts
+
+
+def test_second_check_of_a_system_starts_from_its_kept_basis(monkeypatch):
+    # the check decomposed the first step its plain bound did not certify in every solve
+    _, solver, counts = _solved_once(monkeypatch)
     counts.update({"decomposed": 0, "by a basis": 0})
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # (no growing mode: nothing to warn)
@@ -195,12 +201,7 @@ def test_second_check_of_a_system_starts_from_its_kept_basis(monkeypatch):
 
 def test_kept_basis_of_other_parameters_certifies_no_growing_step(monkeypatch):
     # the basis kept from a = -1 (every mode decaying) meets the steps of a = 50
-    a = sp.Symbol("a")
-    counts = _counting(monkeypatch)
-    solver = dn.Solver(_coupled_with_rate(RATES, a), method="dG(2)", tolerance=1e-3,
-                       estimate_global_error=True)
-    solver.solve()
-    assert counts["decomposed"] >= 1
+    a, solver, counts = _solved_once(monkeypatch)
     counts["from a basis"] = 0
     with pytest.warns(dn.ToleranceWarning, match="growing mode .* spans the step"):
         solver.solve(params={a: 50.0})

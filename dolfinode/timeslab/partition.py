@@ -183,6 +183,20 @@ def _sort(buf, count):
         gap //= 3
 
 
+@helper()
+def first_ending_after(t, j, cptr, celems, eb):
+    """The position in ``celems`` of component j's first element ending after t (its last
+    where none does), by bisection of its elements cptr[j] .. cptr[j + 1] - 1."""
+    lo, hi = cptr[j], cptr[j + 1] - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if eb[celems[mid]] > t:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
 @linked(returns=types.Tuple((types.int64[::1], types.float64[::1], types.int64[::1],
                              types.int64[::1])),
         what="the multi-adaptive dependency structure", seconds=1)
@@ -207,13 +221,7 @@ def dependency_structure(ne, comp, indptr, indices, cptr, celems, ea, eb):
         count = 0
         for nz in range(indptr[i], indptr[i + 1]):
             j = indices[nz]
-            lo, hi = cptr[j], cptr[j + 1] - 1
-            while lo < hi:  # first element of j ending after a
-                mid = (lo + hi) // 2
-                if eb[celems[mid]] > a:
-                    hi = mid
-                else:
-                    lo = mid + 1
+            lo = first_ending_after(a, j, cptr, celems, eb)
             dcur[dptr[e] + nz - indptr[i]] = lo
             if j == i:
                 continue

@@ -22,7 +22,7 @@ from dolfinode.counters import F_EVALUATIONS
 from dolfinode.methods.method import element_value
 from dolfinode.timeslab import CONSTRAINT_CUT
 from dolfinode.timeslab.multi.steps import inverse_root, power
-from dolfinode.timeslab.partition import grow_float
+from dolfinode.timeslab.partition import first_ending_after, grow_float
 
 #: The interior estimate of a component on its quasi-steady state (``interior_indicators``)
 #: is held to the tolerance as given, or to INTERIOR_SHARE x the step tolerance where that is
@@ -156,15 +156,8 @@ def interior_indicators(ne, comp, ea, eb, values, resid, unfiltered, jdiag, inte
                 states[0, j] = element_value(values, e, tau, nodes, bary)
             elif cptr[j] == cptr[j + 1]:
                 states[0, j] = x[j]
-            else:  # j's element at ts (its first ending after ts)
-                lo, hi = cptr[j], cptr[j + 1] - 1
-                while lo < hi:
-                    mid = (lo + hi) // 2
-                    if eb[celems[mid]] <= ts:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                c = celems[lo]
+            else:  # j's element at ts
+                c = celems[first_ending_after(ts, j, cptr, celems, eb)]
                 tj = min(max((ts - ea[c]) / (eb[c] - ea[c]), 0.0), 1.0)
                 states[0, j] = element_value(values, c, tj, nodes, bary)
         fi(i, states[0].ctypes, ts, p.ctypes, out.ctypes)
