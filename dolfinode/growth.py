@@ -134,7 +134,9 @@ def _steps(sol):
     for i, (start, end) in enumerate(partitions):
         at = np.clip(np.searchsorted(start, times, side="right") - 1, 0, start.size - 1)
         steps[:, i] = (end - start)[at]
-    return times, lambda rows: steps[rows], lambda rows: sol(times[rows]).T
+    # (U's polynomials, as the nodal values above: the dense value reads f, and its kernels
+    # would compile with the first multi-adaptive solve, which does not need them)
+    return times, lambda rows: steps[rows], lambda rows: sol._values(times[rows], dense=False).T
 
 
 def _partitions(sol):

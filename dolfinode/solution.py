@@ -1425,11 +1425,12 @@ class Solution:
                              f"got t = {bad:.17g}{what}")
         return self._values(times).reshape(ode.N, *shape)
 
-    def _values(self, times):
-        """U at ``times`` in [t0, T], shape (N, len(times))."""
+    def _values(self, times, dense=True):
+        """U at ``times`` in [t0, T], shape (N, len(times)) (the dense value unless ``dense``
+        is False: :meth:`_evaluate`)."""
         if times.size == 1:  # (an (N, 1) result is C- as well as F-contiguous: numba would
-            return self._values(np.repeat(times, 2))[:, :1]  # compile the kernels again)
-        out = self._evaluate(times)
+            return self._values(np.repeat(times, 2), dense)[:, :1]  # compile the kernels again)
+        out = self._evaluate(times, dense)
         declared = self._declaration
         _set_initial(times, declared.t0, declared.u0, out)
         return out

@@ -228,3 +228,27 @@ def test_prepared_solve_unchecked_at_T_is_not_warned():
         warnings.simplefilter("error")
         for u0 in ([1 + 1e-6], [1 - 1e-6]):
             assert solver.solve(u0=u0).stats["time slabs"] == 1
+
+
+@pytest.mark.parametrize("method", ["mcG(2)", "mdG(1)"])
+def test_multi_adaptive_check_reads_no_dense_value(method, monkeypatch):
+    # the check read U between other components' steps by sol(t), whose dense value reads
+    # f: its kernels (~6 s with empty caches) compiled with every first mcG(q) solve
+    from dolfinode import growth, solution
+    states, steps = [], growth._steps
+
+    def recorded(sol):
+        states.append(steps(sol))
+        return states[-1]
+
+    monkeypatch.setattr(growth, "_steps", recorded)
+    monkeypatch.setattr(solution, "correct_multi", lambda *a, **k: pytest.fail("dense value"))
+    ode = dn.ODE({u: v, v: -u - 10 * (1 + u**2) * v}, u0=[1.0, 0.0], T=3.0)
+    sol = dn.solve(ode, method=method, tolerance=1e-6)
+    times, _, state = states[0]
+    # (a component's elements hold other components' step starts: its interior is read)
+    assert len(times) > min(sol.stats["elements per component"])
+    monkeypatch.undo()
+    U = state(slice(None))
+    assert np.array_equal(U[0], ode.u0)
+    assert np.array_equal(U[1:], sol._galerkin(times[1:]).T)  # (U's polynomials)
