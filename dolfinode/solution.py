@@ -1430,7 +1430,9 @@ class Solution:
         is False: :meth:`_evaluate`)."""
         if times.size == 1:  # (an (N, 1) result is C- as well as F-contiguous: numba would
             return self._values(np.repeat(times, 2), dense)[:, :1]  # compile the kernels again)
-        out = self._evaluate(times, dense)
+        # (solutions whose values are no element polynomials, as a modeling solution's, take
+        # no ``dense``: asked for U's polynomials they raise)
+        out = self._evaluate(times) if dense else self._evaluate(times, dense)
         declared = self._declaration
         _set_initial(times, declared.t0, declared.u0, out)
         return out
