@@ -1451,9 +1451,9 @@ def interior_warning(method, size, time, state):
     tolerances, many times the tolerance. mcG(q)'s value inside a component stiff on its
     step is its element's polynomial, whose error the estimate measures, to the residual's
     reading of the other components inside theirs: mcG(2) on u' = -800 (u - sin(v)^3),
-    v' = 1 - v / 5 + u / 10 at 1e-6 26.1 x for 31.8 x measured (scaled by 1 + |u|); on HIRES (absolute_tolerance
-    = tolerance) mcG(2) at 1e-7 23.8 x for 13.7 x, mcG(3) at 1e-8 270 x for 160 x, all
-    silent before. mdG(q)'s dense value corrects the element's polynomial (on that pair
+    v' = 1 - v / 5 + u / 10 at 1e-6 26.1 x for 31.8 x measured (scaled by 1 + |u|); on
+    HIRES (absolute_tolerance = tolerance) mcG(2) at 1e-7 23.8 x for 13.7 x, mcG(3) at 1e-8
+    270 x for 160 x, all silent before. mdG(q)'s dense value corrects the element's polynomial (on that pair
     mdG(2)'s estimate was 132-227 x where sol(t) was 0.7-7 x off), so it is not warned of."""
     if method.family != "cG" or not size > INTERIOR_SPREAD * WARN_FACTOR:
         return None
