@@ -1433,6 +1433,40 @@ def midrun_warning(peak, time, size, nu, rtol, state, shift=np.inf, multi=True):
             f"far off: try a tighter tolerance{advice}.{_phase(state, shift)}")
 
 
+#: The interior estimate (:func:`interior_warning`) was 0.5-2.2 x the error measured inside
+#: the elements on 12 mcG(q) runs above 10 x (HIRES, three stiff followers of a slow state;
+#: one at 0.15 x: 20.5 x for 134 x, a follower of a follower); it warns above
+#: INTERIOR_SPREAD x WARN_FACTOR, so that a warned interior is off by about WARN_FACTOR or
+#: more: HIRES by mcG(2) at 1e-6 was estimated 13.1 x where it was 7.0 x.
+INTERIOR_SPREAD = 2.0
+
+
+def interior_warning(method, size, time, state):
+    """The ToleranceWarning's message for a multi-adaptive run of ``method`` whose largest
+    interior estimate (:func:`dolfinode.timeslab.multi.control.interior_indicators`, in
+    units of the tolerance) was ``size``, inside an element of ``state`` at ``time``; None
+    within INTERIOR_SPREAD x WARN_FACTOR, and for mdG(q).
+
+    The step control holds that estimate to a third of the step tolerance at tight
+    tolerances, many times the tolerance. mcG(q)'s value inside a component stiff on its
+    step is its element's polynomial, whose error the estimate measures, to the residual's
+    reading of the other components inside theirs: mcG(2) on u' = -800 (u - sin(v)^3),
+    v' = 1 - v / 5 + u / 10 at 1e-6 26.1 x for 31.8 x measured (scaled by 1 + |u|); on
+    HIRES (absolute_tolerance = tolerance) mcG(2) at 1e-7 23.8 x for 13.7 x, mcG(3) at 1e-8
+    270 x for 160 x, all silent before. mdG(q)'s dense value corrects the element's polynomial (on that pair
+    mdG(2)'s estimate was 132-227 x where sol(t) was 0.7-7 x off), so it is not warned of."""
+    if method.family != "cG" or not size > INTERIOR_SPREAD * WARN_FACTOR:
+        return None
+    return (f"the estimated error mid-run is {size:.3g} x the tolerance inside the elements of "
+            f"{state} near t = {time:.6g}, or of the components its rate reads there: it "
+            "follows its quasi-steady state on steps long against its own time scale, and its "
+            "value between the element ends is that state's interpolant. Values read inside "
+            "elements may be that far off; the "
+            "element ends (t + k of sol.time_steps()) are not. Try a tighter tolerance, "
+            f"mdG({method.q}) (method='mdG({method.q})'), or a maximum_time_step near "
+            f"1 / |df/d{state}| of {state}")
+
+
 def _phase(state, shift):
     """The mid-run warnings' sentence on a fast transition's phase: ``shift``, the time over
     which ``state`` changes by the error at its rate there ("" where not finite)."""

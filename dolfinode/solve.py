@@ -1143,6 +1143,16 @@ def _warn_undamped(ode, compiled, m, params, options, state, multi_adaptive=Fals
             _warn(why)
 
 
+def _warn_interior(ode, m, state):
+    """A ToleranceWarning where a multi-adaptive run's largest interior estimate exceeds
+    the tolerance many times (:func:`dolfinode.global_error.interior_warning`)."""
+    why = global_error.interior_warning(m, float(state["interior"][0]),
+                                        float(state["interior_at"][0]),
+                                        ode.states[int(state["interior_of"][0])])
+    if why:
+        _warn(why)
+
+
 #: With ``estimate_global_error="auto"`` (the default) the error at T is estimated for runs
 #: of at least SHORTEST_RUN steps of one component (a run of one step is its step's local
 #: error, which the step control bounds), where the steps' errors can add up past the
@@ -1618,6 +1628,7 @@ def _run_multi(ode, compiled, m, params, options, atol, floor, x, f0, steps, sta
         status, elements = _integrate(chunks, plan, pieces, ode, state, sink)
     if status == ts.DONE:
         _warn_undamped(ode, compiled, m, params, options, state, multi_adaptive=True)
+        _warn_interior(ode, m, state)
     return (status, counters, _time_and_step(state, np.min(kdes)), elements,
             _multi_stats(counters, float(state["mono_elements"][0]), sink.per_component, kdes))
 

@@ -70,6 +70,7 @@ from dolfinode.solve import (
     _newton_options,
     _options,
     _signs,
+    _warn_interior,
     _warn_undamped,
     below_tolerance,
     check_error_at_T,
@@ -476,6 +477,7 @@ class Solver:
         m = self._method
         if self._deviation[0] > UNDAMPED_DEVIATION:  # (what _warn_undamped reads first)
             _warn_undamped(work, compiled, m, params, self._kept.options, state, True)
+        _warn_interior(work, m, state)
         solved = self._solved
         sink = history.InMemory(work, True, self._samples)
         sink.add(history.filled(self._buffers, counts), float(state["t"][0]))

@@ -759,7 +759,9 @@ def test_the_midrun_warning_gives_the_phase_of_a_fast_transition():
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", dn.ToleranceWarning)
         sol = dn.solve(p.ode, "mcG(3)", tolerance=1e-6, absolute_tolerance=p.atol_ratio * 1e-6)
-    told = [str(w.message) for w in caught if "mid-run" in str(w.message)]
+    # (the interior warning names the transition too: global_error.interior_warning)
+    told = [str(w.message) for w in caught if "mid-run" in str(w.message)
+            and "at its element end" in str(w.message)]
     assert len(told) == 1, told
     t = float(re.search(r"at t = ([0-9.e+-]+) \(in y2", told[0]).group(1))
     shift = float(re.search(r"change over ([0-9.e+-]+) of time", told[0]).group(1))
@@ -851,3 +853,18 @@ def test_a_midrun_error_the_estimate_cannot_certify_is_measured(method):
     midrun = [str(w.message) for w in caught if "mid-run" in str(w.message)]
     assert len(midrun) == 1 and "against a solve at" in midrun[0]
     assert sol.stats["global error mid-run"] / 1e-2 == pytest.approx(error, rel=0.2)
+
+
+def test_interior_warning_names_the_estimate_of_mcg_only():
+    """mcG(q) is warned of above INTERIOR_SPREAD x WARN_FACTOR, with the estimate in units of
+    the tolerance and the component; mdG(q), whose dense value corrects the element's
+    polynomial, is not."""
+    from dolfinode.methods import parse_method
+
+    limit = global_error.INTERIOR_SPREAD * global_error.WARN_FACTOR
+    mcg, mdg = parse_method("mcG(2)")[1], parse_method("mdG(2)")[1]
+    assert global_error.interior_warning(mcg, limit, 1.0, "u") is None
+    message = global_error.interior_warning(mcg, 1.5 * limit, 2.5, "u")
+    assert message.startswith(f"the estimated error mid-run is {1.5 * limit:.3g} x the "
+                              "tolerance inside the elements of u near t = 2.5")
+    assert global_error.interior_warning(mdg, 100 * limit, 2.5, "u") is None

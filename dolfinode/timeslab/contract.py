@@ -60,6 +60,9 @@ deviation          calibrated runs: the largest distance of a stiff component fr
                    quasi-steady state relative to itself (adaptivity.stiff_deviation)
 last_deviation     the same on the last slab, of the component ``deviated``, whose estimate
                    is ``deviation_error`` x its step tolerance there
+interior           multi, calibrated runs: the largest interior estimate of an accepted
+interior_of        slab in units of the tolerance as given, its component and time
+interior_at        (multi.control.interior_indicators)
 carried            the loop's carried state below and its ``carried`` arrays hold (False: a
                    fresh start, set by start and by a restart of the events' driver)
 k_solver           mono: the largest step the nonlinear solver is trusted with: its last
@@ -115,6 +118,7 @@ STATE = np.dtype([
     ("k_solver", np.float64), ("k_accuracy", np.float64),
     ("newton_rate", np.float64), ("k_last", np.float64),
     ("k_factored", np.float64), ("theta", np.float64), ("age", np.int64),
+    ("interior", np.float64), ("interior_at", np.float64), ("interior_of", np.int64),
     ("filter_ok", np.bool_),
     ("have_f0", np.bool_), ("carried", np.bool_), ("regroup", np.bool_),
     ("synchronised", np.bool_), ("retry", np.bool_)], align=True)

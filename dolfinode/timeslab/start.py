@@ -76,7 +76,7 @@ def _start(rhs, p, t0, atol, rtol, guess, x, f0, steps, options, state, counters
     st.have_f0 = mono
     st.fp_iterations = FIXED_POINT_ITERATIONS if mono else 0.0
     st.fp_step = st.newton_cost = st.k_newton = st.mono_elements = st.k_accepted = 0.0
-    st.deviation = st.last_deviation = 0.0
+    st.deviation = st.last_deviation = st.interior = 0.0
     st.carried = False  # (the multi-adaptive loop starts its carried state afresh)
     return READY
 

@@ -107,7 +107,7 @@ def residual_indicators(ne, comp, ea, eb, values, fend, end_derivative, resid, u
 @helper(**NO_REFCOUNT)
 def interior_indicators(ne, comp, ea, eb, values, resid, unfiltered, jdiag, interior, fi, p,
                         x, indptr, indices, cptr, celems, nodes, bary, states, out, delivered,
-                        emax, counters):
+                        atol, rtol, umax, emax, counters):
     """The interior estimates of the elements of components that follow their quasi-steady
     state g_i (f_i = 0) within their step, into ``emax`` (in units of the step tolerance):
 
@@ -139,9 +139,15 @@ def interior_indicators(ne, comp, ea, eb, values, resid, unfiltered, jdiag, inte
     interior is accurate) took 3 x the elements (mdG(1), 40 points, 1e-5); on the second
     alone, the stiff springs of a chain (J_ii = 0, the filter acting on the oscillation
     stepped over), 5.4 x (mdG(3), 50 masses, 1e-6). Not on a slab solved synchronised,
-    which is unfiltered (not stiff)."""
+    which is unfiltered (not stiff).
+
+    Returns (size, i, t*): the largest interior estimate of the slab in units of the
+    tolerance as given, e_int delivered^-1 / (atol_i + rtol max |U_i|) (the step control's
+    scale, loosened by the calibration), its component and point (the loop keeps the
+    run's largest for :func:`dolfinode.global_error.interior_warning`)."""
+    largest, where, at = 0.0, -1, 0.0
     if not delivered > 0.0:  # (fixed steps)
-        return
+        return largest, where, at
     nn = values.shape[1]
     tau = interior[0]
     for e in range(ne):
@@ -166,8 +172,12 @@ def interior_indicators(ne, comp, ea, eb, values, resid, unfiltered, jdiag, inte
         for m in range(nn):
             kdu += interior[1 + m] * values[e, m]
         excess = abs(kdu - k * out[0]) - abs(unfiltered[e])
-        estimate = max(excess, 0.0) / (1.0 - k * jdiag[i]) / max(delivered, INTERIOR_SHARE)
-        emax[i] = max(emax[i], estimate)
+        distance = max(excess, 0.0) / (1.0 - k * jdiag[i])
+        emax[i] = max(emax[i], distance / max(delivered, INTERIOR_SHARE))
+        size = distance / delivered / (atol[i] + rtol * umax[i])
+        if size > largest:
+            largest, where, at = size, i, ts
+    return largest, where, at
 
 
 @helper(**NO_REFCOUNT)

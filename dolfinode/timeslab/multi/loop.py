@@ -581,10 +581,12 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
                                      indices, jacobian, jdiag, coupling, gamma, elist,
                                      group_order, local, newton, active, nactive, emax, kact,
                                      umax, counters)
+        inside, inside_of, inside_at = 0.0, -1, 0.0
         if not (fixed or solved):
-            interior_indicators(ne, comp, ea, eb, values, resid, unfiltered, jdiag, interior,
-                                fi, p, x, indptr, indices, cptr, celems, nodes, bary, states,
-                                out, o.delivered, emax, counters)
+            inside, inside_of, inside_at = interior_indicators(
+                ne, comp, ea, eb, values, resid, unfiltered, jdiag, interior, fi, p, x, indptr,
+                indices, cptr, celems, nodes, bary, states, out, o.delivered, atol, rtol,
+                umax, emax, counters)
         deviation, deviated, deviated_eps = 0.0, -1, 0.0
         if not solved:
             deviation, deviated, deviated_eps = slab_deviation(ne, comp, values, resid,
@@ -660,6 +662,8 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         st.mono_elements += (b - t) / kmin * N
         st.deviation = max(st.deviation, deviation)  # (adaptivity.undamped_warning)
         st.last_deviation, st.deviated, st.deviation_error = deviation, deviated, deviated_eps
+        if inside > st.interior:  # (control.interior_warning)
+            st.interior, st.interior_of, st.interior_at = inside, inside_of, inside_at
         counters[SLABS] += 1
         counters[SYNCHRONISED] += solved
         st.hold = max(0, st.hold - 1)
