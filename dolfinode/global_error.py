@@ -1462,9 +1462,10 @@ def interior_warning(method, size, time, state):
             "follows its quasi-steady state on steps long against its own time scale, and its "
             "value between the element ends is that state's interpolant. Values read inside "
             "elements may be that far off; the "
-            "element ends (t + k of sol.time_steps()) are not. Try a tighter tolerance, "
-            f"mdG({method.q}) (method='mdG({method.q})'), or a maximum_time_step near "
-            f"1 / |df/d{state}| of {state}")
+            "element ends (t + k of sol.time_steps()) are not. A tighter tolerance does not "
+            "help (the interior is held to a share of the step tolerance); try "
+            f"maximum_time_step near 1 / |df/d{state}|, or the mono-adaptive cG({method.q}), "
+            "whose dense value takes the quasi-steady state")
 
 
 def _phase(state, shift):
