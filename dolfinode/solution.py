@@ -1460,7 +1460,8 @@ class Solution:
     def _correct(self, ptr, t_start, t_end, values, s_start, s_end, s_values, times, out):
         """mcG(q), q >= 2, mdG(q), q >= 1: the dense value inside the elements at ``times``
         in ``out``, which holds the element polynomials (:func:`_correct_multi`), where the
-        solution reads f (``_rhs``), with the element cache kept for this history."""
+        solution reads f (``_rhs``, on the branches of :meth:`_set_branches`), with the
+        element cache kept for this history."""
         if self._rhs is None:
             return
         history = (ptr, t_start, t_end, values, s_start, s_end, s_values)
@@ -1474,17 +1475,57 @@ class Solution:
             if cache[0].nbytes <= KEPT_CACHE:
                 self.__dict__["_element_cache"] = (
                     [weakref.ref(a) if a.size else lambda: None for a in history], cache)
-        correct_multi(self.method, self._rhs, self._dependents, self._declaration, history,
-                      times, out, cache)
+        self._on_branches(times, out, self._rhs, lambda at, rhs, part: correct_multi(
+            self.method, rhs, self._dependents, self._declaration, history, at, part, cache))
 
     def _evaluate_mono(self, times, rhs, out):
         """out = U at ``times`` from the shared partition, cG(q)'s dense value reading the
-        lowered ODE ``rhs`` (:func:`evaluate_mono`)."""
+        lowered ODE ``rhs`` (:func:`evaluate_mono`; on the branches of
+        :meth:`_set_branches`)."""
         declared = self._declaration  # (arrays, not lists: converting [u0] cost 1 us)
         starts, befores = self.__dict__.get("_restarts") or (np.array([declared.t0]),
                                                              declared.u0[np.newaxis])
-        evaluate_mono(self.method, self.t_start, self.t_start + self.k, self.values, starts,
-                      befores, times, out, rhs)
+        self._on_branches(times, out, rhs, lambda at, branch, part: evaluate_mono(
+            self.method, self.t_start, self.t_start + self.k, self.values, starts, befores,
+            at, part, branch))
+
+    def _set_branches(self, starts, sigmas):
+        """Record the branches of f's switches the solve took: the values sigmas[j] of its
+        branch parameters (:func:`dolfinode.events.switched`) from starts[j] on (its
+        restarts: t0, the breakpoints, the crossings of switches on the state). The dense
+        values of cG(q), mcG(q), dG(q), mdG(q) then read that smooth f on each element's
+        branch: the original f at an end node on a switch of the state (where a restart
+        puts it) takes either branch by rounding (Coulomb friction x'' = -x - 0.1 sign(x'),
+        cG(3) at 1e-8: 59 x the tolerance inside elements where it took the wrong one)."""
+        self._branches = (np.asarray(starts, dtype=float),
+                          np.asarray(sigmas, dtype=float).reshape(len(starts), -1))
+        self.__dict__.pop("_rhs", None)  # (read before by the solve, on the original f)
+        self.__dict__.pop("_element_cache", None)
+
+    def _on_branches(self, times, out, rhs, evaluate):
+        """evaluate(times, rhs, out) with the branch parameters of ``rhs`` those the solve
+        took at the times (:meth:`_set_branches`): once per distinct branch, on the times
+        of its pieces (s_j, s_j+1] (a piece's start is the end of the one before), each
+        time's element solved on it."""
+        branches = self.__dict__.get("_branches")
+        if branches is None or rhs is None:
+            evaluate(times, rhs, out)
+            return
+        starts, sigmas = branches
+        distinct, which = np.unique(sigmas, axis=0, return_inverse=True)
+        piece = which.ravel()[np.maximum(np.searchsorted(starts, times) - 1, 0)]
+        for j, sigma in enumerate(distinct):
+            at = np.flatnonzero(piece == j)
+            if at.size == 0:
+                continue
+            if at.size == 1:  # (an (N, 1) part is C- and F-contiguous: numba would compile
+                at = np.repeat(at, 2)  # the kernels again, as in _values)
+            part = np.empty((at.size, out.shape[0])).T
+            part[:] = out[:, at]  # (the multi-adaptive correction adds to the polynomials)
+            values = rhs.p.copy()
+            values[values.size - sigma.size:] = sigma
+            evaluate(times[at], rhs.again(values), part)
+            out[:, at] = part
 
     @cached_property
     def _dependents(self):
@@ -1499,6 +1540,10 @@ class Solution:
         other methods and where the elements solve more than one model (a restart)."""
         if "_restarts" in self.__dict__ or not _reads_f(self.method):
             return None  # (the ode not read: a solution may make it on first read)
+        if "_branches" in self.__dict__:
+            from dolfinode import events  # (it imports this module)
+
+            return lower(events.switched(self.ode)[0])
         return dense_rhs(self.method, self.ode)
 
     def _galerkin(self, times):

@@ -219,9 +219,11 @@ class StoredSolution(Solution):
             needed = np.union1d(needed, needed[needed > 0] - 1)
             h5 = self._h5
             t_start = h5["t_start"][needed]
-            evaluate_mono(self.method, t_start, t_start + h5["k"][needed],
-                          self._stored[needed], [self.ode.t0], [self.ode.u0], times, out,
-                          self._rhs if dense else None)
+            values = self._stored[needed]
+            self._on_branches(times, out, self._rhs if dense else None,
+                              lambda at, rhs, part: evaluate_mono(
+                                  self.method, t_start, t_start + h5["k"][needed], values,
+                                  [self.ode.t0], [self.ode.u0], at, part, rhs))
             return out
         ptr = self._component_ptr
         needed = self._with_previous(self._holding([times] * self.ode.N))
