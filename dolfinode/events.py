@@ -643,7 +643,7 @@ class Plan:
         sol.stats["state switches"] = self.switched
         sol.stats["state kinks"] = self.kinked
         if self.switches:
-            sol._set_branches(*zip(*self.restarts))
+            sol._set_branches(self.restarts)
         if self.events:
             a, b, which = (np.concatenate(x) for x in zip((np.empty(0), np.empty(0),
                                                           np.empty(0, int)), *self.pending))

@@ -1183,19 +1183,64 @@ def _reads_f(method):
     return method.q > (0 if method.family == "dG" else 1)
 
 
-def dense_rhs(method, ode):
+def dense_rhs(method, ode, branches=False):
     """The lowered ``ode`` that :func:`evaluate_mono` and :func:`correct_multi` read for a
     cG(q), mcG(q), q >= 2, or dG(q), mdG(q), q >= 1, dense value (its elements must solve
-    it); None for other methods, and for cG(q), mcG(q) where f jumps across a switch of the
-    state (a Piecewise, Heaviside, sign, floor of the state): their P reads f at the end
-    nodes, on the switch, where f need not give the element's branch. A jump in t is read
-    on the element's side (:data:`NODE_INSET`; without, cG(3) was 25 x the tolerance inside
-    the elements of u' = -u + Heaviside(t - 1), at 1e-8). dG(q)'s reads f only at tau*
-    inside the element, which no jump crosses (the solve ends its pieces there); f on the
-    wrong side of a state switch fails its residual test (U is used)."""
-    if not _reads_f(method) or (method.family == "cG" and _switches_on_state(ode)):
+    it); None for other methods.
+
+    With ``branches`` (the solve recorded the branches of f's switches it took), the smooth
+    f of their branch parameters (:func:`dolfinode.events.switched`), to be read on each
+    element's branch (:func:`on_branches`): the solve restarts at each crossing of a switch
+    of the state, so end nodes sit on it, where the original f takes either branch by
+    rounding (cG(q)'s P, which reads f there, was 10-59 x the tolerance inside, Coulomb
+    friction at 1e-8). Without, also None for cG(q), mcG(q) where f jumps across a switch
+    of the state (their element polynomial is used). A jump in t is read on the element's
+    side (:data:`NODE_INSET`; without, cG(3) was 25 x the tolerance inside the elements of
+    u' = -u + Heaviside(t - 1), at 1e-8). dG(q)'s reads f only at tau* inside the element,
+    which no jump crosses (the solve ends its pieces there)."""
+    if not _reads_f(method):
+        return None
+    if branches:
+        from dolfinode import events  # (it imports this module)
+
+        return lower(events.switched(ode)[0])
+    if method.family == "cG" and _switches_on_state(ode):
         return None
     return lower(ode)
+
+
+def on_branches(branches, times, out, rhs, evaluate):
+    """evaluate(times, rhs, out), with the branch parameters of ``rhs`` (:func:`dense_rhs`)
+    those the solve took at the times: ``branches`` = (starts, sigmas), sigmas[j] from
+    starts[j] on (its restarts: t0, the breakpoints, the crossings of switches), None for
+    one call as given. Once per distinct branch, on the times of its pieces (s_j, s_j+1]
+    (a piece's start is the end of the one before), each time's element solved on it;
+    ``out`` holds what ``evaluate`` starts from (multi-adaptive: the element
+    polynomials)."""
+    if branches is None or rhs is None:
+        evaluate(times, rhs, out)
+        return
+    starts, sigmas = branches
+    distinct, which = np.unique(sigmas, axis=0, return_inverse=True)
+    piece = which.ravel()[np.maximum(np.searchsorted(starts, times) - 1, 0)]
+    for j, sigma in enumerate(distinct):
+        at = np.flatnonzero(piece == j)
+        if at.size == 0:
+            continue
+        if at.size == 1:  # (an (N, 1) part is C- and F-contiguous: numba would compile the
+            at = np.repeat(at, 2)  # kernels again, as in Solution._values)
+        part = np.empty((at.size, out.shape[0])).T
+        part[:] = out[:, at]
+        values = rhs.p.copy()
+        values[values.size - sigma.size:] = sigma
+        evaluate(times[at], rhs.again(values), part)
+        out[:, at] = part
+
+
+def branches_taken(restarts):
+    """(starts, sigmas) of :func:`on_branches` from the solve's restarts [(t, sigma), ...]."""
+    starts, sigmas = zip(*restarts)
+    return np.array(starts, dtype=float), np.array(sigmas, dtype=float).reshape(len(starts), -1)
 
 
 def correct_multi(method, compiled, dependents, declared, history, times, out, cache=None):
@@ -1489,43 +1534,17 @@ class Solution:
             self.method, self.t_start, self.t_start + self.k, self.values, starts, befores,
             at, part, branch))
 
-    def _set_branches(self, starts, sigmas):
-        """Record the branches of f's switches the solve took: the values sigmas[j] of its
-        branch parameters (:func:`dolfinode.events.switched`) from starts[j] on (its
-        restarts: t0, the breakpoints, the crossings of switches on the state). The dense
-        values of cG(q), mcG(q), dG(q), mdG(q) then read that smooth f on each element's
-        branch: the original f at an end node on a switch of the state (where a restart
-        puts it) takes either branch by rounding (Coulomb friction x'' = -x - 0.1 sign(x'),
-        cG(3) at 1e-8: 59 x the tolerance inside elements where it took the wrong one)."""
-        self._branches = (np.asarray(starts, dtype=float),
-                          np.asarray(sigmas, dtype=float).reshape(len(starts), -1))
+    def _set_branches(self, restarts):
+        """Record the branches of f's switches the solve took, at its ``restarts``
+        [(t, sigma), ...] (:func:`branches_taken`): the dense values then read f on each
+        element's branch (:func:`dense_rhs`, :func:`on_branches`)."""
+        self._branches = branches_taken(restarts)
         self.__dict__.pop("_rhs", None)  # (read before by the solve, on the original f)
         self.__dict__.pop("_element_cache", None)
 
     def _on_branches(self, times, out, rhs, evaluate):
-        """evaluate(times, rhs, out) with the branch parameters of ``rhs`` those the solve
-        took at the times (:meth:`_set_branches`): once per distinct branch, on the times
-        of its pieces (s_j, s_j+1] (a piece's start is the end of the one before), each
-        time's element solved on it."""
-        branches = self.__dict__.get("_branches")
-        if branches is None or rhs is None:
-            evaluate(times, rhs, out)
-            return
-        starts, sigmas = branches
-        distinct, which = np.unique(sigmas, axis=0, return_inverse=True)
-        piece = which.ravel()[np.maximum(np.searchsorted(starts, times) - 1, 0)]
-        for j, sigma in enumerate(distinct):
-            at = np.flatnonzero(piece == j)
-            if at.size == 0:
-                continue
-            if at.size == 1:  # (an (N, 1) part is C- and F-contiguous: numba would compile
-                at = np.repeat(at, 2)  # the kernels again, as in _values)
-            part = np.empty((at.size, out.shape[0])).T
-            part[:] = out[:, at]  # (the multi-adaptive correction adds to the polynomials)
-            values = rhs.p.copy()
-            values[values.size - sigma.size:] = sigma
-            evaluate(times[at], rhs.again(values), part)
-            out[:, at] = part
+        """:func:`on_branches` with the branches of :meth:`_set_branches`."""
+        on_branches(self.__dict__.get("_branches"), times, out, rhs, evaluate)
 
     @cached_property
     def _dependents(self):
@@ -1540,11 +1559,7 @@ class Solution:
         other methods and where the elements solve more than one model (a restart)."""
         if "_restarts" in self.__dict__ or not _reads_f(self.method):
             return None  # (the ode not read: a solution may make it on first read)
-        if "_branches" in self.__dict__:
-            from dolfinode import events  # (it imports this module)
-
-            return lower(events.switched(self.ode)[0])
-        return dense_rhs(self.method, self.ode)
+        return dense_rhs(self.method, self.ode, "_branches" in self.__dict__)
 
     def _galerkin(self, times):
         """U at ``times`` in [t0, T] by the polynomials the solve solved, not the dense value
