@@ -36,7 +36,7 @@ from sympy.functions.elementary.piecewise import ExprCondPair
 from dolfinode.features import MIN_WIDTH, Features, Unbounded, enclose, narrow_features
 from dolfinode.ode import ODE
 from dolfinode.ode import t as time_symbol
-from dolfinode.solution import Solution
+from dolfinode.solution import Solution, branches_taken
 from dolfinode.timeslab import smallest_step
 
 #: Consecutive switches less than SLIDING_SPAN x (T - t0) apart after which a state switch is
@@ -643,7 +643,7 @@ class Plan:
         sol.stats["state switches"] = self.switched
         sol.stats["state kinks"] = self.kinked
         if self.switches:
-            sol._set_branches(self.restarts)
+            sol._set_branches(branches_taken(self.restarts))
         if self.events:
             a, b, which = (np.concatenate(x) for x in zip((np.empty(0), np.empty(0),
                                                           np.empty(0, int)), *self.pending))

@@ -1534,11 +1534,11 @@ class Solution:
             self.method, self.t_start, self.t_start + self.k, self.values, starts, befores,
             at, part, branch))
 
-    def _set_branches(self, restarts):
-        """Record the branches of f's switches the solve took, at its ``restarts``
-        [(t, sigma), ...] (:func:`branches_taken`): the dense values then read f on each
-        element's branch (:func:`dense_rhs`, :func:`on_branches`)."""
-        self._branches = branches_taken(restarts)
+    def _set_branches(self, branches):
+        """Record the branches of f's switches the solve took, (starts, sigmas) of
+        :func:`branches_taken`: the dense values then read f on each element's branch
+        (:func:`dense_rhs`, :func:`on_branches`)."""
+        self._branches = branches
         self.__dict__.pop("_rhs", None)  # (read before by the solve, on the original f)
         self.__dict__.pop("_element_cache", None)
 

@@ -565,7 +565,7 @@ def _heaviside(s):
 
 @pytest.mark.parametrize("method", ["cG(2)", "cG(3)", "cG(4)", "mcG(3)"])
 @pytest.mark.parametrize("case", ["coulomb", "heaviside"])
-def test_dense_cg_across_a_state_switch_reads_f_on_the_elements_branch(method, case):
+def test_dense_cg_across_a_state_switch_reads_f_on_the_elements_branch(method, case, tmp_path):
     # the solve restarts at each crossing of the switch, so end nodes sit on it, where the
     # original f takes either branch by rounding: the element polynomial used instead was
     # 10-59 x the tolerance inside (cG(2), cG(3), mcG(3) at 1e-8), the ends within 0.5 x
@@ -585,6 +585,11 @@ def test_dense_cg_across_a_state_switch_reads_f_on_the_elements_branch(method, c
     sampled = dn.solve(dn.ODE(rhs, u0=u0, T=T), method=method, tolerance=tolerance,
                        sample_times=times, dense_output=False)
     np.testing.assert_array_equal(sampled.y, sol(times))  # (the samples read f alike)
+    path = tmp_path / "run.h5"  # (and a history on file, which keeps the branches)
+    dn.solve(dn.ODE(rhs, u0=u0, T=T), method=method, tolerance=tolerance, dense_output=path)
+    loaded = dn.load_solution(path)
+    np.testing.assert_array_equal(loaded(times), sol(times))
+    loaded.close()
 
 
 # --- dense output of multi-adaptive mdG(q): the collocation polynomial per component ---

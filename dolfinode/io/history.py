@@ -129,7 +129,7 @@ def sink(ode, method, multi_adaptive, params, restarts=None):
     from dolfinode.io.stored import ToFile
 
     return ToFile(params["dense_output"], ode, method, multi_adaptive,
-                  params["number_of_samples"] if times is None else times)
+                  params["number_of_samples"] if times is None else times, restarts)
 
 
 class Estimating:
