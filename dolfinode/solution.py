@@ -1347,6 +1347,8 @@ class Solution:
     #: Per event, the crossing times and the states there (arrays, as solve_ivp's); None
     #: without events=.
     t_events = y_events = None
+    #: The branches of f's switches the solve took (:meth:`_set_branches`); None without.
+    _branches = None
 
     @cached_property
     def ode(self):
@@ -1520,7 +1522,7 @@ class Solution:
             if cache[0].nbytes <= KEPT_CACHE:
                 self.__dict__["_element_cache"] = (
                     [weakref.ref(a) if a.size else lambda: None for a in history], cache)
-        self._on_branches(times, out, self._rhs, lambda at, rhs, part: correct_multi(
+        on_branches(self._branches, times, out, self._rhs, lambda at, rhs, part: correct_multi(
             self.method, rhs, self._dependents, self._declaration, history, at, part, cache))
 
     def _evaluate_mono(self, times, rhs, out):
@@ -1530,7 +1532,7 @@ class Solution:
         declared = self._declaration  # (arrays, not lists: converting [u0] cost 1 us)
         starts, befores = self.__dict__.get("_restarts") or (np.array([declared.t0]),
                                                              declared.u0[np.newaxis])
-        self._on_branches(times, out, rhs, lambda at, branch, part: evaluate_mono(
+        on_branches(self._branches, times, out, rhs, lambda at, branch, part: evaluate_mono(
             self.method, self.t_start, self.t_start + self.k, self.values, starts, befores,
             at, part, branch))
 
@@ -1541,10 +1543,6 @@ class Solution:
         self._branches = branches
         self.__dict__.pop("_rhs", None)  # (read before by the solve, on the original f)
         self.__dict__.pop("_element_cache", None)
-
-    def _on_branches(self, times, out, rhs, evaluate):
-        """:func:`on_branches` with the branches of :meth:`_set_branches`."""
-        on_branches(self.__dict__.get("_branches"), times, out, rhs, evaluate)
 
     @cached_property
     def _dependents(self):
@@ -1559,7 +1557,7 @@ class Solution:
         other methods and where the elements solve more than one model (a restart)."""
         if "_restarts" in self.__dict__ or not _reads_f(self.method):
             return None  # (the ode not read: a solution may make it on first read)
-        return dense_rhs(self.method, self.ode, "_branches" in self.__dict__)
+        return dense_rhs(self.method, self.ode, self._branches is not None)
 
     def _galerkin(self, times):
         """U at ``times`` in [t0, T] by the polynomials the solve solved, not the dense value

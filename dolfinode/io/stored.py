@@ -26,6 +26,7 @@ from dolfinode.solution import (
     branches_taken,
     dense_rule,
     evaluate_mono,
+    on_branches,
 )
 
 #: The format's name and version, checked when a file is opened.
@@ -229,10 +230,10 @@ class StoredSolution(Solution):
             h5 = self._h5
             t_start = h5["t_start"][needed]
             values = self._stored[needed]
-            self._on_branches(times, out, self._rhs if dense else None,
-                              lambda at, rhs, part: evaluate_mono(
-                                  self.method, t_start, t_start + h5["k"][needed], values,
-                                  [self.ode.t0], [self.ode.u0], at, part, rhs))
+            on_branches(self._branches, times, out, self._rhs if dense else None,
+                        lambda at, rhs, part: evaluate_mono(
+                            self.method, t_start, t_start + h5["k"][needed], values,
+                            [self.ode.t0], [self.ode.u0], at, part, rhs))
             return out
         ptr = self._component_ptr
         needed = self._with_previous(self._holding([times] * self.ode.N))
