@@ -1008,7 +1008,7 @@ def march(plan, loop, t0, T):
     elements, recent, sol = [], [], None
     kmax = float(loop.options["kmax"][0])
 
-    def restart():  # (the branches recorded for the dense values: Solution.set_branches)
+    def restart():  # (the branches recorded for the dense values: Solution._set_branches)
         plan.restarts.append((loop.t(), sigma.copy()))
         loop.restart(sigma)
 

@@ -1553,8 +1553,9 @@ class Solution:
     @cached_property
     def _rhs(self):
         """The lowered ODE whose f the dense values of cG(q), mcG(q) and mono-adaptive dG(q)
-        read (:func:`_evaluate_cg`, :func:`_correct_multi`, :func:`_evaluate_dg`), None for
-        other methods and where the elements solve more than one model (a restart)."""
+        read (:func:`_evaluate_cg`, :func:`_correct_multi`, :func:`_evaluate_dg`; the smooth f
+        of the branch parameters where the solve kept its branches, :func:`dense_rhs`), None
+        for other methods and where the elements solve more than one model (a restart)."""
         if "_restarts" in self.__dict__ or not _reads_f(self.method):
             return None  # (the ode not read: a solution may make it on first read)
         return dense_rhs(self.method, self.ode, self._branches is not None)
