@@ -36,7 +36,7 @@ from sympy.functions.elementary.piecewise import ExprCondPair
 from dolfinode.features import MIN_WIDTH, Features, Unbounded, enclose, narrow_features
 from dolfinode.ode import ODE
 from dolfinode.ode import t as time_symbol
-from dolfinode.solution import Solution
+from dolfinode.solution import Solution, branches_taken
 from dolfinode.timeslab import smallest_step
 
 #: Consecutive switches less than SLIDING_SPAN x (T - t0) apart after which a state switch is
@@ -614,6 +614,7 @@ class Plan:
     def __post_init__(self):
         self.pending = []  # brackets (a, b, j) of events to locate on the final solution
         self.located = []  # (times, j, states) of those located before a stop
+        self.restarts = []  # (t, sigma) of each restart of the loop (march), in time order
         self.stops = np.array([e.terminal for e in self.events]
                               + [True] * len(self.state_switches), dtype=bool)
         # (i, sign) of the state switches on g_i = sign g_j, which cross with switch j
@@ -641,6 +642,8 @@ class Plan:
         sol.stats["singular points"] = len(self.features.singular)
         sol.stats["state switches"] = self.switched
         sol.stats["state kinks"] = self.kinked
+        if self.switches:
+            sol._set_branches(branches_taken(self.restarts))
         if self.events:
             a, b, which = (np.concatenate(x) for x in zip((np.empty(0), np.empty(0),
                                                           np.empty(0, int)), *self.pending))
@@ -1004,10 +1007,15 @@ def march(plan, loop, t0, T):
     plan.detector.start(t0, loop.x)
     elements, recent, sol = [], [], None
     kmax = float(loop.options["kmax"][0])
+
+    def restart():  # (the branches recorded for the dense values: Solution._set_branches)
+        plan.restarts.append((loop.t(), sigma.copy()))
+        loop.restart(sigma)
+
     for end in [*plan.breakpoints, T]:
         plan.branches(sigma, loop.t(), end)
         loop.options["kmax"] = min(kmax, plan.features.step_bound(loop.t(), end))
-        loop.restart(sigma)
+        restart()
         while loop.t() < end:
             for status, chunk in loop.chunks(end):
                 if status not in (loop.DONE, loop.FULL):
@@ -1051,7 +1059,7 @@ def march(plan, loop, t0, T):
                 else:
                     plan.switched += 1
                     _check_sliding(recent, te, switch, t0, T)
-                loop.restart(sigma)
+                restart()
                 break
     at_end = _events_at_end(plan, sol, T, loop)
     if at_end is not None:

@@ -1183,19 +1183,64 @@ def _reads_f(method):
     return method.q > (0 if method.family == "dG" else 1)
 
 
-def dense_rhs(method, ode):
+def dense_rhs(method, ode, branches=False):
     """The lowered ``ode`` that :func:`evaluate_mono` and :func:`correct_multi` read for a
     cG(q), mcG(q), q >= 2, or dG(q), mdG(q), q >= 1, dense value (its elements must solve
-    it); None for other methods, and for cG(q), mcG(q) where f jumps across a switch of the
-    state (a Piecewise, Heaviside, sign, floor of the state): their P reads f at the end
-    nodes, on the switch, where f need not give the element's branch. A jump in t is read
-    on the element's side (:data:`NODE_INSET`; without, cG(3) was 25 x the tolerance inside
-    the elements of u' = -u + Heaviside(t - 1), at 1e-8). dG(q)'s reads f only at tau*
-    inside the element, which no jump crosses (the solve ends its pieces there); f on the
-    wrong side of a state switch fails its residual test (U is used)."""
-    if not _reads_f(method) or (method.family == "cG" and _switches_on_state(ode)):
+    it); None for other methods.
+
+    With ``branches`` (the solve recorded the branches of f's switches it took), the smooth
+    f of their branch parameters (:func:`dolfinode.events.switched`), to be read on each
+    element's branch (:func:`on_branches`): the solve restarts at each crossing of a switch
+    of the state, so end nodes sit on it, where the original f takes either branch by
+    rounding (cG(q)'s P, which reads f there, was 10-59 x the tolerance inside, Coulomb
+    friction at 1e-8). Without, also None for cG(q), mcG(q) where f jumps across a switch
+    of the state (their element polynomial is used). A jump in t is read on the element's
+    side (:data:`NODE_INSET`; without, cG(3) was 25 x the tolerance inside the elements of
+    u' = -u + Heaviside(t - 1), at 1e-8). dG(q)'s reads f only at tau* inside the element,
+    which no jump crosses (the solve ends its pieces there)."""
+    if not _reads_f(method):
+        return None
+    if branches:
+        from dolfinode import events  # (it imports this module)
+
+        return lower(events.switched(ode)[0])
+    if method.family == "cG" and _switches_on_state(ode):
         return None
     return lower(ode)
+
+
+def on_branches(branches, times, out, rhs, evaluate):
+    """evaluate(times, rhs, out), with the branch parameters of ``rhs`` (:func:`dense_rhs`)
+    those the solve took at the times: ``branches`` = (starts, sigmas), sigmas[j] from
+    starts[j] on (its restarts: t0, the breakpoints, the crossings of switches), None for
+    one call as given. Once per distinct branch, on the times of its pieces (s_j, s_j+1]
+    (a piece's start is the end of the one before), each time's element solved on it;
+    ``out`` holds what ``evaluate`` starts from (multi-adaptive: the element
+    polynomials)."""
+    if branches is None or rhs is None:
+        evaluate(times, rhs, out)
+        return
+    starts, sigmas = branches
+    distinct, which = np.unique(sigmas, axis=0, return_inverse=True)
+    piece = which.ravel()[np.maximum(np.searchsorted(starts, times) - 1, 0)]
+    for j, sigma in enumerate(distinct):
+        at = np.flatnonzero(piece == j)
+        if at.size == 0:
+            continue
+        if at.size == 1:  # (an (N, 1) part is C- and F-contiguous: numba would compile the
+            at = np.repeat(at, 2)  # kernels again, as in Solution._values)
+        part = np.empty((at.size, out.shape[0])).T
+        part[:] = out[:, at]
+        values = rhs.p.copy()
+        values[values.size - sigma.size:] = sigma
+        evaluate(times[at], rhs.again(values), part)
+        out[:, at] = part
+
+
+def branches_taken(restarts):
+    """(starts, sigmas) of :func:`on_branches` from the solve's restarts [(t, sigma), ...]."""
+    starts, sigmas = zip(*restarts)
+    return np.array(starts, dtype=float), np.array(sigmas, dtype=float).reshape(len(starts), -1)
 
 
 def correct_multi(method, compiled, dependents, declared, history, times, out, cache=None):
@@ -1302,6 +1347,8 @@ class Solution:
     #: Per event, the crossing times and the states there (arrays, as solve_ivp's); None
     #: without events=.
     t_events = y_events = None
+    #: The branches of f's switches the solve took (:meth:`_set_branches`); None without.
+    _branches = None
 
     @cached_property
     def ode(self):
@@ -1463,7 +1510,8 @@ class Solution:
     def _correct(self, ptr, t_start, t_end, values, s_start, s_end, s_values, times, out):
         """mcG(q), q >= 2, mdG(q), q >= 1: the dense value inside the elements at ``times``
         in ``out``, which holds the element polynomials (:func:`_correct_multi`), where the
-        solution reads f (``_rhs``), with the element cache kept for this history."""
+        solution reads f (``_rhs``, on the branches of :meth:`_set_branches`), with the
+        element cache kept for this history."""
         if self._rhs is None:
             return
         history = (ptr, t_start, t_end, values, s_start, s_end, s_values)
@@ -1477,17 +1525,27 @@ class Solution:
             if cache[0].nbytes <= KEPT_CACHE:
                 self.__dict__["_element_cache"] = (
                     [weakref.ref(a) if a.size else lambda: None for a in history], cache)
-        correct_multi(self.method, self._rhs, self._dependents, self._declaration, history,
-                      times, out, cache)
+        on_branches(self._branches, times, out, self._rhs, lambda at, rhs, part: correct_multi(
+            self.method, rhs, self._dependents, self._declaration, history, at, part, cache))
 
     def _evaluate_mono(self, times, rhs, out):
         """out = U at ``times`` from the shared partition, cG(q)'s dense value reading the
-        lowered ODE ``rhs`` (:func:`evaluate_mono`)."""
+        lowered ODE ``rhs`` (:func:`evaluate_mono`; on the branches of
+        :meth:`_set_branches`)."""
         declared = self._declaration  # (arrays, not lists: converting [u0] cost 1 us)
         starts, befores = self.__dict__.get("_restarts") or (np.array([declared.t0]),
                                                              declared.u0[np.newaxis])
-        evaluate_mono(self.method, self.t_start, self.t_start + self.k, self.values, starts,
-                      befores, times, out, rhs)
+        on_branches(self._branches, times, out, rhs, lambda at, branch, part: evaluate_mono(
+            self.method, self.t_start, self.t_start + self.k, self.values, starts, befores,
+            at, part, branch))
+
+    def _set_branches(self, branches):
+        """Record the branches of f's switches the solve took, (starts, sigmas) of
+        :func:`branches_taken`: the dense values then read f on each element's branch
+        (:func:`dense_rhs`, :func:`on_branches`)."""
+        self._branches = branches
+        self.__dict__.pop("_rhs", None)  # (read before by the solve, on the original f)
+        self.__dict__.pop("_element_cache", None)
 
     @cached_property
     def _dependents(self):
@@ -1498,11 +1556,12 @@ class Solution:
     @cached_property
     def _rhs(self):
         """The lowered ODE whose f the dense values of cG(q), mcG(q) and mono-adaptive dG(q)
-        read (:func:`_evaluate_cg`, :func:`_correct_multi`, :func:`_evaluate_dg`), None for
-        other methods and where the elements solve more than one model (a restart)."""
+        read (:func:`_evaluate_cg`, :func:`_correct_multi`, :func:`_evaluate_dg`; the smooth f
+        of the branch parameters where the solve kept its branches, :func:`dense_rhs`), None
+        for other methods and where the elements solve more than one model (a restart)."""
         if "_restarts" in self.__dict__ or not _reads_f(self.method):
             return None  # (the ode not read: a solution may make it on first read)
-        return dense_rhs(self.method, self.ode)
+        return dense_rhs(self.method, self.ode, self._branches is not None)
 
     def _galerkin(self, times):
         """U at ``times`` in [t0, T] by the polynomials the solve solved, not the dense value

@@ -707,7 +707,8 @@ def run_started(ode, compiled, plan, multi_adaptive, m, params, started, start, 
     reached = state["t"]  # (the loop's time, written in place as it runs)
     try:
         sink = _estimating(ode, compiled, plan, multi_adaptive, m, params,
-                           history.sink(ode, m, multi_adaptive, params))
+                           history.sink(ode, m, multi_adaptive, params,
+                                        plan.restarts if plan and plan.switches else None))
         run = _run_multi if multi_adaptive else _run_mono
         status, counters, state, elements, stats = run(ode, compiled, m, params, options,
                                                        atol, floor, x, f0, steps, state,

@@ -549,6 +549,49 @@ def test_dense_dg_across_a_state_switch_keeps_its_accuracy():
         assert error.max() < 3.0, method
 
 
+
+def _coulomb(s):
+    """x'' = -x - sign(x') / 10, x(0) = 1, x'(0) = 0 on [0, 3 pi]: half periods about
+    +-1/10 whose amplitude falls by 1/5 each (x' = 0 at k pi, where f jumps)."""
+    k = np.minimum(np.floor(s / np.pi), 2)
+    return (-1.0) ** k * (0.1 + (0.9 - 0.2 * k) * np.cos(s - k * np.pi))
+
+
+def _heaviside(s):
+    """u' = cos t + Heaviside(u - 1/2) u, u(0) = 0: sin t up to pi / 6, then growing."""
+    c = (1 + np.sqrt(3)) / 4 * np.exp(-np.pi / 6)
+    return np.where(s < np.pi / 6, np.sin(s), c * np.exp(s) + (np.sin(s) - np.cos(s)) / 2)
+
+
+@pytest.mark.parametrize("method", ["cG(2)", "cG(3)", "cG(4)", "mcG(3)"])
+@pytest.mark.parametrize("case", ["coulomb", "heaviside"])
+def test_dense_cg_across_a_state_switch_reads_f_on_the_elements_branch(method, case, tmp_path):
+    # the solve restarts at each crossing of the switch, so end nodes sit on it, where the
+    # original f takes either branch by rounding: the element polynomial used instead was
+    # 10-59 x the tolerance inside (cG(2), cG(3), mcG(3) at 1e-8), the ends within 0.5 x
+    x, v = sp.symbols("x v")
+    if case == "coulomb":
+        rhs, u0, T, exact = {x: v, v: -x - sp.sign(v) / 10}, [1.0, 0.0], 3 * np.pi, _coulomb
+    else:
+        rhs, u0, T = {x: sp.cos(dn.t) + sp.Heaviside(x - sp.Rational(1, 2)) * x, v: -v}, \
+            [0.0, 1.0], 2.0
+        exact = _heaviside
+    tolerance = 1e-8
+    sol = dn.solve(dn.ODE(rhs, u0=u0, T=T), method=method, tolerance=tolerance)
+    times = np.linspace(0.0, T, 4001)
+    error = np.abs(sol(times)[0] - exact(times)) / (tolerance * np.maximum(np.abs(exact(times)), 1))
+    assert sol.stats["state switches"] >= 1
+    assert error.max() < 2.0
+    sampled = dn.solve(dn.ODE(rhs, u0=u0, T=T), method=method, tolerance=tolerance,
+                       sample_times=times, dense_output=False)
+    np.testing.assert_array_equal(sampled.y, sol(times))  # (the samples read f alike)
+    path = tmp_path / "run.h5"  # (and a history on file, which keeps the branches)
+    dn.solve(dn.ODE(rhs, u0=u0, T=T), method=method, tolerance=tolerance, dense_output=path)
+    loaded = dn.load_solution(path)
+    np.testing.assert_array_equal(loaded(times), sol(times))
+    loaded.close()
+
+
 # --- dense output of multi-adaptive mdG(q): the collocation polynomial per component ---
 
 @pytest.fixture(scope="module")

@@ -24,6 +24,7 @@ chunk from the loop's buffers; :func:`as_elements` spells the blocks out by elem
 import ctypes
 import ctypes.util
 import mmap
+from functools import cached_property
 
 import numpy as np
 from numba import njit
@@ -38,12 +39,14 @@ from dolfinode.solution import (
     _group,
     _locate,
     _set_initial,
+    branches_taken,
     correct_multi,
     dense_rhs,
     dense_rule,
     equispaced,
     evaluate_mono,
     join_elements,
+    on_branches,
     transposed,
 )
 from dolfinode.timeslab import STORED, STORED_BLOCKS
@@ -97,8 +100,11 @@ def check_sample_times(ode, times):
                          f"[{times[0]}, {times[-1]}]")
 
 
-def sink(ode, method, multi_adaptive, params):
-    """The history sink that ``params["dense_output"]`` asks for, with the sample times.
+def sink(ode, method, multi_adaptive, params, restarts=None):
+    """The history sink that ``params["dense_output"]`` asks for, with the sample times;
+    ``restarts``: the list of (t, sigma) the solve's restarts fill (the branches of f's
+    switches, :meth:`dolfinode.events.Plan.report`) before it adds the chunks, read by the
+    dense values of the samples of ``dense_output=False``.
 
     Raises
     ------
@@ -116,14 +122,14 @@ def sink(ode, method, multi_adaptive, params):
     if params["dense_output"] is False:
         if times is None:
             times = equispaced(ode.t0, ode.T, params["number_of_samples"])
-        return Samples(ode, method, multi_adaptive, times)
+        return Samples(ode, method, multi_adaptive, times, restarts)
     if params["dense_output"] is True:
         return InMemory(ode, multi_adaptive, params["number_of_samples"] if times is None
                         else times)
     from dolfinode.io.stored import ToFile
 
     return ToFile(params["dense_output"], ode, method, multi_adaptive,
-                  params["number_of_samples"] if times is None else times)
+                  params["number_of_samples"] if times is None else times, restarts)
 
 
 class Estimating:
@@ -410,9 +416,10 @@ class Window:
                          np.empty((0, method.q + 1))]
         self.next = 0  # (the first sample not yet corrected)
 
-    def add(self, chunk, reached, times, out):
+    def add(self, chunk, reached, times, out, branches=None):
         """Add ``chunk``'s elements and correct the samples out[:, m] at ``times`` that they
-        now cover (``reached``: the time up to which every component's elements are in)."""
+        now cover (``reached``: the time up to which every component's elements are in), f
+        read on the ``branches`` the solve took (:func:`on_branches`)."""
         N = self.ode.N
         comp, t_start, t_end, values = (np.concatenate(parts) for parts in zip(
             self.elements, as_elements(chunk, N)))
@@ -422,10 +429,10 @@ class Window:
         last = np.searchsorted(times, ready, side="right")
         if last > self.next:
             none = np.empty(0)
-            correct_multi(self.method, self.compiled, self.dependents, self.ode,
-                          (ptr, t_start, t_end, values, none, none,
-                           np.empty((0, values.shape[1], N))),
-                          times[self.next:last], out[:, self.next:last])
+            history = (ptr, t_start, t_end, values, none, none, np.empty((0, values.shape[1], N)))
+            on_branches(branches, times[self.next:last], out[:, self.next:last], self.compiled,
+                        lambda at, rhs, part: correct_multi(self.method, rhs, self.dependents,
+                                                            self.ode, history, at, part))
             self.next = last
         start = min(reached, times[self.next]) if self.next < times.size else reached
         keep = t_end >= _reach(ptr, t_start, t_end, start, READ_DEPTH, False)
@@ -438,8 +445,9 @@ class Samples:
     value of mcG(q), q >= 2, and mdG(q), q >= 1, also the few slabs of elements it reads,
     :class:`Window`)."""
 
-    def __init__(self, ode, method, multi_adaptive, times):
+    def __init__(self, ode, method, multi_adaptive, times, restarts=None):
         self.ode, self.method, self.multi_adaptive, self.times = ode, method, multi_adaptive, times
+        self.restarts = restarts  # (see :func:`sink`)
         self.y = np.empty((times.size, ode.N)).T  # components contiguous, as Solution's y
         self.y.fill(np.nan)
         _set_initial(times, ode.t0, ode.u0, self.y)  # U(t0) = u0, as Solution's
@@ -451,7 +459,8 @@ class Samples:
         self.last_value = np.array(ode.u0, dtype=float)
         # (mono-adaptive) the last chunk's end and end value, read by dG(q)'s dense value
         self.end, self.before = ode.t0, ode.u0
-        self.rhs = dense_rhs(method, ode)  # (the dense value of cG(q), dG(q), mcG(q), mdG(q))
+        # (the dense value of cG(q), dG(q), mcG(q), mdG(q))
+        self.rhs = dense_rhs(method, ode, restarts is not None)
         self.window = (Window(ode, method, self.rhs) if multi_adaptive and self.rhs is not None
                        else None)
 
@@ -463,7 +472,7 @@ class Samples:
             _sample_chunk(*chunk, order, nodes, bary, dense_rule(self.method), self.times,
                           self.last_end, self.last_value, self.y)
             if self.window is not None:
-                self.window.add(chunk, self.last_end.min(), self.times, self.y)
+                self.window.add(chunk, self.last_end.min(), self.times, self.y, self.branches)
             return
         t_start, k, values = chunk
         if t_start.shape[0] == 0:
@@ -474,10 +483,17 @@ class Samples:
         # the chunk's first element reads the previous end value where it continues it, as
         # the Solution of the whole history does (solution._evaluate_dg)
         joined = abs(self.end - t_start[0]) <= 4e-16 * abs(t_start[0])
-        evaluate_mono(self.method, t_start, t_end, values, [t_start[0]] if joined else [],
-                      [self.before] if joined else [], self.times[first:last],
-                      self.y[:, first:last], self.rhs)
+        on_branches(self.branches, self.times[first:last], self.y[:, first:last], self.rhs,
+                    lambda at, rhs, part: evaluate_mono(
+                        self.method, t_start, t_end, values, [t_start[0]] if joined else [],
+                        [self.before] if joined else [], at, part, rhs))
         self.end, self.before = t_end[-1], values[-1, -1].copy()
+
+    @cached_property
+    def branches(self):
+        """The branches the solve took (:func:`branches_taken`; None without switches), read
+        once its restarts are in: at the first chunk added."""
+        return None if self.restarts is None else branches_taken(self.restarts)
 
     def finish(self, completed):
         return None

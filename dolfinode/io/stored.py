@@ -23,14 +23,18 @@ from dolfinode.solution import (
     Solution,
     _defect_check,
     _evaluate_components,
+    branches_taken,
     dense_rule,
     evaluate_mono,
+    on_branches,
 )
 
 #: The format's name and version, checked when a file is opened.
 FORMAT, VERSION = "dolfinode solution history", 1
 _MONO = ("t_start", "k", "values")
 _MULTI = ("comp", "t_start", "t_end", "values")
+#: The branches of f's switches the solve took (:func:`dolfinode.solution.branches_taken`).
+_BRANCHES = ("branch_starts", "branch_sigmas")
 
 
 def _h5py():
@@ -58,8 +62,9 @@ class ToFile:
     """``dense_output="run.h5"``: each chunk appended to the file; the Solution reads it
     back lazily (memory: one chunk, whatever the number of steps)."""
 
-    def __init__(self, path, ode, method, multi_adaptive, samples):
+    def __init__(self, path, ode, method, multi_adaptive, samples, restarts=None):
         self.path, self.ode, self.multi_adaptive, self.samples = path, ode, multi_adaptive, samples
+        self.restarts = restarts  # (:func:`dolfinode.io.history.sink`'s)
         self.per_component = np.zeros(ode.N, dtype=np.int64) if multi_adaptive else None
         self._writing = new_file(path)
         file = self._writing.__enter__()
@@ -104,6 +109,9 @@ class ToFile:
         try:
             self.h5.create_dataset("declaration", data=np.void(pickle.dumps(ode)))
             self.h5.create_dataset("stats", data=np.void(pickle.dumps(stats)))
+            if self.restarts is not None:  # (the branches the dense values read f on)
+                for name, part in zip(_BRANCHES, branches_taken(self.restarts)):
+                    self.h5.create_dataset(name, data=part)
             self.h5.attrs["complete"] = True
             self.h5.close()
         except BaseException:
@@ -163,6 +171,8 @@ def load_solution(path, number_of_samples=101):
     sol = StoredSolution.__new__(StoredSolution)
     sol.ode, sol.method, sol.stats, sol.path, sol._h5 = ode, method, stats, str(path), h5
     sol._stored, sol._multi = h5["values"], multi
+    if _BRANCHES[0] in h5:
+        sol._set_branches(tuple(h5[name][()] for name in _BRANCHES))
     sol._sample(number_of_samples)
     return sol
 
@@ -219,9 +229,11 @@ class StoredSolution(Solution):
             needed = np.union1d(needed, needed[needed > 0] - 1)
             h5 = self._h5
             t_start = h5["t_start"][needed]
-            evaluate_mono(self.method, t_start, t_start + h5["k"][needed],
-                          self._stored[needed], [self.ode.t0], [self.ode.u0], times, out,
-                          self._rhs if dense else None)
+            values = self._stored[needed]
+            on_branches(self._branches, times, out, self._rhs if dense else None,
+                        lambda at, rhs, part: evaluate_mono(
+                            self.method, t_start, t_start + h5["k"][needed], values,
+                            [self.ode.t0], [self.ode.u0], at, part, rhs))
             return out
         ptr = self._component_ptr
         needed = self._with_previous(self._holding([times] * self.ode.N))
