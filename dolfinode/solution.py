@@ -896,9 +896,71 @@ DENSE_THETA = 0.25
 DEFECT_THETA = 1.0
 
 
+@njit(cache=True, inline="always")
+def _lagrange_slopes(tau, nodes, slopes):
+    """slopes_j = l_j'(tau), the derivative of the Lagrange basis on the nodes at tau,
+    sum_(m != j) 1 / (tau_j - tau_m) prod_(l != j, m) (tau - tau_l) / (tau_j - tau_l)
+    (no division by tau - tau_l: exact at the nodes)."""
+    for j in range(nodes.shape[0]):
+        slopes[j] = 0.0
+        for m in range(nodes.shape[0]):
+            if m != j:
+                term = 1.0 / (nodes[j] - nodes[m])
+                for l in range(nodes.shape[0]):
+                    if l != j and l != m:
+                        term *= (tau - nodes[l]) / (nodes[j] - nodes[l])
+                slopes[j] += term
+
+
+@njit(cache=True, inline="always")
+def _dg_values(values, n, collocated, before, g, weights, weights0, s_tau, out):
+    """out[i] = component i's value of :func:`_evaluate_dg` on element n where the bases
+    take ``weights`` (U's, on the nodes) and ``weights0`` (P's, on 0 and the nodes), S
+    ``s_tau``: P - g S where ``collocated``, else U."""
+    q1 = values.shape[1]
+    for i in range(out.shape[0]):
+        value = 0.0
+        if collocated[i]:
+            for j in range(q1):
+                value += weights0[j + 1] * values[n, j, i]
+            out[i] = value + weights0[0] * before[i] - g[i] * s_tau
+        else:
+            for j in range(q1):
+                value += weights[j] * values[n, j, i]
+            out[i] = value
+
+
+@njit(cache=True, inline="always")
+def _quasi_steady_dg(rhs, p, values, n, t, tau, k, nodes, nodes0, collocated, before, g,
+                     steady, diagonal, slopes, slopes0, D, F, out):
+    """out[i] = W_i = Z_i + (Z_i' - k f_i(Z, t)) / (k J_ii) where ``steady`` (one Newton step
+    of component i's equation from :func:`_evaluate_dg`'s value Z = ``out`` towards its
+    quasi-steady state, lag included; J_ii = ``diagonal[i]``), Z' in tau (P' - g Pi where
+    ``collocated``, else U'); on return D[i] = Z_i', F = k f(Z, t)."""
+    q1 = nodes.shape[0]
+    _lagrange_slopes(tau, nodes, slopes)
+    _lagrange_slopes(tau, nodes0, slopes0)
+    pi_tau = 1.0
+    for j in range(q1):
+        pi_tau *= tau - nodes[j]
+    rhs_kernel(rhs)(address(out, 0), t, address(p, 0), address(F, 0))
+    for i in range(out.shape[0]):
+        F[i] *= k
+        D[i] = 0.0
+        if collocated[i]:
+            D[i] = slopes0[0] * before[i] - g[i] * pi_tau
+            for j in range(q1):
+                D[i] += slopes0[j + 1] * values[n, j, i]
+        else:
+            for j in range(q1):
+                D[i] += slopes[j] * values[n, j, i]
+        if steady[i]:
+            out[i] += (D[i] - F[i]) / (k * diagonal[i])
+
+
 @njit(cache=True, error_model="numpy")  # (no zero check on every division)
 def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, bary0, left,
-                 rhs, p, check, theta, times, out):
+                 rhs, jacobian, indptr, indices, p, check, theta, times, out):
     """out[i, m] = the dense value of a mono-adaptive dG(q) solution at times[m].
 
     On element n, with stage values xi_j at the right Radau nodes tau_j and the previous
@@ -923,6 +985,23 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
     against its correction of U), V where also k |f_i(V(tau*)) - f_i(P(tau*))| tau* / 2
     <= theta |g S(tau*)| (V's residual at tau*, V' = P' - g Pi, against its correction of
     P: k |lambda| tau* / 2 <= theta along it), else P, else U; two f per element.
+
+    A component stiff on the element, -k J_ii > 1 (J = df/du at the value Z chosen so, at
+    tau*), has its nodes on its quasi-steady state, and U, P, V interpolate that state
+    between them, off by k^(q+1) times its (q+1)th derivative. It takes
+
+        W_i(tau) = Z_i + (Z_i' - k f_i(Z, t)) / (k J_ii)
+
+    (:func:`_quasi_steady_dg`: one Newton step of its equation towards that state, lag
+    Z_i' included; without the lag W was 1250 x the tolerance inside) where W's residual
+    at tau*, |Z_i' - k f_i(W)| (W' ~ Z'), is at most theta times Z's, |Z_i' - k f_i(Z)|:
+    one Jacobian and, where a component is stiff, two f per element, and one f per time.
+    cG(q)'s quasi-steady value (:func:`_quasi_steady`: W = U + c Q - g S, two coefficients
+    by collocation at two points) on dG(q)'s shapes was worse than Z where -k J_ii is
+    large (u' = -800 (u - sin(v)^3), dG(2) at 1e-6: 42 -> 103 x the tolerance inside): two
+    coefficients do not follow the state across the element, and W(0) misses the value
+    before. ``jacobian``: the Jacobian kernel's address (CSR pattern ``indptr``,
+    ``indices``), 0 for none.
     ``check`` = (tau*, l_j(tau*), l0_j(tau*), l0_j'(tau*) (l, l0 the Lagrange bases of U
     and of P on 0, tau_0, ..., tau_q), R(tau*), Pi(tau*), S(tau*), G) with S(tau) = tau
     (tau - 1) G(tau) (G's monomial coefficients, highest first), f the kernel at address
@@ -937,6 +1016,15 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
     """
     q1, N = nodes.shape[0], out.shape[0]
     star, basis, basis0, slopes0, r_star, pi_star, s_star, g_coefficients = check
+    # where a component is stiff on the element: J_ii (diagonal[i]), whether it takes W
+    # (steady[i]); workspace of W: the bases' slopes, Z', k f(Z), J's values
+    steady = np.zeros(N, dtype=np.bool_)
+    diagonal = np.empty(N)
+    slopes = np.empty(q1)
+    slopes_p = np.empty(q1 + 1)
+    D = np.empty(N)
+    Z = np.empty(N)
+    J = np.empty(max(indices.shape[0], 1))
     weights = np.empty(q1)
     weights0 = np.empty(q1 + 1)
     # per element and component, made when the times enter an element: whether P is used
@@ -950,7 +1038,7 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
     F = np.empty(N)
     F2 = np.empty(N)
     f = rhs_kernel(rhs)
-    some_p = some_u = False
+    some_p = some_u = some_w = False
     current = -1
     n = 0
     for m in range(times.shape[0]):
@@ -999,6 +1087,27 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
                                    pi_star, s_star, theta, np.empty(0))
                 for i in range(N):
                     collocated[i] |= g[i] != 0.0
+            some_w = False
+            if jacobian != 0:
+                t_star = t_start[n] + star * k
+                _dg_values(values, n, collocated, before, g, basis, basis0, s_star, X)
+                rhs_kernel(jacobian)(address(X, 0), t_star, address(p, 0), address(J, 0))
+                for i in range(N):
+                    diagonal[i] = 0.0
+                    for nz in range(indptr[i], indptr[i + 1]):
+                        if indices[nz] == i:
+                            diagonal[i] = J[nz]
+                    steady[i] = -k * diagonal[i] > 1.0
+                    some_w |= steady[i]
+            if some_w:
+                Y[:] = X
+                _quasi_steady_dg(rhs, p, values, n, t_star, star, k, nodes, nodes0, collocated,
+                                 before, g, steady, diagonal, slopes, slopes_p, D, F, Y)
+                f(address(Y, 0), t_star, address(p, 0), address(F2, 0))
+                some_w = False
+                for i in range(N):
+                    steady[i] &= abs(D[i] - k * F2[i]) <= theta * abs(D[i] - F[i])
+                    some_w |= steady[i]
             for i in range(N):
                 some_p |= collocated[i]
                 some_u |= not collocated[i]
@@ -1009,16 +1118,12 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
         if some_p:
             lagrange_weights(tau, nodes0, bary0, weights0)
             s_tau = _correction_shape(g_coefficients, tau)
+        _dg_values(values, n, collocated, before, g, weights, weights0, s_tau, Z)
+        if some_w and 0.0 < tau < 1.0:  # (W(1) != U(1): the nodes stay)
+            _quasi_steady_dg(rhs, p, values, n, times[m], tau, k, nodes, nodes0, collocated,
+                             before, g, steady, diagonal, slopes, slopes_p, D, F, Z)
         for i in range(N):
-            value = 0.0
-            if collocated[i]:
-                for j in range(q1):
-                    value += weights0[j + 1] * values[n, j, i]
-                out[i, m] = value + weights0[0] * before[i] - g[i] * s_tau
-            else:
-                for j in range(q1):
-                    value += weights[j] * values[n, j, i]
-                out[i, m] = value
+            out[i, m] = Z[i]
 
 
 @njit(cache=True)
@@ -1253,14 +1358,17 @@ def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out, c
                          DEFECT_THETA, times, out)
     elif method.family == "dG" and method.q > 0:
         nodes0, bary0 = _collocation_nodes(method.family, method.q)
-        rhs, p, theta = ((0, np.empty(0), DENSE_THETA) if compiled is None
-                         else (compiled.rhs.address, compiled.p, DEFECT_THETA))
+        none = np.empty(0, dtype=np.int64)
+        rhs, jacobian, indptr, indices, p, theta = (
+            (0, 0, none, none, np.empty(0), DENSE_THETA) if compiled is None
+            else (compiled.rhs.address, compiled.jacobian.address, compiled.indptr,
+                  compiled.indices, compiled.p, DEFECT_THETA))
         with first_use(_evaluate_dg, "dG(q)'s dense values", 2):
             _evaluate_dg(t_start, t_end, values, np.asarray(starts, dtype=float),
                          np.asarray(befores, dtype=float).reshape(len(starts), values.shape[2]),
                          method.nodes, method.barycentric_weights, nodes0, bary0,
-                         method.left_value, rhs, p, _defect_check(method.family, method.q),
-                         float(theta), times, out)
+                         method.left_value, rhs, jacobian, indptr, indices, p,
+                         _defect_check(method.family, method.q), float(theta), times, out)
     else:
         _evaluate_shared(t_start, t_end, values, method.nodes, method.barycentric_weights,
                          times, out)
