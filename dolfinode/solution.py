@@ -1015,7 +1015,7 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
     value equals xi_q at tau = 1 (S(1) = 0 exactly): the nodes are unchanged bit for bit.
     """
     q1, N = nodes.shape[0], out.shape[0]
-    star, basis, basis0, slopes0, r_star, pi_star, s_star, g_coefficients = check
+    star, basis, basis0, slopes0, r_star, pi_star, s_star, g_coefficients, second = check
     # where a component is stiff on the element: J_ii (diagonal[i]), whether it takes W
     # (steady[i]); workspace of W: the bases' slopes, Z', k f(Z), J's values
     steady = np.zeros(N, dtype=np.bool_)
@@ -1024,6 +1024,7 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
     slopes_p = np.empty(q1 + 1)
     D = np.empty(N)
     Z = np.empty(N)
+    test = np.empty((8, N))
     J = np.empty(max(indices.shape[0], 1))
     weights = np.empty(q1)
     weights0 = np.empty(q1 + 1)
@@ -1097,16 +1098,32 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
                     for nz in range(indptr[i], indptr[i + 1]):
                         if indices[nz] == i:
                             diagonal[i] = J[nz]
-                    steady[i] = -k * diagonal[i] > 1.0
+                    steady[i] = -k * diagonal[i] * star > 1.0
                     some_w |= steady[i]
             if some_w:
-                Y[:] = X
-                _quasi_steady_dg(rhs, p, values, n, t_star, star, k, nodes, nodes0, collocated,
-                                 before, g, steady, diagonal, slopes, slopes_p, D, F, Y)
-                f(address(Y, 0), t_star, address(p, 0), address(F2, 0))
+                lagrange_weights(second, nodes, bary, weights)
+                lagrange_weights(second, nodes0, bary0, weights0)
+                _dg_values(values, n, collocated, before, g, weights, weights0,
+                           _correction_shape(g_coefficients, second), Y)
+                # rows: W, Z', k f(Z), k f(W) at tau* (0-3), at tau** (4-7)
+                for point in range(2):
+                    a = 4 * point
+                    tau_a = star if point == 0 else second
+                    t_a = t_start[n] + tau_a * k
+                    test[a, :] = X if point == 0 else Y
+                    _quasi_steady_dg(rhs, p, values, n, t_a, tau_a, k, nodes, nodes0,
+                                     collocated, before, g, steady, diagonal, slopes, slopes_p,
+                                     test[a + 1], test[a + 2], test[a])
+                    f(address(test[a], 0), t_a, address(p, 0), address(test[a + 3], 0))
                 some_w = False
                 for i in range(N):
-                    steady[i] &= abs(D[i] - k * F2[i]) <= theta * abs(D[i] - F[i])
+                    # W' = Z' + r' / (k J_ii), r = Z' - k f(Z) (r' between the points)
+                    lag = ((test[5, i] - test[6, i]) - (test[1, i] - test[2, i])) / (
+                        (second - star) * k * diagonal[i])
+                    r_w = max(abs(test[1, i] + lag - k * test[3, i]),
+                              abs(test[5, i] + lag - k * test[7, i]))
+                    r_z = max(abs(test[1, i] - test[2, i]), abs(test[5, i] - test[6, i]))
+                    steady[i] &= r_w <= theta * r_z
                     some_w |= steady[i]
             for i in range(N):
                 some_p |= collocated[i]
@@ -1251,8 +1268,8 @@ def _defect_check(family, q):
     tau*** = 1/2 (q odd) or (1/2 + tau**) / 2) at tau* = tau_1 / 2 (l_j the Lagrange
     basis on the nodes). dG(q)
     (:func:`_evaluate_dg`): (tau*, l_j(tau*), l0_j(tau*), l0_j'(tau*), R(tau*), Q(tau*),
-    S(tau*), G) at tau* = tau_0 / 2 (l0_j the basis on 0 and the nodes,
-    R = prod_j (tau_j - tau) / tau_j)."""
+    S(tau*), G, tau** = (tau_(q-1) + 1) / 2) at tau* = tau_0 / 2 (l0_j the basis on 0 and
+    the nodes, R = prod_j (tau_j - tau) / tau_j)."""
     nodes = make_method(family, q).nodes
     Q, S, G = _shapes(nodes)
     if family == "cG":
@@ -1267,7 +1284,7 @@ def _defect_check(family, q):
     basis, _ = lagrange_matrices(nodes, (star,))
     basis0, slopes0 = lagrange_matrices(np.concatenate([[0.0], nodes]), (star,))
     return (float(star), basis[0], basis0[0], slopes0[0], float(np.prod(1 - star / nodes)),
-            float(Q(star)), float(S(star)), G)
+            float(Q(star)), float(S(star)), G, float((nodes[-2] + 1) / 2))
 
 
 @njit(cache=True)

@@ -669,3 +669,30 @@ def test_the_dense_values_announce_their_first_compile(monkeypatch):
         seen.clear()
         sol(0.5)
         assert set(seen) == {routine}, method
+
+
+_u, _v, _w = sp.symbols("u v w")
+
+
+@pytest.mark.parametrize(("rhs", "u0", "T", "method", "tol"), [
+    # u follows sin(v)^3 (main: dG(1) at 1e-4 221 x the tolerance inside, dG(2) at 1e-6 42 x)
+    ({_u: -800 * (_u - sp.sin(_v) ** 3), _v: 1 - _v / 5 + _u / 10}, [0.0, 0.0], 6.0, "dG(1)",
+     1e-4),
+    ({_u: -800 * (_u - sp.sin(_v) ** 3), _v: 1 - _v / 5 + _u / 10}, [0.0, 0.0], 6.0, "dG(2)",
+     1e-6),
+    # u follows w v (main: 17 x)
+    ({_u: -2000 * (_u - _w * _v), _v: _u - _v, _w: 0.3 - _w / 10}, [0.0, 1.0, 0.5], 5.0,
+     "dG(2)", 1e-6),
+])
+def test_dg_a_component_stiff_on_its_element_is_accurate_inside(rhs, u0, T, method, tol):
+    """A component stiff on the shared step (-k J_ii >> 1) has dG(q)'s nodes on its
+    quasi-steady state; sol(t) between them takes the quasi-steady value W
+    (solution._quasi_steady_dg), not the state's interpolant: within 10 x the tolerance
+    inside, against scipy's Radau at 1e-12 (the slow components read u at the stages only
+    and are accurate either way)."""
+    f = sp.lambdify((dn.t, list(rhs)), list(rhs.values()))
+    times = np.linspace(0.0, T, 4001)
+    exact = solve_ivp(f, (0.0, T), u0, method="Radau", rtol=1e-12, atol=1e-14,
+                      t_eval=times).y
+    sol = dn.solve(dn.ODE(rhs, u0=u0, T=T), method, tolerance=tol)
+    assert np.max(np.abs(sol(times) - exact) / np.maximum(1.0, np.abs(exact))) < 10 * tol

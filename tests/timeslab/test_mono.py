@@ -429,29 +429,3 @@ def test_a_run_cut_into_many_loop_calls_steps_as_one(stiff_springs, problem, met
                 "rejected steps", "nonlinear iterations"):
         assert cut.stats[key] == whole.stats[key], key
     np.testing.assert_array_equal(cut.y, whole.y)
-
-
-
-@pytest.mark.xfail(strict=True, reason="known miss: a stiff interior read by sol(t), silent "
-                   "(doc/design/mono-interior.md)")
-@pytest.mark.parametrize(("method", "tol"), [("dG(1)", 1e-4), ("dG(2)", 1e-6)])
-def test_a_stiff_component_on_a_slow_state_is_accurate_inside_or_warned(method, tol):
-    """u' = -800 (u - sin(v)^3) follows a slow v' = 1 - v / 5 + u / 10: dG(q) puts u's nodal
-    values on its quasi-steady state, and sol(t) between them is off (dG(1) at 1e-4 221 x the
-    tolerance, dG(2) at 1e-6 42 x), unwarned; v, which reads u at the stages only, is within
-    0.8 x."""
-    import warnings
-
-    from scipy.integrate import solve_ivp
-
-    u, v = sp.symbols("u v")
-    rhs = {u: -800 * (u - sp.sin(v) ** 3), v: 1 - v / 5 + u / 10}
-    f = sp.lambdify((dn.t, [u, v]), list(rhs.values()))
-    times = np.linspace(0.0, 6.0, 4001)
-    exact = solve_ivp(f, (0.0, 6.0), [0.0, 0.0], method="Radau", rtol=1e-12, atol=1e-14,
-                      t_eval=times).y
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        sol = dn.solve(dn.ODE(rhs, u0=[0.0, 0.0], T=6.0), method, tolerance=tol)
-    warned = any(issubclass(w.category, dn.ToleranceWarning) for w in caught)
-    assert warned or np.max(np.abs(sol(times) - exact) / np.maximum(1.0, np.abs(exact))) < 10 * tol
