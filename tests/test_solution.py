@@ -701,10 +701,10 @@ def test_dg_a_component_stiff_on_its_element_is_accurate_inside(rhs, u0, T, meth
 
 
 def test_dg_a_component_tied_to_a_faster_one_keeps_its_value():
-    """ROBER's y1 is stiff on late steps by its diagonal (-k J_11 ~ 120) but tied to the
-    faster y2 (y1 + y2 is slow): one Newton step of its own equation moves it along the
-    slow direction (61 x the tolerance inside, dG(2) at 1e-6), so it keeps its value
-    (solution._evaluate_dg's fast-mode test): within 10 x inside on a log grid."""
+    """ROBER's y1 is stiff on late steps by its diagonal (-k J_11 ~ 120) but tied to y2 and
+    y3 (y1 + y2 + y3 = 1): one Newton step of its own equation moves it alone (61 x the
+    tolerance inside, dG(2) at 1e-6), so it keeps its value (solution._evaluate_dg's
+    fast-mode test): within 10 x inside on a log grid."""
     problem = problems.rober()
     ode, tol = problem.ode, 1e-6
     lowered = lower(ode)
