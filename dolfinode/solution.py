@@ -896,9 +896,81 @@ DENSE_THETA = 0.25
 DEFECT_THETA = 1.0
 
 
+@njit(cache=True, inline="always")
+def _entry(J, indptr, indices, i, j):
+    """J_ij of the CSR values J (pattern ``indptr``, ``indices``), 0 outside the pattern."""
+    for nz in range(indptr[i], indptr[i + 1]):
+        if indices[nz] == j:
+            return J[nz]
+    return 0.0
+
+
+@njit(cache=True, inline="always")
+def _lagrange_slopes(tau, nodes, slopes):
+    """slopes_j = l_j'(tau), the derivative of the Lagrange basis on the nodes at tau,
+    sum_(m != j) 1 / (tau_j - tau_m) prod_(l != j, m) (tau - tau_l) / (tau_j - tau_l)
+    (no division by tau - tau_l: exact at the nodes)."""
+    for j in range(nodes.shape[0]):
+        slopes[j] = 0.0
+        for m in range(nodes.shape[0]):
+            if m != j:
+                term = 1.0 / (nodes[j] - nodes[m])
+                for l in range(nodes.shape[0]):
+                    if l != j and l != m:
+                        term *= (tau - nodes[l]) / (nodes[j] - nodes[l])
+                slopes[j] += term
+
+
+@njit(cache=True, inline="always")
+def _dg_values(values, n, collocated, before, g, weights, weights0, s_tau, out):
+    """out[i] = component i's value of :func:`_evaluate_dg` on element n where the bases
+    take ``weights`` (U's, on the nodes) and ``weights0`` (P's, on 0 and the nodes), S
+    ``s_tau``: P - g S where ``collocated``, else U."""
+    q1 = values.shape[1]
+    for i in range(out.shape[0]):
+        value = 0.0
+        if collocated[i]:
+            for j in range(q1):
+                value += weights0[j + 1] * values[n, j, i]
+            out[i] = value + weights0[0] * before[i] - g[i] * s_tau
+        else:
+            for j in range(q1):
+                value += weights[j] * values[n, j, i]
+            out[i] = value
+
+
+@njit(cache=True, inline="always")
+def _quasi_steady_dg(rhs, p, values, n, t, tau, k, nodes, nodes0, collocated, before, g,
+                     steady, diagonal, slopes, slopes0, D, F, out):
+    """out[i] = W_i = Z_i + (Z_i' - k f_i(Z, t)) / (k J_ii) where ``steady`` (one Newton step
+    of component i's equation from :func:`_evaluate_dg`'s value Z = ``out`` towards its
+    quasi-steady state, lag included; J_ii = ``diagonal[i]``), Z' in tau (P' - g Pi where
+    ``collocated``, else U'); on return D[i] = Z_i' where ``steady``, F = k f(Z, t)."""
+    q1 = nodes.shape[0]
+    _lagrange_slopes(tau, nodes, slopes)
+    _lagrange_slopes(tau, nodes0, slopes0)
+    pi_tau = 1.0
+    for j in range(q1):
+        pi_tau *= tau - nodes[j]
+    rhs_kernel(rhs)(address(out, 0), t, address(p, 0), address(F, 0))
+    for i in range(out.shape[0]):
+        F[i] *= k
+        if not steady[i]:
+            continue
+        D[i] = 0.0
+        if collocated[i]:
+            D[i] = slopes0[0] * before[i] - g[i] * pi_tau
+            for j in range(q1):
+                D[i] += slopes0[j + 1] * values[n, j, i]
+        else:
+            for j in range(q1):
+                D[i] += slopes[j] * values[n, j, i]
+        out[i] += (D[i] - F[i]) / (k * diagonal[i])
+
+
 @njit(cache=True, error_model="numpy")  # (no zero check on every division)
 def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, bary0, left,
-                 rhs, p, check, theta, times, out):
+                 rhs, jacobian, indptr, indices, p, check, theta, times, out):
     """out[i, m] = the dense value of a mono-adaptive dG(q) solution at times[m].
 
     On element n, with stage values xi_j at the right Radau nodes tau_j and the previous
@@ -923,6 +995,28 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
     against its correction of U), V where also k |f_i(V(tau*)) - f_i(P(tau*))| tau* / 2
     <= theta |g S(tau*)| (V's residual at tau*, V' = P' - g Pi, against its correction of
     P: k |lambda| tau* / 2 <= theta along it), else P, else U; two f per element.
+
+    A component stiff on the element, -k J_ii tau* > 1 (J = df/du at the value Z chosen
+    so, at tau*; the layer at the element's start has decayed by tau*), and a fast mode on
+    its own, sum_(j != i) |J_ji| <= |J_ii| / 2 (it feeds the others less than itself: a
+    linear invariant w^T u, w^T J = 0, ties it to them, and W moved it alone: HIRES's
+    y7 + y8 broke by 1.07e-5 at 1e-6, ROBER's y1 was 61 x the tolerance inside), has its
+    nodes on its quasi-steady state, and U, P, V interpolate that state between them, off
+    by k^(q+1) times its (q+1)th derivative. It takes
+
+        W_i(tau) = Z_i + r_i / (k J_ii),  r = Z' - k f(Z, t)
+
+    (:func:`_quasi_steady_dg`: one Newton step of its equation towards that state, lag Z_i'
+    included; without the lag W was 1250 x the tolerance inside) where W's residual,
+    W_i' - k f_i(W) with W_i' = Z_i' + r_i' / (k J_ii) (r' between tau* and tau**), is at
+    those two points at most theta times Z's, r_i: one Jacobian and, where a component is
+    stiff, four f per element, and one f per time.
+    cG(q)'s quasi-steady value (:func:`_quasi_steady`: W = U + c Q - g S, two coefficients
+    by collocation at two points) on dG(q)'s shapes was worse than Z where -k J_ii is
+    large (u' = -800 (u - sin(v)^3), dG(2) at 1e-6: 42 -> 103 x the tolerance inside): two
+    coefficients do not follow the state across the element, and W(0) misses the value
+    before. ``jacobian``: the Jacobian kernel's address (CSR pattern ``indptr``,
+    ``indices``), 0 for none.
     ``check`` = (tau*, l_j(tau*), l0_j(tau*), l0_j'(tau*) (l, l0 the Lagrange bases of U
     and of P on 0, tau_0, ..., tau_q), R(tau*), Pi(tau*), S(tau*), G) with S(tau) = tau
     (tau - 1) G(tau) (G's monomial coefficients, highest first), f the kernel at address
@@ -936,7 +1030,19 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
     value equals xi_q at tau = 1 (S(1) = 0 exactly): the nodes are unchanged bit for bit.
     """
     q1, N = nodes.shape[0], out.shape[0]
-    star, basis, basis0, slopes0, r_star, pi_star, s_star, g_coefficients = check
+    star, basis, basis0, slopes0, r_star, pi_star, s_star, g_coefficients, second = check
+    # where a component is stiff on the element: J_ii (diagonal[i]), sum_j |J_ji|
+    # (spread[i]), whether it takes W (steady[i]); workspace of W: the bases' slopes, Z',
+    # k f(Z), J's values
+    steady = np.zeros(N, dtype=np.bool_)
+    diagonal = np.empty(N)
+    spread = np.empty(N)
+    slopes = np.empty(q1)
+    slopes_p = np.empty(q1 + 1)
+    D = np.empty(N)
+    Z = np.empty(N)
+    test = np.empty((8, N))
+    J = np.empty(max(indices.shape[0], 1))
     weights = np.empty(q1)
     weights0 = np.empty(q1 + 1)
     # per element and component, made when the times enter an element: whether P is used
@@ -950,7 +1056,7 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
     F = np.empty(N)
     F2 = np.empty(N)
     f = rhs_kernel(rhs)
-    some_p = some_u = False
+    some_p = some_u = some_w = False
     current = -1
     n = 0
     for m in range(times.shape[0]):
@@ -999,6 +1105,47 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
                                    pi_star, s_star, theta, np.empty(0))
                 for i in range(N):
                     collocated[i] |= g[i] != 0.0
+            some_w = False
+            if jacobian != 0:
+                t_star = t_start[n] + star * k
+                _dg_values(values, n, collocated, before, g, basis, basis0, s_star, X)
+                rhs_kernel(jacobian)(address(X, 0), t_star, address(p, 0), address(J, 0))
+                for i in range(N):
+                    diagonal[i] = _entry(J, indptr, indices, i, i)
+                    spread[i] = 0.0
+                for nz in range(indices.shape[0]):  # (sum_(j != i) |J_ji| by column)
+                    spread[indices[nz]] += abs(J[nz])
+                for i in range(N):
+                    steady[i] = (-k * diagonal[i] * star > 1.0
+                                 and spread[i] - abs(diagonal[i]) <= 0.5 * abs(diagonal[i]))
+                    some_w |= steady[i]
+            if some_w:
+                lagrange_weights(second, nodes, bary, weights)
+                lagrange_weights(second, nodes0, bary0, weights0)
+                _dg_values(values, n, collocated, before, g, weights, weights0,
+                           _correction_shape(g_coefficients, second), Y)
+                # rows: W, Z', k f(Z), k f(W) at tau* (0-3), at tau** (4-7)
+                for point in range(2):
+                    a = 4 * point
+                    tau_a = star if point == 0 else second
+                    t_a = t_start[n] + tau_a * k
+                    test[a, :] = X if point == 0 else Y
+                    _quasi_steady_dg(rhs, p, values, n, t_a, tau_a, k, nodes, nodes0,
+                                     collocated, before, g, steady, diagonal, slopes, slopes_p,
+                                     test[a + 1], test[a + 2], test[a])
+                    f(address(test[a], 0), t_a, address(p, 0), address(test[a + 3], 0))
+                some_w = False
+                for i in range(N):
+                    if not steady[i]:
+                        continue
+                    # W' = Z' + r' / (k J_ii), r = Z' - k f(Z) (r' between the points)
+                    lag = ((test[5, i] - test[6, i]) - (test[1, i] - test[2, i])) / (
+                        (second - star) * k * diagonal[i])
+                    r_w = max(abs(test[1, i] + lag - k * test[3, i]),
+                              abs(test[5, i] + lag - k * test[7, i]))
+                    r_z = max(abs(test[1, i] - test[2, i]), abs(test[5, i] - test[6, i]))
+                    steady[i] = r_w <= theta * r_z
+                    some_w |= steady[i]
             for i in range(N):
                 some_p |= collocated[i]
                 some_u |= not collocated[i]
@@ -1009,16 +1156,12 @@ def _evaluate_dg(t_start, t_end, values, starts, befores, nodes, bary, nodes0, b
         if some_p:
             lagrange_weights(tau, nodes0, bary0, weights0)
             s_tau = _correction_shape(g_coefficients, tau)
+        _dg_values(values, n, collocated, before, g, weights, weights0, s_tau, Z)
+        if some_w and 0.0 < tau < 1.0:  # (W(1) != U(1): the nodes stay)
+            _quasi_steady_dg(rhs, p, values, n, times[m], tau, k, nodes, nodes0, collocated,
+                             before, g, steady, diagonal, slopes, slopes_p, D, F, Z)
         for i in range(N):
-            value = 0.0
-            if collocated[i]:
-                for j in range(q1):
-                    value += weights0[j + 1] * values[n, j, i]
-                out[i, m] = value + weights0[0] * before[i] - g[i] * s_tau
-            else:
-                for j in range(q1):
-                    value += weights[j] * values[n, j, i]
-                out[i, m] = value
+            out[i, m] = Z[i]
 
 
 @njit(cache=True)
@@ -1146,8 +1289,8 @@ def _defect_check(family, q):
     tau*** = 1/2 (q odd) or (1/2 + tau**) / 2) at tau* = tau_1 / 2 (l_j the Lagrange
     basis on the nodes). dG(q)
     (:func:`_evaluate_dg`): (tau*, l_j(tau*), l0_j(tau*), l0_j'(tau*), R(tau*), Q(tau*),
-    S(tau*), G) at tau* = tau_0 / 2 (l0_j the basis on 0 and the nodes,
-    R = prod_j (tau_j - tau) / tau_j)."""
+    S(tau*), G, tau** = (tau_(q-1) + 1) / 2) at tau* = tau_0 / 2 (l0_j the basis on 0 and
+    the nodes, R = prod_j (tau_j - tau) / tau_j)."""
     nodes = make_method(family, q).nodes
     Q, S, G = _shapes(nodes)
     if family == "cG":
@@ -1162,7 +1305,7 @@ def _defect_check(family, q):
     basis, _ = lagrange_matrices(nodes, (star,))
     basis0, slopes0 = lagrange_matrices(np.concatenate([[0.0], nodes]), (star,))
     return (float(star), basis[0], basis0[0], slopes0[0], float(np.prod(1 - star / nodes)),
-            float(Q(star)), float(S(star)), G)
+            float(Q(star)), float(S(star)), G, float((nodes[-2] + 1) / 2))
 
 
 @njit(cache=True)
@@ -1196,8 +1339,9 @@ def dense_rhs(method, ode, branches=False):
     friction at 1e-8). Without, also None for cG(q), mcG(q) where f jumps across a switch
     of the state (their element polynomial is used). A jump in t is read on the element's
     side (:data:`NODE_INSET`; without, cG(3) was 25 x the tolerance inside the elements of
-    u' = -u + Heaviside(t - 1), at 1e-8). dG(q)'s reads f only at tau* inside the element,
-    which no jump crosses (the solve ends its pieces there)."""
+    u' = -u + Heaviside(t - 1), at 1e-8). dG(q)'s reads f only at tau* inside the element
+    (and, with J, at the times there), which no jump crosses (the solve ends its pieces
+    there)."""
     if not _reads_f(method):
         return None
     if branches:
@@ -1298,14 +1442,17 @@ def evaluate_mono(method, t_start, t_end, values, starts, befores, times, out, c
                          DEFECT_THETA, times, out)
     elif method.family == "dG" and method.q > 0:
         nodes0, bary0 = _collocation_nodes(method.family, method.q)
-        rhs, p, theta = ((0, np.empty(0), DENSE_THETA) if compiled is None
-                         else (compiled.rhs.address, compiled.p, DEFECT_THETA))
+        none = np.empty(0, dtype=np.int64)
+        rhs, jacobian, indptr, indices, p, theta = (
+            (0, 0, none, none, np.empty(0), DENSE_THETA) if compiled is None
+            else (compiled.rhs.address, compiled.jacobian.address, compiled.indptr,
+                  compiled.indices, compiled.p, DEFECT_THETA))
         with first_use(_evaluate_dg, "dG(q)'s dense values", 2):
             _evaluate_dg(t_start, t_end, values, np.asarray(starts, dtype=float),
                          np.asarray(befores, dtype=float).reshape(len(starts), values.shape[2]),
                          method.nodes, method.barycentric_weights, nodes0, bary0,
-                         method.left_value, rhs, p, _defect_check(method.family, method.q),
-                         float(theta), times, out)
+                         method.left_value, rhs, jacobian, indptr, indices, p,
+                         _defect_check(method.family, method.q), float(theta), times, out)
     else:
         _evaluate_shared(t_start, t_end, values, method.nodes, method.barycentric_weights,
                          times, out)

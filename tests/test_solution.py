@@ -5,6 +5,8 @@ import sympy as sp
 from scipy.integrate import solve_ivp
 
 import dolfinode as dn
+from dolfinode.bench import problems
+from dolfinode.compile import lower
 from dolfinode.solution import _evaluate_shared
 
 
@@ -712,3 +714,46 @@ def test_the_dense_values_announce_their_first_compile(monkeypatch):
         seen.clear()
         sol(0.5)
         assert set(seen) == {routine}, method
+
+
+_u, _v, _w = sp.symbols("u v w")
+
+
+@pytest.mark.parametrize(("rhs", "u0", "T", "method", "tol"), [
+    # u follows sin(v)^3 (main: dG(1) at 1e-4 221 x the tolerance inside, dG(2) at 1e-6 42 x)
+    ({_u: -800 * (_u - sp.sin(_v) ** 3), _v: 1 - _v / 5 + _u / 10}, [0.0, 0.0], 6.0, "dG(1)",
+     1e-4),
+    ({_u: -800 * (_u - sp.sin(_v) ** 3), _v: 1 - _v / 5 + _u / 10}, [0.0, 0.0], 6.0, "dG(2)",
+     1e-6),
+    # u follows w v (main: 17 x)
+    ({_u: -2000 * (_u - _w * _v), _v: _u - _v, _w: 0.3 - _w / 10}, [0.0, 1.0, 0.5], 5.0,
+     "dG(2)", 1e-6),
+], ids=["cubic-dG(1)", "cubic-dG(2)", "product-dG(2)"])
+def test_dg_a_component_stiff_on_its_element_is_accurate_inside(rhs, u0, T, method, tol):
+    """A component stiff on the shared step (-k J_ii >> 1) has dG(q)'s nodes on its
+    quasi-steady state; sol(t) between them takes the quasi-steady value W
+    (solution._quasi_steady_dg), not the state's interpolant: within 10 x the tolerance
+    inside, against scipy's Radau at 1e-12 (the slow components read u at the stages only
+    and are accurate either way)."""
+    f = sp.lambdify((dn.t, list(rhs)), list(rhs.values()))
+    times = np.linspace(0.0, T, 4001)
+    exact = solve_ivp(f, (0.0, T), u0, method="Radau", rtol=1e-12, atol=1e-14,
+                      t_eval=times).y
+    sol = dn.solve(dn.ODE(rhs, u0=u0, T=T), method, tolerance=tol)
+    assert np.max(np.abs(sol(times) - exact) / np.maximum(1.0, np.abs(exact))) < 10 * tol
+
+
+def test_dg_a_component_tied_to_a_faster_one_keeps_its_value():
+    """ROBER's y1 is stiff on late steps by its diagonal (-k J_11 ~ 120) but tied to y2 and
+    y3 (y1 + y2 + y3 = 1): one Newton step of its own equation moves it alone (61 x the
+    tolerance inside, dG(2) at 1e-6), so it keeps its value (solution._evaluate_dg's
+    fast-mode test): within 10 x inside on a log grid."""
+    problem = problems.rober()
+    ode, tol = problem.ode, 1e-6
+    lowered = lower(ode)
+    times = np.concatenate(([0.0], np.logspace(-6, np.log10(problem.T), 2000)))
+    exact = solve_ivp(lambda t, y: lowered.f(np.ascontiguousarray(y), t), (0.0, problem.T),
+                      ode.u0, method="Radau", rtol=1e-12, atol=1e-20, t_eval=times).y
+    sol = dn.solve(ode, "dG(2)", tolerance=tol, absolute_tolerance=problem.atol_ratio * tol)
+    error = np.abs(sol(times) - exact) / (tol * (problem.atol_ratio + np.abs(exact)))
+    assert error.max() < 10
