@@ -144,6 +144,24 @@ def test_kept_factors_are_refreshed_as_the_jacobian_changes(method, monkeypatch)
     np.testing.assert_allclose(kept(ode.T), fresh(ode.T), rtol=1e-10)
 
 
+@pytest.mark.parametrize("method, most", [("dG(2)", 4.7), ("dG(3)", 3.6)])
+def test_newton_takes_j_in_the_middle_of_an_extrapolated_slab(method, most, monkeypatch):
+    """u' = -lambda(t) (u - cos t), lambda = 1000 (1 + 5 t), on fixed steps k = 0.01 with
+    fresh factors on every slab: linear, so the simplified iteration contracts at the rate
+    |lambda(t_s) - lambda(t_J)| / lambda that J at t_J leaves at the stages; from the middle
+    stage (mono.middle_stage) that is about half of what J at the slab's start leaves
+    (dG(2) 5.2, dG(3) 3.9 iterations a slab), and the answer is the same."""
+    u = sp.Symbol("u")
+    ode = dn.ODE({u: -1000 * (1 + 5 * dn.t) * (u - sp.cos(dn.t))}, u0=[2.0], T=1.0,
+                 nonnegative=[])
+    sol = _newton_solve(ode, False, monkeypatch, method=method, fixed_time_step=True,
+                        initial_time_step=0.01)
+    assert sol.stats["time slabs"] == sol.stats["jacobian evaluations"] == 100
+    assert sol.stats["nonlinear iterations"] <= most * 100
+    # u = cos t - u'/lambda + ... : the quasi-steady state to O(1 / lambda^2)
+    assert sol(1.0)[0] == pytest.approx(math.cos(1.0) + math.sin(1.0) / 6000, rel=1e-6)
+
+
 def test_newton_stops_relative_to_the_delivered_error():
     """Newton's stopping tolerance on slab n is KAPPA x the delivered error x max(k/(T - t0),
     1/(n + 1)), between the rounding floor and dtol: the shares of n slabs sum to at most

@@ -394,21 +394,20 @@ def test_a_newton_failure_on_the_start_does_not_hold_the_growth():
 
 
 def test_a_newton_failure_after_contracting_is_not_retried_from_x():
-    """HIRES, dG(3) at 1e-6 with the peers bench's absolute tolerance: Newton fails on the
-    long slabs at t = 185 and t = 274 from the extrapolated start after contracting at
-    theta ~ 0.7 for 9 and 10 iterations. A retry from the constant x contracted as slowly
-    and failed again (8 iterations each), so it is not made (mono.RETRY_AFTER): the same 37
-    slabs and the same u(T) as with it in 232 iterations instead of 248, with 6.1 digits
-    (mescd) as before."""
+    """HIRES, dG(2) at 1e-6 with the peers bench's absolute tolerance: Newton fails twice from
+    the extrapolated start after contracting. A retry from the constant x (mono.RETRY_AFTER
+    raised in a scratch copy) converged in one of them but took more iterations than the
+    smaller step it saves: 51 slabs in 320 iterations against 52 in 307 without it, with
+    5.6 and 5.4 digits (mescd)."""
     from dolfinode.bench.problems import hires_problem, mescd
 
     problem = hires_problem()
-    sol = dn.solve(problem.ode, method="dG(3)", tolerance=1e-6,
+    sol = dn.solve(problem.ode, method="dG(2)", tolerance=1e-6,
                    absolute_tolerance=problem.atol_ratio * 1e-6)
     assert sol.stats["failed nonlinear solves"] == 2
-    assert sol.stats["time slabs"] == 37
-    assert sol.stats["nonlinear iterations"] <= 240
-    assert mescd(sol(problem.T), problem.final, problem.atol_ratio) > 6
+    assert sol.stats["time slabs"] == 52
+    assert sol.stats["nonlinear iterations"] <= 310
+    assert mescd(sol(problem.T), problem.final, problem.atol_ratio) > 5
 
 
 @pytest.mark.parametrize("problem, method", [("springs", "cG(1)"), ("springs", "dG(1)"),
