@@ -738,10 +738,11 @@ def _shared_kind(i, t, history, method, ode, check, theta, cached, u, v, w, F, m
     invariant the nodes keep holds inside: 2 (V) where V's residuals
     (:func:`_residual`), integrated from 0, are at most theta times its corrections g S at
     tau*, else 1 (P) where P's defects D = g Q(tau*) are at most theta times its
-    corrections c Q, else 0 (U), each test one over the set (:func:`_defect_small` of
-    :func:`_scaled_max`, each component relative to its largest nodal value: per component,
-    one whose correction passes near zero failed alone and dropped the set); once per set,
-    in _row(cached, slot)[3] of each. members, seen (N, int; seen zero), tests (5, N): workspace."""
+    corrections c Q, else 0 (the element polynomial as read without f), each test one over
+    the set (:func:`_defect_small` of :func:`_scaled_max`, each component relative to its
+    largest nodal value: per component, one whose correction passes near zero failed alone
+    and dropped the set); once per set, in _row(cached, slot)[3] of each. members, seen
+    (N, int; seen zero), tests (5, N): workspace."""
     where, slot, _ = _coefficients_at(i, t, history, method, ode, check, cached, w, F)
     if not np.isnan(_row(cached, slot)[3]):
         return _row(cached, slot)[3]
@@ -823,11 +824,16 @@ def _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
         V(tau) = P(tau) - g S(tau),  g = D(tau*) / Q(tau*),  S(tau) = int_0^tau Q,
 
     one order higher (:func:`_defect_coefficient`, as :func:`_defect_correction`). Each is
-    used under the residual tests of the mono-adaptive values, V, else P, else U_i (no P
-    for mdG(q) where the value before is unknown), one kind and one test for the
-    components coupled over elements of the same interval (:func:`_shared_kind`): P, V
-    and U differ by corrections linear in f's values, so a linear invariant that the nodes
-    keep holds inside such an interval.
+    used under the residual tests of the mono-adaptive values, V, else P (no P for mdG(q)
+    where the value before is unknown), one kind and one test for the components coupled
+    over elements of the same interval (:func:`_shared_kind`): P, V and U differ by
+    corrections linear in f's values, so a linear invariant that the nodes keep holds
+    inside such an interval. Where the set fails both, out is left as it is, the element
+    polynomial as read without f: U_i for mcG(q); for mdG(q) dG's jump rule
+    (:func:`_correction`), P where the jump is resolved, as U_i after its jump is off by
+    it near the element's start (a slow component sharing its elements with a stiff one
+    stepped over, or with one decayed to 1e-40: 17 x and 64 x the tolerance, against the
+    jump rule's 0.012 x and 0.03 x).
 
     ``check`` = (tau*, l_j(tau*), l_j'(tau*), Q(tau*), Q'(tau*), S(tau*), G, Q(0))
     (:func:`_multi_check`). (rows, index, slots, count) keep per element read c, g, V's
@@ -847,7 +853,7 @@ def _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
     tests = np.empty((5, N))
     for i in range(N):
         own = t_end[ptr[i]:ptr[i + 1]]
-        n, slab, current, c, g = 0, 0, -1, 0.0, 0.0
+        n, slab, current, kind, c, g = 0, 0, -1, 0.0, 0.0, 0.0
         for m in range(times.shape[0]):
             t = times[m]
             where = -1  # (found as _element_at finds it, walking forward from the last)
@@ -871,8 +877,9 @@ def _correct_multi(ptr, t_start, t_end, values, s_start, s_end, s_values, nodes,
                     _shared_kind(i, t, history, method, ode, check, theta, cached, u, v, w, F,
                                  members, seen, tests)
                 kind = row[3]
-                c = row[0] if kind > 0.0 else 0.0
-                g = row[1] if kind > 1.0 else 0.0
+                c, g = row[0], row[1] if kind > 1.0 else 0.0
+            if kind == 0.0:  # (out holds the element polynomial as read without f)
+                continue
             tau = (t - a) / (b - a)
             value = (element_value(s_values[slab].T, i, tau, nodes, bary) if where >= E
                      else element_value(values, where, tau, nodes, bary))
