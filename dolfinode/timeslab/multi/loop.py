@@ -662,7 +662,7 @@ def _advance(f_address, fi_address, ji_address, p, indptr, indices, position, Mi
         st.mono_elements += (b - t) / kmin * N
         st.deviation = max(st.deviation, deviation)  # (adaptivity.undamped_warning)
         st.last_deviation, st.deviated, st.deviation_error = deviation, deviated, deviated_eps
-        if inside > st.interior:  # (control.interior_warning)
+        if inside > st.interior:  # (global_error.interior_warning)
             st.interior, st.interior_of, st.interior_at = inside, inside_of, inside_at
         counters[SLABS] += 1
         counters[SYNCHRONISED] += solved
