@@ -13,6 +13,7 @@ from dolfinode.linalg.banded import band_lu, band_solve
 from dolfinode.methods.method import (
     element_value,
     lagrange_matrices,
+    lagrange_slopes,
     lagrange_weights,
     make_method,
 )
@@ -913,22 +914,6 @@ def _entry(J, indptr, indices, i, j):
 
 
 @njit(cache=True, inline="always")
-def _lagrange_slopes(tau, nodes, slopes):
-    """slopes_j = l_j'(tau), the derivative of the Lagrange basis on the nodes at tau,
-    sum_(m != j) 1 / (tau_j - tau_m) prod_(l != j, m) (tau - tau_l) / (tau_j - tau_l)
-    (no division by tau - tau_l: exact at the nodes)."""
-    for j in range(nodes.shape[0]):
-        slopes[j] = 0.0
-        for m in range(nodes.shape[0]):
-            if m != j:
-                term = 1.0 / (nodes[j] - nodes[m])
-                for l in range(nodes.shape[0]):
-                    if l != j and l != m:
-                        term *= (tau - nodes[l]) / (nodes[j] - nodes[l])
-                slopes[j] += term
-
-
-@njit(cache=True, inline="always")
 def _dg_values(values, n, collocated, before, g, weights, weights0, s_tau, out):
     """out[i] = component i's value of :func:`_evaluate_dg` on element n where the bases
     take ``weights`` (U's, on the nodes) and ``weights0`` (P's, on 0 and the nodes), S
@@ -954,8 +939,8 @@ def _quasi_steady_dg(rhs, p, values, n, t, tau, k, nodes, nodes0, collocated, be
     quasi-steady state, lag included; J_ii = ``diagonal[i]``), Z' in tau (P' - g Pi where
     ``collocated``, else U'); on return D[i] = Z_i' where ``steady``, F = k f(Z, t)."""
     q1 = nodes.shape[0]
-    _lagrange_slopes(tau, nodes, slopes)
-    _lagrange_slopes(tau, nodes0, slopes0)
+    lagrange_slopes(tau, nodes, slopes)
+    lagrange_slopes(tau, nodes0, slopes0)
     pi_tau = 1.0
     for j in range(q1):
         pi_tau *= tau - nodes[j]

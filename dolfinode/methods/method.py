@@ -156,6 +156,24 @@ def lagrange_weights(tau, nodes, bary, weights):
         weights[j] /= den
 
 
+@njit(cache=True, inline="always")
+def lagrange_slopes(tau, nodes, slopes):
+    """slopes_j = l_j'(tau), the derivative of :func:`lagrange_weights`' basis at tau,
+
+        l_j'(tau) = sum_(m != j) prod_(l != j, m) (tau - tau_l) / (tau_j - tau_l) / (tau_j - tau_m)
+
+    (no division by tau - tau_l: exact at the nodes)."""
+    for j in range(nodes.shape[0]):
+        slopes[j] = 0.0
+        for m in range(nodes.shape[0]):
+            if m != j:
+                term = 1.0 / (nodes[j] - nodes[m])
+                for l in range(nodes.shape[0]):
+                    if l != j and l != m:
+                        term *= (tau - nodes[l]) / (nodes[j] - nodes[l])
+                slopes[j] += term
+
+
 def monomial_coefficients(nodes):
     """C with c = values @ C: monomial coefficients in tau of the interpolant at the nodes."""
     return np.linalg.inv(np.vander(nodes, increasing=True)).T
